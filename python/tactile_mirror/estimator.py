@@ -1,0 +1,363 @@
+"""Stress-rate estimation: sampled PVDF circuit outputs -> stress rates in Pa/s.
+
+``v_out`` is the load's stress rate seen through the charge amplifier's corner
+``fc``; ``u_out`` is its 2nd-order rate seen through ``fc`` and the
+differentiator's roll-off ``fd`` (see :mod:`tactile_mirror.circuit`). The
+estimator undoes both and limits the bandwidth::
+
+    rate  = E_v * v_out,   E_v(s) = (1 + s/wc)            / rate_gain  * L(s)
+    rate2 = E_u * u_out,   E_u(s) = (1 + s/wc) (1 + s/wd) / rate2_gain * L(s)
+
+with ``wc = 2 pi fc``, ``wd = 2 pi fd`` and ``L`` a low-pass of the chosen order
+and -3 dB bandwidth (Butterworth or Bessel, unit DC gain; order >= 1 for
+``E_v``, >= 2 for ``E_u`` so that the filters are proper). ``rate`` is in Pa/s
+and ``rate2`` in Pa/s^2 of the circuit's load (the equivalent load of the strip's
+stress state, :meth:`~tactile_mirror.circuit.PVDFCircuit.equivalent_load`).
+Without ``u_out``, ``rate2`` is the output of a band-limited digital
+differentiator ``s L_d(s)`` run on ``rate``.
+
+Discretisation: the bilinear transform with ``c = 2 fs`` and the low-pass
+cutoff prewarped (as :func:`scipy.signal.butter` does). The equalisers are then
+the exact inverses of the circuit's default sections
+(:meth:`~tactile_mirror.circuit.PVDFCircuit.sos`, bilinear), and the whole chain
+from the sampled load to ``rate`` is the bilinear differentiator
+``2 fs (z - 1)/(z + 1)`` times the digital low-pass: exact for slow loading,
+band-limited above the bandwidth.
+
+Design (functions returning ``sos`` arrays) is kept apart from running:
+:class:`StressRateEstimator` streams blocks or single samples through
+:class:`tactile_mirror.SosFilter`; :func:`estimate_stress_rate` filters whole
+recordings with :func:`tactile_mirror.sosfilt`.
+"""
+from __future__ import annotations
+
+import math
+import numbers
+
+import numpy as np
+import scipy.signal
+
+from .circuit import PVDFCircuit, _check_fs
+from .filters import SosFilter, sosfilt
+
+__all__ = [
+    "StressRateEstimator",
+    "differentiator_sos",
+    "equalizer_sos",
+    "estimate_stress_rate",
+]
+
+_KINDS = ("butter", "bessel")
+
+
+def _check_order(order, minimum: int, name: str = "order") -> int:
+    if isinstance(order, bool) or not isinstance(order, numbers.Integral):
+        raise TypeError(f"{name} must be an integer, got {type(order).__name__}")
+    order = int(order)
+    if order < minimum:
+        raise ValueError(f"{name} must be >= {minimum}, got {order}")
+    if order > 12:
+        raise ValueError(f"{name} must be <= 12, got {order}")
+    return order
+
+
+def _check_bandwidth(bandwidth, fs: float, name: str = "bandwidth") -> float:
+    if isinstance(bandwidth, bool) or not isinstance(bandwidth, numbers.Real):
+        raise TypeError(f"{name} must be a real number (Hz), got {type(bandwidth).__name__}")
+    bw = float(bandwidth)
+    if not (math.isfinite(bw) and 0 < bw < fs / 2):
+        raise ValueError(f"{name} must lie in (0, fs/2) = (0, {fs / 2}) Hz, got {bandwidth}")
+    return bw
+
+
+def _check_circuit(circuit) -> PVDFCircuit:
+    if not isinstance(circuit, PVDFCircuit):
+        raise TypeError(f"circuit must be a PVDFCircuit, got {type(circuit).__name__}")
+    return circuit
+
+
+def _lowpass_zpk(order: int, bandwidth: float, fs: float, kind: str):
+    """Analog low-pass (unit DC gain) whose bilinear image (c = 2 fs) has its
+    -3 dB point at ``bandwidth``."""
+    if kind not in _KINDS:
+        raise ValueError(f"kind must be one of {_KINDS}, got {kind!r}")
+    wc = 2.0 * fs * math.tan(math.pi * bandwidth / fs)
+    if kind == "butter":
+        z, p, k = scipy.signal.butter(order, wc, analog=True, output="zpk")
+    else:
+        z, p, k = scipy.signal.bessel(order, wc, analog=True, output="zpk", norm="mag")
+    return z, p, k
+
+
+def equalizer_sos(circuit: PVDFCircuit, fs, output: str = "v", order: int = 2,
+                  bandwidth: float = 100.0, kind: str = "butter") -> np.ndarray:
+    """Equaliser from a sampled circuit output to the load's stress rate.
+
+    Parameters
+    ----------
+    circuit : PVDFCircuit
+        The circuit that produced the signal.
+    fs : float
+        Sample rate, Hz.
+    output : {"v", "u"}
+        ``"v"``: ``v_out`` (V) -> stress rate (Pa/s); ``"u"``: ``u_out`` (V) ->
+        2nd-order stress rate (Pa/s^2).
+    order : int
+        Order of the band-limiting low-pass, >= 1 for ``"v"``, >= 2 for ``"u"``.
+    bandwidth : float
+        -3 dB frequency of the low-pass, Hz, ``0 < bandwidth < fs/2``.
+    kind : {"butter", "bessel"}
+        Low-pass family: Butterworth (flat) or Bessel (near-constant delay, less
+        overshoot on steps).
+
+    Returns
+    -------
+    ndarray, shape (n_sections, 6)
+    """
+    circuit = _check_circuit(circuit)
+    fs = _check_fs(fs)
+    if output not in ("v", "u"):
+        raise ValueError(f"output must be 'v' or 'u', got {output!r}")
+    order = _check_order(order, 1 if output == "v" else 2)
+    bandwidth = _check_bandwidth(bandwidth, fs)
+    zl, pl, kl = _lowpass_zpk(order, bandwidth, fs, kind)
+    _, p_circ, _ = circuit.zpk(output)  # real poles -w_i of the circuit
+    w = -np.real(p_circ)
+    gain = circuit.rate_gain if output == "v" else circuit.rate2_gain
+    z = np.concatenate([zl, -w])
+    k = kl / np.prod(w) / gain
+    zd, pd, kd = scipy.signal.bilinear_zpk(z, pl, k, fs)
+    return scipy.signal.zpk2sos(zd, pd, kd)
+
+
+def differentiator_sos(fs, order: int = 1, bandwidth: float = 100.0, kind: str = "butter") -> np.ndarray:
+    """Band-limited digital differentiator ``s L(s)`` (bilinear, ``c = 2 fs``).
+
+    Turns a signal in X into its time derivative in X/s below ``bandwidth``.
+
+    Parameters
+    ----------
+    fs : float
+        Sample rate, Hz.
+    order : int
+        Order of the low-pass ``L``, >= 1.
+    bandwidth : float
+        -3 dB frequency of ``L``, Hz, ``0 < bandwidth < fs/2``.
+    kind : {"butter", "bessel"}
+
+    Returns
+    -------
+    ndarray, shape (n_sections, 6)
+    """
+    fs = _check_fs(fs)
+    order = _check_order(order, 1)
+    bandwidth = _check_bandwidth(bandwidth, fs)
+    zl, pl, kl = _lowpass_zpk(order, bandwidth, fs, kind)
+    zd, pd, kd = scipy.signal.bilinear_zpk(np.concatenate([zl, [0.0]]), pl, kl, fs)
+    return scipy.signal.zpk2sos(zd, pd, kd)
+
+
+class _Design:
+    """The sections of one estimator configuration."""
+
+    def __init__(self, circuit, fs, order, bandwidth, use_u, kind, diff_order, diff_bandwidth):
+        self.circuit = _check_circuit(circuit)
+        self.fs = _check_fs(fs)
+        self.use_u = bool(use_u)
+        self.order = _check_order(order, 2 if self.use_u else 1)
+        self.bandwidth = _check_bandwidth(bandwidth, self.fs)
+        if kind not in _KINDS:
+            raise ValueError(f"kind must be one of {_KINDS}, got {kind!r}")
+        self.kind = kind
+        self.sos_rate = equalizer_sos(circuit, self.fs, "v", self.order, self.bandwidth, kind)
+        if self.use_u:
+            self.sos_rate2 = equalizer_sos(circuit, self.fs, "u", self.order, self.bandwidth, kind)
+            self.sos_diff = None
+        else:
+            self.diff_order = _check_order(diff_order, 1, "diff_order")
+            dbw = self.bandwidth if diff_bandwidth is None else diff_bandwidth
+            self.diff_bandwidth = _check_bandwidth(dbw, self.fs, "diff_bandwidth")
+            self.sos_diff = differentiator_sos(self.fs, self.diff_order, self.diff_bandwidth, kind)
+            self.sos_rate2 = None
+
+
+def _block(x, name: str, channels: int) -> np.ndarray:
+    a = np.asarray(x)
+    if a.dtype.kind not in "biuf":
+        raise TypeError(f"{name} must hold real numbers, got dtype {a.dtype}")
+    if a.ndim != 2 or a.shape[0] != channels:
+        raise ValueError(f"{name} must have shape (channels, n) = ({channels}, n), got {a.shape}")
+    return a
+
+
+class StressRateEstimator:
+    """Streaming estimator of stress rate and 2nd-order stress rate.
+
+    Parameters
+    ----------
+    circuit : PVDFCircuit
+        The circuit that produced ``v_out`` and ``u_out``.
+    fs : float
+        Sample rate, Hz.
+    channels : int
+        Number of strips filtered together.
+    order : int
+        Low-pass order of the equalisers (>= 2 with ``use_u``, else >= 1). Default 2.
+    bandwidth : float
+        -3 dB bandwidth, Hz, ``0 < bandwidth < fs/2``. Default 100.
+    use_u : bool
+        Estimate the 2nd-order rate from ``u_out`` (default) or, if False, by the
+        digital differentiator of the rate estimate.
+    kind : {"butter", "bessel"}
+        Low-pass family.
+    diff_order, diff_bandwidth
+        Low-pass of the digital differentiator (``use_u=False`` only); defaults 1
+        and ``bandwidth``.
+    dtype : numpy dtype
+        Arithmetic of the filters, float64 (default) or float32.
+
+    Attributes
+    ----------
+    sos_rate, sos_rate2, sos_diff : ndarray or None
+        The designed sections (``sos_rate2`` with ``use_u``, ``sos_diff`` without).
+
+    Notes
+    -----
+    :meth:`process` and :meth:`step` can be mixed freely; any chunking of a
+    signal gives the result of :func:`estimate_stress_rate` on the whole signal.
+    """
+
+    def __init__(self, circuit: PVDFCircuit, fs, channels: int, order: int = 2, bandwidth: float = 100.0,
+                 use_u: bool = True, kind: str = "butter", diff_order: int = 1,
+                 diff_bandwidth: float | None = None, dtype=np.float64):
+        if isinstance(channels, bool) or not isinstance(channels, numbers.Integral) or channels < 1:
+            raise ValueError(f"channels must be a positive integer, got {channels!r}")
+        d = _Design(circuit, fs, order, bandwidth, use_u, kind, diff_order, diff_bandwidth)
+        self.circuit = d.circuit
+        self.fs = d.fs
+        self.channels = int(channels)
+        self.order = d.order
+        self.bandwidth = d.bandwidth
+        self.use_u = d.use_u
+        self.kind = d.kind
+        self.sos_rate = d.sos_rate
+        self.sos_rate2 = d.sos_rate2
+        self.sos_diff = d.sos_diff
+        self.dtype = np.dtype(dtype)
+        self._rate = SosFilter(self.sos_rate, self.channels, dtype=self.dtype)
+        second = self.sos_rate2 if self.use_u else self.sos_diff
+        self._rate2 = SosFilter(second, self.channels, dtype=self.dtype)
+
+    def reset(self) -> None:
+        """Return to rest (zero state)."""
+        self._rate.reset()
+        self._rate2.reset()
+
+    def _check_u(self, u):
+        if self.use_u and u is None:
+            raise ValueError("u is required: the estimator was built with use_u=True")
+        if not self.use_u and u is not None:
+            raise ValueError("u must be None: the estimator was built with use_u=False")
+
+    def process(self, v, u=None):
+        """Filter one block.
+
+        Parameters
+        ----------
+        v : array_like, shape (channels, n)
+            ``v_out``, V.
+        u : array_like, shape (channels, n), optional
+            ``u_out``, V; required with ``use_u``, must be None without.
+
+        Returns
+        -------
+        rate : ndarray, shape (channels, n)
+            Stress rate, Pa/s.
+        rate2 : ndarray, shape (channels, n)
+            2nd-order stress rate, Pa/s^2.
+        """
+        self._check_u(u)
+        v = _block(v, "v", self.channels).astype(self.dtype, copy=False)
+        if u is not None:
+            u = _block(u, "u", self.channels).astype(self.dtype, copy=False)
+            if u.shape != v.shape:
+                raise ValueError(f"u must have the shape of v {v.shape}, got {u.shape}")
+        rate = self._rate.process(v)
+        rate2 = self._rate2.process(u if self.use_u else rate)
+        return rate, rate2
+
+    def step(self, v_sample, u_sample=None):
+        """Filter one sample per channel.
+
+        Parameters
+        ----------
+        v_sample : array_like, shape (channels,)
+        u_sample : array_like, shape (channels,), optional
+
+        Returns
+        -------
+        rate, rate2 : ndarray, shape (channels,)
+        """
+        self._check_u(u_sample)
+        v = np.asarray(v_sample)
+        if v.shape != (self.channels,):
+            raise ValueError(f"v_sample must have shape ({self.channels},), got {v.shape}")
+        rate = self._rate.step(v.astype(self.dtype, copy=False))
+        if self.use_u:
+            u = np.asarray(u_sample)
+            if u.shape != (self.channels,):
+                raise ValueError(f"u_sample must have shape ({self.channels},), got {u.shape}")
+            rate2 = self._rate2.step(u.astype(self.dtype, copy=False))
+        else:
+            rate2 = self._rate2.step(rate)
+        return rate, rate2
+
+
+def estimate_stress_rate(v_out, u_out, circuit: PVDFCircuit, fs, order: int = 2, bandwidth: float = 100.0,
+                         kind: str = "butter", diff_order: int = 1, diff_bandwidth: float | None = None,
+                         axis: int = -1):
+    """Estimate stress rate and 2nd-order stress rate of whole recordings.
+
+    Parameters
+    ----------
+    v_out : array_like
+        ``v_out``, V, sampled at ``fs``, time on ``axis``.
+    u_out : array_like or None
+        ``u_out``, V, same shape; None to differentiate the rate estimate instead.
+    circuit : PVDFCircuit
+    fs : float
+        Sample rate, Hz.
+    order, bandwidth, kind, diff_order, diff_bandwidth
+        As in :class:`StressRateEstimator`.
+    axis : int
+        Time axis. Default -1.
+
+    Returns
+    -------
+    rate : ndarray
+        Stress rate, Pa/s, shape of ``v_out``.
+    rate2 : ndarray
+        2nd-order stress rate, Pa/s^2, shape of ``v_out``.
+    """
+    d = _Design(circuit, fs, order, bandwidth, u_out is not None, kind, diff_order, diff_bandwidth)
+    v = np.asarray(v_out)
+    if v.dtype.kind not in "biuf":
+        raise TypeError(f"v_out must hold real numbers, got dtype {v.dtype}")
+    if v.ndim == 0:
+        raise ValueError("v_out must have at least one dimension")
+    try:
+        ax = range(v.ndim)[axis]
+    except (IndexError, TypeError):
+        raise ValueError(f"axis {axis!r} is out of range for v_out with {v.ndim} dimensions") from None
+    v = v.astype(np.float64, copy=False)
+    rate = sosfilt(d.sos_rate, v, axis=ax)
+    if u_out is not None:
+        u = np.asarray(u_out)
+        if u.dtype.kind not in "biuf":
+            raise TypeError(f"u_out must hold real numbers, got dtype {u.dtype}")
+        if u.shape != v.shape:
+            raise ValueError(f"u_out must have the shape of v_out {v.shape}, got {u.shape}")
+        rate2 = sosfilt(d.sos_rate2, u.astype(np.float64, copy=False), axis=ax)
+    else:
+        rate2 = sosfilt(d.sos_diff, rate, axis=ax)
+    return rate, rate2
