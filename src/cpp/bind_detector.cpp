@@ -1,0 +1,218 @@
+// Bindings of the Jordan-MLP slip-detector kernel (jordan_mlp.hpp).
+//
+// _core.JordanMLPf32 / _core.JordanMLPf64: N instances of one network.
+//   __init__(w1, b1, w2, b2, input_mean, input_gain, n_instances, activation="exact")
+//   step(x)        x: (n_instances, n_inputs) -> (n_instances, 3) [y_slip, y_non, y_pred]
+//   run(x)         x: (n_instances, n_inputs, n) -> (3, n_instances, n); GIL released
+//   state          y_pred(t-1) per instance (get/set), reset()
+//   simd_path, set_simd_path(name), activation, time_step_ns(n_iter, repeats)
+#include <pybind11/numpy.h>
+#include <pybind11/pybind11.h>
+
+#include <cstring>
+#include <memory>
+#include <sstream>
+#include <string>
+
+#include "jordan_mlp.hpp"
+
+namespace py = pybind11;
+using tm_core::detector::Activation;
+using tm_core::detector::JordanMLP;
+using tm_core::detector::SimdPath;
+
+namespace {
+
+std::string shape_str(const py::array& a) {
+    std::ostringstream s;
+    s << "(";
+    for (py::ssize_t k = 0; k < a.ndim(); ++k) s << (k ? ", " : "") << a.shape(k);
+    if (a.ndim() == 1) s << ",";
+    s << ")";
+    return s.str();
+}
+
+Activation parse_activation(const std::string& name) {
+    if (name == "exact") return Activation::exact;
+    if (name == "fast") return Activation::fast;
+    throw py::value_error("activation must be 'exact' or 'fast', got '" + name + "'");
+}
+
+// A C-contiguous float64 copy of a weight array with the expected shape.
+py::array_t<double, py::array::c_style | py::array::forcecast> weight(const py::handle& obj, const char* name,
+                                                                     std::initializer_list<py::ssize_t> shape) {
+    py::array a = py::array::ensure(obj);
+    if (!a) throw py::type_error(std::string(name) + " must be an array of real numbers");
+    if (a.dtype().kind() != 'f' && a.dtype().kind() != 'i' && a.dtype().kind() != 'u')
+        throw py::type_error(std::string(name) + " must be a real array, got dtype " +
+                             std::string(py::str(a.dtype())));
+    bool ok = a.ndim() == py::ssize_t(shape.size());
+    if (ok) {
+        py::ssize_t k = 0;
+        for (py::ssize_t s : shape) ok = ok && a.shape(k++) == s;
+    }
+    if (!ok) {
+        std::ostringstream m;
+        m << name << " must have shape (";
+        py::ssize_t k = 0;
+        for (py::ssize_t s : shape) m << (k++ ? ", " : "") << s;
+        m << (shape.size() == 1 ? ",)" : ")") << ", got " << shape_str(a);
+        throw py::value_error(m.str());
+    }
+    auto c = py::array_t<double, py::array::c_style | py::array::forcecast>::ensure(a);
+    const double* d = c.data();
+    for (py::ssize_t k = 0; k < c.size(); ++k)
+        if (!std::isfinite(d[k])) throw py::value_error(std::string(name) + " must be finite");
+    return c;
+}
+
+template <typename T>
+const char* dtype_name();
+template <>
+const char* dtype_name<float>() { return "float32"; }
+template <>
+const char* dtype_name<double>() { return "float64"; }
+
+// Checks dtype exactly (no silent conversion in the real-time binding).
+template <typename T>
+py::array_t<T, py::array::c_style> input(const py::handle& obj, const char* name) {
+    if (!py::isinstance<py::array>(obj)) throw py::type_error(std::string(name) + " must be a numpy array");
+    py::array a = py::reinterpret_borrow<py::array>(obj);
+    if (!a.dtype().is(py::dtype::of<T>()))
+        throw py::type_error(std::string(name) + " must have dtype " + dtype_name<T>() + ", got " +
+                             std::string(py::str(a.dtype())));
+    return py::array_t<T, py::array::c_style>::ensure(a);  // copies only if not C-contiguous
+}
+
+template <typename T>
+struct PyJordan {
+    std::unique_ptr<JordanMLP<T>> k;
+    int n_inst, n_in;
+};
+
+template <typename T>
+void bind_one(py::module_& m, const char* cls) {
+    using PJ = PyJordan<T>;
+    py::class_<PJ>(m, cls,
+                   (std::string("Jordan recurrent MLP slip-detector kernel (") + dtype_name<T>() +
+                    "), n_instances instances sharing one weight set.")
+                       .c_str())
+        .def(py::init([](py::handle w1, py::handle b1, py::handle w2, py::handle b2, py::handle input_mean,
+                         py::handle input_gain, int n_instances, const std::string& activation) {
+                 py::array a1 = py::array::ensure(w1);
+                 if (!a1 || a1.ndim() != 2 || a1.shape(1) < 2)
+                     throw py::value_error("w1 must have shape (n_hidden, n_inputs + 1) with n_inputs >= 1");
+                 const py::ssize_t h = a1.shape(0), nin = a1.shape(1) - 1;
+                 if (h < 1 || h > 1024) throw py::value_error("w1 must have 1 to 1024 rows (n_hidden)");
+                 if (nin > 64) throw py::value_error("w1 allows at most 64 inputs (65 columns)");
+                 if (n_instances < 1 || n_instances > 65536)
+                     throw py::value_error("n_instances must be in [1, 65536], got " + std::to_string(n_instances));
+                 const Activation act = parse_activation(activation);
+                 auto cw1 = weight(w1, "w1", {h, nin + 1});
+                 auto cb1 = weight(b1, "b1", {h});
+                 auto cw2 = weight(w2, "w2", {2, h});
+                 auto cb2 = weight(b2, "b2", {2});
+                 auto cm = weight(input_mean, "input_mean", {nin});
+                 auto cg = weight(input_gain, "input_gain", {nin});
+                 auto p = std::make_unique<PJ>();
+                 p->k = std::make_unique<JordanMLP<T>>(int(nin), int(h), n_instances, cw1.data(), cb1.data(),
+                                                       cw2.data(), cb2.data(), cm.data(), cg.data(), act);
+                 p->n_inst = n_instances;
+                 p->n_in = int(nin);
+                 return p;
+             }),
+             py::arg("w1"), py::arg("b1"), py::arg("w2"), py::arg("b2"), py::arg("input_mean"),
+             py::arg("input_gain"), py::arg("n_instances"), py::arg("activation") = "exact")
+        .def_property_readonly("n_instances", [](const PJ& p) { return p.n_inst; })
+        .def_property_readonly("n_inputs", [](const PJ& p) { return p.n_in; })
+        .def_property_readonly("n_hidden", [](const PJ& p) { return p.k->n_hidden(); })
+        .def_property_readonly("dtype", [](const PJ&) { return py::dtype::of<T>(); })
+        .def_property(
+            "activation",
+            [](const PJ& p) { return std::string(p.k->activation() == Activation::exact ? "exact" : "fast"); },
+            [](PJ& p, const std::string& a) { p.k->set_activation(parse_activation(a)); })
+        .def_property_readonly("simd_path",
+                               [](const PJ& p) { return std::string(simd_path_name(p.k->simd_path())); })
+        .def(
+            "set_simd_path",
+            [](PJ& p, const std::string& name) {
+                SimdPath sp;
+                if (name == "generic")
+                    sp = SimdPath::generic;
+                else if (name == "avx2+fma" || name == "avx2")
+                    sp = SimdPath::avx2;
+                else
+                    throw py::value_error("path must be 'generic' or 'avx2+fma', got '" + name + "'");
+                if (!p.k->set_simd_path(sp)) throw py::value_error("path '" + name + "' is not supported by this CPU");
+            },
+            py::arg("path"))
+        .def_property(
+            "state",
+            [](const PJ& p) {
+                py::array_t<T> out(p.n_inst);
+                p.k->get_state(out.mutable_data());
+                return out;
+            },
+            [](PJ& p, py::handle state) {
+                auto s = input<T>(state, "state");
+                if (s.ndim() != 1 || s.shape(0) != p.n_inst)
+                    throw py::value_error("state must have shape (" + std::to_string(p.n_inst) + ",), got " +
+                                          shape_str(s));
+                p.k->set_state(s.data());
+            },
+            "y_pred(t-1) of every instance (the Jordan feedback state).")
+        .def("reset", [](PJ& p) { p.k->reset(); }, "Set the feedback state to zero.")
+        .def(
+            "step",
+            [](PJ& p, py::handle x) {
+                auto a = input<T>(x, "x");
+                if (a.ndim() != 2 || a.shape(0) != p.n_inst || a.shape(1) != p.n_in)
+                    throw py::value_error("x must have shape (" + std::to_string(p.n_inst) + ", " +
+                                          std::to_string(p.n_in) + "), got " + shape_str(a));
+                py::array_t<T> out({py::ssize_t(p.n_inst), py::ssize_t(3)});
+                p.k->step(a.data(), out.mutable_data());
+                return out;
+            },
+            py::arg("x"), "One tick. x: (n_instances, n_inputs) -> (n_instances, 3) [y_slip, y_non, y_pred].")
+        .def(
+            "run",
+            [](PJ& p, py::handle x) {
+                auto a = input<T>(x, "x");
+                if (a.ndim() != 3 || a.shape(0) != p.n_inst || a.shape(1) != p.n_in)
+                    throw py::value_error("x must have shape (" + std::to_string(p.n_inst) + ", " +
+                                          std::to_string(p.n_in) + ", n), got " + shape_str(a));
+                const py::ssize_t n = a.shape(2);
+                py::array_t<T> out({py::ssize_t(3), py::ssize_t(p.n_inst), n});
+                T* o = out.mutable_data();
+                const T* xd = a.data();
+                const std::ptrdiff_t N = p.n_inst, nin = p.n_in;
+                {
+                    py::gil_scoped_release release;
+                    p.k->run(xd, nin * n, n, 1, n, o, o + N * n, o + 2 * N * n, n);
+                }
+                return out;
+            },
+            py::arg("x"),
+            "Run the recurrence over a block. x: (n_instances, n_inputs, n) -> (3, n_instances, n) "
+            "[y_slip, y_non, y_pred]; the state carries over between calls.")
+        .def(
+            "time_step_ns",
+            [](PJ& p, long n_iter, int repeats) {
+                if (n_iter < 1) throw py::value_error("n_iter must be >= 1");
+                if (repeats < 1) throw py::value_error("repeats must be >= 1");
+                if (p.n_inst * p.n_in > 64 * 16) throw py::value_error("too many instances for the timing loop");
+                py::gil_scoped_release release;
+                return p.k->time_step_ns(n_iter, repeats);
+            },
+            py::arg("n_iter") = 1000000, py::arg("repeats") = 5,
+            "Mean time of one step() of all instances over n_iter ticks, measured inside C++ (ns, best of repeats).");
+}
+
+}  // namespace
+
+void tm_bind_detector(py::module_& m) {
+    bind_one<float>(m, "JordanMLPf32");
+    bind_one<double>(m, "JordanMLPf64");
+    m.def("detector_cpu_has_avx2_fma", &tm_core::detector::cpu_has_avx2_fma,
+          "True if the AVX2+FMA path of the detector kernel can run on this CPU.");
+}

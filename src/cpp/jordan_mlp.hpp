@@ -1,0 +1,507 @@
+// jordan_mlp.hpp - header-only Jordan recurrent MLP (the slip detector kernel).
+//
+// One hidden sigmoid layer, two sigmoid output units (y_slip, y_pred) and the
+// Jordan feedback: the previous y_pred of the same instance is an extra input.
+// y_non = 1 - y_slip is written as a third output. For an instance with input
+// features x (n_inputs values, raw units) the recurrence is
+//
+//     xn      = (x - input_mean) * input_gain             (normalisation)
+//     a       = W1[:, :n_in] xn + W1[:, n_in] p + b1      (H pre-activations)
+//     h       = sigmoid(a)
+//     o       = W2 h + b2                                 (2 pre-activations)
+//     y_slip  = sigmoid(o[0]),  y_pred = sigmoid(o[1]),  p <- y_pred
+//
+// with W1 of shape (H, n_in + 1) row-major and W2 of shape (2, H) row-major.
+// Every pre-activation is clamped to [-clamp, clamp] (80 for float, 600 for
+// double) before the sigmoid so that no output or state is ever subnormal.
+//
+// Design (RTNeural-like): sizes are fixed at construction, where all buffers are
+// allocated; step() and run() allocate nothing and throw nothing. N instances
+// (one per ridge) share one weight set; the instances sit in SIMD lanes
+// (structure of arrays, 8 float or 4 double lanes per 256-bit vector). The SIMD
+// code is written with GCC vector extensions and compiled twice: for the
+// baseline ISA and for AVX2+FMA; the AVX2 path is selected at construction with
+// __builtin_cpu_supports. No pybind11 or Python in this header.
+//
+// Activations: Activation::exact uses std::exp per lane (matches the numpy
+// reference to rounding); Activation::fast uses 2^x = 2^n * P6(f), |f| <= 1/2,
+// whose relative error is below 1.9e-9, so |sigmoid_fast - sigmoid| <= 5e-10
+// (plus the rounding of the type); it is vectorised in both paths.
+#pragma once
+
+#include <chrono>
+#include <cmath>
+#include <cstddef>
+#include <cstdint>
+#include <cstdlib>
+#include <cstring>
+#include <limits>
+#include <memory>
+#include <new>
+#include <stdexcept>
+#include <string>
+#include <type_traits>
+
+#if (defined(__x86_64__) || defined(__i386__)) && (defined(__GNUC__) || defined(__clang__))
+#define TM_DETECTOR_X86 1
+#include <immintrin.h>
+#endif
+
+// Vector types are passed between always-inline helpers only; the ABI note about
+// 32-byte vector arguments does not apply.
+#pragma GCC diagnostic push
+#pragma GCC diagnostic ignored "-Wpsabi"
+
+namespace tm_core {
+namespace detector {
+
+enum class Activation : int { exact = 0, fast = 1 };
+enum class SimdPath : int { generic = 0, avx2 = 1 };
+
+inline const char* simd_path_name(SimdPath p) { return p == SimdPath::avx2 ? "avx2+fma" : "generic"; }
+
+/// True when this CPU can run the AVX2+FMA path.
+inline bool cpu_has_avx2_fma() {
+#ifdef TM_DETECTOR_X86
+    return __builtin_cpu_supports("avx2") && __builtin_cpu_supports("fma");
+#else
+    return false;
+#endif
+}
+
+namespace detail {
+
+template <typename T>
+struct Scalar;
+
+template <>
+struct Scalar<float> {
+    typedef std::int32_t iscalar;
+    static constexpr float clamp = 80.0f;
+    static constexpr float round_magic = 12582912.0f;  // 1.5 * 2^23
+    static constexpr float exp2_lim = 126.0f;
+    static constexpr int bias = 127;
+    static constexpr int mant = 23;
+};
+
+template <>
+struct Scalar<double> {
+    typedef std::int64_t iscalar;
+    static constexpr double clamp = 600.0;
+    static constexpr double round_magic = 6755399441055744.0;  // 1.5 * 2^52
+    static constexpr double exp2_lim = 1022.0;
+    static constexpr std::int64_t bias = 1023;
+    static constexpr int mant = 52;
+};
+
+// SIMD vector of Bytes bytes (16: SSE2/NEON baseline, 32: AVX2).
+template <typename T, int Bytes>
+struct Vec;
+
+#define TM_DETECTOR_VEC(T, IT, BYTES)                                       \
+    template <>                                                             \
+    struct Vec<T, BYTES> : Scalar<T> {                                      \
+        typedef T type __attribute__((vector_size(BYTES)));                 \
+        typedef IT itype __attribute__((vector_size(BYTES)));               \
+        static constexpr int lanes = BYTES / int(sizeof(T));                \
+    };
+TM_DETECTOR_VEC(float, std::int32_t, 16)
+TM_DETECTOR_VEC(float, std::int32_t, 32)
+TM_DETECTOR_VEC(double, std::int64_t, 16)
+TM_DETECTOR_VEC(double, std::int64_t, 32)
+#undef TM_DETECTOR_VEC
+
+// 2^f on [-1/2, 1/2]: relative error < 1.9e-9 (least squares on Chebyshev nodes).
+constexpr double kP0 = 1.0000000005920207;
+constexpr double kP1 = 0.69314720560051013;
+constexpr double kP2 = 0.24022646608714027;
+constexpr double kP3 = 0.055503289975174459;
+constexpr double kP4 = 0.0096185195343476276;
+constexpr double kP5 = 0.001339986036321298;
+constexpr double kP6 = 0.00015337576834253096;
+
+template <typename T>
+__attribute__((always_inline)) inline T clampv(T a, T lo, T hi) {
+    return a < lo ? lo : (a > hi ? hi : a);
+}
+
+// Scalar sigmoids (used by step_one and as the reference inside the kernel).
+template <typename T>
+inline T sigmoid_exact_scalar(T a) {
+    a = clampv<T>(a, -Scalar<T>::clamp, Scalar<T>::clamp);
+    return T(1) / (T(1) + std::exp(-a));
+}
+
+template <typename T>
+inline T sigmoid_fast_scalar(T a) {
+    typedef typename Scalar<T>::iscalar I;
+    a = clampv<T>(a, -Scalar<T>::clamp, Scalar<T>::clamp);
+    T y = clampv<T>(a * T(-1.4426950408889634), -Scalar<T>::exp2_lim, Scalar<T>::exp2_lim);
+    volatile T t = y + Scalar<T>::round_magic;  // round to nearest integer
+    T n = t - Scalar<T>::round_magic;
+    T f = y - n;
+    T p = T(kP6);
+    p = p * f + T(kP5);
+    p = p * f + T(kP4);
+    p = p * f + T(kP3);
+    p = p * f + T(kP2);
+    p = p * f + T(kP1);
+    p = p * f + T(kP0);
+    I ni = static_cast<I>(n);
+    I bits = static_cast<I>((ni + I(Scalar<T>::bias)) << Scalar<T>::mant);
+    T scale;
+    std::memcpy(&scale, &bits, sizeof scale);
+    return T(1) / (T(1) + p * scale);
+}
+
+// 1/d for d >= 1. Exact division by default; for float on x86 the hardware
+// reciprocal estimate refined by one Newton step (relative error < 2.5e-7 after
+// rounding), which removes the divider from the fast path.
+template <typename V>
+__attribute__((always_inline)) inline V recip_fast(V d) {
+    return 1 / d;
+}
+#ifdef TM_DETECTOR_X86
+__attribute__((always_inline)) inline Vec<float, 16>::type recip_fast(Vec<float, 16>::type d) {
+    typedef Vec<float, 16>::type V;
+    const V r = (V)_mm_rcp_ps((__m128)d);
+    return r + r * (1.0f - d * r);
+}
+// Only ever inlined into the AVX2 tick: the builtin is expanded there.
+__attribute__((always_inline)) inline Vec<float, 32>::type recip_fast(Vec<float, 32>::type d) {
+    typedef Vec<float, 32>::type V;
+    const V r = (V)__builtin_ia32_rcpps256((__v8sf)d);
+    return r + r * (1.0f - d * r);
+}
+#endif
+
+template <typename T, int B, Activation A>
+__attribute__((always_inline)) inline typename Vec<T, B>::type sigmoid_vec(typename Vec<T, B>::type a) {
+    typedef Vec<T, B> VT;
+    typedef typename VT::type V;
+    typedef typename VT::itype IV;
+    const V lo = V{} - VT::clamp;
+    const V hi = V{} + VT::clamp;
+    a = a < lo ? lo : (a > hi ? hi : a);
+    if (A == Activation::exact) {
+        V r;
+        for (int l = 0; l < VT::lanes; ++l) r[l] = T(1) / (T(1) + std::exp(-a[l]));
+        return r;
+    } else {
+        // |a| <= clamp keeps y inside the normal exponent range: no clamp needed.
+        const V y = a * T(-1.4426950408889634);
+        const V t = y + VT::round_magic;
+        // The integer bits of t hold round(y) in the low mantissa bits.
+        IV tb;
+        std::memcpy(&tb, &t, sizeof tb);
+        const V f = y - (t - VT::round_magic);
+        // 2^f by Estrin's scheme (shorter dependency chain than Horner).
+        const V f2 = f * f;
+        const V q01 = T(kP1) * f + T(kP0);
+        const V q23 = T(kP3) * f + T(kP2);
+        const V q45 = T(kP5) * f + T(kP4);
+        const V q456 = T(kP6) * f2 + q45;
+        const V f4 = f2 * f2;
+        const V p = (q23 * f2 + q01) + q456 * f4;
+        const IV eb = (tb + static_cast<typename VT::iscalar>(VT::bias)) << VT::mant;
+        V scale;
+        std::memcpy(&scale, &eb, sizeof scale);
+        return recip_fast(T(1) + p * scale);
+    }
+}
+
+struct AlignedFree {
+    void operator()(void* p) const noexcept { std::free(p); }
+};
+
+}  // namespace detail
+
+/// Jordan recurrent MLP with N instances sharing one weight set.
+///
+/// All sizes are fixed at construction (which may throw std::invalid_argument or
+/// std::bad_alloc); every other member is noexcept and allocation-free.
+template <typename T>
+class JordanMLP {
+    static_assert(std::is_same<T, float>::value || std::is_same<T, double>::value,
+                  "JordanMLP supports float and double");
+    static constexpr int L = 32 / int(sizeof(T));  // padding unit: lanes of the widest path
+
+public:
+    static constexpr int n_outputs = 3;  // y_slip, y_non, y_pred
+
+    /// w1: (n_hidden, n_inputs + 1) row-major, last column = weight of y_pred(t-1);
+    /// b1: (n_hidden); w2: (2, n_hidden) row-major (row 0 y_slip, row 1 y_pred); b2: (2);
+    /// input_mean, input_gain: (n_inputs), xn = (x - mean) * gain.
+    JordanMLP(int n_inputs, int n_hidden, int n_instances, const double* w1, const double* b1,
+              const double* w2, const double* b2, const double* input_mean, const double* input_gain,
+              Activation activation = Activation::exact)
+        : n_in_(n_inputs), n_h_(n_hidden), n_inst_(n_instances), act_(activation) {
+        if (n_inputs < 1 || n_inputs > 64) throw std::invalid_argument("n_inputs must be in [1, 64]");
+        if (n_hidden < 1 || n_hidden > 1024) throw std::invalid_argument("n_hidden must be in [1, 1024]");
+        if (n_instances < 1 || n_instances > 65536)
+            throw std::invalid_argument("n_instances must be in [1, 65536]");
+        n_pad_ = ((n_inst_ + L - 1) / L) * L;
+        const std::size_t n_w1 = std::size_t(n_h_) * (n_in_ + 1);
+        const std::size_t n_w = n_w1 + n_h_ + 2 * std::size_t(n_h_) + 2 + 2 * std::size_t(n_in_);
+        const std::size_t n_state = std::size_t(n_in_) * n_pad_ + n_pad_ + std::size_t(n_pad_);
+        const std::size_t count = n_w + n_state + 64;
+        void* mem = std::aligned_alloc(64, ((count * sizeof(T) + 63) / 64) * 64);
+        if (!mem) throw std::bad_alloc();
+        buf_.reset(mem);
+        T* p = static_cast<T*>(mem);
+        std::memset(p, 0, count * sizeof(T));
+        // State first (vector-aligned), then weights.
+        xs_ = p;
+        p += std::size_t(n_in_) * n_pad_;
+        prev_ = p;
+        p += n_pad_;
+        yslip_ = p;
+        p += n_pad_;
+        w1_ = p;
+        p += n_w1;
+        b1_ = p;
+        p += n_h_;
+        w2_ = p;
+        p += 2 * std::size_t(n_h_);
+        b2_ = p;
+        p += 2;
+        mean_ = p;
+        p += n_in_;
+        gain_ = p;
+        for (std::size_t k = 0; k < n_w1; ++k) w1_[k] = static_cast<T>(w1[k]);
+        for (int k = 0; k < n_h_; ++k) b1_[k] = static_cast<T>(b1[k]);
+        for (int k = 0; k < 2 * n_h_; ++k) w2_[k] = static_cast<T>(w2[k]);
+        for (int k = 0; k < 2; ++k) b2_[k] = static_cast<T>(b2[k]);
+        for (int k = 0; k < n_in_; ++k) {
+            mean_[k] = static_cast<T>(input_mean[k]);
+            gain_[k] = static_cast<T>(input_gain[k]);
+        }
+        path_ = cpu_has_avx2_fma() ? SimdPath::avx2 : SimdPath::generic;
+    }
+
+    JordanMLP(const JordanMLP&) = delete;
+    JordanMLP& operator=(const JordanMLP&) = delete;
+    JordanMLP(JordanMLP&&) noexcept = default;
+    JordanMLP& operator=(JordanMLP&&) noexcept = default;
+
+    int n_inputs() const noexcept { return n_in_; }
+    int n_hidden() const noexcept { return n_h_; }
+    int n_instances() const noexcept { return n_inst_; }
+    Activation activation() const noexcept { return act_; }
+    void set_activation(Activation a) noexcept { act_ = a; }
+    SimdPath simd_path() const noexcept { return path_; }
+    /// Select a code path; returns false (and changes nothing) if the CPU lacks it.
+    bool set_simd_path(SimdPath p) noexcept {
+        if (p == SimdPath::avx2 && !cpu_has_avx2_fma()) return false;
+        path_ = p;
+        return true;
+    }
+
+    /// Recurrent state: y_pred(t-1) of every instance (n_instances values).
+    void get_state(T* out) const noexcept {
+        for (int r = 0; r < n_inst_; ++r) out[r] = prev_[r];
+    }
+    void set_state(const T* in) noexcept {
+        for (int r = 0; r < n_inst_; ++r) prev_[r] = in[r];
+    }
+    void reset() noexcept {
+        for (int r = 0; r < n_pad_; ++r) prev_[r] = T(0);
+    }
+
+    /// One tick of all instances. in: (n_instances, n_inputs) row-major raw features;
+    /// out: (n_instances, 3) row-major [y_slip, y_non, y_pred].
+    void step(const T* in, T* out) noexcept {
+        for (int r = 0; r < n_inst_; ++r)
+            for (int i = 0; i < n_in_; ++i) xs_[std::size_t(i) * n_pad_ + r] = (in[r * n_in_ + i] - mean_[i]) * gain_[i];
+        tick();
+        for (int r = 0; r < n_inst_; ++r) {
+            out[3 * r + 0] = yslip_[r];
+            out[3 * r + 1] = T(1) - yslip_[r];
+            out[3 * r + 2] = prev_[r];
+        }
+    }
+
+    /// One tick of one instance (scalar code). in: n_inputs values; out: 3 values.
+    void step_one(int instance, const T* in, T* out) noexcept {
+        const int r = instance;
+        T xn[64];
+        for (int i = 0; i < n_in_; ++i) xn[i] = (in[i] - mean_[i]) * gain_[i];
+        const T p = prev_[r];
+        T o0 = b2_[0], o1 = b2_[1];
+        for (int j = 0; j < n_h_; ++j) {
+            const T* w = w1_ + std::size_t(j) * (n_in_ + 1);
+            T a = b1_[j];
+            for (int i = 0; i < n_in_; ++i) a += w[i] * xn[i];
+            a += w[n_in_] * p;
+            const T h = sig_scalar(a);
+            o0 += w2_[j] * h;
+            o1 += w2_[n_h_ + j] * h;
+        }
+        const T ys = sig_scalar(o0), yp = sig_scalar(o1);
+        prev_[r] = yp;
+        out[0] = ys;
+        out[1] = T(1) - ys;
+        out[2] = yp;
+    }
+
+    /// Run n ticks. x[r * sr + i * si + t * st] is feature i of instance r at tick t
+    /// (strides in elements); outputs y_slip, y_non, y_pred are (n_instances, n)
+    /// row-major with row stride ld (>= n).
+    void run(const T* x, std::ptrdiff_t sr, std::ptrdiff_t si, std::ptrdiff_t st, std::ptrdiff_t n,
+             T* y_slip, T* y_non, T* y_pred, std::ptrdiff_t ld) noexcept {
+        for (std::ptrdiff_t t = 0; t < n; ++t) {
+            for (int r = 0; r < n_inst_; ++r)
+                for (int i = 0; i < n_in_; ++i)
+                    xs_[std::size_t(i) * n_pad_ + r] = (x[r * sr + i * si + t * st] - mean_[i]) * gain_[i];
+            tick();
+            for (int r = 0; r < n_inst_; ++r) {
+                y_slip[r * ld + t] = yslip_[r];
+                y_non[r * ld + t] = T(1) - yslip_[r];
+                y_pred[r * ld + t] = prev_[r];
+            }
+        }
+    }
+
+    /// Mean time of one step() over n_iter ticks, in ns (best of `repeats` runs),
+    /// measured inside C++ on the current state. The state is restored afterwards.
+    double time_step_ns(long n_iter, int repeats = 5) noexcept {
+        T in[64 * 16];
+        T out[3 * 64 * 16];
+        const int nin = n_inst_ * n_in_ <= 64 * 16 ? n_inst_ : 0;
+        if (nin == 0 || n_iter < 1) return std::numeric_limits<double>::quiet_NaN();
+        T saved[64 * 16];
+        get_state(saved);
+        for (int k = 0; k < n_inst_ * n_in_; ++k) in[k] = mean_[k % n_in_] + T(0.25) * T((k % 7) - 3);
+        double best = std::numeric_limits<double>::infinity();
+        volatile T sink = 0;
+        for (int rep = 0; rep < repeats; ++rep) {
+            const auto t0 = std::chrono::steady_clock::now();
+            for (long it = 0; it < n_iter; ++it) {
+                step(in, out);  // ticks depend on each other through the state
+            }
+            const auto t1 = std::chrono::steady_clock::now();
+            sink = sink + out[0];
+            const double ns = std::chrono::duration<double, std::nano>(t1 - t0).count() / double(n_iter);
+            if (ns < best) best = ns;
+        }
+        set_state(saved);
+        return best;
+    }
+
+private:
+    T sig_scalar(T a) const noexcept {
+        return act_ == Activation::exact ? detail::sigmoid_exact_scalar<T>(a) : detail::sigmoid_fast_scalar<T>(a);
+    }
+
+    void tick() noexcept {
+#ifdef TM_DETECTOR_X86
+        if (path_ == SimdPath::avx2) {
+            if (act_ == Activation::exact)
+                tick_avx2_exact();
+            else
+                tick_avx2_fast();
+            return;
+        }
+#endif
+        if (act_ == Activation::exact)
+            tick_dispatch<16, Activation::exact>();
+        else
+            tick_dispatch<16, Activation::fast>();
+    }
+
+#ifdef TM_DETECTOR_X86
+    __attribute__((target("avx2,fma"), noinline)) void tick_avx2_exact() noexcept {
+        tick_dispatch<32, Activation::exact>();
+    }
+    __attribute__((target("avx2,fma"), noinline)) void tick_avx2_fast() noexcept {
+        tick_dispatch<32, Activation::fast>();
+    }
+#endif
+
+    // Core of one tick on the SoA buffers xs_ (normalised inputs), prev_ (state in
+    // and out) and yslip_. Instances sit in the lanes of B-byte vectors. The input
+    // part of each pre-activation does not depend on the state, so the recurrent
+    // dependency chain is one FMA, the hidden sigmoid, a 4-way split output sum and
+    // the output sigmoid.
+    // The paper's network has 4 inputs: that size is unrolled at compile time.
+    template <int B, Activation A>
+    __attribute__((always_inline)) inline void tick_dispatch() noexcept {
+        if (n_in_ == 4)
+            tick_impl<B, A, 4>();
+        else
+            tick_impl<B, A, 0>();
+    }
+
+    template <int B, Activation A, int NIN>
+    __attribute__((always_inline)) inline void tick_impl() noexcept {
+        typedef typename detail::Vec<T, B>::type V;
+        constexpr int NL = detail::Vec<T, B>::lanes;
+        const int nin = NIN > 0 ? NIN : n_in_, nh = n_h_;
+        const T* __restrict w2 = w2_;
+        for (int r0 = 0; r0 < n_pad_; r0 += NL) {
+            if (r0 >= n_inst_) break;
+            V x[64];
+            for (int i = 0; i < nin; ++i) std::memcpy(&x[i], xs_ + std::size_t(i) * n_pad_ + r0, sizeof(V));
+            V p;
+            std::memcpy(&p, prev_ + r0, sizeof(V));
+            V o0a = V{} + b2_[0], o0b = V{}, o0c = V{}, o0d = V{};
+            V o1a = V{} + b2_[1], o1b = V{}, o1c = V{}, o1d = V{};
+            int j = 0;
+            for (; j + 4 <= nh; j += 4) {
+                const V h0 = hidden<B, A, NIN>(j, x, p);
+                const V h1 = hidden<B, A, NIN>(j + 1, x, p);
+                const V h2 = hidden<B, A, NIN>(j + 2, x, p);
+                const V h3 = hidden<B, A, NIN>(j + 3, x, p);
+                o0a += w2[j] * h0;
+                o1a += w2[nh + j] * h0;
+                o0b += w2[j + 1] * h1;
+                o1b += w2[nh + j + 1] * h1;
+                o0c += w2[j + 2] * h2;
+                o1c += w2[nh + j + 2] * h2;
+                o0d += w2[j + 3] * h3;
+                o1d += w2[nh + j + 3] * h3;
+            }
+            for (; j < nh; ++j) {
+                const V h = hidden<B, A, NIN>(j, x, p);
+                o0a += w2[j] * h;
+                o1a += w2[nh + j] * h;
+            }
+            const V ys = detail::sigmoid_vec<T, B, A>((o0a + o0b) + (o0c + o0d));
+            const V yp = detail::sigmoid_vec<T, B, A>((o1a + o1b) + (o1c + o1d));
+            std::memcpy(yslip_ + r0, &ys, sizeof(V));
+            std::memcpy(prev_ + r0, &yp, sizeof(V));
+        }
+    }
+
+    // Hidden unit j of the current lane block.
+    template <int B, Activation A, int NIN>
+    __attribute__((always_inline)) inline typename detail::Vec<T, B>::type hidden(
+        int j, const typename detail::Vec<T, B>::type* x, typename detail::Vec<T, B>::type p) const noexcept {
+        typedef typename detail::Vec<T, B>::type V;
+        const int nin = NIN > 0 ? NIN : n_in_;
+        const T* __restrict w = w1_ + std::size_t(j) * (nin + 1);
+        V a = V{} + b1_[j];
+        for (int i = 0; i < nin; ++i) a += w[i] * x[i];
+        a += w[nin] * p;
+        return detail::sigmoid_vec<T, B, A>(a);
+    }
+
+    int n_in_, n_h_, n_inst_, n_pad_ = 0;
+    Activation act_;
+    SimdPath path_ = SimdPath::generic;
+    std::unique_ptr<void, detail::AlignedFree> buf_;
+    T* xs_ = nullptr;
+    T* prev_ = nullptr;
+    T* yslip_ = nullptr;
+    T* w1_ = nullptr;
+    T* b1_ = nullptr;
+    T* w2_ = nullptr;
+    T* b2_ = nullptr;
+    T* mean_ = nullptr;
+    T* gain_ = nullptr;
+};
+
+}  // namespace detector
+}  // namespace tm_core
+
+#pragma GCC diagnostic pop
