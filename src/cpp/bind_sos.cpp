@@ -1,0 +1,181 @@
+// pybind11 bindings of the SOS engine (sos.hpp). Validation that needs Python
+// knowledge (argument names in messages, scipy's dtype rules) lives in
+// tactile_mirror/filters.py; these bindings check what the kernel relies on.
+#include <pybind11/numpy.h>
+#include <pybind11/pybind11.h>
+
+#include <chrono>
+#include <mutex>
+#include <string>
+
+#include "sos.hpp"
+
+namespace py = pybind11;
+
+namespace {
+
+template <typename T>
+struct PyCascade {
+    tactile::SosCascade<T> k;
+    std::mutex busy;  // one call at a time: block calls run without the GIL
+    PyCascade(const double* sos, std::size_t ns, std::size_t ch, const tactile::SectionForm* f)
+        : k(sos, ns, ch, f) {}
+};
+
+template <typename T>
+class BusyLock {
+public:
+    explicit BusyLock(PyCascade<T>& c) : lock_(c.busy, std::try_to_lock) {
+        if (!lock_.owns_lock())
+            throw std::runtime_error("this filter is being used by another thread");
+    }
+
+private:
+    std::unique_lock<std::mutex> lock_;
+};
+
+std::string shape_str(const py::array& a) {
+    std::string s = "(";
+    for (py::ssize_t i = 0; i < a.ndim(); ++i) {
+        s += std::to_string(a.shape(i));
+        if (a.ndim() == 1) s += ",";
+        else if (i + 1 < a.ndim()) s += ", ";
+    }
+    return s + ")";
+}
+
+// A 1-D sample of `n` values of type T: the given array itself when it already is
+// one, else a converted copy. Non-real dtypes are a TypeError.
+template <typename T>
+py::array_t<T, py::array::c_style> as_sample(py::handle obj, std::size_t n, const char* name) {
+    py::array a = py::array::ensure(obj);
+    if (!a) throw py::type_error(std::string(name) + " must be an array of real numbers");
+    char kind = a.dtype().kind();
+    if (kind != 'f' && kind != 'i' && kind != 'u')
+        throw py::type_error(std::string(name) + " must hold real numbers, got dtype " +
+                             std::string(py::str(a.dtype())));
+    if (a.ndim() != 1 || static_cast<std::size_t>(a.shape(0)) != n)
+        throw py::value_error(std::string(name) + " must have shape (" + std::to_string(n) + ",), got " +
+                              shape_str(a));
+    return py::array_t<T, py::array::c_style>::ensure(a);
+}
+
+template <typename T>
+void bind_cascade(py::module_& m, const char* name) {
+    using C = PyCascade<T>;
+    py::class_<C>(m, name,
+                  "Multi-channel SOS cascade (see sos.hpp). Use tactile_mirror.SosFilter instead.")
+        .def(py::init([](py::array_t<double, py::array::c_style | py::array::forcecast> sos,
+                         std::size_t channels, py::array_t<std::uint8_t, py::array::c_style> forms) {
+                 if (sos.ndim() != 2 || sos.shape(1) != 6)
+                     throw py::value_error("sos must have shape (n_sections, 6)");
+                 std::size_t ns = static_cast<std::size_t>(sos.shape(0));
+                 if (forms.ndim() != 1 || static_cast<std::size_t>(forms.shape(0)) != ns)
+                     throw py::value_error("forms must have one entry per section");
+                 for (std::size_t i = 0; i < ns; ++i)
+                     if (forms.data()[i] > 1) throw py::value_error("forms entries must be 0 (tdf2) or 1 (delta)");
+                 return new C(sos.data(), ns, channels,
+                              reinterpret_cast<const tactile::SectionForm*>(forms.data()));
+             }),
+             py::arg("sos"), py::arg("channels"), py::arg("forms"))
+        .def_property_readonly("channels", [](C& c) { return c.k.channels(); })
+        .def_property_readonly("sections", [](C& c) { return c.k.sections(); })
+        .def_property_readonly("isa", [](C& c) { return std::string(tactile::isa_name(c.k.isa())); })
+        .def_property_readonly("rejected", [](C& c) { return c.k.rejected(); },
+                               "number of step() samples rejected as non-finite")
+        .def(
+            "process",
+            [](C& c, py::array_t<T, 0> x) -> py::tuple {
+                // x: (channels, n), any strides. Returns (y, bad_t, bad_c) with
+                // bad_t = -1 on success; the state is unchanged when bad_t >= 0.
+                if (x.ndim() != 2 || static_cast<std::size_t>(x.shape(0)) != c.k.channels())
+                    throw py::value_error("x must have shape (" + std::to_string(c.k.channels()) +
+                                          ", n), got " + shape_str(x));
+                if (x.strides(0) % py::ssize_t(sizeof(T)) || x.strides(1) % py::ssize_t(sizeof(T)))
+                    x = py::array_t<T, 0>::ensure(py::array_t<T, py::array::c_style>::ensure(x));
+                const std::size_t n = static_cast<std::size_t>(x.shape(1));
+                py::array_t<T> y({static_cast<py::ssize_t>(c.k.channels()), static_cast<py::ssize_t>(n)});
+                std::size_t bt = 0, bc = 0;
+                bool ok;
+                {
+                    BusyLock<T> lock(c);
+                    const T* xp = x.data();
+                    T* yp = y.mutable_data();
+                    const std::ptrdiff_t xsc = x.strides(0) / py::ssize_t(sizeof(T));
+                    const std::ptrdiff_t xst = x.strides(1) / py::ssize_t(sizeof(T));
+                    py::gil_scoped_release nogil;
+                    ok = c.k.process(xp, xsc, xst, yp, static_cast<std::ptrdiff_t>(n), 1, n, &bt, &bc);
+                }
+                if (ok) return py::make_tuple(y, py::ssize_t(-1), py::ssize_t(-1));
+                return py::make_tuple(py::none(), static_cast<py::ssize_t>(bt), static_cast<py::ssize_t>(bc));
+            },
+            py::arg("x"))
+        .def(
+            "step",
+            [](C& c, py::handle sample) {
+                auto x = as_sample<T>(sample, c.k.channels(), "sample");
+                py::array_t<T> y(static_cast<py::ssize_t>(c.k.channels()));
+                BusyLock<T> lock(c);
+                c.k.step(x.data(), y.mutable_data());
+                return y;
+            },
+            py::arg("sample"),
+            "Filter one sample per channel. A sample with a NaN/Inf value is rejected: the state is "
+            "kept, the rejection counted (``rejected``), and the previous output returned.")
+        .def("get_state",
+             [](C& c) {
+                 py::array_t<T> zi({static_cast<py::ssize_t>(c.k.sections()),
+                                    static_cast<py::ssize_t>(c.k.channels()), py::ssize_t(2)});
+                 c.k.get_state(zi.mutable_data());
+                 return zi;
+             })
+        .def(
+            "set_state",
+            [](C& c, py::array_t<T, py::array::c_style | py::array::forcecast> zi) {
+                if (zi.ndim() != 3 || static_cast<std::size_t>(zi.shape(0)) != c.k.sections() ||
+                    static_cast<std::size_t>(zi.shape(1)) != c.k.channels() || zi.shape(2) != 2)
+                    throw py::value_error("zi must have shape (" + std::to_string(c.k.sections()) + ", " +
+                                          std::to_string(c.k.channels()) + ", 2), got " + shape_str(zi));
+                const T* p = zi.data();
+                for (py::ssize_t i = 0; i < zi.size(); ++i)
+                    if (!tactile::is_finite(p[i])) throw py::value_error("zi must be finite");
+                BusyLock<T> lock(c);
+                c.k.set_state(p);
+            },
+            py::arg("zi"))
+        .def("reset",
+             [](C& c) {
+                 BusyLock<T> lock(c);
+                 c.k.reset();
+             })
+        .def(
+            "time_step",
+            [](C& c, std::size_t n_steps) {
+                // Benchmark: ns per step() timed inside C++ over a cycled input of
+                // 1024 pseudo-random samples (state is reset afterwards).
+                const std::size_t ch = c.k.channels();
+                std::vector<T> xs(1024 * ch), y(ch);
+                std::uint64_t r = 88172645463325252ull;
+                for (auto& v : xs) {
+                    r ^= r << 13; r ^= r >> 7; r ^= r << 17;
+                    v = static_cast<T>(double(r >> 11) * (1.0 / 9007199254740992.0) - 0.5);
+                }
+                BusyLock<T> lock(c);
+                py::gil_scoped_release nogil;
+                auto t0 = std::chrono::steady_clock::now();
+                for (std::size_t i = 0; i < n_steps; ++i) c.k.step(xs.data() + (i & 1023) * ch, y.data());
+                auto t1 = std::chrono::steady_clock::now();
+                c.k.reset();
+                return std::chrono::duration<double, std::nano>(t1 - t0).count() / double(n_steps);
+            },
+            py::arg("n_steps"));
+}
+
+}  // namespace
+
+void tm_bind_sos(py::module_& m) {
+    bind_cascade<double>(m, "_SosCascade64");
+    bind_cascade<float>(m, "_SosCascade32");
+    m.def("simd_path", []() { return std::string(tactile::isa_name(tactile::detect_isa())); },
+          "The instruction set the C++ kernels dispatched to on this CPU.");
+}
