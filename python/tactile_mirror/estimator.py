@@ -297,6 +297,12 @@ class StressRateEstimator:
         Returns
         -------
         rate, rate2 : ndarray, shape (channels,)
+
+        Notes
+        -----
+        A NaN/Inf sample is rejected by :class:`tactile_mirror.SosFilter` (its
+        state is kept and it returns its previous output), as befits a real-time
+        loop; :meth:`process` raises instead.
         """
         self._check_u(u_sample)
         v = np.asarray(v_sample)
