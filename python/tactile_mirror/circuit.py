@@ -79,7 +79,8 @@ Discretisation
     factor ``(pi f0 / fs) / tan(pi f0 / fs)``, squared for ``u_out``).
 ``"matched"``
     Matched z-transform: poles and zeros mapped by ``z = exp(s / fs)``, the gain
-    matched to the analog low-frequency asymptote.
+    matched to the analog low-frequency asymptote. For ``v_out`` this equals the
+    first-order-hold discretisation (what :func:`scipy.signal.lsim` computes).
 
 Error of the discrete frequency response against the analog one over
 ``SLOPE_BAND`` at ``fs = 1 kHz`` (defaults; |dB| max, phase max)::
