@@ -93,7 +93,6 @@ public:
         state_.resize(n_sections * 2 * cpad_);
         snapshot_.resize(n_sections * 2 * cpad_);
         buf_.resize(chunk_ * tile_vecs_ * W);
-        io_.resize(cpad_);
         last_y_.resize(cpad_);
         isa_ = detect_isa();
     }
@@ -134,12 +133,12 @@ public:
     // with any non-finite channel is rejected as a whole: counted, the state kept,
     // and y set to the previous output. Returns false when rejected.
     bool step(const T* x, T* y) noexcept {
-        for (std::size_t c = 0; c < channels_; ++c) {
-            if (!is_finite(x[c])) {
-                ++rejected_;
-                for (std::size_t k = 0; k < channels_; ++k) y[k] = last_y_[k];
-                return false;
-            }
+        bool ok = true;
+        for (std::size_t c = 0; c < channels_; ++c) ok &= is_finite(x[c]);
+        if (!ok) {
+            ++rejected_;
+            for (std::size_t k = 0; k < channels_; ++k) y[k] = last_y_[k];
+            return false;
         }
         DenormalGuard guard;
 #if TM_HAVE_DISPATCH
@@ -443,23 +442,64 @@ private:
         *bad_c = bc;
     }
 
-    TM_ALWAYS_INLINE void step_impl(const T* x, T* y) noexcept {
-        T* io = io_.data();
-        for (std::size_t c = 0; c < channels_; ++c) io[c] = x[c];
-        V* vio = reinterpret_cast<V*>(io);
+    // Channels [v*W, v*W + W) of a sample as a vector, zeros past the last
+    // channel. Loaded straight from x: writing scalars to a buffer and reading it
+    // back as a vector would stall on store forwarding.
+    TM_ALWAYS_INLINE V load_sample(const T* x, std::size_t v) const noexcept {
+        const std::size_t c = v * W;
+        if (c + W <= channels_) return load_unaligned(x + c);
+        V r = splat<T>(T(0));
+        for (std::size_t i = 0; c + i < channels_; ++i) r[i] = x[c + i];
+        return r;
+    }
+    TM_ALWAYS_INLINE void store_sample(T* y, std::size_t v, V r) const noexcept {
+        const std::size_t c = v * W;
+        if (c + W <= channels_) {
+            store_unaligned(y + c, r);
+        } else {
+            for (std::size_t i = 0; c + i < channels_; ++i) y[c + i] = r[i];
+        }
+    }
+
+    // One sample: each group of channel vectors goes through all sections in
+    // registers (only the states touch memory), with the same biquad() as
+    // process(), so any chunking of a signal, down to single samples, gives
+    // identical output.
+    template <int G>
+    TM_ALWAYS_INLINE void step_group(const T* in, T* out, std::size_t v0) noexcept {
+        V x[G];
+#pragma GCC unroll 8
+        for (int g = 0; g < G; ++g) x[g] = load_sample(in, v0 + g);
         V* vstate = reinterpret_cast<V*>(state_.data());
         for (std::size_t s = 0; s < n_sections_; ++s) {
             const V* c = coef_.data() + 5 * s;
-            V* s1p = vstate + (2 * s) * nvec_;
-            V* s2p = vstate + (2 * s + 1) * nvec_;
-            // One sample through the same recurrence as process(), so that any
-            // chunking of a signal, down to single samples, gives identical output.
-            if (forms_[s] == SectionForm::delta)
-                run_section_groups<true>(vio, nvec_, 1, c, s1p, s2p);
-            else
-                run_section_groups<false>(vio, nvec_, 1, c, s1p, s2p);
+            V* s1 = vstate + (2 * s) * nvec_ + v0;
+            V* s2 = s1 + nvec_;
+            if (forms_[s] == SectionForm::delta) {
+#pragma GCC unroll 8
+                for (int g = 0; g < G; ++g) x[g] = biquad<true>(x[g], s1[g], s2[g], c);
+            } else {
+#pragma GCC unroll 8
+                for (int g = 0; g < G; ++g) x[g] = biquad<false>(x[g], s1[g], s2[g], c);
+            }
         }
-        for (std::size_t c = 0; c < channels_; ++c) y[c] = last_y_[c] = io[c];
+        V* held = reinterpret_cast<V*>(last_y_.data());
+#pragma GCC unroll 8
+        for (int g = 0; g < G; ++g) {
+            held[v0 + g] = x[g];
+            store_sample(out, v0 + g, x[g]);
+        }
+    }
+
+    TM_ALWAYS_INLINE void step_impl(const T* x, T* y) noexcept {
+        std::size_t v = 0;
+        for (; v + 4 <= nvec_; v += 4) step_group<4>(x, y, v);
+        switch (nvec_ - v) {
+            case 3: step_group<3>(x, y, v); break;
+            case 2: step_group<2>(x, y, v); break;
+            case 1: step_group<1>(x, y, v); break;
+            default: break;
+        }
     }
 
     bool process_base(const T* x, std::ptrdiff_t xs_c, std::ptrdiff_t xs_t, T* y, std::ptrdiff_t ys_c,
@@ -483,7 +523,6 @@ private:
     AlignedBuffer<T> state_;     // [section][s1|s2][cpad]
     AlignedBuffer<T> snapshot_;  // state before the running process() call
     AlignedBuffer<T> buf_;       // chunk x tile of samples, time-major
-    AlignedBuffer<T> io_;        // one padded sample for step()
     AlignedBuffer<T> last_y_;    // held output for rejected samples
     std::uint64_t rejected_ = 0;
     Isa isa_ = Isa::baseline;
