@@ -1,0 +1,35 @@
+"""Slip detection: the Jordan recurrent MLP of the paper (section 3.2, Figs 9-10).
+
+Inputs per ridge: ``[v_L, v_R, u_L, u_R]`` (stress rates from the estimator,
+or raw circuit voltages; the kind is stored with the weights) plus the net's own
+previous ``y_pred``; outputs ``y_slip`` (slip when >= 0.8), ``y_non = 1 - y_slip``
+and ``y_pred`` (the incipient-slip level). Training is numpy BPTT with
+L-BFGS-B; running is the allocation-free C++ kernel ``jordan_mlp.hpp``.
+"""
+from __future__ import annotations
+
+from .core import DEFAULT_WEIGHTS, SlipDetector, reference_run
+from .data_prep import features_from_result, targets_from_result
+from .network import Params, forward, init_params, loss_and_grad
+from .training import TrainingSet, fit_normalisation, make_training_set, train_detector
+from .weights import FEATURE_KINDS, FORMAT_VERSION, DetectorWeights, WeightsError
+
+__all__ = [
+    "DEFAULT_WEIGHTS",
+    "FEATURE_KINDS",
+    "FORMAT_VERSION",
+    "DetectorWeights",
+    "Params",
+    "SlipDetector",
+    "TrainingSet",
+    "WeightsError",
+    "features_from_result",
+    "fit_normalisation",
+    "forward",
+    "init_params",
+    "loss_and_grad",
+    "make_training_set",
+    "reference_run",
+    "targets_from_result",
+    "train_detector",
+]

@@ -1,0 +1,213 @@
+"""The :class:`SlipDetector`: trained weights + the C++ kernel."""
+from __future__ import annotations
+
+import os
+from importlib import resources
+
+import numpy as np
+
+from .network import forward
+from .weights import DetectorWeights
+
+__all__ = ["DEFAULT_WEIGHTS", "SlipDetector"]
+
+#: File name of the bundled default weights inside ``tactile_mirror.detector.data``.
+DEFAULT_WEIGHTS = "default_detector.npz"
+
+_DTYPES = {np.dtype(np.float32): "JordanMLPf32", np.dtype(np.float64): "JordanMLPf64"}
+
+
+def _core():
+    from .. import _core
+
+    return _core
+
+
+class SlipDetector:
+    """Jordan recurrent MLP slip detector (one instance per ridge).
+
+    Parameters
+    ----------
+    weights : DetectorWeights
+    dtype : {numpy.float64, numpy.float32}
+        Precision of the C++ kernel.
+    activation : {"exact", "fast"}
+        Sigmoid of the kernel: ``"exact"`` (``exp``) or ``"fast"`` (polynomial
+        ``2^x``; |error| <= 5e-10 in float64, about 2e-7 in float32).
+    backend : {"cpp", "numpy"}
+        ``"numpy"`` runs the float64 reference recurrence (slow; for checks).
+
+    Examples
+    --------
+    >>> det = SlipDetector.default()                        # doctest: +SKIP
+    >>> y_slip, y_non, y_pred = det.run(features)           # features (n_ridges, 4, n)
+    """
+
+    slip_threshold = 0.8
+
+    def __init__(self, weights: DetectorWeights, dtype=np.float64, activation: str = "exact",
+                 backend: str = "cpp"):
+        if not isinstance(weights, DetectorWeights):
+            raise TypeError(f"weights must be DetectorWeights, got {type(weights).__name__}")
+        weights.validate()
+        dt = np.dtype(dtype)
+        if dt not in _DTYPES:
+            raise TypeError(f"dtype must be float32 or float64, got {dt}")
+        if activation not in ("exact", "fast"):
+            raise ValueError(f"activation must be 'exact' or 'fast', got {activation!r}")
+        if backend not in ("cpp", "numpy"):
+            raise ValueError(f"backend must be 'cpp' or 'numpy', got {backend!r}")
+        self.weights = weights
+        self.dtype = dt
+        self.activation = activation
+        self.backend = backend
+        self._kernels = {}
+        self._state = None  # numpy backend: y_pred(t-1) per ridge
+
+    # -- construction -------------------------------------------------------------------
+    @classmethod
+    def default(cls, **kwargs) -> SlipDetector:
+        """The detector with the weights bundled with the library (see ``metadata``)."""
+        ref = resources.files("tactile_mirror.detector").joinpath("data", DEFAULT_WEIGHTS)
+        with resources.as_file(ref) as path:
+            if not os.path.exists(path):
+                raise FileNotFoundError(f"bundled detector weights {DEFAULT_WEIGHTS} are missing")
+            return cls(DetectorWeights.load(path), **kwargs)
+
+    @classmethod
+    def load(cls, path, **kwargs) -> SlipDetector:
+        """Load weights saved with :meth:`save` (or :meth:`DetectorWeights.save`)."""
+        return cls(DetectorWeights.load(path), **kwargs)
+
+    def save(self, path) -> None:
+        self.weights.save(path)
+
+    # -- properties ---------------------------------------------------------------------
+    @property
+    def fs(self) -> float:
+        """Sample rate (Hz) the weights were trained for."""
+        return self.weights.fs
+
+    @property
+    def features(self) -> str:
+        """Feature kind of the inputs (``"stress_rate"`` or ``"circuit"``)."""
+        return self.weights.features
+
+    @property
+    def n_hidden(self) -> int:
+        return self.weights.n_hidden
+
+    @property
+    def metadata(self) -> dict:
+        return self.weights.metadata
+
+    @property
+    def simd_path(self) -> str:
+        """Code path the C++ kernel runs (``"avx2+fma"`` or ``"generic"``)."""
+        if self.backend != "cpp":
+            return "numpy"
+        return self._kernel(1).simd_path
+
+    def kernel(self, n_ridges: int):
+        """The C++ kernel object for ``n_ridges`` instances (created once, then reused)."""
+        return self._kernel(n_ridges)
+
+    def _kernel(self, n_ridges: int):
+        k = self._kernels.get(n_ridges)
+        if k is None:
+            w = self.weights
+            p = w.params
+            cls = getattr(_core(), _DTYPES[self.dtype])
+            k = cls(p.w1, p.b1, p.w2, p.b2, w.input_mean, w.input_gain, n_ridges, self.activation)
+            self._kernels[n_ridges] = k
+        return k
+
+    # -- running ------------------------------------------------------------------------
+    def _check_features(self, features, name="features"):
+        x = np.asarray(features)
+        if x.dtype.kind not in "biuf":
+            raise TypeError(f"{name} must hold real numbers, got dtype {x.dtype}")
+        single = x.ndim == 2
+        if single:
+            x = x[None]
+        if x.ndim != 3 or x.shape[1] != self.weights.n_inputs:
+            raise ValueError(f"{name} must have shape (n_ridges, {self.weights.n_inputs}, n) or "
+                             f"({self.weights.n_inputs}, n), got {np.shape(features)}")
+        if x.shape[0] < 1:
+            raise ValueError(f"{name} must hold at least one ridge")
+        return x, single
+
+    def run(self, features, fs=None, reset: bool = True):
+        """Run the detector over a block of samples.
+
+        Parameters
+        ----------
+        features : array_like, shape (n_ridges, 4, n) or (4, n)
+            ``[v_L, v_R, u_L, u_R]`` per ridge in the units of :attr:`features`
+            (Pa/s and Pa/s^2 for ``"stress_rate"``), time last, sampled at :attr:`fs`.
+        fs : float, optional
+            Sample rate of ``features`` in Hz; if given it must equal :attr:`fs`.
+        reset : bool
+            Start from a zero feedback state (default). ``False`` continues from the
+            state left by the previous call with the same number of ridges.
+
+        Returns
+        -------
+        y_slip, y_non, y_pred : ndarray, shape (n_ridges, n) (or (n,) for 2-D input)
+            Slip now (slip when >= 0.8), ``1 - y_slip``, and the slip prediction.
+        """
+        x, single = self._check_features(features)
+        if fs is not None:
+            self.weights.check_compatible(fs=fs)
+        n_r = x.shape[0]
+        if self.backend == "numpy":
+            xn = (x.astype(np.float64) - self.weights.input_mean[None, :, None]) \
+                * self.weights.input_gain[None, :, None]
+            p0 = None if (reset or self._state is None or self._state.size != n_r) else self._state
+            ys, yp = forward(self.weights.params, xn, p0)
+            self._state = yp[:, -1].copy() if yp.shape[1] else (np.zeros(n_r) if p0 is None else p0)
+            out = (ys, 1.0 - ys, yp)
+        else:
+            k = self._kernel(n_r)
+            xc = np.ascontiguousarray(x, dtype=self.dtype)
+            if reset:
+                k.reset()
+            y = k.run(xc)
+            out = (y[0], y[1], y[2])
+        if single:
+            out = tuple(a[0] for a in out)
+        return out
+
+    def step(self, sample):
+        """One tick: ``sample`` (n_ridges, 4) -> array (n_ridges, 3) [y_slip, y_non, y_pred]."""
+        s = np.asarray(sample)
+        if s.ndim != 2 or s.shape[1] != self.weights.n_inputs:
+            raise ValueError(f"sample must have shape (n_ridges, {self.weights.n_inputs}), got {s.shape}")
+        if self.backend == "numpy":
+            ys, yn, yp = self.run(s[:, :, None], reset=False)
+            return np.stack([ys[:, 0], yn[:, 0], yp[:, 0]], axis=1)
+        return self._kernel(s.shape[0]).step(np.ascontiguousarray(s, dtype=self.dtype))
+
+    def reset(self) -> None:
+        """Zero the feedback state of every kernel."""
+        for k in self._kernels.values():
+            k.reset()
+        self._state = None
+
+    def detect(self, features, fs=None):
+        """Boolean slip decision ``y_slip >= 0.8`` per ridge and sample."""
+        return self.run(features, fs=fs)[0] >= self.slip_threshold
+
+    def __repr__(self) -> str:
+        return (f"SlipDetector(H={self.n_hidden}, features={self.features!r}, fs={self.fs:g} Hz, "
+                f"dtype={self.dtype.name}, activation={self.activation!r}, backend={self.backend!r})")
+
+
+def reference_run(weights: DetectorWeights, features, dtype=np.float64):
+    """Numpy reference of :meth:`SlipDetector.run` (float64 math, or float32 with its clamp)."""
+    x = np.asarray(features, dtype=np.float64)
+    xn = (x - weights.input_mean[None, :, None]) * weights.input_gain[None, :, None]
+    ys, yp = forward(weights.params, xn)
+    return ys, 1.0 - ys, yp
+
+

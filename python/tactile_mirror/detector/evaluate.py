@@ -1,0 +1,251 @@
+"""Evaluation of slip detectors on held-out scenes, against baselines.
+
+Per sequence (one ridge of one scene) with gross-slip onset ``t_s`` (the first
+sample whose ridge target ``y_slip`` is 1; none if the ridge never slips):
+
+detection
+    ``y_slip >= 0.8`` at some sample in ``[t_s, t_s + max_latency]``.
+false alarm
+    ``y_slip >= 0.8`` at any sample before ``t_s`` (the whole sequence if the
+    ridge never slips): stops, slow loading and the press are all included.
+latency
+    First ``y_slip >= 0.8`` at or after ``t_s`` minus ``t_s``.
+y_pred lead
+    ``t_s`` minus the last upward crossing of ``y_pred >= pred_threshold`` that
+    is still held at ``t_s`` (0 when ``y_pred`` is below the threshold at ``t_s``).
+
+Rates are over sequences: detection rate over slipping sequences, false-alarm
+rate over all sequences.
+"""
+from __future__ import annotations
+
+from dataclasses import asdict, dataclass
+
+import numpy as np
+
+from .data_prep import features_from_result, targets_from_result
+
+__all__ = ["DetectionMetrics", "EvaluationReport", "ForceRatioDetector", "analyse_sequence", "evaluate"]
+
+
+@dataclass
+class DetectionMetrics:
+    """Metrics of one detector on one scene set (times in ms)."""
+
+    name: str
+    n_sequences: int
+    n_slip: int
+    detection_rate: float
+    false_alarm_rate: float
+    false_alarm_samples: float
+    latency_mean_ms: float
+    latency_max_ms: float
+    pred_lead_mean_ms: float
+    pred_lead_min_ms: float
+
+    def as_dict(self) -> dict:
+        return asdict(self)
+
+
+class EvaluationReport:
+    """Rows of :class:`DetectionMetrics`, the detector under test first."""
+
+    def __init__(self, rows, settings):
+        self.rows = list(rows)
+        self.settings = dict(settings)
+
+    def __getitem__(self, name) -> DetectionMetrics:
+        for r in self.rows:
+            if r.name == name:
+                return r
+        raise KeyError(name)
+
+    def table(self) -> str:
+        head = (f"{'detector':<22} {'seqs':>5} {'slips':>5} {'detect %':>9} {'false %':>8} {'lat ms':>8} "
+                f"{'lat max':>8} {'lead ms':>8} {'lead min':>8}")
+        lines = [head, "-" * len(head)]
+        for r in self.rows:
+            lines.append(f"{r.name:<22} {r.n_sequences:>5d} {r.n_slip:>5d} {100 * r.detection_rate:>9.1f} "
+                         f"{100 * r.false_alarm_rate:>8.1f} {r.latency_mean_ms:>8.1f} {r.latency_max_ms:>8.1f} "
+                         f"{r.pred_lead_mean_ms:>8.1f} {r.pred_lead_min_ms:>8.1f}")
+        return "\n".join(lines)
+
+    def __str__(self) -> str:
+        return self.table()
+
+
+class ForceRatioDetector:
+    """Baseline: slip when the force ratio ``|F_y| / F_z`` exceeds a threshold.
+
+    What a force sensor under the pad sees. ``y_slip`` is 1 while the ratio is
+    at or above ``threshold``; ``y_pred`` is ``ratio / threshold`` clipped to [0, 1].
+    Samples with ``F_z`` below ``min_fz_fraction`` of its peak have ratio 0.
+    """
+
+    name = "force ratio |Fy|/Fz"
+
+    def __init__(self, threshold: float, min_fz_fraction: float = 0.05):
+        if not np.isfinite(threshold) or threshold <= 0:
+            raise ValueError(f"threshold must be positive, got {threshold!r}")
+        self.threshold = float(threshold)
+        self.min_fz_fraction = float(min_fz_fraction)
+
+    def ratio(self, result) -> np.ndarray:
+        fy = np.abs(np.asarray(result.force_y, dtype=np.float64))
+        fz = np.abs(np.asarray(result.force_z, dtype=np.float64))
+        if fy.shape != fz.shape:
+            raise ValueError(f"result.force_y {fy.shape} and force_z {fz.shape} differ in shape")
+        peak = np.max(fz, axis=-1, keepdims=True) if fz.size else 1.0
+        ok = fz > self.min_fz_fraction * peak
+        return np.where(ok, fy / np.where(ok, fz, 1.0), 0.0)
+
+    def outputs(self, result, n_ridges: int):
+        r = self.ratio(result)
+        r = np.broadcast_to(r if r.ndim == 2 else r[None], (n_ridges, r.shape[-1]))
+        y_slip = (r >= self.threshold).astype(np.float64)
+        return y_slip, np.clip(r / self.threshold, 0.0, 1.0)
+
+    @classmethod
+    def fit(cls, results, slip_threshold: float = 0.8, max_latency: float = 0.05, **kwargs):
+        """Threshold that maximises detection rate minus false-alarm rate on ``results``."""
+        results = list(results)
+        probe = cls(1.0, **kwargs)
+        ratios = np.concatenate([probe.ratio(r).ravel() for r in results])
+        cands = np.unique(np.quantile(ratios[ratios > 0], np.linspace(0.5, 0.999, 120)))
+        best, best_score = float(cands[-1]), -np.inf
+        for c in cands:
+            det = cls(float(c), **kwargs)
+            m = _metrics(det.name, [(det.outputs(r, targets_from_result(r)[0].shape[0]), r) for r in results],
+                         slip_threshold, 0.5, max_latency)
+            score = m.detection_rate - m.false_alarm_rate
+            if score > best_score:
+                best, best_score = float(c), score
+        return cls(best, **kwargs)
+
+
+def analyse_sequence(t, y_slip, y_pred, gross, slip_threshold=0.8, pred_threshold=0.5, max_latency=0.05):
+    """Metrics of one sequence (see the module docstring).
+
+    Returns
+    -------
+    dict with ``slip`` (bool), ``detected``, ``false_alarm`` (bool), ``false_samples`` (int),
+    ``n_before`` (samples before onset), ``latency`` and ``lead`` (s, NaN when undefined).
+    """
+    t = np.asarray(t, dtype=np.float64)
+    on = np.flatnonzero(np.asarray(gross) >= 0.5)
+    i0 = int(on[0]) if on.size else t.size
+    alarm = np.asarray(y_slip) >= slip_threshold
+    out = {"slip": bool(on.size), "false_alarm": bool(alarm[:i0].any()), "false_samples": int(alarm[:i0].sum()),
+           "n_before": i0, "detected": False, "latency": np.nan, "lead": np.nan}
+    if on.size:
+        ts = t[i0]
+        hit = np.flatnonzero(alarm[i0:] & (t[i0:] <= ts + max_latency + 1e-12))
+        if hit.size:
+            out["detected"] = True
+            out["latency"] = float(t[i0 + hit[0]] - ts)
+        above = np.asarray(y_pred)[: i0 + 1] >= pred_threshold
+        if above[-1]:
+            below = np.flatnonzero(~above)
+            start = int(below[-1]) + 1 if below.size else 0
+            out["lead"] = float(ts - t[start])
+        else:
+            out["lead"] = 0.0
+    return out
+
+
+def _metrics(name, items, slip_threshold, pred_threshold, max_latency) -> DetectionMetrics:
+    seqs = []
+    for (y_slip, y_pred), result in items:
+        gross, _ = targets_from_result(result)
+        t = np.asarray(result.t)
+        for r in range(y_slip.shape[0]):
+            g = gross[min(r, gross.shape[0] - 1)]
+            seqs.append(analyse_sequence(t, y_slip[r], y_pred[r], g, slip_threshold, pred_threshold, max_latency))
+    slips = [s for s in seqs if s["slip"]]
+    det = [s for s in slips if s["detected"]]
+    lat = np.array([s["latency"] for s in det]) * 1e3
+    lead = np.array([s["lead"] for s in slips]) * 1e3
+    n_before = sum(s["n_before"] for s in seqs)
+    return DetectionMetrics(
+        name=name, n_sequences=len(seqs), n_slip=len(slips),
+        detection_rate=len(det) / len(slips) if slips else float("nan"),
+        false_alarm_rate=float(np.mean([s["false_alarm"] for s in seqs])) if seqs else float("nan"),
+        false_alarm_samples=sum(s["false_samples"] for s in seqs) / max(n_before, 1),
+        latency_mean_ms=float(lat.mean()) if lat.size else float("nan"),
+        latency_max_ms=float(lat.max()) if lat.size else float("nan"),
+        pred_lead_mean_ms=float(lead.mean()) if lead.size else float("nan"),
+        pred_lead_min_ms=float(lead.min()) if lead.size else float("nan"),
+    )
+
+
+def _as_results(scenes, progress):
+    out = []
+    items = list(scenes)
+    it = items
+    if progress:
+        from tqdm.auto import tqdm
+
+        it = tqdm(items, desc="simulate", leave=False)
+    for s in it:
+        if hasattr(s, "t") and hasattr(s, "slip_fraction"):
+            out.append(s)
+        else:
+            from .. import simulate
+
+            out.append(simulate(s))
+    return out
+
+
+def evaluate(detector, scenes, baselines=None, slip_threshold: float = 0.8, pred_threshold: float = 0.5,
+             max_latency: float = 0.05, progress: bool = False) -> EvaluationReport:
+    """Evaluate a detector (and baselines) on held-out scenes.
+
+    Parameters
+    ----------
+    detector : SlipDetector
+    scenes : iterable
+        Simulation results (with ``t``, ``fs``, ``slip_fraction``, and ``v_out``/``u_out``
+        or ready ``features``), or scenes, which are simulated first.
+    baselines : dict of name -> detector, optional
+        Other :class:`SlipDetector` objects (e.g. the no-feedback MLP) or
+        :class:`ForceRatioDetector`; reported in the same table.
+    slip_threshold : float
+        Decision level of ``y_slip`` (0.8, paper).
+    pred_threshold : float
+        Level of ``y_pred`` for the lead time.
+    max_latency : float
+        Detection window after gross-slip onset, s.
+    progress : bool
+        Progress bar while simulating scenes.
+
+    Returns
+    -------
+    EvaluationReport
+        ``str(report)`` is the table; ``report[name]`` one row (``"detector"`` is the first).
+    """
+    results = _as_results(scenes, progress)
+    if not results:
+        raise ValueError("scenes must not be empty")
+    dets = [("detector", detector)] + list((baselines or {}).items())
+    feats_cache = {}
+    rows = []
+    for name, det in dets:
+        items = []
+        for k, res in enumerate(results):
+            if isinstance(det, ForceRatioDetector):
+                n_r = targets_from_result(res)[0].shape[0]
+                try:
+                    n_r = features_from_result(res, "circuit").shape[0]
+                except (AttributeError, ValueError):
+                    pass
+                ys, yp = det.outputs(res, n_r)
+            else:
+                key = (k, det.features)
+                if key not in feats_cache:
+                    feats_cache[key] = features_from_result(res, det.features,
+                                                            estimator=det.metadata.get("estimator"))
+                ys, _, yp = det.run(feats_cache[key], fs=res.fs)
+            items.append(((ys, yp), res))
+        rows.append(_metrics(name, items, slip_threshold, pred_threshold, max_latency))
+    return EvaluationReport(rows, {"slip_threshold": slip_threshold, "pred_threshold": pred_threshold,
+                                   "max_latency_s": max_latency, "n_scenes": len(results)})

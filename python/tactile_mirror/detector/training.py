@@ -1,0 +1,211 @@
+"""Training the slip detector: exact BPTT in numpy, L-BFGS-B from scipy.optimize."""
+from __future__ import annotations
+
+import time
+
+import numpy as np
+import scipy.optimize
+
+from .data_prep import DEFAULT_ESTIMATOR, features_from_result, targets_from_result
+from .network import Params, init_params, loss_and_grad
+from .weights import FEATURE_KINDS, DetectorWeights
+
+__all__ = ["TrainingSet", "fit_normalisation", "make_training_set", "train_detector"]
+
+
+class TrainingSet:
+    """Padded arrays of training sequences (one sequence per ridge and scene).
+
+    Attributes
+    ----------
+    x : ndarray, shape (n_seq, 4, n)
+        Raw features, zero-padded at the end.
+    y_slip, y_pred : ndarray, shape (n_seq, n)
+        Targets.
+    mask : ndarray of bool, shape (n_seq, n)
+        True on real (not padded) samples.
+    fs : float
+    features : str
+        Feature kind.
+    """
+
+    def __init__(self, x, y_slip, y_pred, mask, fs, features="stress_rate"):
+        self.x = np.asarray(x, dtype=np.float64)
+        self.y_slip = np.asarray(y_slip, dtype=np.float64)
+        self.y_pred = np.asarray(y_pred, dtype=np.float64)
+        self.mask = np.asarray(mask, dtype=bool)
+        self.fs = float(fs)
+        self.features = features
+        if self.x.ndim != 3 or self.x.shape[1] != 4:
+            raise ValueError(f"x must have shape (n_seq, 4, n), got {self.x.shape}")
+        for name in ("y_slip", "y_pred", "mask"):
+            if getattr(self, name).shape != (self.x.shape[0], self.x.shape[2]):
+                raise ValueError(f"{name} must have shape {(self.x.shape[0], self.x.shape[2])}, "
+                                 f"got {getattr(self, name).shape}")
+        if not np.all(np.isfinite(self.x)):
+            raise ValueError("x contains non-finite values")
+
+    @property
+    def n_seq(self) -> int:
+        return self.x.shape[0]
+
+
+def make_training_set(results, features: str = "stress_rate", circuit=None, estimator=None,
+                      gross_level: float = 0.999) -> TrainingSet:
+    """Stack simulation results (all at one rate) into a :class:`TrainingSet`."""
+    results = list(results)
+    if not results:
+        raise ValueError("results must not be empty")
+    fs = float(results[0].fs)
+    xs, ss, ps = [], [], []
+    for k, r in enumerate(results):
+        if not np.isclose(float(r.fs), fs):
+            raise ValueError(f"results[{k}].fs={r.fs} differs from results[0].fs={fs}")
+        x = features_from_result(r, features, circuit, estimator)
+        ys, yp = targets_from_result(r, gross_level)
+        if ys.shape[0] != x.shape[0]:
+            ys = np.broadcast_to(ys[:1], (x.shape[0], ys.shape[1]))
+            yp = np.broadcast_to(yp[:1], (x.shape[0], yp.shape[1]))
+        xs.append(x)
+        ss.append(ys)
+        ps.append(yp)
+    n = max(x.shape[2] for x in xs)
+    n_seq = sum(x.shape[0] for x in xs)
+    X = np.zeros((n_seq, 4, n))
+    S = np.zeros((n_seq, n))
+    Pp = np.zeros((n_seq, n))
+    M = np.zeros((n_seq, n), dtype=bool)
+    i = 0
+    for x, ys, yp in zip(xs, ss, ps):
+        m, L = x.shape[0], x.shape[2]
+        X[i:i + m, :, :L] = x
+        S[i:i + m, :L] = ys
+        Pp[i:i + m, :L] = yp
+        M[i:i + m, :L] = True
+        i += m
+    return TrainingSet(X, S, Pp, M, fs, features)
+
+
+def fit_normalisation(x, mask=None):
+    """Zero mean and one shared RMS scale per signal pair.
+
+    The L and R strips share a scale (and so do u_L, u_R), which keeps the
+    mirror symmetry of the pad in the normalised inputs. The mean is zero: the
+    features are signed rates whose sign carries the slide direction.
+
+    Returns
+    -------
+    input_mean, input_scale : ndarray, shape (4,)
+    """
+    x = np.asarray(x, dtype=np.float64)
+    if mask is None:
+        mask = np.ones((x.shape[0], x.shape[2]), dtype=bool)
+    sel = np.moveaxis(x, 1, 0)[:, mask]  # (4, n_samples)
+    rms = np.sqrt(np.mean(sel ** 2, axis=1))
+    scale = np.array([np.hypot(rms[0], rms[1]), np.hypot(rms[0], rms[1]),
+                      np.hypot(rms[2], rms[3]), np.hypot(rms[2], rms[3])]) / np.sqrt(2.0)
+    scale = np.where(scale > 0, scale, 1.0)
+    return np.zeros(4), scale
+
+
+def _loss_weights(ts: TrainingSet, pred_weight: float):
+    m = ts.mask.astype(np.float64)
+    pos = m * (ts.y_slip >= 0.5)
+    neg = m - pos
+    n_pos, n_neg = pos.sum(), neg.sum()
+    w_slip = 0.5 * pos / max(n_pos, 1.0) + 0.5 * neg / max(n_neg, 1.0)
+    w_pred = pred_weight * m / max(m.sum(), 1.0)
+    return w_slip, w_pred
+
+
+def train_detector(data, n_hidden: int = 16, feedback: bool = True, seed=0, maxiter: int = 400,
+                   l2: float = 1e-4, pred_weight: float = 1.0, features: str = "stress_rate",
+                   estimator=None, circuit=None, progress: bool = True, metadata=None) -> DetectorWeights:
+    """Train a Jordan slip detector by exact BPTT and L-BFGS-B.
+
+    Parameters
+    ----------
+    data : TrainingSet or iterable of simulation results
+        Training sequences. Results are converted with :func:`make_training_set`.
+    n_hidden : int
+        Hidden units H.
+    feedback : bool
+        With the y_pred(t-1) input (the Jordan net). ``False`` trains the
+        feed-forward baseline (its feedback weights are held at zero).
+    seed : int
+        Seed of the initial weights; training is deterministic for a seed.
+    maxiter : int
+        L-BFGS-B iterations.
+    l2 : float
+        Weight decay on w1, w2 (relative to the mean per-sample loss).
+    pred_weight : float
+        Weight of the y_pred loss relative to the (class-balanced) y_slip loss.
+    features, estimator, circuit
+        Feature kind and estimator settings (only used when ``data`` holds results).
+    progress : bool
+        Show a tqdm progress bar of the iterations.
+    metadata : dict, optional
+        Extra entries stored under ``metadata["training"]``.
+
+    Returns
+    -------
+    DetectorWeights
+    """
+    if isinstance(n_hidden, bool) or not isinstance(n_hidden, (int, np.integer)) or n_hidden < 1:
+        raise ValueError(f"n_hidden must be a positive integer, got {n_hidden!r}")
+    if maxiter < 1:
+        raise ValueError(f"maxiter must be >= 1, got {maxiter}")
+    if not isinstance(data, TrainingSet):
+        data = make_training_set(data, features, circuit, estimator)
+    if data.features not in FEATURE_KINDS:
+        raise ValueError(f"data.features must be one of {sorted(FEATURE_KINDS)}, got {data.features!r}")
+    mean, scale = fit_normalisation(data.x, data.mask)
+    xn = (data.x - mean[None, :, None]) * (1.0 / scale)[None, :, None]
+    xn *= data.mask[:, None, :]
+    w_slip, w_pred = _loss_weights(data, pred_weight)
+    p0 = init_params(4, int(n_hidden), seed)
+    if not feedback:
+        p0.w1[:, -1] = 0.0
+    theta0 = p0.pack()
+    bounds = None
+    if not feedback:
+        bounds = [(None, None)] * theta0.size
+        for j in range(int(n_hidden)):
+            bounds[j * 5 + 4] = (0.0, 0.0)
+
+    def fun(theta):
+        return loss_and_grad(theta, xn, data.y_slip, data.y_pred, w_slip, w_pred, 4, int(n_hidden),
+                             l2=l2, feedback=feedback)
+
+    from tqdm.auto import tqdm
+
+    bar = tqdm(total=maxiter, desc=f"train H={n_hidden}{'' if feedback else ' no-fb'}", disable=not progress,
+               leave=False)
+    def callback(xk):
+        bar.update(1)
+
+    t0 = time.perf_counter()
+    res = scipy.optimize.minimize(fun, theta0, jac=True, method="L-BFGS-B", bounds=bounds, callback=callback,
+                                  options={"maxiter": int(maxiter), "maxfun": int(maxiter) * 2, "gtol": 1e-9,
+                                           "ftol": 1e-12})
+    bar.close()
+    elapsed = time.perf_counter() - t0
+    params = Params.unpack(res.x, 4, int(n_hidden))
+    if not feedback:
+        params.w1[:, -1] = 0.0
+    meta = {
+        "features": data.features,
+        "units": list(FEATURE_KINDS[data.features]),
+        "channels": ["v_L", "v_R", "u_L", "u_R"],
+        "estimator": dict(DEFAULT_ESTIMATOR if estimator is None else estimator)
+        if data.features == "stress_rate" else None,
+        "targets": {"y_slip": "1 while the ridge slips grossly (slip fraction >= 0.999)",
+                    "y_pred": "slip fraction of the ridge contact"},
+        "feedback": bool(feedback),
+        "slip_threshold": 0.8,
+        "training": {"n_sequences": int(data.n_seq), "n_samples": int(data.mask.sum()), "seed": int(seed),
+                     "maxiter": int(maxiter), "iterations": int(res.nit), "l2": float(l2),
+                     "pred_weight": float(pred_weight), "loss": float(res.fun), "seconds": round(elapsed, 2),
+                     "optimizer": "scipy.optimize L-BFGS-B, exact BPTT gradient", **(metadata or {})},
+    }
+    return DetectorWeights(params, mean, scale, data.fs, meta)

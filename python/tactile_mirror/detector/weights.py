@@ -1,0 +1,192 @@
+"""Detector weights: a versioned, validated file.
+
+File format (``.npz``, numpy's zip of arrays, loaded with ``allow_pickle=False``):
+
+==================  =====================  ==========================================
+key                 shape / type           meaning
+==================  =====================  ==========================================
+``format``          str                    ``"tactile-mirror-detector"``
+``format_version``  int                    :data:`FORMAT_VERSION`
+``w1``              (H, n_inputs + 1)      input-to-hidden weights, last column y_pred(t-1)
+``b1``              (H,)
+``w2``              (2, H)                 hidden-to-output, rows y_slip, y_pred
+``b2``              (2,)
+``input_mean``      (n_inputs,)            normalisation: xn = (x - mean) / scale
+``input_scale``     (n_inputs,)            positive, in the units of the features
+``fs``              float                  sample rate the net was trained for (Hz)
+``metadata``        str (JSON)             features kind and units, targets, training
+==================  =====================  ==========================================
+
+The loader checks every key, shape, dtype and finiteness and raises
+:class:`WeightsError` (a :class:`ValueError`) saying what is wrong.
+"""
+from __future__ import annotations
+
+import json
+import math
+import os
+import zipfile
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from .network import Params
+
+__all__ = ["FEATURE_KINDS", "FORMAT", "FORMAT_VERSION", "DetectorWeights", "WeightsError"]
+
+FORMAT = "tactile-mirror-detector"
+FORMAT_VERSION = 1
+
+#: Kinds of input features and their channel units ([v_L, v_R, u_L, u_R] order).
+FEATURE_KINDS = {
+    "stress_rate": ("Pa/s", "Pa/s", "Pa/s^2", "Pa/s^2"),
+    "circuit": ("V", "V", "V", "V"),
+}
+
+
+class WeightsError(ValueError):
+    """A weights file or object is invalid (wrong version, shape, values)."""
+
+
+@dataclass
+class DetectorWeights:
+    """Weights, normalisation and provenance of one trained detector.
+
+    Attributes
+    ----------
+    params : Params
+        Network weights (float64).
+    input_mean, input_scale : ndarray, shape (n_inputs,)
+        Feature normalisation ``xn = (x - input_mean) / input_scale``, in the
+        units of the feature kind (``input_scale > 0``).
+    fs : float
+        Sample rate in Hz the detector was trained for.
+    metadata : dict
+        JSON-serialisable. Keys used by the library: ``"features"`` (a key of
+        :data:`FEATURE_KINDS`), ``"units"``, ``"targets"``, ``"training"``.
+    """
+
+    params: Params
+    input_mean: np.ndarray
+    input_scale: np.ndarray
+    fs: float
+    metadata: dict = field(default_factory=dict)
+
+    def __post_init__(self):
+        self.validate()
+
+    @property
+    def n_hidden(self) -> int:
+        return self.params.n_hidden
+
+    @property
+    def n_inputs(self) -> int:
+        return self.params.n_inputs
+
+    @property
+    def features(self) -> str:
+        return self.metadata.get("features", "stress_rate")
+
+    @property
+    def input_gain(self) -> np.ndarray:
+        """``1 / input_scale``: what the kernel multiplies by."""
+        return 1.0 / self.input_scale
+
+    def validate(self) -> None:
+        """Raise :class:`WeightsError` unless every field is consistent and finite."""
+        p = self.params
+        arrays = {"w1": p.w1, "b1": p.b1, "w2": p.w2, "b2": p.b2,
+                  "input_mean": self.input_mean, "input_scale": self.input_scale}
+        for name, a in arrays.items():
+            if not isinstance(a, np.ndarray) or a.dtype.kind != "f":
+                raise WeightsError(f"{name} must be a float array, got {type(a).__name__}"
+                                   f"{'' if not isinstance(a, np.ndarray) else ' of ' + str(a.dtype)}")
+        if p.w1.ndim != 2 or p.w1.shape[1] < 2 or p.w1.shape[0] < 1:
+            raise WeightsError(f"w1 must have shape (n_hidden, n_inputs + 1), got {p.w1.shape}")
+        h, m = p.w1.shape
+        expected = {"b1": (h,), "w2": (2, h), "b2": (2,), "input_mean": (m - 1,), "input_scale": (m - 1,)}
+        for name, shape in expected.items():
+            if arrays[name].shape != shape:
+                raise WeightsError(f"{name} must have shape {shape} for n_hidden={h}, n_inputs={m - 1}, "
+                                   f"got {arrays[name].shape}")
+        for name, a in arrays.items():
+            if not np.all(np.isfinite(a)):
+                raise WeightsError(f"{name} contains non-finite values")
+        if np.any(self.input_scale <= 0):
+            raise WeightsError("input_scale must be positive")
+        if not isinstance(self.fs, (int, float, np.floating)) or not math.isfinite(self.fs) or self.fs <= 0:
+            raise WeightsError(f"fs must be a positive number of Hz, got {self.fs!r}")
+        if not isinstance(self.metadata, dict):
+            raise WeightsError(f"metadata must be a dict, got {type(self.metadata).__name__}")
+        kind = self.metadata.get("features", "stress_rate")
+        if kind not in FEATURE_KINDS:
+            raise WeightsError(f"metadata['features'] must be one of {sorted(FEATURE_KINDS)}, got {kind!r}")
+        if m - 1 != len(FEATURE_KINDS[kind]):
+            raise WeightsError(f"features {kind!r} have {len(FEATURE_KINDS[kind])} channels, "
+                               f"the weights take {m - 1}")
+        try:
+            json.dumps(self.metadata)
+        except (TypeError, ValueError) as exc:
+            raise WeightsError(f"metadata must be JSON-serialisable: {exc}") from None
+
+    def save(self, path) -> None:
+        """Write the weights to ``path`` (``.npz``; the suffix is not added)."""
+        self.validate()
+        p = self.params
+        with open(os.fspath(path), "wb") as f:
+            np.savez(f, format=np.array(FORMAT), format_version=np.array(FORMAT_VERSION),
+                     w1=p.w1, b1=p.b1, w2=p.w2, b2=p.b2, input_mean=self.input_mean,
+                     input_scale=self.input_scale, fs=np.array(float(self.fs)),
+                     metadata=np.array(json.dumps(self.metadata, sort_keys=True)))
+
+    @classmethod
+    def load(cls, path) -> DetectorWeights:
+        """Read and validate a weights file written by :meth:`save`.
+
+        Raises
+        ------
+        WeightsError
+            Not a weights file, unsupported ``format_version``, missing key, wrong
+            shape or dtype, non-finite value, or invalid metadata.
+        FileNotFoundError
+            ``path`` does not exist.
+        """
+        path = os.fspath(path)
+        try:
+            with np.load(path, allow_pickle=False) as z:
+                data = {k: z[k] for k in z.files}
+        except FileNotFoundError:
+            raise
+        except (zipfile.BadZipFile, OSError, ValueError, EOFError, KeyError) as exc:
+            raise WeightsError(f"{path!r} is not a readable detector weights file: {exc}") from None
+        if not isinstance(data, dict):
+            raise WeightsError(f"{path!r} is not a detector weights file (not an npz archive)")
+        if "format" not in data or str(data["format"]) != FORMAT:
+            raise WeightsError(f"{path!r} is not a detector weights file (format key missing or wrong)")
+        if "format_version" not in data:
+            raise WeightsError(f"{path!r}: format_version missing")
+        version = data["format_version"]
+        if version.shape != () or version.dtype.kind not in "iu":
+            raise WeightsError(f"{path!r}: format_version must be an integer")
+        if int(version) != FORMAT_VERSION:
+            raise WeightsError(f"{path!r}: format_version {int(version)} is not supported "
+                               f"(this library reads version {FORMAT_VERSION})")
+        for key in ("w1", "b1", "w2", "b2", "input_mean", "input_scale", "fs", "metadata"):
+            if key not in data:
+                raise WeightsError(f"{path!r}: key {key!r} missing")
+        fs = data["fs"]
+        if fs.shape != () or fs.dtype.kind != "f":
+            raise WeightsError(f"{path!r}: fs must be a float scalar")
+        try:
+            meta = json.loads(str(data["metadata"]))
+        except ValueError as exc:
+            raise WeightsError(f"{path!r}: metadata is not valid JSON: {exc}") from None
+        params = Params(data["w1"], data["b1"], data["w2"], data["b2"])
+        return cls(params, data["input_mean"], data["input_scale"], float(fs), meta)
+
+    def check_compatible(self, fs=None, features=None) -> None:
+        """Raise :class:`WeightsError` if the weights were made for another rate or feature kind."""
+        if fs is not None and not math.isclose(float(fs), self.fs, rel_tol=1e-9):
+            raise WeightsError(f"fs={float(fs)} Hz does not match the {self.fs} Hz the detector was trained for")
+        if features is not None and features != self.features:
+            raise WeightsError(f"features={features!r} do not match the detector's {self.features!r}")

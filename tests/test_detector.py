@@ -1,0 +1,347 @@
+"""Slip detector: numpy reference, BPTT gradient, weights file, C++ kernel parity and API."""
+from __future__ import annotations
+
+import json
+import zipfile
+
+import numpy as np
+import pytest
+from tactile_mirror.detector import (
+    DetectorWeights,
+    Params,
+    SlipDetector,
+    TrainingSet,
+    WeightsError,
+    forward,
+    init_params,
+    loss_and_grad,
+    make_training_set,
+    reference_run,
+    train_detector,
+)
+from tactile_mirror.detector.synthetic import synthetic_scene
+
+core = pytest.importorskip("tactile_mirror._core")
+
+
+def random_weights(n_hidden=16, seed=0, scale=1.0, fs=1000.0):
+    rng = np.random.default_rng(seed)
+    p = Params(scale * rng.normal(size=(n_hidden, 5)), rng.normal(size=n_hidden),
+               scale * rng.normal(size=(2, n_hidden)), rng.normal(size=2))
+    p.w1[:, -1] = 3.0 * rng.normal(size=n_hidden)  # strong feedback: a real recurrence
+    return DetectorWeights(p, rng.normal(size=4), rng.uniform(0.5, 2.0, 4), fs,
+                           {"features": "stress_rate"})
+
+
+def random_features(n_ridges, n, seed=1):
+    rng = np.random.default_rng(seed)
+    # Piecewise-slow signals with bursts: exercise saturated and linear regions.
+    x = np.cumsum(rng.normal(size=(n_ridges, 4, n)), axis=-1) * 0.05
+    x += rng.standard_t(2, size=(n_ridges, 4, n)) * 0.3
+    return x
+
+
+# -- numpy reference and gradient -----------------------------------------------------------
+
+def test_forward_matches_naive_loop():
+    w = random_weights(5, seed=3)
+    x = random_features(2, 50)
+    xn = (x - w.input_mean[None, :, None]) / w.input_scale[None, :, None]
+    ys, yp = forward(w.params, xn)
+    p = w.params
+    for s in range(2):
+        prev = 0.0
+        for t in range(50):
+            u = np.append(xn[s, :, t], prev)
+            h = 1 / (1 + np.exp(-(p.w1 @ u + p.b1)))
+            o = 1 / (1 + np.exp(-(p.w2 @ h + p.b2)))
+            assert ys[s, t] == pytest.approx(o[0], abs=1e-14)
+            assert yp[s, t] == pytest.approx(o[1], abs=1e-14)
+            prev = o[1]
+
+
+@pytest.mark.parametrize("feedback", [True, False])
+def test_bptt_gradient_matches_finite_differences(feedback):
+    rng = np.random.default_rng(0)
+    n_hidden, s, n = 5, 3, 40
+    theta = init_params(4, n_hidden, seed=1).pack() + 0.3 * rng.normal(size=n_hidden * 5 + n_hidden + 2 * n_hidden + 2)
+    x = rng.normal(size=(s, 4, n))
+    ts = (rng.uniform(size=(s, n)) > 0.6).astype(float)
+    tp = rng.uniform(size=(s, n))
+    ws = rng.uniform(size=(s, n)) / (s * n)
+    wp = rng.uniform(size=(s, n)) / (s * n)
+    args = (x, ts, tp, ws, wp, 4, n_hidden)
+    f0, g = loss_and_grad(theta, *args, l2=1e-2, feedback=feedback)
+    h = 1e-6
+    num = np.empty_like(theta)
+    for k in range(theta.size):
+        e = np.zeros_like(theta)
+        e[k] = h
+        num[k] = (loss_and_grad(theta + e, *args, l2=1e-2, feedback=feedback)[0]
+                  - loss_and_grad(theta - e, *args, l2=1e-2, feedback=feedback)[0]) / (2 * h)
+    if not feedback:
+        fb = np.arange(n_hidden) * 5 + 4
+        num[fb] = 0.0  # held at zero in the no-feedback net
+        assert np.all(g[fb] == 0.0)
+    np.testing.assert_allclose(g, num, rtol=1e-5, atol=1e-8)
+    # The feedback path matters: the recurrent gradient differs from a truncated one.
+    assert np.isfinite(f0)
+
+
+def small_set(n_scenes=4, seed=0, ridges=2):
+    res = [synthetic_scene(seed=seed + k, n_ridges=ridges, duration=1.6) for k in range(n_scenes)]
+    return make_training_set(res)
+
+
+def test_training_is_deterministic_and_reduces_loss():
+    ts = small_set()
+    w1 = train_detector(ts, n_hidden=4, maxiter=15, seed=7, progress=False)
+    w2 = train_detector(ts, n_hidden=4, maxiter=15, seed=7, progress=False)
+    np.testing.assert_array_equal(w1.params.pack(), w2.params.pack())
+    w0 = train_detector(ts, n_hidden=4, maxiter=1, seed=7, progress=False)
+    assert w1.metadata["training"]["loss"] < w0.metadata["training"]["loss"]
+    assert w1.fs == ts.fs
+    assert w1.metadata["features"] == "stress_rate"
+
+
+def test_no_feedback_training_keeps_feedback_weights_zero():
+    w = train_detector(small_set(2), n_hidden=3, maxiter=5, feedback=False, progress=False)
+    assert np.all(w.params.w1[:, -1] == 0.0)
+    assert w.metadata["feedback"] is False
+
+
+def test_training_set_validation():
+    with pytest.raises(ValueError, match="x must have shape"):
+        TrainingSet(np.zeros((2, 3, 5)), np.zeros((2, 5)), np.zeros((2, 5)), np.ones((2, 5), bool), 1000.0)
+    with pytest.raises(ValueError, match="y_pred"):
+        TrainingSet(np.zeros((2, 4, 5)), np.zeros((2, 5)), np.zeros((2, 4)), np.ones((2, 5), bool), 1000.0)
+    with pytest.raises(ValueError, match="n_hidden"):
+        train_detector(small_set(1), n_hidden=0, progress=False)
+
+
+# -- C++ kernel parity ------------------------------------------------------------------------
+
+@pytest.mark.parametrize("path", ["generic", "avx2+fma"])
+def test_cpp_float64_parity_over_a_million_steps(path):
+    w = random_weights(16, seed=5)
+    x = random_features(6, 170_000, seed=2)  # 6 ridges x 170k = 1.02e6 recurrent steps
+    det = SlipDetector(w, dtype=np.float64)
+    k = det.kernel(6)
+    if path == "avx2+fma" and not core.detector_cpu_has_avx2_fma():
+        pytest.skip("CPU without AVX2+FMA")
+    k.set_simd_path(path)
+    ys, yn, yp = det.run(x)
+    rs, rn, rp = reference_run(w, x)
+    assert np.max(np.abs(ys - rs)) <= 1e-12
+    assert np.max(np.abs(yp - rp)) <= 1e-12
+    assert np.max(np.abs(yn - rn)) <= 1e-12
+    # The feedback is exercised: y_pred spans a wide range.
+    assert rp.min() < 0.1 and rp.max() > 0.9
+
+
+@pytest.mark.slow
+def test_cpp_float64_parity_single_chain_of_a_million_steps():
+    w = random_weights(16, seed=6)
+    x = random_features(1, 1_000_000, seed=4)
+    ys, _, yp = SlipDetector(w).run(x)
+    rs, _, rp = reference_run(w, x)
+    assert np.max(np.abs(ys - rs)) <= 1e-12 and np.max(np.abs(yp - rp)) <= 1e-12
+
+
+@pytest.mark.parametrize("activation", ["exact", "fast"])
+@pytest.mark.parametrize("path", ["generic", "avx2+fma"])
+def test_cpp_float32_parity(activation, path):
+    w = random_weights(16, seed=8)
+    x = random_features(6, 40_000, seed=3)
+    det = SlipDetector(w, dtype=np.float32, activation=activation)
+    if path == "avx2+fma" and not core.detector_cpu_has_avx2_fma():
+        pytest.skip("CPU without AVX2+FMA")
+    det.kernel(6).set_simd_path(path)
+    ys, _, yp = det.run(x)
+    assert ys.dtype == np.float32
+    rs, _, rp = reference_run(w, x.astype(np.float32))
+    assert np.max(np.abs(ys - rs)) <= 1e-5
+    assert np.max(np.abs(yp - rp)) <= 1e-5
+
+
+def test_fast_sigmoid_float64_error_bound():
+    w = random_weights(16, seed=9)
+    x = random_features(6, 20_000, seed=5)
+    ys, _, yp = SlipDetector(w, activation="fast").run(x)
+    rs, _, rp = reference_run(w, x)
+    # 5e-10 per sigmoid, amplified by at most a few through the layers and the feedback.
+    assert np.max(np.abs(ys - rs)) <= 1e-8
+    assert np.max(np.abs(yp - rp)) <= 1e-8
+
+
+def test_step_equals_run_and_state_carries_over():
+    w = random_weights(8, seed=10)
+    x = random_features(6, 300, seed=6)
+    det = SlipDetector(w)
+    ys, yn, yp = det.run(x)
+    det2 = SlipDetector(w)
+    out = np.stack([det2.step(x[:, :, t]) for t in range(300)], axis=-1)  # (6, 3, n)
+    np.testing.assert_allclose(out[:, 0], ys, atol=1e-13)
+    np.testing.assert_allclose(out[:, 1], yn, atol=1e-13)
+    np.testing.assert_allclose(out[:, 2], yp, atol=1e-13)
+    # Two blocks with reset=False equal one block.
+    a = det.run(x[:, :, :120])
+    b = det.run(x[:, :, 120:], reset=False)
+    np.testing.assert_allclose(np.concatenate([a[2], b[2]], axis=1), yp, atol=1e-15)
+    k = det.kernel(6)
+    np.testing.assert_allclose(k.state, yp[:, -1], atol=1e-15)
+    k.reset()
+    assert np.all(k.state == 0)
+
+
+def test_numpy_backend_matches_cpp():
+    w = random_weights(8, seed=11)
+    x = random_features(3, 500, seed=7)
+    a = SlipDetector(w, backend="numpy").run(x)
+    b = SlipDetector(w).run(x)
+    for u, v in zip(a, b):
+        np.testing.assert_allclose(u, v, atol=1e-12)
+
+
+def test_kernel_input_validation_names_arguments_and_keeps_state():
+    w = random_weights(4, seed=12)
+    k = SlipDetector(w).kernel(6)
+    k.run(random_features(6, 10))
+    before = k.state.copy()
+    with pytest.raises(ValueError, match="x must have shape"):
+        k.run(np.zeros((5, 4, 10)))
+    with pytest.raises(TypeError, match="x must have dtype float64"):
+        k.run(np.zeros((6, 4, 10), np.float32))
+    with pytest.raises(ValueError, match="x must have shape"):
+        k.step(np.zeros((6, 3)))
+    with pytest.raises(ValueError, match="state must have shape"):
+        k.state = np.zeros(5)
+    np.testing.assert_array_equal(k.state, before)
+    with pytest.raises(ValueError, match="w2 must have shape"):
+        core.JordanMLPf64(np.zeros((4, 5)), np.zeros(4), np.zeros((2, 3)), np.zeros(2), np.zeros(4),
+                          np.ones(4), 6)
+    with pytest.raises(ValueError, match="input_gain must be finite"):
+        core.JordanMLPf64(np.zeros((4, 5)), np.zeros(4), np.zeros((2, 4)), np.zeros(2), np.zeros(4),
+                          np.array([1, np.nan, 1, 1]), 6)
+    with pytest.raises(ValueError, match="n_instances"):
+        core.JordanMLPf64(np.zeros((4, 5)), np.zeros(4), np.zeros((2, 4)), np.zeros(2), np.zeros(4),
+                          np.ones(4), 0)
+    with pytest.raises(ValueError, match="activation"):
+        core.JordanMLPf32(np.zeros((4, 5)), np.zeros(4), np.zeros((2, 4)), np.zeros(2), np.zeros(4),
+                          np.ones(4), 6, "tanh")
+    with pytest.raises(ValueError, match="path"):
+        k.set_simd_path("neon")
+
+
+def test_detector_run_validation_and_fs_check():
+    det = SlipDetector(random_weights(4, fs=1000.0))
+    with pytest.raises(ValueError, match="features must have shape"):
+        det.run(np.zeros((6, 5, 10)))
+    with pytest.raises(TypeError, match="features must hold real numbers"):
+        det.run(np.zeros((6, 4, 10), dtype=complex))
+    with pytest.raises(WeightsError, match="fs=2000.0 Hz"):
+        det.run(np.zeros((6, 4, 10)), fs=2000.0)
+    ys, _yn, _yp = det.run(np.zeros((4, 10)), fs=1000.0)
+    assert ys.shape == (10,)
+    with pytest.raises(TypeError, match="dtype"):
+        SlipDetector(random_weights(4), dtype=np.int32)
+    with pytest.raises(ValueError, match="backend"):
+        SlipDetector(random_weights(4), backend="torch")
+
+
+def test_no_subnormal_outputs_in_float32_kernel():
+    w = random_weights(8, seed=13, scale=50.0)  # saturates everything
+    x = random_features(6, 2000, seed=8) * 100
+    for act in ("exact", "fast"):
+        ys, _, yp = SlipDetector(w, dtype=np.float32, activation=act).run(x)
+        tiny = np.finfo(np.float32).tiny
+        for y in (ys, yp):
+            assert not np.any((y != 0) & (np.abs(y) < tiny))
+            assert np.all((y >= 0) & (y <= 1))
+
+
+# -- weights file ---------------------------------------------------------------------------
+
+def test_weights_roundtrip(tmp_path):
+    w = random_weights(6, seed=14)
+    w.metadata["training"] = {"seed": 3}
+    path = tmp_path / "w.npz"
+    w.save(path)
+    w2 = DetectorWeights.load(path)
+    np.testing.assert_array_equal(w2.params.pack(), w.params.pack())
+    np.testing.assert_array_equal(w2.input_scale, w.input_scale)
+    assert w2.fs == w.fs and w2.metadata == w.metadata
+    det = SlipDetector.load(path)
+    x = random_features(2, 50)
+    np.testing.assert_array_equal(det.run(x)[0], SlipDetector(w).run(x)[0])
+
+
+def _rewrite(path, out, **changes):
+    with np.load(path, allow_pickle=False) as z:
+        data = {k: z[k] for k in z.files}
+    for k, v in changes.items():
+        if v is None:
+            del data[k]
+        else:
+            data[k] = v
+    with open(out, "wb") as f:
+        np.savez(f, **data)
+
+
+@pytest.mark.parametrize("changes, message", [
+    ({"format_version": np.array(2)}, "format_version 2 is not supported"),
+    ({"format_version": None}, "format_version missing"),
+    ({"format": np.array("something-else")}, "not a detector weights file"),
+    ({"w2": np.zeros((3, 6))}, r"w2 must have shape \(2, 6\)"),
+    ({"b1": np.zeros(5)}, r"b1 must have shape \(6,\)"),
+    ({"input_scale": np.array([1.0, 0.0, 1.0, 1.0])}, "input_scale must be positive"),
+    ({"w1": np.full((6, 5), np.nan)}, "w1 contains non-finite values"),
+    ({"w1": np.zeros((6, 5), dtype=np.int64)}, "w1 must be a float array"),
+    ({"fs": np.array(-5.0)}, "fs must be a positive"),
+    ({"metadata": np.array("{not json")}, "metadata is not valid JSON"),
+    ({"metadata": np.array(json.dumps({"features": "pressure"}))}, "metadata\\['features'\\]"),
+    ({"input_mean": None}, "key 'input_mean' missing"),
+])
+def test_corrupt_weights_files_are_rejected(tmp_path, changes, message):
+    good = tmp_path / "good.npz"
+    random_weights(6, seed=15).save(good)
+    bad = tmp_path / "bad.npz"
+    _rewrite(good, bad, **changes)
+    with pytest.raises(WeightsError, match=message):
+        DetectorWeights.load(bad)
+
+
+def test_truncated_and_garbage_files_are_rejected(tmp_path):
+    good = tmp_path / "good.npz"
+    random_weights(6, seed=16).save(good)
+    data = good.read_bytes()
+    trunc = tmp_path / "trunc.npz"
+    trunc.write_bytes(data[: len(data) // 2])
+    with pytest.raises(WeightsError, match="not a readable detector weights file"):
+        DetectorWeights.load(trunc)
+    garbage = tmp_path / "garbage.npz"
+    garbage.write_bytes(b"\x00" * 100)
+    with pytest.raises(WeightsError):
+        DetectorWeights.load(garbage)
+    # A zip of non-array members.
+    z = tmp_path / "zip.npz"
+    with zipfile.ZipFile(z, "w") as f:
+        f.writestr("w1.npy", b"not an array")
+    with pytest.raises(WeightsError):
+        DetectorWeights.load(z)
+    with pytest.raises(FileNotFoundError):
+        DetectorWeights.load(tmp_path / "missing.npz")
+
+
+def test_weights_object_validation():
+    w = random_weights(4)
+    with pytest.raises(WeightsError, match="fs must be a positive"):
+        DetectorWeights(w.params, w.input_mean, w.input_scale, 0.0, {})
+    with pytest.raises(WeightsError, match="metadata must be JSON"):
+        DetectorWeights(w.params, w.input_mean, w.input_scale, 1000.0, {"x": object()})
+    with pytest.raises(WeightsError, match=r"input_mean must have shape \(4,\)"):
+        DetectorWeights(w.params, np.zeros(3), w.input_scale, 1000.0, {})
+    with pytest.raises(WeightsError, match="fs=500.0 Hz does not match"):
+        w.check_compatible(fs=500.0)
+    with pytest.raises(WeightsError, match="features='circuit'"):
+        w.check_compatible(features="circuit")
