@@ -2,10 +2,9 @@
 import numpy as np
 import pytest
 import scipy.signal as ss
+import tactile_mirror as tm
 from hypothesis import assume, given
 from hypothesis import strategies as st
-
-import tactile_mirror as tm
 from tactile_mirror.filters import roundoff_bound
 
 F64_RTOL = 1e-12  # relative to the signal scale

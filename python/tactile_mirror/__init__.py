@@ -11,13 +11,13 @@ Filtering follows scipy.signal conventions (``sos``, ``zi``, ``axis``); everythi
 """
 from __future__ import annotations
 
-from .filters import SosFilter, sosfilt, simd_path
+from .filters import SosFilter, simd_path, sosfilt
 
 __version__ = "0.1.0"
 
 __all__ = [
     "SosFilter",
-    "sosfilt",
-    "simd_path",
     "__version__",
+    "simd_path",
+    "sosfilt",
 ]

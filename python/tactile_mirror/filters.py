@@ -36,13 +36,11 @@ be non-zero. Complex, long-double and object inputs are passed to scipy itself.
 """
 from __future__ import annotations
 
-from typing import Tuple
-
 import numpy as np
 
 from . import _core
 
-__all__ = ["sosfilt", "SosFilter", "simd_path", "validate_sos", "roundoff_bound", "STRUCTURES"]
+__all__ = ["STRUCTURES", "SosFilter", "roundoff_bound", "simd_path", "sosfilt", "validate_sos"]
 
 STRUCTURES = ("auto", "tdf2", "delta")
 _FORM_CODES = {"tdf2": 0, "delta": 1}
@@ -301,7 +299,7 @@ class SosFilter:
         return self._dtype
 
     @property
-    def structure(self) -> Tuple[str, ...]:
+    def structure(self) -> tuple[str, ...]:
         """The structure of each section (``"tdf2"`` or ``"delta"``)."""
         return self._structure
 
