@@ -17,10 +17,9 @@ import time
 
 os.environ.setdefault("OMP_NUM_THREADS", "1")
 
-import numpy as np  # noqa: E402
-import scipy.signal as ss  # noqa: E402
-
-import tactile_mirror as tm  # noqa: E402
+import numpy as np
+import scipy.signal as ss
+import tactile_mirror as tm
 
 
 def best_time(fn, repeat=5):
