@@ -11,13 +11,24 @@ Filtering follows scipy.signal conventions (``sos``, ``zi``, ``axis``); everythi
 """
 from __future__ import annotations
 
-from .filters import SosFilter, simd_path, sosfilt
+from .circuit import SLOPE_BAND, PVDFCircuit, fit_circuit
+from .estimator import StressRateEstimator, differentiator_sos, equalizer_sos, estimate_stress_rate
+from .filters import SosFilter, roundoff_bound, simd_path, sosfilt, validate_sos
 
 __version__ = "0.1.0"
 
 __all__ = [
+    "SLOPE_BAND",
+    "PVDFCircuit",
     "SosFilter",
+    "StressRateEstimator",
     "__version__",
+    "differentiator_sos",
+    "equalizer_sos",
+    "estimate_stress_rate",
+    "fit_circuit",
+    "roundoff_bound",
     "simd_path",
     "sosfilt",
+    "validate_sos",
 ]
