@@ -175,14 +175,40 @@ __attribute__((always_inline)) inline Vec<float, 32>::type recip_fast(Vec<float,
 }
 #endif
 
+// Clamp to [-c, c] with min/max instructions (a NaN argument becomes -c).
+template <typename V, typename T>
+__attribute__((always_inline)) inline V clamp_sym(V a, T c) {
+    const V lo = V{} - c, hi = V{} + c;
+    a = a > lo ? a : lo;
+    return a < hi ? a : hi;
+}
+#ifdef TM_DETECTOR_X86
+__attribute__((always_inline)) inline Vec<float, 16>::type clamp_sym(Vec<float, 16>::type a, float c) {
+    typedef Vec<float, 16>::type V;
+    return (V)__builtin_ia32_minps(__builtin_ia32_maxps((__v4sf)a, (__v4sf)(V{} - c)), (__v4sf)(V{} + c));
+}
+__attribute__((always_inline)) inline Vec<double, 16>::type clamp_sym(Vec<double, 16>::type a, double c) {
+    typedef Vec<double, 16>::type V;
+    return (V)__builtin_ia32_minpd(__builtin_ia32_maxpd((__v2df)a, (__v2df)(V{} - c)), (__v2df)(V{} + c));
+}
+// The 32-byte versions are only ever inlined into the AVX2 tick.
+__attribute__((always_inline)) inline Vec<float, 32>::type clamp_sym(Vec<float, 32>::type a, float c) {
+    typedef Vec<float, 32>::type V;
+    return (V)__builtin_ia32_minps256(__builtin_ia32_maxps256((__v8sf)a, (__v8sf)(V{} - c)), (__v8sf)(V{} + c));
+}
+__attribute__((always_inline)) inline Vec<double, 32>::type clamp_sym(Vec<double, 32>::type a, double c) {
+    typedef Vec<double, 32>::type V;
+    return (V)__builtin_ia32_minpd256(__builtin_ia32_maxpd256((__v4df)a, (__v4df)(V{} - c)),
+                                      (__v4df)(V{} + c));
+}
+#endif
+
 template <typename T, int B, Activation A>
 __attribute__((always_inline)) inline typename Vec<T, B>::type sigmoid_vec(typename Vec<T, B>::type a) {
     typedef Vec<T, B> VT;
     typedef typename VT::type V;
     typedef typename VT::itype IV;
-    const V lo = V{} - VT::clamp;
-    const V hi = V{} + VT::clamp;
-    a = a < lo ? lo : (a > hi ? hi : a);
+    a = clamp_sym(a, T(VT::clamp));
     if (A == Activation::exact) {
         V r;
         for (int l = 0; l < VT::lanes; ++l) r[l] = T(1) / (T(1) + std::exp(-a[l]));
@@ -244,13 +270,18 @@ public:
         const std::size_t n_w1 = std::size_t(n_h_) * (n_in_ + 1);
         const std::size_t n_w = n_w1 + n_h_ + 2 * std::size_t(n_h_) + 2 + 2 * std::size_t(n_in_);
         const std::size_t n_state = std::size_t(n_in_) * n_pad_ + n_pad_ + std::size_t(n_pad_);
-        const std::size_t count = n_w + n_state + 64;
+        // Replicated weights: per hidden unit, n_in + 4 slots of L copies
+        // [b1, w1[j, 0..n_in-1], w1[j, n_in], w2[0, j], w2[1, j]].
+        const std::size_t n_rep = std::size_t(n_h_) * (n_in_ + 4) * L;
+        const std::size_t count = n_rep + n_w + n_state + 64;
         void* mem = std::aligned_alloc(64, ((count * sizeof(T) + 63) / 64) * 64);
         if (!mem) throw std::bad_alloc();
         buf_.reset(mem);
         T* p = static_cast<T*>(mem);
         std::memset(p, 0, count * sizeof(T));
-        // State first (vector-aligned), then weights.
+        // Replicated weights and state first (vector-aligned), then weights.
+        wrep_ = p;
+        p += n_rep;
         xs_ = p;
         p += std::size_t(n_in_) * n_pad_;
         prev_ = p;
@@ -275,6 +306,15 @@ public:
         for (int k = 0; k < n_in_; ++k) {
             mean_[k] = static_cast<T>(input_mean[k]);
             gain_[k] = static_cast<T>(input_gain[k]);
+        }
+        for (int j = 0; j < n_h_; ++j) {
+            T* slot = wrep_ + std::size_t(j) * (n_in_ + 4) * L;
+            for (int l = 0; l < L; ++l) {
+                slot[l] = b1_[j];
+                for (int i = 0; i <= n_in_; ++i) slot[(1 + i) * L + l] = w1_[std::size_t(j) * (n_in_ + 1) + i];
+                slot[(n_in_ + 2) * L + l] = w2_[j];
+                slot[(n_in_ + 3) * L + l] = w2_[n_h_ + j];
+            }
         }
         path_ = cpu_has_avx2_fma() ? SimdPath::avx2 : SimdPath::generic;
     }
@@ -437,59 +477,58 @@ private:
         typedef typename detail::Vec<T, B>::type V;
         constexpr int NL = detail::Vec<T, B>::lanes;
         const int nin = NIN > 0 ? NIN : n_in_, nh = n_h_;
-        const T* __restrict w2 = w2_;
         for (int r0 = 0; r0 < n_pad_; r0 += NL) {
             if (r0 >= n_inst_) break;
             V x[64];
             for (int i = 0; i < nin; ++i) std::memcpy(&x[i], xs_ + std::size_t(i) * n_pad_ + r0, sizeof(V));
             V p;
             std::memcpy(&p, prev_ + r0, sizeof(V));
-            V o0a = V{} + b2_[0], o0b = V{}, o0c = V{}, o0d = V{};
-            V o1a = V{} + b2_[1], o1b = V{}, o1c = V{}, o1d = V{};
+            V o0a = V{} + b2_[0], o0b = V{};
+            V o1a = V{} + b2_[1], o1b = V{};
             int j = 0;
-            for (; j + 4 <= nh; j += 4) {
-                const V h0 = hidden<B, A, NIN>(j, x, p);
-                const V h1 = hidden<B, A, NIN>(j + 1, x, p);
-                const V h2 = hidden<B, A, NIN>(j + 2, x, p);
-                const V h3 = hidden<B, A, NIN>(j + 3, x, p);
-                o0a += w2[j] * h0;
-                o1a += w2[nh + j] * h0;
-                o0b += w2[j + 1] * h1;
-                o1b += w2[nh + j + 1] * h1;
-                o0c += w2[j + 2] * h2;
-                o1c += w2[nh + j + 2] * h2;
-                o0d += w2[j + 3] * h3;
-                o1d += w2[nh + j + 3] * h3;
+            for (; j + 2 <= nh; j += 2) {
+                hidden<B, A, NIN>(j, x, p, o0a, o1a);
+                hidden<B, A, NIN>(j + 1, x, p, o0b, o1b);
             }
-            for (; j < nh; ++j) {
-                const V h = hidden<B, A, NIN>(j, x, p);
-                o0a += w2[j] * h;
-                o1a += w2[nh + j] * h;
-            }
-            const V ys = detail::sigmoid_vec<T, B, A>((o0a + o0b) + (o0c + o0d));
-            const V yp = detail::sigmoid_vec<T, B, A>((o1a + o1b) + (o1c + o1d));
+            if (j < nh) hidden<B, A, NIN>(j, x, p, o0a, o1a);
+            const V ys = detail::sigmoid_vec<T, B, A>(o0a + o0b);
+            const V yp = detail::sigmoid_vec<T, B, A>(o1a + o1b);
             std::memcpy(yslip_ + r0, &ys, sizeof(V));
             std::memcpy(prev_ + r0, &yp, sizeof(V));
         }
     }
 
-    // Hidden unit j of the current lane block.
+    // Hidden unit j of the current lane block: accumulates its contribution to
+    // the two output pre-activations. Weights come from the replicated slots, so
+    // every multiply-add takes its weight straight from memory.
     template <int B, Activation A, int NIN>
-    __attribute__((always_inline)) inline typename detail::Vec<T, B>::type hidden(
-        int j, const typename detail::Vec<T, B>::type* x, typename detail::Vec<T, B>::type p) const noexcept {
+    __attribute__((always_inline)) inline void hidden(int j, const typename detail::Vec<T, B>::type* x,
+                                                      typename detail::Vec<T, B>::type p,
+                                                      typename detail::Vec<T, B>::type& o0,
+                                                      typename detail::Vec<T, B>::type& o1) const noexcept {
         typedef typename detail::Vec<T, B>::type V;
         const int nin = NIN > 0 ? NIN : n_in_;
-        const T* __restrict w = w1_ + std::size_t(j) * (nin + 1);
-        V a = V{} + b1_[j];
-        for (int i = 0; i < nin; ++i) a += w[i] * x[i];
-        a += w[nin] * p;
-        return detail::sigmoid_vec<T, B, A>(a);
+        const T* __restrict w = wrep_ + std::size_t(j) * (nin + 4) * L;
+        V a = load<V>(w);
+        for (int i = 0; i < nin; ++i) a += load<V>(w + (1 + i) * L) * x[i];
+        a += load<V>(w + (1 + nin) * L) * p;
+        const V h = detail::sigmoid_vec<T, B, A>(a);
+        o0 += load<V>(w + (2 + nin) * L) * h;
+        o1 += load<V>(w + (3 + nin) * L) * h;
+    }
+
+    template <typename V>
+    static __attribute__((always_inline)) inline V load(const T* ptr) noexcept {
+        V v;
+        std::memcpy(&v, ptr, sizeof(V));
+        return v;
     }
 
     int n_in_, n_h_, n_inst_, n_pad_ = 0;
     Activation act_;
     SimdPath path_ = SimdPath::generic;
     std::unique_ptr<void, detail::AlignedFree> buf_;
+    T* wrep_ = nullptr;
     T* xs_ = nullptr;
     T* prev_ = nullptr;
     T* yslip_ = nullptr;
