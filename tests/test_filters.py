@@ -341,5 +341,19 @@ def test_step_rejects_nonfinite_sample_counts_and_holds():
     assert f.rejected == 0 and not np.any(f.zi)
 
 
+@pytest.mark.parametrize("dtype", [np.float64, np.float32])
+def test_step_converts_any_real_sample(dtype):
+    sos = ss.butter(4, 0.1, output="sos")
+    x = signal(0, (12, 40))
+    f, g = tm.SosFilter(sos, 12, dtype), tm.SosFilter(sos, 12, dtype)
+    for i in range(40):  # strided float64 column, a list, int and float32 inputs
+        col = x[:, i]
+        np.testing.assert_array_equal(f.step(col), g.step(np.ascontiguousarray(col, dtype=dtype)))
+    np.testing.assert_array_equal(f.step(list(x[:, 0])), g.step(x[:, 0].astype(dtype)))
+    np.testing.assert_array_equal(f.step(np.arange(12)), g.step(np.arange(12).astype(dtype)))
+    np.testing.assert_array_equal(f.step(x[:, 1].astype(np.float32)), g.step(x[:, 1].astype(np.float32).astype(dtype)))
+    assert f.step(x[:, 2]).dtype == dtype
+
+
 def test_simd_path_is_reported():
     assert tm.simd_path() in {"avx2+fma", "sse2", "native", "generic"}

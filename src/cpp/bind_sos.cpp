@@ -47,7 +47,7 @@ std::string shape_str(const py::array& a) {
 // A 1-D sample of `n` values of type T: the given array itself when it already is
 // one, else a converted copy. Non-real dtypes are a TypeError.
 template <typename T>
-py::array_t<T, py::array::c_style> as_sample(py::handle obj, std::size_t n, const char* name) {
+py::array_t<T, py::array::c_style | py::array::forcecast> as_sample(py::handle obj, std::size_t n, const char* name) {
     py::array a = py::array::ensure(obj);
     if (!a) throw py::type_error(std::string(name) + " must be an array of real numbers");
     char kind = a.dtype().kind();
@@ -57,7 +57,11 @@ py::array_t<T, py::array::c_style> as_sample(py::handle obj, std::size_t n, cons
     if (a.ndim() != 1 || static_cast<std::size_t>(a.shape(0)) != n)
         throw py::value_error(std::string(name) + " must have shape (" + std::to_string(n) + ",), got " +
                               shape_str(a));
-    return py::array_t<T, py::array::c_style>::ensure(a);
+    // Any real dtype is converted (float64 -> float32 included): the filter's
+    // dtype is the caller's choice of precision.
+    auto out = py::array_t<T, py::array::c_style | py::array::forcecast>::ensure(a);
+    if (!out) throw py::error_already_set();
+    return out;
 }
 
 template <typename T>
@@ -91,8 +95,11 @@ void bind_cascade(py::module_& m, const char* name) {
                 if (x.ndim() != 2 || static_cast<std::size_t>(x.shape(0)) != c.k.channels())
                     throw py::value_error("x must have shape (" + std::to_string(c.k.channels()) +
                                           ", n), got " + shape_str(x));
-                if (x.strides(0) % py::ssize_t(sizeof(T)) || x.strides(1) % py::ssize_t(sizeof(T)))
-                    x = py::array_t<T, 0>::ensure(py::array_t<T, py::array::c_style>::ensure(x));
+                if (x.strides(0) % py::ssize_t(sizeof(T)) || x.strides(1) % py::ssize_t(sizeof(T))) {
+                    auto contiguous = py::array_t<T, py::array::c_style | py::array::forcecast>::ensure(x);
+                    if (!contiguous) throw py::error_already_set();
+                    x = contiguous;
+                }
                 const std::size_t n = static_cast<std::size_t>(x.shape(1));
                 py::array_t<T> y({static_cast<py::ssize_t>(c.k.channels()), static_cast<py::ssize_t>(n)});
                 std::size_t bt = 0, bc = 0;
