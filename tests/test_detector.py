@@ -345,3 +345,31 @@ def test_weights_object_validation():
         w.check_compatible(fs=500.0)
     with pytest.raises(WeightsError, match="features='circuit'"):
         w.check_compatible(features="circuit")
+
+
+@pytest.mark.parametrize("dtype, tol", [(np.float64, 1e-13), (np.float32, 2e-6)])
+@pytest.mark.parametrize("activation", ["exact", "fast"])
+def test_step_one_scalar_path_matches_block_run(dtype, tol, activation):
+    w = random_weights(16, seed=17)
+    x = random_features(3, 400, seed=9)
+    det = SlipDetector(w, dtype=dtype, activation=activation)
+    ys, yn, yp = det.run(x)
+    k = SlipDetector(w, dtype=dtype, activation=activation).kernel(3)
+    for r in range(3):
+        out = np.stack([k.step_one(r, x[r, :, t].astype(dtype)) for t in range(400)], axis=-1)
+        np.testing.assert_allclose(out[0], ys[r], atol=tol)
+        np.testing.assert_allclose(out[1], yn[r], atol=tol)
+        np.testing.assert_allclose(out[2], yp[r], atol=tol)
+    with pytest.raises(ValueError, match="instance must be in"):
+        k.step_one(3, x[0, :, 0].astype(dtype))
+
+
+def test_timing_loop_restores_state():
+    k = SlipDetector(random_weights(16, seed=18), dtype=np.float32).kernel(6)
+    k.run(random_features(6, 50).astype(np.float32))
+    before = k.state.copy()
+    assert k.time_step_ns(1000, repeats=1) > 0
+    assert k.time_step_ns(1000, repeats=1, mode="scalar") > 0
+    np.testing.assert_array_equal(k.state, before)
+    with pytest.raises(ValueError, match="mode"):
+        k.time_step_ns(10, mode="vector")

@@ -175,6 +175,22 @@ void bind_one(py::module_& m, const char* cls) {
             },
             py::arg("x"), "One tick. x: (n_instances, n_inputs) -> (n_instances, 3) [y_slip, y_non, y_pred].")
         .def(
+            "step_one",
+            [](PJ& p, int instance, py::handle x) {
+                if (instance < 0 || instance >= p.n_inst)
+                    throw py::value_error("instance must be in [0, " + std::to_string(p.n_inst) + "), got " +
+                                          std::to_string(instance));
+                auto a = input<T>(x, "x");
+                if (a.ndim() != 1 || a.shape(0) != p.n_in)
+                    throw py::value_error("x must have shape (" + std::to_string(p.n_in) + ",), got " +
+                                          shape_str(a));
+                py::array_t<T> out(3);
+                p.k->step_one(instance, a.data(), out.mutable_data());
+                return out;
+            },
+            py::arg("instance"), py::arg("x"),
+            "One tick of one instance (scalar code). x: (n_inputs,) -> (3,) [y_slip, y_non, y_pred].")
+        .def(
             "run",
             [](PJ& p, py::handle x) {
                 auto a = input<T>(x, "x");
@@ -197,15 +213,19 @@ void bind_one(py::module_& m, const char* cls) {
             "[y_slip, y_non, y_pred]; the state carries over between calls.")
         .def(
             "time_step_ns",
-            [](PJ& p, long n_iter, int repeats) {
+            [](PJ& p, long n_iter, int repeats, const std::string& mode) {
                 if (n_iter < 1) throw py::value_error("n_iter must be >= 1");
                 if (repeats < 1) throw py::value_error("repeats must be >= 1");
+                if (mode != "simd" && mode != "scalar")
+                    throw py::value_error("mode must be 'simd' or 'scalar', got '" + mode + "'");
                 if (p.n_inst * p.n_in > 64 * 16) throw py::value_error("too many instances for the timing loop");
                 py::gil_scoped_release release;
-                return p.k->time_step_ns(n_iter, repeats);
+                return p.k->time_step_ns(n_iter, repeats, mode == "scalar");
             },
-            py::arg("n_iter") = 1000000, py::arg("repeats") = 5,
-            "Mean time of one step() of all instances over n_iter ticks, measured inside C++ (ns, best of repeats).");
+            py::arg("n_iter") = 1000000, py::arg("repeats") = 5, py::arg("mode") = "simd",
+            "Mean time of one tick of all instances over n_iter ticks, measured inside C++ (ns, best of "
+            "repeats). mode='simd' times step() on the selected SIMD path; mode='scalar' times a plain "
+            "scalar loop over the instances (step_one), the reference.");
 }
 
 }  // namespace

@@ -79,7 +79,6 @@ struct Scalar<float> {
     typedef std::int32_t iscalar;
     static constexpr float clamp = 80.0f;
     static constexpr float round_magic = 12582912.0f;  // 1.5 * 2^23
-    static constexpr float exp2_lim = 126.0f;
     static constexpr int bias = 127;
     static constexpr int mant = 23;
 };
@@ -89,7 +88,6 @@ struct Scalar<double> {
     typedef std::int64_t iscalar;
     static constexpr double clamp = 600.0;
     static constexpr double round_magic = 6755399441055744.0;  // 1.5 * 2^52
-    static constexpr double exp2_lim = 1022.0;
     static constexpr std::int64_t bias = 1023;
     static constexpr int mant = 52;
 };
@@ -105,10 +103,10 @@ struct Vec;
         typedef IT itype __attribute__((vector_size(BYTES)));               \
         static constexpr int lanes = BYTES / int(sizeof(T));                \
     };
-TM_DETECTOR_VEC(float, std::int32_t, 16)
-TM_DETECTOR_VEC(float, std::int32_t, 32)
-TM_DETECTOR_VEC(double, std::int64_t, 16)
-TM_DETECTOR_VEC(double, std::int64_t, 32)
+TM_DETECTOR_VEC(float, std::uint32_t, 16)
+TM_DETECTOR_VEC(float, std::uint32_t, 32)
+TM_DETECTOR_VEC(double, std::uint64_t, 16)
+TM_DETECTOR_VEC(double, std::uint64_t, 32)
 #undef TM_DETECTOR_VEC
 
 // 2^f on [-1/2, 1/2]: relative error < 1.9e-9 (least squares on Chebyshev nodes).
@@ -134,23 +132,19 @@ inline T sigmoid_exact_scalar(T a) {
 
 template <typename T>
 inline T sigmoid_fast_scalar(T a) {
-    typedef typename Scalar<T>::iscalar I;
+    typedef typename std::make_unsigned<typename Scalar<T>::iscalar>::type I;  // modular shifts
     a = clampv<T>(a, -Scalar<T>::clamp, Scalar<T>::clamp);
-    T y = clampv<T>(a * T(-1.4426950408889634), -Scalar<T>::exp2_lim, Scalar<T>::exp2_lim);
-    volatile T t = y + Scalar<T>::round_magic;  // round to nearest integer
-    T n = t - Scalar<T>::round_magic;
-    T f = y - n;
-    T p = T(kP6);
-    p = p * f + T(kP5);
-    p = p * f + T(kP4);
-    p = p * f + T(kP3);
-    p = p * f + T(kP2);
-    p = p * f + T(kP1);
-    p = p * f + T(kP0);
-    I ni = static_cast<I>(n);
-    I bits = static_cast<I>((ni + I(Scalar<T>::bias)) << Scalar<T>::mant);
+    const T y = a * T(-1.4426950408889634);
+    const T t = y + Scalar<T>::round_magic;  // round to nearest integer (no -ffast-math)
+    I tb;
+    std::memcpy(&tb, &t, sizeof tb);
+    const T f = y - (t - Scalar<T>::round_magic);
+    const T f2 = f * f;
+    const T p = ((T(kP3) * f + T(kP2)) * f2 + (T(kP1) * f + T(kP0))) +
+                (T(kP6) * f2 + (T(kP5) * f + T(kP4))) * (f2 * f2);
+    const I eb = static_cast<I>((tb + static_cast<I>(Scalar<T>::bias)) << Scalar<T>::mant);
     T scale;
-    std::memcpy(&scale, &bits, sizeof scale);
+    std::memcpy(&scale, &eb, sizeof scale);
     return T(1) / (T(1) + p * scale);
 }
 
@@ -229,7 +223,8 @@ __attribute__((always_inline)) inline typename Vec<T, B>::type sigmoid_vec(typen
         const V q456 = T(kP6) * f2 + q45;
         const V f4 = f2 * f2;
         const V p = (q23 * f2 + q01) + q456 * f4;
-        const IV eb = (tb + static_cast<typename VT::iscalar>(VT::bias)) << VT::mant;
+        typedef typename std::make_unsigned<typename VT::iscalar>::type U;  // modular shifts
+        const IV eb = (tb + static_cast<U>(VT::bias)) << VT::mant;
         V scale;
         std::memcpy(&scale, &eb, sizeof scale);
         return recip_fast(T(1) + p * scale);
@@ -402,22 +397,28 @@ public:
         }
     }
 
-    /// Mean time of one step() over n_iter ticks, in ns (best of `repeats` runs),
-    /// measured inside C++ on the current state. The state is restored afterwards.
-    double time_step_ns(long n_iter, int repeats = 5) noexcept {
-        T in[64 * 16];
-        T out[3 * 64 * 16];
-        const int nin = n_inst_ * n_in_ <= 64 * 16 ? n_inst_ : 0;
-        if (nin == 0 || n_iter < 1) return std::numeric_limits<double>::quiet_NaN();
-        T saved[64 * 16];
+    /// Mean time of one tick of all instances over n_iter ticks, in ns (best of
+    /// `repeats` runs), measured inside C++ on the current state; the state is
+    /// restored afterwards. scalar = false times step() (the SIMD path);
+    /// scalar = true times step_one() per instance (a plain scalar loop, the
+    /// reference). Needs n_instances * n_inputs <= 1024.
+    double time_step_ns(long n_iter, int repeats = 5, bool scalar = false) noexcept {
+        constexpr int cap = 64 * 16;
+        if (n_inst_ * n_in_ > cap || n_iter < 1) return std::numeric_limits<double>::quiet_NaN();
+        T in[cap];
+        T out[3 * cap];
+        T saved[cap];
         get_state(saved);
         for (int k = 0; k < n_inst_ * n_in_; ++k) in[k] = mean_[k % n_in_] + T(0.25) * T((k % 7) - 3);
         double best = std::numeric_limits<double>::infinity();
         volatile T sink = 0;
         for (int rep = 0; rep < repeats; ++rep) {
             const auto t0 = std::chrono::steady_clock::now();
-            for (long it = 0; it < n_iter; ++it) {
-                step(in, out);  // ticks depend on each other through the state
+            if (scalar) {
+                for (long it = 0; it < n_iter; ++it)
+                    for (int r = 0; r < n_inst_; ++r) step_one(r, in + r * n_in_, out + 3 * r);
+            } else {
+                for (long it = 0; it < n_iter; ++it) step(in, out);  // ticks chained through the state
             }
             const auto t1 = std::chrono::steady_clock::now();
             sink = sink + out[0];
