@@ -1,0 +1,170 @@
+/* tm.h - plain C interface of the tactile-mirror real-time pipeline.
+ *
+ * One pipeline turns, once per tick, the sampled PVDF circuit outputs of the pad's
+ * ridges into slip-detector outputs and a stage command:
+ *
+ *   x   = [v_L0, v_R0, v_L1, v_R1, ..., (u_L0, u_R0, ... when use_u)]   (n_inputs)
+ *   out = [x_cmd (m), v_cmd (m/s), y_slip_0, y_non_0, y_pred_0, y_slip_1, ...]
+ *                                                          (n_outputs = 2 + 3 n_ridges)
+ *
+ * Usage:
+ *
+ *   tm_config cfg;
+ *   tm_config_init(&cfg);                 // defaults, struct_size and abi_version
+ *   cfg.n_ridges = 6; cfg.fs = 1000.0; ...  // filters, detector weights, controller
+ *   tm_pipeline h;
+ *   if (tm_pipeline_create(&cfg, &h) != TM_OK) puts(tm_last_error());
+ *   int rc = tm_pipeline_step(h, x, n_inputs, out, n_outputs);   // TM_OK or TM_REJECTED
+ *   tm_pipeline_destroy(h);
+ *
+ * Rules:
+ * - Every function returns a tm_status code (TM_OK = 0, TM_REJECTED = 1 is a rejected
+ *   tick, negative values are errors) and never aborts the process. On an error
+ *   nothing changes and tm_last_error() (per thread) says what was wrong.
+ * - Handles are numbers, not pointers: 0, a destroyed handle or any other value
+ *   that was not returned by tm_pipeline_create gives TM_ERR_HANDLE.
+ * - tm_pipeline_step / tm_pipeline_process_block allocate nothing and take no lock:
+ *   call them from the real-time thread. A handle must not be used by two threads at
+ *   once; create and destroy take a process-wide lock.
+ * - Structures carry their own size (struct_size): a program built against an older
+ *   tm.h keeps working with a newer library.
+ *
+ * The library is shipped in the tactile_mirror Python wheel next to this header;
+ * tactile_mirror.loop.capi.library_path() gives its path.
+ */
+#ifndef TACTILE_MIRROR_TM_H
+#define TACTILE_MIRROR_TM_H
+
+#include <stddef.h>
+#include <stdint.h>
+
+#if defined(_WIN32)
+#define TM_API __declspec(dllexport)
+#else
+#define TM_API __attribute__((visibility("default")))
+#endif
+
+#ifdef __cplusplus
+extern "C" {
+#endif
+
+/* ABI version: incremented on any incompatible change of this header. */
+#define TM_ABI_VERSION 1
+
+typedef enum tm_status_code {
+    TM_OK = 0,
+    TM_REJECTED = 1,        /* step: the tick's samples were rejected (non-finite or out of range) */
+    TM_ERR_NULL = -1,       /* a required pointer is NULL */
+    TM_ERR_HANDLE = -2,     /* not a live pipeline handle */
+    TM_ERR_ARGUMENT = -3,   /* invalid configuration or argument value */
+    TM_ERR_SIZE = -4,       /* an array size does not match the pipeline */
+    TM_ERR_FS = -5,         /* detector weights made for another sample rate */
+    TM_ERR_VERSION = -6,    /* struct_size / abi_version not supported */
+    TM_ERR_MEMORY = -7,     /* out of memory or out of handles */
+    TM_ERR_INTERNAL = -8    /* unexpected failure (a bug: please report) */
+} tm_status_code;
+
+typedef enum tm_controller_kind {
+    TM_CONTROLLER_NONE = 0,     /* detection only: the command stays at its start position */
+    TM_CONTROLLER_PAPER = 1,    /* displacement proportional to y_pred above the threshold */
+    TM_CONTROLLER_VELOCITY = 2  /* velocity ramp with deadband, speed/acceleration/travel limits */
+} tm_controller_kind;
+
+typedef struct tm_controller_params {
+    int32_t kind;            /* tm_controller_kind */
+    double threshold;        /* y_pred threshold (paper) / start of the speed ramp (velocity), [0, 1) */
+    double gain;             /* paper: m/s of target motion per unit y_pred, >= 0 */
+    double y_full;           /* velocity: y_pred giving full speed, (threshold, 1] */
+    double v_max;            /* velocity: m/s, > 0 */
+    double a_max;            /* velocity: m/s^2, > 0 */
+    double x_min, x_max;     /* travel limits, m, x_min <= 0 <= x_max, x_min < x_max */
+    double direction_sign;   /* +1 or -1: stage direction for a positive L-R asymmetry */
+    double asym_tau;         /* s, > 0: leak of the L/R asymmetry integrator */
+    double asym_deadband;    /* >= 0: |asymmetry| below this keeps the previous direction */
+} tm_controller_params;
+
+typedef struct tm_config {
+    uint32_t struct_size;    /* sizeof(tm_config), set by tm_config_init */
+    uint32_t abi_version;    /* TM_ABI_VERSION, set by tm_config_init */
+    int32_t precision;       /* 64: double arithmetic (default), 32: float */
+    int32_t n_ridges;        /* ridges in use, 1..64 */
+    double fs;               /* sample rate, Hz */
+    int32_t use_u;           /* 1: u_out is sampled; 0: digital differentiator on the rate */
+    /* Second-order sections, rows (b0, b1, b2, a0, a1, a2), row-major. */
+    const double* sos_v;     /* v_out -> stress rate; n_sos_v = 0: raw v_out is the feature */
+    int32_t n_sos_v;
+    const double* sos_u;     /* u_out -> 2nd-order rate (use_u); n_sos_u = 0: raw u_out */
+    int32_t n_sos_u;
+    const double* sos_diff;  /* rate -> 2nd-order rate (use_u = 0; at least one section) */
+    int32_t n_sos_diff;
+    double v_limit, u_limit; /* |sample| above the limit: the tick is rejected (> 0) */
+    /* Detector (Jordan MLP, 4 features + y_pred feedback, H hidden units). */
+    int32_t n_hidden;
+    const double* w1;        /* (H, 5) row-major */
+    const double* b1;        /* (H) */
+    const double* w2;        /* (2, H) row-major: rows y_slip, y_pred */
+    const double* b2;        /* (2) */
+    const double* input_mean;  /* (4) */
+    const double* input_gain;  /* (4): features are (x - mean) * gain */
+    double weights_fs;       /* Hz the detector was trained for: must equal fs */
+    int32_t activation;      /* 0 exact sigmoid, 1 fast polynomial sigmoid */
+    double slip_threshold;   /* y_slip >= this counts as slip in the status, (0, 1) */
+    int64_t max_hold_ticks;  /* consecutive rejected ticks before the fault state, >= 0 */
+    tm_controller_params controller;
+} tm_config;
+
+typedef struct tm_pipeline_status {
+    uint32_t struct_size;    /* set by the caller to sizeof(tm_pipeline_status) */
+    uint64_t ticks;          /* ticks stepped (accepted + rejected) */
+    uint64_t rejected;
+    uint64_t nonfinite;      /* rejected ticks with a NaN or Inf sample */
+    uint64_t out_of_range;   /* rejected ticks with a finite sample beyond its limit */
+    int64_t last_bad_tick;   /* -1 if none */
+    int32_t last_bad_channel;
+    uint32_t consecutive_rejected;
+    int32_t fault;           /* 1: more than max_hold_ticks consecutive rejections, the stage stops */
+    int32_t slip;            /* 1: max y_slip >= slip_threshold at the last accepted tick */
+    int32_t at_limit;        /* 1: the command is on a travel limit */
+    double position;         /* controller's commanded position, m */
+    double velocity;         /* commanded velocity, m/s */
+} tm_pipeline_status;
+
+typedef uint64_t tm_pipeline;  /* 0 is never a valid handle */
+
+TM_API int32_t tm_abi_version(void);
+TM_API const char* tm_version_string(void);
+TM_API const char* tm_status_name(int32_t code);
+/* The message of the last error on the calling thread ("" if none). */
+TM_API const char* tm_last_error(void);
+
+/* Fill cfg with defaults: 6 ridges, 1 kHz, use_u, no filters, no detector weights
+ * (w1 ... must be set), no controller. */
+TM_API int32_t tm_config_init(tm_config* cfg);
+TM_API int32_t tm_controller_init(tm_controller_params* params);
+
+TM_API int32_t tm_pipeline_create(const tm_config* cfg, tm_pipeline* out);
+TM_API int32_t tm_pipeline_destroy(tm_pipeline h);
+
+TM_API int32_t tm_pipeline_sizes(tm_pipeline h, size_t* n_inputs, size_t* n_outputs);
+/* One tick. Returns TM_OK, TM_REJECTED (out holds the held outputs) or an error. */
+TM_API int32_t tm_pipeline_step(tm_pipeline h, const double* x, size_t n_x, double* out, size_t n_out);
+/* n_ticks ticks, x row-major (n_ticks, n_inputs), out row-major (n_ticks, n_outputs);
+ * accepted (may be NULL) gets 1/0 per tick; n_rejected (may be NULL) the count.
+ * Identical to n_ticks calls of tm_pipeline_step. */
+TM_API int32_t tm_pipeline_process_block(tm_pipeline h, const double* x, size_t n_ticks, size_t n_x,
+                                         double* out, size_t n_out, uint8_t* accepted, size_t* n_rejected);
+/* Features of the last accepted tick, (n_ridges, 4): rate_L, rate_R, rate2_L, rate2_R. */
+TM_API int32_t tm_pipeline_features(tm_pipeline h, double* f, size_t n_f);
+/* Back to rest with the command at x0 (m); counters cleared. */
+TM_API int32_t tm_pipeline_reset(tm_pipeline h, double x0);
+/* Tell the controller where the stage is, m. */
+TM_API int32_t tm_pipeline_set_position(tm_pipeline h, double x);
+TM_API int32_t tm_pipeline_get_status(tm_pipeline h, tm_pipeline_status* status);
+/* Mean ns per tick measured inside the library (state restored afterwards). */
+TM_API int32_t tm_pipeline_time_step_ns(tm_pipeline h, int64_t n_iter, double* ns);
+
+#ifdef __cplusplus
+}
+#endif
+
+#endif /* TACTILE_MIRROR_TM_H */

@@ -1,0 +1,351 @@
+// The C ABI of tm.h over MirrorPipeline<T> (pipeline.hpp).
+//
+// Handles index a fixed table of slots; a handle carries the slot and the slot's
+// generation, so 0, stale (destroyed) and made-up handles are recognised without
+// ever dereferencing them. Nothing here lets an exception or an abort escape.
+#include "tm.h"
+
+#include <atomic>
+#include <cstdarg>
+#include <cstdio>
+#include <cstring>
+#include <exception>
+#include <memory>
+#include <mutex>
+#include <new>
+#include <stdexcept>
+
+#include "pipeline.hpp"
+
+namespace {
+
+using tactile::MirrorPipeline;
+using tactile::PipelineConfig;
+
+thread_local char g_error[512] = "";
+
+int32_t fail(int32_t code, const char* fmt, ...) {
+    va_list ap;
+    va_start(ap, fmt);
+    std::vsnprintf(g_error, sizeof g_error, fmt, ap);
+    va_end(ap);
+    return code;
+}
+
+struct Instance {
+    std::unique_ptr<MirrorPipeline<double>> d;
+    std::unique_ptr<MirrorPipeline<float>> f;
+};
+
+constexpr std::uint32_t kSlots = 4096;
+struct Slot {
+    std::atomic<Instance*> inst{nullptr};
+    std::atomic<std::uint32_t> gen{1};
+};
+Slot g_slots[kSlots];
+std::mutex g_table_lock;
+
+Instance* lookup(tm_pipeline h) noexcept {
+    const std::uint64_t idx = (h & 0xffffffffu);
+    const std::uint32_t gen = std::uint32_t(h >> 32);
+    if (idx == 0 || idx > kSlots) return nullptr;
+    Slot& s = g_slots[idx - 1];
+    if (s.gen.load(std::memory_order_acquire) != gen) return nullptr;
+    return s.inst.load(std::memory_order_acquire);
+}
+
+#define TM_GET(h, inst)                                                                   \
+    Instance* inst = lookup(h);                                                          \
+    if (!inst) return fail(TM_ERR_HANDLE, "handle %llu is not a live pipeline", (unsigned long long)(h))
+
+template <typename F>
+auto with(Instance* in, F&& f) noexcept {
+    if (in->d) return f(*in->d);
+    return f(*in->f);
+}
+
+void controller_defaults(tm_controller_params* p) {
+    const tactile::ControllerParams d;
+    p->kind = int32_t(d.kind);
+    p->threshold = d.threshold;
+    p->gain = d.gain;
+    p->y_full = d.y_full;
+    p->v_max = d.v_max;
+    p->a_max = d.a_max;
+    p->x_min = d.x_min;
+    p->x_max = d.x_max;
+    p->direction_sign = d.direction_sign;
+    p->asym_tau = d.asym_tau;
+    p->asym_deadband = d.asym_deadband;
+}
+
+}  // namespace
+
+extern "C" {
+
+int32_t tm_abi_version(void) { return TM_ABI_VERSION; }
+
+const char* tm_version_string(void) { return "tactile-mirror C ABI 1 (pipeline 0.1.0)"; }
+
+const char* tm_status_name(int32_t code) {
+    switch (code) {
+        case TM_OK: return "TM_OK";
+        case TM_REJECTED: return "TM_REJECTED";
+        case TM_ERR_NULL: return "TM_ERR_NULL";
+        case TM_ERR_HANDLE: return "TM_ERR_HANDLE";
+        case TM_ERR_ARGUMENT: return "TM_ERR_ARGUMENT";
+        case TM_ERR_SIZE: return "TM_ERR_SIZE";
+        case TM_ERR_FS: return "TM_ERR_FS";
+        case TM_ERR_VERSION: return "TM_ERR_VERSION";
+        case TM_ERR_MEMORY: return "TM_ERR_MEMORY";
+        case TM_ERR_INTERNAL: return "TM_ERR_INTERNAL";
+        default: return "unknown status";
+    }
+}
+
+const char* tm_last_error(void) { return g_error; }
+
+int32_t tm_controller_init(tm_controller_params* params) {
+    if (!params) return fail(TM_ERR_NULL, "params is NULL");
+    controller_defaults(params);
+    return TM_OK;
+}
+
+int32_t tm_config_init(tm_config* cfg) {
+    if (!cfg) return fail(TM_ERR_NULL, "cfg is NULL");
+    std::memset(cfg, 0, sizeof *cfg);
+    const PipelineConfig d;
+    cfg->struct_size = sizeof(tm_config);
+    cfg->abi_version = TM_ABI_VERSION;
+    cfg->precision = 64;
+    cfg->n_ridges = d.n_ridges;
+    cfg->fs = d.fs;
+    cfg->use_u = 1;
+    cfg->v_limit = d.v_limit;
+    cfg->u_limit = d.u_limit;
+    cfg->weights_fs = 0.0;
+    cfg->activation = 0;
+    cfg->slip_threshold = d.slip_threshold;
+    cfg->max_hold_ticks = d.max_hold_ticks;
+    controller_defaults(&cfg->controller);
+    return TM_OK;
+}
+
+int32_t tm_pipeline_create(const tm_config* cfg, tm_pipeline* out) {
+    if (!cfg) return fail(TM_ERR_NULL, "cfg is NULL");
+    if (!out) return fail(TM_ERR_NULL, "out is NULL");
+    *out = 0;
+    if (cfg->struct_size != sizeof(tm_config))
+        return fail(TM_ERR_VERSION, "cfg->struct_size is %u, this library expects %u (call tm_config_init)",
+                    unsigned(cfg->struct_size), unsigned(sizeof(tm_config)));
+    if (cfg->abi_version != TM_ABI_VERSION)
+        return fail(TM_ERR_VERSION, "cfg->abi_version is %u, this library implements %d", unsigned(cfg->abi_version),
+                    TM_ABI_VERSION);
+    if (cfg->precision != 64 && cfg->precision != 32)
+        return fail(TM_ERR_ARGUMENT, "cfg->precision must be 64 or 32, got %d", int(cfg->precision));
+    const int32_t kind = cfg->controller.kind;
+    if (kind < 0 || kind > 2)
+        return fail(TM_ERR_ARGUMENT, "controller.kind must be 0 (none), 1 (paper) or 2 (velocity), got %d", int(kind));
+    PipelineConfig c;
+    c.n_ridges = cfg->n_ridges;
+    c.fs = cfg->fs;
+    c.use_u = cfg->use_u != 0;
+    c.sos_v = cfg->sos_v;
+    c.n_sos_v = cfg->n_sos_v;
+    c.sos_u = cfg->sos_u;
+    c.n_sos_u = cfg->n_sos_u;
+    c.sos_diff = cfg->sos_diff;
+    c.n_sos_diff = cfg->n_sos_diff;
+    c.v_limit = cfg->v_limit;
+    c.u_limit = cfg->u_limit;
+    c.n_hidden = cfg->n_hidden;
+    c.w1 = cfg->w1;
+    c.b1 = cfg->b1;
+    c.w2 = cfg->w2;
+    c.b2 = cfg->b2;
+    c.input_mean = cfg->input_mean;
+    c.input_gain = cfg->input_gain;
+    c.weights_fs = cfg->weights_fs;
+    c.activation = cfg->activation;
+    c.slip_threshold = cfg->slip_threshold;
+    c.max_hold_ticks = long(cfg->max_hold_ticks);
+    const tm_controller_params& p = cfg->controller;
+    c.controller.kind = tactile::ControllerKind(kind);
+    c.controller.threshold = p.threshold;
+    c.controller.gain = p.gain;
+    c.controller.y_full = p.y_full;
+    c.controller.v_max = p.v_max;
+    c.controller.a_max = p.a_max;
+    c.controller.x_min = p.x_min;
+    c.controller.x_max = p.x_max;
+    c.controller.direction_sign = p.direction_sign;
+    c.controller.asym_tau = p.asym_tau;
+    c.controller.asym_deadband = p.asym_deadband;
+    // The sample-rate check first, with its own code.
+    if (std::isfinite(c.fs) && c.fs > 0 && std::isfinite(c.weights_fs) && c.weights_fs > 0 &&
+        std::fabs(c.fs - c.weights_fs) > 1e-9 * c.fs)
+        return fail(TM_ERR_FS, "weights_fs = %g Hz does not match fs = %g Hz: the detector was trained for another "
+                    "sample rate", c.weights_fs, c.fs);
+    std::unique_ptr<Instance> inst;
+    try {
+        inst = std::make_unique<Instance>();
+        if (cfg->precision == 64)
+            inst->d = std::make_unique<MirrorPipeline<double>>(c);
+        else
+            inst->f = std::make_unique<MirrorPipeline<float>>(c);
+    } catch (const std::invalid_argument& e) {
+        return fail(TM_ERR_ARGUMENT, "%s", e.what());
+    } catch (const std::bad_alloc&) {
+        return fail(TM_ERR_MEMORY, "out of memory");
+    } catch (const std::exception& e) {
+        return fail(TM_ERR_INTERNAL, "%s", e.what());
+    } catch (...) {
+        return fail(TM_ERR_INTERNAL, "unknown exception while creating the pipeline");
+    }
+    std::lock_guard<std::mutex> lock(g_table_lock);
+    for (std::uint32_t i = 0; i < kSlots; ++i) {
+        Slot& s = g_slots[i];
+        if (s.inst.load(std::memory_order_relaxed) == nullptr) {
+            s.inst.store(inst.release(), std::memory_order_release);
+            *out = (std::uint64_t(s.gen.load(std::memory_order_relaxed)) << 32) | std::uint64_t(i + 1);
+            g_error[0] = '\0';
+            return TM_OK;
+        }
+    }
+    return fail(TM_ERR_MEMORY, "too many live pipelines (%u)", unsigned(kSlots));
+}
+
+int32_t tm_pipeline_destroy(tm_pipeline h) {
+    Instance* victim = nullptr;
+    {
+        std::lock_guard<std::mutex> lock(g_table_lock);
+        const std::uint64_t idx = (h & 0xffffffffu);
+        const std::uint32_t gen = std::uint32_t(h >> 32);
+        if (idx == 0 || idx > kSlots) return fail(TM_ERR_HANDLE, "handle %llu is not a live pipeline",
+                                                  (unsigned long long)h);
+        Slot& s = g_slots[idx - 1];
+        if (s.gen.load(std::memory_order_relaxed) != gen || !s.inst.load(std::memory_order_relaxed))
+            return fail(TM_ERR_HANDLE, "handle %llu is not a live pipeline", (unsigned long long)h);
+        std::uint32_t next = gen + 1;
+        if (next == 0) next = 1;  // generation 0 is never issued
+        s.gen.store(next, std::memory_order_release);
+        victim = s.inst.exchange(nullptr, std::memory_order_acq_rel);
+    }
+    delete victim;
+    return TM_OK;
+}
+
+int32_t tm_pipeline_sizes(tm_pipeline h, size_t* n_inputs, size_t* n_outputs) {
+    TM_GET(h, in);
+    if (!n_inputs || !n_outputs) return fail(TM_ERR_NULL, "n_inputs and n_outputs must not be NULL");
+    with(in, [&](auto& p) {
+        *n_inputs = p.n_inputs();
+        *n_outputs = p.n_outputs();
+        return 0;
+    });
+    return TM_OK;
+}
+
+int32_t tm_pipeline_step(tm_pipeline h, const double* x, size_t n_x, double* out, size_t n_out) {
+    TM_GET(h, in);
+    if (!x) return fail(TM_ERR_NULL, "x is NULL");
+    return with(in, [&](auto& p) -> int32_t {
+        if (n_x != p.n_inputs())
+            return fail(TM_ERR_SIZE, "n_x is %zu, the pipeline takes %zu inputs per tick", n_x, p.n_inputs());
+        if (out && n_out != p.n_outputs())
+            return fail(TM_ERR_SIZE, "n_out is %zu, the pipeline gives %zu outputs per tick", n_out, p.n_outputs());
+        return p.step(x, out) ? TM_OK : TM_REJECTED;
+    });
+}
+
+int32_t tm_pipeline_process_block(tm_pipeline h, const double* x, size_t n_ticks, size_t n_x, double* out,
+                                  size_t n_out, uint8_t* accepted, size_t* n_rejected) {
+    TM_GET(h, in);
+    if (n_ticks && !x) return fail(TM_ERR_NULL, "x is NULL");
+    return with(in, [&](auto& p) -> int32_t {
+        if (n_x != p.n_inputs())
+            return fail(TM_ERR_SIZE, "n_x is %zu, the pipeline takes %zu inputs per tick", n_x, p.n_inputs());
+        if (out && n_out != p.n_outputs())
+            return fail(TM_ERR_SIZE, "n_out is %zu, the pipeline gives %zu outputs per tick", n_out, p.n_outputs());
+        const std::size_t bad = p.process_block(x, n_ticks, n_x, out, n_out, nullptr, 0, accepted);
+        if (n_rejected) *n_rejected = bad;
+        return TM_OK;
+    });
+}
+
+int32_t tm_pipeline_features(tm_pipeline h, double* f, size_t n_f) {
+    TM_GET(h, in);
+    if (!f) return fail(TM_ERR_NULL, "f is NULL");
+    return with(in, [&](auto& p) -> int32_t {
+        if (n_f != p.n_features())
+            return fail(TM_ERR_SIZE, "n_f is %zu, the pipeline has %zu features", n_f, p.n_features());
+        p.last_features(f);
+        return TM_OK;
+    });
+}
+
+int32_t tm_pipeline_reset(tm_pipeline h, double x0) {
+    TM_GET(h, in);
+    if (!std::isfinite(x0)) return fail(TM_ERR_ARGUMENT, "x0 must be finite");
+    with(in, [&](auto& p) {
+        p.reset(x0);
+        return 0;
+    });
+    return TM_OK;
+}
+
+int32_t tm_pipeline_set_position(tm_pipeline h, double x) {
+    TM_GET(h, in);
+    if (!std::isfinite(x)) return fail(TM_ERR_ARGUMENT, "x must be finite");
+    with(in, [&](auto& p) {
+        p.set_position(x);
+        return 0;
+    });
+    return TM_OK;
+}
+
+int32_t tm_pipeline_get_status(tm_pipeline h, tm_pipeline_status* status) {
+    TM_GET(h, in);
+    if (!status) return fail(TM_ERR_NULL, "status is NULL");
+    const std::uint32_t size = status->struct_size;
+    if (size < sizeof(std::uint32_t) || size > sizeof(tm_pipeline_status))
+        return fail(TM_ERR_VERSION, "status->struct_size is %u, expected %u (set it to sizeof(tm_pipeline_status))",
+                    unsigned(size), unsigned(sizeof(tm_pipeline_status)));
+    tm_pipeline_status s;
+    std::memset(&s, 0, sizeof s);
+    with(in, [&](auto& p) {
+        const tactile::PipelineStatus& st = p.status();
+        s.ticks = st.ticks;
+        s.rejected = st.rejected;
+        s.nonfinite = st.nonfinite;
+        s.out_of_range = st.out_of_range;
+        s.last_bad_tick = st.last_bad_tick;
+        s.last_bad_channel = st.last_bad_channel;
+        s.consecutive_rejected = st.consecutive_rejected;
+        s.fault = st.fault;
+        s.slip = st.slip;
+        s.at_limit = st.at_limit;
+        s.position = p.controller().position();
+        s.velocity = p.controller().velocity();
+        return 0;
+    });
+    s.struct_size = size;
+    std::memcpy(status, &s, size);
+    return TM_OK;
+}
+
+int32_t tm_pipeline_time_step_ns(tm_pipeline h, int64_t n_iter, double* ns) {
+    TM_GET(h, in);
+    if (!ns) return fail(TM_ERR_NULL, "ns is NULL");
+    if (n_iter < 1) return fail(TM_ERR_ARGUMENT, "n_iter must be >= 1");
+    try {
+        *ns = with(in, [&](auto& p) { return p.time_step_ns(long(n_iter), 5); });
+    } catch (const std::bad_alloc&) {
+        return fail(TM_ERR_MEMORY, "out of memory");
+    } catch (...) {
+        return fail(TM_ERR_INTERNAL, "timing failed");
+    }
+    return TM_OK;
+}
+
+}  // extern "C"
