@@ -85,6 +85,13 @@ void bind_cascade(py::module_& m, const char* name) {
         .def_property_readonly("channels", [](C& c) { return c.k.channels(); })
         .def_property_readonly("sections", [](C& c) { return c.k.sections(); })
         .def_property_readonly("isa", [](C& c) { return std::string(tactile::isa_name(c.k.isa())); })
+        .def(
+            "use_baseline_isa",
+            [](C& c) {
+                BusyLock<T> lock(c);
+                c.k.set_isa(tactile::Isa::baseline);
+            },
+            "Run the portable baseline kernels (testing aid).")
         .def_property_readonly("rejected", [](C& c) { return c.k.rejected(); },
                                "number of step() samples rejected as non-finite")
         .def(

@@ -101,6 +101,15 @@ public:
     std::size_t sections() const noexcept { return n_sections_; }
     SectionForm form(std::size_t s) const noexcept { return forms_[s]; }
     Isa isa() const noexcept { return isa_; }
+    // Run the portable baseline kernels instead of the dispatched ones (for
+    // testing both paths on one machine). Returns false if `isa` cannot run here.
+    bool set_isa(Isa isa) noexcept {
+        if (isa == detect_isa() || isa == Isa::baseline) {
+            isa_ = isa;
+            return true;
+        }
+        return false;
+    }
     std::uint64_t rejected() const noexcept { return rejected_; }
     void clear_rejected() noexcept { rejected_ = 0; }
 
