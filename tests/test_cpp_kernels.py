@@ -44,6 +44,6 @@ def test_sos_kernel_under_sanitizers(tmp_path, sos_test_exe, channels, n):
         sos.astype(np.float64).tofile(f)
         x.tofile(f)
         ref.tofile(f)
-    out = subprocess.run([str(exe), str(data)], capture_output=True, text=True, timeout=120)
+    out = subprocess.run([str(exe), str(data)], check=False, capture_output=True, text=True, timeout=120)
     assert out.returncode == 0, out.stdout + out.stderr
     assert "ok: 0 failures" in out.stdout
