@@ -38,7 +38,7 @@
 //   velocity   a velocity command with a deadband and a linear ramp:
 //              v_des = dir * v_max * clip((y - threshold) / (y_full - threshold), 0, 1),
 //              limited so that the stage can always stop before a travel limit
-//              (|v| <= sqrt(2 a_max d)), then slewed at most a_max * dt per tick and
+//              (v^2 / (2 a_max) + |v| dt / 2 <= d, the distance left), then slewed at most a_max * dt per tick and
 //              integrated into the position target. Speed, acceleration and travel
 //              are all respected.
 //
@@ -230,16 +230,19 @@ public:
                 double s = (y - p_.threshold) / (p_.y_full - p_.threshold);
                 s = s < 0.0 ? 0.0 : (s > 1.0 ? 1.0 : s);
                 double vd = dir_ * p_.v_max * s;
-                const double hi = std::sqrt(2.0 * p_.a_max * std::max(0.0, p_.x_max - x_));
-                const double lo = -std::sqrt(2.0 * p_.a_max * std::max(0.0, x_ - p_.x_min));
+                // Largest speed from which decelerating by a_max dt per tick stops
+                // within the distance d left: v^2 / (2 a) + v dt / 2 <= d.
+                const double h = 0.5 * p_.a_max * dt_;
+                const double hi = std::sqrt(h * h + 2.0 * p_.a_max * std::max(0.0, p_.x_max - x_)) - h;
+                const double lo = h - std::sqrt(h * h + 2.0 * p_.a_max * std::max(0.0, x_ - p_.x_min));
                 vd = vd > hi ? hi : (vd < lo ? lo : vd);
                 const double dv_max = p_.a_max * dt_;
                 double dv = vd - v_;
                 dv = dv > dv_max ? dv_max : (dv < -dv_max ? -dv_max : dv);
                 v_ += dv;
-                const double xn = x_ + v_ * dt_;
+                const double x0 = x_, xn = x_ + v_ * dt_;
                 x_ = clamp(xn);
-                if (x_ != xn) v_ = 0.0;
+                if (x_ != xn) v_ = (x_ - x0) / dt_;  // the speed actually left at the limit
                 break;
             }
             default: break;

@@ -1,0 +1,35 @@
+"""The tactile-mirror loop: controllers, stages, the loop runner, recordings.
+
+- :mod:`~tactile_mirror.loop.controller`: the paper's stage law and a velocity law
+  with limits (both run inside the C++ pipeline; numpy references here);
+- :mod:`~tactile_mirror.loop.stage`: the :class:`Stage` protocol and :class:`SimulatedStage`;
+- :mod:`~tactile_mirror.loop.runner`: :class:`LoopRunner` (fixed rate, latency percentiles);
+- :mod:`~tactile_mirror.loop.recording`: :class:`Recording` (npz, bit-identical replay);
+- :mod:`~tactile_mirror.loop.capi`: the C ABI's library path and a cffi binding;
+- :mod:`~tactile_mirror.loop.experiment`: the closed-loop experiment of the paper's section 4.
+"""
+from __future__ import annotations
+
+from .capi import header_path, library_path
+from .controller import Controller, NoController, PaperController, VelocityController, controller_from_dict
+from .recording import Recording, RecordingError
+from .runner import ArraySource, LoopResult, LoopRunner
+from .stage import SimulatedStage, Stage, StageLimits
+
+__all__ = [
+    "ArraySource",
+    "Controller",
+    "LoopResult",
+    "LoopRunner",
+    "NoController",
+    "PaperController",
+    "Recording",
+    "RecordingError",
+    "SimulatedStage",
+    "Stage",
+    "StageLimits",
+    "VelocityController",
+    "controller_from_dict",
+    "header_path",
+    "library_path",
+]

@@ -1,0 +1,269 @@
+"""Stage controllers: from the slip detector's outputs to a stage command.
+
+Both laws read, per tick, ``y`` = the largest ``y_pred`` over the ridges in use and
+the L/R asymmetry of the stress rates, and command a stage position ``x`` (m)
+and velocity ``v`` (m/s). They run inside the C++ pipeline
+(:class:`tactile_mirror.MirrorPipeline`); the classes here hold and validate the
+parameters and give a numpy reference of the same arithmetic (:meth:`Controller.run`).
+
+Direction (both laws)
+    The shear load on a ridge bends it, so the two strips see opposite stress
+    changes: ``rate_L - rate_R`` is the rate of the L/R stress difference. Its leaky
+    integral (time constant ``asym_tau``)::
+
+        a <- exp(-dt / asym_tau) a + dt * sum_r (rate_L,r - rate_R,r)
+
+    is the stress difference high-passed at ``1 / (2 pi asym_tau)``: its sign says
+    which way the finger pulls. ``dir = direction_sign * sign(a)`` while
+    ``|a| > asym_deadband``, else the previous ``dir`` (0 before the first decision).
+    ``direction_sign`` maps the strips' orientation to the stage axis (+1 or -1;
+    calibrate it once per pad, e.g. with :func:`tactile_mirror.loop.calibrate_direction`).
+
+:class:`PaperController` (Fujimoto et al., section 4.2.2)
+    "the displacement is set in proportion to the amplitude of ``y_pred`` when it
+    overpasses the threshold": every tick with ``y >= threshold`` the target moves
+    by ``dir * gain * y * dt``. Only the travel limits are enforced; a real stage
+    saturates its own speed and acceleration.
+
+:class:`VelocityController`
+    A velocity command with a deadband and a linear ramp,
+    ``v_des = dir * v_max * clip((y - threshold) / (y_full - threshold), 0, 1)``,
+    bounded so that the stage can always stop before a travel limit
+    (``v^2 / (2 a_max) + |v| dt / 2 <= d``, the distance left), slewed by at most ``a_max * dt`` per tick and
+    integrated into the target: it respects the stage's speed, acceleration and travel.
+"""
+from __future__ import annotations
+
+import math
+import numbers
+from dataclasses import asdict, dataclass
+
+import numpy as np
+
+__all__ = ["Controller", "NoController", "PaperController", "VelocityController", "controller_from_dict"]
+
+
+def _real(value, name: str) -> float:
+    if isinstance(value, bool) or not isinstance(value, numbers.Real):
+        raise TypeError(f"{name} must be a real number, got {type(value).__name__}")
+    v = float(value)
+    if not math.isfinite(v):
+        raise ValueError(f"{name} must be finite, got {value!r}")
+    return v
+
+
+@dataclass(frozen=True)
+class Controller:
+    """Parameters shared by the laws (see the module docstring).
+
+    Parameters
+    ----------
+    threshold : float
+        ``y_pred`` threshold, in [0, 1).
+    x_min, x_max : float
+        Travel limits of the command, m; ``x_min <= 0 <= x_max`` (0 is the start).
+    direction_sign : {+1, -1}
+        Stage direction for a positive L-R asymmetry.
+    asym_tau : float
+        Time constant of the asymmetry integrator, s (> 0).
+    asym_deadband : float
+        Asymmetry (rate units x s; Pa for stress-rate features) below which the
+        previous direction is kept (>= 0).
+    """
+
+    kind = "none"
+    threshold: float = 0.5
+    x_min: float = -0.05
+    x_max: float = 0.05
+    direction_sign: float = 1.0
+    asym_tau: float = 1.0
+    asym_deadband: float = 0.0
+
+    def __post_init__(self):
+        for name in ("threshold", "x_min", "x_max", "direction_sign", "asym_tau", "asym_deadband"):
+            object.__setattr__(self, name, _real(getattr(self, name), name))
+        if not 0.0 <= self.threshold < 1.0:
+            raise ValueError(f"threshold must lie in [0, 1), got {self.threshold}")
+        if not self.x_min < self.x_max:
+            raise ValueError(f"x_max must be greater than x_min, got x_min={self.x_min}, x_max={self.x_max}")
+        if not (self.x_min <= 0.0 <= self.x_max):
+            raise ValueError(f"x_min and x_max must bracket 0 (the start position), got [{self.x_min}, {self.x_max}]")
+        if self.direction_sign not in (1.0, -1.0):
+            raise ValueError(f"direction_sign must be +1 or -1, got {self.direction_sign}")
+        if not self.asym_tau > 0:
+            raise ValueError(f"asym_tau must be > 0 s, got {self.asym_tau}")
+        if not self.asym_deadband >= 0:
+            raise ValueError(f"asym_deadband must be >= 0, got {self.asym_deadband}")
+
+    def params(self) -> dict:
+        """The parameters as the C++ pipeline takes them (``kind`` included)."""
+        d = asdict(self)
+        d["kind"] = self.kind
+        return d
+
+    # -- numpy reference ---------------------------------------------------------------
+    def _move(self, x, v, y, dt, dirn):
+        return x, v
+
+    def run(self, y_pred, asym, fs, x0: float = 0.0):
+        """Reference run of the law over a sequence (plain Python, float64).
+
+        Parameters
+        ----------
+        y_pred : array_like, shape (n,)
+            Largest ``y_pred`` over the ridges, per tick.
+        asym : array_like, shape (n,)
+            ``sum_r (rate_L - rate_R)`` per tick (rate units).
+        fs : float
+            Tick rate, Hz.
+        x0 : float
+            Start position, m.
+
+        Returns
+        -------
+        x, v : ndarray, shape (n,)
+            Commanded position (m) and velocity (m/s) after each tick.
+        """
+        y = np.asarray(y_pred, dtype=np.float64)
+        d = np.asarray(asym, dtype=np.float64)
+        if y.ndim != 1 or d.shape != y.shape:
+            raise ValueError(f"y_pred and asym must be 1-D of equal length, got {y.shape} and {d.shape}")
+        fs = _real(fs, "fs")
+        if fs <= 0:
+            raise ValueError(f"fs must be > 0 Hz, got {fs}")
+        dt = 1.0 / fs
+        leak = math.exp(-dt / self.asym_tau)
+        x = min(max(float(x0), self.x_min), self.x_max)
+        v = 0.0
+        a = 0.0
+        dirn = 0.0
+        xs = np.empty_like(y)
+        vs = np.empty_like(y)
+        for k in range(y.size):
+            a = leak * a + dt * d[k]
+            if abs(a) > self.asym_deadband:
+                dirn = self.direction_sign if a > 0 else -self.direction_sign
+            x, v = self._move(x, v, y[k], dt, dirn)
+            xs[k] = x
+            vs[k] = v
+        return xs, vs
+
+    def _clamp(self, x):
+        return min(max(x, self.x_min), self.x_max)
+
+
+@dataclass(frozen=True)
+class NoController(Controller):
+    """No stage motion: the pipeline only detects (open loop)."""
+
+    kind = "none"
+
+    def _move(self, x, v, y, dt, dirn):
+        return x, v
+
+
+@dataclass(frozen=True)
+class PaperController(Controller):
+    """The paper's law: target displacement proportional to ``y_pred`` above threshold.
+
+    Parameters
+    ----------
+    gain : float
+        Target speed per unit ``y_pred``, m/s (>= 0): each tick with
+        ``y_pred >= threshold`` moves the target by ``dir * gain * y_pred / fs``.
+    threshold, x_min, x_max, direction_sign, asym_tau, asym_deadband
+        See :class:`Controller`.
+    """
+
+    kind = "paper"
+    gain: float = 0.01
+
+    def __post_init__(self):
+        super().__post_init__()
+        object.__setattr__(self, "gain", _real(self.gain, "gain"))
+        if self.gain < 0:
+            raise ValueError(f"gain must be >= 0 m/s, got {self.gain}")
+
+    def _move(self, x, v, y, dt, dirn):
+        x0 = x
+        if y >= self.threshold:
+            x = self._clamp(x + dirn * self.gain * y * dt)
+        return x, (x - x0) / dt
+
+
+@dataclass(frozen=True)
+class VelocityController(Controller):
+    """Velocity ramp with a deadband, within the stage's speed, acceleration and travel.
+
+    Parameters
+    ----------
+    threshold : float
+        ``y_pred`` where the ramp starts (the deadband is ``y_pred < threshold``).
+    y_full : float
+        ``y_pred`` giving full speed, in ``(threshold, 1]``.
+    v_max : float
+        Speed limit, m/s (> 0).
+    a_max : float
+        Acceleration limit, m/s^2 (> 0).
+    x_min, x_max, direction_sign, asym_tau, asym_deadband
+        See :class:`Controller`.
+    """
+
+    kind = "velocity"
+    threshold: float = 0.3
+    y_full: float = 0.7
+    v_max: float = 0.02
+    a_max: float = 1.0
+
+    def __post_init__(self):
+        super().__post_init__()
+        for name in ("y_full", "v_max", "a_max"):
+            object.__setattr__(self, name, _real(getattr(self, name), name))
+        if not self.threshold < self.y_full <= 1.0:
+            raise ValueError(f"y_full must lie in (threshold, 1] = ({self.threshold}, 1], got {self.y_full}")
+        if not self.v_max > 0:
+            raise ValueError(f"v_max must be > 0 m/s, got {self.v_max}")
+        if not self.a_max > 0:
+            raise ValueError(f"a_max must be > 0 m/s^2, got {self.a_max}")
+
+    def _move(self, x, v, y, dt, dirn):
+        s = min(max((y - self.threshold) / (self.y_full - self.threshold), 0.0), 1.0)
+        vd = dirn * self.v_max * s
+        h = 0.5 * self.a_max * dt
+        hi = math.sqrt(h * h + 2.0 * self.a_max * max(0.0, self.x_max - x)) - h
+        lo = h - math.sqrt(h * h + 2.0 * self.a_max * max(0.0, x - self.x_min))
+        vd = min(max(vd, lo), hi)
+        dv_max = self.a_max * dt
+        v = v + min(max(vd - v, -dv_max), dv_max)
+        x0, xn = x, x + v * dt
+        x = self._clamp(xn)
+        if x != xn:
+            v = (x - x0) / dt
+        return x, v
+
+
+_KINDS = {"none": NoController, "paper": PaperController, "velocity": VelocityController}
+
+
+def controller_from_dict(d) -> Controller:
+    """Rebuild a controller from :meth:`Controller.params` (``None``: no controller)."""
+    if d is None:
+        return NoController()
+    if isinstance(d, Controller):
+        return d
+    if not isinstance(d, dict):
+        raise TypeError(f"controller must be a Controller, a dict or None, got {type(d).__name__}")
+    d = dict(d)
+    kind = d.pop("kind", "none")
+    if kind not in _KINDS:
+        raise ValueError(f"controller kind must be one of {sorted(_KINDS)}, got {kind!r}")
+    cls = _KINDS[kind]
+    names = set(cls.__dataclass_fields__)
+    unknown = sorted(set(d) - names)
+    # The C++ side reports every parameter; the ones a law does not use are dropped.
+    known = {k: v for k, v in d.items() if k in names}
+    unused = {"gain", "y_full", "v_max", "a_max"}
+    bad = [k for k in unknown if k not in unused]
+    if bad:
+        raise ValueError(f"controller {kind!r} has no parameter {bad[0]!r}")
+    return cls(**known)

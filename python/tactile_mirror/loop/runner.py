@@ -1,0 +1,215 @@
+"""Run a pipeline and a stage at a fixed rate from a sample source.
+
+:class:`LoopRunner` ticks ``source -> pipeline -> stage`` at the pipeline's rate,
+either paced in real time (busy-waiting on ``time.perf_counter_ns`` between ticks,
+as a DAQ-clocked loop would) or as fast as possible in simulated time. Every tick's
+latency (sample handed over -> stage command issued) is measured; the result gives
+percentiles and overrun counts, and can be saved as a :class:`~tactile_mirror.loop.Recording`.
+
+A source is any object with ``read(stage_position, t) -> ndarray | None``
+(float64, shape ``(pipeline.n_inputs,)``; None ends the run): :class:`ArraySource`
+plays samples from an array, the closed-loop experiment plays the simulated pad.
+"""
+from __future__ import annotations
+
+import math
+import numbers
+import time
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from .recording import Recording
+
+__all__ = ["ArraySource", "LoopResult", "LoopRunner"]
+
+
+class ArraySource:
+    """Samples from an array of shape (n, n_inputs), one row per tick."""
+
+    def __init__(self, samples):
+        a = np.asarray(samples)
+        if a.dtype.kind not in "biuf" or a.ndim != 2:
+            raise ValueError(f"samples must be a real array of shape (n, n_inputs), got {a.dtype} {a.shape}")
+        self.samples = np.ascontiguousarray(a, dtype=np.float64)
+        self.i = 0
+
+    def read(self, stage_position: float, t: float):
+        if self.i >= len(self.samples):
+            return None
+        row = self.samples[self.i]
+        self.i += 1
+        return row
+
+
+@dataclass
+class LoopResult:
+    """What a run produced (arrays of length ``n``, the ticks run).
+
+    Attributes
+    ----------
+    t : ndarray
+        Tick times, s (``k / fs``).
+    samples : ndarray, (n, n_inputs)
+    outputs : ndarray, (n, n_outputs)
+        The pipeline's outputs (``x_cmd, v_cmd, y_slip_0, y_non_0, y_pred_0, ...``).
+    accepted : ndarray of bool
+    stage_position : ndarray
+        Stage position read at each tick (before the command), m.
+    latency_ns : ndarray of int64
+        Sample handed over -> stage command returned, per tick.
+    overruns : int
+        Ticks that ended after their deadline (real-time runs) or whose latency
+        exceeded the period (simulated-time runs).
+    late_starts : int
+        Real-time runs: ticks that started more than one period late.
+    fs : float
+    realtime : bool
+    x0 : float
+    """
+
+    t: np.ndarray
+    samples: np.ndarray
+    outputs: np.ndarray
+    accepted: np.ndarray
+    stage_position: np.ndarray
+    latency_ns: np.ndarray
+    overruns: int
+    late_starts: int
+    fs: float
+    realtime: bool
+    x0: float = 0.0
+    status: dict = field(default_factory=dict)
+
+    def latency_percentiles(self) -> dict:
+        """p50, p99, p99.9 and max of the tick latency, microseconds."""
+        lat = self.latency_ns.astype(np.float64) / 1e3
+        if lat.size == 0:
+            return {"p50": math.nan, "p99": math.nan, "p99.9": math.nan, "max": math.nan}
+        p50, p99, p999 = np.percentile(lat, [50, 99, 99.9])
+        return {"p50": float(p50), "p99": float(p99), "p99.9": float(p999), "max": float(lat.max())}
+
+    def to_recording(self, config: dict, metadata: dict | None = None) -> Recording:
+        """The run as a :class:`Recording` (``config``: the pipeline's :attr:`config`)."""
+        meta = {"realtime": self.realtime, "overruns": int(self.overruns), "late_starts": int(self.late_starts),
+                "latency_us": self.latency_percentiles()}
+        meta.update(metadata or {})
+        return Recording(fs=self.fs, samples=self.samples, outputs=self.outputs, accepted=self.accepted,
+                         stage_position=self.stage_position, config=config, x0=self.x0, metadata=meta)
+
+
+class LoopRunner:
+    """Tick ``source -> pipeline -> stage`` at the pipeline's rate.
+
+    Parameters
+    ----------
+    pipeline : MirrorPipeline
+        Anything with ``step(x, out) -> x_cmd``, ``n_inputs``, ``n_outputs``, ``fs``,
+        ``reset(x0)`` (also the C ABI wrapper :class:`~tactile_mirror.loop.capi.CPipeline`).
+    stage : Stage
+        The stage; if it has ``advance(dt)`` (a simulated stage) it is advanced by
+        one period after each tick.
+    source : object with ``read(stage_position, t)``
+    realtime : bool
+        Pace ticks on the wall clock (busy wait). False: simulated time, as fast as
+        the source allows.
+    command : bool
+        Send the command to the stage (``move_to``) every tick. False: open loop,
+        the stage is never commanded.
+    """
+
+    def __init__(self, pipeline, stage, source, realtime: bool = False, command: bool = True):
+        for name in ("step", "n_inputs", "n_outputs", "fs", "reset"):
+            if not hasattr(pipeline, name):
+                raise TypeError(f"pipeline must have {name!r} (a MirrorPipeline), got {type(pipeline).__name__}")
+        for name in ("move_to", "position"):
+            if not hasattr(stage, name):
+                raise TypeError(f"stage must have {name!r} (the Stage protocol), got {type(stage).__name__}")
+        if not hasattr(source, "read"):
+            raise TypeError(f"source must have a read(stage_position, t) method, got {type(source).__name__}")
+        self.pipeline = pipeline
+        self.stage = stage
+        self.source = source
+        self.realtime = bool(realtime)
+        self.command = bool(command)
+
+    def run(self, n_ticks: int | None = None, duration: float | None = None, x0: float | None = None,
+            reset: bool = True) -> LoopResult:
+        """Run until ``n_ticks`` ticks (or ``duration`` s) or the end of the source.
+
+        Parameters
+        ----------
+        n_ticks : int, optional
+        duration : float, optional
+            Seconds; ``n_ticks = round(duration * fs)``. One of the two is required.
+        x0 : float, optional
+            Start position for the controller, m; default: the stage's position.
+        reset : bool
+            Reset the pipeline first (default).
+        """
+        fs = float(self.pipeline.fs)
+        if (n_ticks is None) == (duration is None):
+            raise ValueError("give exactly one of n_ticks and duration")
+        if duration is not None:
+            if not (isinstance(duration, numbers.Real) and duration > 0):
+                raise ValueError(f"duration must be > 0 s, got {duration!r}")
+            n_ticks = round(duration * fs)
+        if isinstance(n_ticks, bool) or not isinstance(n_ticks, numbers.Integral) or n_ticks < 1:
+            raise ValueError(f"n_ticks must be a positive integer, got {n_ticks!r}")
+        n = int(n_ticks)
+        pipe, stage, source = self.pipeline, self.stage, self.source
+        x_start = float(stage.position()) if x0 is None else float(x0)
+        if reset:
+            pipe.reset(x_start)
+        ni, no = pipe.n_inputs, pipe.n_outputs
+        samples = np.empty((n, ni))
+        outputs = np.empty((n, no))
+        accepted = np.empty(n, dtype=bool)
+        pos = np.empty(n)
+        lat = np.empty(n, dtype=np.int64)
+        out = np.zeros(no)
+        period = 1.0 / fs
+        period_ns = round(1e9 / fs)
+        advance = getattr(stage, "advance", None)
+        step = pipe.step
+        move = stage.move_to if self.command else None
+        clock = time.perf_counter_ns
+        overruns = late = 0
+        k = 0
+        t_next = clock() + period_ns
+        for k in range(n):
+            if self.realtime:
+                while True:  # busy wait: sleep() cannot hold a 100 us period
+                    now = clock()
+                    if now >= t_next - period_ns:
+                        break
+                if now > t_next:
+                    late += 1
+            p = stage.position()
+            x = source.read(p, k * period)
+            if x is None:
+                break
+            t0 = clock()
+            cmd = step(x, out)
+            if move is not None:
+                move(cmd)
+            t1 = clock()
+            if advance is not None:
+                advance(period)
+            lat[k] = t1 - t0
+            if self.realtime:
+                overruns += t1 > t_next
+                t_next += period_ns
+            else:
+                overruns += (t1 - t0) > period_ns
+            samples[k] = x
+            outputs[k] = out
+            accepted[k] = getattr(pipe, "last_accepted", True)
+            pos[k] = p
+        else:
+            k = n
+        status = dict(pipe.status) if hasattr(pipe, "status") else {}
+        return LoopResult(t=np.arange(k) * period, samples=samples[:k], outputs=outputs[:k],
+                          accepted=accepted[:k], stage_position=pos[:k], latency_ns=lat[:k],
+                          overruns=int(overruns), late_starts=int(late), fs=fs, realtime=self.realtime,
+                          x0=x_start, status=status)

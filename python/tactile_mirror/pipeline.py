@@ -1,0 +1,433 @@
+"""The real-time tactile-mirror pipeline: sensor samples in, stage command out.
+
+:class:`MirrorPipeline` is one C++ object (``src/cpp/pipeline.hpp``) stepped once per
+tick with no allocation: stress-rate estimation (the equaliser sections of
+:mod:`tactile_mirror.estimator`), the slip detector (one Jordan MLP instance per
+ridge) and a stage controller (:mod:`tactile_mirror.loop.controller`). The same
+object is reachable through the plain C ABI ``tm.h``
+(:mod:`tactile_mirror.loop.capi`), built from the same :attr:`MirrorPipeline.config`.
+
+Channel layout of a tick (float64, whatever the arithmetic)::
+
+    x   = [v_L0, v_R0, v_L1, v_R1, ..., u_L0, u_R0, u_L1, ...]     (u part only with use_u)
+    out = [x_cmd (m), v_cmd (m/s), y_slip_0, y_non_0, y_pred_0, y_slip_1, ...]
+
+:class:`ReferencePipeline` is the same tick written with scipy and numpy: the
+reference the C++ results are tested against, and the baseline of the benchmarks.
+"""
+from __future__ import annotations
+
+import math
+import numbers
+
+import numpy as np
+import scipy.signal
+
+from . import _core
+from .filters import validate_sos
+from .loop.controller import Controller, controller_from_dict
+
+__all__ = ["MirrorPipeline", "ReferencePipeline", "pipeline_config"]
+
+_CORES = {np.dtype(np.float64): "_MirrorPipelineF64", np.dtype(np.float32): "_MirrorPipelineF32"}
+_DBL_MAX = float(np.finfo(np.float64).max)
+
+
+def _weights_of(detector):
+    """DetectorWeights from a SlipDetector, DetectorWeights or a mapping of arrays."""
+    w = getattr(detector, "weights", detector)
+    if isinstance(w, dict):
+        return w
+    needed = ("params", "input_mean", "input_scale", "fs")
+    if not all(hasattr(w, k) for k in needed):
+        raise TypeError("detector must be a SlipDetector, a DetectorWeights or a dict of weight arrays, "
+                        f"got {type(detector).__name__}")
+    p = w.params
+    return {"w1": p.w1, "b1": p.b1, "w2": p.w2, "b2": p.b2, "input_mean": w.input_mean,
+            "input_gain": 1.0 / np.asarray(w.input_scale, dtype=np.float64), "fs": float(w.fs),
+            "features": getattr(w, "features", "stress_rate")}
+
+
+def _positive(value, name: str) -> float:
+    if isinstance(value, bool) or not isinstance(value, numbers.Real):
+        raise TypeError(f"{name} must be a real number, got {type(value).__name__}")
+    v = float(value)
+    if not (math.isfinite(v) and v > 0):
+        raise ValueError(f"{name} must be a positive finite number, got {value!r}")
+    return v
+
+
+def pipeline_config(detector, fs, n_ridges: int = 6, *, estimator=None, sos_v=None, sos_u=None, sos_diff=None,
+                    use_u: bool | None = None, v_limit=None, u_limit=None, controller=None,
+                    dtype=np.float64, activation: str = "fast", slip_threshold: float = 0.8,
+                    max_hold_ticks: int = 100, ridges=None) -> dict:
+    """Validate and assemble a pipeline configuration (see :class:`MirrorPipeline`)."""
+    fs = _positive(fs, "fs")
+    if isinstance(n_ridges, bool) or not isinstance(n_ridges, numbers.Integral) or not 1 <= n_ridges <= 64:
+        raise ValueError(f"n_ridges must be an integer in [1, 64], got {n_ridges!r}")
+    n_ridges = int(n_ridges)
+    if ridges is None:
+        ridges = list(range(n_ridges))
+    ridges = [int(r) for r in ridges]
+    if len(ridges) != n_ridges or len(set(ridges)) != n_ridges or min(ridges) < 0:
+        raise ValueError(f"ridges must list {n_ridges} distinct non-negative ridge indices, got {ridges}")
+    w = _weights_of(detector)
+    weights_fs = _positive(w["fs"], "detector fs")
+    if not math.isclose(weights_fs, fs, rel_tol=1e-9):
+        raise ValueError(f"fs={fs} Hz does not match the {weights_fs} Hz the detector was trained for")
+    features = w.get("features", "stress_rate")
+    if estimator is not None:
+        if any(s is not None for s in (sos_v, sos_u, sos_diff)):
+            raise ValueError("give either estimator or sos_v/sos_u/sos_diff, not both")
+        if not math.isclose(float(estimator.fs), fs, rel_tol=1e-9):
+            raise ValueError(f"estimator fs={estimator.fs} Hz does not match fs={fs} Hz")
+        sos_v = estimator.sos_rate
+        if estimator.use_u:
+            sos_u = estimator.sos_rate2
+        else:
+            sos_diff = estimator.sos_diff
+        if use_u is not None and bool(use_u) != bool(estimator.use_u):
+            raise ValueError(f"use_u={use_u} contradicts the estimator (use_u={estimator.use_u})")
+        use_u = estimator.use_u
+    if use_u is None:
+        use_u = sos_diff is None
+    use_u = bool(use_u)
+    sos_v = None if sos_v is None else validate_sos(sos_v, name="sos_v")
+    sos_u = None if sos_u is None else validate_sos(sos_u, name="sos_u")
+    sos_diff = None if sos_diff is None else validate_sos(sos_diff, name="sos_diff")
+    if use_u and sos_diff is not None:
+        raise ValueError("sos_diff must be None when u_out is sampled (use_u=True)")
+    if not use_u:
+        if sos_u is not None:
+            raise ValueError("sos_u must be None without u_out (use_u=False)")
+        if sos_diff is None:
+            raise ValueError("sos_diff (the digital differentiator) is required without u_out (use_u=False)")
+    if features == "stress_rate" and sos_v is None:
+        raise ValueError("the detector takes stress-rate features: give the estimator (or sos_v and sos_u)")
+    if features == "circuit" and (sos_v is not None or sos_u is not None):
+        raise ValueError("the detector takes raw circuit voltages: sos_v and sos_u must be None")
+    v_limit = _DBL_MAX if v_limit is None else _positive(v_limit, "v_limit")
+    u_limit = _DBL_MAX if u_limit is None else _positive(u_limit, "u_limit")
+    ctrl = controller_from_dict(controller) if not isinstance(controller, Controller) else controller
+    dt = np.dtype(dtype)
+    if dt not in _CORES:
+        raise TypeError(f"dtype must be float32 or float64, got {dt}")
+    if activation not in ("exact", "fast"):
+        raise ValueError(f"activation must be 'exact' or 'fast', got {activation!r}")
+    slip_threshold = _positive(slip_threshold, "slip_threshold")
+    if not slip_threshold < 1:
+        raise ValueError(f"slip_threshold must lie in (0, 1), got {slip_threshold}")
+    if isinstance(max_hold_ticks, bool) or not isinstance(max_hold_ticks, numbers.Integral) or max_hold_ticks < 0:
+        raise ValueError(f"max_hold_ticks must be a non-negative integer, got {max_hold_ticks!r}")
+    arrays = {}
+    for k in ("w1", "b1", "w2", "b2", "input_mean", "input_gain"):
+        a = np.asarray(w[k], dtype=np.float64)
+        if not np.all(np.isfinite(a)):
+            raise ValueError(f"detector {k} must be finite")
+        arrays[k] = a.copy()
+    return {
+        "n_ridges": n_ridges, "ridges": ridges, "fs": fs, "use_u": use_u,
+        "sos_v": sos_v, "sos_u": sos_u, "sos_diff": sos_diff,
+        "v_limit": v_limit, "u_limit": u_limit, **arrays, "weights_fs": weights_fs,
+        "features": features, "activation": activation, "slip_threshold": slip_threshold,
+        "max_hold_ticks": int(max_hold_ticks), "controller": ctrl.params(), "dtype": dt.name,
+    }
+
+
+class MirrorPipeline:
+    """Samples -> stress rates -> slip detector -> stage command, one C++ tick at a time.
+
+    Parameters
+    ----------
+    detector : SlipDetector or DetectorWeights
+        The trained detector; its sample rate must equal ``fs`` (weights made for
+        another rate are refused) and its feature kind decides the estimator:
+        ``"stress_rate"`` needs equaliser sections, ``"circuit"`` takes raw voltages.
+    fs : float
+        Tick rate, Hz.
+    n_ridges : int
+        Ridges in use (each gives 2 strips: L, R).
+    estimator : StressRateEstimator, optional
+        Source of the sections (``sos_rate``, ``sos_rate2`` or ``sos_diff``) and of
+        ``use_u``. Alternatively give ``sos_v``, ``sos_u`` / ``sos_diff`` directly.
+    use_u : bool, optional
+        ``u_out`` is sampled (``n_inputs = 4 n_ridges``); without it the 2nd-order
+        rate comes from the digital differentiator ``sos_diff`` (``n_inputs = 2 n_ridges``).
+    v_limit, u_limit : float, optional
+        Largest valid ``|v_out|``, ``|u_out|`` (V), e.g. the ADC range; a tick with a
+        sample beyond it, or a NaN/Inf sample, is rejected and counted, all state kept.
+    controller : Controller or dict, optional
+        :class:`~tactile_mirror.loop.PaperController`,
+        :class:`~tactile_mirror.loop.VelocityController` or None (detection only).
+    dtype : {numpy.float64, numpy.float32}
+        Arithmetic of filters and detector (inputs and outputs are float64 either way).
+    activation : {"fast", "exact"}
+        Detector sigmoid (``"fast"``: polynomial, |error| <= 5e-10 in float64).
+    slip_threshold : float
+        ``y_slip`` level reported as slip in :attr:`status` (0.8, the paper's).
+    max_hold_ticks : int
+        Consecutive rejected ticks after which the pipeline is in fault and the
+        controller stops the stage.
+    ridges : sequence of int, optional
+        Which pad ridges the inputs belong to (metadata, kept in :attr:`config`).
+
+    Notes
+    -----
+    :meth:`step` is the C++ method itself (no Python layer in between). A rejected
+    tick holds the detector outputs; the controller keeps running on them unless
+    the fault state is reached. :meth:`process_block` is exactly a loop of
+    :meth:`step`, so a recording replays bit for bit.
+
+    Examples
+    --------
+    >>> pipe = MirrorPipeline(detector, fs=1000.0, estimator=est,            # doctest: +SKIP
+    ...                       controller=VelocityController(v_max=0.02))
+    >>> out = np.zeros(pipe.n_outputs)
+    >>> x_cmd = pipe.step(sample, out)        # sample: float64 (pipe.n_inputs,)
+    """
+
+    def __init__(self, detector, fs, n_ridges: int = 6, **kwargs):
+        cfg = pipeline_config(detector, fs, n_ridges, **kwargs)
+        self._init_from_config(cfg)
+
+    @classmethod
+    def from_config(cls, config: dict) -> MirrorPipeline:
+        """Rebuild a pipeline from :attr:`config` (e.g. stored in a recording)."""
+        cfg = dict(config)
+        weights = {k: cfg[k] for k in ("w1", "b1", "w2", "b2", "input_mean", "input_gain")}
+        weights["fs"] = cfg["weights_fs"]
+        weights["features"] = cfg.get("features", "stress_rate")
+        kw = {k: cfg.get(k) for k in ("sos_v", "sos_u", "sos_diff", "use_u", "v_limit", "u_limit",
+                                       "controller", "dtype", "activation", "slip_threshold",
+                                       "max_hold_ticks", "ridges")}
+        self = cls.__new__(cls)
+        self._init_from_config(pipeline_config(weights, cfg["fs"], int(cfg["n_ridges"]), **kw))
+        return self
+
+    def _init_from_config(self, cfg):
+        core_cls = getattr(_core, _CORES[np.dtype(cfg["dtype"])])
+        self._config = cfg
+        self._core = core_cls(cfg["n_ridges"], cfg["fs"], cfg["use_u"], cfg["sos_v"], cfg["sos_u"],
+                              cfg["sos_diff"], cfg["v_limit"], cfg["u_limit"], cfg["w1"], cfg["b1"],
+                              cfg["w2"], cfg["b2"], cfg["input_mean"], cfg["input_gain"], cfg["weights_fs"],
+                              cfg["activation"], cfg["slip_threshold"], cfg["max_hold_ticks"],
+                              dict(cfg["controller"]))
+        self._controller = controller_from_dict(cfg["controller"])
+        # Bound C++ methods: calling them costs no Python frame.
+        self.step = self._core.step
+        self.process_block = self._core.process_block
+
+    # The two methods below are replaced per instance by the C++ ones; they are
+    # here for the documentation.
+    def step(self, x, out=None) -> float:
+        """One tick.
+
+        Parameters
+        ----------
+        x : ndarray, float64, shape (n_inputs,), C-contiguous
+            The tick's samples (V); no conversion is made.
+        out : ndarray, float64, shape (n_outputs,), optional
+            Receives ``[x_cmd, v_cmd, y_slip_0, y_non_0, y_pred_0, ...]``.
+
+        Returns
+        -------
+        float
+            The commanded stage position, m.
+        """
+        raise NotImplementedError  # pragma: no cover
+
+    def process_block(self, x, features: bool = False, accepted: bool = False):
+        """Run ``n`` ticks: exactly ``n`` calls of :meth:`step`.
+
+        Parameters
+        ----------
+        x : array_like, shape (n, n_inputs)
+        features : bool
+            Also return the detector's features, shape (n, n_ridges, 4):
+            ``rate_L, rate_R, rate2_L, rate2_R`` (Pa/s, Pa/s^2 with an estimator).
+        accepted : bool
+            Also return a bool array (n,), False for rejected ticks.
+
+        Returns
+        -------
+        tuple
+            ``(out,)``, ``(out, features)``, ``(out, accepted)`` or
+            ``(out, features, accepted)``, ``out`` of shape (n, n_outputs).
+        """
+        raise NotImplementedError  # pragma: no cover
+
+    # -- properties -----------------------------------------------------------------
+    @property
+    def config(self) -> dict:
+        """Everything the pipeline was built from (plain arrays, numbers, strings)."""
+        return {k: (v.copy() if isinstance(v, np.ndarray) else v) for k, v in self._config.items()}
+
+    @property
+    def controller(self) -> Controller:
+        return self._controller
+
+    @property
+    def fs(self) -> float:
+        return self._core.fs
+
+    @property
+    def n_ridges(self) -> int:
+        return self._core.n_ridges
+
+    @property
+    def n_inputs(self) -> int:
+        return self._core.n_inputs
+
+    @property
+    def n_outputs(self) -> int:
+        return self._core.n_outputs
+
+    @property
+    def use_u(self) -> bool:
+        return self._core.use_u
+
+    @property
+    def dtype(self) -> np.dtype:
+        return self._core.dtype
+
+    @property
+    def simd_path(self) -> str:
+        """Code paths of the filters and the detector on this CPU."""
+        return self._core.simd_path
+
+    @property
+    def outputs(self) -> np.ndarray:
+        """Read-only view of the last tick's outputs (updated in place)."""
+        return self._core.outputs
+
+    @property
+    def features(self) -> np.ndarray:
+        """Features of the last accepted tick, shape (n_ridges, 4)."""
+        return self._core.features
+
+    @property
+    def last_accepted(self) -> bool:
+        return self._core.last_accepted
+
+    @property
+    def status(self) -> dict:
+        """Counters and flags: ``ticks``, ``rejected``, ``nonfinite``, ``out_of_range``,
+        ``last_bad_tick``, ``last_bad_channel``, ``consecutive_rejected``, ``fault``,
+        ``slip``, ``at_limit``."""
+        return self._core.status
+
+    @property
+    def controller_state(self) -> dict:
+        """``position`` (m), ``velocity`` (m/s), ``asymmetry`` and ``direction``."""
+        return self._core.controller_state
+
+    def reset(self, x0: float = 0.0) -> None:
+        """Back to rest with the command at ``x0`` (m); counters cleared."""
+        self._core.reset(float(x0))
+
+    def set_position(self, x: float) -> None:
+        """Tell the controller where the stage is (m); the commanded velocity becomes 0."""
+        self._core.set_position(float(x))
+
+    def time_step_ns(self, n_iter: int = 200000, repeats: int = 5) -> float:
+        """Mean time of one tick measured inside C++, ns (best of ``repeats``; state restored)."""
+        return self._core.time_step_ns(int(n_iter), int(repeats))
+
+    def __repr__(self) -> str:
+        c = self._config
+        return (f"MirrorPipeline(n_ridges={c['n_ridges']}, fs={c['fs']:g} Hz, use_u={c['use_u']}, "
+                f"controller={c['controller']['kind']!r}, dtype={c['dtype']})")
+
+
+class ReferencePipeline:
+    """The pipeline tick in scipy + numpy (float64): the reference and the baseline.
+
+    Same configuration, layout and semantics as :class:`MirrorPipeline` (built from
+    its :attr:`~MirrorPipeline.config`): ``scipy.signal.sosfilt`` with carried ``zi``
+    per path, the Jordan MLP in numpy, the controller's :meth:`Controller.run`
+    arithmetic. Slow (tens of microseconds per tick): for tests and benchmarks.
+    """
+
+    def __init__(self, config: dict):
+        self.cfg = dict(config)
+        c = self.cfg
+        self.R = int(c["n_ridges"])
+        self.nch = 2 * self.R
+        self.n_inputs = self.nch * (2 if c["use_u"] else 1)
+        self.n_outputs = 2 + 3 * self.R
+        self.ctrl = controller_from_dict(c["controller"])
+        self.reset()
+
+    def reset(self, x0: float = 0.0):
+        c = self.cfg
+        self.zv = None if c["sos_v"] is None else np.zeros((c["sos_v"].shape[0], self.nch, 2))
+        second = c["sos_u"] if c["use_u"] else c["sos_diff"]
+        self.z2 = None if second is None else np.zeros((second.shape[0], self.nch, 2))
+        self.p = np.zeros(self.R)
+        self.det = np.zeros((self.R, 3))
+        self.feat = np.zeros((self.R, 4))
+        self.x = min(max(float(x0), self.ctrl.x_min), self.ctrl.x_max)
+        self.v = 0.0
+        self.a = 0.0
+        self.dir = 0.0
+        self.consecutive = 0
+        self.out = np.zeros(self.n_outputs)
+        self.out[3::3] = 1.0
+        self.out[0] = self.x
+
+    def step(self, x) -> np.ndarray:
+        c = self.cfg
+        x = np.asarray(x, dtype=np.float64)
+        nch = self.nch
+        ok = bool(np.all(np.abs(x[:nch]) <= c["v_limit"]))
+        if c["use_u"]:
+            ok &= bool(np.all(np.abs(x[nch:]) <= c["u_limit"]))
+        if ok:
+            self.consecutive = 0
+            v = x[:nch, None]
+            if self.zv is not None:
+                rate, self.zv = scipy.signal.sosfilt(c["sos_v"], v, axis=-1, zi=self.zv)
+            else:
+                rate = v
+            if c["use_u"]:
+                u = x[nch:, None]
+                if self.z2 is not None:
+                    rate2, self.z2 = scipy.signal.sosfilt(c["sos_u"], u, axis=-1, zi=self.z2)
+                else:
+                    rate2 = u
+            else:
+                rate2, self.z2 = scipy.signal.sosfilt(c["sos_diff"], rate, axis=-1, zi=self.z2)
+            rate = rate[:, 0].reshape(self.R, 2)
+            rate2 = rate2[:, 0].reshape(self.R, 2)
+            self.feat = np.concatenate([rate, rate2], axis=1)
+            xn = (self.feat - c["input_mean"]) * c["input_gain"]
+            clamp = 600.0 if np.dtype(c["dtype"]) == np.float64 else 80.0
+            a1 = xn @ c["w1"][:, :4].T + self.p[:, None] * c["w1"][:, 4] + c["b1"]
+            h = 1.0 / (1.0 + np.exp(-np.clip(a1, -clamp, clamp)))
+            o = h @ c["w2"].T + c["b2"]
+            y = 1.0 / (1.0 + np.exp(-np.clip(o, -clamp, clamp)))
+            self.p = y[:, 1].copy()
+            self.det = np.stack([y[:, 0], 1.0 - y[:, 0], y[:, 1]], axis=1)
+            self.out[2:] = self.det.ravel()
+            asym = float(np.sum(self.feat[:, 0] - self.feat[:, 1]))
+        else:
+            self.consecutive += 1
+            asym = 0.0
+        ypred = float(np.max(self.det[:, 2]))
+        if self.consecutive > c["max_hold_ticks"]:
+            ypred = 0.0
+        ctrl = self.ctrl
+        if ctrl.kind != "none":
+            dt = 1.0 / c["fs"]
+            self.a = math.exp(-dt / ctrl.asym_tau) * self.a + dt * asym
+            if abs(self.a) > ctrl.asym_deadband:
+                self.dir = ctrl.direction_sign if self.a > 0 else -ctrl.direction_sign
+            self.x, self.v = ctrl._move(self.x, self.v, ypred, dt, self.dir)
+        self.out[0] = self.x
+        self.out[1] = self.v
+        return self.out.copy()
+
+    def process_block(self, x) -> np.ndarray:
+        x = np.asarray(x, dtype=np.float64)
+        return np.array([self.step(row) for row in x]).reshape(len(x), self.n_outputs)
+

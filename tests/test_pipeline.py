@@ -1,0 +1,254 @@
+"""MirrorPipeline (C++ tick) against the scipy + numpy reference, and its contracts."""
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from tactile_mirror import _core
+from tactile_mirror.circuit import PVDFCircuit
+from tactile_mirror.estimator import StressRateEstimator
+from tactile_mirror.loop import NoController, PaperController, VelocityController
+from tactile_mirror.pipeline import MirrorPipeline, ReferencePipeline
+
+FS = 1000.0
+
+
+def weights(h=8, seed=0, fs=FS, features="stress_rate"):
+    rng = np.random.default_rng(seed)
+    return {"w1": rng.normal(size=(h, 5)), "b1": rng.normal(size=h), "w2": 2 * rng.normal(size=(2, h)),
+            "b2": rng.normal(size=2), "input_mean": rng.normal(size=4) * 0.01,
+            "input_gain": np.array([3e-3, 3e-3, 3e-5, 3e-5]) if features == "stress_rate" else np.full(4, 5.0),
+            "fs": fs, "features": features}
+
+
+def signals(n, n_inputs, seed=1, scale=0.05):
+    rng = np.random.default_rng(seed)
+    t = np.arange(n) / FS
+    base = np.sin(2 * np.pi * 3 * t)[:, None] * np.linspace(0.5, 1.5, n_inputs)[None]
+    return scale * (base + 0.3 * rng.normal(size=(n, n_inputs)))
+
+
+def make(n_ridges=3, use_u=True, controller=None, dtype=np.float64, activation="exact", **kw):
+    est = StressRateEstimator(PVDFCircuit(), FS, 2 * n_ridges, use_u=use_u)
+    return MirrorPipeline(weights(), FS, n_ridges, estimator=est, controller=controller, dtype=dtype,
+                          activation=activation, v_limit=5.0, u_limit=5.0, **kw)
+
+
+CONTROLLERS = [NoController(), PaperController(threshold=0.4, gain=0.02),
+               VelocityController(threshold=0.3, y_full=0.8, v_max=0.01, a_max=0.5, x_min=-0.004, x_max=0.004)]
+
+
+@pytest.mark.parametrize("use_u", [True, False])
+@pytest.mark.parametrize("controller", CONTROLLERS, ids=lambda c: c.kind)
+def test_matches_reference(use_u, controller):
+    pipe = make(use_u=use_u, controller=controller)
+    x = signals(1500, pipe.n_inputs)
+    x[300, 2] = np.nan
+    x[700, 0] = 9.0  # beyond v_limit
+    out, acc = pipe.process_block(x, accepted=True)
+    ref = ReferencePipeline(pipe.config).process_block(x)
+    assert acc.sum() == 1498 and not acc[300] and not acc[700]
+    np.testing.assert_allclose(out[:, 2:], ref[:, 2:], rtol=0, atol=1e-12)
+    np.testing.assert_allclose(out[:, :2], ref[:, :2], rtol=1e-9, atol=1e-12)
+    if controller.kind != "none":
+        assert np.ptp(out[:, 0]) > 0  # the stage was commanded
+
+
+def test_raw_circuit_features():
+    w = weights(features="circuit")
+    pipe = MirrorPipeline(w, FS, 2, use_u=True, controller=PaperController(threshold=0.2), activation="exact")
+    x = signals(500, pipe.n_inputs)
+    out = pipe.process_block(x)[0]
+    ref = ReferencePipeline(pipe.config).process_block(x)
+    np.testing.assert_allclose(out, ref, rtol=1e-9, atol=1e-12)
+    np.testing.assert_array_equal(pipe.features[:, :2], x[-1, :4].reshape(2, 2))
+
+
+def test_float32_close_to_reference():
+    pipe = make(dtype=np.float32, controller=CONTROLLERS[2], activation="fast")
+    x = signals(1000, pipe.n_inputs)
+    out = pipe.process_block(x)[0]
+    ref = ReferencePipeline(pipe.config).process_block(x)
+    np.testing.assert_allclose(out[:, 2:], ref[:, 2:], atol=2e-3)
+    assert pipe.dtype == np.float32
+
+
+def test_step_equals_block_bit_for_bit():
+    pipe = make(controller=CONTROLLERS[2], activation="fast")
+    x = signals(400, pipe.n_inputs)
+    x[50, 1] = np.inf
+    block = pipe.process_block(x)[0]
+    pipe.reset()
+    o = np.zeros(pipe.n_outputs)
+    steps = np.empty_like(block)
+    for k in range(len(x)):
+        cmd = pipe.step(np.ascontiguousarray(x[k]), o)
+        assert cmd == o[0]
+        steps[k] = o
+    assert np.array_equal(steps.view(np.uint64), block.view(np.uint64))
+    np.testing.assert_array_equal(pipe.outputs, block[-1])
+    pipe.reset()
+    parts = [pipe.process_block(c)[0] for c in np.array_split(x, [1, 7, 200])]
+    assert np.array_equal(np.concatenate(parts), block)
+
+
+def test_rejected_tick_keeps_state():
+    pipe = make(controller=None)
+    x = signals(300, pipe.n_inputs)
+    clean = pipe.process_block(x)[0]
+    pipe.reset()
+    bad = np.insert(x, 100, x[100], axis=0)
+    bad[100, 4] = np.nan
+    out, f, acc = pipe.process_block(bad, features=True, accepted=True)
+    assert not acc[100] and acc.sum() == 300
+    # the rejected tick held the previous outputs; afterwards the run continues as if it never came
+    np.testing.assert_array_equal(out[100], out[99])
+    assert np.array_equal(np.delete(out, 100, axis=0), clean)
+    np.testing.assert_array_equal(f[100], f[99])
+    st = pipe.status
+    assert st["rejected"] == 1 and st["nonfinite"] == 1 and st["out_of_range"] == 0
+    assert st["last_bad_tick"] == 100 and st["last_bad_channel"] == 4 and st["ticks"] == 301
+
+
+def test_fault_after_consecutive_rejections_stops_the_stage():
+    ctrl = VelocityController(threshold=0.0, y_full=0.01, v_max=0.01, a_max=1.0, x_min=-1, x_max=1)
+    pipe = make(controller=ctrl, max_hold_ticks=10)
+    x = signals(200, pipe.n_inputs)
+    pipe.process_block(x)
+    v0 = pipe.controller_state["velocity"]
+    assert abs(v0) > 0
+    nan = np.full((100, pipe.n_inputs), np.nan)
+    out = pipe.process_block(nan)[0]
+    st = pipe.status
+    assert st["fault"] and st["consecutive_rejected"] == 100
+    # within max_hold_ticks the command keeps moving, then it decelerates at a_max to rest
+    assert abs(out[5, 1]) > 0
+    assert out[-1, 1] == 0.0
+    assert np.all(np.abs(np.diff(out[:, 1])) <= 1.0 / FS + 1e-12)
+    pipe.step(np.ascontiguousarray(x[0]))
+    assert not pipe.status["fault"]
+
+
+def test_weights_for_another_rate_are_refused():
+    est = StressRateEstimator(PVDFCircuit(), FS, 6)
+    with pytest.raises(ValueError, match="trained for"):
+        MirrorPipeline(weights(fs=2000.0), FS, 3, estimator=est)
+    w = weights()
+    args = (3, FS, True, est.sos_rate, est.sos_rate2, None, 5.0, 5.0, w["w1"], w["b1"], w["w2"], w["b2"],
+            w["input_mean"], w["input_gain"])
+    with pytest.raises(ValueError, match="another sample rate"):
+        _core._MirrorPipelineF64(*args, 999.0, "exact", 0.8, 10, {})
+
+
+@pytest.mark.parametrize("kwargs, match", [
+    ({"n_ridges": 0}, "n_ridges"),
+    ({"sos_v": np.ones((2, 5))}, "sos_v"),
+    ({"controller": {"kind": "velocity", "v_max": -1.0}}, "v_max"),
+    ({"controller": {"kind": "paper", "gain": -1.0}}, "gain"),
+    ({"controller": {"kind": "paper", "threshold": 1.5}}, "threshold"),
+    ({"controller": {"kind": "velocity", "threshold": 0.5, "y_full": 0.4}}, "y_full"),
+    ({"controller": {"kind": "paper", "x_min": 0.01}}, "bracket"),
+    ({"controller": {"kind": "paper", "direction_sign": 2.0}}, "direction_sign"),
+    ({"controller": {"kind": "magic"}}, "kind"),
+    ({"v_limit": -1.0}, "v_limit"),
+    ({"slip_threshold": 1.5}, "slip_threshold"),
+    ({"max_hold_ticks": -3}, "max_hold_ticks"),
+    ({"activation": "slow"}, "activation"),
+])
+def test_bad_configuration_names_the_argument(kwargs, match):
+    est = StressRateEstimator(PVDFCircuit(), FS, 6)
+    base = {"n_ridges": 3}
+    base.update(kwargs)
+    n = base.pop("n_ridges")
+    if "sos_v" in base:
+        base.update(sos_u=est.sos_rate2)
+    else:
+        base["estimator"] = est
+    with pytest.raises(ValueError, match=match):
+        MirrorPipeline(weights(), FS, n, **base)
+
+
+def test_core_validates_controller_itself():
+    est = StressRateEstimator(PVDFCircuit(), FS, 2)
+    w = weights()
+    args = (1, FS, True, est.sos_rate, est.sos_rate2, None, 5.0, 5.0, w["w1"], w["b1"], w["w2"], w["b2"],
+            w["input_mean"], w["input_gain"], FS, "exact", 0.8, 10)
+    for bad in ({"kind": "velocity", "a_max": 0.0}, {"kind": "paper", "asym_tau": -1.0},
+                {"kind": "paper", "x_max": float("nan")}, {"nonsense": 1.0}):
+        with pytest.raises(ValueError):
+            _core._MirrorPipelineF64(*args, bad)
+
+
+def test_step_arguments_checked_and_state_unchanged():
+    pipe = make()
+    x = np.ascontiguousarray(signals(1, pipe.n_inputs)[0])
+    pipe.step(x)
+    before = (pipe.status, pipe.outputs.copy())
+    with pytest.raises(TypeError, match="float64"):
+        pipe.step(x.astype(np.float32))
+    with pytest.raises(ValueError, match="shape"):
+        pipe.step(x[:-1])
+    with pytest.raises(ValueError, match="contiguous"):
+        pipe.step(np.repeat(x, 2)[::2])
+    with pytest.raises(TypeError):
+        pipe.step(list(x))
+    ro = np.zeros(pipe.n_outputs)
+    ro.flags.writeable = False
+    with pytest.raises(ValueError, match="writeable"):
+        pipe.step(x, ro)
+    with pytest.raises(ValueError, match="shape"):
+        pipe.process_block(np.zeros((5, pipe.n_inputs + 1)))
+    assert pipe.status == before[0]
+    np.testing.assert_array_equal(pipe.outputs, before[1])
+    with pytest.raises(ValueError):
+        pipe.outputs[0] = 1.0
+
+
+def test_velocity_law_respects_limits():
+    ctrl = VelocityController(threshold=0.1, y_full=0.5, v_max=0.02, a_max=0.5, x_min=-0.01, x_max=0.005)
+    n = 3000
+    x, v = ctrl.run(np.full(n, 0.9), np.full(n, 1.0), FS)
+    assert np.all(np.abs(v) <= 0.02 + 1e-15)
+    assert np.all(np.abs(np.diff(v)) <= 0.5 / FS + 1e-12)
+    assert x.max() <= 0.005 and x[-1] == pytest.approx(0.005, abs=1e-5)
+    assert abs(v[-1]) < 1e-3
+    # direction follows the asymmetry, and direction_sign flips it
+    xm, _ = VelocityController(direction_sign=-1).run(np.full(100, 0.9), np.full(100, 1.0), FS)
+    assert xm[-1] < 0
+
+
+def test_paper_law_displacement_proportional_to_y_pred():
+    ctrl = PaperController(threshold=0.5, gain=0.01)
+    y = np.array([0.2, 0.6, 0.9, 0.4, 1.0])
+    x, v = ctrl.run(y, np.ones(5), FS)
+    steps = np.diff(np.concatenate([[0.0], x]))
+    np.testing.assert_allclose(steps, [0, 0.6e-5, 0.9e-5, 0, 1e-5], atol=1e-18)
+    np.testing.assert_allclose(v, steps * FS)
+
+
+def test_reset_position_and_timing_restore_state():
+    pipe = make(controller=CONTROLLERS[1])
+    x = signals(300, pipe.n_inputs)
+    a = pipe.process_block(x)[0]
+    st = pipe.status
+    ns = pipe.time_step_ns(2000, 1)
+    assert ns > 0
+    assert pipe.status == st
+    b = pipe.process_block(x)[0]
+    pipe.reset()
+    pipe.process_block(x)
+    c = pipe.process_block(x)[0]
+    np.testing.assert_array_equal(b, c)
+    pipe.reset(0.002)
+    assert pipe.outputs[0] == 0.002 and pipe.outputs[3] == 1.0
+    pipe.set_position(-0.001)
+    assert pipe.controller_state["position"] == -0.001
+    assert a.shape == (300, pipe.n_outputs)
+
+
+def test_from_config_round_trip():
+    pipe = make(controller=CONTROLLERS[2], activation="fast")
+    other = MirrorPipeline.from_config(pipe.config)
+    x = signals(200, pipe.n_inputs)
+    assert np.array_equal(pipe.process_block(x)[0], other.process_block(x)[0])
+    assert "MirrorPipeline(n_ridges=3" in repr(other)
+    assert "filters" in other.simd_path
