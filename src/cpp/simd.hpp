@@ -98,6 +98,30 @@ TM_ALWAYS_INLINE vec<T> load_unaligned(const T* p) {
     std::memcpy(&v, p, sizeof(v));
     return v;
 }
+// The first `n` (< lanes) values at p, zeros after; built in registers (a
+// buffer written lane by lane and read back as a vector stalls on store
+// forwarding). Never reads past p[n - 1].
+TM_ALWAYS_INLINE vec<double> load_partial(const double* p, std::size_t n) {
+    switch (n) {
+        case 1: return vec<double>{p[0], 0, 0, 0};
+        case 2: return vec<double>{p[0], p[1], 0, 0};
+        case 3: return vec<double>{p[0], p[1], p[2], 0};
+        default: return vec<double>{0, 0, 0, 0};
+    }
+}
+TM_ALWAYS_INLINE vec<float> load_partial(const float* p, std::size_t n) {
+    switch (n) {
+        case 1: return vec<float>{p[0], 0, 0, 0, 0, 0, 0, 0};
+        case 2: return vec<float>{p[0], p[1], 0, 0, 0, 0, 0, 0};
+        case 3: return vec<float>{p[0], p[1], p[2], 0, 0, 0, 0, 0};
+        case 4: return vec<float>{p[0], p[1], p[2], p[3], 0, 0, 0, 0};
+        case 5: return vec<float>{p[0], p[1], p[2], p[3], p[4], 0, 0, 0};
+        case 6: return vec<float>{p[0], p[1], p[2], p[3], p[4], p[5], 0, 0};
+        case 7: return vec<float>{p[0], p[1], p[2], p[3], p[4], p[5], p[6], 0};
+        default: return vec<float>{0, 0, 0, 0, 0, 0, 0, 0};
+    }
+}
+
 template <typename T>
 TM_ALWAYS_INLINE void store_unaligned(T* p, vec<T> v) {
     std::memcpy(p, &v, sizeof(v));

@@ -457,9 +457,7 @@ private:
     TM_ALWAYS_INLINE V load_sample(const T* x, std::size_t v) const noexcept {
         const std::size_t c = v * W;
         if (c + W <= channels_) return load_unaligned(x + c);
-        V r = splat<T>(T(0));
-        for (std::size_t i = 0; c + i < channels_; ++i) r[i] = x[c + i];
-        return r;
+        return load_partial(x + c, channels_ - c);
     }
     TM_ALWAYS_INLINE void store_sample(T* y, std::size_t v, V r) const noexcept {
         const std::size_t c = v * W;
