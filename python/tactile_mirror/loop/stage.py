@@ -157,15 +157,16 @@ class SimulatedStage:
             self._target = self._pending.popleft()[1]
         lim = self._limits
         e = self._target - self._sp
-        # Speed that still allows stopping on the target, then the limits.
-        vd = math.copysign(min(lim.v_max, math.sqrt(2.0 * lim.a_max * abs(e))), e)
+        # Speed that still allows stopping on the target (decelerating by a_max dt
+        # per step: v^2 / (2 a) + v dt / 2 <= |e|), then the limits.
+        h = 0.5 * lim.a_max * dt
+        vd = math.copysign(min(lim.v_max, math.sqrt(h * h + 2.0 * lim.a_max * abs(e)) - h), e)
         dv = min(max(vd - self._sv, -lim.a_max * dt), lim.a_max * dt)
         sv = self._sv + dv
-        step = 0.5 * (self._sv + sv) * dt
-        if abs(step) >= abs(e) and abs(sv) <= lim.a_max * dt * 2:
+        if abs(e) <= abs(sv) * dt and abs(sv) <= lim.a_max * dt + 1e-15:
             self._sp, self._sv = self._target, 0.0  # arrived
         else:
-            self._sp += step
+            self._sp += sv * dt
             self._sv = sv
         self._sp = min(max(self._sp, lim.x_min), lim.x_max)
         x_old = self._x

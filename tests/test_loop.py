@@ -1,0 +1,194 @@
+"""Loop glue: controllers' validation, the simulated stage, the loop runner, recordings."""
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from tactile_mirror.circuit import PVDFCircuit
+from tactile_mirror.estimator import StressRateEstimator
+from tactile_mirror.loop import (
+    ArraySource,
+    LoopRunner,
+    PaperController,
+    Recording,
+    RecordingError,
+    SimulatedStage,
+    Stage,
+    StageLimits,
+    VelocityController,
+    controller_from_dict,
+)
+from tactile_mirror.pipeline import MirrorPipeline
+
+FS = 1000.0
+
+
+def make(controller=None, fs=FS, n_ridges=2):
+    rng = np.random.default_rng(5)
+    h = 6
+    w = {"w1": rng.normal(size=(h, 5)), "b1": rng.normal(size=h), "w2": 3 * rng.normal(size=(2, h)),
+         "b2": rng.normal(size=2), "input_mean": np.zeros(4), "input_gain": np.array([3e-3, 3e-3, 3e-5, 3e-5]),
+         "fs": fs}
+    est = StressRateEstimator(PVDFCircuit(), fs, 2 * n_ridges, bandwidth=min(100.0, fs / 4))
+    return MirrorPipeline(w, fs, n_ridges, estimator=est, controller=controller, v_limit=5.0, u_limit=5.0)
+
+
+def samples(n, ni, seed=0):
+    rng = np.random.default_rng(seed)
+    return 0.05 * np.sin(np.arange(n)[:, None] * 0.02 * np.arange(1, ni + 1)) + 0.01 * rng.normal(size=(n, ni))
+
+
+@pytest.mark.parametrize("cls, kwargs, match", [
+    (PaperController, {"gain": -1}, "gain"),
+    (PaperController, {"threshold": 1.0}, "threshold"),
+    (PaperController, {"threshold": float("nan")}, "threshold"),
+    (PaperController, {"x_min": 0.1, "x_max": 0.2}, "bracket"),
+    (PaperController, {"x_min": 0.0, "x_max": 0.0}, "x_max"),
+    (PaperController, {"direction_sign": 0}, "direction_sign"),
+    (PaperController, {"asym_tau": 0}, "asym_tau"),
+    (PaperController, {"asym_deadband": -1}, "asym_deadband"),
+    (VelocityController, {"v_max": 0}, "v_max"),
+    (VelocityController, {"a_max": -2}, "a_max"),
+    (VelocityController, {"threshold": 0.6, "y_full": 0.5}, "y_full"),
+    (VelocityController, {"y_full": 1.5}, "y_full"),
+])
+def test_controller_validation(cls, kwargs, match):
+    with pytest.raises(ValueError, match=match):
+        cls(**kwargs)
+
+
+def test_controller_types_and_round_trip():
+    with pytest.raises(TypeError, match="gain"):
+        PaperController(gain="fast")
+    with pytest.raises(TypeError, match="v_max"):
+        VelocityController(v_max=True)
+    c = VelocityController(v_max=0.03)
+    assert controller_from_dict(c.params()) == c
+    assert controller_from_dict(None).kind == "none"
+    with pytest.raises(ValueError, match="kind"):
+        controller_from_dict({"kind": "pid"})
+    with pytest.raises(ValueError, match="no parameter"):
+        controller_from_dict({"kind": "paper", "kp": 1.0})
+    with pytest.raises(ValueError, match="y_pred and asym"):
+        c.run(np.zeros(3), np.zeros(4), FS)
+
+
+def test_simulated_stage_limits_delay_and_lag():
+    lim = StageLimits(-0.01, 0.01, 0.02, 1.0)
+    st = SimulatedStage(lim, delay=0.005)
+    assert isinstance(st, Stage)
+    st.move_to(0.05)  # clipped to the travel
+    assert st.status()["clipped"] == 1
+    dt = 1e-3
+    xs = np.array([st.advance(dt) for _ in range(2000)])
+    v = np.diff(np.concatenate([[0.0], xs])) / dt
+    assert xs[:4].max() == 0.0  # dead time: nothing for 5 ms
+    assert np.abs(v).max() <= 0.02 + 1e-9
+    assert np.abs(np.diff(v)).max() <= 1.0 * dt * 1.5 + 1e-9
+    assert xs[-1] == pytest.approx(0.01, abs=1e-9)
+    lagged = SimulatedStage(lim, lag=0.02)
+    lagged.move_to(0.001)
+    x = [lagged.advance(dt) for _ in range(300)]
+    assert x[-1] == pytest.approx(0.001, rel=1e-3)
+    assert lagged.position() == x[-1]
+    lagged.stop()
+    assert lagged.status()["fault"] is False
+    for bad in ({"delay": -1}, {"lag": float("nan")}, {"x0": 1.0}):
+        with pytest.raises(ValueError):
+            SimulatedStage(lim, **bad)
+    with pytest.raises(ValueError, match="v_max"):
+        StageLimits(-1, 1, 0, 1)
+    with pytest.raises(ValueError, match="dt"):
+        st.advance(0.0)
+
+
+def test_runner_equals_block_and_measures_latency():
+    pipe = make(VelocityController(threshold=0.2, y_full=0.6, v_max=0.01, a_max=0.5))
+    x = samples(1500, pipe.n_inputs)
+    x[700, 1] = np.nan
+    stage = SimulatedStage(StageLimits(-0.05, 0.05, 0.05, 2.0))
+    res = LoopRunner(pipe, stage, ArraySource(x)).run(n_ticks=2000)
+    assert len(res.t) == 1500  # the source ended first
+    ref = make(VelocityController(threshold=0.2, y_full=0.6, v_max=0.01, a_max=0.5))
+    out, acc = ref.process_block(x, accepted=True)
+    assert np.array_equal(res.outputs, out)
+    np.testing.assert_array_equal(res.accepted, acc)
+    assert res.latency_ns.shape == (1500,) and np.all(res.latency_ns > 0)
+    p = res.latency_percentiles()
+    assert p["p50"] <= p["p99"] <= p["p99.9"] <= p["max"]
+    assert res.status["rejected"] == 1
+    assert np.ptp(res.stage_position) > 0  # the stage followed the commands
+
+
+def test_runner_realtime_pacing():
+    pipe = make(PaperController(), fs=10000.0)
+    x = samples(1000, pipe.n_inputs)
+    stage = SimulatedStage()
+    res = LoopRunner(pipe, stage, ArraySource(x), realtime=True).run(duration=0.1)
+    assert len(res.t) == 1000 and res.realtime
+    assert res.overruns >= 0 and res.late_starts >= 0
+    with pytest.raises(ValueError, match="exactly one"):
+        LoopRunner(pipe, stage, ArraySource(x)).run()
+    with pytest.raises(TypeError, match="read"):
+        LoopRunner(pipe, stage, object())
+    with pytest.raises(TypeError, match="move_to"):
+        LoopRunner(pipe, object(), ArraySource(x))
+
+
+def test_open_loop_never_commands_the_stage():
+    pipe = make(PaperController(threshold=0.0, gain=1.0))
+    stage = SimulatedStage()
+    res = LoopRunner(pipe, stage, ArraySource(samples(300, pipe.n_inputs)), command=False).run(n_ticks=300)
+    assert np.all(res.stage_position == 0.0) and stage.status()["moves"] == 0
+
+
+def test_recording_round_trip_and_bit_identical_replay(tmp_path):
+    pipe = make(VelocityController(v_max=0.01, a_max=0.5, threshold=0.1, y_full=0.5))
+    x = samples(800, pipe.n_inputs)
+    x[100:103, 2] = np.inf
+    stage = SimulatedStage(lag=0.005)
+    res = LoopRunner(pipe, stage, ArraySource(x)).run(n_ticks=800, x0=0.001)
+    rec = res.to_recording(pipe.config, {"scene": "synthetic"})
+    path = tmp_path / "run.npz"
+    rec.save(path)
+    back = Recording.load(path)
+    assert back.metadata["scene"] == "synthetic" and back.x0 == 0.001
+    assert np.array_equal(back.samples, x)
+    assert back.verify()
+    out, _acc = back.replay()
+    assert np.array_equal(out.view(np.uint64), res.outputs.view(np.uint64))
+    # a changed output is detected
+    back.outputs[5, 0] = np.nextafter(back.outputs[5, 0], np.inf)
+    assert not back.verify()
+
+
+def test_recording_errors(tmp_path):
+    pipe = make()
+    x = samples(10, pipe.n_inputs)
+    out, acc = pipe.process_block(x, accepted=True)
+    ok = {"fs": FS, "samples": x, "outputs": out, "accepted": acc, "stage_position": np.zeros(10),
+          "config": pipe.config}
+    with pytest.raises(RecordingError, match="outputs"):
+        Recording(**dict(ok, outputs=out[:, :-1]))
+    with pytest.raises(RecordingError, match="accepted"):
+        Recording(**dict(ok, accepted=acc.astype(int)))
+    with pytest.raises(RecordingError, match="fs"):
+        Recording(**dict(ok, fs=2 * FS))
+    with pytest.raises(RecordingError, match="JSON"):
+        Recording(**ok, metadata={"f": object()})
+    bad = tmp_path / "bad.npz"
+    bad.write_bytes(b"not a zip")
+    with pytest.raises(RecordingError, match="not a readable"):
+        Recording.load(bad)
+    np.savez(tmp_path / "other.npz", a=np.zeros(3))
+    with pytest.raises(RecordingError, match="not a tactile-mirror recording"):
+        Recording.load(tmp_path / "other.npz")
+    rec = Recording(**ok)
+    rec.save(tmp_path / "r.npz")
+    with np.load(tmp_path / "r.npz") as z:
+        d = dict(z)
+    d["format_version"] = np.array(99)
+    np.savez(tmp_path / "v99.npz", **d)
+    with pytest.raises(RecordingError, match="version 99"):
+        Recording.load(tmp_path / "v99.npz")
+    with pytest.raises(FileNotFoundError):
+        Recording.load(tmp_path / "missing.npz")
