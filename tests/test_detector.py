@@ -373,3 +373,20 @@ def test_timing_loop_restores_state():
     np.testing.assert_array_equal(k.state, before)
     with pytest.raises(ValueError, match="mode"):
         k.time_step_ns(10, mode="vector")
+
+
+@pytest.mark.parametrize("dtype, activation, bound", [
+    (np.float64, "exact", 1e-15), (np.float64, "fast", 5e-10),
+    (np.float32, "exact", 1.2e-7), (np.float32, "fast", 2.5e-7)])
+@pytest.mark.parametrize("path", ["generic", "avx2+fma"])
+def test_sigmoid_error_bound(dtype, activation, bound, path):
+    from scipy.special import expit
+
+    if path == "avx2+fma" and not core.detector_cpu_has_avx2_fma():
+        pytest.skip("CPU without AVX2+FMA")
+    a = np.linspace(-100, 100, 400_001).astype(dtype)
+    y = core.detector_sigmoid(a, activation, path).astype(np.float64)
+    assert np.max(np.abs(y - expit(a.astype(np.float64)))) <= bound
+    assert np.all((y >= 0) & (y <= 1))
+    tiny = np.finfo(dtype).tiny
+    assert not np.any((y != 0) & (y < tiny))

@@ -233,6 +233,38 @@ void bind_one(py::module_& m, const char* cls) {
 void tm_bind_detector(py::module_& m) {
     bind_one<float>(m, "JordanMLPf32");
     bind_one<double>(m, "JordanMLPf64");
+    m.def(
+        "detector_sigmoid",
+        [](py::handle a, const std::string& activation, const std::string& path) {
+            const Activation act = parse_activation(activation);
+            SimdPath sp;
+            if (path == "generic")
+                sp = SimdPath::generic;
+            else if (path == "avx2+fma" || path == "avx2")
+                sp = SimdPath::avx2;
+            else
+                throw py::value_error("path must be 'generic' or 'avx2+fma', got '" + path + "'");
+            if (sp == SimdPath::avx2 && !tm_core::detector::cpu_has_avx2_fma())
+                throw py::value_error("path 'avx2+fma' is not supported by this CPU");
+            if (!py::isinstance<py::array>(a)) throw py::type_error("a must be a numpy array");
+            py::array arr = py::reinterpret_borrow<py::array>(a);
+            if (arr.dtype().is(py::dtype::of<float>())) {
+                auto c = py::array_t<float, py::array::c_style>::ensure(arr);
+                py::array_t<float> out(c.size());
+                tm_core::detector::sigmoid_array<float>(c.data(), out.mutable_data(), std::size_t(c.size()), act, sp);
+                return py::array(out);
+            }
+            if (arr.dtype().is(py::dtype::of<double>())) {
+                auto c = py::array_t<double, py::array::c_style>::ensure(arr);
+                py::array_t<double> out(c.size());
+                tm_core::detector::sigmoid_array<double>(c.data(), out.mutable_data(), std::size_t(c.size()), act,
+                                                         sp);
+                return py::array(out);
+            }
+            throw py::type_error("a must have dtype float32 or float64, got " + std::string(py::str(arr.dtype())));
+        },
+        py::arg("a"), py::arg("activation") = "fast", py::arg("path") = "avx2+fma",
+        "The detector kernel's sigmoid (with its clamp) applied to a flat copy of a; for error measurements.");
     m.def("detector_cpu_has_avx2_fma", &tm_core::detector::cpu_has_avx2_fma,
           "True if the AVX2+FMA path of the detector kernel can run on this CPU.");
 }

@@ -1,0 +1,135 @@
+"""Benchmarks of the slip-detector kernel (Jordan MLP, jordan_mlp.hpp).
+
+1. One tick of 6 ridges x H = 16, timed inside C++ (float32/float64, exact/fast
+   sigmoid, each SIMD path), with a plain scalar C++ loop over the ridges as the
+   reference measured in the same run.
+2. Block API (whole recurrence over (6, 4, n) in C++) against the numpy
+   implementation of the same recurrence, and against numpy stepping one tick
+   per Python call.
+3. Run time against output error: exact/fast sigmoid x float32/float64, error
+   measured against the float64 numpy reference.
+
+Run: ``python bench/bench_detector.py [--quick]``. Prints which code path ran.
+"""
+from __future__ import annotations
+
+import argparse
+import os
+import platform
+import time
+
+os.environ.setdefault("OMP_NUM_THREADS", "1")
+os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
+
+import numpy as np
+from tactile_mirror import _core
+from tactile_mirror.detector import DetectorWeights, Params, SlipDetector, reference_run
+from tactile_mirror.detector.network import forward
+
+
+def make_weights(n_hidden=16, seed=0):
+    rng = np.random.default_rng(seed)
+    p = Params(rng.normal(size=(n_hidden, 5)), rng.normal(size=n_hidden), rng.normal(size=(2, n_hidden)),
+               rng.normal(size=2))
+    p.w1[:, -1] = 3.0 * rng.normal(size=n_hidden)
+    return DetectorWeights(p, np.zeros(4), np.ones(4), 1000.0, {"features": "stress_rate"})
+
+
+def make_features(n_ridges, n, seed=1):
+    rng = np.random.default_rng(seed)
+    return np.cumsum(rng.normal(size=(n_ridges, 4, n)), axis=-1) * 0.05 + rng.standard_t(2, (n_ridges, 4, n)) * 0.3
+
+
+def best_of(fn, repeats=5):
+    best = np.inf
+    for _ in range(repeats):
+        t0 = time.perf_counter()
+        fn()
+        best = min(best, time.perf_counter() - t0)
+    return best
+
+
+def numpy_tick_loop(w, x):
+    """numpy, one Python call per tick (what a naive real-time loop would do)."""
+    p = w.params
+    prev = np.zeros(x.shape[0])
+    gain = w.input_gain
+    w_in, w_fb, w2t = p.w1[:, :-1].T, p.w1[:, -1], p.w2.T
+    for t in range(x.shape[2]):
+        xn = (x[:, :, t] - w.input_mean) * gain
+        h = 1.0 / (1.0 + np.exp(-(xn @ w_in + np.multiply.outer(prev, w_fb) + p.b1)))
+        y = 1.0 / (1.0 + np.exp(-(h @ w2t + p.b2)))
+        prev = y[:, 1]
+    return prev
+
+
+def main(argv=None):
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--quick", action="store_true", help="fewer iterations")
+    args = ap.parse_args(argv)
+    n_iter = 200_000 if args.quick else 2_000_000
+    n_block = 20_000 if args.quick else 100_000
+    w = make_weights(16)
+    print(f"machine: {platform.machine()}, {platform.processor() or platform.platform()}")
+    print(f"AVX2+FMA available: {_core.detector_cpu_has_avx2_fma()}")
+
+    # 1. one tick, timed inside C++
+    print("\n1) one tick, 6 ridges x H=16 (ns per tick, timed inside C++, best of 5)")
+    print(f"   {'dtype':<8} {'sigmoid':<7} {'path':<10} {'SIMD step()':>12} {'scalar loop':>12}")
+    paths = ["generic"] + (["avx2+fma"] if _core.detector_cpu_has_avx2_fma() else [])
+    for dtype in (np.float32, np.float64):
+        for act in ("exact", "fast"):
+            k = SlipDetector(w, dtype=dtype, activation=act).kernel(6)
+            scalar = k.time_step_ns(n_iter // 4, 5, "scalar")
+            for path in paths:
+                k.set_simd_path(path)
+                simd = k.time_step_ns(n_iter, 5)
+                print(f"   {np.dtype(dtype).name:<8} {act:<7} {path:<10} {simd:>12.1f} {scalar:>12.1f}")
+    default_path = SlipDetector(w, dtype=np.float32).simd_path
+    print(f"   default path selected at run time: {default_path}")
+
+    # 2. block API against numpy
+    print(f"\n2) block API over (6, 4, {n_block}) against numpy (us per tick)")
+    x = make_features(6, n_block)
+    xn = x  # mean 0, scale 1
+    t_np = best_of(lambda: forward(w.params, xn), 3) / n_block
+    n_loop = min(n_block, 20_000)
+    t_loop = best_of(lambda: numpy_tick_loop(w, x[:, :, :n_loop]), 3) / n_loop
+    print(f"   numpy, recurrence vectorised over ridges (network.forward): {t_np * 1e6:8.3f}")
+    print(f"   numpy, one Python call per tick:                          {t_loop * 1e6:8.3f}")
+    for dtype in (np.float64, np.float32):
+        for act in ("exact", "fast"):
+            det = SlipDetector(w, dtype=dtype, activation=act)
+            xc = np.ascontiguousarray(x, dtype=dtype)
+            t_c = best_of(lambda: det.run(xc), 5) / n_block
+            print(f"   C++ run() {np.dtype(dtype).name} {act:<5} ({det.simd_path}): {t_c * 1e6:8.3f} us/tick"
+                  f"   speed-up {t_np / t_c:6.0f}x vs forward, {t_loop / t_c:6.0f}x vs per-tick numpy")
+
+    # 3. run time against error
+    print(f"\n3) run time vs output error (block run over (6, 4, {n_block}); error vs float64 numpy)")
+    ref_s, _, ref_p = reference_run(w, x)
+    print(f"   {'dtype':<8} {'sigmoid':<7} {'ns/tick':>9} {'max|dy_slip|':>13} {'max|dy_pred|':>13}")
+    for dtype in (np.float64, np.float32):
+        for act in ("exact", "fast"):
+            det = SlipDetector(w, dtype=dtype, activation=act)
+            xc = np.ascontiguousarray(x, dtype=dtype)
+            t_c = best_of(lambda: det.run(xc), 5) / n_block
+            ys, _, yp = det.run(xc)
+            es = np.max(np.abs(ys.astype(np.float64) - ref_s))
+            ep = np.max(np.abs(yp.astype(np.float64) - ref_p))
+            print(f"   {np.dtype(dtype).name:<8} {act:<7} {t_c * 1e9:>9.1f} {es:>13.2e} {ep:>13.2e}")
+    # The sigmoid alone on a dense grid, against scipy.special.expit of the same input.
+    from scipy.special import expit
+
+    a = np.linspace(-100, 100, 2_000_001)
+    print("   sigmoid alone over a in [-100, 100] (2e6 points): max |sigmoid_kernel - expit|")
+    for dtype in (np.float64, np.float32):
+        ad = a.astype(dtype)
+        ref = expit(ad.astype(np.float64))
+        for act in ("exact", "fast"):
+            for path in paths:
+                y = _core.detector_sigmoid(ad, act, path).astype(np.float64)
+                print(f"     {np.dtype(dtype).name:<8} {act:<6} {path:<9} {np.max(np.abs(y - ref)):.2e}")
+
+if __name__ == "__main__":
+    main()
