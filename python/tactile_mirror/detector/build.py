@@ -1,0 +1,168 @@
+"""Building the bundled detector: simulate scenes, study the hidden size, train, evaluate.
+
+Command line (writes the weights, a report and Figure 10)::
+
+    python -m tactile_mirror.detector.build --out weights.npz [--study] [--report report.txt]
+
+The bundled ``data/default_detector.npz`` was made with the defaults of :func:`build_default`;
+its metadata records the scene seeds, sizes and the training and evaluation results.
+"""
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import time
+
+import numpy as np
+
+from .core import SlipDetector
+from .evaluate import ForceRatioDetector, evaluate
+from .training import TrainingSet, make_training_set, train_detector
+
+__all__ = ["TEST_SEED", "TRAIN_SEED", "build_default", "hidden_size_study", "simulate_scenes"]
+
+#: Seeds of the training and the held-out scene sets (different on purpose).
+TRAIN_SEED = 20261121
+TEST_SEED = 777
+
+
+def simulate_scenes(scenes, progress: bool = True) -> list:
+    """Simulate scenes with :func:`tactile_mirror.simulate` (with a progress bar)."""
+    from tqdm.auto import tqdm
+
+    from .. import simulate
+
+    scenes = list(scenes)
+    return [simulate(s) for s in tqdm(scenes, desc="simulate", disable=not progress, leave=False)]
+
+
+def subset(ts: TrainingSet, ridges_per_scene: int, n_ridges: int) -> TrainingSet:
+    """Keep the first ``ridges_per_scene`` of every ``n_ridges`` sequences (scene-major order)."""
+    keep = (np.arange(ts.n_seq) % n_ridges) < ridges_per_scene
+    return TrainingSet(ts.x[keep], ts.y_slip[keep], ts.y_pred[keep], ts.mask[keep], ts.fs, ts.features)
+
+
+def hidden_size_study(train, validation, sizes=(4, 8, 12, 16, 24), maxiter: int = 300, seed: int = 0,
+                      progress: bool = True) -> list:
+    """Train one detector per hidden size and evaluate it on validation results.
+
+    Returns
+    -------
+    list of dict
+        Per size: ``n_hidden``, ``seconds`` (training), ``loss``, and the
+        :class:`~tactile_mirror.detector.evaluate.DetectionMetrics` fields.
+    """
+    rows = []
+    for h in sizes:
+        t0 = time.perf_counter()
+        w = train_detector(train, n_hidden=int(h), maxiter=maxiter, seed=seed, progress=progress)
+        secs = time.perf_counter() - t0
+        m = evaluate(SlipDetector(w), validation)["detector"]
+        rows.append({"n_hidden": int(h), "seconds": round(secs, 1), "loss": w.metadata["training"]["loss"],
+                     **m.as_dict()})
+    return rows
+
+
+def _random_scenes(n, seed, **kwargs):
+    from .. import scenes
+
+    return scenes.random(n, seed=seed, **kwargs)
+
+
+def build_default(out_path, n_train: int = 48, n_test: int = 60, n_hidden: int = 16, maxiter: int = 300,
+                  ridges_per_scene: int = 2, seed: int = 0, study_sizes=None, report_path=None,
+                  figure_path=None, train_kwargs=None, test_kwargs=None, progress: bool = True):
+    """Simulate, train and evaluate the default detector; save its weights.
+
+    Parameters
+    ----------
+    out_path : path
+        Where the weights go.
+    n_train, n_test : int
+        Randomised training scenes (seed :data:`TRAIN_SEED`) and held-out scenes
+        (seed :data:`TEST_SEED`, wider parameters via ``test_kwargs``).
+    n_hidden : int
+        Hidden size of the shipped net.
+    ridges_per_scene : int
+        Ridges of each training scene used as sequences.
+    study_sizes : sequence of int, optional
+        Also run :func:`hidden_size_study` with these sizes (validation: the
+        first half of the held-out set).
+    report_path, figure_path : path, optional
+        Text report (evaluation table, study) and Figure 10 image.
+
+    Returns
+    -------
+    weights : DetectorWeights
+    report : dict
+    """
+    t_all = time.perf_counter()
+    train_scenes = _random_scenes(n_train, TRAIN_SEED, **(train_kwargs or {}))
+    test_scenes = _random_scenes(n_test, TEST_SEED, **(test_kwargs or {}))
+    t0 = time.perf_counter()
+    train_res = simulate_scenes(train_scenes, progress)
+    test_res = simulate_scenes(test_scenes, progress)
+    t_sim = time.perf_counter() - t0
+    n_ridges = np.asarray(train_res[0].v_out).shape[0]
+    ts = subset(make_training_set(train_res), ridges_per_scene, n_ridges)
+    report = {"n_train_scenes": n_train, "n_test_scenes": n_test, "train_seed": TRAIN_SEED,
+              "test_seed": TEST_SEED, "simulation_seconds": round(t_sim, 1), "n_sequences": ts.n_seq,
+              "train_kwargs": train_kwargs or {}, "test_kwargs": test_kwargs or {}}
+    if study_sizes:
+        half = test_res[: max(1, len(test_res) // 2)]
+        report["hidden_size_study"] = hidden_size_study(ts, half, study_sizes, maxiter, seed, progress)
+    t0 = time.perf_counter()
+    w = train_detector(ts, n_hidden=n_hidden, maxiter=maxiter, seed=seed, progress=progress,
+                       metadata={"scenes": f"scenes.random({n_train}, seed={TRAIN_SEED})",
+                                 "ridges_per_scene": ridges_per_scene})
+    report["train_seconds"] = round(time.perf_counter() - t0, 1)
+    w_nf = train_detector(ts, n_hidden=n_hidden, maxiter=maxiter, seed=seed, feedback=False, progress=progress)
+    force = ForceRatioDetector.fit(train_res)
+    det = SlipDetector(w)
+    rep = evaluate(det, test_res, {"MLP without feedback": SlipDetector(w_nf), "force ratio |Fy|/Fz": force})
+    report["evaluation"] = [r.as_dict() for r in rep.rows]
+    report["evaluation_table"] = rep.table()
+    report["force_ratio_threshold"] = force.threshold
+    w.metadata["evaluation"] = {"scenes": f"scenes.random({n_test}, seed={TEST_SEED})",
+                                "detector": rep["detector"].as_dict(),
+                                "no_feedback": rep["MLP without feedback"].as_dict(),
+                                "force_ratio": rep["force ratio |Fy|/Fz"].as_dict()}
+    w.save(out_path)
+    report["total_seconds"] = round(time.perf_counter() - t_all, 1)
+    if report_path is not None:
+        with open(os.fspath(report_path), "w") as f:
+            f.write(rep.table() + "\n\n")
+            f.write(json.dumps(report, indent=1, default=float) + "\n")
+    if figure_path is not None:
+        from .. import scenes
+        from .figures import figure10
+
+        ra = simulate_scenes([scenes.paper("fig6")], False)[0]
+        rb = simulate_scenes([scenes.paper("fig8")], False)[0]
+        fig = figure10(det, ra, rb, stops_b=[(1.40, 1.45)])
+        fig.savefig(os.fspath(figure_path), dpi=120)
+    return w, report
+
+
+def main(argv=None):
+    ap = argparse.ArgumentParser(description="Train and evaluate the default slip detector.")
+    ap.add_argument("--out", required=True, help="weights file to write (.npz)")
+    ap.add_argument("--report", help="text report to write")
+    ap.add_argument("--figure", help="Figure 10 image to write (.png)")
+    ap.add_argument("--n-train", type=int, default=48)
+    ap.add_argument("--n-test", type=int, default=60)
+    ap.add_argument("--hidden", type=int, default=16)
+    ap.add_argument("--maxiter", type=int, default=300)
+    ap.add_argument("--study", type=int, nargs="*", help="hidden sizes to compare")
+    args = ap.parse_args(argv)
+    _w, report = build_default(args.out, args.n_train, args.n_test, args.hidden, args.maxiter,
+                              study_sizes=args.study, report_path=args.report, figure_path=args.figure)
+    print(report["evaluation_table"])
+    if "hidden_size_study" in report:
+        for row in report["hidden_size_study"]:
+            print(row)
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,147 @@
+"""Slip detector evaluation: metrics, baselines, Figure 10 (synthetic and simulated scenes)."""
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from tactile_mirror.detector import SlipDetector, make_training_set, train_detector
+from tactile_mirror.detector.evaluate import ForceRatioDetector, analyse_sequence, evaluate
+from tactile_mirror.detector.figures import figure10, figure10_data
+from tactile_mirror.detector.synthetic import synthetic_scene
+
+pytest.importorskip("tactile_mirror._core")
+
+
+# -- metric definitions ---------------------------------------------------------------------
+
+def test_analyse_sequence_definitions():
+    t = np.arange(100) / 1000.0
+    gross = (t >= 0.06).astype(float)
+    y_slip = np.zeros(100)
+    y_slip[63:] = 0.9  # detection 3 ms late
+    y_pred = np.zeros(100)
+    y_pred[20:] = 0.6  # held from 20 ms: 40 ms lead
+    y_pred[30] = 0.1  # a dip restarts the lead
+    m = analyse_sequence(t, y_slip, y_pred, gross)
+    assert m["slip"] and m["detected"] and not m["false_alarm"]
+    assert m["latency"] == pytest.approx(0.003)
+    assert m["lead"] == pytest.approx(0.060 - 0.031)
+    y_slip[10] = 0.85
+    m = analyse_sequence(t, y_slip, y_pred, gross)
+    assert m["false_alarm"] and m["false_samples"] == 1
+    # No slip: any crossing is a false alarm, nothing to detect.
+    m = analyse_sequence(t, y_slip, y_pred, np.zeros(100))
+    assert not m["slip"] and m["false_alarm"] and np.isnan(m["latency"])
+    # Detection later than max_latency is a miss.
+    y_slip[:] = 0
+    y_slip[95:] = 1
+    assert not analyse_sequence(t, y_slip, y_pred, gross, max_latency=0.02)["detected"]
+
+
+def test_force_ratio_detector():
+    r = synthetic_scene(seed=3)
+    det = ForceRatioDetector(0.3)
+    ys, yp = det.outputs(r, 6)
+    assert ys.shape == (6, r.t.size) and set(np.unique(ys)) <= {0.0, 1.0}
+    assert np.all((yp >= 0) & (yp <= 1))
+    with pytest.raises(ValueError, match="threshold"):
+        ForceRatioDetector(-1.0)
+
+
+# -- synthetic end-to-end -------------------------------------------------------------------
+
+@pytest.fixture(scope="module")
+def synthetic_detectors():
+    train = [synthetic_scene(seed=s, n_ridges=1, duration=1.8) for s in range(10)]
+    train += [synthetic_scene(seed=100 + s, n_ridges=1, duration=1.8, stop_before_slip=True) for s in range(2)]
+    ts = make_training_set(train)
+    w = train_detector(ts, n_hidden=8, maxiter=80, seed=0, progress=False)
+    w_nf = train_detector(ts, n_hidden=8, maxiter=40, seed=0, feedback=False, progress=False)
+    return SlipDetector(w), SlipDetector(w_nf), train
+
+
+def test_evaluate_reports_all_rows(synthetic_detectors):
+    det, det_nf, train = synthetic_detectors
+    test = [synthetic_scene(seed=1000 + s, n_ridges=2) for s in range(8)]
+    test += [synthetic_scene(seed=2000 + s, n_ridges=2, stop_before_slip=True) for s in range(3)]
+    force = ForceRatioDetector.fit(train)
+    rep = evaluate(det, test, {"no feedback": det_nf, "force ratio": force})
+    assert [r.name for r in rep.rows] == ["detector", "no feedback", "force ratio"]
+    row = rep["detector"]
+    assert row.n_sequences == 22 and row.n_slip == 16
+    assert 0 <= row.false_alarm_rate <= 1 and 0 <= row.detection_rate <= 1
+    # The (briefly) trained net finds the slips of this easy set, quickly.
+    assert row.detection_rate >= 0.9
+    assert row.latency_mean_ms <= 10
+    assert np.isfinite(row.pred_lead_mean_ms)
+    assert "detect %" in str(rep)
+    with pytest.raises(KeyError):
+        rep["missing"]
+    with pytest.raises(ValueError, match="scenes must not be empty"):
+        evaluate(det, [])
+
+
+def test_figure10_on_synthetic_scenes(synthetic_detectors, tmp_path):
+    pytest.importorskip("matplotlib")
+    import matplotlib
+
+    matplotlib.use("Agg")
+    det = synthetic_detectors[0]
+    a = synthetic_scene(seed=5, n_ridges=1, stops=[], slide_speed=1.0, mu=0.9)
+    b = synthetic_scene(seed=5, n_ridges=1, stops=[(1.0, 1.05)], slide_speed=1.0, mu=0.9)
+    d = figure10_data(det, b)
+    assert d["slip_time"] is not None and d["y_slip"].shape == d["t"].shape
+    fig = figure10(det, a, b)
+    fig.savefig(tmp_path / "fig10.png")
+    assert (tmp_path / "fig10.png").stat().st_size > 1000
+
+
+# -- the shipped detector on the simulated paper scenes (Figure 10 (a), (b)) -------------------
+
+@pytest.fixture(scope="module")
+def paper_results():
+    scenes = pytest.importorskip("tactile_mirror.scenes")
+    import tactile_mirror
+
+    if not hasattr(scenes, "paper") or not hasattr(tactile_mirror, "simulate"):
+        pytest.skip("contact simulation not available")
+    return {name: tactile_mirror.simulate(scenes.paper(name)) for name in ("fig6", "fig8")}
+
+
+@pytest.fixture(scope="module")
+def default_detector():
+    try:
+        return SlipDetector.default()
+    except FileNotFoundError:
+        pytest.skip("bundled detector weights missing")
+
+
+def test_default_detector_metadata(default_detector):
+    md = default_detector.metadata
+    assert md["features"] in ("stress_rate", "circuit")
+    assert default_detector.fs > 0 and md["feedback"] is True
+    assert "training" in md and "evaluation" in md
+
+
+def test_figure10a_no_stop(default_detector, paper_results):
+    d = figure10_data(default_detector, paper_results["fig6"])
+    t, ys, yp, ts = d["t"], d["y_slip"], d["y_pred"], d["slip_time"]
+    assert ts is not None
+    above = np.flatnonzero(ys >= 0.8)
+    assert above.size and t[above[0]] >= ts - 1e-9  # crosses only at slip ...
+    assert t[above[0]] <= ts + 0.005  # ... within 5 ms
+    t_pred = t[np.flatnonzero(yp >= 0.5)[0]]
+    assert t_pred < t[above[0]]  # y_pred rises before y_slip
+
+
+def test_figure10b_stop_at_B(default_detector, paper_results):
+    d = figure10_data(default_detector, paper_results["fig8"], stops=[(1.40, 1.45)])
+    t, ys, yp, ts = d["t"], d["y_slip"], d["y_pred"], d["slip_time"]
+    stop = (t >= 1.40) & (t < 1.45 + 0.01)
+    assert np.all(ys[stop] < 0.8)  # no slip judged during the stop
+    if ts is not None:
+        assert np.all(ys[t < ts] < 0.8)  # nor anywhere before the slip
+        above = np.flatnonzero(ys >= 0.8)
+        assert above.size and t[above[0]] <= ts + 0.005
+        assert t[np.flatnonzero(yp >= 0.5)[0]] < t[above[0]]
+    else:
+        assert np.all(ys < 0.8)
