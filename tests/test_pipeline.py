@@ -34,11 +34,13 @@ def make(n_ridges=3, use_u=True, controller=None, dtype=np.float64, activation="
 
 
 CONTROLLERS = [NoController(), PaperController(threshold=0.4, gain=0.02),
-               VelocityController(threshold=0.3, y_full=0.8, v_max=0.01, a_max=0.5, x_min=-0.004, x_max=0.004)]
+               VelocityController(threshold=0.3, y_full=0.8, v_max=0.01, a_max=0.5, x_min=-0.004, x_max=0.004),
+               VelocityController(threshold=0.3, y_full=0.8, v_max=0.01, a_max=0.5, shear_gain=2e-3,
+                                  direction_sign=-1.0, asym_tau=0.2)]
 
 
 @pytest.mark.parametrize("use_u", [True, False])
-@pytest.mark.parametrize("controller", CONTROLLERS, ids=lambda c: c.kind)
+@pytest.mark.parametrize("controller", CONTROLLERS, ids=["none", "paper", "velocity", "velocity-shear"])
 def test_matches_reference(use_u, controller):
     pipe = make(use_u=use_u, controller=controller)
     x = signals(1500, pipe.n_inputs)
@@ -149,6 +151,7 @@ def test_weights_for_another_rate_are_refused():
     ({"controller": {"kind": "paper", "x_min": 0.01}}, "bracket"),
     ({"controller": {"kind": "paper", "direction_sign": 2.0}}, "direction_sign"),
     ({"controller": {"kind": "magic"}}, "kind"),
+    ({"controller": {"kind": "velocity", "shear_gain": -1.0}}, "shear_gain"),
     ({"v_limit": -1.0}, "v_limit"),
     ({"slip_threshold": 1.5}, "slip_threshold"),
     ({"max_hold_ticks": -3}, "max_hold_ticks"),
@@ -211,6 +214,9 @@ def test_velocity_law_respects_limits():
     assert np.all(np.abs(np.diff(v)) <= 0.5 / FS + 1e-12)
     assert x.max() <= 0.005 and x[-1] == pytest.approx(0.005, abs=1e-5)
     assert abs(v[-1]) < 1e-3
+    # shear feedback alone moves the stage against the asymmetry's sign convention
+    xs, vs = VelocityController(threshold=0.5, y_full=0.9, shear_gain=0.01).run(np.zeros(50), np.full(50, 1.0), FS)
+    assert xs[-1] > 0 and np.all(np.abs(vs) <= 0.02)
     # direction follows the asymmetry, and direction_sign flips it
     xm, _ = VelocityController(direction_sign=-1).run(np.full(100, 0.9), np.full(100, 1.0), FS)
     assert xm[-1] < 0

@@ -422,7 +422,7 @@ class ReferencePipeline:
             self.a = math.exp(-dt / ctrl.asym_tau) * self.a + dt * asym
             if abs(self.a) > ctrl.asym_deadband:
                 self.dir = ctrl.direction_sign if self.a > 0 else -ctrl.direction_sign
-            self.x, self.v = ctrl._move(self.x, self.v, ypred, dt, self.dir)
+            self.x, self.v = ctrl._move(self.x, self.v, ypred, dt, self.dir, self.a)
         self.out[0] = self.x
         self.out[1] = self.v
         return self.out.copy()

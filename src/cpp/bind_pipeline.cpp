@@ -92,6 +92,7 @@ ControllerParams controller_from(const py::dict& d) {
         else if (k == "direction_sign") f = &p.direction_sign;
         else if (k == "asym_tau") f = &p.asym_tau;
         else if (k == "asym_deadband") f = &p.asym_deadband;
+        else if (k == "shear_gain") f = &p.shear_gain;
         else throw py::value_error("controller has no parameter '" + k + "'");
         *f = py::cast<double>(item.second);
     }
@@ -111,6 +112,7 @@ py::dict controller_dict(const ControllerParams& p) {
     d["direction_sign"] = p.direction_sign;
     d["asym_tau"] = p.asym_tau;
     d["asym_deadband"] = p.asym_deadband;
+    d["shear_gain"] = p.shear_gain;
     return d;
 }
 

@@ -35,8 +35,11 @@
 //              stage target moves by dir * gain * y * dt (gain in m/s per unit
 //              y_pred): a displacement proportional to y_pred above its threshold.
 //              Only the travel limits [x_min, x_max] are enforced.
-//   velocity   a velocity command with a deadband and a linear ramp:
-//              v_des = dir * v_max * clip((y - threshold) / (y_full - threshold), 0, 1),
+//   velocity   a velocity command with a deadband and a linear ramp on y_pred, plus
+//              an optional shear feedback on the asymmetry a (which is proportional to
+//              the L/R stress difference, i.e. to the shear load the finger puts on the pad):
+//              v_des = dir * v_max * clip((y - threshold) / (y_full - threshold), 0, 1)
+//                      + direction_sign * shear_gain * a,   clipped to +-v_max,
 //              limited so that the stage can always stop before a travel limit
 //              (v^2 / (2 a_max) + |v| dt / 2 <= d, the distance left), then slewed at most a_max * dt per tick and
 //              integrated into the position target. Speed, acceleration and travel
@@ -88,6 +91,7 @@ struct ControllerParams {
     double direction_sign = 1.0;   // +1 or -1: stage direction for a positive L-R asymmetry
     double asym_tau = 1.0;         // s, time constant of the asymmetry integrator
     double asym_deadband = 0.0;    // units of rate * s (Pa for stress-rate features)
+    double shear_gain = 0.0;       // velocity: m/s per unit of asymmetry (shear feedback), >= 0
 };
 
 // Everything a pipeline is built from. Arrays are borrowed for the duration of the
@@ -146,10 +150,10 @@ inline void validate_controller(const ControllerParams& c) {
     const int k = static_cast<int>(c.kind);
     if (k < 0 || k > 2) bad("kind", "must be 0 (none), 1 (paper) or 2 (velocity)");
     const double vals[] = {c.threshold, c.gain, c.y_full, c.v_max, c.a_max, c.x_min,
-                           c.x_max, c.direction_sign, c.asym_tau, c.asym_deadband};
+                           c.x_max, c.direction_sign, c.asym_tau, c.asym_deadband, c.shear_gain};
     const char* names[] = {"threshold", "gain", "y_full", "v_max", "a_max", "x_min",
-                           "x_max", "direction_sign", "asym_tau", "asym_deadband"};
-    for (int i = 0; i < 10; ++i)
+                           "x_max", "direction_sign", "asym_tau", "asym_deadband", "shear_gain"};
+    for (int i = 0; i < 11; ++i)
         if (!std::isfinite(vals[i])) bad(names[i], "must be finite");
     if (!(c.threshold >= 0.0 && c.threshold < 1.0)) bad("threshold", "must lie in [0, 1)");
     if (!(c.gain >= 0.0)) bad("gain", "must be >= 0 (m/s per unit y_pred)");
@@ -162,6 +166,7 @@ inline void validate_controller(const ControllerParams& c) {
     if (!(c.direction_sign == 1.0 || c.direction_sign == -1.0)) bad("direction_sign", "must be +1 or -1");
     if (!(c.asym_tau > 0.0)) bad("asym_tau", "must be > 0 (s)");
     if (!(c.asym_deadband >= 0.0)) bad("asym_deadband", "must be >= 0");
+    if (!(c.shear_gain >= 0.0)) bad("shear_gain", "must be >= 0 (m/s per unit of asymmetry)");
 }
 
 inline void validate_config(const PipelineConfig& c) {
@@ -229,7 +234,8 @@ public:
             case ControllerKind::velocity: {
                 double s = (y - p_.threshold) / (p_.y_full - p_.threshold);
                 s = s < 0.0 ? 0.0 : (s > 1.0 ? 1.0 : s);
-                double vd = dir_ * p_.v_max * s;
+                double vd = dir_ * p_.v_max * s + p_.direction_sign * p_.shear_gain * a_;
+                vd = vd > p_.v_max ? p_.v_max : (vd < -p_.v_max ? -p_.v_max : vd);
                 // Largest speed from which decelerating by a_max dt per tick stops
                 // within the distance d left: v^2 / (2 a) + v dt / 2 <= d.
                 const double h = 0.5 * p_.a_max * dt_;

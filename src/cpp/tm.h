@@ -81,6 +81,7 @@ typedef struct tm_controller_params {
     double direction_sign;   /* +1 or -1: stage direction for a positive L-R asymmetry */
     double asym_tau;         /* s, > 0: leak of the L/R asymmetry integrator */
     double asym_deadband;    /* >= 0: |asymmetry| below this keeps the previous direction */
+    double shear_gain;       /* velocity: m/s per unit of asymmetry (shear feedback), >= 0; 0 = off */
 } tm_controller_params;
 
 typedef struct tm_config {

@@ -77,6 +77,7 @@ void controller_defaults(tm_controller_params* p) {
     p->direction_sign = d.direction_sign;
     p->asym_tau = d.asym_tau;
     p->asym_deadband = d.asym_deadband;
+    p->shear_gain = d.shear_gain;
 }
 
 }  // namespace
@@ -181,6 +182,7 @@ int32_t tm_pipeline_create(const tm_config* cfg, tm_pipeline* out) {
     c.controller.direction_sign = p.direction_sign;
     c.controller.asym_tau = p.asym_tau;
     c.controller.asym_deadband = p.asym_deadband;
+    c.controller.shear_gain = p.shear_gain;
     // The sample-rate check first, with its own code.
     if (std::isfinite(c.fs) && c.fs > 0 && std::isfinite(c.weights_fs) && c.weights_fs > 0 &&
         std::fabs(c.fs - c.weights_fs) > 1e-9 * c.fs)

@@ -26,8 +26,10 @@ Direction (both laws)
     saturates its own speed and acceleration.
 
 :class:`VelocityController`
-    A velocity command with a deadband and a linear ramp,
-    ``v_des = dir * v_max * clip((y - threshold) / (y_full - threshold), 0, 1)``,
+    A velocity command with a deadband and a linear ramp, plus an optional shear
+    feedback on the asymmetry ``a`` (proportional to the L/R stress difference):
+    ``v_des = dir * v_max * clip((y - threshold) / (y_full - threshold), 0, 1)
+    + direction_sign * shear_gain * a``, clipped to ``+-v_max``,
     bounded so that the stage can always stop before a travel limit
     (``v^2 / (2 a_max) + |v| dt / 2 <= d``, the distance left), slewed by at most ``a_max * dt`` per tick and
     integrated into the target: it respects the stage's speed, acceleration and travel.
@@ -102,7 +104,7 @@ class Controller:
         return d
 
     # -- numpy reference ---------------------------------------------------------------
-    def _move(self, x, v, y, dt, dirn):
+    def _move(self, x, v, y, dt, dirn, a=0.0):
         return x, v
 
     def run(self, y_pred, asym, fs, x0: float = 0.0):
@@ -143,7 +145,7 @@ class Controller:
             a = leak * a + dt * d[k]
             if abs(a) > self.asym_deadband:
                 dirn = self.direction_sign if a > 0 else -self.direction_sign
-            x, v = self._move(x, v, y[k], dt, dirn)
+            x, v = self._move(x, v, y[k], dt, dirn, a)
             xs[k] = x
             vs[k] = v
         return xs, vs
@@ -158,7 +160,7 @@ class NoController(Controller):
 
     kind = "none"
 
-    def _move(self, x, v, y, dt, dirn):
+    def _move(self, x, v, y, dt, dirn, a=0.0):
         return x, v
 
 
@@ -184,7 +186,7 @@ class PaperController(Controller):
         if self.gain < 0:
             raise ValueError(f"gain must be >= 0 m/s, got {self.gain}")
 
-    def _move(self, x, v, y, dt, dirn):
+    def _move(self, x, v, y, dt, dirn, a=0.0):
         x0 = x
         if y >= self.threshold:
             x = self._clamp(x + dirn * self.gain * y * dt)
@@ -205,6 +207,10 @@ class VelocityController(Controller):
         Speed limit, m/s (> 0).
     a_max : float
         Acceleration limit, m/s^2 (> 0).
+    shear_gain : float
+        Shear feedback, m/s per unit of asymmetry (>= 0; 0 = off): adds
+        ``direction_sign * shear_gain * a`` to the speed, so the stage also moves to
+        null the shear the finger puts on the pad before any slip is predicted.
     x_min, x_max, direction_sign, asym_tau, asym_deadband
         See :class:`Controller`.
     """
@@ -214,10 +220,11 @@ class VelocityController(Controller):
     y_full: float = 0.7
     v_max: float = 0.02
     a_max: float = 1.0
+    shear_gain: float = 0.0
 
     def __post_init__(self):
         super().__post_init__()
-        for name in ("y_full", "v_max", "a_max"):
+        for name in ("y_full", "v_max", "a_max", "shear_gain"):
             object.__setattr__(self, name, _real(getattr(self, name), name))
         if not self.threshold < self.y_full <= 1.0:
             raise ValueError(f"y_full must lie in (threshold, 1] = ({self.threshold}, 1], got {self.y_full}")
@@ -225,10 +232,13 @@ class VelocityController(Controller):
             raise ValueError(f"v_max must be > 0 m/s, got {self.v_max}")
         if not self.a_max > 0:
             raise ValueError(f"a_max must be > 0 m/s^2, got {self.a_max}")
+        if not self.shear_gain >= 0:
+            raise ValueError(f"shear_gain must be >= 0 m/s per unit of asymmetry, got {self.shear_gain}")
 
-    def _move(self, x, v, y, dt, dirn):
+    def _move(self, x, v, y, dt, dirn, a=0.0):
         s = min(max((y - self.threshold) / (self.y_full - self.threshold), 0.0), 1.0)
-        vd = dirn * self.v_max * s
+        vd = dirn * self.v_max * s + self.direction_sign * self.shear_gain * a
+        vd = min(max(vd, -self.v_max), self.v_max)
         h = 0.5 * self.a_max * dt
         hi = math.sqrt(h * h + 2.0 * self.a_max * max(0.0, self.x_max - x)) - h
         lo = h - math.sqrt(h * h + 2.0 * self.a_max * max(0.0, x - self.x_min))
@@ -262,7 +272,7 @@ def controller_from_dict(d) -> Controller:
     unknown = sorted(set(d) - names)
     # The C++ side reports every parameter; the ones a law does not use are dropped.
     known = {k: v for k, v in d.items() if k in names}
-    unused = {"gain", "y_full", "v_max", "a_max"}
+    unused = {"gain", "y_full", "v_max", "a_max", "shear_gain"}
     bad = [k for k in unknown if k not in unused]
     if bad:
         raise ValueError(f"controller {kind!r} has no parameter {bad[0]!r}")

@@ -1,0 +1,87 @@
+"""The closed-loop experiment's pieces: contact model, finger paths, slip counting, one short run."""
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from tactile_mirror.loop import VelocityController
+from tactile_mirror.loop.experiment import (
+    BrushRidges,
+    Scene,
+    calibrate_direction,
+    finger_trajectory,
+    gross_slip_events,
+    run_scene,
+)
+
+FS = 1000.0
+
+
+def weights(h=4):
+    rng = np.random.default_rng(0)
+    return {"w1": rng.normal(size=(h, 5)), "b1": rng.normal(size=h), "w2": rng.normal(size=(2, h)),
+            "b2": rng.normal(size=2), "input_mean": np.zeros(4), "input_gain": np.array([1e-5, 1e-5, 1e-7, 1e-7]),
+            "fs": FS}
+
+
+def test_brush_ridges_partial_then_gross_slip():
+    plant = BrushRidges(n_ridges=1, mu=1.0, normal_load=0.1, k_finger=100.0, n_points=20)
+    frac = []
+    fy = []
+    for dy in np.linspace(0, 2e-3, 400):
+        st = plant.advance(dy)
+        frac.append(st.slip_fraction[0])
+        fy.append(st.force_y)
+    frac = np.array(frac)
+    first = np.argmax(frac > 0)
+    gross = np.argmax(frac >= 1)
+    assert 0 < first < gross  # local slip before gross slip
+    assert fy[-1] == pytest.approx(0.1, rel=1e-9)  # the Coulomb limit mu P
+    assert np.all(np.diff(frac) >= 0)
+    # slip starts at the edges
+    plant.reset()
+    lim = plant.mu[0] * plant.p
+    plant.advance(np.linspace(0, 2e-3, 400)[first])
+    q = plant.k * (np.linspace(0, 2e-3, 400)[first] - plant.s[0])
+    at = np.abs(q) >= lim * (1 - 1e-9)
+    assert at[0] and at[-1] and not at[len(at) // 2]
+    # reversing re-sticks
+    plant.advance(2e-3)
+    st = plant.advance(1.9e-3)
+    assert st.slip_fraction[0] == 0.0
+    # strips see opposite bending
+    assert np.sign(st.stress[0, 0] - st.stress[0, 1]) != 0
+
+
+def test_finger_trajectory_within_limits_and_seeded():
+    y = finger_trajectory(3, 2.0, FS, v_max=0.01, a_max=0.2)
+    v = np.gradient(y, 1 / FS)
+    assert y[0] == 0.0 and np.abs(v).max() <= 0.01 + 1e-9
+    assert np.abs(np.gradient(v, 1 / FS)).max() <= 0.2 + 1e-6
+    np.testing.assert_array_equal(y, finger_trajectory(3, 2.0, FS, v_max=0.01, a_max=0.2))
+    assert not np.array_equal(y, finger_trajectory(4, 2.0, FS, v_max=0.01, a_max=0.2))
+
+
+def test_gross_slip_events():
+    sf = np.zeros((2, 100))
+    sf[:, 10:20] = 1.0
+    sf[:, 25:30] = 1.0   # merged with the first (gap < 20)
+    sf[:, 60:70] = 1.0
+    sf[1, 90:98] = 1.0   # one ridge only: not a contact gross slip
+    assert gross_slip_events(sf) == 2
+    assert gross_slip_events(sf[1:]) == 3
+    assert gross_slip_events(np.zeros((2, 10))) == 0
+
+
+def test_short_open_and_closed_runs():
+    w = weights()
+    sign = calibrate_direction(w, FS)
+    assert sign in (1.0, -1.0)
+    sc = Scene(seed=1, duration=0.6, noise=1e-4, drop_rate=0.02)
+    r_open = run_scene(sc, w, None)
+    assert np.all(r_open.stage == 0.0) and r_open.tracking_max > 0
+    law = VelocityController(threshold=0.15, y_full=0.5, v_max=0.03, a_max=1.0, direction_sign=sign,
+                             asym_tau=2.0, shear_gain=4e-7)
+    r = run_scene(sc, w, law)
+    assert r.status["rejected"] > 0
+    assert r.tracking_rms < r_open.tracking_rms  # the stage follows the finger
+    assert set(r.summary()) >= {"gross_slips", "tracking_rms_mm", "controller"}
