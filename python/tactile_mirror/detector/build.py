@@ -40,7 +40,8 @@ def simulate_scenes(scenes, progress: bool = True) -> list:
 def subset(ts: TrainingSet, ridges_per_scene: int, n_ridges: int) -> TrainingSet:
     """Keep the first ``ridges_per_scene`` of every ``n_ridges`` sequences (scene-major order)."""
     keep = (np.arange(ts.n_seq) % n_ridges) < ridges_per_scene
-    return TrainingSet(ts.x[keep], ts.y_slip[keep], ts.y_pred[keep], ts.mask[keep], ts.fs, ts.features)
+    return TrainingSet(ts.x[keep], ts.y_slip[keep], ts.y_pred[keep], ts.mask[keep], ts.fs, ts.features,
+                       ts.estimator)
 
 
 def hidden_size_study(train, validation, sizes=(4, 8, 12, 16, 24), maxiter: int = 300, seed: int = 0,

@@ -27,15 +27,18 @@ class TrainingSet:
     fs : float
     features : str
         Feature kind.
+    estimator : dict
+        Estimator settings of ``"stress_rate"`` features.
     """
 
-    def __init__(self, x, y_slip, y_pred, mask, fs, features="stress_rate"):
+    def __init__(self, x, y_slip, y_pred, mask, fs, features="stress_rate", estimator=None):
         self.x = np.asarray(x, dtype=np.float64)
         self.y_slip = np.asarray(y_slip, dtype=np.float64)
         self.y_pred = np.asarray(y_pred, dtype=np.float64)
         self.mask = np.asarray(mask, dtype=bool)
         self.fs = float(fs)
         self.features = features
+        self.estimator = dict(DEFAULT_ESTIMATOR if estimator is None else estimator)
         if self.x.ndim != 3 or self.x.shape[1] != 4:
             raise ValueError(f"x must have shape (n_seq, 4, n), got {self.x.shape}")
         for name in ("y_slip", "y_pred", "mask"):
@@ -83,7 +86,7 @@ def make_training_set(results, features: str = "stress_rate", circuit=None, esti
         Pp[i:i + m, :L] = yp
         M[i:i + m, :L] = True
         i += m
-    return TrainingSet(X, S, Pp, M, fs, features)
+    return TrainingSet(X, S, Pp, M, fs, features, estimator)
 
 
 def fit_normalisation(x, mask=None):
@@ -108,18 +111,19 @@ def fit_normalisation(x, mask=None):
     return np.zeros(4), scale
 
 
-def _loss_weights(ts: TrainingSet, pred_weight: float):
+def _loss_weights(ts: TrainingSet, pred_weight: float, negative_weight: float = 1.0):
     m = ts.mask.astype(np.float64)
     pos = m * (ts.y_slip >= 0.5)
     neg = m - pos
     n_pos, n_neg = pos.sum(), neg.sum()
-    w_slip = 0.5 * pos / max(n_pos, 1.0) + 0.5 * neg / max(n_neg, 1.0)
+    w_slip = 0.5 * pos / max(n_pos, 1.0) + 0.5 * negative_weight * neg / max(n_neg, 1.0)
     w_pred = pred_weight * m / max(m.sum(), 1.0)
     return w_slip, w_pred
 
 
 def train_detector(data, n_hidden: int = 16, feedback: bool = True, seed=0, maxiter: int = 400,
-                   l2: float = 1e-4, pred_weight: float = 1.0, features: str = "stress_rate",
+                   l2: float = 1e-4, pred_weight: float = 1.0, negative_weight: float = 1.0,
+                   features: str = "stress_rate",
                    estimator=None, circuit=None, progress: bool = True, metadata=None) -> DetectorWeights:
     """Train a Jordan slip detector by exact BPTT and L-BFGS-B.
 
@@ -140,6 +144,9 @@ def train_detector(data, n_hidden: int = 16, feedback: bool = True, seed=0, maxi
         Weight decay on w1, w2 (relative to the mean per-sample loss).
     pred_weight : float
         Weight of the y_pred loss relative to the (class-balanced) y_slip loss.
+    negative_weight : float
+        Extra weight of the no-slip samples of the y_slip loss (> 1 penalises
+        false alarms more than late detections).
     features, estimator, circuit
         Feature kind and estimator settings (only used when ``data`` holds results).
     progress : bool
@@ -162,7 +169,7 @@ def train_detector(data, n_hidden: int = 16, feedback: bool = True, seed=0, maxi
     mean, scale = fit_normalisation(data.x, data.mask)
     xn = (data.x - mean[None, :, None]) * (1.0 / scale)[None, :, None]
     xn *= data.mask[:, None, :]
-    w_slip, w_pred = _loss_weights(data, pred_weight)
+    w_slip, w_pred = _loss_weights(data, pred_weight, negative_weight)
     p0 = init_params(4, int(n_hidden), seed)
     if not feedback:
         p0.w1[:, -1] = 0.0
@@ -197,15 +204,15 @@ def train_detector(data, n_hidden: int = 16, feedback: bool = True, seed=0, maxi
         "features": data.features,
         "units": list(FEATURE_KINDS[data.features]),
         "channels": ["v_L", "v_R", "u_L", "u_R"],
-        "estimator": dict(DEFAULT_ESTIMATOR if estimator is None else estimator)
-        if data.features == "stress_rate" else None,
+        "estimator": data.estimator if data.features == "stress_rate" else None,
         "targets": {"y_slip": "1 while the ridge slips grossly (slip fraction >= 0.999)",
                     "y_pred": "slip fraction of the ridge contact"},
         "feedback": bool(feedback),
         "slip_threshold": 0.8,
         "training": {"n_sequences": int(data.n_seq), "n_samples": int(data.mask.sum()), "seed": int(seed),
                      "maxiter": int(maxiter), "iterations": int(res.nit), "l2": float(l2),
-                     "pred_weight": float(pred_weight), "loss": float(res.fun), "seconds": round(elapsed, 2),
+                     "pred_weight": float(pred_weight), "negative_weight": float(negative_weight),
+                     "loss": float(res.fun), "seconds": round(elapsed, 2),
                      "optimizer": "scipy.optimize L-BFGS-B, exact BPTT gradient", **(metadata or {})},
     }
     return DetectorWeights(params, mean, scale, data.fs, meta)
