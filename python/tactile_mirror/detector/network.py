@@ -148,18 +148,18 @@ def forward(params: Params, xn, p0=None, return_hidden: bool = False):
     a = np.empty((s, params.n_hidden))
     h = np.empty((s, params.n_hidden))
     o = np.empty((s, 2))
+    b2 = params.b2
     for t in range(n):
         np.multiply(p[:, None], w_fb, out=a)
         a += ax[t]
-        _expit(a, out=h)
-        np.matmul(h, w2t, out=o)
-        o += params.b2
+        ht = h if hs is None else hs[t]
+        _expit(a, out=ht)
+        np.matmul(ht, w2t, out=o)
+        o += b2
         _expit(o, out=o)
         ys[t] = o[:, 0]
-        p = o[:, 1].copy()
-        yp[t] = p
-        if hs is not None:
-            hs[t] = h
+        p = yp[t]
+        p[:] = o[:, 1]
     if return_hidden:
         return ys.T, yp.T, hs
     return ys.T, yp.T
@@ -208,17 +208,17 @@ def loss_and_grad(theta, xn, t_slip, t_pred, w_slip, w_pred, n_inputs: int, n_hi
     g_p = np.zeros(s)  # dL/dp_t coming from step t+1
     dsig_p = yp * (1.0 - yp)
     dsig_h = hs * (1.0 - hs)
-    w2s, w2p = w2[0], w2[1]
-    dh = np.empty((s, n_hidden))
+    w2p = w2[1]
+    # The y_slip part of dL/dh for all steps at once; the loop adds the y_pred part.
+    np.multiply(do_s[:, :, None], w2[0], out=dah)
     tmp = np.empty((s, n_hidden))
     for t in range(n - 1, -1, -1):
         dp = do_p_direct[t] + g_p * dsig_p[t]
         do_p[t] = dp
-        np.multiply(do_s[t][:, None], w2s, out=dh)
         np.multiply(dp[:, None], w2p, out=tmp)
-        dh += tmp
         da = dah[t]
-        np.multiply(dh, dsig_h[t], out=da)
+        da += tmp
+        da *= dsig_h[t]
         g_p = da @ w_fb
     # Previous feedback input per step: p_{t-1} (zero at t = 0).
     p_prev = np.vstack([np.zeros((1, s)), yp[:-1]])
