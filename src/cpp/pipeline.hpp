@@ -237,11 +237,17 @@ public:
                 double vd = dir_ * p_.v_max * s + p_.direction_sign * p_.shear_gain * a_;
                 vd = vd > p_.v_max ? p_.v_max : (vd < -p_.v_max ? -p_.v_max : vd);
                 // Largest speed from which decelerating by a_max dt per tick stops
-                // within the distance d left: v^2 / (2 a) + v dt / 2 <= d.
+                // within the distance d left: v^2 / (2 a) + v dt / 2 <= d, i.e.
+                // (v + h)^2 <= h^2 + 2 a d with h = a dt / 2. The square root is only
+                // taken when the bound is hit.
                 const double h = 0.5 * p_.a_max * dt_;
-                const double hi = std::sqrt(h * h + 2.0 * p_.a_max * std::max(0.0, p_.x_max - x_)) - h;
-                const double lo = h - std::sqrt(h * h + 2.0 * p_.a_max * std::max(0.0, x_ - p_.x_min));
-                vd = vd > hi ? hi : (vd < lo ? lo : vd);
+                if (vd > 0.0) {
+                    const double d = std::max(0.0, p_.x_max - x_);
+                    if (vd * (vd + 2.0 * h) > 2.0 * p_.a_max * d) vd = std::sqrt(h * h + 2.0 * p_.a_max * d) - h;
+                } else if (vd < 0.0) {
+                    const double d = std::max(0.0, x_ - p_.x_min);
+                    if (vd * (vd - 2.0 * h) > 2.0 * p_.a_max * d) vd = h - std::sqrt(h * h + 2.0 * p_.a_max * d);
+                }
                 const double dv_max = p_.a_max * dt_;
                 double dv = vd - v_;
                 dv = dv > dv_max ? dv_max : (dv < -dv_max ? -dv_max : dv);

@@ -240,9 +240,14 @@ class VelocityController(Controller):
         vd = dirn * self.v_max * s + self.direction_sign * self.shear_gain * a
         vd = min(max(vd, -self.v_max), self.v_max)
         h = 0.5 * self.a_max * dt
-        hi = math.sqrt(h * h + 2.0 * self.a_max * max(0.0, self.x_max - x)) - h
-        lo = h - math.sqrt(h * h + 2.0 * self.a_max * max(0.0, x - self.x_min))
-        vd = min(max(vd, lo), hi)
+        if vd > 0:
+            d = max(0.0, self.x_max - x)
+            if vd * (vd + 2.0 * h) > 2.0 * self.a_max * d:
+                vd = math.sqrt(h * h + 2.0 * self.a_max * d) - h
+        elif vd < 0:
+            d = max(0.0, x - self.x_min)
+            if vd * (vd - 2.0 * h) > 2.0 * self.a_max * d:
+                vd = h - math.sqrt(h * h + 2.0 * self.a_max * d)
         dv_max = self.a_max * dt
         v = v + min(max(vd - v, -dv_max), dv_max)
         x0, xn = x, x + v * dt
