@@ -12,7 +12,8 @@ Tables (one run, same machine, same configuration):
    and the same tick written with scipy.signal.sosfilt + numpy (``ReferencePipeline``).
 3. ``latency``: a ``LoopRunner`` paced in real time at 10 kHz for 10 s (samples from an
    array, a simulated stage): p50, p99, p99.9 and max of the tick latency (sample handed
-   over -> stage command issued), overruns and late starts.
+   over -> stage command issued), overruns and late starts; and the same run from the C
+   program (``tm_pipeline_step`` paced by a busy wait, no Python).
 
 Run: ``python bench/bench_pipeline.py`` (``--quick``: shorter runs, 1 s latency run;
 ``--latency-seconds``). Goals: <= 300 ns per 6-ridge tick in C++ and through the C
@@ -97,19 +98,20 @@ def reference_step_ns(pipe, n):
     return best_of(run, 3)
 
 
-def c_program_ns(n):
+def c_program(n, paced_seconds=0.0):
+    """Run tests/c/example.c in timing mode; returns its "key value..." lines as a dict."""
     cc = shutil.which("cc") or shutil.which("gcc")
     if cc is None:
-        return None, None
+        return {}
     lib = library_path()
     with tempfile.TemporaryDirectory() as d:
         exe = os.path.join(d, "example")
         subprocess.run([cc, "-std=c99", "-O2", "-D_POSIX_C_SOURCE=199309L", str(ROOT / "tests" / "c" / "example.c"),
                         "-I", os.path.dirname(header_path()), lib, "-Wl,-rpath," + os.path.dirname(lib), "-lm",
                         "-o", exe], check=True)
-        out = subprocess.run([exe, str(n)], check=True, capture_output=True, text=True).stdout
-    vals = dict(line.split() for line in out.splitlines() if " " in line)
-    return float(vals["capi_ns_per_tick"]), float(vals["inside_ns_per_tick"])
+        args = [exe, str(n)] + ([str(paced_seconds)] if paced_seconds else [])
+        out = subprocess.run(args, check=True, capture_output=True, text=True).stdout
+    return {line.split()[0]: [float(v) for v in line.split()[1:]] for line in out.splitlines() if " " in line}
 
 
 def table_scaling(n_iter):
@@ -136,10 +138,10 @@ def table_doors(n_iter, n_py, n_ref):
         p = make(dtype=dt)
         res[f"C++ inside, {np.dtype(dt).name}"] = p.time_step_ns(n_iter, 5)
     p = make()
-    capi_c, capi_inside = c_program_ns(n_iter)
-    if capi_c is not None:
-        res["C program -> tm_pipeline_step, float64"] = capi_c
-        res["C ABI timer (tm_pipeline_time_step_ns)"] = capi_inside
+    c = c_program(n_iter)
+    if c:
+        res["C program -> tm_pipeline_step, float64"] = c["capi_ns_per_tick"][0]
+        res["C ABI timer (tm_pipeline_time_step_ns)"] = c["inside_ns_per_tick"][0]
     res["Python -> MirrorPipeline.step (pybind11)"] = python_step_ns(p, n_py)
     with CPipeline(p.config) as c:
         res["Python -> cffi -> tm_pipeline_step"] = python_step_ns(c, max(n_py // 10, 1000))
@@ -164,8 +166,14 @@ def table_latency(seconds, fs=10000.0):
     stage = SimulatedStage(lag=0.002)
     res = LoopRunner(p, stage, ArraySource(x), realtime=True).run(n_ticks=n)
     pc = res.latency_percentiles()
-    print(f"  ticks {len(res.t)}  p50 {pc['p50']:.2f} us  p99 {pc['p99']:.2f} us  p99.9 {pc['p99.9']:.2f} us  "
-          f"max {pc['max']:.1f} us  overruns {res.overruns}  late starts {res.late_starts}")
+    print(f"  Python LoopRunner (step + stage command): ticks {len(res.t)}  p50 {pc['p50']:.2f} us  "
+          f"p99 {pc['p99']:.2f} us  p99.9 {pc['p99.9']:.2f} us  max {pc['max']:.1f} us  "
+          f"overruns {res.overruns}  late starts {res.late_starts}")
+    c = c_program(1000, seconds)
+    if c:
+        p50, p99, p999, mx = c["latency_ns"]
+        print(f"  C program, tm_pipeline_step paced at 10 kHz: p50 {p50 / 1e3:.2f} us  p99 {p99 / 1e3:.2f} us  "
+              f"p99.9 {p999 / 1e3:.2f} us  max {mx / 1e3:.1f} us  overruns {int(c['overruns'][0])}")
     return pc, res.overruns, res.late_starts
 
 

@@ -6,6 +6,9 @@
  *   example            run the checks
  *   example N          then time N ticks through tm_pipeline_step (6 ridges) and print
  *                      "capi_ns_per_tick <ns>" and "inside_ns_per_tick <ns>"
+ *   example N S        and run S seconds paced at 10 kHz (busy wait on CLOCK_MONOTONIC),
+ *                      printing the tick latency percentiles "latency_ns p50 p99 p999 max"
+ *                      and "overruns <ticks that ended after their deadline>"
  */
 #include <math.h>
 #include <stdio.h>
@@ -224,11 +227,57 @@ static void run_timing(long n) {
     tm_pipeline_destroy(h);
 }
 
+static int cmp_double(const void* a, const void* b) {
+    double x = *(const double*)a, y = *(const double*)b;
+    return (x > y) - (x < y);
+}
+
+static void run_paced(double seconds) {
+    const double period = 1e5; /* ns: 10 kHz */
+    const long n = (long)(seconds * 1e4);
+    tm_config cfg;
+    tm_pipeline h = 0;
+    static double x[1024 * NI];
+    double out[NO];
+    double* lat = (double*)malloc(sizeof(double) * (size_t)(n > 0 ? n : 1));
+    long overruns = 0;
+    if (!lat) return;
+    base_config(&cfg);
+    cfg.fs = 10000.0;
+    cfg.weights_fs = 10000.0;
+    if (tm_pipeline_create(&cfg, &h) != TM_OK) {
+        free(lat);
+        ++failures;
+        return;
+    }
+    for (int t = 0; t < 1024; ++t)
+        for (int c = 0; c < NI; ++c) x[t * NI + c] = 1e-3 * sin(0.01 * t * (c + 1) + c);
+    double next = now_ns() + period;
+    for (long i = 0; i < n; ++i) {
+        while (now_ns() < next - period) {
+        }
+        double t0 = now_ns();
+        tm_pipeline_step(h, x + (i & 1023) * NI, NI, out, NO);
+        double t1 = now_ns();
+        lat[i] = t1 - t0;
+        overruns += t1 > next;
+        next += period;
+    }
+    qsort(lat, (size_t)n, sizeof(double), cmp_double);
+    if (n > 0)
+        printf("latency_ns %.0f %.0f %.0f %.0f\n", lat[n / 2], lat[(long)(0.99 * (n - 1))], lat[(long)(0.999 * (n - 1))],
+               lat[n - 1]);
+    printf("overruns %ld\n", overruns);
+    free(lat);
+    tm_pipeline_destroy(h);
+}
+
 int main(int argc, char** argv) {
     make_weights();
     run_checks(64);
     run_checks(32);
     if (argc > 1) run_timing(atol(argv[1]));
+    if (argc > 2) run_paced(atof(argv[2]));
     if (failures) {
         fprintf(stderr, "%d checks failed\n", failures);
         return 1;
