@@ -200,84 +200,92 @@ __attribute__((always_inline)) inline Vec<double, 32>::type clamp_sym(Vec<double
 }
 #endif
 
-template <typename T, int B, Activation A>
-__attribute__((always_inline)) inline typename Vec<T, B>::type sigmoid_vec(typename Vec<T, B>::type a) {
+// K independent sigmoids in place, computed stage by stage across the K vectors
+// so that their dependency chains interleave in the instruction stream (the
+// sigmoid is a long chain; one at a time leaves the FP units idle).
+#define TM_K _Pragma("GCC unroll 8") for (int u = 0; u < K; ++u)
+template <typename T, int B, Activation A, int K>
+__attribute__((always_inline)) inline void sigmoid_k(typename Vec<T, B>::type* a) {
     typedef Vec<T, B> VT;
     typedef typename VT::type V;
     typedef typename VT::itype IV;
-    a = clamp_sym(a, T(VT::clamp));
+    typedef typename std::make_unsigned<typename VT::iscalar>::type U;  // modular shifts
+    V y[K], t[K], f[K], f2[K], p[K];
+    IV tb[K];
+    TM_K a[u] = clamp_sym(a[u], T(VT::clamp));
+    TM_K y[u] = a[u] * T(-1.4426950408889634);
+    TM_K t[u] = y[u] + VT::round_magic;
+    // The integer bits of t hold round(y) in the low mantissa bits.
+    TM_K std::memcpy(&tb[u], &t[u], sizeof(IV));
     if (A == Activation::exact) {
         // exp(-a) to about one ulp: -a = n ln2 + r, |r| <= ln2/2 (Cody-Waite split
         // of ln2), exp(r) by its Taylor series (degree 13 for double, 7 for float:
         // truncation below 5e-18 and 6e-9 relative), then 1/(1 + exp(-a)) with a
         // true division.
-        const V y = a * T(-1.4426950408889634);
-        const V t = y + VT::round_magic;
-        IV tb;
-        std::memcpy(&tb, &t, sizeof tb);
-        const V n = t - VT::round_magic;
-        V r;
+        TM_K t[u] = t[u] - VT::round_magic;  // n
         if (sizeof(T) == 8) {
-            r = (T(0) - a) - n * T(0.693147180369123816490);
-            r = r - n * T(1.90821492927058770002e-10);
+            TM_K f[u] = (T(0) - a[u]) - t[u] * T(0.693147180369123816490);
+            TM_K f[u] = f[u] - t[u] * T(1.90821492927058770002e-10);
         } else {
-            r = (T(0) - a) - n * T(0.693359375);
-            r = r - n * T(-2.12194440e-4);
+            TM_K f[u] = (T(0) - a[u]) - t[u] * T(0.693359375);
+            TM_K f[u] = f[u] - t[u] * T(-2.12194440e-4);
         }
-        const V r2 = r * r;
-        const V r4 = r2 * r2;
-        V p;
+        TM_K f2[u] = f[u] * f[u];
         if (sizeof(T) == 8) {
-            const V q0 = T(1.0) * r + T(1.0);
-            const V q1 = T(1.0 / 6) * r + T(1.0 / 2);
-            const V q2 = T(1.0 / 120) * r + T(1.0 / 24);
-            const V q3 = T(1.0 / 5040) * r + T(1.0 / 720);
-            const V q4 = T(1.0 / 362880) * r + T(1.0 / 40320);
-            const V q5 = T(1.0 / 39916800) * r + T(1.0 / 3628800);
-            const V q6 = T(1.0 / 6227020800.0) * r + T(1.0 / 479001600);
-            const V s0 = q1 * r2 + q0;
-            const V s1 = q3 * r2 + q2;
-            const V s2 = q5 * r2 + q4;
-            const V u0 = s1 * r4 + s0;
-            const V u1 = q6 * r4 + s2;
-            p = u1 * (r4 * r4) + u0;
+            TM_K {
+                const V r = f[u], r2 = f2[u], r4 = r2 * r2;
+                const V q0 = T(1.0) * r + T(1.0);
+                const V q1 = T(1.0 / 6) * r + T(1.0 / 2);
+                const V q2 = T(1.0 / 120) * r + T(1.0 / 24);
+                const V q3 = T(1.0 / 5040) * r + T(1.0 / 720);
+                const V q4 = T(1.0 / 362880) * r + T(1.0 / 40320);
+                const V q5 = T(1.0 / 39916800) * r + T(1.0 / 3628800);
+                const V q6 = T(1.0 / 6227020800.0) * r + T(1.0 / 479001600);
+                const V u0 = (q3 * r2 + q2) * r4 + (q1 * r2 + q0);
+                const V u1 = q6 * r4 + (q5 * r2 + q4);
+                p[u] = u1 * (r4 * r4) + u0;
+            }
         } else {
-            const V q0 = T(1.0) * r + T(1.0);
-            const V q1 = T(1.0 / 6) * r + T(1.0 / 2);
-            const V q2 = T(1.0 / 120) * r + T(1.0 / 24);
-            const V q3 = T(1.0 / 5040) * r + T(1.0 / 720);
-            p = (q3 * r2 + q2) * r4 + (q1 * r2 + q0);
+            TM_K {
+                const V r = f[u], r2 = f2[u];
+                const V q0 = T(1.0) * r + T(1.0);
+                const V q1 = T(1.0 / 6) * r + T(1.0 / 2);
+                const V q2 = T(1.0 / 120) * r + T(1.0 / 24);
+                const V q3 = T(1.0 / 5040) * r + T(1.0 / 720);
+                p[u] = (q3 * r2 + q2) * (r2 * r2) + (q1 * r2 + q0);
+            }
         }
-        typedef typename std::make_unsigned<typename VT::iscalar>::type U;  // modular shifts
-        const IV eb = (tb + static_cast<U>(VT::bias)) << VT::mant;
-        V scale;
-        std::memcpy(&scale, &eb, sizeof scale);
-        return T(1) / (T(1) + p * scale);
     } else {
-        // |a| <= clamp keeps y inside the normal exponent range: no clamp needed.
-        const V y = a * T(-1.4426950408889634);
-        const V t = y + VT::round_magic;
-        // The integer bits of t hold round(y) in the low mantissa bits.
-        IV tb;
-        std::memcpy(&tb, &t, sizeof tb);
-        const V f = y - (t - VT::round_magic);
-        // 2^f by Estrin's scheme (shorter dependency chain than Horner).
-        const V f2 = f * f;
-        const V q01 = T(kP1) * f + T(kP0);
-        const V q23 = T(kP3) * f + T(kP2);
-        const V q45 = T(kP5) * f + T(kP4);
-        const V q456 = T(kP6) * f2 + q45;
-        const V f4 = f2 * f2;
-        const V p = (q23 * f2 + q01) + q456 * f4;
-        typedef typename std::make_unsigned<typename VT::iscalar>::type U;  // modular shifts
-        const IV eb = (tb + static_cast<U>(VT::bias)) << VT::mant;
+        // 2^f, f = y - round(y), by Estrin's scheme.
+        TM_K f[u] = y[u] - (t[u] - VT::round_magic);
+        TM_K f2[u] = f[u] * f[u];
+        TM_K {
+            const V q01 = T(kP1) * f[u] + T(kP0);
+            const V q23 = T(kP3) * f[u] + T(kP2);
+            const V q456 = T(kP6) * f2[u] + (T(kP5) * f[u] + T(kP4));
+            p[u] = (q23 * f2[u] + q01) + q456 * (f2[u] * f2[u]);
+        }
+    }
+    TM_K {
+        const IV eb = (tb[u] + static_cast<U>(VT::bias)) << VT::mant;
         V scale;
         std::memcpy(&scale, &eb, sizeof scale);
-        return recip_fast(T(1) + p * scale);
+        t[u] = T(1) + p[u] * scale;
+    }
+    if (A == Activation::exact) {
+        TM_K a[u] = T(1) / t[u];
+    } else {
+        TM_K a[u] = recip_fast(t[u]);
     }
 }
+#undef TM_K
 
-// Apply the kernel's sigmoid (clamp included) to n values, B-byte vectors.
+template <typename T, int B, Activation A>
+__attribute__((always_inline)) inline typename Vec<T, B>::type sigmoid_vec(typename Vec<T, B>::type a) {
+    sigmoid_k<T, B, A, 1>(&a);
+    return a;
+}
+
 template <typename T, int B, Activation A>
 __attribute__((always_inline)) inline void sigmoid_array_impl(const T* in, T* out, std::size_t n) noexcept {
     typedef typename Vec<T, B>::type V;
@@ -632,43 +640,50 @@ private:
     }
 
     // One tick of one lane block: xk points at its inputs (layout (n_in, n_pad));
-    // p is the state in and y_pred out.
+    // p is the state in and y_pred out. Hidden units go in groups of G whose
+    // sigmoids are interleaved; weights come from the replicated slots.
     template <int B, Activation A, int NIN>
     __attribute__((always_inline)) inline void one_tick(const T* xk, typename detail::Vec<T, B>::type& p,
                                                         typename detail::Vec<T, B>::type& ys) const noexcept {
         typedef typename detail::Vec<T, B>::type V;
+        constexpr int G = 4;
         const int nin = NIN > 0 ? NIN : n_in_, nh = n_h_;
+        const std::size_t slot = std::size_t(nin + 4) * L;
         V x[NIN > 0 ? NIN : 64];
         for (int i = 0; i < nin; ++i) std::memcpy(&x[i], xk + std::size_t(i) * n_pad_, sizeof(V));
-        V o0a = V{} + b2_[0], o0b = V{};
-        V o1a = V{} + b2_[1], o1b = V{};
+        V o0[2] = {V{} + b2_[0], V{}};
+        V o1[2] = {V{} + b2_[1], V{}};
         int j = 0;
-        for (; j + 2 <= nh; j += 2) {
-            hidden<B, A, NIN>(j, x, p, o0a, o1a);
-            hidden<B, A, NIN>(j + 1, x, p, o0b, o1b);
-        }
-        if (j < nh) hidden<B, A, NIN>(j, x, p, o0a, o1a);
-        ys = detail::sigmoid_vec<T, B, A>(o0a + o0b);
-        p = detail::sigmoid_vec<T, B, A>(o1a + o1b);
+        for (; j + G <= nh; j += G) group<B, A, NIN, G>(j, x, p, o0, o1, slot);
+        for (; j < nh; ++j) group<B, A, NIN, 1>(j, x, p, o0, o1, slot);
+        V out[2] = {o0[0] + o0[1], o1[0] + o1[1]};
+        detail::sigmoid_k<T, B, A, 2>(out);
+        ys = out[0];
+        p = out[1];
     }
 
-    // Hidden unit j of the current lane block: accumulates its contribution to
-    // the two output pre-activations. Weights come from the replicated slots, so
-    // every multiply-add takes its weight straight from memory.
-    template <int B, Activation A, int NIN>
-    __attribute__((always_inline)) inline void hidden(int j, const typename detail::Vec<T, B>::type* x,
-                                                      typename detail::Vec<T, B>::type p,
-                                                      typename detail::Vec<T, B>::type& o0,
-                                                      typename detail::Vec<T, B>::type& o1) const noexcept {
+    template <int B, Activation A, int NIN, int G>
+    __attribute__((always_inline)) inline void group(int j, const typename detail::Vec<T, B>::type* x,
+                                                     typename detail::Vec<T, B>::type p,
+                                                     typename detail::Vec<T, B>::type* o0,
+                                                     typename detail::Vec<T, B>::type* o1,
+                                                     std::size_t slot) const noexcept {
         typedef typename detail::Vec<T, B>::type V;
         const int nin = NIN > 0 ? NIN : n_in_;
-        const T* __restrict w = wrep_ + std::size_t(j) * (nin + 4) * L;
-        V a = load<V>(w);
-        for (int i = 0; i < nin; ++i) a += load<V>(w + (1 + i) * L) * x[i];
-        a += load<V>(w + (1 + nin) * L) * p;
-        const V h = detail::sigmoid_vec<T, B, A>(a);
-        o0 += load<V>(w + (2 + nin) * L) * h;
-        o1 += load<V>(w + (3 + nin) * L) * h;
+        const T* __restrict w = wrep_ + std::size_t(j) * slot;
+        V a[G];
+        _Pragma("GCC unroll 8") for (int g = 0; g < G; ++g) {
+            const T* wg = w + g * slot;
+            V acc = load<V>(wg);
+            for (int i = 0; i < nin; ++i) acc += load<V>(wg + (1 + i) * L) * x[i];
+            a[g] = acc + load<V>(wg + (1 + nin) * L) * p;
+        }
+        detail::sigmoid_k<T, B, A, G>(a);
+        _Pragma("GCC unroll 8") for (int g = 0; g < G; ++g) {
+            const T* wg = w + g * slot;
+            o0[g & 1] += load<V>(wg + (2 + nin) * L) * a[g];
+            o1[g & 1] += load<V>(wg + (3 + nin) * L) * a[g];
+        }
     }
 
     template <typename V>
