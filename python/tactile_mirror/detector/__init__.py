@@ -10,6 +10,8 @@ from __future__ import annotations
 
 from .core import DEFAULT_WEIGHTS, SlipDetector, reference_run
 from .data_prep import features_from_result, targets_from_result
+from .evaluate import DetectionMetrics, EvaluationReport, ForceRatioDetector, evaluate
+from .figures import figure10, figure10_data
 from .network import Params, forward, init_params, loss_and_grad
 from .training import TrainingSet, fit_normalisation, make_training_set, train_detector
 from .weights import FEATURE_KINDS, FORMAT_VERSION, DetectorWeights, WeightsError
@@ -18,12 +20,18 @@ __all__ = [
     "DEFAULT_WEIGHTS",
     "FEATURE_KINDS",
     "FORMAT_VERSION",
+    "DetectionMetrics",
     "DetectorWeights",
+    "EvaluationReport",
+    "ForceRatioDetector",
     "Params",
     "SlipDetector",
     "TrainingSet",
     "WeightsError",
+    "evaluate",
     "features_from_result",
+    "figure10",
+    "figure10_data",
     "fit_normalisation",
     "forward",
     "init_params",
