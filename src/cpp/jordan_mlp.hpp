@@ -14,6 +14,8 @@
 // with W1 of shape (H, n_in + 1) row-major and W2 of shape (2, H) row-major.
 // Every pre-activation is clamped to [-clamp, clamp] (80 for float, 600 for
 // double) before the sigmoid so that no output or state is ever subnormal.
+// Subnormal inputs are not flushed here: run the kernel under FTZ/DAZ (the
+// Python block call does) if the features can decay into that range.
 //
 // Design (RTNeural-like): sizes are fixed at construction, where all buffers are
 // allocated; step() and run() allocate nothing and throw nothing. N instances
