@@ -140,8 +140,9 @@ def table_doors(n_iter, n_py, n_ref):
     p = make()
     c = c_program(n_iter)
     if c:
-        res["C program -> tm_pipeline_step, float64"] = c["capi_ns_per_tick"][0]
-        res["C ABI timer (tm_pipeline_time_step_ns)"] = c["inside_ns_per_tick"][0]
+        for bits in (64, 32):
+            res[f"C program -> tm_pipeline_step, float{bits}"] = c[f"capi_ns_per_tick_f{bits}"][0]
+            res[f"C ABI timer (tm_pipeline_time_step_ns), float{bits}"] = c[f"inside_ns_per_tick_f{bits}"][0]
     res["Python -> MirrorPipeline.step (pybind11)"] = python_step_ns(p, n_py)
     with CPipeline(p.config) as c:
         res["Python -> cffi -> tm_pipeline_step"] = python_step_ns(c, max(n_py // 10, 1000))

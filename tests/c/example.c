@@ -5,7 +5,7 @@
  *
  *   example            run the checks
  *   example N          then time N ticks through tm_pipeline_step (6 ridges) and print
- *                      "capi_ns_per_tick <ns>" and "inside_ns_per_tick <ns>"
+ *                      "capi_ns_per_tick_f64 <ns>", "inside_ns_per_tick_f64 <ns>" (and _f32)
  *   example N S        and run S seconds paced at 10 kHz (busy wait on CLOCK_MONOTONIC),
  *                      printing the tick latency percentiles "latency_ns p50 p99 p999 max"
  *                      and "overruns <ticks that ended after their deadline>"
@@ -201,12 +201,13 @@ static void run_checks(int precision) {
     CHECK(strcmp(tm_status_name(TM_ERR_HANDLE), "TM_ERR_HANDLE") == 0);
 }
 
-static void run_timing(long n) {
+static void run_timing(long n, int precision) {
     tm_config cfg;
     tm_pipeline h = 0;
     static double x[1024 * NI];
     double out[NO], ns_inside = 0.0;
     base_config(&cfg);
+    cfg.precision = precision;
     if (tm_pipeline_create(&cfg, &h) != TM_OK) {
         fprintf(stderr, "create failed: %s\n", tm_last_error());
         ++failures;
@@ -222,8 +223,8 @@ static void run_timing(long n) {
         if (dt < best) best = dt;
     }
     tm_pipeline_time_step_ns(h, n, &ns_inside);
-    printf("capi_ns_per_tick %.1f\n", best);
-    printf("inside_ns_per_tick %.1f\n", ns_inside);
+    printf("capi_ns_per_tick_f%d %.1f\n", precision, best);
+    printf("inside_ns_per_tick_f%d %.1f\n", precision, ns_inside);
     tm_pipeline_destroy(h);
 }
 
@@ -276,7 +277,10 @@ int main(int argc, char** argv) {
     make_weights();
     run_checks(64);
     run_checks(32);
-    if (argc > 1) run_timing(atol(argv[1]));
+    if (argc > 1) {
+        run_timing(atol(argv[1]), 64);
+        run_timing(atol(argv[1]), 32);
+    }
     if (argc > 2) run_paced(atof(argv[2]));
     if (failures) {
         fprintf(stderr, "%d checks failed\n", failures);
