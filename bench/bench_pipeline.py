@@ -49,7 +49,7 @@ def weights(fs, seed=0):
 
 
 def make(fs=1000.0, n_ridges=6, use_u=True, estimator=True, controller=True, dtype=np.float64,
-         activation="fast"):
+         activation="fast", detector_dtype=None):
     w = weights(fs)
     kw = {}
     if estimator:
@@ -63,8 +63,8 @@ def make(fs=1000.0, n_ridges=6, use_u=True, estimator=True, controller=True, dty
 
             kw["sos_diff"] = differentiator_sos(fs)
     ctrl = VelocityController(v_max=0.02, a_max=1.0) if controller else None
-    return MirrorPipeline(w, fs, n_ridges, controller=ctrl, dtype=dtype, activation=activation,
-                          v_limit=10.0, u_limit=10.0, **kw)
+    return MirrorPipeline(w, fs, n_ridges, controller=ctrl, dtype=dtype, detector_dtype=detector_dtype,
+                          activation=activation, v_limit=10.0, u_limit=10.0, **kw)
 
 
 def best_of(f, repeats=5):
@@ -137,12 +137,14 @@ def table_doors(n_iter, n_py, n_ref):
     for dt in (np.float64, np.float32):
         p = make(dtype=dt)
         res[f"C++ inside, {np.dtype(dt).name}"] = p.time_step_ns(n_iter, 5)
+    p = make(dtype=np.float64, detector_dtype=np.float32)
+    res["C++ inside, float64 filters, float32 detector"] = p.time_step_ns(n_iter, 5)
     p = make()
     c = c_program(n_iter)
     if c:
-        for bits in (64, 32):
-            res[f"C program -> tm_pipeline_step, float{bits}"] = c[f"capi_ns_per_tick_f{bits}"][0]
-            res[f"C ABI timer (tm_pipeline_time_step_ns), float{bits}"] = c[f"inside_ns_per_tick_f{bits}"][0]
+        for tag, name in (("f64", "float64"), ("f32", "float32"), ("f64f32", "float64 filters, float32 detector")):
+            res[f"C program -> tm_pipeline_step, {name}"] = c[f"capi_ns_per_tick_{tag}"][0]
+            res[f"C ABI timer (tm_pipeline_time_step_ns), {name}"] = c[f"inside_ns_per_tick_{tag}"][0]
     res["Python -> MirrorPipeline.step (pybind11)"] = python_step_ns(p, n_py)
     with CPipeline(p.config) as c:
         res["Python -> cffi -> tm_pipeline_step"] = python_step_ns(c, max(n_py // 10, 1000))

@@ -30,7 +30,9 @@ def weights(h=8, seed=3, fs=FS):
 
 def make(use_u=True, dtype=np.float64, controller=None, n_ridges=6):
     est = StressRateEstimator(PVDFCircuit(), FS, 2 * n_ridges, use_u=use_u)
+    dtype, ddtype = dtype if isinstance(dtype, tuple) else (dtype, dtype)
     return MirrorPipeline(weights(), FS, n_ridges, estimator=est, controller=controller, dtype=dtype,
+                          detector_dtype=ddtype,
                           v_limit=5.0, u_limit=5.0, activation="fast", max_hold_ticks=20)
 
 
@@ -53,7 +55,7 @@ def test_library_and_header_are_installed():
 
 
 @pytest.mark.parametrize("use_u", [True, False])
-@pytest.mark.parametrize("dtype", [np.float64, np.float32])
+@pytest.mark.parametrize("dtype", [np.float64, np.float32, (np.float64, np.float32)], ids=["f64", "f32", "mixed"])
 @pytest.mark.parametrize("controller", [None, PaperController(threshold=0.3),
                                         VelocityController(v_max=0.01, a_max=0.5)], ids=["none", "paper", "vel"])
 def test_c_abi_matches_pybind11_bit_for_bit(use_u, dtype, controller):
@@ -124,6 +126,11 @@ def test_create_errors_name_the_field():
     c.abi_version = 99
     h = ffi.new("tm_pipeline*")
     assert lib.tm_pipeline_create(c, h) == lib.TM_ERR_VERSION and h[0] == 0
+    lib.tm_config_init(c)
+    c.precision = 32
+    c.detector_precision = 64
+    assert lib.tm_pipeline_create(c, h) == lib.TM_ERR_ARGUMENT
+    assert b"detector_precision" in ffi.string(lib.tm_last_error())
 
 
 def test_timing_inside_library():

@@ -65,13 +65,16 @@ def test_raw_circuit_features():
     np.testing.assert_array_equal(pipe.features[:, :2], x[-1, :4].reshape(2, 2))
 
 
-def test_float32_close_to_reference():
-    pipe = make(dtype=np.float32, controller=CONTROLLERS[2], activation="fast")
+@pytest.mark.parametrize("dtypes", [(np.float32, None), (np.float64, np.float32)], ids=["f32", "mixed"])
+def test_float32_close_to_reference(dtypes):
+    pipe = make(dtype=dtypes[0], detector_dtype=dtypes[1], controller=CONTROLLERS[2], activation="fast")
     x = signals(1000, pipe.n_inputs)
     out = pipe.process_block(x)[0]
     ref = ReferencePipeline(pipe.config).process_block(x)
     np.testing.assert_allclose(out[:, 2:], ref[:, 2:], atol=2e-3)
-    assert pipe.dtype == np.float32
+    assert pipe.dtype == dtypes[0] and pipe.detector_dtype == np.float32
+    with pytest.raises(TypeError, match="detector_dtype"):
+        make(dtype=np.float32, detector_dtype=np.float64)
 
 
 def test_step_equals_block_bit_for_bit():

@@ -1,7 +1,7 @@
 // Bindings of the real-time pipeline (pipeline.hpp).
 //
-// _core._MirrorPipelineF64 / _MirrorPipelineF32 (arithmetic of the filters and the
-// detector; inputs and outputs are float64 either way):
+// _core._MirrorPipelineF64 / _MirrorPipelineF32 / _MirrorPipelineF64F32 (arithmetic of
+// the filters and of the detector; inputs and outputs are float64 either way):
 //   __init__(n_ridges, fs, use_u, sos_v, sos_u, sos_diff, v_limit, u_limit, w1, b1, w2, b2,
 //            input_mean, input_gain, weights_fs, activation, slip_threshold, max_hold_ticks,
 //            controller)
@@ -151,15 +151,15 @@ py::dict status_dict(const tactile::PipelineStatus& s) {
     return d;
 }
 
-template <typename T>
+template <typename T, typename TD>
 struct PyPipeline {
-    std::unique_ptr<MirrorPipeline<T>> p;
+    std::unique_ptr<MirrorPipeline<T, TD>> p;
     bool last_ok = true;
 };
 
-template <typename T>
+template <typename T, typename TD>
 void bind_one(py::module_& m, const char* cls) {
-    using PP = PyPipeline<T>;
+    using PP = PyPipeline<T, TD>;
     py::class_<PP>(m, cls, "Real-time tactile-mirror pipeline (see tactile_mirror.MirrorPipeline).")
         .def(py::init([](int n_ridges, double fs, bool use_u, py::handle sos_v, py::handle sos_u,
                          py::handle sos_diff, double v_limit, double u_limit, py::handle w1, py::handle b1,
@@ -203,7 +203,7 @@ void bind_one(py::module_& m, const char* cls) {
                  c.controller = controller_from(controller);
                  auto pp = std::make_unique<PP>();
                  try {
-                     pp->p = std::make_unique<MirrorPipeline<T>>(c);
+                     pp->p = std::make_unique<MirrorPipeline<T, TD>>(c);
                  } catch (const std::invalid_argument& e) {
                      throw py::value_error(e.what());
                  }
@@ -219,6 +219,7 @@ void bind_one(py::module_& m, const char* cls) {
         .def_property_readonly("fs", [](const PP& s) { return s.p->fs(); })
         .def_property_readonly("use_u", [](const PP& s) { return s.p->use_u(); })
         .def_property_readonly("dtype", [](const PP&) { return py::dtype::of<T>(); })
+        .def_property_readonly("detector_dtype", [](const PP&) { return py::dtype::of<TD>(); })
         .def_property_readonly("simd_path", [](const PP& s) {
             return std::string("filters ") + tactile::isa_name(s.p->filter_isa()) + ", detector " +
                    s.p->simd_path();
@@ -312,6 +313,7 @@ void bind_one(py::module_& m, const char* cls) {
 }  // namespace
 
 void tm_bind_pipeline(py::module_& m) {
-    bind_one<double>(m, "_MirrorPipelineF64");
-    bind_one<float>(m, "_MirrorPipelineF32");
+    bind_one<double, double>(m, "_MirrorPipelineF64");
+    bind_one<float, float>(m, "_MirrorPipelineF32");
+    bind_one<double, float>(m, "_MirrorPipelineF64F32");
 }

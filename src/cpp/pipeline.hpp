@@ -286,11 +286,16 @@ private:
 
 // ---- the pipeline -------------------------------------------------------------------
 
-template <typename T>
+// T: arithmetic of the filters; TD: arithmetic of the detector (default T). The
+// mixed MirrorPipeline<double, float> keeps double filters (slow poles at kHz rates)
+// and runs the detector, the dominant cost, in float.
+template <typename T, typename TD = T>
 class MirrorPipeline {
     static_assert(std::is_same<T, float>::value || std::is_same<T, double>::value,
                   "MirrorPipeline supports float and double");
-    using Mlp = tm_core::detector::JordanMLP<T>;
+    static_assert(std::is_same<TD, float>::value || std::is_same<TD, double>::value,
+                  "MirrorPipeline's detector supports float and double");
+    using Mlp = tm_core::detector::JordanMLP<TD>;
 
 public:
     static constexpr int kFeatures = 4;  // rate_L, rate_R, rate2_L, rate2_R
@@ -346,7 +351,8 @@ public:
     }
     Isa filter_isa() const noexcept { return detect_isa(); }
 
-    // Features of the last accepted tick: (n_ridges, 4) [rate_L, rate_R, rate2_L, rate2_R].
+    // Features of the last accepted tick: (n_ridges, 4) [rate_L, rate_R, rate2_L, rate2_R]
+    // (in the detector's precision).
     void last_features(double* f) const noexcept {
         for (std::size_t i = 0; i < feat_.size(); ++i) f[i] = double(feat_[i]);
     }
@@ -390,8 +396,8 @@ public:
         mlp_->reset();
         ctrl_.reset(x0);
         st_ = PipelineStatus{};
-        for (std::size_t i = 0; i < feat_.size(); ++i) feat_[i] = T(0);
-        for (std::size_t i = 0; i < det_.size(); ++i) det_[i] = T(0);
+        for (std::size_t i = 0; i < feat_.size(); ++i) feat_[i] = TD(0);
+        for (std::size_t i = 0; i < det_.size(); ++i) det_[i] = TD(0);
         std::fill(out_.begin(), out_.end(), 0.0);
         for (int r = 0; r < R_; ++r) {
             out_[2 + 3 * r + 1] = 1.0;
@@ -483,7 +489,7 @@ private:
         // Detector outputs (held on a rejected tick) -> controller.
         double y = 0.0, ys = 0.0, asym = 0.0;
         for (int r = 0; r < R_; ++r) {
-            const T* d = det_.data() + 3 * r;
+            const TD* d = det_.data() + 3 * r;
             ys = std::max(ys, double(d[0]));
             y = std::max(y, double(d[2]));
             if (ok) {
@@ -533,17 +539,18 @@ private:
             rate2_f_->step(rate, rate2_.data());
             rate2 = rate2_.data();
         }
-        T* f = feat_.data();
+        TD* f = feat_.data();
         for (int r = 0; r < R_; ++r) {
-            f[kFeatures * r + 0] = rate[2 * r];
-            f[kFeatures * r + 1] = rate[2 * r + 1];
-            f[kFeatures * r + 2] = rate2[2 * r];
-            f[kFeatures * r + 3] = rate2[2 * r + 1];
+            f[kFeatures * r + 0] = TD(rate[2 * r]);
+            f[kFeatures * r + 1] = TD(rate[2 * r + 1]);
+            f[kFeatures * r + 2] = TD(rate2[2 * r]);
+            f[kFeatures * r + 3] = TD(rate2[2 * r + 1]);
         }
     }
 
     struct Snapshot {
-        std::vector<T> z1, z2, mlp, feat, det;
+        std::vector<T> z1, z2;
+        std::vector<TD> mlp, feat, det;
         std::vector<double> out;
         StageController ctrl;
         PipelineStatus st;
@@ -588,7 +595,8 @@ private:
     std::unique_ptr<Mlp> mlp_;
     StageController ctrl_;
     ControllerKind ctrl_kind_ = ControllerKind::none;
-    AlignedBuffer<T> xin_, rate_, rate2_, feat_, det_;
+    AlignedBuffer<T> xin_, rate_, rate2_;
+    AlignedBuffer<TD> feat_, det_;
     std::vector<double> out_;
     PipelineStatus st_;
 };

@@ -88,6 +88,7 @@ typedef struct tm_config {
     uint32_t struct_size;    /* sizeof(tm_config), set by tm_config_init */
     uint32_t abi_version;    /* TM_ABI_VERSION, set by tm_config_init */
     int32_t precision;       /* 64: double arithmetic (default), 32: float */
+    int32_t detector_precision;  /* 0: as precision; 32 with precision 64: double filters, float detector */
     int32_t n_ridges;        /* ridges in use, 1..64 */
     double fs;               /* sample rate, Hz */
     int32_t use_u;           /* 1: u_out is sampled; 0: digital differentiator on the rate */

@@ -35,6 +35,7 @@ int32_t fail(int32_t code, const char* fmt, ...) {
 struct Instance {
     std::unique_ptr<MirrorPipeline<double>> d;
     std::unique_ptr<MirrorPipeline<float>> f;
+    std::unique_ptr<MirrorPipeline<double, float>> m;
 };
 
 constexpr std::uint32_t kSlots = 4096;
@@ -61,6 +62,7 @@ Instance* lookup(tm_pipeline h) noexcept {
 template <typename F>
 auto with(Instance* in, F&& f) noexcept {
     if (in->d) return f(*in->d);
+    if (in->m) return f(*in->m);
     return f(*in->f);
 }
 
@@ -144,6 +146,10 @@ int32_t tm_pipeline_create(const tm_config* cfg, tm_pipeline* out) {
                     TM_ABI_VERSION);
     if (cfg->precision != 64 && cfg->precision != 32)
         return fail(TM_ERR_ARGUMENT, "cfg->precision must be 64 or 32, got %d", int(cfg->precision));
+    const int32_t dp = cfg->detector_precision == 0 ? cfg->precision : cfg->detector_precision;
+    if (!(dp == cfg->precision || (cfg->precision == 64 && dp == 32)))
+        return fail(TM_ERR_ARGUMENT, "cfg->detector_precision must be 0, the precision, or 32 with precision 64; got %d",
+                    int(cfg->detector_precision));
     const int32_t kind = cfg->controller.kind;
     if (kind < 0 || kind > 2)
         return fail(TM_ERR_ARGUMENT, "controller.kind must be 0 (none), 1 (paper) or 2 (velocity), got %d", int(kind));
@@ -191,7 +197,9 @@ int32_t tm_pipeline_create(const tm_config* cfg, tm_pipeline* out) {
     std::unique_ptr<Instance> inst;
     try {
         inst = std::make_unique<Instance>();
-        if (cfg->precision == 64)
+        if (cfg->precision == 64 && dp == 32)
+            inst->m = std::make_unique<MirrorPipeline<double, float>>(c);
+        else if (cfg->precision == 64)
             inst->d = std::make_unique<MirrorPipeline<double>>(c);
         else
             inst->f = std::make_unique<MirrorPipeline<float>>(c);

@@ -5,7 +5,8 @@
  *
  *   example            run the checks
  *   example N          then time N ticks through tm_pipeline_step (6 ridges) and print
- *                      "capi_ns_per_tick_f64 <ns>", "inside_ns_per_tick_f64 <ns>" (and _f32)
+ *                      "capi_ns_per_tick_f64 <ns>", "inside_ns_per_tick_f64 <ns>" (and _f32,
+ *                      _f64f32: double filters, float detector)
  *   example N S        and run S seconds paced at 10 kHz (busy wait on CLOCK_MONOTONIC),
  *                      printing the tick latency percentiles "latency_ns p50 p99 p999 max"
  *                      and "overruns <ticks that ended after their deadline>"
@@ -84,7 +85,7 @@ static double now_ns(void) {
     return ts.tv_sec * 1e9 + ts.tv_nsec;
 }
 
-static void run_checks(int precision) {
+static void run_checks(int precision, int detector_precision) {
     tm_config cfg;
     tm_pipeline h = 0, h2 = 0;
     static double x[T * NI], out_step[T * NO], out_block[T * NO];
@@ -101,6 +102,7 @@ static void run_checks(int precision) {
     /* configuration errors */
     base_config(&cfg);
     cfg.precision = precision;
+    cfg.detector_precision = detector_precision;
     CHECK(tm_pipeline_create(NULL, &h) == TM_ERR_NULL);
     CHECK(tm_pipeline_create(&cfg, NULL) == TM_ERR_NULL);
     cfg.struct_size = 8;
@@ -108,19 +110,23 @@ static void run_checks(int precision) {
     CHECK(h == 0);
     base_config(&cfg);
     cfg.precision = precision;
+    cfg.detector_precision = detector_precision;
     cfg.weights_fs = 2000.0;
     CHECK(tm_pipeline_create(&cfg, &h) == TM_ERR_FS);
     base_config(&cfg);
     cfg.precision = precision;
+    cfg.detector_precision = detector_precision;
     cfg.controller.v_max = -1.0;
     CHECK(tm_pipeline_create(&cfg, &h) == TM_ERR_ARGUMENT);
     CHECK(strstr(tm_last_error(), "v_max") != NULL);
     base_config(&cfg);
     cfg.precision = precision;
+    cfg.detector_precision = detector_precision;
     cfg.w1 = NULL;
     CHECK(tm_pipeline_create(&cfg, &h) == TM_ERR_ARGUMENT);
     base_config(&cfg);
     cfg.precision = precision;
+    cfg.detector_precision = detector_precision;
     cfg.n_ridges = 0;
     CHECK(tm_pipeline_create(&cfg, &h) == TM_ERR_ARGUMENT);
     base_config(&cfg);
@@ -130,6 +136,7 @@ static void run_checks(int precision) {
     /* a working pipeline */
     base_config(&cfg);
     cfg.precision = precision;
+    cfg.detector_precision = detector_precision;
     CHECK(tm_pipeline_create(&cfg, &h) == TM_OK);
     CHECK(h != 0);
     CHECK(tm_pipeline_sizes(h, &ni, &no) == TM_OK);
@@ -201,13 +208,14 @@ static void run_checks(int precision) {
     CHECK(strcmp(tm_status_name(TM_ERR_HANDLE), "TM_ERR_HANDLE") == 0);
 }
 
-static void run_timing(long n, int precision) {
+static void run_timing(long n, int precision, int detector_precision) {
     tm_config cfg;
     tm_pipeline h = 0;
     static double x[1024 * NI];
     double out[NO], ns_inside = 0.0;
     base_config(&cfg);
     cfg.precision = precision;
+    cfg.detector_precision = detector_precision;
     if (tm_pipeline_create(&cfg, &h) != TM_OK) {
         fprintf(stderr, "create failed: %s\n", tm_last_error());
         ++failures;
@@ -223,8 +231,9 @@ static void run_timing(long n, int precision) {
         if (dt < best) best = dt;
     }
     tm_pipeline_time_step_ns(h, n, &ns_inside);
-    printf("capi_ns_per_tick_f%d %.1f\n", precision, best);
-    printf("inside_ns_per_tick_f%d %.1f\n", precision, ns_inside);
+    const char* tag = detector_precision == 32 && precision == 64 ? "f64f32" : (precision == 64 ? "f64" : "f32");
+    printf("capi_ns_per_tick_%s %.1f\n", tag, best);
+    printf("inside_ns_per_tick_%s %.1f\n", tag, ns_inside);
     tm_pipeline_destroy(h);
 }
 
@@ -275,11 +284,13 @@ static void run_paced(double seconds) {
 
 int main(int argc, char** argv) {
     make_weights();
-    run_checks(64);
-    run_checks(32);
+    run_checks(64, 0);
+    run_checks(32, 0);
+    run_checks(64, 32);
     if (argc > 1) {
-        run_timing(atol(argv[1]), 64);
-        run_timing(atol(argv[1]), 32);
+        run_timing(atol(argv[1]), 64, 0);
+        run_timing(atol(argv[1]), 32, 0);
+        run_timing(atol(argv[1]), 64, 32);
     }
     if (argc > 2) run_paced(atof(argv[2]));
     if (failures) {

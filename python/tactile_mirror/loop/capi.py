@@ -143,6 +143,7 @@ class CPipeline:
             return ffi.cast("const double*", ffi.from_buffer(a)), (a.shape[0] if a.ndim == 2 else a.size)
 
         cfg.precision = 64 if np.dtype(c["dtype"]) == np.float64 else 32
+        cfg.detector_precision = 64 if np.dtype(c.get("detector_dtype") or c["dtype"]) == np.float64 else 32
         cfg.n_ridges = int(c["n_ridges"])
         cfg.fs = float(c["fs"])
         cfg.use_u = 1 if c["use_u"] else 0
