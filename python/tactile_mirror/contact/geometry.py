@@ -1,0 +1,210 @@
+"""Ridge geometry, material and mesh generation (plane strain, SI units).
+
+Coordinates: ``y`` is across the ridge (the sliding direction), ``z`` is up; the ridge
+occupies ``-width/2 <= y <= width/2``, ``0 <= z <= top(y)`` with a circular top of radius
+``top_radius`` whose crown is at ``z = height``. The bottom ``z = 0`` is bonded to the
+acrylic plate. The out-of-plane axis ``x`` runs along the ridge (and along the PVDF strips).
+
+PVDF strips: each strip is a 1 mm wide, 80 um thick film running along the ridge; in the
+cross-section it is a short segment. ``strip_angle`` is the angle of the segment (its
+*width* direction) from the ``y`` axis: 90 degrees (the default) means the films stand
+vertically in the ridge, one left (``L``, ``y < 0``) and one right (``R``, ``y > 0``) of the
+centre plane, so that their through-thickness axis is ``y`` and their width axis is ``z``.
+Under a tangential load the ridge bends and the two films see opposite normal stresses along
+their width, which is the ``sigma_L - sigma_R`` signal of the paper's Fig. 6-8. The films are
+much thinner than the mesh and are treated as not perturbing the rubber; their stress is the
+rubber stress averaged along the strip's mid-line.
+"""
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+
+import numpy as np
+
+__all__ = ["Material", "RidgeGeometry", "ridge_mesh", "wide_block"]
+
+
+@dataclass(frozen=True)
+class Material:
+    """Isotropic linear elastic material.
+
+    Parameters
+    ----------
+    E : float
+        Young's modulus, Pa (default: KE12 silicone, 4.96 MPa).
+    nu : float
+        Poisson's ratio (default 0.495, nearly incompressible).
+    rho : float
+        Mass density, kg/m^3 (default 1230; unused by the quasi-static model, kept for
+        completeness and dynamic extensions).
+    """
+
+    E: float = 4.96e6
+    nu: float = 0.495
+    rho: float = 1230.0
+
+    def __post_init__(self):
+        if not (self.E > 0):
+            raise ValueError(f"E must be positive, got {self.E!r}")
+        if not (-1.0 < self.nu < 0.5):
+            raise ValueError(f"nu must be in (-1, 0.5), got {self.nu!r}")
+        if not (self.rho > 0):
+            raise ValueError(f"rho must be positive, got {self.rho!r}")
+
+    @property
+    def plane_strain_modulus(self) -> float:
+        """E* = E / (1 - nu^2), Pa (contact modulus against a rigid body)."""
+        return self.E / (1.0 - self.nu**2)
+
+
+@dataclass(frozen=True)
+class RidgeGeometry:
+    """Parametric ridge (or block) cross-section and its mesh resolution.
+
+    Parameters
+    ----------
+    width, height : float
+        Ridge width (along y) and crown height (along z), m. Defaults 2 mm x 2 mm (not given
+        in the paper; chosen so that two 1 mm strips fit in a ridge on a 3 mm pitch).
+    top_radius : float
+        Curvature radius of the top surface, m (paper: 100 mm). ``inf`` gives a flat top.
+    strip_y : tuple of float
+        y of the strip centres (L, R), m. Default (-0.5 mm, +0.5 mm).
+    strip_depth : float
+        Depth of the strip centres below the crown, m. Default 1.0 mm.
+    strip_width, strip_thickness : float
+        Film width in the cross-section (1 mm) and thickness (80 um), m.
+    strip_angle : float
+        Angle of the strip's width direction from the y axis, degrees (90: vertical films).
+    contact_halfwidth : float or None
+        Half-width of the candidate contact zone on the top, m; None means the whole top.
+    mesh_size : float
+        Element size far from the contact zone, m.
+    contact_mesh_size : float
+        Element size (edge length of P2 triangles) on the contact zone, m; the P2 surface
+        nodes are half this apart.
+    strip_mesh_size : float or None
+        Element size around the strips, m (default: ``mesh_size``).
+    grading : float
+        Growth of the element size with the distance from the contact zone (dimensionless).
+    n_strip_samples : int
+        Number of sample points along each strip's mid-line for the stress average.
+    """
+
+    width: float = 2.0e-3
+    height: float = 2.0e-3
+    top_radius: float = 0.1
+    strip_y: tuple = (-0.5e-3, 0.5e-3)
+    strip_depth: float = 1.0e-3
+    strip_width: float = 1.0e-3
+    strip_thickness: float = 80e-6
+    strip_angle: float = 90.0
+    contact_halfwidth: float | None = None
+    mesh_size: float = 0.2e-3
+    contact_mesh_size: float = 0.05e-3
+    strip_mesh_size: float | None = None
+    grading: float = 0.5
+    n_strip_samples: int = 40
+    material: Material = field(default_factory=Material)
+
+    def __post_init__(self):
+        for name in ("width", "height", "top_radius", "strip_width", "strip_thickness", "mesh_size",
+                     "contact_mesh_size", "grading"):
+            v = getattr(self, name)
+            if not (isinstance(v, (int, float)) and v > 0):
+                raise ValueError(f"{name} must be a positive number, got {v!r}")
+        if self.top_radius < self.width / 2:
+            raise ValueError(f"top_radius must be at least width/2, got {self.top_radius!r}")
+        if self.contact_mesh_size > self.mesh_size:
+            raise ValueError("contact_mesh_size must not exceed mesh_size")
+        object.__setattr__(self, "strip_y", tuple(float(v) for v in self.strip_y))
+        if self.contact_halfwidth is not None and not (0 < self.contact_halfwidth <= self.width / 2):
+            raise ValueError(f"contact_halfwidth must be in (0, width/2], got {self.contact_halfwidth!r}")
+        if int(self.n_strip_samples) < 2:
+            raise ValueError(f"n_strip_samples must be >= 2, got {self.n_strip_samples!r}")
+        for ys in self.strip_y:
+            for p in self.strip_points(ys):
+                if not (abs(p[0]) < self.width / 2 and 0 < p[1] < self.height - self.sag(p[0])):
+                    raise ValueError(f"strip at y={ys!r} does not fit inside the ridge (strip_depth, strip_y)")
+
+    def sag(self, y):
+        """Drop of the top surface below the crown at ``y``, m."""
+        y = np.asarray(y, dtype=float)
+        if math.isinf(self.top_radius):
+            return np.zeros_like(y)
+        return self.top_radius - np.sqrt(self.top_radius**2 - y**2)
+
+    @property
+    def strip_directions(self):
+        """Unit vectors (e2 = along the strip width, e3 = film normal) in the (y, z) plane."""
+        a = math.radians(self.strip_angle)
+        e2 = np.array([math.cos(a), math.sin(a)])
+        e3 = np.array([-math.sin(a), math.cos(a)])
+        return e2, e3
+
+    def strip_points(self, ys):
+        """Mid-line sample points of the strip centred at ``(ys, height - strip_depth)``, shape (n, 2)."""
+        n = int(self.n_strip_samples)
+        e2, _ = self.strip_directions
+        s = (np.arange(n) + 0.5) / n - 0.5
+        c = np.array([ys, self.height - self.strip_depth])
+        return c[None, :] + self.strip_width * s[:, None] * e2[None, :]
+
+
+def wide_block(width=20e-3, height=10e-3, top_radius=0.1, contact_halfwidth=1.5e-3,
+               contact_mesh_size=25e-6, mesh_size=1.5e-3, **kw) -> RidgeGeometry:
+    """A wide block for Hertz / Cattaneo-Mindlin validation (default 20 x 10 mm, R = 100 mm).
+
+    The strips are placed 0.5 mm apart at 1 mm depth (they only matter for sensor checks).
+    """
+    kw.setdefault("strip_y", (-0.5e-3, 0.5e-3))
+    kw.setdefault("strip_depth", 1.0e-3)
+    kw.setdefault("grading", 0.35)
+    return RidgeGeometry(width=width, height=height, top_radius=top_radius,
+                         contact_halfwidth=contact_halfwidth, contact_mesh_size=contact_mesh_size,
+                         mesh_size=mesh_size, **kw)
+
+
+def _dist_to_segment(p, a, b):
+    ab = b - a
+    t = np.clip(((p - a[:, None]) * ab[:, None]).sum(0) / max(ab @ ab, 1e-300), 0.0, 1.0)
+    q = a[:, None] + ab[:, None] * t[None, :]
+    return np.sqrt(((p - q) ** 2).sum(0))
+
+
+def ridge_mesh(geom: RidgeGeometry):
+    """Graded triangle mesh of the ridge cross-section (scikit-fem ``MeshTri``).
+
+    A coarse tensor mesh is refined (conforming red-green-blue refinement) until every
+    element is no larger than a target size that grows linearly with the distance from the
+    contact zone and from the strips; then the top is mapped onto the circular profile.
+    """
+    from skfem import MeshTri
+
+    W, H = geom.width, geom.height
+    ny = max(2, math.ceil(W / geom.mesh_size))
+    nz = max(2, math.ceil(H / geom.mesh_size))
+    m = MeshTri.init_tensor(np.linspace(-W / 2, W / 2, ny + 1), np.linspace(0.0, H, nz + 1))
+    hc = geom.contact_halfwidth if geom.contact_halfwidth is not None else W / 2
+    hs = geom.strip_mesh_size if geom.strip_mesh_size is not None else geom.mesh_size
+    a, b = np.array([-hc, H]), np.array([hc, H])
+    segs = [(geom.strip_points(ys)[0], geom.strip_points(ys)[-1]) for ys in geom.strip_y]
+    for _ in range(40):
+        p = m.p[:, m.t]  # (2, 3, nt)
+        c = p.mean(axis=1)
+        edges = np.stack([p[:, 1] - p[:, 0], p[:, 2] - p[:, 1], p[:, 0] - p[:, 2]])
+        diam = np.sqrt((edges**2).sum(axis=1)).max(axis=0)
+        target = np.minimum(geom.mesh_size,
+                            geom.contact_mesh_size + geom.grading * _dist_to_segment(c, a, b))
+        for s0, s1 in segs:
+            target = np.minimum(target, hs + geom.grading * _dist_to_segment(c, s0, s1))
+        marked = np.nonzero(diam > 1.05 * target)[0]
+        if marked.size == 0:
+            break
+        m = m.refined(marked)
+    else:  # pragma: no cover - refinement always terminates for positive sizes
+        raise RuntimeError("mesh refinement did not terminate")
+    p = m.p.copy()
+    p[1] = p[1] * (H - geom.sag(p[0])) / H
+    return MeshTri(p, m.t)

@@ -1,0 +1,126 @@
+"""The pad: identical ridges under one finger, stepped together.
+
+The finger is a rigid plate with a cylindrical curvature (radius ``finger_radius``) over
+the ridges; a ridge at ``y_k`` from the pad centre is pressed ``y_k^2 / (2 R)`` less
+than the centre, so inner ridges press deeper. All ridges share one condensed model
+(:func:`~tactile_mirror.contact.model.ridge_model`) and each keeps its own contact
+history. The plate moves as a whole: tangential displacement ``plate_y`` and indent
+``indent`` (depth of the plate face below the undeformed crown of the centre ridges).
+
+Forces are reported in N for ridges ``ridge_length`` long (the strip length by
+default): the plane-strain model gives N/m.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from .model import RidgeModel
+from .solver import ContactSolver
+
+__all__ = ["Pad", "PadState"]
+
+
+@dataclass
+class PadState:
+    """All ridges after one step. Arrays have the ridge on the first axis."""
+
+    strip_stress: np.ndarray  # (n_ridges, n_strips, 3) Pa
+    slip_fraction: np.ndarray  # (n_ridges,)
+    gross_slip: np.ndarray  # (n_ridges,) bool
+    in_contact: np.ndarray  # (n_ridges,) bool
+    force_y: float  # N, on the pad (sum over ridges)
+    force_z: float  # N, pressing force (positive)
+    node_state: np.ndarray  # (n_ridges, n_nodes) OPEN / STICK / SLIP
+    node_position: np.ndarray  # (n_ridges, 2, n_nodes) deformed (y, z) of the surface nodes, m
+    forces: np.ndarray  # (n_ridges, 2n) nodal forces, N/m
+    iterations: int
+
+
+class Pad:
+    """``n_ridges`` identical ridges at ``pitch`` under a curved rigid finger.
+
+    Parameters
+    ----------
+    model : RidgeModel
+    mu : float
+        Friction coefficient between finger and ridges.
+    n_ridges : int
+        Number of ridges (1 for the paper's single-ridge analysis, 6 for the pad).
+    pitch : float
+        Centre distance of neighbouring ridges, m (default: ridge width + 1 mm gap).
+    finger_radius : float
+        Curvature radius of the finger over the ridges, m (``inf``: flat plate).
+    ridge_length : float
+        Length of the ridges along ``x``, m (forces in N are per this length).
+    tol : float
+        Contact solver tolerance.
+    """
+
+    def __init__(self, model: RidgeModel, mu: float, n_ridges: int = 1, pitch: float | None = None,
+                 finger_radius: float = np.inf, ridge_length: float = 10e-3, tol: float = 1e-10):
+        if int(n_ridges) != n_ridges or n_ridges < 1:
+            raise ValueError(f"n_ridges must be a positive integer, got {n_ridges!r}")
+        if not (finger_radius > 0):
+            raise ValueError(f"finger_radius must be positive, got {finger_radius!r}")
+        if not (ridge_length > 0):
+            raise ValueError(f"ridge_length must be positive, got {ridge_length!r}")
+        self.model = model
+        self.n_ridges = int(n_ridges)
+        self.pitch = float(model.geometry.width + 1e-3 if pitch is None else pitch)
+        if self.pitch < model.geometry.width:
+            raise ValueError(f"pitch must be at least the ridge width, got {pitch!r}")
+        self.finger_radius = float(finger_radius)
+        self.ridge_length = float(ridge_length)
+        self.ridge_y = (np.arange(self.n_ridges) - (self.n_ridges - 1) / 2) * self.pitch
+        self.indent_offset = (self.ridge_y ** 2 / (2 * self.finger_radius)
+                              if np.isfinite(self.finger_radius) else np.zeros(self.n_ridges))
+        self.solvers = [ContactSolver(model, mu, tol=tol) for _ in range(self.n_ridges)]
+
+    @property
+    def mu(self) -> float:
+        return self.solvers[0].mu
+
+    @mu.setter
+    def mu(self, value: float) -> None:
+        """Change the friction mid-run (e.g. sweat); the contact history is kept."""
+        if not (np.isfinite(value) and value > 0):
+            raise ValueError(f"mu must be a positive number, got {value!r}")
+        for s in self.solvers:
+            s.mu = float(value)
+
+    def reset(self) -> None:
+        for s in self.solvers:
+            s.reset()
+
+    def advance(self, plate_y: float, indent: float) -> PadState:
+        """Move the finger to ``plate_y`` (m, along the sliding direction) and ``indent``
+        (m, depth of its face below the undeformed crowns at the pad centre) and solve
+        the contact of every ridge; returns the new :class:`PadState`."""
+        m = self.model
+        H = m.geometry.height
+        n = m.n_nodes
+        stress = np.empty((self.n_ridges, m.n_strips, 3))
+        frac = np.empty(self.n_ridges)
+        gross = np.empty(self.n_ridges, dtype=bool)
+        touch = np.empty(self.n_ridges, dtype=bool)
+        states = np.empty((self.n_ridges, n), dtype=np.int8)
+        pos = np.empty((self.n_ridges, 2, n))
+        forces = np.empty((self.n_ridges, 2 * n))
+        its = 0
+        for k, solver in enumerate(self.solvers):
+            st = solver.step(plate_y, H - (indent - self.indent_offset[k]))
+            stress[k] = m.strip_stress(st.forces)
+            frac[k] = st.slip_fraction
+            gross[k] = st.gross_slip
+            touch[k] = st.in_contact
+            states[k] = st.state
+            pos[k, 0] = m.node_y + st.displacement[:n]
+            pos[k, 1] = m.node_z + st.displacement[n:]
+            forces[k] = st.forces
+            its += st.iterations
+        fy = float(forces[:, :n].sum()) * self.ridge_length
+        fz = float(-forces[:, n:].sum()) * self.ridge_length
+        return PadState(stress, frac, gross, touch, fy, fz, states, pos, forces, its)
+

@@ -1,0 +1,206 @@
+"""Run scenes: the contact model stepped over a plate trajectory, then the PVDF circuit.
+
+``simulate(scene)`` returns a :class:`SimulationResult`; ``simulate_many(scenes)`` runs
+a sweep on any ``concurrent.futures.Executor`` with a progress bar. Only what the scene
+asks for is computed (:data:`tactile_mirror.scenes.OUTPUTS`).
+"""
+from __future__ import annotations
+
+import concurrent.futures
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from ..scenes import Scene
+from .model import ridge_model
+from .pad import Pad
+
+__all__ = ["SimulationResult", "calibrate_friction", "simulate", "simulate_many"]
+
+
+@dataclass
+class SimulationResult:
+    """What a scene produced. Time is the last axis; ridges the first.
+
+    Attributes
+    ----------
+    t : (n,) s
+    fs : Hz
+    plate_y, indent : (n,) m, the plate motion that was simulated
+    stress : (n_ridges, 2, 3, n) Pa, strip-averaged normal stresses (s1 along the
+        strip length, s2 along its width, s3 through the film) of the L and R strips
+    v_out, u_out : (n_ridges, 2, n) V, the PVDF circuit outputs (with sensor noise)
+    slip_fraction : (n_ridges, n), share of each ridge's contact length that slips
+    slip_time : s, first time the whole pad is in gross slip (every ridge), or None
+    ridge_slip_time : (n_ridges,) s, per ridge (NaN where it never slips)
+    force_y, force_z : (n,) N, tangential and pressing force of the finger on the pad
+    node_state : (n_ridges, n_nodes, n) int8, 0 open / 1 stick / 2 slip ("state" only)
+    node_position : (n_ridges, 2, n_nodes, n) m, deformed surface ("state" only)
+    fields : dict time -> (stress (4, n_elements) Pa, centroids (2, n_elements) m), per ridge 0
+    """
+
+    scene: Scene
+    t: np.ndarray
+    fs: float
+    plate_y: np.ndarray
+    indent: np.ndarray
+    stress: np.ndarray | None = None
+    v_out: np.ndarray | None = None
+    u_out: np.ndarray | None = None
+    slip_fraction: np.ndarray | None = None
+    slip_time: float | None = None
+    ridge_slip_time: np.ndarray | None = None
+    force_y: np.ndarray | None = None
+    force_z: np.ndarray | None = None
+    node_state: np.ndarray | None = None
+    node_position: np.ndarray | None = None
+    fields: dict = field(default_factory=dict)
+    newton_iterations: int = 0
+
+    @property
+    def sigma_diff(self) -> np.ndarray:
+        """``sigma_L - sigma_R`` of the through-film stress ``s3`` per ridge, (n_ridges, n) Pa."""
+        return self.stress[:, 0, 2] - self.stress[:, 1, 2]
+
+
+def simulate(scene: Scene, progress: bool = False) -> SimulationResult:
+    """Simulate one scene (see :class:`tactile_mirror.Scene`).
+
+    Parameters
+    ----------
+    scene : Scene
+    progress : bool
+        Show a progress bar over the time steps.
+    """
+    if not isinstance(scene, Scene):
+        raise TypeError(f"scene must be a tactile_mirror.Scene, got {type(scene).__name__}")
+    model = ridge_model(scene.geometry)
+    pad = Pad(model, scene.friction, n_ridges=scene.n_ridges, finger_radius=scene.finger_radius)
+    plate_y, indent = scene.plate_motion()
+    n_total = plate_y.size
+    outs = scene.outputs
+    want_stress = bool(outs & {"stress", "signals"})
+    want_state = "state" in outs
+    R, N = pad.n_ridges, model.n_nodes
+    stress = np.empty((R, model.n_strips, 3, n_total)) if want_stress else None
+    frac = np.empty((R, n_total))
+    fy = np.empty(n_total)
+    fz = np.empty(n_total)
+    node_state = np.empty((R, N, n_total), dtype=np.int8) if want_state else None
+    node_pos = np.empty((R, 2, N, n_total)) if want_state else None
+    field_idx = {round(tf * scene.fs): tf for tf in scene.field_times} if "fields" in outs else {}
+    fields = {}
+    ridge_slip = np.full(R, np.nan)
+    slip_time = None
+    end = n_total
+    its = 0
+    steps = range(n_total)
+    if progress:
+        from tqdm.auto import tqdm
+
+        steps = tqdm(steps, desc="contact", unit="step", leave=False)
+    for i in steps:
+        if i >= end:
+            break
+        st = pad.advance(plate_y[i], indent[i])
+        its += st.iterations
+        if want_stress:
+            stress[..., i] = st.strip_stress
+        frac[:, i] = st.slip_fraction
+        fy[i], fz[i] = st.force_y, st.force_z
+        if want_state:
+            node_state[..., i] = st.node_state
+            node_pos[..., i] = st.node_position
+        if i in field_idx:
+            fields[field_idx[i]] = model.stress_field(st.forces[0])
+        new = st.gross_slip & np.isnan(ridge_slip)
+        ridge_slip[new] = i / scene.fs
+        if slip_time is None and np.all(st.gross_slip):
+            slip_time = i / scene.fs
+            if scene.stop_after_slip is not None:
+                end = min(n_total, i + 1 + round(scene.stop_after_slip * scene.fs))
+    n = min(end, n_total)
+    t = np.arange(n) / scene.fs
+    res = SimulationResult(scene=scene, t=t, fs=scene.fs, plate_y=np.asarray(plate_y[:n]),
+                           indent=np.asarray(indent[:n]), slip_time=slip_time, ridge_slip_time=ridge_slip,
+                           newton_iterations=its, fields=fields)
+    if "stress" in outs or "signals" in outs:
+        res.stress = stress[..., :n]
+    if "slip" in outs:
+        res.slip_fraction = frac[:, :n]
+    if "forces" in outs:
+        res.force_y, res.force_z = fy[:n], fz[:n]
+    if want_state:
+        res.node_state, res.node_position = node_state[..., :n], node_pos[..., :n]
+    if "signals" in outs:
+        res.v_out, res.u_out = scene.circuit.simulate(res.stress, scene.fs, noise=scene.noise, seed=scene.seed)
+    return res
+
+
+def _simulate_quiet(scene):
+    return simulate(scene, progress=False)
+
+
+def simulate_many(scenes, executor: concurrent.futures.Executor | None = None, progress: bool = True,
+                  max_workers: int | None = None) -> list[SimulationResult]:
+    """Simulate many scenes, in order, on ``executor`` (default: a local process pool).
+
+    Any :class:`concurrent.futures.Executor` works, e.g. ``dask.distributed.Client(...)
+    .get_executor()`` to spread a sweep over a cluster. Shows a progress bar.
+    """
+    scenes = list(scenes)
+    for k, s in enumerate(scenes):
+        if not isinstance(s, Scene):
+            raise TypeError(f"scenes[{k}] must be a Scene, got {type(s).__name__}")
+    if not scenes:
+        return []
+    own = executor is None
+    if own:
+        import multiprocessing
+        import os
+
+        workers = max_workers or min(len(scenes), os.cpu_count() or 1)
+        ctx = multiprocessing.get_context("spawn")  # safe with threads in the parent
+        executor = concurrent.futures.ProcessPoolExecutor(max_workers=workers, mp_context=ctx)
+    try:
+        futures = [executor.submit(_simulate_quiet, s) for s in scenes]
+        index = {f: k for k, f in enumerate(futures)}
+        results: list = [None] * len(scenes)
+        done = concurrent.futures.as_completed(futures)
+        if progress:
+            from tqdm.auto import tqdm
+
+            done = tqdm(done, total=len(futures), desc="scenes", unit="scene")
+        for f in done:
+            results[index[f]] = f.result()
+        return results
+    finally:
+        if own:
+            executor.shutdown()
+
+
+def calibrate_friction(target_slip_time: float, scene: Scene | None = None, bracket=(0.3, 1.2),
+                       tol: float = 2e-3) -> float:
+    """Friction coefficient at which ``scene`` (default: the paper's fig6) reaches gross
+    slip at ``target_slip_time`` s (bisection; slip time grows with friction)."""
+    from dataclasses import replace
+
+    from ..scenes import paper
+
+    base = scene if scene is not None else paper("fig6")
+    base = replace(base, outputs=frozenset({"slip"}), stop_after_slip=0.0)
+
+    def slip_at(mu):
+        st = simulate(replace(base, friction=mu)).slip_time
+        return np.inf if st is None else st
+
+    lo, hi = bracket
+    if not (slip_at(lo) < target_slip_time < slip_at(hi)):
+        raise ValueError(f"target_slip_time {target_slip_time} s is not bracketed by friction {bracket}")
+    while hi - lo > tol:
+        mid = 0.5 * (lo + hi)
+        if slip_at(mid) < target_slip_time:
+            lo = mid
+        else:
+            hi = mid
+    return 0.5 * (lo + hi)

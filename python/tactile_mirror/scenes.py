@@ -1,0 +1,196 @@
+"""Scenes: what one contact experiment does and which outputs it wants.
+
+A :class:`Scene` describes the finger (rigid plate) motion, the friction, the pad, the
+sample rate, sensor noise and the outputs wanted; :func:`tactile_mirror.simulate` runs it.
+
+``paper(name)`` gives the paper's Figure 5(b) profiles: the plate moves down at
+0.06 mm/s for 0.5 s (30 um indent), then sideways at 0.2 mm/s; ``"fig6"`` never stops,
+``"fig7"`` stops at A (t = 1.00-1.05 s), ``"fig8"`` stops at B (t = 1.40-1.45 s, just
+before slip). ``random(n, seed, ...)`` draws training and test scenes.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass, field, replace
+
+import numpy as np
+
+from .circuit import PVDFCircuit
+from .contact.geometry import RidgeGeometry
+
+__all__ = ["DEFAULT_FRICTION", "OUTPUTS", "Scene", "paper", "random"]
+
+#: Coulomb friction between finger and ridge. Chosen so that the paper's fig6 scene
+#: (default ridge) reaches gross slip at t = 1.446 s, inside the 1.4-1.5 s the paper
+#: shows; measured with tactile_mirror.contact.calibrate_friction.
+DEFAULT_FRICTION = 0.66
+
+#: Outputs a scene may ask for. "forces", "slip" and "stress" are cheap (per step:
+#: sums and one small matrix product); "signals" runs the PVDF circuit; "state" keeps
+#: every surface node's stick/slip/open state and position; "fields" the full stress
+#: field at ``field_times`` (one sparse solve each).
+OUTPUTS = frozenset({"forces", "slip", "stress", "signals", "state", "fields"})
+_DEFAULT_OUTPUTS = frozenset({"forces", "slip", "stress", "signals"})
+
+
+@dataclass(frozen=True, eq=False)
+class Scene:
+    """One contact experiment.
+
+    Motion (SI units): the plate indents at ``indent_speed`` for ``indent_duration``,
+    then slides along ``y`` at ``slide_speed``, standing still during each
+    ``(start, end)`` interval in ``stops`` (seconds). Or give ``trajectory``: a pair of
+    arrays ``(plate_y, indent)`` in m, one value per sample at ``fs``, which overrides
+    the profile.
+
+    Parameters
+    ----------
+    duration : float
+        Length of the run, s (ignored with ``trajectory``).
+    fs : float
+        Sample rate of the outputs (and the quasi-static step rate), Hz.
+    indent_speed, indent_duration, slide_speed : float
+        m/s, s, m/s.
+    stops : tuple of (float, float)
+        Intervals during which the plate stands still.
+    trajectory : tuple of arrays or None
+        Explicit ``(plate_y, indent)``.
+    friction : float
+        Coulomb coefficient.
+    n_ridges : int
+        1 (the paper's single ridge) or more (a pad; 6 in the paper's hardware).
+    finger_radius : float
+        Finger curvature over the pad, m (inner ridges press deeper).
+    noise : float
+        Sensor noise added to v_out and u_out, V rms.
+    seed : int
+        Seed of the noise.
+    outputs : frozenset of str
+        Subset of :data:`OUTPUTS`.
+    stop_after_slip : float or None
+        End the run this long after gross slip (s), to save time when only the slip
+        onset matters.
+    geometry : RidgeGeometry
+    circuit : PVDFCircuit
+    field_times : tuple of float
+        Times (s) at which full stress fields are kept when "fields" is asked.
+    """
+
+    duration: float = 2.0
+    fs: float = 1000.0
+    indent_speed: float = 0.06e-3
+    indent_duration: float = 0.5
+    slide_speed: float = 0.2e-3
+    stops: tuple = ()
+    trajectory: tuple | None = None
+    friction: float = DEFAULT_FRICTION
+    n_ridges: int = 1
+    finger_radius: float = 10e-3
+    noise: float = 0.0
+    seed: int = 0
+    outputs: frozenset = _DEFAULT_OUTPUTS
+    stop_after_slip: float | None = None
+    geometry: RidgeGeometry = field(default_factory=RidgeGeometry)
+    circuit: PVDFCircuit = field(default_factory=PVDFCircuit)
+    field_times: tuple = ()
+
+    def __post_init__(self):
+        for name in ("duration", "fs", "indent_duration"):
+            v = getattr(self, name)
+            if not (np.isfinite(v) and v > 0):
+                raise ValueError(f"{name} must be a positive number, got {v!r}")
+        for name in ("indent_speed", "slide_speed", "noise"):
+            v = getattr(self, name)
+            if not (np.isfinite(v) and v >= 0):
+                raise ValueError(f"{name} must be a non-negative number, got {v!r}")
+        if not (np.isfinite(self.friction) and self.friction > 0):
+            raise ValueError(f"friction must be a positive number, got {self.friction!r}")
+        if int(self.n_ridges) != self.n_ridges or self.n_ridges < 1:
+            raise ValueError(f"n_ridges must be a positive integer, got {self.n_ridges!r}")
+        stops = tuple((float(a), float(b)) for a, b in self.stops)
+        for a, b in stops:
+            if not (0 <= a < b):
+                raise ValueError(f"stops must be (start, end) intervals with 0 <= start < end, got {(a, b)}")
+        object.__setattr__(self, "stops", stops)
+        outs = frozenset(self.outputs)
+        unknown = outs - OUTPUTS
+        if unknown:
+            raise ValueError(f"outputs: unknown {sorted(unknown)}; choose from {sorted(OUTPUTS)}")
+        object.__setattr__(self, "outputs", outs)
+        if self.trajectory is not None:
+            y, z = (np.asarray(a, dtype=float) for a in self.trajectory)
+            if y.ndim != 1 or y.shape != z.shape or y.size < 2:
+                raise ValueError("trajectory must be two 1-D arrays (plate_y, indent) of the same length >= 2")
+            if not (np.all(np.isfinite(y)) and np.all(np.isfinite(z))):
+                raise ValueError("trajectory contains non-finite values")
+            y.setflags(write=False)
+            z.setflags(write=False)
+            object.__setattr__(self, "trajectory", (y, z))
+        if self.stop_after_slip is not None and not (self.stop_after_slip >= 0):
+            raise ValueError(f"stop_after_slip must be >= 0, got {self.stop_after_slip!r}")
+
+    @property
+    def n_samples(self) -> int:
+        if self.trajectory is not None:
+            return self.trajectory[0].size
+        return round(self.duration * self.fs)
+
+    @property
+    def t(self) -> np.ndarray:
+        return np.arange(self.n_samples) / self.fs
+
+    def plate_motion(self) -> tuple[np.ndarray, np.ndarray]:
+        """``(plate_y, indent)`` per sample, m."""
+        if self.trajectory is not None:
+            return self.trajectory
+        t = self.t
+        indent = self.indent_speed * np.minimum(t, self.indent_duration)
+        # sliding time: time after the indent phase, minus the time spent in stops
+        moving = np.clip(t - self.indent_duration, 0.0, None)
+        for a, b in self.stops:
+            a2, b2 = max(a, self.indent_duration), max(b, self.indent_duration)
+            moving -= np.clip(t - a2, 0.0, b2 - a2)
+        return self.slide_speed * moving, indent
+
+    def with_outputs(self, *outputs: str) -> Scene:
+        return replace(self, outputs=frozenset(outputs))
+
+
+def paper(name: str, **overrides) -> Scene:
+    """The paper's scenes: ``"fig6"`` (no stop), ``"fig7"`` (stop at A, 1.00-1.05 s),
+    ``"fig8"`` (stop at B, 1.40-1.45 s). Keyword overrides go to :class:`Scene`."""
+    stops = {"fig6": (), "fig7": ((1.00, 1.05),), "fig8": ((1.40, 1.45),)}
+    if name not in stops:
+        raise ValueError(f"name must be one of {sorted(stops)}, got {name!r}")
+    kw = {"duration": 2.0, "stops": stops[name]}
+    kw.update(overrides)
+    return Scene(**kw)
+
+
+def random(n: int, seed: int = 0, *, friction=(0.45, 0.85), indent=(20e-6, 40e-6), slide_speed=(0.1e-3, 0.4e-3),
+           stop_probability: float = 0.5, stop_length=(0.02, 0.1), noise=(0.0, 2e-3), duration: float = 2.5,
+           **overrides) -> list[Scene]:
+    """``n`` randomized scenes for training and testing (deterministic for a seed).
+
+    Each draws a friction coefficient, an indent depth (reached in 0.5 s), a slide
+    speed, sensor noise (V rms) and, with ``stop_probability``, one stop of
+    ``stop_length`` s at a random time during the slide. Ranges are ``(low, high)``.
+    """
+    if int(n) != n or n < 0:
+        raise ValueError(f"n must be a non-negative integer, got {n!r}")
+    if not (0.0 <= stop_probability <= 1.0):
+        raise ValueError(f"stop_probability must be in [0, 1], got {stop_probability!r}")
+    rng = np.random.default_rng(seed)
+    scenes = []
+    for i in range(int(n)):
+        mu = rng.uniform(*friction)
+        depth = rng.uniform(*indent)
+        v = rng.uniform(*slide_speed)
+        stops = ()
+        if rng.random() < stop_probability:
+            a = rng.uniform(0.6, duration - 0.3)
+            stops = ((a, a + rng.uniform(*stop_length)),)
+        kw = {"duration": duration, "friction": mu, "indent_speed": depth / 0.5, "slide_speed": v,
+              "stops": stops, "noise": rng.uniform(*noise), "seed": int(seed) * 100_003 + i}
+        kw.update(overrides)
+        scenes.append(Scene(**kw))
+    return scenes
