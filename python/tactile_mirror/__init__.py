@@ -11,15 +11,22 @@ Filtering follows scipy.signal conventions (``sos``, ``zi``, ``axis``); everythi
 """
 from __future__ import annotations
 
+from . import scenes
 from .circuit import SLOPE_BAND, PVDFCircuit, fit_circuit
+from .contact import Pad, RidgeGeometry, SimulationResult, simulate, simulate_many
 from .estimator import StressRateEstimator, differentiator_sos, equalizer_sos, estimate_stress_rate
 from .filters import SosFilter, roundoff_bound, simd_path, sosfilt, validate_sos
+from .scenes import Scene
 
 __version__ = "0.1.0"
 
 __all__ = [
     "SLOPE_BAND",
     "PVDFCircuit",
+    "Pad",
+    "RidgeGeometry",
+    "Scene",
+    "SimulationResult",
     "SosFilter",
     "StressRateEstimator",
     "__version__",
@@ -28,7 +35,10 @@ __all__ = [
     "estimate_stress_rate",
     "fit_circuit",
     "roundoff_bound",
+    "scenes",
     "simd_path",
+    "simulate",
+    "simulate_many",
     "sosfilt",
     "validate_sos",
 ]

@@ -20,7 +20,7 @@ from .contact.geometry import RidgeGeometry
 __all__ = ["DEFAULT_FRICTION", "OUTPUTS", "Scene", "paper", "random"]
 
 #: Coulomb friction between finger and ridge. Chosen so that the paper's fig6 scene
-#: (default ridge) reaches gross slip at t = 1.446 s, inside the 1.4-1.5 s the paper
+#: (default ridge) reaches gross slip at t = 1.45 s, inside the 1.4-1.5 s the paper
 #: shows; measured with tactile_mirror.contact.calibrate_friction.
 DEFAULT_FRICTION = 0.66
 
