@@ -8,12 +8,15 @@ from __future__ import annotations
 
 import concurrent.futures
 from dataclasses import dataclass, field
+from typing import TYPE_CHECKING
 
 import numpy as np
 
-from ..scenes import Scene
 from .model import ridge_model
 from .pad import Pad
+
+if TYPE_CHECKING:  # scenes imports contact.geometry, so import it lazily at run time
+    from ..scenes import Scene
 
 __all__ = ["SimulationResult", "calibrate_friction", "simulate", "simulate_many"]
 
@@ -72,6 +75,8 @@ def simulate(scene: Scene, progress: bool = False) -> SimulationResult:
     progress : bool
         Show a progress bar over the time steps.
     """
+    from ..scenes import Scene
+
     if not isinstance(scene, Scene):
         raise TypeError(f"scene must be a tactile_mirror.Scene, got {type(scene).__name__}")
     model = ridge_model(scene.geometry)
@@ -148,6 +153,8 @@ def simulate_many(scenes, executor: concurrent.futures.Executor | None = None, p
     Any :class:`concurrent.futures.Executor` works, e.g. ``dask.distributed.Client(...)
     .get_executor()`` to spread a sweep over a cluster. Shows a progress bar.
     """
+    from ..scenes import Scene
+
     scenes = list(scenes)
     for k, s in enumerate(scenes):
         if not isinstance(s, Scene):
