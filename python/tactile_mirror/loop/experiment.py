@@ -260,10 +260,16 @@ class SceneResult:
     tracking_rms: float
     tracking_max: float
     status: dict
+    run: object = None  # the LoopResult
 
     def summary(self) -> dict:
+        n = self.t.size
+        y = self.outputs[:, 2:].reshape(n, -1, 3)
+        gross = np.all(self.log["slip_fraction"][:, :n] >= 0.999, axis=0)
         return {"label": self.scene.label, "seed": self.scene.seed, "controller": self.controller,
                 "gross_slips": self.gross_slips, "ridge_gross_slips": self.ridge_gross_slips,
+                "gross_slip_time_s": float(gross.sum() / self.scene.fs),
+                "y_slip_max": float(y[:, :, 0].max()), "y_slip_p99": float(np.percentile(y[:, :, 0].max(axis=1), 99)),
                 "tracking_rms_mm": 1e3 * self.tracking_rms, "tracking_max_mm": 1e3 * self.tracking_max,
                 "rejected": int(self.status.get("rejected", 0))}
 
@@ -295,7 +301,7 @@ def run_scene(scene: Scene, weights, controller: Controller | None, limits: Stag
     return SceneResult(scene=scene, controller=controller.kind, t=res.t, finger=finger[: len(res.t)],
                        stage=res.stage_position, outputs=res.outputs, log=log, gross_slips=gross_slip_events(sf),
                        ridge_gross_slips=ridge, tracking_rms=float(np.sqrt(np.mean(rel**2))),
-                       tracking_max=float(np.abs(rel).max()), status=res.status)
+                       tracking_max=float(np.abs(rel).max()), status=res.status, run=res)
 
 
 def calibrate_direction(weights, fs: float = 1000.0, n_ridges: int = 6) -> float:
@@ -393,11 +399,14 @@ def run_experiment(seeds=range(5), duration: float = 3.0, fs: float = 1000.0, we
     totals = {}
     for row in rows:
         key = (row["label"], row["controller"])
-        t = totals.setdefault(key, {"runs": 0, "gross_slips": 0, "runs_with_slip": 0, "tracking_rms_mm": []})
+        t = totals.setdefault(key, {"runs": 0, "gross_slips": 0, "runs_with_slip": 0, "gross_slip_time_s": 0.0,
+                                    "tracking_rms_mm": [], "y_slip_max": 0.0})
         t["runs"] += 1
         t["gross_slips"] += row["gross_slips"]
         t["runs_with_slip"] += row["gross_slips"] > 0
+        t["gross_slip_time_s"] += row["gross_slip_time_s"]
         t["tracking_rms_mm"].append(row["tracking_rms_mm"])
+        t["y_slip_max"] = max(t["y_slip_max"], row["y_slip_max"])
     for t in totals.values():
         t["tracking_rms_mm"] = float(np.mean(t["tracking_rms_mm"]))
     result = {"rows": rows, "totals": [{"label": k[0], "controller": k[1], **v} for k, v in totals.items()],
@@ -409,6 +418,18 @@ def run_experiment(seeds=range(5), duration: float = 3.0, fs: float = 1000.0, we
             json.dump(result, f, indent=1)
         if hasattr(weights, "save"):
             weights.save(os.path.join(out_dir, "brush_detector.npz"))
+        if "velocity" in keep:
+            r = keep["velocity"]
+            cfg = _pipeline(w, fs, laws["velocity"], r.log["v_out"].shape[0]).config
+            rec = r.run.to_recording(cfg, {"scene": r.scene.label, "seed": r.scene.seed, "model": "BrushRidges"})
+            path = os.path.join(out_dir, "closed_loop_recording.npz")
+            rec.save(path)
+            from .recording import Recording
+
+            result["recording"] = {"path": "closed_loop_recording.npz",
+                                   "replay_bit_identical": Recording.load(path).verify()}
+            with open(os.path.join(out_dir, "experiment.json"), "w") as f:
+                json.dump(result, f, indent=1)
         if "open" in keep:
             figure(keep["open"], os.path.join(out_dir, "fig12_open_loop.png"), closed=False)
         if "velocity" in keep:
@@ -483,10 +504,14 @@ def main(argv=None):
     res = run_experiment(range(args.seeds), args.duration, weights=weights, out_dir=args.out,
                          robustness=not args.no_robustness, progress=True)
     print(f"direction_sign {res['direction_sign']:+g}; detector: {res['detector']}")
-    print(f"{'scene':<34} {'controller':<22} {'runs':>4} {'slips':>6} {'runs w/ slip':>12} {'track rms mm':>12}")
+    if "recording" in res:
+        print(f"closed-loop recording replayed bit-identical: {res['recording']['replay_bit_identical']}")
+    print(f"{'scene':<34} {'controller':<22} {'runs':>4} {'slips':>6} {'runs w/ slip':>12} {'slip s':>7} "
+          f"{'max y_slip':>10} {'track rms mm':>12}")
     for t in res["totals"]:
         print(f"{t['label']:<34} {t['controller']:<22} {t['runs']:>4} {t['gross_slips']:>6} "
-              f"{t['runs_with_slip']:>12} {t['tracking_rms_mm']:>12.3f}")
+              f"{t['runs_with_slip']:>12} {t['gross_slip_time_s']:>7.2f} {t['y_slip_max']:>10.2f} "
+              f"{t['tracking_rms_mm']:>12.3f}")
     return res
 
 

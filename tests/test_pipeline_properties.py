@@ -1,0 +1,57 @@
+"""Properties of the pipeline tick under random chunking and random bad samples."""
+from __future__ import annotations
+
+import numpy as np
+from hypothesis import given
+from hypothesis import strategies as st
+from tactile_mirror.circuit import PVDFCircuit
+from tactile_mirror.estimator import StressRateEstimator
+from tactile_mirror.loop import VelocityController
+from tactile_mirror.pipeline import MirrorPipeline
+
+FS = 1000.0
+_RNG = np.random.default_rng(11)
+_W = {"w1": _RNG.normal(size=(6, 5)), "b1": _RNG.normal(size=6), "w2": 2 * _RNG.normal(size=(2, 6)),
+      "b2": _RNG.normal(size=2), "input_mean": np.zeros(4), "input_gain": np.array([3e-3, 3e-3, 3e-5, 3e-5]),
+      "fs": FS}
+_PIPES = {}
+
+
+def pipe(n_ridges, use_u):
+    key = (n_ridges, use_u)
+    if key not in _PIPES:
+        est = StressRateEstimator(PVDFCircuit(), FS, 2 * n_ridges, use_u=use_u)
+        _PIPES[key] = MirrorPipeline(_W, FS, n_ridges, estimator=est, v_limit=1.0, u_limit=1.0,
+                                     controller=VelocityController(threshold=0.2, y_full=0.6, shear_gain=1e-4),
+                                     max_hold_ticks=5)
+    p = _PIPES[key]
+    p.reset()
+    return p
+
+
+@given(n_ridges=st.integers(1, 6), use_u=st.booleans(), n=st.integers(1, 120),
+       cuts=st.lists(st.integers(0, 120), max_size=5),
+       bad=st.lists(st.tuples(st.integers(0, 119), st.integers(0, 23),
+                              st.sampled_from([np.nan, np.inf, -np.inf, 3.0, -1.5])), max_size=6),
+       seed=st.integers(0, 2**16))
+def test_chunking_and_bad_samples(n_ridges, use_u, n, cuts, bad, seed):
+    p = pipe(n_ridges, use_u)
+    rng = np.random.default_rng(seed)
+    x = 0.1 * rng.standard_normal((n, p.n_inputs))
+    bad_rows = set()
+    for t, c, v in bad:
+        if t < n:
+            x[t, c % p.n_inputs] = v
+            bad_rows.add(t)
+    whole, acc = p.process_block(x, accepted=True)
+    assert set(np.flatnonzero(~acc)) == bad_rows
+    assert p.status["rejected"] == len(bad_rows)
+    assert np.all(np.isfinite(whole))
+    assert np.all((whole[:, 2:] >= 0) & (whole[:, 2:] <= 1))
+    p.reset()
+    parts = [p.process_block(c)[0] for c in np.split(x, sorted({min(k, n) for k in cuts}))]
+    assert np.array_equal(np.concatenate(parts), whole)
+    # a rejected tick holds the detector outputs of the tick before it
+    for t in bad_rows:
+        if t > 0:
+            np.testing.assert_array_equal(whole[t, 2:], whole[t - 1, 2:])
