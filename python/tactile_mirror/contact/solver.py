@@ -10,6 +10,9 @@ which has moved ``s`` along ``y``:
 * slip increment of the ridge surface relative to the plate over the step
   ``w = (u_y - u_y_prev) - (s - s_prev)``; Coulomb: ``|lt| <= mu ln``, stick (``w = 0``)
   inside the cone, ``lt = -mu ln sign(w)`` on it (history-dependent through ``u_y_prev``).
+  A node is reported as slipping when it is on the cone *and* moves relative to the
+  plate (``|w| > 1e-11 * ridge height``); on the cone but still (a stopped plate) it
+  is reported as stuck.
 
 Both are written as the Alart-Curnier equations ``F(lam) = 0``::
 
@@ -104,6 +107,8 @@ class ContactSolver:
         # u = C f = C P lam with P = diag(1, -1): columns of the normal block flip sign
         self._CP = np.concatenate([C[:, :n], -C[:, n:]], axis=1)
         self._r = 1.0 / float(np.mean(np.diag(C)))
+        # slip increments below this count as no motion (round-off is ~1e-19 m)
+        self._w_tol = 1e-11 * model.geometry.height
         self.reset()
 
     def reset(self) -> None:
@@ -261,14 +266,21 @@ class ContactSolver:
 
     def _accept(self, lam, u, state, plate_y, it, sign=None) -> ContactStep:
         n = self._n
+        # Reported state: a node on the friction cone that does not move relative to
+        # the plate (a stopped plate) is stuck, not slipping; the solver keeps the
+        # cone classification as its warm start.
+        slip_increment = (u[:n] - self._uy_prev) - (float(plate_y) - self._s_prev)
+        moving = np.abs(slip_increment) > self._w_tol
+        reported = np.where((state == SLIP) & ~moving, STICK, state).astype(np.int8)
         self._lam = lam
         self._state = state
         self._sign = np.zeros(n) if sign is None else sign
         self._uy_prev = u[:n].copy()
         self._s_prev = float(plate_y)
         w = self.model.weights
-        touching = state != OPEN
+        touching = reported != OPEN
         total = float(w[touching].sum())
-        frac = float(w[state == SLIP].sum()) / total if total > 0 else 0.0
+        frac = float(w[reported == SLIP].sum()) / total if total > 0 else 0.0
+        state = reported
         f = np.concatenate([lam[:n], -lam[n:]])
         return ContactStep(forces=f, displacement=u, state=state, slip_fraction=frac, iterations=it)
