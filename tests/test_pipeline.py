@@ -114,8 +114,10 @@ def test_rejected_tick_keeps_state():
     assert st["last_bad_tick"] == 100 and st["last_bad_channel"] == 4 and st["ticks"] == 301
 
 
-def test_fault_after_consecutive_rejections_stops_the_stage():
-    ctrl = VelocityController(threshold=0.0, y_full=0.01, v_max=0.01, a_max=1.0, x_min=-1, x_max=1)
+@pytest.mark.parametrize("shear_gain", [0.0, 1e-2])
+def test_fault_after_consecutive_rejections_stops_the_stage(shear_gain):
+    ctrl = VelocityController(threshold=0.0, y_full=0.01, v_max=0.01, a_max=1.0, x_min=-1, x_max=1,
+                              shear_gain=shear_gain, asym_tau=5.0)
     pipe = make(controller=ctrl, max_hold_ticks=10)
     x = signals(200, pipe.n_inputs)
     pipe.process_block(x)
@@ -128,6 +130,8 @@ def test_fault_after_consecutive_rejections_stops_the_stage():
     # within max_hold_ticks the command keeps moving, then it decelerates at a_max to rest
     assert abs(out[5, 1]) > 0
     assert out[-1, 1] == 0.0
+    ref = ReferencePipeline(pipe.config)
+    np.testing.assert_allclose(ref.process_block(np.concatenate([x, nan]))[200:], out, rtol=1e-9, atol=1e-12)
     assert np.all(np.abs(np.diff(out[:, 1])) <= 1.0 / FS + 1e-12)
     pipe.step(np.ascontiguousarray(x[0]))
     assert not pipe.status["fault"]

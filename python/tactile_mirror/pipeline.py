@@ -426,7 +426,8 @@ class ReferencePipeline:
             self.consecutive += 1
             asym = 0.0
         ypred = float(np.max(self.det[:, 2]))
-        if self.consecutive > c["max_hold_ticks"]:
+        fault = self.consecutive > c["max_hold_ticks"]
+        if fault:
             ypred = 0.0
         ctrl = self.ctrl
         if ctrl.kind != "none":
@@ -434,7 +435,7 @@ class ReferencePipeline:
             self.a = math.exp(-dt / ctrl.asym_tau) * self.a + dt * asym
             if abs(self.a) > ctrl.asym_deadband:
                 self.dir = ctrl.direction_sign if self.a > 0 else -ctrl.direction_sign
-            self.x, self.v = ctrl._move(self.x, self.v, ypred, dt, self.dir, self.a)
+            self.x, self.v = ctrl._move(self.x, self.v, ypred, dt, self.dir, 0.0 if fault else self.a)
         self.out[0] = self.x
         self.out[1] = self.v
         return self.out.copy()

@@ -41,13 +41,14 @@
 //              v_des = dir * v_max * clip((y - threshold) / (y_full - threshold), 0, 1)
 //                      + direction_sign * shear_gain * a,   clipped to +-v_max,
 //              limited so that the stage can always stop before a travel limit
-//              (v^2 / (2 a_max) + |v| dt / 2 <= d, the distance left), then slewed at most a_max * dt per tick and
-//              integrated into the position target. Speed, acceleration and travel
-//              are all respected.
+//              (v^2 / (2 a_max) + |v| dt / 2 <= d, the distance left), then slewed
+//              at most a_max * dt per tick and integrated into the position target.
+//              Speed, acceleration and travel are all respected.
 //
 // After more than max_hold_ticks consecutive rejected ticks the pipeline enters a
-// fault state: the controller sees y = 0 (the stage stops: at once for the paper
-// law, decelerating at a_max for the velocity law) until an accepted tick arrives.
+// fault state: the controller sees y = 0 and no shear (the stage stops: at once for
+// the paper law, decelerating at a_max for the velocity law) until an accepted tick
+// arrives.
 // While fewer ticks are rejected the controller keeps running on the last accepted
 // detector outputs, so an isolated dropped sample does not jerk the stage.
 #pragma once
@@ -220,8 +221,9 @@ public:
         leak_ = std::exp(-dt_ / p.asym_tau);
     }
 
-    // y: max y_pred of the ridges; asym: sum over ridges of (rate_L - rate_R).
-    TM_ALWAYS_INLINE void step(double y, double asym) noexcept {
+    // y: max y_pred of the ridges; asym: sum over ridges of (rate_L - rate_R);
+    // fault: no valid input any more, bring the stage to rest.
+    TM_ALWAYS_INLINE void step(double y, double asym, bool fault = false) noexcept {
         a_ = leak_ * a_ + dt_ * asym;
         if (std::fabs(a_) > p_.asym_deadband) dir_ = (a_ > 0.0 ? p_.direction_sign : -p_.direction_sign);
         switch (p_.kind) {
@@ -234,7 +236,7 @@ public:
             case ControllerKind::velocity: {
                 double s = (y - p_.threshold) / (p_.y_full - p_.threshold);
                 s = s < 0.0 ? 0.0 : (s > 1.0 ? 1.0 : s);
-                double vd = dir_ * p_.v_max * s + p_.direction_sign * p_.shear_gain * a_;
+                double vd = dir_ * p_.v_max * s + (fault ? 0.0 : p_.direction_sign * p_.shear_gain * a_);
                 vd = vd > p_.v_max ? p_.v_max : (vd < -p_.v_max ? -p_.v_max : vd);
                 // Largest speed from which decelerating by a_max dt per tick stops
                 // within the distance d left: v^2 / (2 a) + v dt / 2 <= d, i.e.
@@ -502,7 +504,7 @@ private:
         if (ok) st_.slip = ys >= slip_threshold_;
         if (!ok) asym = 0.0;  // no new rate information: the integrator only leaks
         if (st_.fault) y = 0.0;
-        if (ctrl_kind_ != ControllerKind::none) ctrl_.step(y, asym);
+        if (ctrl_kind_ != ControllerKind::none) ctrl_.step(y, asym, st_.fault);
         out_[0] = ctrl_.position();
         out_[1] = ctrl_.velocity();
         st_.at_limit = ctrl_kind_ != ControllerKind::none && ctrl_.at_limit();
