@@ -59,7 +59,10 @@ class Scene:
     n_ridges : int
         1 (the paper's single ridge) or more (a pad; 6 in the paper's hardware).
     finger_radius : float
-        Finger curvature over the pad, m (inner ridges press deeper).
+        Effective curvature radius of the finger over the pad, m: inner ridges press
+        deeper by ``y^2 / (2 R)``. The finger pulp flattens on the pad, so this is far
+        larger than the fingertip's own radius; the default 2 m makes the outer ridges
+        of a 6-ridge pad (7.5 mm off centre) press 14 um less than the centre ones.
     noise : float
         Sensor noise added to v_out and u_out, V rms.
     seed : int
@@ -84,7 +87,7 @@ class Scene:
     trajectory: tuple | None = None
     friction: float = DEFAULT_FRICTION
     n_ridges: int = 1
-    finger_radius: float = 10e-3
+    finger_radius: float = 2.0
     noise: float = 0.0
     seed: int = 0
     outputs: frozenset = _DEFAULT_OUTPUTS
