@@ -4,7 +4,6 @@ import dataclasses
 
 import numpy as np
 import pytest
-
 import tactile_mirror as tm
 from tactile_mirror.contact import (
     SLIP,
