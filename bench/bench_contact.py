@@ -48,8 +48,8 @@ def bench_fig6():
     t_run, res = timed(lambda: simulate(scene))
     rows = [["model setup (mesh, assembly, condensation), first run", f"{setup:.2f} s"],
             ["model setup, cached", f"{timed(lambda: ridge_model(geom))[0] * 1e6:.1f} us"],
-            [f"simulate fig6: {res.t.size} steps at 1 kHz, 1 ridge, signals", f"{t_run:.2f} s "
-             f"({t_run / res.t.size * 1e3:.3f} ms/step)"],
+            [f"simulate fig6: {res.t.size} steps at 1 kHz, 1 ridge, signals", (f"{t_run:.2f} s "
+             f"({t_run / res.t.size * 1e3:.3f} ms/step)")],
             ["Newton (active-set) iterations per step", f"{res.newton_iterations / res.t.size:.2f}"],
             ["gross slip", f"{res.slip_time:.3f} s"],
             ["contact nodes / DOFs / elements", f"{model.n_nodes} / {model.n_dofs} / {model.n_elements}"]]
@@ -110,7 +110,7 @@ def bench_mesh(quick):
         tt, r = timed(lambda: simulate(dataclasses.replace(base, geometry=g)), repeat=1)
         return m, setup, tt, r
 
-    m_ref, _, _, ref = run(ref_size)
+    _m_ref, _, _, ref = run(ref_size)
     scale = np.max(np.abs(ref.stress))
     i_fix = 900  # t = 0.9 s: indented and sheared, little slip yet
     rows = []

@@ -195,7 +195,7 @@ def test_fig7_stop_at_A(paper_runs):
 def test_fig8_stop_at_B_delays_slip(paper_runs):
     r6, r8 = paper_runs["fig6"], paper_runs["fig8"]
     assert abs(r8.slip_time - r6.slip_time - 0.05) <= 0.01
-    t, d1, d2 = rates(r8)
+    t, _d1, d2 = rates(r8)
     impulse = np.max(np.abs(d2[np.abs(t - 1.4) < 0.01]))
     assert impulse > 2 * np.max(np.abs(d2[(t > 0.6) & (t < 1.35)]))
     stopped = (t > 1.41) & (t < 1.44)

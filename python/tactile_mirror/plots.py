@@ -12,13 +12,6 @@ __all__ = ["contact_scene_figure", "save"]
 
 
 def _figure(n_rows: int, height: float = 1.6, width: float = 6.4):
-    import matplotlib
-
-    if matplotlib.get_backend().lower() not in ("agg", "module://matplotlib_inline.backend_inline"):
-        try:
-            import matplotlib.pyplot as plt
-        except Exception:  # pragma: no cover - headless fallbacks
-            matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
     fig, axes = plt.subplots(n_rows, 1, sharex=True, figsize=(width, height * n_rows + 0.6),
