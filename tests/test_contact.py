@@ -132,6 +132,16 @@ def test_strip_stress_converges_with_mesh():
     assert d2 < 0.05 * np.max(np.abs(vals[2]))
 
 
+def test_damped_newton_fallback_agrees_with_active_set(ridge):
+    H = ridge.geometry.height
+    a, b = ContactSolver(ridge, 0.6), ContactSolver(ridge, 0.6)
+    b.max_active_set_iter = 0  # every step through the damped semismooth Newton method
+    for y, d in [(0.0, 10e-6), (0.0, 30e-6), (30e-6, 30e-6), (90e-6, 30e-6), (150e-6, 30e-6)]:
+        x, z = a.step(y, H - d), b.step(y, H - d)
+        assert np.max(np.abs(x.forces - z.forces)) <= 1e-8 * np.max(np.abs(x.forces))
+        np.testing.assert_array_equal(x.state, z.state)
+
+
 def test_nonconvergence_is_reported(ridge):
     s = ContactSolver(ridge, 0.6, max_iter=0)
     s.max_active_set_iter = 1

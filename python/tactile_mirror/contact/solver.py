@@ -151,7 +151,8 @@ class ContactSolver:
             state = np.where(z0 > plate_z, STICK, OPEN).astype(np.int8)
             if not np.any(state):
                 state[np.argmax(z0)] = STICK
-        for it in range(1, self.max_active_set_iter + 1):
+        it = 0
+        for it in range(1, self.max_active_set_iter + 1):  # noqa: B007 (it is used after the loop)
             lam, u = self._solve_piece(state, sign, plate_z, ds)
             F, new_state, new_sign = self._classify(lam, u, plate_z, ds)
             if np.max(np.abs(F)) <= atol:
@@ -208,7 +209,7 @@ class ContactSolver:
         return F, state, np.where(slip, sgn, 0.0)
 
     def _damped_newton(self, lam, plate_y, plate_z, ds, atol):
-        F, J, _, u = self._residual(lam, plate_z, ds, need_jacobian=True)
+        F, J, u = self._residual(lam, plate_z, ds)
         norm = np.max(np.abs(F))
         it = 0
         while norm > atol:
@@ -225,7 +226,7 @@ class ContactSolver:
             merit = float(F @ F)
             while True:
                 trial = lam + t * d
-                F2, J2, _, u2 = self._residual(trial, plate_z, ds, need_jacobian=True)
+                F2, J2, u2 = self._residual(trial, plate_z, ds)
                 if float(F2 @ F2) <= (1 - 1e-4 * t) * merit or t < 1e-6:
                     break
                 t *= 0.5
@@ -234,35 +235,22 @@ class ContactSolver:
             it += 1
         return lam, u, it
 
-    def _residual(self, lam, plate_z, ds, need_jacobian=True):
+    def _residual(self, lam, plate_z, ds):
+        """Alart-Curnier residual at ``lam`` and its generalised Jacobian."""
         n, r, mu = self._n, self._r, self.mu
-        lt, ln = lam[:n], lam[n:]
         u = self._displacement(lam)
-        uy, uz = u[:n], u[n:]
-        g = plate_z - (self.model.node_z + uz)
-        w = (uy - self._uy_prev) - ds
-        an = ln - r * g
-        act = an > 0
-        b = mu * np.where(act, an, 0.0)
-        tau = lt - r * w
-        stick = act & (np.abs(tau) <= b)
-        slip = act & ~stick
-        sgn = np.sign(tau)
-        Fn = np.where(act, r * g, ln)
-        Ft = np.where(stick, r * w, np.where(slip, lt - b * sgn, lt))
-        F = np.concatenate([Ft, Fn])
-        state = np.where(stick, STICK, np.where(slip, SLIP, OPEN)).astype(np.int8)
-        if not need_jacobian:
-            return F, None, state, u
+        F, state, sign = self._classify(lam, u, plate_z, ds)
+        stick, slip = state == STICK, state == SLIP
+        act = stick | slip
         CP = self._CP
         dg = -CP[n:]  # dg/dlam (n, 2n)
         dw = CP[:n]  # dw/dlam
         eye = np.eye(2 * n)
         et, en = eye[:n], eye[n:]
         Jn = np.where(act[:, None], r * dg, en)
-        dslip = et - (mu * sgn)[:, None] * (en - r * dg)
+        dslip = et - (mu * sign)[:, None] * (en - r * dg)
         Jt = np.where(stick[:, None], r * dw, np.where(slip[:, None], dslip, et))
-        return F, np.concatenate([Jt, Jn]), state, u
+        return F, np.concatenate([Jt, Jn]), u
 
     def _accept(self, lam, u, state, plate_y, it, sign=None) -> ContactStep:
         n = self._n
