@@ -152,7 +152,7 @@ class ContactSolver:
             if not np.any(state):
                 state[np.argmax(z0)] = STICK
         it = 0
-        for it in range(1, self.max_active_set_iter + 1):  # noqa: B007 (it is used after the loop)
+        for it in range(1, self.max_active_set_iter + 1):
             lam, u = self._solve_piece(state, sign, plate_z, ds)
             F, new_state, new_sign = self._classify(lam, u, plate_z, ds)
             if np.max(np.abs(F)) <= atol:
