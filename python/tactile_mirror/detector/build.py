@@ -27,14 +27,17 @@ TRAIN_SEED = 20261121
 TEST_SEED = 777
 
 
-def simulate_scenes(scenes, progress: bool = True) -> list:
-    """Simulate scenes with :func:`tactile_mirror.simulate` (with a progress bar)."""
-    from tqdm.auto import tqdm
-
-    from .. import simulate
+def simulate_scenes(scenes, progress: bool = True, executor=None) -> list:
+    """Simulate scenes: ``tactile_mirror.simulate_many`` (processes) when available."""
+    import tactile_mirror
 
     scenes = list(scenes)
-    return [simulate(s) for s in tqdm(scenes, desc="simulate", disable=not progress, leave=False)]
+    many = getattr(tactile_mirror, "simulate_many", None)
+    if many is not None and len(scenes) > 1:
+        return list(many(scenes, executor=executor))
+    from tqdm.auto import tqdm
+
+    return [tactile_mirror.simulate(s) for s in tqdm(scenes, desc="simulate", disable=not progress, leave=False)]
 
 
 def subset(ts: TrainingSet, ridges_per_scene: int, n_ridges: int) -> TrainingSet:

@@ -14,7 +14,8 @@ Features (the detector's inputs) are ``[v_L, v_R, u_L, u_R]`` per ridge, shape
     Cheaper, but tied to one circuit.
 
 Targets (see :func:`targets_from_result`): ``y_slip`` is 1 while the ridge
-slips grossly; ``y_pred`` is the ridge's slip fraction.
+slips grossly; ``y_pred`` is the extent of the ridge's slip zone (running
+maximum of its slip fraction).
 """
 from __future__ import annotations
 
@@ -30,6 +31,8 @@ def _circuit_of(result, circuit):
     if circuit is not None:
         return circuit
     c = getattr(result, "circuit", None)
+    if c is None:
+        c = getattr(getattr(result, "scene", None), "circuit", None)
     if c is not None:
         return c
     from ..circuit import PVDFCircuit
@@ -49,7 +52,8 @@ def features_from_result(result, features: str = "stress_rate", circuit=None, es
     features : {"stress_rate", "circuit"}
         Feature kind (see the module docstring).
     circuit : PVDFCircuit, optional
-        Circuit for the estimator; default ``result.circuit`` or ``PVDFCircuit()``.
+        Circuit for the estimator; default ``result.circuit``, ``result.scene.circuit``
+        or ``PVDFCircuit()``.
     estimator : dict, optional
         Estimator settings; default :data:`DEFAULT_ESTIMATOR`.
 
@@ -84,18 +88,24 @@ def targets_from_result(result, gross_level: float = 0.999):
 
     ``y_slip`` = 1 while the ridge slips grossly: its slip fraction is at least
     ``gross_level`` (every contact node slides), or, for a result without a
-    per-ridge slip fraction, from ``slip_time`` on. ``y_pred`` = the ridge's slip
-    fraction (0 stuck ... 1 gross slip).
+    per-ridge slip fraction, from ``slip_time`` on.
 
-    Why the slip fraction for ``y_pred``: it is the physical incipient-slip level.
+    ``y_pred`` = the extent of the ridge's slip zone so far: the running maximum
+    over time of its slip fraction (0 stuck ... 1 gross slip).
+
+    Why this target for ``y_pred``: it is the physical incipient-slip level.
     Local slip starts at the ridge edges and spreads inward as the tangential load
-    approaches the friction limit (``c/a = sqrt(1 - Q/(mu P))``), so the fraction
-    rises before gross slip by an amount that measures how close the contact is to
-    slipping; it holds (does not fall) while the plate stops, which is exactly
-    "slip is likely but does not occur" (the paper's reading of ``y_pred``); and it
-    is visible to the strips, whose stress rate grows as the slip zone spreads
-    (paper Fig. 6). A binary "slip within the next d ms" target would instead need
-    a horizon ``d`` that depends on the slide speed.
+    approaches the friction limit (``c/a = sqrt(1 - Q/(mu P))``), so the slip
+    zone grows before gross slip by an amount that measures how close the contact
+    is to slipping, and it reaches 1 at gross slip. The strips see it: their
+    stress rate grows as the zone spreads (paper Fig. 6). The running maximum
+    makes the target hold while the plate stops: the instantaneous slip fraction
+    drops to zero then (nothing moves, every node sticks) although the load, and
+    so the risk of slip, is unchanged; holding is the paper's reading of
+    ``y_pred`` ("a slip is likely to occur, but it does not actually occur").
+    A binary "slip within the next d ms" target would instead need a horizon
+    ``d`` that depends on the slide speed. (The scenes load monotonically; a
+    scene that unloads would need a target that can fall.)
 
     Returns
     -------
@@ -108,7 +118,7 @@ def targets_from_result(result, gross_level: float = 0.999):
         if frac.ndim == 1:
             frac = frac[None]
         y_slip = (frac >= gross_level).astype(np.float64)
-        return y_slip, frac
+        return y_slip, np.maximum.accumulate(frac, axis=-1)
     st = getattr(result, "slip_time", None)
     n_r = np.asarray(result.v_out).shape[0]
     y_slip = np.zeros((n_r, t.size))

@@ -19,7 +19,7 @@ def figure10_data(detector, result, ridge: int = 0, stops=None) -> dict:
     ridge : int
         Ridge whose strips and outputs are shown.
     stops : list of (float, float), optional
-        Plate stops in s; default ``result.stops`` if present, else none.
+        Plate stops in s; default ``result.stops`` or ``result.scene.stops``.
 
     Returns
     -------
@@ -35,7 +35,7 @@ def figure10_data(detector, result, ridge: int = 0, stops=None) -> dict:
     on = np.flatnonzero(g >= 0.5)
     t = np.asarray(result.t, dtype=np.float64)
     if stops is None:
-        stops = getattr(result, "stops", None) or []
+        stops = getattr(result, "stops", None) or getattr(getattr(result, "scene", None), "stops", None) or []
     return {
         "t": t,
         "d_rate": x[ridge, 0] - x[ridge, 1],

@@ -206,7 +206,7 @@ def train_detector(data, n_hidden: int = 16, feedback: bool = True, seed=0, maxi
         "channels": ["v_L", "v_R", "u_L", "u_R"],
         "estimator": data.estimator if data.features == "stress_rate" else None,
         "targets": {"y_slip": "1 while the ridge slips grossly (slip fraction >= 0.999)",
-                    "y_pred": "slip fraction of the ridge contact"},
+                    "y_pred": "slip-zone extent: running maximum of the ridge's slip fraction"},
         "feedback": bool(feedback),
         "slip_threshold": 0.8,
         "training": {"n_sequences": int(data.n_seq), "n_samples": int(data.mask.sum()), "seed": int(seed),
