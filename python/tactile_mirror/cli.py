@@ -65,10 +65,10 @@ def cmd_simulate(args) -> int:
     from . import simulate
 
     scene = _scene_from_args(args)
+    out = pathlib.Path(args.out)
+    out.parent.mkdir(parents=True, exist_ok=True)  # fail before the work, not after
     t0 = time.perf_counter()
     res = simulate(scene, progress=True)
-    out = pathlib.Path(args.out)
-    out.parent.mkdir(parents=True, exist_ok=True)
     np.savez_compressed(out, t=res.t, fs=res.fs, plate_y=res.plate_y, indent=res.indent, stress=res.stress,
                         v_out=res.v_out, u_out=res.u_out, slip_fraction=res.slip_fraction,
                         force_y=res.force_y, force_z=res.force_z,
