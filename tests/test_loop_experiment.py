@@ -85,3 +85,20 @@ def test_short_open_and_closed_runs():
     assert r.status["rejected"] > 0
     assert r.tracking_rms < r_open.tracking_rms  # the stage follows the finger
     assert set(r.summary()) >= {"gross_slips", "tracking_rms_mm", "controller"}
+
+
+def test_fem_pad_plant_short_closed_loop():
+    pytest.importorskip("skfem")
+    from tactile_mirror.loop.experiment import PLANTS, calibrate_shear
+
+    w = weights()
+    sign, a_per_m = calibrate_shear(w, FS, n_ridges=2, plant="fem")
+    assert sign in (1.0, -1.0) and a_per_m > 0
+    sc = Scene(seed=2, duration=0.8, plant="fem", trajectory=PLANTS["fem"]["trajectory"])
+    law = VelocityController(threshold=0.99, y_full=1.0, v_max=4e-3, a_max=1.0, direction_sign=sign,
+                             asym_tau=2.0, shear_gain=50.0 / a_per_m, arm_delay=0.5)
+    r = run_scene(sc, w, law, n_ridges=2)
+    assert np.all(r.finger[:500] == 0.0)  # the press phase
+    assert np.all(r.outputs[:500, 0] == 0.0)  # armed after it
+    assert r.log["force_z"][499] > r.log["force_z"][10] > 0
+    assert np.ptp(r.stage) > 0

@@ -33,7 +33,7 @@ def make(n_ridges=3, use_u=True, controller=None, dtype=np.float64, activation="
                           activation=activation, v_limit=5.0, u_limit=5.0, **kw)
 
 
-CONTROLLERS = [NoController(), PaperController(threshold=0.4, gain=0.02),
+CONTROLLERS = [NoController(), PaperController(threshold=0.4, gain=0.02, arm_delay=0.2),
                VelocityController(threshold=0.3, y_full=0.8, v_max=0.01, a_max=0.5, x_min=-0.004, x_max=0.004),
                VelocityController(threshold=0.3, y_full=0.8, v_max=0.01, a_max=0.5, shear_gain=2e-3,
                                   direction_sign=-1.0, asym_tau=0.2)]
@@ -159,6 +159,7 @@ def test_weights_for_another_rate_are_refused():
     ({"controller": {"kind": "paper", "direction_sign": 2.0}}, "direction_sign"),
     ({"controller": {"kind": "magic"}}, "kind"),
     ({"controller": {"kind": "velocity", "shear_gain": -1.0}}, "shear_gain"),
+    ({"controller": {"kind": "paper", "arm_delay": -1.0}}, "arm_delay"),
     ({"v_limit": -1.0}, "v_limit"),
     ({"slip_threshold": 1.5}, "slip_threshold"),
     ({"max_hold_ticks": -3}, "max_hold_ticks"),

@@ -383,6 +383,7 @@ class ReferencePipeline:
         self.a = 0.0
         self.dir = 0.0
         self.consecutive = 0
+        self.ticks = 0
         self.out = np.zeros(self.n_outputs)
         self.out[3::3] = 1.0
         self.out[0] = self.x
@@ -430,7 +431,13 @@ class ReferencePipeline:
         if fault:
             ypred = 0.0
         ctrl = self.ctrl
-        if ctrl.kind != "none":
+        arm = round(ctrl.arm_delay * c["fs"])
+        if ctrl.kind != "none" and self.ticks < arm:
+            self.ticks += 1
+            if self.ticks == arm:
+                self.a, self.dir = 0.0, 0.0
+            self.v = 0.0
+        elif ctrl.kind != "none":
             dt = 1.0 / c["fs"]
             self.a = math.exp(-dt / ctrl.asym_tau) * self.a + dt * asym
             if abs(self.a) > ctrl.asym_deadband:

@@ -93,6 +93,7 @@ ControllerParams controller_from(const py::dict& d) {
         else if (k == "asym_tau") f = &p.asym_tau;
         else if (k == "asym_deadband") f = &p.asym_deadband;
         else if (k == "shear_gain") f = &p.shear_gain;
+        else if (k == "arm_delay") f = &p.arm_delay;
         else throw py::value_error("controller has no parameter '" + k + "'");
         *f = py::cast<double>(item.second);
     }
@@ -113,6 +114,7 @@ py::dict controller_dict(const ControllerParams& p) {
     d["asym_tau"] = p.asym_tau;
     d["asym_deadband"] = p.asym_deadband;
     d["shear_gain"] = p.shear_gain;
+    d["arm_delay"] = p.arm_delay;
     return d;
 }
 

@@ -45,6 +45,10 @@
 //              at most a_max * dt per tick and integrated into the position target.
 //              Speed, acceleration and travel are all respected.
 //
+// Arming (both laws): for the first arm_delay seconds after a reset the command holds
+// (the finger settles on the pad); at the end the asymmetry integrator is zeroed, so the
+// shear of the settled contact is the reference (a tare).
+//
 // After more than max_hold_ticks consecutive rejected ticks the pipeline enters a
 // fault state: the controller sees y = 0 and no shear (the stage stops: at once for
 // the paper law, decelerating at a_max for the velocity law) until an accepted tick
@@ -93,6 +97,7 @@ struct ControllerParams {
     double asym_tau = 1.0;         // s, time constant of the asymmetry integrator
     double asym_deadband = 0.0;    // units of rate * s (Pa for stress-rate features)
     double shear_gain = 0.0;       // velocity: m/s per unit of asymmetry (shear feedback), >= 0
+    double arm_delay = 0.0;        // s after reset during which the stage holds; then the asymmetry is tared
 };
 
 // Everything a pipeline is built from. Arrays are borrowed for the duration of the
@@ -151,10 +156,10 @@ inline void validate_controller(const ControllerParams& c) {
     const int k = static_cast<int>(c.kind);
     if (k < 0 || k > 2) bad("kind", "must be 0 (none), 1 (paper) or 2 (velocity)");
     const double vals[] = {c.threshold, c.gain, c.y_full, c.v_max, c.a_max, c.x_min,
-                           c.x_max, c.direction_sign, c.asym_tau, c.asym_deadband, c.shear_gain};
+                           c.x_max, c.direction_sign, c.asym_tau, c.asym_deadband, c.shear_gain, c.arm_delay};
     const char* names[] = {"threshold", "gain", "y_full", "v_max", "a_max", "x_min",
-                           "x_max", "direction_sign", "asym_tau", "asym_deadband", "shear_gain"};
-    for (int i = 0; i < 11; ++i)
+                           "x_max", "direction_sign", "asym_tau", "asym_deadband", "shear_gain", "arm_delay"};
+    for (int i = 0; i < 12; ++i)
         if (!std::isfinite(vals[i])) bad(names[i], "must be finite");
     if (!(c.threshold >= 0.0 && c.threshold < 1.0)) bad("threshold", "must lie in [0, 1)");
     if (!(c.gain >= 0.0)) bad("gain", "must be >= 0 (m/s per unit y_pred)");
@@ -168,6 +173,7 @@ inline void validate_controller(const ControllerParams& c) {
     if (!(c.asym_tau > 0.0)) bad("asym_tau", "must be > 0 (s)");
     if (!(c.asym_deadband >= 0.0)) bad("asym_deadband", "must be >= 0");
     if (!(c.shear_gain >= 0.0)) bad("shear_gain", "must be >= 0 (m/s per unit of asymmetry)");
+    if (!(c.arm_delay >= 0.0 && c.arm_delay <= 3600.0)) bad("arm_delay", "must lie in [0, 3600] s");
 }
 
 inline void validate_config(const PipelineConfig& c) {
@@ -219,11 +225,20 @@ public:
     StageController(const ControllerParams& p, double fs) : p_(p), dt_(1.0 / fs) {
         validate_controller(p);
         leak_ = std::exp(-dt_ / p.asym_tau);
+        arm_ticks_ = static_cast<std::uint64_t>(std::llround(p.arm_delay * fs));
     }
 
     // y: max y_pred of the ridges; asym: sum over ridges of (rate_L - rate_R);
     // fault: no valid input any more, bring the stage to rest.
     TM_ALWAYS_INLINE void step(double y, double asym, bool fault = false) noexcept {
+        if (ticks_ < arm_ticks_) {  // arming: hold, then tare the asymmetry
+            if (++ticks_ == arm_ticks_) {
+                a_ = 0.0;
+                dir_ = 0.0;
+            }
+            v_ = 0.0;
+            return;
+        }
         a_ = leak_ * a_ + dt_ * asym;
         if (std::fabs(a_) > p_.asym_deadband) dir_ = (a_ > 0.0 ? p_.direction_sign : -p_.direction_sign);
         switch (p_.kind) {
@@ -267,6 +282,7 @@ public:
         v_ = 0.0;
         a_ = 0.0;
         dir_ = 0.0;
+        ticks_ = 0;
     }
     void set_position(double x) noexcept {
         x_ = clamp(x);
@@ -284,6 +300,7 @@ private:
     ControllerParams p_{};
     double dt_ = 1e-3, leak_ = 1.0;
     double x_ = 0.0, v_ = 0.0, a_ = 0.0, dir_ = 0.0;
+    std::uint64_t ticks_ = 0, arm_ticks_ = 0;
 };
 
 // ---- the pipeline -------------------------------------------------------------------

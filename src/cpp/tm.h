@@ -82,6 +82,7 @@ typedef struct tm_controller_params {
     double asym_tau;         /* s, > 0: leak of the L/R asymmetry integrator */
     double asym_deadband;    /* >= 0: |asymmetry| below this keeps the previous direction */
     double shear_gain;       /* velocity: m/s per unit of asymmetry (shear feedback), >= 0; 0 = off */
+    double arm_delay;        /* s after a reset during which the stage holds; then the asymmetry is tared */
 } tm_controller_params;
 
 typedef struct tm_config {

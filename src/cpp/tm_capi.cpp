@@ -80,6 +80,7 @@ void controller_defaults(tm_controller_params* p) {
     p->asym_tau = d.asym_tau;
     p->asym_deadband = d.asym_deadband;
     p->shear_gain = d.shear_gain;
+    p->arm_delay = d.arm_delay;
 }
 
 }  // namespace
@@ -189,6 +190,7 @@ int32_t tm_pipeline_create(const tm_config* cfg, tm_pipeline* out) {
     c.controller.asym_tau = p.asym_tau;
     c.controller.asym_deadband = p.asym_deadband;
     c.controller.shear_gain = p.shear_gain;
+    c.controller.arm_delay = p.arm_delay;
     // The sample-rate check first, with its own code.
     if (std::isfinite(c.fs) && c.fs > 0 && std::isfinite(c.weights_fs) && c.weights_fs > 0 &&
         std::fabs(c.fs - c.weights_fs) > 1e-9 * c.fs)

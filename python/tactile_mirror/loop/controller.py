@@ -17,7 +17,11 @@ Direction (both laws)
     which way the finger pulls. ``dir = direction_sign * sign(a)`` while
     ``|a| > asym_deadband``, else the previous ``dir`` (0 before the first decision).
     ``direction_sign`` maps the strips' orientation to the stage axis (+1 or -1;
-    calibrate it once per pad, e.g. with :func:`tactile_mirror.loop.calibrate_direction`).
+    calibrate it once per pad, e.g. with :func:`tactile_mirror.loop.experiment.calibrate_shear`).
+
+Arming (both laws)
+    For ``arm_delay`` seconds after a reset the stage holds while the finger settles;
+    then the asymmetry is zeroed (the settled contact's shear is the reference).
 
 :class:`PaperController` (Fujimoto et al., section 4.2.2)
     "the displacement is set in proportion to the amplitude of ``y_pred`` when it
@@ -71,6 +75,9 @@ class Controller:
     asym_deadband : float
         Asymmetry (rate units x s; Pa for stress-rate features) below which the
         previous direction is kept (>= 0).
+    arm_delay : float
+        Seconds after a reset during which the stage holds (the finger settles);
+        then the asymmetry integrator is zeroed (a tare) and the law starts.
     """
 
     kind = "none"
@@ -80,9 +87,10 @@ class Controller:
     direction_sign: float = 1.0
     asym_tau: float = 1.0
     asym_deadband: float = 0.0
+    arm_delay: float = 0.0
 
     def __post_init__(self):
-        for name in ("threshold", "x_min", "x_max", "direction_sign", "asym_tau", "asym_deadband"):
+        for name in ("threshold", "x_min", "x_max", "direction_sign", "asym_tau", "asym_deadband", "arm_delay"):
             object.__setattr__(self, name, _real(getattr(self, name), name))
         if not 0.0 <= self.threshold < 1.0:
             raise ValueError(f"threshold must lie in [0, 1), got {self.threshold}")
@@ -96,6 +104,8 @@ class Controller:
             raise ValueError(f"asym_tau must be > 0 s, got {self.asym_tau}")
         if not self.asym_deadband >= 0:
             raise ValueError(f"asym_deadband must be >= 0, got {self.asym_deadband}")
+        if not 0 <= self.arm_delay <= 3600:
+            raise ValueError(f"arm_delay must lie in [0, 3600] s, got {self.arm_delay}")
 
     def params(self) -> dict:
         """The parameters as the C++ pipeline takes them (``kind`` included)."""
@@ -141,7 +151,14 @@ class Controller:
         dirn = 0.0
         xs = np.empty_like(y)
         vs = np.empty_like(y)
+        arm = round(self.arm_delay * fs)
         for k in range(y.size):
+            if k < arm:
+                if k + 1 == arm:
+                    a, dirn = 0.0, 0.0
+                xs[k], vs[k] = x, 0.0
+                v = 0.0
+                continue
             a = leak * a + dt * d[k]
             if abs(a) > self.asym_deadband:
                 dirn = self.direction_sign if a > 0 else -self.direction_sign

@@ -45,15 +45,20 @@ from .runner import LoopRunner
 from .stage import SimulatedStage, StageLimits
 
 __all__ = [
+    "PLANTS",
     "BrushRidges",
     "ContactState",
+    "FemPad",
     "PadSource",
     "Scene",
     "calibrate_direction",
+    "calibrate_shear",
     "finger_trajectory",
     "gross_slip_events",
+    "make_plant",
     "run_experiment",
     "run_scene",
+    "scene_finger",
     "train_detector_on_brush",
 ]
 
@@ -164,7 +169,7 @@ class Scene:
     seed: int = 0
     duration: float = 3.0
     fs: float = 1000.0
-    mu: float = 1.0
+    mu: float | None = None             # None: the plant's default (brush 1.0, fem DEFAULT_FRICTION)
     mu_change: tuple | None = None      # (time s, new mu): sweat
     mount_stiffness: float | None = None  # N/m between stage and pad (None: rigid)
     noise: float = 0.0                   # rms sensor noise on v_out and u_out, V
@@ -173,6 +178,72 @@ class Scene:
     stage_lag: float = 0.002
     label: str = "nominal"
     trajectory: dict = field(default_factory=dict)
+    plant: str = "brush"                 # "brush" (BrushRidges) or "fem" (tactile_mirror.contact.Pad)
+    press: float = 0.5                   # fem: the finger presses in for this long before moving, s
+
+
+class FemPad:
+    """The FEM pad of :mod:`tactile_mirror.contact` behind the plant interface.
+
+    The finger first presses in (``indent`` reached at ``press_speed``, as in the paper's
+    Fig. 5b), then holds that indent; :meth:`advance` takes the tangential relative
+    displacement. Strip stresses become equivalent loads of the circuit
+    (:meth:`PVDFCircuit.equivalent_load`).
+    """
+
+    def __init__(self, n_ridges: int = 6, mu: float | None = None, fs: float = 1000.0, indent: float = 30e-6,
+                 press_speed: float = 0.06e-3, finger_radius: float = 2.0, circuit: PVDFCircuit | None = None):
+        from ..contact import Pad, ridge_model
+        from ..scenes import DEFAULT_FRICTION
+
+        self.n_ridges = int(n_ridges)
+        self.pad = Pad(ridge_model(), DEFAULT_FRICTION if mu is None else float(mu), n_ridges=self.n_ridges,
+                       finger_radius=finger_radius)
+        self.fs, self.indent, self.press_speed = float(fs), float(indent), float(press_speed)
+        self.circuit = circuit or PVDFCircuit()
+        self.reset()
+
+    def reset(self):
+        self.pad.reset()
+        self.k = 0
+
+    def set_mu(self, mu):
+        self.pad.mu = float(np.mean(mu))
+
+    def advance(self, dy: float) -> ContactState:
+        self.k += 1
+        z = min(self.indent, self.k * self.press_speed / self.fs)
+        st = self.pad.advance(dy, z)
+        load = self.circuit.equivalent_load(st.strip_stress[..., None])[..., 0]   # (R, 2)
+        return ContactState(stress=load, force_y=st.force_y, force_z=st.force_z,
+                            slip_fraction=np.asarray(st.slip_fraction, dtype=np.float64))
+
+
+#: Per-plant settings of the experiment: finger paths, travel, laws' scale, robustness.
+PLANTS = {
+    "brush": {"trajectory": {}, "mu": 1.0, "sweat": (1.5, 0.6), "mount": 2000.0, "finger_v_max": 0.015},
+    "fem": {"trajectory": {"amplitude": 0.5e-3, "bandwidth": 0.5, "v_max": 2e-3, "a_max": 0.02},
+            "mu": None, "sweat": (1.75, 0.45), "mount": 5e5, "finger_v_max": 2e-3},
+}
+
+
+def make_plant(scene: Scene, n_ridges: int = 6):
+    """The contact model of a scene."""
+    if scene.plant == "brush":
+        mu = 1.0 if scene.mu is None else scene.mu
+        return BrushRidges(n_ridges, mu=mu * (1 + 0.04 * np.linspace(-1, 1, n_ridges)))
+    if scene.plant == "fem":
+        return FemPad(n_ridges, mu=scene.mu, fs=scene.fs)
+    raise ValueError(f"plant must be 'brush' or 'fem', got {scene.plant!r}")
+
+
+def scene_finger(scene: Scene) -> np.ndarray:
+    """The finger path of a scene (with the press phase at rest for the FEM pad)."""
+    if scene.plant == "fem":
+        n0 = round(scene.press * scene.fs)
+        rest = finger_trajectory(scene.seed, scene.duration - scene.press, scene.fs, **scene.trajectory)
+        return np.concatenate([np.zeros(n0), rest])
+    return finger_trajectory(scene.seed, scene.duration, scene.fs, **scene.trajectory)
 
 
 class PadSource:
@@ -287,8 +358,8 @@ def run_scene(scene: Scene, weights, controller: Controller | None, limits: Stag
     """Run one scene, open loop (``controller`` None or :class:`NoController`) or closed loop."""
     controller = controller or NoController()
     limits = limits or StageLimits(-0.02, 0.02, 0.03, 1.0)
-    finger = finger_trajectory(scene.seed, scene.duration, scene.fs, **scene.trajectory)
-    plant = BrushRidges(n_ridges, mu=scene.mu * (1 + 0.04 * np.linspace(-1, 1, n_ridges)))
+    finger = scene_finger(scene)
+    plant = make_plant(scene, n_ridges)
     source = PadSource(scene, plant, PVDFCircuit(), finger)
     stage = SimulatedStage(limits, delay=scene.stage_delay, lag=scene.stage_lag)
     pipe = _pipeline(weights, scene.fs, controller, n_ridges)
@@ -304,19 +375,34 @@ def run_scene(scene: Scene, weights, controller: Controller | None, limits: Stag
                        tracking_max=float(np.abs(rel).max()), status=res.status, run=res)
 
 
-def calibrate_direction(weights, fs: float = 1000.0, n_ridges: int = 6) -> float:
-    """``direction_sign`` for the pad: push the finger slowly to +y and read the sign
-    of the pipeline's L/R asymmetry (the stage must then move to +y)."""
+def calibrate_shear(weights, fs: float = 1000.0, n_ridges: int = 6, plant: str = "brush"):
+    """Push the finger slowly to +y (after the press for the FEM pad) and read the
+    pipeline's L/R asymmetry: returns ``(direction_sign, asymmetry per metre)``, the sign
+    that makes the stage move to +y and the size of the shear signal per metre of
+    relative displacement (to scale ``shear_gain``)."""
+    push = 20e-6 if plant == "fem" else 2e-4
     n = int(0.2 * fs)
-    finger = np.linspace(0, 2e-4, n)
-    scene = Scene(duration=n / fs, fs=fs, label="calibration")
-    plant = BrushRidges(n_ridges)
-    source = PadSource(scene, plant, PVDFCircuit(), finger)
-    ctrl = PaperController(threshold=0.99, gain=0.0, asym_tau=10.0)
+    scene = Scene(duration=0.7 if plant == "fem" else 0.2, fs=fs, label="calibration", plant=plant)
+    n0 = round(scene.press * fs) if plant == "fem" else 0
+    finger = np.concatenate([np.zeros(n0), np.linspace(0, push, n)])
+    source = PadSource(scene, make_plant(scene, n_ridges), PVDFCircuit(), finger)
+    ctrl = PaperController(threshold=0.99, gain=0.0, asym_tau=100.0)
     pipe = _pipeline(weights, fs, ctrl, n_ridges)
-    LoopRunner(pipe, SimulatedStage(), source, command=False).run(n_ticks=n)
-    a = pipe.controller_state["asymmetry"]
-    return 1.0 if a > 0 else -1.0
+    runner = LoopRunner(pipe, SimulatedStage(), source, command=False)
+    if n0:
+        runner.run(n_ticks=n0)
+        a0 = pipe.controller_state["asymmetry"]
+        runner.run(n_ticks=n, reset=False)
+    else:
+        a0 = 0.0
+        runner.run(n_ticks=n)
+    a = pipe.controller_state["asymmetry"] - a0
+    return (1.0 if a > 0 else -1.0), abs(a) / push
+
+
+def calibrate_direction(weights, fs: float = 1000.0, n_ridges: int = 6, plant: str = "brush") -> float:
+    """``direction_sign`` for the pad (see :func:`calibrate_shear`)."""
+    return calibrate_shear(weights, fs, n_ridges, plant)[0]
 
 
 class _Result:
@@ -328,9 +414,10 @@ class _Result:
 
 
 def train_detector_on_brush(seeds=range(100, 106), fs: float = 1000.0, duration: float = 3.0, n_hidden: int = 8,
-                            maxiter: int = 150, noise: float = 0.0):
-    """Train a Jordan detector on open-loop runs of :class:`BrushRidges` (seeds apart
-    from the evaluation ones); targets as in :func:`tactile_mirror.detector.targets_from_result`."""
+                            maxiter: int = 150, noise: float = 0.0, plant: str = "brush"):
+    """Train a Jordan detector on open-loop runs of the plant (:class:`BrushRidges` or
+    :class:`FemPad`; seeds apart from the evaluation ones); targets as in
+    :func:`tactile_mirror.detector.targets_from_result`."""
     from ..detector import train_detector
 
     placeholder = {"w1": np.zeros((n_hidden, 5)), "b1": np.zeros(n_hidden), "w2": np.zeros((2, n_hidden)),
@@ -338,12 +425,14 @@ def train_detector_on_brush(seeds=range(100, 106), fs: float = 1000.0, duration:
     results = []
     for s in seeds:
         # open-loop runs at a range of trajectory amplitudes: stick, incipient and gross slip
-        amp = 1e-3 * (0.5 + 3.0 * ((s * 7919) % 10) / 10)
-        sc = Scene(seed=int(s), duration=duration, fs=fs, noise=noise, trajectory={"amplitude": amp})
+        base = PLANTS[plant]["trajectory"]
+        amp = base.get("amplitude", 3e-3) * (1 / 6 + ((s * 7919) % 10) / 10)
+        sc = Scene(seed=int(s), duration=duration, fs=fs, noise=noise, trajectory=dict(base, amplitude=amp),
+                   plant=plant, mu=PLANTS[plant]["mu"])
         r = run_scene(sc, placeholder, None)
         results.append(_Result(fs, r.t, r.log["v_out"], r.log["u_out"], r.log["slip_fraction"]))
     return train_detector(results, n_hidden=n_hidden, maxiter=maxiter, progress=False,
-                          metadata={"data": "BrushRidges open-loop runs", "seeds": [int(s) for s in seeds]})
+                          metadata={"data": f"{plant} open-loop runs", "seeds": [int(s) for s in seeds]})
 
 
 def _weights_dict(w):
@@ -353,30 +442,44 @@ def _weights_dict(w):
 
 
 def run_experiment(seeds=range(5), duration: float = 3.0, fs: float = 1000.0, weights=None, out_dir=None,
-                   robustness: bool = True, progress: bool = False) -> dict:
+                   robustness: bool = True, progress: bool = False, plant: str = "brush",
+                   robustness_seeds: int = 2) -> dict:
     """Open vs closed loop over seeded trajectories, both laws, and the robustness scenes.
 
+    Parameters
+    ----------
+    plant : {"brush", "fem"}
+        The contact model: :class:`BrushRidges` or the FEM pad (:class:`FemPad`).
+
     Returns a dict with ``rows`` (one summary per run), ``totals`` and the trained
-    weights' metadata; with ``out_dir``, writes ``experiment.json`` and the figures
-    ``fig12_open_loop.png``, ``fig13_closed_loop.png``.
+    weights' metadata; with ``out_dir``, writes ``experiment.json``, the figures
+    ``fig12_open_loop.png``, ``fig13_closed_loop.png``, ``fig13_paper_law.png``, the
+    detector and a recording of one closed-loop run.
     """
+    if plant not in PLANTS:
+        raise ValueError(f"plant must be one of {sorted(PLANTS)}, got {plant!r}")
+    cfg = PLANTS[plant]
     if weights is None:
-        weights = train_detector_on_brush(fs=fs)
+        weights = train_detector_on_brush(fs=fs, plant=plant, duration=duration)
     w = _weights_dict(weights) if not isinstance(weights, dict) else weights
-    sign = calibrate_direction(w, fs)
-    # Parameters tuned on seeds 0-2 of the nominal scene (a few settings each).
-    laws = {"paper": PaperController(threshold=0.2, gain=0.1, direction_sign=sign, asym_tau=2.0,
-                                     x_min=-0.02, x_max=0.02),
-            "velocity": VelocityController(threshold=0.3, y_full=0.7, v_max=0.03, a_max=1.0,
+    sign, a_per_m = calibrate_shear(w, fs, plant=plant)
+    vf = cfg["finger_v_max"]
+    shear_gain = 50.0 / a_per_m  # ~8 Hz shear loop
+    # Scaled by the finger's top speed; tuned on seeds 0-2 of the nominal brush scene.
+    arm = 0.5 if plant == "fem" else 0.0  # the FEM finger presses in first: hold, then tare
+    laws = {"paper": PaperController(threshold=0.2, gain=7 * vf, direction_sign=sign, asym_tau=2.0,
+                                     x_min=-0.02, x_max=0.02, arm_delay=arm),
+            "velocity": VelocityController(threshold=0.3, y_full=0.7, v_max=2 * vf, a_max=1.0,
                                            direction_sign=sign, asym_tau=2.0, x_min=-0.02, x_max=0.02,
-                                           shear_gain=5e-7),
-            "velocity, y_pred only": VelocityController(threshold=0.15, y_full=0.5, v_max=0.03, a_max=1.0,
+                                           shear_gain=shear_gain, arm_delay=arm),
+            "velocity, y_pred only": VelocityController(threshold=0.15, y_full=0.5, v_max=2 * vf, a_max=1.0,
                                                         direction_sign=sign, asym_tau=2.0, x_min=-0.02,
-                                                        x_max=0.02)}
+                                                        x_max=0.02, arm_delay=arm)}
+    base = {"duration": duration, "fs": fs, "plant": plant, "trajectory": cfg["trajectory"]}
     rows = []
     keep = {}
     for s in seeds:
-        sc = Scene(seed=int(s), duration=duration, fs=fs)
+        sc = Scene(seed=int(s), **base)
         r_open = run_scene(sc, w, None)
         rows.append(dict(r_open.summary(), controller="open loop"))
         keep.setdefault("open", r_open)
@@ -387,13 +490,14 @@ def run_experiment(seeds=range(5), duration: float = 3.0, fs: float = 1000.0, we
         if progress:
             print(f"seed {s}: " + ", ".join(f"{x['controller']} {x['gross_slips']}" for x in rows[-4:]), flush=True)
     if robustness:
-        variants = [Scene(label="sweat (mu 1.0 -> 0.6 at 1.5 s)", mu_change=(1.5, 0.6)),
-                    Scene(label="compliant mounting (2 kN/m)", mount_stiffness=2000.0),
+        ts, mu2 = cfg["sweat"]
+        variants = [Scene(label=f"sweat (mu -> {mu2:g} at {ts:g} s)", mu_change=(ts, mu2)),
+                    Scene(label=f"compliant mounting ({cfg['mount'] / 1e3:g} kN/m)", mount_stiffness=cfg["mount"]),
                     Scene(label="sensor noise (1 mV rms)", noise=1e-3),
                     Scene(label="dropped samples (5 %)", drop_rate=0.05)]
         for v in variants:
-            for s in list(seeds)[:2]:
-                sc = Scene(**{**v.__dict__, "seed": int(s), "duration": duration, "fs": fs})
+            for s in list(seeds)[:robustness_seeds]:
+                sc = Scene(**{**v.__dict__, **base, "seed": int(s)})
                 for name, law in [("open loop", None), *laws.items()]:
                     rows.append(dict(run_scene(sc, w, law).summary(), controller=name))
     totals = {}
@@ -410,7 +514,7 @@ def run_experiment(seeds=range(5), duration: float = 3.0, fs: float = 1000.0, we
     for t in totals.values():
         t["tracking_rms_mm"] = float(np.mean(t["tracking_rms_mm"]))
     result = {"rows": rows, "totals": [{"label": k[0], "controller": k[1], **v} for k, v in totals.items()],
-              "direction_sign": sign,
+              "plant": plant, "direction_sign": sign, "asymmetry_per_m": a_per_m, "shear_gain": shear_gain,
               "detector": weights.metadata.get("training", {}) if hasattr(weights, "metadata") else {}}
     if out_dir is not None:
         os.makedirs(out_dir, exist_ok=True)
@@ -420,8 +524,8 @@ def run_experiment(seeds=range(5), duration: float = 3.0, fs: float = 1000.0, we
             weights.save(os.path.join(out_dir, "brush_detector.npz"))
         if "velocity" in keep:
             r = keep["velocity"]
-            cfg = _pipeline(w, fs, laws["velocity"], r.log["v_out"].shape[0]).config
-            rec = r.run.to_recording(cfg, {"scene": r.scene.label, "seed": r.scene.seed, "model": "BrushRidges"})
+            pcfg = _pipeline(w, fs, laws["velocity"], r.log["v_out"].shape[0]).config
+            rec = r.run.to_recording(pcfg, {"scene": r.scene.label, "seed": r.scene.seed, "plant": plant})
             path = os.path.join(out_dir, "closed_loop_recording.npz")
             rec.save(path)
             from .recording import Recording
@@ -495,6 +599,8 @@ def main(argv=None):
     ap.add_argument("--duration", type=float, default=3.0)
     ap.add_argument("--no-robustness", action="store_true")
     ap.add_argument("--weights", default=None, help="detector weights (.npz) instead of training them")
+    ap.add_argument("--plant", default="brush", choices=sorted(PLANTS))
+    ap.add_argument("--robustness-seeds", type=int, default=2)
     args = ap.parse_args(argv)
     weights = None
     if args.weights:
@@ -502,8 +608,10 @@ def main(argv=None):
 
         weights = DetectorWeights.load(args.weights)
     res = run_experiment(range(args.seeds), args.duration, weights=weights, out_dir=args.out,
-                         robustness=not args.no_robustness, progress=True)
-    print(f"direction_sign {res['direction_sign']:+g}; detector: {res['detector']}")
+                         robustness=not args.no_robustness, progress=True, plant=args.plant,
+                         robustness_seeds=args.robustness_seeds)
+    print(f"plant {res['plant']}; direction_sign {res['direction_sign']:+g}; asymmetry {res['asymmetry_per_m']:.3g} "
+          f"per m; shear_gain {res['shear_gain']:.3g}; detector: {res['detector']}")
     if "recording" in res:
         print(f"closed-loop recording replayed bit-identical: {res['recording']['replay_bit_identical']}")
     print(f"{'scene':<34} {'controller':<22} {'runs':>4} {'slips':>6} {'runs w/ slip':>12} {'slip s':>7} "
