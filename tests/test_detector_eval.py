@@ -104,7 +104,7 @@ def paper_results():
 
     if not hasattr(scenes, "paper") or not hasattr(tactile_mirror, "simulate"):
         pytest.skip("contact simulation not available")
-    return {name: tactile_mirror.simulate(scenes.paper(name)) for name in ("fig6", "fig8")}
+    return {name: tactile_mirror.simulate(scenes.paper(name)) for name in ("fig6", "fig7", "fig8")}
 
 
 @pytest.fixture(scope="module")
@@ -131,6 +131,15 @@ def test_figure10a_no_stop(default_detector, paper_results):
     assert t[above[0]] <= ts + 0.005  # ... within 5 ms
     t_pred = t[np.flatnonzero(yp >= 0.5)[0]]
     assert t_pred < t[above[0]]  # y_pred rises before y_slip
+
+
+def test_stop_at_A_is_not_judged_slip(default_detector, paper_results):
+    d = figure10_data(default_detector, paper_results["fig7"], stops=[(1.00, 1.05)])
+    t, ys, ts = d["t"], d["y_slip"], d["slip_time"]
+    stop = (t >= 1.00) & (t < 1.05 + 0.01)
+    assert np.all(ys[stop] < 0.8)
+    if ts is not None:
+        assert np.all(ys[t < ts] < 0.8)
 
 
 def test_figure10b_stop_at_B(default_detector, paper_results):

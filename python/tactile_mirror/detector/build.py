@@ -20,11 +20,19 @@ from .core import SlipDetector
 from .evaluate import ForceRatioDetector, evaluate
 from .training import TrainingSet, make_training_set, train_detector
 
-__all__ = ["TEST_SEED", "TRAIN_SEED", "build_default", "hidden_size_study", "simulate_scenes"]
+__all__ = ["TEST_KWARGS", "TEST_SEED", "TRAIN_KWARGS", "TRAIN_SEED", "build_default", "hidden_size_study",
+           "simulate_scenes"]
 
 #: Seeds of the training and the held-out scene sets (different on purpose).
 TRAIN_SEED = 20261121
 TEST_SEED = 777
+
+#: Scene options of the training set (``scenes.random`` defaults otherwise).
+TRAIN_KWARGS = {"stop_after_slip": 0.3}
+#: The held-out set: wider friction, indent, slide speed, stop and noise ranges.
+TEST_KWARGS = {"friction": (0.35, 1.0), "indent": (15e-6, 50e-6), "slide_speed": (0.05e-3, 0.6e-3),
+               "stop_probability": 0.7, "stop_length": (0.02, 0.15), "noise": (0.0, 4e-3),
+               "stop_after_slip": 0.3}
 
 
 def simulate_scenes(scenes, progress: bool = True, executor=None) -> list:
@@ -44,11 +52,11 @@ def subset(ts: TrainingSet, ridges_per_scene: int, n_ridges: int) -> TrainingSet
     """Keep the first ``ridges_per_scene`` of every ``n_ridges`` sequences (scene-major order)."""
     keep = (np.arange(ts.n_seq) % n_ridges) < ridges_per_scene
     return TrainingSet(ts.x[keep], ts.y_slip[keep], ts.y_pred[keep], ts.mask[keep], ts.fs, ts.features,
-                       ts.estimator)
+                       ts.estimator, ts.targets)
 
 
 def hidden_size_study(train, validation, sizes=(4, 8, 12, 16, 24), maxiter: int = 300, seed: int = 0,
-                      progress: bool = True) -> list:
+                      progress: bool = True, **train_options) -> list:
     """Train one detector per hidden size and evaluate it on validation results.
 
     Returns
@@ -60,7 +68,7 @@ def hidden_size_study(train, validation, sizes=(4, 8, 12, 16, 24), maxiter: int 
     rows = []
     for h in sizes:
         t0 = time.perf_counter()
-        w = train_detector(train, n_hidden=int(h), maxiter=maxiter, seed=seed, progress=progress)
+        w = train_detector(train, n_hidden=int(h), maxiter=maxiter, seed=seed, progress=progress, **train_options)
         secs = time.perf_counter() - t0
         m = evaluate(SlipDetector(w), validation)["detector"]
         rows.append({"n_hidden": int(h), "seconds": round(secs, 1), "loss": w.metadata["training"]["loss"],
@@ -74,9 +82,10 @@ def _random_scenes(n, seed, **kwargs):
     return scenes.random(n, seed=seed, **kwargs)
 
 
-def build_default(out_path, n_train: int = 48, n_test: int = 60, n_hidden: int = 16, maxiter: int = 300,
-                  ridges_per_scene: int = 2, seed: int = 0, study_sizes=None, report_path=None,
-                  figure_path=None, train_kwargs=None, test_kwargs=None, progress: bool = True):
+def build_default(out_path, n_train: int = 64, n_test: int = 60, n_hidden: int = 16, maxiter: int = 400,
+                  ridges_per_scene: int = 1, seed: int = 0, study_sizes=None, report_path=None,
+                  figure_path=None, train_kwargs=None, test_kwargs=None, progress: bool = True,
+                  results=None, train_options=None):
     """Simulate, train and evaluate the default detector; save its weights.
 
     Parameters
@@ -93,6 +102,12 @@ def build_default(out_path, n_train: int = 48, n_test: int = 60, n_hidden: int =
     study_sizes : sequence of int, optional
         Also run :func:`hidden_size_study` with these sizes (validation: the
         first half of the held-out set).
+    train_kwargs, test_kwargs : dict, optional
+        Scene options; default :data:`TRAIN_KWARGS`, :data:`TEST_KWARGS`.
+    results : (list, list), optional
+        Already simulated (training, held-out) results of exactly these scenes.
+    train_options : dict, optional
+        Extra :func:`train_detector` options (e.g. ``negative_weight``).
     report_path, figure_path : path, optional
         Text report (evaluation table, study) and Figure 10 image.
 
@@ -102,33 +117,38 @@ def build_default(out_path, n_train: int = 48, n_test: int = 60, n_hidden: int =
     report : dict
     """
     t_all = time.perf_counter()
-    train_scenes = _random_scenes(n_train, TRAIN_SEED, **(train_kwargs or {}))
-    test_scenes = _random_scenes(n_test, TEST_SEED, **(test_kwargs or {}))
+    train_kwargs = dict(TRAIN_KWARGS if train_kwargs is None else train_kwargs)
+    test_kwargs = dict(TEST_KWARGS if test_kwargs is None else test_kwargs)
+    opts = dict(train_options or {})
     t0 = time.perf_counter()
-    train_res = simulate_scenes(train_scenes, progress)
-    test_res = simulate_scenes(test_scenes, progress)
+    if results is None:
+        train_res = simulate_scenes(_random_scenes(n_train, TRAIN_SEED, **train_kwargs), progress)
+        test_res = simulate_scenes(_random_scenes(n_test, TEST_SEED, **test_kwargs), progress)
+    else:
+        train_res, test_res = (list(r) for r in results)
     t_sim = time.perf_counter() - t0
     n_ridges = np.asarray(train_res[0].v_out).shape[0]
     ts = subset(make_training_set(train_res), ridges_per_scene, n_ridges)
     report = {"n_train_scenes": n_train, "n_test_scenes": n_test, "train_seed": TRAIN_SEED,
               "test_seed": TEST_SEED, "simulation_seconds": round(t_sim, 1), "n_sequences": ts.n_seq,
-              "train_kwargs": train_kwargs or {}, "test_kwargs": test_kwargs or {}}
+              "train_kwargs": train_kwargs, "test_kwargs": test_kwargs, "train_options": opts}
     if study_sizes:
         half = test_res[: max(1, len(test_res) // 2)]
-        report["hidden_size_study"] = hidden_size_study(ts, half, study_sizes, maxiter, seed, progress)
+        report["hidden_size_study"] = hidden_size_study(ts, half, study_sizes, maxiter, seed, progress, **opts)
     t0 = time.perf_counter()
     w = train_detector(ts, n_hidden=n_hidden, maxiter=maxiter, seed=seed, progress=progress,
-                       metadata={"scenes": f"scenes.random({n_train}, seed={TRAIN_SEED})",
-                                 "ridges_per_scene": ridges_per_scene})
+                       metadata={"scenes": f"scenes.random({n_train}, seed={TRAIN_SEED}, **{train_kwargs})",
+                                 "ridges_per_scene": ridges_per_scene}, **opts)
     report["train_seconds"] = round(time.perf_counter() - t0, 1)
-    w_nf = train_detector(ts, n_hidden=n_hidden, maxiter=maxiter, seed=seed, feedback=False, progress=progress)
+    w_nf = train_detector(ts, n_hidden=n_hidden, maxiter=maxiter, seed=seed, feedback=False, progress=progress,
+                          **opts)
     force = ForceRatioDetector.fit(train_res)
     det = SlipDetector(w)
     rep = evaluate(det, test_res, {"MLP without feedback": SlipDetector(w_nf), "force ratio |Fy|/Fz": force})
     report["evaluation"] = [r.as_dict() for r in rep.rows]
     report["evaluation_table"] = rep.table()
     report["force_ratio_threshold"] = force.threshold
-    w.metadata["evaluation"] = {"scenes": f"scenes.random({n_test}, seed={TEST_SEED})",
+    w.metadata["evaluation"] = {"scenes": f"scenes.random({n_test}, seed={TEST_SEED}, **{test_kwargs})",
                                 "detector": rep["detector"].as_dict(),
                                 "no_feedback": rep["MLP without feedback"].as_dict(),
                                 "force_ratio": rep["force ratio |Fy|/Fz"].as_dict()}
@@ -154,10 +174,10 @@ def main(argv=None):
     ap.add_argument("--out", required=True, help="weights file to write (.npz)")
     ap.add_argument("--report", help="text report to write")
     ap.add_argument("--figure", help="Figure 10 image to write (.png)")
-    ap.add_argument("--n-train", type=int, default=48)
+    ap.add_argument("--n-train", type=int, default=64)
     ap.add_argument("--n-test", type=int, default=60)
     ap.add_argument("--hidden", type=int, default=16)
-    ap.add_argument("--maxiter", type=int, default=300)
+    ap.add_argument("--maxiter", type=int, default=400)
     ap.add_argument("--study", type=int, nargs="*", help="hidden sizes to compare")
     args = ap.parse_args(argv)
     _w, report = build_default(args.out, args.n_train, args.n_test, args.hidden, args.maxiter,

@@ -83,15 +83,15 @@ def features_from_result(result, features: str = "stress_rate", circuit=None, es
     return np.concatenate([v, u], axis=1)
 
 
-def targets_from_result(result, gross_level: float = 0.999):
+def targets_from_result(result, gross_level: float = 0.999, pred_scale: float = 0.9):
     """Training targets of one result.
 
     ``y_slip`` = 1 while the ridge slips grossly: its slip fraction is at least
     ``gross_level`` (every contact node slides), or, for a result without a
     per-ridge slip fraction, from ``slip_time`` on.
 
-    ``y_pred`` = the extent of the ridge's slip zone so far: the running maximum
-    over time of its slip fraction (0 stuck ... 1 gross slip).
+    ``y_pred`` = ``pred_scale`` times the extent of the ridge's slip zone so far
+    (the running maximum over time of its slip fraction), and 1 during gross slip.
 
     Why this target for ``y_pred``: it is the physical incipient-slip level.
     Local slip starts at the ridge edges and spreads inward as the tangential load
@@ -107,6 +107,13 @@ def targets_from_result(result, gross_level: float = 0.999):
     ``d`` that depends on the slide speed. (The scenes load monotonically; a
     scene that unloads would need a target that can fall.)
 
+    Why ``pred_scale`` < 1: the slip zone covers 95-99 % of the contact for a
+    long time before gross slip, so unscaled the feedback ``y_pred(t-1)`` would
+    differ by ~1 % between "about to slip" and "slipping". The Jordan net's only
+    memory is that feedback, and after the slip transient the strip signals are
+    flat again (steady sliding), so ``y_slip`` must be held from it: with the
+    scale, the feedback is <= 0.9 before and 1 during gross slip.
+
     Returns
     -------
     y_slip, y_pred : ndarray, shape (n_ridges, n), float64 in [0, 1]
@@ -118,7 +125,7 @@ def targets_from_result(result, gross_level: float = 0.999):
         if frac.ndim == 1:
             frac = frac[None]
         y_slip = (frac >= gross_level).astype(np.float64)
-        return y_slip, np.maximum.accumulate(frac, axis=-1)
+        return y_slip, np.maximum(pred_scale * np.maximum.accumulate(frac, axis=-1), y_slip)
     st = getattr(result, "slip_time", None)
     n_r = np.asarray(result.v_out).shape[0]
     y_slip = np.zeros((n_r, t.size))

@@ -29,9 +29,11 @@ class TrainingSet:
         Feature kind.
     estimator : dict
         Estimator settings of ``"stress_rate"`` features.
+    targets : dict
+        How the targets were made (``gross_level``, ``pred_scale``).
     """
 
-    def __init__(self, x, y_slip, y_pred, mask, fs, features="stress_rate", estimator=None):
+    def __init__(self, x, y_slip, y_pred, mask, fs, features="stress_rate", estimator=None, targets=None):
         self.x = np.asarray(x, dtype=np.float64)
         self.y_slip = np.asarray(y_slip, dtype=np.float64)
         self.y_pred = np.asarray(y_pred, dtype=np.float64)
@@ -39,6 +41,7 @@ class TrainingSet:
         self.fs = float(fs)
         self.features = features
         self.estimator = dict(DEFAULT_ESTIMATOR if estimator is None else estimator)
+        self.targets = dict(targets or {})
         if self.x.ndim != 3 or self.x.shape[1] != 4:
             raise ValueError(f"x must have shape (n_seq, 4, n), got {self.x.shape}")
         for name in ("y_slip", "y_pred", "mask"):
@@ -54,7 +57,7 @@ class TrainingSet:
 
 
 def make_training_set(results, features: str = "stress_rate", circuit=None, estimator=None,
-                      gross_level: float = 0.999) -> TrainingSet:
+                      gross_level: float = 0.999, pred_scale: float = 0.9) -> TrainingSet:
     """Stack simulation results (all at one rate) into a :class:`TrainingSet`."""
     results = list(results)
     if not results:
@@ -65,7 +68,7 @@ def make_training_set(results, features: str = "stress_rate", circuit=None, esti
         if not np.isclose(float(r.fs), fs):
             raise ValueError(f"results[{k}].fs={r.fs} differs from results[0].fs={fs}")
         x = features_from_result(r, features, circuit, estimator)
-        ys, yp = targets_from_result(r, gross_level)
+        ys, yp = targets_from_result(r, gross_level, pred_scale)
         if ys.shape[0] != x.shape[0]:
             ys = np.broadcast_to(ys[:1], (x.shape[0], ys.shape[1]))
             yp = np.broadcast_to(yp[:1], (x.shape[0], yp.shape[1]))
@@ -86,15 +89,40 @@ def make_training_set(results, features: str = "stress_rate", circuit=None, esti
         Pp[i:i + m, :L] = yp
         M[i:i + m, :L] = True
         i += m
-    return TrainingSet(X, S, Pp, M, fs, features, estimator)
+    return TrainingSet(X, S, Pp, M, fs, features, estimator,
+                       {"gross_level": float(gross_level), "pred_scale": float(pred_scale)})
 
 
-def fit_normalisation(x, mask=None):
-    """Zero mean and one shared RMS scale per signal pair.
+def augment_gains(ts: TrainingSet, gain_range=(0.6, 1.7), seed=0) -> TrainingSet:
+    """Scale each sequence's features by a random gain (log-uniform in ``gain_range``).
+
+    Stress rates scale with the loading speed and depth; the gains let a net
+    trained on one range of scenes meet larger and smaller signals (the held-out
+    scenes are drawn from wider ranges). Targets are unchanged. Deterministic for
+    a seed.
+    """
+    lo, hi = (float(g) for g in gain_range)
+    if not (0 < lo <= hi):
+        raise ValueError(f"gain_range must satisfy 0 < low <= high, got {gain_range!r}")
+    rng = np.random.default_rng(seed)
+    g = np.exp(rng.uniform(np.log(lo), np.log(hi), ts.n_seq))
+    return TrainingSet(ts.x * g[:, None, None], ts.y_slip, ts.y_pred, ts.mask, ts.fs, ts.features, ts.estimator,
+                       {**ts.targets, "gain_range": [lo, hi], "gain_seed": int(seed)})
+
+
+def fit_normalisation(x, mask=None, method: str = "median"):
+    """Zero mean and one shared scale per signal pair.
 
     The L and R strips share a scale (and so do u_L, u_R), which keeps the
     mirror symmetry of the pad in the normalised inputs. The mean is zero: the
     features are signed rates whose sign carries the slide direction.
+
+    Parameters
+    ----------
+    method : {"median", "rms"}
+        ``"median"``: median of ``|x|`` (robust: the 2nd-order rates are spikes
+        on a quiet background, and an RMS scale set by the spikes would squeeze
+        the background into a tiny range); ``"rms"``: root mean square.
 
     Returns
     -------
@@ -104,9 +132,14 @@ def fit_normalisation(x, mask=None):
     if mask is None:
         mask = np.ones((x.shape[0], x.shape[2]), dtype=bool)
     sel = np.moveaxis(x, 1, 0)[:, mask]  # (4, n_samples)
-    rms = np.sqrt(np.mean(sel ** 2, axis=1))
-    scale = np.array([np.hypot(rms[0], rms[1]), np.hypot(rms[0], rms[1]),
-                      np.hypot(rms[2], rms[3]), np.hypot(rms[2], rms[3])]) / np.sqrt(2.0)
+    pairs = np.concatenate([sel[0:2].reshape(1, -1), sel[2:4].reshape(1, -1)])
+    if method == "median":
+        ps = np.median(np.abs(pairs), axis=1)
+    elif method == "rms":
+        ps = np.sqrt(np.mean(pairs ** 2, axis=1))
+    else:
+        raise ValueError(f"method must be 'median' or 'rms', got {method!r}")
+    scale = np.repeat(ps, 2)
     scale = np.where(scale > 0, scale, 1.0)
     return np.zeros(4), scale
 
@@ -124,7 +157,8 @@ def _loss_weights(ts: TrainingSet, pred_weight: float, negative_weight: float = 
 def train_detector(data, n_hidden: int = 16, feedback: bool = True, seed=0, maxiter: int = 400,
                    l2: float = 1e-4, pred_weight: float = 1.0, negative_weight: float = 1.0,
                    features: str = "stress_rate",
-                   estimator=None, circuit=None, progress: bool = True, metadata=None) -> DetectorWeights:
+                   estimator=None, circuit=None, progress: bool = True, metadata=None,
+                   normalisation: str = "median") -> DetectorWeights:
     """Train a Jordan slip detector by exact BPTT and L-BFGS-B.
 
     Parameters
@@ -151,6 +185,8 @@ def train_detector(data, n_hidden: int = 16, feedback: bool = True, seed=0, maxi
         Feature kind and estimator settings (only used when ``data`` holds results).
     progress : bool
         Show a tqdm progress bar of the iterations.
+    normalisation : {"median", "rms"}
+        Input scale (see :func:`fit_normalisation`).
     metadata : dict, optional
         Extra entries stored under ``metadata["training"]``.
 
@@ -166,7 +202,7 @@ def train_detector(data, n_hidden: int = 16, feedback: bool = True, seed=0, maxi
         data = make_training_set(data, features, circuit, estimator)
     if data.features not in FEATURE_KINDS:
         raise ValueError(f"data.features must be one of {sorted(FEATURE_KINDS)}, got {data.features!r}")
-    mean, scale = fit_normalisation(data.x, data.mask)
+    mean, scale = fit_normalisation(data.x, data.mask, normalisation)
     xn = (data.x - mean[None, :, None]) * (1.0 / scale)[None, :, None]
     xn *= data.mask[:, None, :]
     w_slip, w_pred = _loss_weights(data, pred_weight, negative_weight)
@@ -205,14 +241,16 @@ def train_detector(data, n_hidden: int = 16, feedback: bool = True, seed=0, maxi
         "units": list(FEATURE_KINDS[data.features]),
         "channels": ["v_L", "v_R", "u_L", "u_R"],
         "estimator": data.estimator if data.features == "stress_rate" else None,
-        "targets": {"y_slip": "1 while the ridge slips grossly (slip fraction >= 0.999)",
-                    "y_pred": "slip-zone extent: running maximum of the ridge's slip fraction"},
+        "targets": {"y_slip": "1 while the ridge slips grossly (slip fraction >= gross_level)",
+                    "y_pred": "pred_scale x slip-zone extent (running maximum of the ridge's slip "
+                              "fraction), 1 during gross slip", **data.targets},
         "feedback": bool(feedback),
         "slip_threshold": 0.8,
         "training": {"n_sequences": int(data.n_seq), "n_samples": int(data.mask.sum()), "seed": int(seed),
                      "maxiter": int(maxiter), "iterations": int(res.nit), "l2": float(l2),
                      "pred_weight": float(pred_weight), "negative_weight": float(negative_weight),
-                     "loss": float(res.fun), "seconds": round(elapsed, 2),
+                     "loss": float(res.fun), "seconds": round(elapsed, 2), "normalisation": normalisation,
+                     "optimizer_message": str(res.message),
                      "optimizer": "scipy.optimize L-BFGS-B, exact BPTT gradient", **(metadata or {})},
     }
     return DetectorWeights(params, mean, scale, data.fs, meta)
