@@ -37,7 +37,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
-import scipy.linalg
+from scipy.linalg.lapack import dgetrf, dgetrs
 
 from .model import RidgeModel
 
@@ -170,20 +170,22 @@ class ContactSolver:
         T = np.flatnonzero(state == STICK)
         A = np.flatnonzero(state != OPEN)
         slip_coef = np.where(state == SLIP, mu * sign, 0.0)  # lt = slip_coef * ln on slip nodes
-        rhs = np.concatenate([self.model.node_z[A] * 0 + plate_z - self.model.node_z[A],
-                              self._uy_prev[T] + ds])
+        rhs = np.concatenate([plate_z - self.model.node_z[A], self._uy_prev[T] + ds])
         key = (state.tobytes(), slip_coef.tobytes())
         if self.reduced:
             if key != self._lu_key:
                 C = self.model.compliance
-                # u = C[:, y_T] lt_T + (C[:, y_A] diag(slip_coef_A) - C[:, z_A]) ln_A
-                cols_t = C[:, T]
-                cols_n = C[:, A] * slip_coef[A][None, :] - C[:, n + A]
-                rows = np.concatenate([n + A, T])
-                M = np.concatenate([cols_n[rows], cols_t[rows]], axis=1)
-                self._lu = scipy.linalg.lu_factor(M, check_finite=False)
+                # u = C[:, y_T] lt_T + (C[:, y_A] diag(slip_coef_A) - C[:, z_A]) ln_A, rows g_A and w_T
+                rows = np.concatenate([n + A, T])[:, None]
+                M = np.empty((rows.size, rows.size))
+                M[:, :A.size] = C[rows, A] * slip_coef[A] - C[rows, n + A]
+                M[:, A.size:] = C[rows, T]
+                lu, piv, info = dgetrf(M, overwrite_a=True)
+                if info != 0:
+                    raise ContactConvergenceError(f"singular contact system (LAPACK getrf info={info})")
+                self._lu = (lu, piv)
                 self._lu_key = key
-            x = scipy.linalg.lu_solve(self._lu, rhs, check_finite=False)
+            x, info = dgetrs(*self._lu, rhs)
         else:
             x = self.model.solve_piece_full(A, T, slip_coef[A], rhs)
         lam = np.zeros(2 * n)
