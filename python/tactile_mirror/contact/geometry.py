@@ -10,8 +10,11 @@ cross-section it is a short segment. ``strip_angle`` is the angle of the segment
 *width* direction) from the ``y`` axis: 90 degrees (the default) means the films stand
 vertically in the ridge, one left (``L``, ``y < 0``) and one right (``R``, ``y > 0``) of the
 centre plane, so that their through-thickness axis is ``y`` and their width axis is ``z``.
-Under a tangential load the ridge bends and the two films see opposite normal stresses along
-their width, which is the ``sigma_L - sigma_R`` signal of the paper's Fig. 6-8. The films are
+Under a tangential load the ridge shears and bends, and the two films' stresses part: in the
+fig6 scene at t = 1.4 s the through-film ``s3 = s_yy`` is +8 kPa (L) and -10 kPa (R), the
+along-width ``s2 = s_zz`` -131 kPa (L) and -160 kPa (R) on top of the indentation's
+compression. The circuit weighs all three with the film's d31, d32, d33, and the difference L - R
+is the ``sigma_L - sigma_R`` signal of the paper's Fig. 6-8. The films are
 much thinner than the mesh and are treated as not perturbing the rubber; their stress is the
 rubber stress averaged along the strip's mid-line.
 """
