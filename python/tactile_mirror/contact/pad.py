@@ -12,7 +12,8 @@ default): the plane-strain model gives N/m.
 """
 from __future__ import annotations
 
-from dataclasses import dataclass
+import functools
+from dataclasses import dataclass, field
 
 import numpy as np
 
@@ -24,18 +25,35 @@ __all__ = ["Pad", "PadState"]
 
 @dataclass
 class PadState:
-    """All ridges after one step. Arrays have the ridge on the first axis."""
+    """All ridges after one step. Arrays have the ridge on the first axis.
 
-    strip_stress: np.ndarray  # (n_ridges, n_strips, 3) Pa
+    ``strip_stress`` and ``node_position`` are computed from the contact forces when first
+    read (a scene that does not ask for them does not pay for them).
+    """
+
     slip_fraction: np.ndarray  # (n_ridges,)
     gross_slip: np.ndarray  # (n_ridges,) bool
     in_contact: np.ndarray  # (n_ridges,) bool
     force_y: float  # N, on the pad (sum over ridges)
     force_z: float  # N, pressing force (positive)
     node_state: np.ndarray  # (n_ridges, n_nodes) OPEN / STICK / SLIP
-    node_position: np.ndarray  # (n_ridges, 2, n_nodes) deformed (y, z) of the surface nodes, m
-    forces: np.ndarray  # (n_ridges, 2n) nodal forces, N/m
+    forces: np.ndarray  # (n_ridges, 2n) nodal forces on the ridges, N/m
+    displacement: np.ndarray  # (n_ridges, 2n) surface displacements (u_y, u_z), m
     iterations: int
+    model: RidgeModel = field(repr=False)
+
+    @functools.cached_property
+    def strip_stress(self) -> np.ndarray:
+        """(n_ridges, n_strips, 3) Pa, strip-frame normal stresses [s1, s2, s3] of each strip."""
+        m = self.model
+        return (self.forces @ m.sensor.T).reshape(self.forces.shape[0], m.n_strips, 3)
+
+    @functools.cached_property
+    def node_position(self) -> np.ndarray:
+        """(n_ridges, 2, n_nodes) m, deformed (y, z) of the surface nodes."""
+        m = self.model
+        n = m.n_nodes
+        return np.stack([m.node_y + self.displacement[:, :n], m.node_z + self.displacement[:, n:]], axis=1)
 
 
 class Pad:
@@ -101,26 +119,23 @@ class Pad:
         m = self.model
         H = m.geometry.height
         n = m.n_nodes
-        stress = np.empty((self.n_ridges, m.n_strips, 3))
         frac = np.empty(self.n_ridges)
         gross = np.empty(self.n_ridges, dtype=bool)
         touch = np.empty(self.n_ridges, dtype=bool)
         states = np.empty((self.n_ridges, n), dtype=np.int8)
-        pos = np.empty((self.n_ridges, 2, n))
+        disp = np.empty((self.n_ridges, 2 * n))
         forces = np.empty((self.n_ridges, 2 * n))
         its = 0
         for k, solver in enumerate(self.solvers):
             st = solver.step(plate_y, H - (indent - self.indent_offset[k]))
-            stress[k] = m.strip_stress(st.forces)
             frac[k] = st.slip_fraction
             gross[k] = st.gross_slip
             touch[k] = st.in_contact
             states[k] = st.state
-            pos[k, 0] = m.node_y + st.displacement[:n]
-            pos[k, 1] = m.node_z + st.displacement[n:]
+            disp[k] = st.displacement
             forces[k] = st.forces
             its += st.iterations
         fy = float(forces[:, :n].sum()) * self.ridge_length
         fz = float(-forces[:, n:].sum()) * self.ridge_length
-        return PadState(stress, frac, gross, touch, fy, fz, states, pos, forces, its)
+        return PadState(frac, gross, touch, fy, fz, states, forces, disp, its, m)
 
