@@ -18,7 +18,7 @@ import numpy as np
 
 from .core import SlipDetector
 from .evaluate import ForceRatioDetector, evaluate
-from .training import TrainingSet, make_training_set, train_detector
+from .training import TrainingSet, augment_gains, make_training_set, train_detector
 
 __all__ = ["TEST_KWARGS", "TEST_SEED", "TRAIN_KWARGS", "TRAIN_SEED", "build_default", "hidden_size_study",
            "simulate_scenes"]
@@ -85,7 +85,7 @@ def _random_scenes(n, seed, **kwargs):
 def build_default(out_path, n_train: int = 64, n_test: int = 60, n_hidden: int = 16, maxiter: int = 400,
                   ridges_per_scene: int = 1, seed: int = 0, study_sizes=None, report_path=None,
                   figure_path=None, train_kwargs=None, test_kwargs=None, progress: bool = True,
-                  results=None, train_options=None):
+                  results=None, train_options=None, gain_range=(0.6, 1.7)):
     """Simulate, train and evaluate the default detector; save its weights.
 
     Parameters
@@ -108,6 +108,8 @@ def build_default(out_path, n_train: int = 64, n_test: int = 60, n_hidden: int =
         Already simulated (training, held-out) results of exactly these scenes.
     train_options : dict, optional
         Extra :func:`train_detector` options (e.g. ``negative_weight``).
+    gain_range : (float, float) or None
+        Gain augmentation of the training sequences (:func:`augment_gains`).
     report_path, figure_path : path, optional
         Text report (evaluation table, study) and Figure 10 image.
 
@@ -129,9 +131,12 @@ def build_default(out_path, n_train: int = 64, n_test: int = 60, n_hidden: int =
     t_sim = time.perf_counter() - t0
     n_ridges = np.asarray(train_res[0].v_out).shape[0]
     ts = subset(make_training_set(train_res), ridges_per_scene, n_ridges)
+    if gain_range is not None:
+        ts = augment_gains(ts, gain_range, seed=1)
     report = {"n_train_scenes": n_train, "n_test_scenes": n_test, "train_seed": TRAIN_SEED,
               "test_seed": TEST_SEED, "simulation_seconds": round(t_sim, 1), "n_sequences": ts.n_seq,
-              "train_kwargs": train_kwargs, "test_kwargs": test_kwargs, "train_options": opts}
+              "train_kwargs": train_kwargs, "test_kwargs": test_kwargs, "train_options": opts,
+              "gain_range": None if gain_range is None else list(gain_range)}
     if study_sizes:
         half = test_res[: max(1, len(test_res) // 2)]
         report["hidden_size_study"] = hidden_size_study(ts, half, study_sizes, maxiter, seed, progress, **opts)
@@ -179,9 +184,13 @@ def main(argv=None):
     ap.add_argument("--hidden", type=int, default=16)
     ap.add_argument("--maxiter", type=int, default=400)
     ap.add_argument("--study", type=int, nargs="*", help="hidden sizes to compare")
+    ap.add_argument("--negative-weight", type=float, default=10.0)
+    ap.add_argument("--normalisation", default="rms", choices=["rms", "median"])
     args = ap.parse_args(argv)
     _w, report = build_default(args.out, args.n_train, args.n_test, args.hidden, args.maxiter,
-                              study_sizes=args.study, report_path=args.report, figure_path=args.figure)
+                              study_sizes=args.study, report_path=args.report, figure_path=args.figure,
+                              train_options={"negative_weight": args.negative_weight,
+                                             "normalisation": args.normalisation})
     print(report["evaluation_table"])
     if "hidden_size_study" in report:
         for row in report["hidden_size_study"]:
