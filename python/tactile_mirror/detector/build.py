@@ -4,8 +4,9 @@ Command line (writes the weights, a report and Figure 10)::
 
     python -m tactile_mirror.detector.build --out weights.npz [--study] [--report report.txt]
 
-The bundled ``data/default_detector.npz`` was made with the defaults of :func:`build_default`;
-its metadata records the scene seeds, sizes and the training and evaluation results.
+The bundled ``data/default_detector.npz`` was made with the defaults of :func:`build_default`
+(64 training scenes, H = 16, gain augmentation 0.6-1.7, :data:`TRAIN_OPTIONS`); its metadata
+records the scenes, the training settings and the held-out evaluation.
 """
 from __future__ import annotations
 
@@ -20,8 +21,8 @@ from .core import SlipDetector
 from .evaluate import ForceRatioDetector, evaluate
 from .training import TrainingSet, augment_gains, make_training_set, train_detector
 
-__all__ = ["TEST_KWARGS", "TEST_SEED", "TRAIN_KWARGS", "TRAIN_SEED", "build_default", "hidden_size_study",
-           "simulate_scenes"]
+__all__ = ["TEST_KWARGS", "TEST_SEED", "TRAIN_KWARGS", "TRAIN_OPTIONS", "TRAIN_SEED", "build_default",
+           "hidden_size_study", "simulate_scenes"]
 
 #: Seeds of the training and the held-out scene sets (different on purpose).
 TRAIN_SEED = 20261121
@@ -29,6 +30,8 @@ TEST_SEED = 777
 
 #: Scene options of the training set (``scenes.random`` defaults otherwise).
 TRAIN_KWARGS = {"stop_after_slip": 0.3}
+#: Training options of the bundled detector.
+TRAIN_OPTIONS = {"negative_weight": 10.0, "normalisation": "rms"}
 #: The held-out set: wider friction, indent, slide speed, stop and noise ranges.
 TEST_KWARGS = {"friction": (0.35, 1.0), "indent": (15e-6, 50e-6), "slide_speed": (0.05e-3, 0.6e-3),
                "stop_probability": 0.7, "stop_length": (0.02, 0.15), "noise": (0.0, 4e-3),
@@ -107,7 +110,7 @@ def build_default(out_path, n_train: int = 64, n_test: int = 60, n_hidden: int =
     results : (list, list), optional
         Already simulated (training, held-out) results of exactly these scenes.
     train_options : dict, optional
-        Extra :func:`train_detector` options (e.g. ``negative_weight``).
+        Extra :func:`train_detector` options; default :data:`TRAIN_OPTIONS`.
     gain_range : (float, float) or None
         Gain augmentation of the training sequences (:func:`augment_gains`).
     report_path, figure_path : path, optional
@@ -121,7 +124,7 @@ def build_default(out_path, n_train: int = 64, n_test: int = 60, n_hidden: int =
     t_all = time.perf_counter()
     train_kwargs = dict(TRAIN_KWARGS if train_kwargs is None else train_kwargs)
     test_kwargs = dict(TEST_KWARGS if test_kwargs is None else test_kwargs)
-    opts = dict(train_options or {})
+    opts = dict(TRAIN_OPTIONS if train_options is None else train_options)
     t0 = time.perf_counter()
     if results is None:
         train_res = simulate_scenes(_random_scenes(n_train, TRAIN_SEED, **train_kwargs), progress)
