@@ -1,0 +1,60 @@
+"""Scenes: the paper's Figure 5(b) plate profiles, explicit trajectories, random sets."""
+import numpy as np
+import pytest
+import tactile_mirror as tm
+
+
+def test_paper_profiles_follow_figure_5b():
+    y6, z6 = tm.scenes.paper("fig6").plate_motion()
+    t = tm.scenes.paper("fig6").t
+    assert t.size == 2000 and t[1] - t[0] == pytest.approx(1e-3)
+    # down at 0.06 mm/s for 0.5 s (30 um), then sideways at 0.2 mm/s
+    np.testing.assert_allclose(z6[t <= 0.5], 0.06e-3 * t[t <= 0.5], atol=1e-15)
+    np.testing.assert_allclose(z6[t >= 0.5], 30e-6, atol=1e-15)
+    assert np.all(y6[t <= 0.5] == 0)
+    np.testing.assert_allclose(np.diff(y6[t > 0.5]), 0.2e-3 * 1e-3, rtol=1e-9)
+    for name, (a, b) in (("fig7", (1.00, 1.05)), ("fig8", (1.40, 1.45))):
+        y, z = tm.scenes.paper(name).plate_motion()
+        np.testing.assert_array_equal(z, z6)
+        still = (t >= a) & (t <= b)
+        assert np.ptp(y[still]) < 1e-15  # the plate stands still during the stop
+        np.testing.assert_allclose(y[t < a], y6[t < a])
+        # after the stop the plate lags fig6 by the stop length
+        late = t > b + 0.01
+        np.testing.assert_allclose(y[late], y6[late] - 0.2e-3 * (b - a), atol=1e-12)
+
+
+def test_explicit_trajectory_overrides_the_profile():
+    y = np.linspace(0, 1e-4, 50)
+    z = np.full(50, 20e-6)
+    s = tm.Scene(trajectory=(y, z), fs=500.0)
+    assert s.n_samples == 50 and s.t[-1] == pytest.approx(49 / 500)
+    py, pz = s.plate_motion()
+    np.testing.assert_array_equal(py, y)
+    np.testing.assert_array_equal(pz, z)
+    with pytest.raises(ValueError, match="trajectory"):
+        tm.Scene(trajectory=(y, z[:-1]))
+    with pytest.raises(ValueError, match="trajectory"):
+        tm.Scene(trajectory=(y, np.full(50, np.nan)))
+
+
+@pytest.mark.parametrize("kw, name", [({"fs": 0}, "fs"), ({"duration": -1}, "duration"),
+                                      ({"slide_speed": -1e-3}, "slide_speed"), ({"n_ridges": 0}, "n_ridges"),
+                                      ({"noise": np.inf}, "noise"), ({"stop_after_slip": -1}, "stop_after_slip")])
+def test_bad_arguments_are_named(kw, name):
+    with pytest.raises(ValueError, match=name):
+        tm.Scene(**kw)
+
+
+def test_random_scenes_stay_in_their_ranges_and_take_overrides():
+    scenes = tm.scenes.random(20, seed=1, friction=(0.5, 0.6), n_ridges=6, stop_probability=1.0)
+    assert len(scenes) == 20
+    for s in scenes:
+        assert 0.5 <= s.friction <= 0.6 and s.n_ridges == 6 and len(s.stops) == 1
+        a, b = s.stops[0]
+        assert 0.02 <= b - a <= 0.1
+    assert tm.scenes.random(0) == []
+    with pytest.raises(ValueError, match="stop_probability"):
+        tm.scenes.random(2, stop_probability=2.0)
+    with pytest.raises(ValueError, match="n must"):
+        tm.scenes.random(-1)
