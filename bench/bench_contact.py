@@ -22,6 +22,16 @@ from _common import table, timed
 from tactile_mirror.contact import ContactSolver, RidgeGeometry, ridge_model, simulate
 
 
+def cpu_timed(fn, repeat: int = 3):
+    """``(shortest CPU time of this process, last result)`` of ``repeat`` calls (robust on a shared machine)."""
+    best, out = np.inf, None
+    for _ in range(repeat):
+        c0 = time.process_time()
+        out = fn()
+        best = min(best, time.process_time() - c0)
+    return best, out
+
+
 def bench_fig6():
     scene = tm.scenes.paper("fig6")
     geom = scene.geometry
@@ -79,16 +89,16 @@ def bench_outputs():
     for outs in (("slip",), ("forces", "slip"), ("stress",), ("forces", "slip", "stress", "signals"),
                  ("forces", "slip", "stress", "signals", "state")):
         s = base.with_outputs(*outs)
-        tt, _ = timed(lambda s=s: simulate(s), repeat=2)
+        tt, _ = cpu_timed(lambda s=s: simulate(s), repeat=2)
         rows.append([" + ".join(outs), f"{tt:.3f} s"])
     s = dataclasses.replace(base.with_outputs("slip"), stop_after_slip=0.05)
-    tt, r = timed(lambda: simulate(s), repeat=2)
+    tt, r = cpu_timed(lambda: simulate(s), repeat=2)
     rows.append([f"slip, stop 50 ms after gross slip ({r.t.size} steps)", f"{tt:.3f} s"])
     for times in ((1.0,), (0.6, 0.8, 1.0, 1.2, 1.4)):
         s = dataclasses.replace(base.with_outputs("slip", "fields"), field_times=times)
-        tt, _ = timed(lambda s=s: simulate(s), repeat=1)
+        tt, _ = cpu_timed(lambda s=s: simulate(s), repeat=1)
         rows.append([f"slip + full stress fields at {len(times)} time(s)", f"{tt:.3f} s"])
-    table("Cost follows the request (fig6 scene, 2000 steps)", ["outputs", "run time"], rows)
+    table("Cost follows the request (fig6 scene, 2000 steps; the contact solve is shared by all outputs, the rest is paid only when asked)", ["outputs", "CPU time"], rows)
 
 
 def bench_mesh(quick):
@@ -98,9 +108,8 @@ def bench_mesh(quick):
 
     def run(h):
         g = RidgeGeometry(mesh_size=h, contact_mesh_size=h / 4)
-        t0 = time.perf_counter()
         m = ridge_model(g)
-        setup = time.perf_counter() - t0
+        setup = m.setup_seconds  # measured when the model was built (a cached model costs ~1 us)
         tt, r = timed(lambda: simulate(dataclasses.replace(base, geometry=g)), repeat=1)
         return m, setup, tt, r
 
