@@ -474,7 +474,10 @@ def run_experiment(seeds=range(5), duration: float = 3.0, fs: float = 1000.0, we
                                            shear_gain=shear_gain, arm_delay=arm),
             "velocity, y_pred only": VelocityController(threshold=0.15, y_full=0.5, v_max=2 * vf, a_max=1.0,
                                                         direction_sign=sign, asym_tau=2.0, x_min=-0.02,
-                                                        x_max=0.02, arm_delay=arm)}
+                                                        x_max=0.02, arm_delay=arm),
+            "velocity, shear only": VelocityController(threshold=0.99, y_full=1.0, v_max=2 * vf, a_max=1.0,
+                                                       direction_sign=sign, asym_tau=2.0, x_min=-0.02, x_max=0.02,
+                                                       shear_gain=shear_gain, arm_delay=arm)}
     base = {"duration": duration, "fs": fs, "plant": plant, "trajectory": cfg["trajectory"]}
     rows = []
     keep = {}
@@ -488,7 +491,7 @@ def run_experiment(seeds=range(5), duration: float = 3.0, fs: float = 1000.0, we
             rows.append(dict(r.summary(), controller=name))
             keep.setdefault(name, r)
         if progress:
-            print(f"seed {s}: " + ", ".join(f"{x['controller']} {x['gross_slips']}" for x in rows[-4:]), flush=True)
+            print(f"seed {s}: " + ", ".join(f"{x['controller']} {x['gross_slips']}" for x in rows[-5:]), flush=True)
     if robustness:
         ts, mu2 = cfg["sweat"]
         variants = [Scene(label=f"sweat (mu -> {mu2:g} at {ts:g} s)", mu_change=(ts, mu2)),
@@ -521,7 +524,7 @@ def run_experiment(seeds=range(5), duration: float = 3.0, fs: float = 1000.0, we
         with open(os.path.join(out_dir, "experiment.json"), "w") as f:
             json.dump(result, f, indent=1)
         if hasattr(weights, "save"):
-            weights.save(os.path.join(out_dir, "brush_detector.npz"))
+            weights.save(os.path.join(out_dir, "detector.npz"))
         if "velocity" in keep:
             r = keep["velocity"]
             pcfg = _pipeline(w, fs, laws["velocity"], r.log["v_out"].shape[0]).config
