@@ -149,6 +149,15 @@ def test_nonconvergence_is_reported(ridge):
         s.step(0.0, ridge.geometry.height - 30e-6)
 
 
+def test_friction_arguments_are_checked(ridge):
+    with pytest.raises(ValueError, match="mu_kinetic"):
+        ContactSolver(ridge, 0.5, mu_kinetic=0.6)
+    with pytest.raises(ValueError, match="mu must"):
+        ContactSolver(ridge, -0.1)
+    with pytest.raises(ValueError, match="kinetic_ratio"):
+        tm.Scene(kinetic_ratio=1.2)
+
+
 def test_model_is_cached():
     g = RidgeGeometry()
     assert ridge_model(g) is ridge_model(RidgeGeometry())
@@ -205,9 +214,13 @@ def test_fig7_stop_at_A(paper_runs):
 def test_fig8_stop_at_B_delays_slip(paper_runs):
     r6, r8 = paper_runs["fig6"], paper_runs["fig8"]
     assert abs(r8.slip_time - r6.slip_time - 0.05) <= 0.01
-    t, _d1, d2 = rates(r8)
-    impulse = np.max(np.abs(d2[np.abs(t - 1.4) < 0.01]))
+    t, d1, d2 = rates(r8)
+    # a large 2nd-order impulse at the stop and restart, before slip
+    impulse = np.max(np.abs(d2[(t > 1.39) & (t < r8.slip_time - 0.003)]))
     assert impulse > 2 * np.max(np.abs(d2[(t > 0.6) & (t < 1.35)]))
+    # and the gross slip itself releases stored shear: a stress drop no stop produces
+    at_slip = np.min(d1[np.abs(t - r8.slip_time) < 0.01])
+    assert at_slip < -3 * np.max(np.abs(d1[(t > 0.6) & (t < 1.35)]))
     stopped = (t > 1.41) & (t < 1.44)
     assert np.all(r8.slip_fraction[0, stopped] == 0.0)  # nothing slides while the plate stands
 
@@ -224,7 +237,7 @@ def test_outputs_follow_the_request():
 def test_pad_advance_matches_simulate_and_inner_ridges_press_deeper():
     s = tm.scenes.paper("fig6", duration=0.8, n_ridges=6)
     r = simulate(s)
-    pad = Pad(ridge_model(s.geometry), s.friction, n_ridges=6, finger_radius=s.finger_radius)
+    pad = Pad.from_scene(s)
     y, z = s.plate_motion()
     for i in range(y.size):
         st = pad.advance(y[i], z[i])

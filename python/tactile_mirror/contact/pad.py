@@ -63,7 +63,9 @@ class Pad:
     ----------
     model : RidgeModel
     mu : float
-        Friction coefficient between finger and ridges.
+        Static friction coefficient between finger and ridges.
+    mu_kinetic : float or None
+        Kinetic coefficient (default: ``mu``; see :class:`ContactSolver`).
     n_ridges : int
         Number of ridges (1 for the paper's single-ridge analysis, 6 for the pad).
     pitch : float
@@ -77,7 +79,8 @@ class Pad:
     """
 
     def __init__(self, model: RidgeModel, mu: float, n_ridges: int = 1, pitch: float | None = None,
-                 finger_radius: float = np.inf, ridge_length: float = 10e-3, tol: float = 1e-10):
+                 finger_radius: float = np.inf, ridge_length: float = 10e-3, tol: float = 1e-10,
+                 mu_kinetic: float | None = None):
         if int(n_ridges) != n_ridges or n_ridges < 1:
             raise ValueError(f"n_ridges must be a positive integer, got {n_ridges!r}")
         if not (finger_radius > 0):
@@ -94,7 +97,16 @@ class Pad:
         self.ridge_y = (np.arange(self.n_ridges) - (self.n_ridges - 1) / 2) * self.pitch
         self.indent_offset = (self.ridge_y ** 2 / (2 * self.finger_radius)
                               if np.isfinite(self.finger_radius) else np.zeros(self.n_ridges))
-        self.solvers = [ContactSolver(model, mu, tol=tol) for _ in range(self.n_ridges)]
+        self.solvers = [ContactSolver(model, mu, tol=tol, mu_kinetic=mu_kinetic) for _ in range(self.n_ridges)]
+
+    @classmethod
+    def from_scene(cls, scene) -> Pad:
+        """The pad a :class:`~tactile_mirror.Scene` describes: its ridge geometry,
+        static and kinetic friction, number of ridges and finger radius."""
+        from .model import ridge_model
+
+        return cls(ridge_model(scene.geometry), scene.friction, n_ridges=scene.n_ridges,
+                   finger_radius=scene.finger_radius, mu_kinetic=scene.friction * scene.kinetic_ratio)
 
     @property
     def mu(self) -> float:
@@ -105,7 +117,8 @@ class Pad:
         """Change the friction mid-run (e.g. sweat); the contact history is kept."""
         if not (np.isfinite(value) and value > 0):
             raise ValueError(f"mu must be a positive number, got {value!r}")
-        for s in self.solvers:
+        for s in self.solvers:  # the kinetic coefficient keeps its ratio to the static one
+            s.mu_kinetic = s.mu_kinetic * float(value) / s.mu
             s.mu = float(value)
 
     def reset(self) -> None:

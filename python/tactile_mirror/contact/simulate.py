@@ -80,7 +80,7 @@ def simulate(scene: Scene, progress: bool = False) -> SimulationResult:
     if not isinstance(scene, Scene):
         raise TypeError(f"scene must be a tactile_mirror.Scene, got {type(scene).__name__}")
     model = ridge_model(scene.geometry)
-    pad = Pad(model, scene.friction, n_ridges=scene.n_ridges, finger_radius=scene.finger_radius)
+    pad = Pad.from_scene(scene)
     plate_y, indent = scene.plate_motion()
     n_total = plate_y.size
     outs = scene.outputs

@@ -10,6 +10,10 @@ which has moved ``s`` along ``y``:
 * slip increment of the ridge surface relative to the plate over the step
   ``w = (u_y - u_y_prev) - (s - s_prev)``; Coulomb: ``|lt| <= mu ln``, stick (``w = 0``)
   inside the cone, ``lt = -mu ln sign(w)`` on it (history-dependent through ``u_y_prev``).
+  Static and kinetic friction: a node that slid in the previous step has the cone
+  ``mu_kinetic``, any other ``mu`` (static, >= kinetic). With ``mu_kinetic < mu`` a node
+  that breaks away sheds load one step later, so gross slip releases the stored shear
+  (a sharp stress drop) where a plate that merely stops does not.
   A node is reported as slipping when it is on the cone *and* moves relative to the
   plate (``|w| > 1e-11 * ridge height``); on the cone but still (a stopped plate) it
   is reported as stuck.
@@ -77,7 +81,9 @@ class ContactSolver:
     ----------
     model : RidgeModel
     mu : float
-        Coulomb friction coefficient (> 0).
+        Static Coulomb friction coefficient (> 0).
+    mu_kinetic : float or None
+        Kinetic coefficient, ``0 < mu_kinetic <= mu`` (default: ``mu``, plain Coulomb).
     tol : float
         Relative tolerance of the Alart-Curnier residual (default 1e-10).
     max_iter : int
@@ -91,9 +97,13 @@ class ContactSolver:
     max_active_set_iter = 25
 
     def __init__(self, model: RidgeModel, mu: float, tol: float = 1e-10, max_iter: int = 60,
-                 reduced: bool = True):
+                 reduced: bool = True, mu_kinetic: float | None = None):
         if not (np.isfinite(mu) and mu > 0):
             raise ValueError(f"mu must be a positive number, got {mu!r}")
+        mu_k = mu if mu_kinetic is None else mu_kinetic
+        if not (np.isfinite(mu_k) and 0 < mu_k <= mu):
+            raise ValueError(f"mu_kinetic must be in (0, mu], got {mu_kinetic!r}")
+        self.mu_kinetic = float(mu_k)
         if not (0 < tol < 1e-2):
             raise ValueError(f"tol must be in (0, 1e-2), got {tol!r}")
         self.model = model
@@ -119,6 +129,7 @@ class ContactSolver:
         self._s_prev = 0.0
         self._state = np.zeros(n, dtype=np.int8)
         self._sign = np.zeros(n)
+        self._sliding = np.zeros(n, dtype=bool)  # slid in the previous step: kinetic cone
         self._lu_key = None
         self._lu = None
 
@@ -141,6 +152,7 @@ class ContactSolver:
         if not (np.isfinite(plate_y) and np.isfinite(plate_z)):
             raise ValueError(f"plate position must be finite, got y={plate_y!r}, z={plate_z!r}")
         ds = float(plate_y) - self._s_prev
+        self._mu_node = np.where(self._sliding, self.mu_kinetic, self.mu)
         if np.max(z0) <= plate_z and not np.any(self._lam):
             # the plate does not reach the ridge: nothing to solve
             return self._accept(np.zeros(2 * n), np.zeros(2 * n), np.zeros(n, dtype=np.int8), plate_y, 0)
@@ -166,7 +178,7 @@ class ContactSolver:
 
     # -- one piece of the piecewise-linear system
     def _solve_piece(self, state, sign, plate_z, ds):
-        n, mu = self._n, self.mu
+        n, mu = self._n, self._mu_node
         T = np.flatnonzero(state == STICK)
         A = np.flatnonzero(state != OPEN)
         slip_coef = np.where(state == SLIP, mu * sign, 0.0)  # lt = slip_coef * ln on slip nodes
@@ -195,7 +207,7 @@ class ContactSolver:
         return lam, self._displacement(lam)
 
     def _classify(self, lam, u, plate_z, ds):
-        n, r, mu = self._n, self._r, self.mu
+        n, r, mu = self._n, self._r, self._mu_node
         lt, ln = lam[:n], lam[n:]
         g = plate_z - (self.model.node_z + u[n:])
         w = (u[:n] - self._uy_prev) - ds
@@ -239,7 +251,7 @@ class ContactSolver:
 
     def _residual(self, lam, plate_z, ds):
         """Alart-Curnier residual at ``lam`` and its generalised Jacobian."""
-        n, r, mu = self._n, self._r, self.mu
+        n, r, mu = self._n, self._r, self._mu_node
         u = self._displacement(lam)
         F, state, sign = self._classify(lam, u, plate_z, ds)
         stick, slip = state == STICK, state == SLIP
@@ -264,6 +276,7 @@ class ContactSolver:
         reported = np.where((state == SLIP) & ~moving, STICK, state).astype(np.int8)
         self._lam = lam
         self._state = state
+        self._sliding = reported == SLIP
         self._sign = np.zeros(n) if sign is None else sign
         self._uy_prev = u[:n].copy()
         self._s_prev = float(plate_y)
