@@ -110,7 +110,7 @@ def augment_gains(ts: TrainingSet, gain_range=(0.6, 1.7), seed=0) -> TrainingSet
                        {**ts.targets, "gain_range": [lo, hi], "gain_seed": int(seed)})
 
 
-def fit_normalisation(x, mask=None, method: str = "median"):
+def fit_normalisation(x, mask=None, method: str = "rms"):
     """Zero mean and one shared scale per signal pair.
 
     The L and R strips share a scale (and so do u_L, u_R), which keeps the
@@ -158,7 +158,7 @@ def train_detector(data, n_hidden: int = 16, feedback: bool = True, seed=0, maxi
                    l2: float = 1e-4, pred_weight: float = 1.0, negative_weight: float = 1.0,
                    features: str = "stress_rate",
                    estimator=None, circuit=None, progress: bool = True, metadata=None,
-                   normalisation: str = "median") -> DetectorWeights:
+                   normalisation: str = "rms") -> DetectorWeights:
     """Train a Jordan slip detector by exact BPTT and L-BFGS-B.
 
     Parameters
