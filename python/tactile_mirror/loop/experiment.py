@@ -539,14 +539,15 @@ def run_experiment(seeds=range(5), duration: float = 3.0, fs: float = 1000.0, we
                 json.dump(result, f, indent=1)
         if "open" in keep:
             figure(keep["open"], os.path.join(out_dir, "fig12_open_loop.png"), closed=False)
-        if "velocity" in keep:
-            figure(keep["velocity"], os.path.join(out_dir, "fig13_closed_loop.png"), closed=True)
-        if "paper" in keep:
-            figure(keep["paper"], os.path.join(out_dir, "fig13_paper_law.png"), closed=True)
+        names = {"velocity": "fig13_closed_loop.png", "paper": "fig13_paper_law.png",
+                 "velocity, y_pred only": "fig13_ypred_only.png", "velocity, shear only": "fig13_shear_only.png"}
+        for name, fname in names.items():
+            if name in keep:
+                figure(keep[name], os.path.join(out_dir, fname), closed=True, law=name)
     return result
 
 
-def figure(r: SceneResult, path, closed: bool, ridge: int = 0):
+def figure(r: SceneResult, path, closed: bool, ridge: int = 0, law: str | None = None):
     """The paper's Fig. 12 (open loop) / Fig. 13 (closed loop) layout for one run."""
     import matplotlib
 
@@ -587,7 +588,9 @@ def figure(r: SceneResult, path, closed: bool, ridge: int = 0):
         ax[6].set_ylabel("y (mm)")
         ax[6].legend(loc="upper right", fontsize=7, ncol=2)
     ax[-1].set_xlabel("t (s)")
-    law = {"paper": "paper's law", "velocity": "velocity law + shear feedback"}.get(r.controller, r.controller)
+    law = {"paper": "paper's law", "velocity": "velocity law (y_pred ramp + shear feedback)",
+           "velocity, y_pred only": "velocity law, y_pred ramp only",
+           "velocity, shear only": "velocity law, shear feedback only"}.get(law or r.controller, law or r.controller)
     title = f"Fig. 13 (simulated): with feedback, {law}" if closed else "Fig. 12 (simulated): without feedback"
     fig.suptitle(f"{title}; seed {r.scene.seed}; gross slips: {r.gross_slips} (shaded)", fontsize=9)
     fig.tight_layout()
