@@ -14,6 +14,7 @@ from __future__ import annotations
 from . import scenes
 from .circuit import SLOPE_BAND, PVDFCircuit, fit_circuit
 from .contact import Pad, RidgeGeometry, SimulationResult, simulate, simulate_many
+from .detector import DetectorWeights, SlipDetector, WeightsError, evaluate, train_detector
 from .estimator import StressRateEstimator, differentiator_sos, equalizer_sos, estimate_stress_rate
 from .filters import SosFilter, roundoff_bound, simd_path, sosfilt, validate_sos
 from .scenes import Scene
@@ -22,17 +23,21 @@ __version__ = "0.1.0"
 
 __all__ = [
     "SLOPE_BAND",
+    "DetectorWeights",
     "PVDFCircuit",
     "Pad",
     "RidgeGeometry",
     "Scene",
     "SimulationResult",
+    "SlipDetector",
     "SosFilter",
     "StressRateEstimator",
+    "WeightsError",
     "__version__",
     "differentiator_sos",
     "equalizer_sos",
     "estimate_stress_rate",
+    "evaluate",
     "fit_circuit",
     "roundoff_bound",
     "scenes",
@@ -40,5 +45,6 @@ __all__ = [
     "simulate",
     "simulate_many",
     "sosfilt",
+    "train_detector",
     "validate_sos",
 ]
