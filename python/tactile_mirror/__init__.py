@@ -11,12 +11,23 @@ Filtering follows scipy.signal conventions (``sos``, ``zi``, ``axis``); everythi
 """
 from __future__ import annotations
 
-from . import scenes
+from . import loop, scenes
 from .circuit import SLOPE_BAND, PVDFCircuit, fit_circuit
 from .contact import Pad, RidgeGeometry, SimulationResult, simulate, simulate_many
 from .detector import DetectorWeights, SlipDetector, WeightsError, evaluate, train_detector
 from .estimator import StressRateEstimator, differentiator_sos, equalizer_sos, estimate_stress_rate
 from .filters import SosFilter, roundoff_bound, simd_path, sosfilt, validate_sos
+from .loop import (
+    LoopRunner,
+    PaperController,
+    Recording,
+    SimulatedStage,
+    Stage,
+    StageLimits,
+    VelocityController,
+    library_path,
+)
+from .pipeline import MirrorPipeline, ReferencePipeline
 from .scenes import Scene
 
 __version__ = "0.1.0"
@@ -24,14 +35,23 @@ __version__ = "0.1.0"
 __all__ = [
     "SLOPE_BAND",
     "DetectorWeights",
+    "LoopRunner",
+    "MirrorPipeline",
     "PVDFCircuit",
     "Pad",
+    "PaperController",
+    "Recording",
+    "ReferencePipeline",
     "RidgeGeometry",
     "Scene",
+    "SimulatedStage",
     "SimulationResult",
     "SlipDetector",
     "SosFilter",
+    "Stage",
+    "StageLimits",
     "StressRateEstimator",
+    "VelocityController",
     "WeightsError",
     "__version__",
     "differentiator_sos",
@@ -39,6 +59,8 @@ __all__ = [
     "estimate_stress_rate",
     "evaluate",
     "fit_circuit",
+    "library_path",
+    "loop",
     "roundoff_bound",
     "scenes",
     "simd_path",
