@@ -22,16 +22,6 @@ from _common import table, timed
 from tactile_mirror.contact import ContactSolver, RidgeGeometry, ridge_model, simulate
 
 
-def cpu_timed(fn, repeat: int = 3):
-    """``(shortest CPU time of this process, last result)`` of ``repeat`` calls (robust on a shared machine)."""
-    best, out = np.inf, None
-    for _ in range(repeat):
-        c0 = time.process_time()
-        out = fn()
-        best = min(best, time.process_time() - c0)
-    return best, out
-
-
 def bench_fig6():
     scene = tm.scenes.paper("fig6")
     geom = scene.geometry
@@ -40,11 +30,8 @@ def bench_fig6():
     model = ridge_model(geom)
     setup = time.perf_counter() - t0
     t_run, res = timed(lambda: simulate(scene))
-    cpu = np.inf
-    for _ in range(3):  # CPU time of this process: what one core costs, whatever else runs
-        c0 = time.process_time()
-        simulate(scene)
-        cpu = min(cpu, time.process_time() - c0)
+    # CPU time of this process: what one core costs, whatever else runs
+    cpu, _ = timed(lambda: simulate(scene), clock=time.process_time)
     rows = [["model setup (mesh, assembly, condensation), first run", f"{setup:.2f} s"],
             ["model setup, cached", f"{timed(lambda: ridge_model(geom))[0] * 1e6:.1f} us"],
             [f"simulate fig6: {res.t.size} steps at 1 kHz, 1 ridge, signals", (f"{t_run:.2f} s "
@@ -89,14 +76,14 @@ def bench_outputs():
     for outs in (("slip",), ("forces", "slip"), ("stress",), ("forces", "slip", "stress", "signals"),
                  ("forces", "slip", "stress", "signals", "state")):
         s = base.with_outputs(*outs)
-        tt, _ = cpu_timed(lambda s=s: simulate(s), repeat=2)
+        tt, _ = timed(lambda s=s: simulate(s), repeat=2, clock=time.process_time)
         rows.append([" + ".join(outs), f"{tt:.3f} s"])
     s = dataclasses.replace(base.with_outputs("slip"), stop_after_slip=0.05)
-    tt, r = cpu_timed(lambda: simulate(s), repeat=2)
+    tt, r = timed(lambda: simulate(s), repeat=2, clock=time.process_time)
     rows.append([f"slip, stop 50 ms after gross slip ({r.t.size} steps)", f"{tt:.3f} s"])
     for times in ((1.0,), (0.6, 0.8, 1.0, 1.2, 1.4)):
         s = dataclasses.replace(base.with_outputs("slip", "fields"), field_times=times)
-        tt, _ = cpu_timed(lambda s=s: simulate(s), repeat=1)
+        tt, _ = timed(lambda s=s: simulate(s), repeat=1, clock=time.process_time)
         rows.append([f"slip + full stress fields at {len(times)} time(s)", f"{tt:.3f} s"])
     table("Cost follows the request (fig6 scene, 2000 steps; the contact solve is shared by all outputs, the rest is paid only when asked)", ["outputs", "CPU time"], rows)
 

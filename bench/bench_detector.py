@@ -16,12 +16,12 @@ from __future__ import annotations
 import argparse
 import os
 import platform
-import time
 
 os.environ.setdefault("OMP_NUM_THREADS", "1")
 os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
 
 import numpy as np
+from _common import best_time
 from tactile_mirror import _core
 from tactile_mirror.detector import DetectorWeights, Params, SlipDetector, reference_run
 from tactile_mirror.detector.network import forward
@@ -39,14 +39,6 @@ def make_features(n_ridges, n, seed=1):
     rng = np.random.default_rng(seed)
     return np.cumsum(rng.normal(size=(n_ridges, 4, n)), axis=-1) * 0.05 + rng.standard_t(2, (n_ridges, 4, n)) * 0.3
 
-
-def best_of(fn, repeats=5):
-    best = np.inf
-    for _ in range(repeats):
-        t0 = time.perf_counter()
-        fn()
-        best = min(best, time.perf_counter() - t0)
-    return best
 
 
 def numpy_tick_loop(w, x):
@@ -92,16 +84,16 @@ def main(argv=None):
     print(f"\n2) block API over (6, 4, {n_block}) against numpy (us per tick)")
     x = make_features(6, n_block)
     xn = x  # mean 0, scale 1
-    t_np = best_of(lambda: forward(w.params, xn), 3) / n_block
+    t_np = best_time(lambda: forward(w.params, xn), 3) / n_block
     n_loop = min(n_block, 20_000)
-    t_loop = best_of(lambda: numpy_tick_loop(w, x[:, :, :n_loop]), 3) / n_loop
+    t_loop = best_time(lambda: numpy_tick_loop(w, x[:, :, :n_loop]), 3) / n_loop
     print(f"   numpy, recurrence vectorised over ridges (network.forward): {t_np * 1e6:8.3f}")
     print(f"   numpy, one Python call per tick:                          {t_loop * 1e6:8.3f}")
     for dtype in (np.float64, np.float32):
         for act in ("exact", "fast"):
             det = SlipDetector(w, dtype=dtype, activation=act)
             xc = np.ascontiguousarray(x, dtype=dtype)
-            t_c = best_of(lambda: det.run(xc), 5) / n_block
+            t_c = best_time(lambda: det.run(xc), 5) / n_block
             print(f"   C++ run() {np.dtype(dtype).name} {act:<5} ({det.simd_path}): {t_c * 1e6:8.3f} us/tick"
                   f"   speed-up {t_np / t_c:6.0f}x vs forward, {t_loop / t_c:6.0f}x vs per-tick numpy")
 
@@ -113,7 +105,7 @@ def main(argv=None):
         for act in ("exact", "fast"):
             det = SlipDetector(w, dtype=dtype, activation=act)
             xc = np.ascontiguousarray(x, dtype=dtype)
-            t_c = best_of(lambda: det.run(xc), 5) / n_block
+            t_c = best_time(lambda: det.run(xc), 5) / n_block
             ys, _, yp = det.run(xc)
             es = np.max(np.abs(ys.astype(np.float64) - ref_s))
             ep = np.max(np.abs(yp.astype(np.float64) - ref_p))
