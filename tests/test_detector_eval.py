@@ -148,10 +148,11 @@ def test_stop_at_A_is_not_judged_slip(default_detector, paper_results):
     assert t_cross is not None and t_cross <= ts + 0.02
 
 
-@pytest.mark.xfail(reason="in the quasi-static Coulomb contact model a plate stop when the slip zone covers "
-                          "~98% of the contact gives the same strip signals as gross slip (both: stress rate "
-                          "falls to zero with the same 2nd-order impulse), so a causal detector cannot tell "
-                          "them apart within the stop", strict=False)
+@pytest.mark.xfail(reason="the bundled detector was trained on the plain Coulomb contact model, where a plate "
+                          "stop when the slip zone covers ~98% of the contact gives the same strip signals as "
+                          "gross slip; with static > kinetic friction (the current default) gross slip releases "
+                          "stored shear and the two differ, but the detector has not yet been retrained to "
+                          "use that without losing the y_pred lead of Fig. 10(a)", strict=False)
 def test_figure10b_stop_at_B(default_detector, paper_results):
     d = figure10_data(default_detector, paper_results["fig8"], stops=[(1.40, 1.45)])
     t, ys, yp, ts = d["t"], d["y_slip"], d["y_pred"], d["slip_time"]
