@@ -2,7 +2,8 @@
 
     tactile-mirror demo                       the paper's scenes, figures and a summary
     tactile-mirror simulate --scene fig8      one contact scene -> .npz (+ figure)
-    tactile-mirror figure 6 --out figures/    a paper figure reproduction
+    tactile-mirror figure 6 --out figures/    a paper figure reproduction (6, 7, 8, 10)
+    tactile-mirror train / evaluate           slip-detector training and evaluation
 
 Every subcommand has ``--help``. Bad options print a message and exit with status 2;
 errors while running print ``error: ...`` and exit with status 1.
@@ -82,20 +83,6 @@ def cmd_simulate(args) -> int:
     return 0
 
 
-def cmd_figure(args) -> int:
-    from . import scenes, simulate
-
-    out = pathlib.Path(args.out)
-    if args.number in (6, 7, 8):
-        name = f"fig{args.number}"
-        res = simulate(scenes.paper(name), progress=True)
-        path = out / f"{name}.png"
-        _contact_figure(res, name, path)
-        print(f"wrote {path}")
-        return 0
-    raise CommandError(f"figure {args.number} is not available in this version (available: 6, 7, 8)")
-
-
 def cmd_demo(args) -> int:
     from tqdm.auto import tqdm
 
@@ -116,6 +103,57 @@ def cmd_demo(args) -> int:
         print(f"| {name} | {what} | {'none' if ts is None else f'{ts:.3f} s'} |")
     print(f"\nfigures: {', '.join(str(out / f'{n}.png') for n in names)}")
     print(f"done in {time.perf_counter() - t_start:.1f} s")
+    return 0
+
+
+def _load_detector(path):
+    from .detector import SlipDetector
+
+    return SlipDetector.default() if path is None else SlipDetector.load(path)
+
+
+def cmd_train(args) -> int:
+    from .detector.build import build_default
+
+    out = pathlib.Path(args.out)
+    out.parent.mkdir(parents=True, exist_ok=True)
+    _, report = build_default(out, n_train=args.n_train, n_test=args.n_test, n_hidden=args.hidden,
+                              maxiter=args.maxiter, report_path=args.report, figure_path=args.figure)
+    print(report["evaluation_table"])
+    print(f"wrote {out} ({report['total_seconds']:.0f} s)")
+    return 0
+
+
+def cmd_evaluate(args) -> int:
+    from .detector import evaluate
+    from .detector.build import TEST_KWARGS, TEST_SEED
+    from .scenes import random
+
+    det = _load_detector(args.weights)
+    scenes = random(args.scenes, seed=TEST_SEED if args.seed is None else args.seed, **TEST_KWARGS)
+    report = evaluate(det, scenes, progress=True)
+    print(report.table())
+    return 0
+
+
+def cmd_figure(args) -> int:
+    from . import scenes, simulate
+
+    out = pathlib.Path(args.out)
+    if args.number in (6, 7, 8):
+        name = f"fig{args.number}"
+        res = simulate(scenes.paper(name), progress=True)
+        path = out / f"{name}.png"
+        _contact_figure(res, name, path)
+    else:  # 10: the detector on fig6 and fig8
+        from .detector import figure10
+        from .plots import save
+
+        det = _load_detector(args.weights)
+        a, b = simulate(scenes.paper("fig6")), simulate(scenes.paper("fig8"))
+        path = out / "fig10.png"
+        save(figure10(det, a, b, stops_b=[(1.40, 1.45)]), path)
+    print(f"wrote {path}")
     return 0
 
 
@@ -145,10 +183,32 @@ def build_parser() -> argparse.ArgumentParser:
     p.set_defaults(func=cmd_simulate)
 
     p = sub.add_parser("figure", help="reproduce a figure of the paper",
-                       description="Reproduce one of the paper's figures as a PNG.")
-    p.add_argument("number", type=int, choices=[6, 7, 8], help="figure number")
+                       description="Reproduce one of the paper's figures as a PNG: 6, 7, 8 (contact "
+                                   "signals) or 10 (the slip detector on the fig6 and fig8 scenes).")
+    p.add_argument("number", type=int, choices=[6, 7, 8, 10], help="figure number")
     p.add_argument("--out", default="figures", help="output folder (default: %(default)s)")
+    p.add_argument("--weights", default=None, help="detector weights file (default: the bundled ones)")
     p.set_defaults(func=cmd_figure)
+
+    p = sub.add_parser("train", help="simulate scenes, train and evaluate a slip detector",
+                       description="Simulate randomized training and held-out scenes, train the recurrent "
+                                   "detector (and the baselines), evaluate and save the weights.")
+    p.add_argument("--out", default="detector.npz", help="weights file to write (default: %(default)s)")
+    p.add_argument("--n-train", type=_positive(int), default=64, help="training scenes (default: 64)")
+    p.add_argument("--n-test", type=_positive(int), default=60, help="held-out scenes (default: 60)")
+    p.add_argument("--hidden", type=_positive(int), default=16, help="hidden units (default: 16)")
+    p.add_argument("--maxiter", type=_positive(int), default=400, help="L-BFGS-B iterations (default: 400)")
+    p.add_argument("--report", default=None, help="also write the evaluation report here")
+    p.add_argument("--figure", default=None, help="also write Figure 10 here")
+    p.set_defaults(func=cmd_train)
+
+    p = sub.add_parser("evaluate", help="evaluate a slip detector on held-out scenes",
+                       description="Simulate randomized held-out scenes and report detection rate, false "
+                                   "alarms, latency and y_pred lead.")
+    p.add_argument("--weights", default=None, help="detector weights file (default: the bundled ones)")
+    p.add_argument("--scenes", type=_positive(int), default=20, help="held-out scenes (default: 20)")
+    p.add_argument("--seed", type=int, default=None, help="scene seed (default: the held-out seed)")
+    p.set_defaults(func=cmd_evaluate)
     return parser
 
 
@@ -157,7 +217,7 @@ def main(argv=None) -> int:
     args = parser.parse_args(argv)
     try:
         return int(args.func(args))
-    except (CommandError, ValueError, TypeError, OSError) as exc:
+    except (CommandError, ValueError, TypeError, OSError, RuntimeError) as exc:
         print(f"error: {exc}", file=sys.stderr)
         return 1
 
