@@ -111,7 +111,6 @@ public:
         return false;
     }
     std::uint64_t rejected() const noexcept { return rejected_; }
-    void clear_rejected() noexcept { rejected_ = 0; }
 
     // Filter n samples. x[c * xs_c + t * xs_t] and y[c * ys_c + t * ys_t] with
     // strides in elements; x and y may be the same memory (in-place). Returns true

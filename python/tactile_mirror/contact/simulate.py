@@ -12,7 +12,6 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from .model import ridge_model
 from .pad import Pad
 
 if TYPE_CHECKING:  # scenes imports contact.geometry, so import it lazily at run time
@@ -79,8 +78,8 @@ def simulate(scene: Scene, progress: bool = False) -> SimulationResult:
 
     if not isinstance(scene, Scene):
         raise TypeError(f"scene must be a tactile_mirror.Scene, got {type(scene).__name__}")
-    model = ridge_model(scene.geometry)
     pad = Pad.from_scene(scene)
+    model = pad.model
     plate_y, indent = scene.plate_motion()
     n_total = plate_y.size
     outs = scene.outputs
