@@ -31,38 +31,7 @@ import scipy.signal
 import tactile_mirror
 from tactile_mirror.circuit import PVDFCircuit
 from tactile_mirror.estimator import StressRateEstimator, estimate_stress_rate
-
-
-def known_load(t):
-    """Load (Pa) and its 1st (Pa/s) and 2nd (Pa/s^2) derivatives."""
-    s = np.zeros_like(t)
-    d = np.zeros_like(t)
-    d2 = np.zeros_like(t)
-
-    def load(a, t0, span):
-        x = np.clip((t - t0) / span, 0, 1)
-        return (a * x**3 * (10 - 15 * x + 6 * x**2), a / span * 30 * x**2 * (1 - x) ** 2,
-                a / span**2 * 60 * x * (1 - x) * (1 - 2 * x))
-
-    def ramp(a, t0, w):
-        x = (t - t0) / w
-        sg = 0.5 * (1 + np.tanh(x / 2))
-        return a * w * np.logaddexp(0, x), a * sg, a / w * sg * (1 - sg)
-
-    def step(a, t0, w):
-        th = np.tanh((t - t0) / w)
-        se = 1 - th**2
-        return a / 2 * (1 + th), a / (2 * w) * se, -a / w**2 * se * th
-
-    parts = [(load, (-40e3, 0.05, 0.45)), (ramp, (20e3, 0.5, 0.01)), (ramp, (-20e3, 1.0, 0.005)),
-             (ramp, (20e3, 1.05, 0.005)), (ramp, (-20e3, 1.5, 0.01)), (step, (-8e3, 1.5, 0.01)),
-             (step, (3e3, 1.53, 0.02))]
-    for f, args in parts:
-        a, b, c = f(*args)
-        s += a
-        d += b
-        d2 += c
-    return s, d, d2
+from tactile_mirror.testing import known_load
 
 
 def rel_rms(a, b):
