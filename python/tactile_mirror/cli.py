@@ -4,6 +4,7 @@
     tactile-mirror simulate --scene fig8      one contact scene -> .npz (+ figure)
     tactile-mirror figure 6 --out figures/    a paper figure reproduction (6, 7, 8, 10)
     tactile-mirror train / evaluate           slip-detector training and evaluation
+    tactile-mirror bench --out report/        run time against error of every kernel (table + plot)
 
 Every subcommand has ``--help``. Bad options print a message and exit with status 2;
 errors while running print ``error: ...`` and exit with status 1.
@@ -157,6 +158,40 @@ def cmd_figure(args) -> int:
     return 0
 
 
+def _bench_kernels(text):
+    from .benchmark import KERNELS
+
+    names = [k.strip() for k in text.split(",") if k.strip()]
+    if names == ["all"]:
+        return list(KERNELS)
+    bad = [k for k in names if k not in KERNELS]
+    if bad or not names:
+        raise argparse.ArgumentTypeError(f"expected a comma-separated list of {', '.join(KERNELS)} (or all), "
+                                         f"got {text!r}")
+    return names
+
+
+def cmd_bench(args) -> int:
+    import os
+
+    from .benchmark import JSON_NAME, MD_NAME, PNG_NAME, bench_report
+
+    out = pathlib.Path(args.out)
+    if out.exists() and not out.is_dir():
+        raise CommandError(f"--out {out} exists and is not a folder")
+    out.mkdir(parents=True, exist_ok=True)  # fail before the work, not after
+    if not os.access(out, os.W_OK):
+        raise CommandError(f"--out {out} is not writable")
+    print(f"tactile-mirror bench: {', '.join(args.kernels)} ({'quick' if args.quick else 'full'} run); "
+          f"output folder {out}/")
+    report = bench_report(out, kernels=args.kernels, quick=args.quick, progress=True)
+    for k in report.kernels.values():
+        best = ", ".join(v.label for v in k.variants if v.pareto)
+        print(f"{k.name}: {len(k.variants)} variants, Pareto-optimal: {best}")
+    print(f"wrote {out / MD_NAME}, {out / PNG_NAME}, {out / JSON_NAME} ({report.seconds:.0f} s)")
+    return 0
+
+
 # ---------------------------------------------------------------- parser
 def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(prog="tactile-mirror",
@@ -209,6 +244,18 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--scenes", type=_positive(int), default=20, help="held-out scenes (default: 20)")
     p.add_argument("--seed", type=int, default=None, help="scene seed (default: the held-out seed)")
     p.set_defaults(func=cmd_evaluate)
+
+    p = sub.add_parser("bench", help="run time against error of every kernel: markdown table and Pareto plot",
+                       description="Time every kernel (filters, stress-rate estimator, slip detector, contact "
+                                   "model) in several variants and measure each variant's error against a "
+                                   "reference computed in the same run; write bench_report.md, "
+                                   "bench_pareto.png and bench_report.json. The full run takes a few minutes "
+                                   "(set OMP_NUM_THREADS=1 OPENBLAS_NUM_THREADS=1 on small machines).")
+    p.add_argument("--out", default="bench-report", help="output folder (default: %(default)s)")
+    p.add_argument("--quick", action="store_true", help="small sizes, fewer mesh sizes: a smoke run (~20 s)")
+    p.add_argument("--kernels", type=_bench_kernels, default="all",
+                   help="comma-separated subset of filters,estimator,detector,contact (default: all)")
+    p.set_defaults(func=cmd_bench)
     return parser
 
 
