@@ -34,9 +34,9 @@ reference computed in the same run:
 A variant is Pareto-optimal when no other variant of the same kernel is at least as
 accurate and at least as fast, and strictly better in one of the two.
 
-Run times are the best of a few wall-clock repeats (one run for the contact model) in
-this process; on a shared machine compare the speed ratios, which come from the same
-run, rather than absolute times. Run with ``OMP_NUM_THREADS=1 OPENBLAS_NUM_THREADS=1``.
+Run times are the best of a few wall-clock rounds in which every variant of a kernel
+runs in turn (one run for the contact model); on a shared machine compare the speed
+ratios, which come from the same run, rather than absolute times. Run with ``OMP_NUM_THREADS=1 OPENBLAS_NUM_THREADS=1``.
 
 Example
 -------
@@ -164,12 +164,16 @@ def pareto_front(errors: Sequence[float], seconds: Sequence[float]) -> np.ndarra
 
 
 # ---------------------------------------------------------------- helpers
-def _best_time(fn: Callable[[], object], repeat: int) -> float:
-    best = math.inf
+def _best_times(fns: Sequence[Callable[[], object]], repeat: int, tick: Callable[[], object] = lambda: None):
+    """Shortest wall time of each function over ``repeat`` rounds; every round runs all of
+    them in turn, so that a burst of load elsewhere on the machine hits them alike."""
+    best = [math.inf] * len(fns)
     for _ in range(max(1, repeat)):
-        t0 = time.perf_counter()
-        fn()
-        best = min(best, time.perf_counter() - t0)
+        for i, fn in enumerate(fns):
+            t0 = time.perf_counter()
+            fn()
+            best[i] = min(best[i], time.perf_counter() - t0)
+        tick()
     return best
 
 
@@ -289,28 +293,29 @@ def _bench_filters(quick: bool, progress: _Progress) -> KernelReport:
     cases.append((f"SosFilter float32 {f32_structure} (auto)",
                   lambda x: (f32.reset(), f32.process(x))[1], np.float32, f32_structure))
 
-    variants = []
-    t_scipy = None
-    bar = progress.bar("filters", len(cases))
-    for label, fn, dt, structure in cases:
-        xe = x_err.astype(dt)
-        xt = x_time.astype(dt)
-        err = _rel_max(fn(xe), ref)
-        secs = _best_time(lambda fn=fn, xt=xt: fn(xt), repeat) / xt.size
-        if t_scipy is None:
-            t_scipy = secs
-        api = "scipy" if label.startswith("scipy") else label.split()[0]
-        variants.append(Variant(label, err, secs, t_scipy / secs,
-                                {"dtype": np.dtype(dt).name, "structure": structure, "api": api}))
+    bar = progress.bar("filters", len(cases) + repeat)
+    errors, timed = [], []
+    blocks = {np.dtype(dt): x_time.astype(dt) for dt in (np.float64, np.float32)}
+    for _, fn, dt, _ in cases:
+        errors.append(_rel_max(fn(x_err.astype(dt)), ref))
+        xt = blocks[np.dtype(dt)]
+        timed.append(lambda fn=fn, xt=xt: fn(xt))
         bar.update()
+    secs = [t / x_time.size for t in _best_times(timed, repeat, bar.update)]
     bar.close()
+    t_scipy = secs[0]
+    variants = []
+    for (label, _, dt, structure), err, t in zip(cases, errors, secs):
+        api = "scipy" if label.startswith("scipy") else label.split()[0]
+        variants.append(Variant(label, err, t, t_scipy / t,
+                                {"dtype": np.dtype(dt).name, "structure": structure, "api": api}))
     return KernelReport(
         name="filters",
         title=f"filters: butter(4, 0.5 Hz, highpass, fs = 10 kHz), {channels} channels",
         error_name="max |error| / peak",
         unit="channel-sample", time_scale=1e9, time_unit="ns",
         notes=(f"Error on {channels} x {n_err} samples against delta-operator sections run in extended "
-               f"precision; time on {channels} x {n_time} samples, best of {repeat}. `sosfilt float32` follows "
+               f"precision; time on {channels} x {n_time} samples, best of {repeat} rounds. `sosfilt float32` follows "
                "scipy's convention (float32 coefficients); `SosFilter float32` designs in float64 and computes "
                "in float32. (auto) marks the structure `structure=\"auto\"` picks."),
         variants=variants, ratio_reference="scipy.signal.sosfilt float64, same data", ratio_seconds=t_scipy,
@@ -343,34 +348,36 @@ def _bench_estimator(quick: bool, progress: _Progress) -> KernelReport:
     stress[:, 2] = load
     v, u = circuit.simulate(stress, fs, noise=noise, seed=0)  # independent noise per strip
     v_t, u_t = np.tile(v, tile), np.tile(u, tile)  # the timing block
-    variants, references = [], []
-    bar = progress.bar("estimator", len(orders) * len(bandwidths))
-    for order in orders:
-        for bw in bandwidths:
-            est = StressRateEstimator(circuit, fs, channels, order=order, bandwidth=bw)
+    designs = [(order, bw) for order in orders for bw in bandwidths]
+    bar = progress.bar("estimator", len(designs) + repeat)
+    measured, timed = [], []
+    for order, bw in designs:
+        est = StressRateEstimator(circuit, fs, channels, order=order, bandwidth=bw)
+        rate, rate2 = est.process(v, u)
+        # scipy runs the very same sections: its error is that of the float64 design
+        r1, r2 = ss.sosfilt(est.sos_rate, v), ss.sosfilt(est.sos_rate2, u)
+        measured.append((_rel_rms(rate, rate_true), _rel_rms(rate2, rate2_true), _rel_rms(r1, rate_true),
+                         _rel_rms(r2, rate2_true)))
+
+        def ours(est=est):
             est.reset()
-            rate, rate2 = est.process(v, u)
-            e1, e2 = _rel_rms(rate, rate_true), _rel_rms(rate2, rate2_true)
+            est.process(v_t, u_t)
 
-            def ours(est=est):
-                est.reset()
-                est.process(v_t, u_t)
+        def theirs(est=est):
+            ss.sosfilt(est.sos_rate, v_t)
+            ss.sosfilt(est.sos_rate2, u_t)
 
-            def theirs(est=est):
-                ss.sosfilt(est.sos_rate, v_t)
-                ss.sosfilt(est.sos_rate2, u_t)
-
-            secs = _best_time(ours, repeat) / v_t.size
-            secs_ref = _best_time(theirs, repeat) / v_t.size
-            # scipy runs the same sections: its error is that of the float64 design
-            r1, r2 = ss.sosfilt(est.sos_rate, v), ss.sosfilt(est.sos_rate2, u)
-            label = f"order {order}, {bw:g} Hz"
-            extra = {"rate2": e2, "delay": _lowpass_delay_ms(order, bw, fs)}
-            variants.append(Variant(label, e1, secs, secs_ref / secs, extra))
-            references.append(Reference(f"scipy, {label}", secs_ref, _rel_rms(r1, rate_true),
-                                        {"rate2": _rel_rms(r2, rate2_true)}))
-            bar.update()
+        timed += [ours, theirs]
+        bar.update()
+    secs = [t / v_t.size for t in _best_times(timed, repeat, bar.update)]
     bar.close()
+    variants, references = [], []
+    for i, ((order, bw), (e1, e2, e1_ref, e2_ref)) in enumerate(zip(designs, measured)):
+        t_ours, t_ref = secs[2 * i], secs[2 * i + 1]
+        label = f"order {order}, {bw:g} Hz"
+        variants.append(Variant(label, e1, t_ours, t_ref / t_ours,
+                                {"rate2": e2, "delay": _lowpass_delay_ms(order, bw, fs)}))
+        references.append(Reference(f"scipy, {label}", t_ref, e1_ref, {"rate2": e2_ref}))
     return KernelReport(
         name="estimator",
         title="stress-rate estimator: low-pass order x bandwidth (Butterworth), fs = 1 kHz",
@@ -380,7 +387,7 @@ def _bench_estimator(quick: bool, progress: _Progress) -> KernelReport:
                f"slip), {noise * 1e3:g} mV rms sensor noise on v_out and u_out, {channels} strips x "
                f"{duration:g} s; error against the analytic stress rate (rate2: the same for the 2nd-order rate, "
                f"from u_out); delay: low-frequency group delay of the low-pass. Time: "
-               f"`StressRateEstimator.process` on {channels} x {v_t.shape[1]} samples, best of {repeat}; "
+               f"`StressRateEstimator.process` on {channels} x {v_t.shape[1]} samples, best of {repeat} rounds; "
                "speed ratio against scipy.signal.sosfilt running the same sections (grey crosses in the plot)."),
         variants=variants, references=references,
         extra_columns=[("rate2", "rate2 error", ".3f"), ("delay", "delay (ms)", ".2f")],
@@ -407,11 +414,10 @@ def _bench_detector(quick: bool, progress: _Progress) -> KernelReport:
     weights = SlipDetector.default().weights
     x = _detector_features(weights, n_scenes)
     n = x.shape[2]
+    bar = progress.bar("detector", 4 + repeat + 1)
     ref_s, _, ref_p = reference_run(weights, x)
-    t_ref = _best_time(lambda: reference_run(weights, x), repeat_ref) / n
     grid = np.linspace(-100.0, 100.0, 2_000_001)
-    variants = []
-    bar = progress.bar("detector", 4)
+    cases, timed = [], []
     for dt in (np.float64, np.float32):
         g = grid.astype(dt)
         g_ref = expit(g.astype(np.float64))
@@ -421,13 +427,16 @@ def _bench_detector(quick: bool, progress: _Progress) -> KernelReport:
             ys, _, yp = det.run(xc)
             err = max(float(np.max(np.abs(ys.astype(np.float64) - ref_s))),
                       float(np.max(np.abs(yp.astype(np.float64) - ref_p))))
-            secs = _best_time(lambda det=det, xc=xc: det.run(xc), repeat) / n
             sig = float(np.max(np.abs(_core.detector_sigmoid(g, act, det.simd_path).astype(np.float64) - g_ref)))
-            variants.append(Variant(f"{np.dtype(dt).name} {act}", err, secs, t_ref / secs,
-                                    {"sigmoid": sig, "path": det.simd_path, "dtype": np.dtype(dt).name,
-                                     "activation": act}))
+            cases.append((f"{np.dtype(dt).name} {act}", err,
+                          {"sigmoid": sig, "path": det.simd_path, "dtype": np.dtype(dt).name, "activation": act}))
+            timed.append(lambda det=det, xc=xc: det.run(xc))
             bar.update()
+    secs = [t / n for t in _best_times(timed, repeat, bar.update)]
+    t_ref = _best_times([lambda: reference_run(weights, x)], repeat_ref)[0] / n
+    bar.update()
     bar.close()
+    variants = [Variant(label, err, t, t_ref / t, extra) for (label, err, extra), t in zip(cases, secs)]
     return KernelReport(
         name="detector",
         title=f"slip detector: SlipDetector.run, default weights (H = {weights.n_hidden}), 6 ridges",
@@ -435,7 +444,8 @@ def _bench_detector(quick: bool, progress: _Progress) -> KernelReport:
         unit="tick (6 ridges)", time_scale=1e9, time_unit="ns",
         notes=(f"{n_scenes} synthetic stick-slip scenes (`tactile_mirror.detector.synthetic`), 6 ridges x {n} "
                "ticks, features scaled to the weights' input normalisation; error against the float64 numpy "
-               f"recurrence, which is also the speed reference. Time: best of {repeat} block calls. sigmoid: "
+               f"recurrence, which is also the speed reference. Time: best of {repeat} rounds of block calls "
+               f"(numpy: best of {repeat_ref}). sigmoid: "
                "the kernel's sigmoid alone, max |error| against scipy.special.expit over 2e6 points in "
                "[-100, 100] (documented in jordan_mlp.hpp: fast <= 4.7e-10 in float64, <= 1.9e-7 in float32)."),
         variants=variants, references=[Reference("numpy recurrence, float64 (error reference)", t_ref)],
@@ -517,7 +527,9 @@ class BenchReport:
                  f"{self.seconds:.0f} s on {env['date']}.")
         how = ("Errors against references computed in the same run; speed ratio = reference time / variant "
                "time in the same run (> 1: faster). Pareto: no other variant of the kernel is both at least as "
-               "accurate and at least as fast.")
+               "accurate and at least as fast. Variants are timed in turn, round after round, and keep their "
+               "best round; still, on a shared machine run times move between runs, so a Pareto flag that rests "
+               "on a time difference of a few tens of per cent may change from run to run.")
         lines = ["# Run time against error", "", where, "", how, ""]
         for k in self.kernels.values():
             lines += [f"## {k.title}", "", k.notes, ""]

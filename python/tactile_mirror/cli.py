@@ -186,7 +186,7 @@ def cmd_bench(args) -> int:
           f"output folder {out}/")
     report = bench_report(out, kernels=args.kernels, quick=args.quick, progress=True)
     for k in report.kernels.values():
-        best = ", ".join(v.label for v in k.variants if v.pareto)
+        best = "; ".join(v.label for v in k.variants if v.pareto)
         print(f"{k.name}: {len(k.variants)} variants, Pareto-optimal: {best}")
     print(f"wrote {out / MD_NAME}, {out / PNG_NAME}, {out / JSON_NAME} ({report.seconds:.0f} s)")
     return 0
