@@ -580,8 +580,8 @@ class BenchReport:
                      "filled: Pareto-optimal", fontsize=11)
         fig.tight_layout()
         renderer = fig.canvas.get_renderer()
-        for ax, items in zip(axes.ravel(), labels):
-            _place_labels(ax, items, renderer)
+        for ax, (items, points) in zip(axes.ravel(), labels):
+            _place_labels(ax, items, points, renderer)
         return fig
 
     # ---- json
@@ -633,16 +633,18 @@ def _plain(v, _pos=None) -> str:
 
 
 def _plain_log_axis(axis, lo: float, hi: float, suffix: str = "") -> None:
-    """Plain numbers on a log axis; minor ticks labelled at 2, 3, 5 when it spans < 2 decades."""
+    """Plain numbers on a log axis; minor ticks labelled at 2, 3, 5 (2 and 5 over 2-3 decades)."""
     from matplotlib.ticker import FuncFormatter, NullFormatter
 
     axis.set_major_formatter(FuncFormatter(lambda v, _p: f"{v:g}{suffix}"))
-    if hi / lo < 100:
+    if hi / lo < 1000:
+        marks = (2, 3, 5) if hi / lo < 100 else (2, 5)
+
         def minor(v, _p):
             if v <= 0:
                 return ""
             m = v / 10 ** math.floor(math.log10(v) + 1e-9)
-            return f"{v:g}{suffix}" if any(abs(m - k) < 1e-6 for k in (2, 3, 5)) else ""
+            return f"{v:g}{suffix}" if any(abs(m - k) < 1e-6 for k in marks) else ""
 
         axis.set_minor_formatter(FuncFormatter(minor))
     else:
@@ -695,7 +697,9 @@ def _panel(ax, k: KernelReport) -> list:
         _plain_log_axis(sec.yaxis, r_s / hi_y, r_s / lo_y, suffix="x")
     ax.legend(fontsize=7, loc="lower left")
     label_all = len(k.variants) <= 8
-    return [(e, t, v.label, v.pareto) for v, e, t in zip(k.variants, errs, times) if v.pareto or label_all]
+    items = [(e, t, v.label, v.pareto) for v, e, t in zip(k.variants, errs, times) if v.pareto or label_all]
+    points = [*zip(errs, times), *((r.error, r.seconds * k.time_scale) for r in speed_refs)]
+    return items, points
 
 
 _OFFSETS = ((6, 3, "left", "bottom"), (6, -3, "left", "top"), (-6, 3, "right", "bottom"),
@@ -703,12 +707,13 @@ _OFFSETS = ((6, 3, "left", "bottom"), (6, -3, "left", "top"), (-6, 3, "right", "
             (-6, 12, "right", "bottom"), (-6, -12, "right", "top"))
 
 
-def _place_labels(ax, items, renderer) -> None:
-    """Label points where the text covers no other label, no point and stays in the axes."""
-    pts = ax.transData.transform([(x, y) for x, y, _, _ in items]) if items else np.zeros((0, 2))
+def _place_labels(ax, items, points, renderer) -> None:
+    """Label points where the text covers no other label, no other point and stays in the axes."""
+    pts = ax.transData.transform(points) if points else np.zeros((0, 2))
     taken = []
     box = ax.get_window_extent(renderer)
-    for i, (x, y, text, pareto) in enumerate(items):
+    for x, y, text, pareto in items:
+        own = ax.transData.transform([(x, y)])[0]
         kw = {"fontsize": 8 if pareto else 7, "color": _PARETO_COLOR if pareto else "0.3",
               "fontweight": "bold" if pareto else "normal", "zorder": 5}
         first = None
@@ -716,7 +721,7 @@ def _place_labels(ax, items, renderer) -> None:
             ann = ax.annotate(text, (x, y), xytext=(dx, dy), textcoords="offset points", ha=ha, va=va, **kw)
             bb = ann.get_window_extent(renderer)
             hits_point = any(bb.x0 - 4 < qx < bb.x1 + 4 and bb.y0 - 4 < qy < bb.y1 + 4
-                             for j, (qx, qy) in enumerate(pts) if j != i)
+                             for qx, qy in pts if abs(qx - own[0]) + abs(qy - own[1]) > 0.5)
             inside = bb.x0 >= box.x0 and bb.x1 <= box.x1 and bb.y0 >= box.y0 and bb.y1 <= box.y1
             if inside and not hits_point and not any(bb.overlaps(o) for o in taken):
                 taken.append(bb)
