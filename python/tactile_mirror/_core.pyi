@@ -1,0 +1,298 @@
+"""tactile_mirror C++ core: SOS filters, slip-detector kernel, real-time pipeline.
+
+Type stub of the compiled module. The public API wraps it: ``SosFilter`` and ``sosfilt``
+(filters.py), ``SlipDetector`` (detector/) and ``MirrorPipeline`` (pipeline.py).
+Classes that differ only in their arithmetic share a generic base that exists only here
+(``@type_check_only``), as do the TypedDicts of the pipeline's dict arguments and results.
+"""
+
+from typing import (
+    Any,
+    Generic,
+    Literal,
+    SupportsFloat,
+    SupportsIndex,
+    TypedDict,
+    TypeVar,
+    overload,
+    type_check_only,
+)
+
+import numpy as np
+import numpy.typing as npt
+from typing_extensions import TypeAlias
+
+_F = TypeVar("_F", np.float32, np.float64)
+_FD = TypeVar("_FD", np.float32, np.float64)
+
+_Activation: TypeAlias = Literal["exact", "fast"]
+_DetectorPath: TypeAlias = Literal["generic", "avx2+fma"]
+# "avx2" is accepted as a synonym of "avx2+fma" where a path is set.
+_DetectorPathArg: TypeAlias = Literal["generic", "avx2+fma", "avx2"]
+_Isa: TypeAlias = Literal["avx2+fma", "sse2", "native", "generic"]
+_ControllerKind: TypeAlias = Literal["none", "paper", "velocity"]
+
+# ---- SOS cascade (bind_sos.cpp) ------------------------------------------------------
+
+@type_check_only
+class _SosCascade(Generic[_F]):
+    def __init__(self, sos: npt.ArrayLike, channels: SupportsIndex, forms: npt.NDArray[np.uint8]) -> None:
+        """sos: (n_sections, 6), normalised; forms: one code per section, 0 (tdf2) or 1 (delta)."""
+    @property
+    def channels(self) -> int: ...
+    @property
+    def sections(self) -> int: ...
+    @property
+    def isa(self) -> _Isa:
+        """Instruction set the kernels run on."""
+    @property
+    def rejected(self) -> int:
+        """Number of step() samples rejected as non-finite."""
+    def use_baseline_isa(self) -> None:
+        """Run the portable baseline kernels (testing aid)."""
+    def process(self, x: npt.NDArray[_F]) -> tuple[npt.NDArray[_F], int, int] | tuple[None, int, int]:
+        """Filter a block x (channels, n), any strides.
+
+        Returns ``(y, -1, -1)``, or ``(None, t, c)`` at the first non-finite sample
+        (sample t of channel c), leaving the state unchanged.
+        """
+    def step(self, sample: npt.ArrayLike) -> npt.NDArray[_F]:
+        """Filter one sample (channels,) of any real dtype. A NaN/Inf sample is rejected:
+        the state is kept, ``rejected`` counts it and the previous output is returned."""
+    def get_state(self) -> npt.NDArray[_F]:
+        """A copy of the state, shape (n_sections, channels, 2)."""
+    def set_state(self, zi: npt.ArrayLike) -> None:
+        """Set the state from finite values of shape (n_sections, channels, 2)."""
+    def reset(self) -> None:
+        """Zero the state and the rejection count."""
+    def time_step(self, n_steps: SupportsIndex, thread_ftz: bool = False) -> float:
+        """Benchmark: ns per step() over n_steps steps, timed in C++; the state is reset afterwards."""
+
+class _SosCascade64(_SosCascade[np.float64]):
+    """Multi-channel SOS cascade in float64. Use tactile_mirror.SosFilter instead."""
+
+class _SosCascade32(_SosCascade[np.float32]):
+    """Multi-channel SOS cascade in float32. Use tactile_mirror.SosFilter instead."""
+
+def simd_path() -> _Isa:
+    """The instruction set the C++ kernels dispatched to on this CPU."""
+
+# ---- Jordan MLP slip detector (bind_detector.cpp) ------------------------------------
+
+@type_check_only
+class _JordanMLP(Generic[_F]):
+    def __init__(
+        self,
+        w1: npt.ArrayLike,
+        b1: npt.ArrayLike,
+        w2: npt.ArrayLike,
+        b2: npt.ArrayLike,
+        input_mean: npt.ArrayLike,
+        input_gain: npt.ArrayLike,
+        n_instances: SupportsIndex,
+        activation: _Activation = "exact",
+    ) -> None:
+        """Weights (finite, any real dtype): w1 (n_hidden, n_inputs + 1), b1 (n_hidden,),
+        w2 (2, n_hidden), b2 (2,), input_mean and input_gain (n_inputs,)."""
+    @property
+    def n_instances(self) -> int: ...
+    @property
+    def n_inputs(self) -> int: ...
+    @property
+    def n_hidden(self) -> int: ...
+    @property
+    def dtype(self) -> np.dtype[_F]: ...
+    @property
+    def activation(self) -> _Activation: ...
+    @activation.setter
+    def activation(self, value: _Activation, /) -> None: ...
+    @property
+    def simd_path(self) -> _DetectorPath: ...
+    def set_simd_path(self, path: _DetectorPathArg) -> None:
+        """Select the kernel path; ValueError if this CPU cannot run it."""
+    @property
+    def state(self) -> npt.NDArray[_F]:
+        """y_pred(t-1) of every instance (the Jordan feedback state), shape (n_instances,)."""
+    @state.setter
+    def state(self, value: npt.NDArray[_F], /) -> None: ...
+    def reset(self) -> None:
+        """Set the feedback state to zero."""
+    def step(self, x: npt.NDArray[_F]) -> npt.NDArray[_F]:
+        """One tick. x: (n_instances, n_inputs) -> (n_instances, 3) [y_slip, y_non, y_pred]."""
+    def step_one(self, instance: SupportsIndex, x: npt.NDArray[_F]) -> npt.NDArray[_F]:
+        """One tick of one instance (scalar code). x: (n_inputs,) -> (3,) [y_slip, y_non, y_pred]."""
+    def run(self, x: npt.NDArray[_F]) -> npt.NDArray[_F]:
+        """Run the recurrence over a block. x: (n_instances, n_inputs, n) -> (3, n_instances, n)
+        [y_slip, y_non, y_pred]; the state carries over between calls. Releases the GIL."""
+    def time_step_ns(
+        self,
+        n_iter: SupportsIndex = 1000000,
+        repeats: SupportsIndex = 5,
+        mode: Literal["simd", "scalar"] = "simd",
+    ) -> float:
+        """Mean ns of one tick of all instances (best of repeats), measured in C++; 'simd' times
+        step() on the selected path, 'scalar' a plain loop of step_one()."""
+
+class JordanMLPf32(_JordanMLP[np.float32]):
+    """Jordan recurrent MLP slip-detector kernel (float32), n_instances instances sharing one
+    weight set. Inputs must be float32 arrays (no conversion)."""
+
+class JordanMLPf64(_JordanMLP[np.float64]):
+    """Jordan recurrent MLP slip-detector kernel (float64), n_instances instances sharing one
+    weight set. Inputs must be float64 arrays (no conversion)."""
+
+# The detector kernel's sigmoid (with its clamp) on a flat copy of a, in a's dtype (float32 or
+# float64, else TypeError); for error measurements.
+@overload
+def detector_sigmoid(  # type: ignore[overload-overlap]
+    a: npt.NDArray[np.float32], activation: _Activation = "fast", path: _DetectorPathArg = "avx2+fma"
+) -> npt.NDArray[np.float32]: ...
+@overload
+def detector_sigmoid(
+    a: npt.NDArray[np.float64], activation: _Activation = "fast", path: _DetectorPathArg = "avx2+fma"
+) -> npt.NDArray[np.float64]: ...
+def detector_cpu_has_avx2_fma() -> bool:
+    """True if the AVX2+FMA path of the detector kernel can run on this CPU."""
+
+# ---- real-time pipeline (bind_pipeline.cpp) ------------------------------------------
+
+@type_check_only
+class _ControllerParams(TypedDict, total=False):
+    """Controller parameters; every key is optional on input and present on output."""
+
+    kind: _ControllerKind
+    threshold: float
+    gain: float
+    y_full: float
+    v_max: float
+    a_max: float
+    x_min: float
+    x_max: float
+    direction_sign: float
+    asym_tau: float
+    asym_deadband: float
+    shear_gain: float
+    arm_delay: float
+
+@type_check_only
+class _ControllerState(TypedDict):
+    position: float
+    velocity: float
+    asymmetry: float
+    direction: float
+
+@type_check_only
+class _PipelineStatus(TypedDict):
+    ticks: int
+    rejected: int
+    nonfinite: int
+    out_of_range: int
+    last_bad_tick: int
+    last_bad_channel: int
+    consecutive_rejected: int
+    fault: bool
+    slip: bool
+    at_limit: bool
+
+@type_check_only
+class _MirrorPipeline(Generic[_F, _FD]):
+    def __init__(
+        self,
+        n_ridges: SupportsIndex,
+        fs: SupportsFloat,
+        use_u: bool,
+        sos_v: npt.ArrayLike | None,
+        sos_u: npt.ArrayLike | None,
+        sos_diff: npt.ArrayLike | None,
+        v_limit: SupportsFloat,
+        u_limit: SupportsFloat,
+        w1: npt.ArrayLike,
+        b1: npt.ArrayLike,
+        w2: npt.ArrayLike,
+        b2: npt.ArrayLike,
+        input_mean: npt.ArrayLike,
+        input_gain: npt.ArrayLike,
+        weights_fs: SupportsFloat,
+        activation: _Activation,
+        slip_threshold: SupportsFloat,
+        max_hold_ticks: SupportsIndex,
+        controller: _ControllerParams,
+    ) -> None:
+        """Build the pipeline; see tactile_mirror.pipeline.pipeline_config for the arguments.
+        Filters (sos_*) are None or (n_sections, 6); w1 is (n_hidden, 5)."""
+    @property
+    def n_ridges(self) -> int: ...
+    @property
+    def n_inputs(self) -> int: ...
+    @property
+    def n_outputs(self) -> int: ...
+    @property
+    def fs(self) -> float: ...
+    @property
+    def use_u(self) -> bool: ...
+    @property
+    def dtype(self) -> np.dtype[_F]:
+        """Arithmetic of the filters."""
+    @property
+    def detector_dtype(self) -> np.dtype[_FD]:
+        """Arithmetic of the detector."""
+    @property
+    def simd_path(self) -> str:
+        """``"filters <isa>, detector <path>"``."""
+    @property
+    def controller(self) -> _ControllerParams: ...
+    def step(self, x: npt.NDArray[np.float64], out: npt.NDArray[np.float64] | None = None) -> float:
+        """One tick. x: float64 (n_inputs,) C-contiguous, no conversion; out: float64 (n_outputs,)
+        receives [x_cmd, v_cmd, y_slip_0, y_non_0, y_pred_0, ...]. Returns x_cmd (m). A NaN/Inf or
+        out-of-range sample rejects the tick (counted in status; detector outputs held)."""
+    @overload
+    def process_block(
+        self, x: npt.ArrayLike, features: Literal[False] = False, accepted: Literal[False] = False
+    ) -> tuple[npt.NDArray[np.float64]]: ...
+    @overload
+    def process_block(
+        self, x: npt.ArrayLike, features: Literal[True], accepted: Literal[False] = False
+    ) -> tuple[npt.NDArray[np.float64], npt.NDArray[np.float64]]: ...
+    @overload
+    def process_block(
+        self, x: npt.ArrayLike, features: Literal[False] = False, *, accepted: Literal[True]
+    ) -> tuple[npt.NDArray[np.float64], npt.NDArray[np.bool_]]: ...
+    @overload
+    def process_block(
+        self, x: npt.ArrayLike, features: Literal[False], accepted: Literal[True]
+    ) -> tuple[npt.NDArray[np.float64], npt.NDArray[np.bool_]]: ...
+    @overload
+    def process_block(
+        self, x: npt.ArrayLike, features: Literal[True], accepted: Literal[True]
+    ) -> tuple[npt.NDArray[np.float64], npt.NDArray[np.float64], npt.NDArray[np.bool_]]: ...
+    @overload
+    def process_block(
+        self, x: npt.ArrayLike, features: bool = False, accepted: bool = False
+    ) -> tuple[npt.NDArray[Any], ...]: ...
+    @property
+    def outputs(self) -> npt.NDArray[np.float64]:
+        """Live read-only view of the last outputs (n_outputs,)."""
+    @property
+    def features(self) -> npt.NDArray[np.float64]:
+        """Features of the last accepted tick, (n_ridges, 4) [rate_L, rate_R, rate2_L, rate2_R]."""
+    @property
+    def last_accepted(self) -> bool: ...
+    @property
+    def status(self) -> _PipelineStatus: ...
+    @property
+    def controller_state(self) -> _ControllerState: ...
+    def reset(self, x0: SupportsFloat = 0.0) -> None:
+        """Zero filters, detector state and status; the command starts at x0 (m, clamped)."""
+    def set_position(self, x: SupportsFloat) -> None:
+        """Move the commanded position to x (m, clamped to the travel limits) and stop."""
+    def time_step_ns(self, n_iter: SupportsIndex = 200000, repeats: SupportsIndex = 5) -> float:
+        """Mean ns of one tick measured inside C++ over n_iter ticks (best of repeats); state restored."""
+
+class _MirrorPipelineF64(_MirrorPipeline[np.float64, np.float64]):
+    """Real-time tactile-mirror pipeline, float64 filters and detector (see tactile_mirror.MirrorPipeline)."""
+
+class _MirrorPipelineF32(_MirrorPipeline[np.float32, np.float32]):
+    """Real-time tactile-mirror pipeline, float32 filters and detector (see tactile_mirror.MirrorPipeline)."""
+
+class _MirrorPipelineF64F32(_MirrorPipeline[np.float64, np.float32]):
+    """Real-time tactile-mirror pipeline, float64 filters and float32 detector (see tactile_mirror.MirrorPipeline)."""
