@@ -105,6 +105,7 @@ import numbers
 from dataclasses import dataclass
 
 import numpy as np
+import numpy.typing as npt
 import scipy.optimize
 import scipy.signal
 
@@ -206,7 +207,7 @@ class PVDFCircuit:
     Rs: float = 2.2e3
     load: tuple[float, float, float] = (0.0, 0.0, 1.0)
 
-    def __post_init__(self):
+    def __post_init__(self) -> None:
         for name in _POSITIVE_FIELDS + _FINITE_FIELDS:
             value = getattr(self, name)
             if isinstance(value, bool) or not isinstance(value, numbers.Real):
@@ -273,7 +274,7 @@ class PVDFCircuit:
         return -self.rate_gain * self.tau_d
 
     # ------------------------------------------------------------------ charge
-    def charge(self, stress) -> np.ndarray:
+    def charge(self, stress: npt.ArrayLike) -> np.ndarray:
         """Charge on the strip from its strip-averaged normal stresses.
 
         Parameters
@@ -291,7 +292,7 @@ class PVDFCircuit:
         d = np.array([self.d31, self.d32, self.d33])
         return self.area * np.einsum("...kn,k->...n", s, d)
 
-    def equivalent_load(self, stress) -> np.ndarray:
+    def equivalent_load(self, stress: npt.ArrayLike) -> np.ndarray:
         """The load (Pa) that makes the same charge as ``stress``: ``Q / q``.
 
         ``stress`` as in :meth:`charge`; returns shape (..., n).
@@ -306,7 +307,7 @@ class PVDFCircuit:
         return s
 
     # ------------------------------------------------------------------ analog
-    def zpk(self, output: str = "v"):
+    def zpk(self, output: str = "v") -> tuple[np.ndarray, np.ndarray, float]:
         """Analog zeros, poles (rad/s) and gain from the load (Pa) to an output (V).
 
         Parameters
@@ -339,7 +340,7 @@ class PVDFCircuit:
         :class:`scipy.signal.ZerosPolesGain`."""
         return scipy.signal.ZerosPolesGain(*self.zpk(output))
 
-    def response(self, f, output: str = "v") -> np.ndarray:
+    def response(self, f: npt.ArrayLike, output: str = "v") -> np.ndarray:
         """Complex analog frequency response at ``f`` (Hz, >= 0), V/Pa."""
         f = _real_array(f, "f")
         if np.any(f < 0):
@@ -353,7 +354,7 @@ class PVDFCircuit:
             h = h / (s - pp)
         return h
 
-    def gain(self, f, output: str = "v") -> np.ndarray:
+    def gain(self, f: npt.ArrayLike, output: str = "v") -> np.ndarray:
         """Gain per the paper's Eq. (1): ``20 log10 |out / lo|``, dB re 1 V/Pa.
 
         Parameters
@@ -376,7 +377,8 @@ class PVDFCircuit:
         return float(np.polyfit(np.log10(f), self.gain(f, output), 1)[0])
 
     # ------------------------------------------------------------------ discrete
-    def sos(self, fs, output: str = "v", method: str = "bilinear", prewarp: float | None = None):
+    def sos(self, fs: float, output: str = "v", method: str = "bilinear",
+            prewarp: float | None = None) -> np.ndarray:
         """Second-order sections from the sampled load (Pa) to an output (V).
 
         Parameters
@@ -421,8 +423,9 @@ class PVDFCircuit:
         return scipy.signal.zpk2sos(zd, pd, kd)
 
     # ------------------------------------------------------------------ simulate
-    def simulate(self, stress, fs, noise=0.0, seed=None, method: str = "bilinear",
-                 prewarp: float | None = None):
+    def simulate(self, stress: npt.ArrayLike, fs: float, noise: float | tuple[float, float] = 0.0,
+                 seed: int | np.random.Generator | None = None, method: str = "bilinear",
+                 prewarp: float | None = None) -> tuple[np.ndarray, np.ndarray]:
         """Run sampled strip stresses through the circuit.
 
         Parameters
@@ -494,7 +497,8 @@ def _band_freqs(band, num) -> np.ndarray:
 _FIT_FIELDS = ("Rf", "Cf", "Rd", "Rs")
 
 
-def fit_circuit(freqs, gain_v_db, gain_u_db=None, initial: PVDFCircuit | None = None) -> PVDFCircuit:
+def fit_circuit(freqs: npt.ArrayLike, gain_v_db: npt.ArrayLike, gain_u_db: npt.ArrayLike | None = None,
+                initial: PVDFCircuit | None = None) -> PVDFCircuit:
     """Identify the circuit components from a measured gain curve (paper Eq. 1).
 
     The gain curves fix only products of components: ``v_out`` gives ``q Rf``

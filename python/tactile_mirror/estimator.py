@@ -35,6 +35,7 @@ import math
 import numbers
 
 import numpy as np
+import numpy.typing as npt
 import scipy.signal
 
 from .circuit import PVDFCircuit, _check_fs
@@ -89,7 +90,7 @@ def _lowpass_zpk(order: int, bandwidth: float, fs: float, kind: str):
     return z, p, k
 
 
-def equalizer_sos(circuit: PVDFCircuit, fs, output: str = "v", order: int = 2,
+def equalizer_sos(circuit: PVDFCircuit, fs: float, output: str = "v", order: int = 2,
                   bandwidth: float = 100.0, kind: str = "butter") -> np.ndarray:
     """Equaliser from a sampled circuit output to the load's stress rate.
 
@@ -130,7 +131,7 @@ def equalizer_sos(circuit: PVDFCircuit, fs, output: str = "v", order: int = 2,
     return scipy.signal.zpk2sos(zd, pd, kd)
 
 
-def differentiator_sos(fs, order: int = 1, bandwidth: float = 100.0, kind: str = "butter") -> np.ndarray:
+def differentiator_sos(fs: float, order: int = 1, bandwidth: float = 100.0, kind: str = "butter") -> np.ndarray:
     """Band-limited digital differentiator ``s L(s)`` (bilinear, ``c = 2 fs``).
 
     Turns a signal in X into its time derivative in X/s below ``bandwidth``.
@@ -227,9 +228,9 @@ class StressRateEstimator:
     signal gives the result of :func:`estimate_stress_rate` on the whole signal.
     """
 
-    def __init__(self, circuit: PVDFCircuit, fs, channels: int, order: int = 2, bandwidth: float = 100.0,
+    def __init__(self, circuit: PVDFCircuit, fs: float, channels: int, order: int = 2, bandwidth: float = 100.0,
                  use_u: bool = True, kind: str = "butter", diff_order: int = 1,
-                 diff_bandwidth: float | None = None, dtype=np.float64):
+                 diff_bandwidth: float | None = None, dtype: npt.DTypeLike = np.float64) -> None:
         if isinstance(channels, bool) or not isinstance(channels, numbers.Integral) or channels < 1:
             raise ValueError(f"channels must be a positive integer, got {channels!r}")
         d = _Design(circuit, fs, order, bandwidth, use_u, kind, diff_order, diff_bandwidth)
@@ -259,7 +260,7 @@ class StressRateEstimator:
         if not self.use_u and u is not None:
             raise ValueError("u must be None: the estimator was built with use_u=False")
 
-    def process(self, v, u=None):
+    def process(self, v: npt.ArrayLike, u: npt.ArrayLike | None = None) -> tuple[np.ndarray, np.ndarray]:
         """Filter one block.
 
         Parameters
@@ -286,7 +287,8 @@ class StressRateEstimator:
         rate2 = self._rate2.process(u if self.use_u else rate)
         return rate, rate2
 
-    def step(self, v_sample, u_sample=None):
+    def step(self, v_sample: npt.ArrayLike,
+             u_sample: npt.ArrayLike | None = None) -> tuple[np.ndarray, np.ndarray]:
         """Filter one sample per channel.
 
         Parameters
@@ -319,9 +321,9 @@ class StressRateEstimator:
         return rate, rate2
 
 
-def estimate_stress_rate(v_out, u_out, circuit: PVDFCircuit, fs, order: int = 2, bandwidth: float = 100.0,
-                         kind: str = "butter", diff_order: int = 1, diff_bandwidth: float | None = None,
-                         axis: int = -1):
+def estimate_stress_rate(v_out: npt.ArrayLike, u_out: npt.ArrayLike | None, circuit: PVDFCircuit, fs: float,
+                         order: int = 2, bandwidth: float = 100.0, kind: str = "butter", diff_order: int = 1,
+                         diff_bandwidth: float | None = None, axis: int = -1) -> tuple[np.ndarray, np.ndarray]:
     """Estimate stress rate and 2nd-order stress rate of whole recordings.
 
     Parameters

@@ -36,7 +36,10 @@ be non-zero. Complex, long-double and object inputs are passed to scipy itself.
 """
 from __future__ import annotations
 
+from typing import overload
+
 import numpy as np
+import numpy.typing as npt
 
 from . import _core
 
@@ -62,7 +65,7 @@ def _real_numeric(a: np.ndarray, name: str) -> None:
         raise TypeError(f"{name} must hold real numbers, got dtype {a.dtype}")
 
 
-def validate_sos(sos, *, allow_unstable: bool = False, name: str = "sos") -> np.ndarray:
+def validate_sos(sos: npt.ArrayLike, *, allow_unstable: bool = False, name: str = "sos") -> np.ndarray:
     """Check an SOS array and return it normalised (``a0 = 1``) as float64.
 
     Parameters
@@ -120,7 +123,17 @@ def _forms(sos: np.ndarray, dtype: np.dtype, structure: str) -> np.ndarray:
     return np.full(n, _FORM_CODES[structure], np.uint8)
 
 
-def sosfilt(sos, x, axis: int = -1, zi=None, *, structure: str = "auto", allow_unstable: bool = False):
+@overload
+def sosfilt(sos: npt.ArrayLike, x: npt.ArrayLike, axis: int = -1, zi: None = None, *, structure: str = "auto",
+            allow_unstable: bool = False) -> np.ndarray: ...
+@overload
+def sosfilt(sos: npt.ArrayLike, x: npt.ArrayLike, axis: int, zi: npt.ArrayLike, *, structure: str = "auto",
+            allow_unstable: bool = False) -> tuple[np.ndarray, np.ndarray]: ...
+@overload
+def sosfilt(sos: npt.ArrayLike, x: npt.ArrayLike, axis: int = -1, *, zi: npt.ArrayLike, structure: str = "auto",
+            allow_unstable: bool = False) -> tuple[np.ndarray, np.ndarray]: ...
+def sosfilt(sos: npt.ArrayLike, x: npt.ArrayLike, axis: int = -1, zi: npt.ArrayLike | None = None, *,
+            structure: str = "auto", allow_unstable: bool = False) -> np.ndarray | tuple[np.ndarray, np.ndarray]:
     """Filter data along one dimension with cascaded second-order sections.
 
     A drop-in for :func:`scipy.signal.sosfilt`: same arguments, same return values
@@ -264,8 +277,8 @@ class SosFilter:
     previous output (sample-and-hold), which is what a real-time loop wants.
     """
 
-    def __init__(self, sos, channels: int = 1, dtype=np.float64, *, structure: str = "auto",
-                 allow_unstable: bool = False):
+    def __init__(self, sos: npt.ArrayLike, channels: int = 1, dtype: npt.DTypeLike = np.float64, *,
+                 structure: str = "auto", allow_unstable: bool = False) -> None:
         if isinstance(channels, (bool, np.bool_)) or not isinstance(channels, (int, np.integer)):
             raise TypeError(f"channels must be an int, got {type(channels).__name__}")
         if channels < 1:
@@ -313,7 +326,7 @@ class SosFilter:
                 f"dtype={self._dtype.name}, structure={self._structure})")
 
     # -- running
-    def process(self, block) -> np.ndarray:
+    def process(self, block: npt.ArrayLike) -> np.ndarray:
         """Filter a block shaped ``(channels, n)`` (or ``(n,)`` for one channel).
 
         Returns the output in the same shape and the filter's dtype. Raises
@@ -337,7 +350,7 @@ class SosFilter:
             )
         return y[0] if one_d else y
 
-    def step(self, sample) -> np.ndarray:
+    def step(self, sample: npt.ArrayLike) -> np.ndarray:
         """Filter one sample per channel (shape ``(channels,)``); returns the outputs.
 
         A sample with a NaN/Inf value is rejected (counted in ``rejected``); the
@@ -345,7 +358,7 @@ class SosFilter:
         """
         return self._core.step(sample)
 
-    def reset(self, zi=None) -> None:
+    def reset(self, zi: npt.ArrayLike | None = None) -> None:
         """Zero the state, or set it to ``zi`` (shape ``(n_sections, channels, 2)``)."""
         if zi is None:
             self._core.reset()
@@ -358,7 +371,7 @@ class SosFilter:
         return self._core.get_state()
 
     @zi.setter
-    def zi(self, value) -> None:
+    def zi(self, value: npt.ArrayLike) -> None:
         z = np.asarray(value)
         _real_numeric(z, "zi")
         shape = (self._sos.shape[0], self._channels, 2)
@@ -369,7 +382,8 @@ class SosFilter:
         self._core.set_state(np.ascontiguousarray(z, dtype=self._dtype))
 
 
-def roundoff_bound(sos, x, dtype=np.float32, *, impulse_length: int = 4000) -> float:
+def roundoff_bound(sos: npt.ArrayLike, x: npt.ArrayLike, dtype: npt.DTypeLike = np.float32, *,
+                   impulse_length: int = 4000) -> float:
     """First-order bound on the round-off error of filtering ``x`` in ``dtype``.
 
     ``eps * sum_s ||g_s||_1 * (max|u_s| + max|y_s|)``, where ``u_s``, ``y_s`` are the

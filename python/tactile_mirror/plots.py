@@ -6,7 +6,15 @@ matplotlib is imported lazily (the Agg backend works without a screen).
 """
 from __future__ import annotations
 
+import os
+from typing import TYPE_CHECKING
+
 import numpy as np
+
+if TYPE_CHECKING:
+    from matplotlib.figure import Figure
+
+    from .contact import SimulationResult
 
 __all__ = ["contact_scene_figure", "save"]
 
@@ -35,8 +43,8 @@ def _shade_stops(axes, stops):
             ax.axvspan(a, b, color="0.85", lw=0)
 
 
-def contact_scene_figure(result, ridge: int = 0, title: str | None = None, estimator_order: int = 2,
-                         estimator_bandwidth: float = 100.0):
+def contact_scene_figure(result: SimulationResult, ridge: int = 0, title: str | None = None,
+                         estimator_order: int = 2, estimator_bandwidth: float = 100.0) -> Figure:
     """The paper's Figs. 6-8: plate motion, ``d/dt (sigma_L - sigma_R)`` and its
     derivative as the PVDF sensors and the stress-rate estimator see them, and the
     share of the contact slipping.
@@ -75,7 +83,7 @@ def contact_scene_figure(result, ridge: int = 0, title: str | None = None, estim
     return fig
 
 
-def save(fig, path) -> None:
+def save(fig: Figure, path: str | os.PathLike[str]) -> None:
     """Write a figure (format from the file name) and close it."""
     import pathlib
 

@@ -11,6 +11,7 @@ before slip). ``random(n, seed, ...)`` draws training and test scenes.
 from __future__ import annotations
 
 from dataclasses import dataclass, field, replace
+from typing import Any
 
 import numpy as np
 
@@ -104,7 +105,7 @@ class Scene:
     circuit: PVDFCircuit = field(default_factory=PVDFCircuit)
     field_times: tuple = ()
 
-    def __post_init__(self):
+    def __post_init__(self) -> None:
         for name in ("duration", "fs", "indent_duration"):
             v = getattr(self, name)
             if not (np.isfinite(v) and v > 0):
@@ -168,7 +169,7 @@ class Scene:
         return replace(self, outputs=frozenset(outputs))
 
 
-def paper(name: str, **overrides) -> Scene:
+def paper(name: str, **overrides: Any) -> Scene:
     """The paper's scenes: ``"fig6"`` (no stop), ``"fig7"`` (stop at A, 1.00-1.05 s),
     ``"fig8"`` (stop at B, 1.40-1.45 s). Keyword overrides go to :class:`Scene`."""
     stops = {"fig6": (), "fig7": ((1.00, 1.05),), "fig8": ((1.40, 1.45),)}
@@ -179,9 +180,10 @@ def paper(name: str, **overrides) -> Scene:
     return Scene(**kw)
 
 
-def random(n: int, seed: int = 0, *, friction=(0.45, 0.85), indent=(20e-6, 40e-6), slide_speed=(0.1e-3, 0.4e-3),
-           stop_probability: float = 0.5, stop_length=(0.02, 0.1), noise=(0.0, 2e-3), duration: float = 2.5,
-           **overrides) -> list[Scene]:
+def random(n: int, seed: int = 0, *, friction: tuple[float, float] = (0.45, 0.85),
+           indent: tuple[float, float] = (20e-6, 40e-6), slide_speed: tuple[float, float] = (0.1e-3, 0.4e-3),
+           stop_probability: float = 0.5, stop_length: tuple[float, float] = (0.02, 0.1),
+           noise: tuple[float, float] = (0.0, 2e-3), duration: float = 2.5, **overrides: Any) -> list[Scene]:
     """``n`` randomized scenes for training and testing (deterministic for a seed).
 
     Each draws a friction coefficient, an indent depth (reached in 0.5 s), a slide

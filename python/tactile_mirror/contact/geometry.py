@@ -22,8 +22,13 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass, field
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
+import numpy.typing as npt
+
+if TYPE_CHECKING:
+    from skfem import MeshTri
 
 __all__ = ["Material", "RidgeGeometry", "ridge_mesh", "wide_block"]
 
@@ -47,7 +52,7 @@ class Material:
     nu: float = 0.495
     rho: float = 1230.0
 
-    def __post_init__(self):
+    def __post_init__(self) -> None:
         if not (self.E > 0):
             raise ValueError(f"E must be positive, got {self.E!r}")
         if not (-1.0 < self.nu < 0.5):
@@ -111,7 +116,7 @@ class RidgeGeometry:
     n_strip_samples: int = 40
     material: Material = field(default_factory=Material)
 
-    def __post_init__(self):
+    def __post_init__(self) -> None:
         for name in ("width", "height", "top_radius", "strip_width", "strip_thickness", "mesh_size",
                      "contact_mesh_size", "grading"):
             v = getattr(self, name)
@@ -131,7 +136,7 @@ class RidgeGeometry:
                 if not (abs(p[0]) < self.width / 2 and 0 < p[1] < self.height - self.sag(p[0])):
                     raise ValueError(f"strip at y={ys!r} does not fit inside the ridge (strip_depth, strip_y)")
 
-    def sag(self, y):
+    def sag(self, y: npt.ArrayLike) -> np.ndarray:
         """Drop of the top surface below the crown at ``y``, m."""
         y = np.asarray(y, dtype=float)
         if math.isinf(self.top_radius):
@@ -139,14 +144,14 @@ class RidgeGeometry:
         return self.top_radius - np.sqrt(self.top_radius**2 - y**2)
 
     @property
-    def strip_directions(self):
+    def strip_directions(self) -> tuple[np.ndarray, np.ndarray]:
         """Unit vectors (e2 = along the strip width, e3 = film normal) in the (y, z) plane."""
         a = math.radians(self.strip_angle)
         e2 = np.array([math.cos(a), math.sin(a)])
         e3 = np.array([-math.sin(a), math.cos(a)])
         return e2, e3
 
-    def strip_points(self, ys):
+    def strip_points(self, ys: float) -> np.ndarray:
         """Mid-line sample points of the strip centred at ``(ys, height - strip_depth)``, shape (n, 2)."""
         n = int(self.n_strip_samples)
         e2, _ = self.strip_directions
@@ -155,8 +160,9 @@ class RidgeGeometry:
         return c[None, :] + self.strip_width * s[:, None] * e2[None, :]
 
 
-def wide_block(width=20e-3, height=10e-3, top_radius=0.1, contact_halfwidth=1.5e-3,
-               contact_mesh_size=25e-6, mesh_size=1.5e-3, **kw) -> RidgeGeometry:
+def wide_block(width: float = 20e-3, height: float = 10e-3, top_radius: float = 0.1,
+               contact_halfwidth: float = 1.5e-3, contact_mesh_size: float = 25e-6, mesh_size: float = 1.5e-3,
+               **kw: Any) -> RidgeGeometry:
     """A wide block for Hertz / Cattaneo-Mindlin validation (default 20 x 10 mm, R = 100 mm).
 
     The strips are placed 0.5 mm apart at 1 mm depth (they only matter for sensor checks).
@@ -176,7 +182,7 @@ def _dist_to_segment(p, a, b):
     return np.sqrt(((p - q) ** 2).sum(0))
 
 
-def ridge_mesh(geom: RidgeGeometry):
+def ridge_mesh(geom: RidgeGeometry) -> MeshTri:
     """Graded triangle mesh of the ridge cross-section (scikit-fem ``MeshTri``).
 
     A coarse tensor mesh is refined (conforming red-green-blue refinement) until every

@@ -29,6 +29,7 @@ import time
 from dataclasses import dataclass
 
 import numpy as np
+import numpy.typing as npt
 import scipy.sparse as sp
 import scipy.sparse.linalg as spla
 
@@ -82,7 +83,8 @@ class RidgeModel:
         rhs[d["contact_free"]] = f
         return d["solve"](rhs)[d["contact_free"]]
 
-    def solve_piece_full(self, A, T, slip_coef, rhs):
+    def solve_piece_full(self, A: npt.ArrayLike, T: npt.ArrayLike, slip_coef: npt.ArrayLike,
+                         rhs: npt.ArrayLike) -> np.ndarray:
         """Unreduced solve of one active-set piece (the reference for the condensed one).
 
         Unknowns: the full displacement and the normal forces of the active nodes ``A``
@@ -108,7 +110,7 @@ class RidgeModel:
         sol = spla.spsolve(KKT, np.concatenate([np.zeros(nf), rhs]))
         return sol[nf:]
 
-    def stress_field(self, f: np.ndarray):
+    def stress_field(self, f: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Element-averaged plane-strain stress ``(sxx, syy, szz, syz)`` per element, Pa,
         and the element centroids ``(2, n_elements)``."""
         from skfem.helpers import sym_grad, trace

@@ -14,11 +14,15 @@ from __future__ import annotations
 
 import functools
 from dataclasses import dataclass, field
+from typing import TYPE_CHECKING
 
 import numpy as np
 
 from .model import RidgeModel
 from .solver import ContactSolver
+
+if TYPE_CHECKING:
+    from ..scenes import Scene
 
 __all__ = ["Pad", "PadState"]
 
@@ -80,7 +84,7 @@ class Pad:
 
     def __init__(self, model: RidgeModel, mu: float, n_ridges: int = 1, pitch: float | None = None,
                  finger_radius: float = np.inf, ridge_length: float = 10e-3, tol: float = 1e-10,
-                 mu_kinetic: float | None = None):
+                 mu_kinetic: float | None = None) -> None:
         if int(n_ridges) != n_ridges or n_ridges < 1:
             raise ValueError(f"n_ridges must be a positive integer, got {n_ridges!r}")
         if not (finger_radius > 0):
@@ -100,7 +104,7 @@ class Pad:
         self.solvers = [ContactSolver(model, mu, tol=tol, mu_kinetic=mu_kinetic) for _ in range(self.n_ridges)]
 
     @classmethod
-    def from_scene(cls, scene) -> Pad:
+    def from_scene(cls, scene: Scene) -> Pad:
         """The pad a :class:`~tactile_mirror.Scene` describes: its ridge geometry,
         static and kinetic friction, number of ridges and finger radius."""
         from .model import ridge_model

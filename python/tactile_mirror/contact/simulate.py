@@ -7,6 +7,7 @@ asks for is computed (:data:`tactile_mirror.scenes.OUTPUTS`).
 from __future__ import annotations
 
 import concurrent.futures
+from collections.abc import Iterable
 from dataclasses import dataclass, field
 from typing import TYPE_CHECKING
 
@@ -145,7 +146,7 @@ def _simulate_quiet(scene):
     return simulate(scene, progress=False)
 
 
-def simulate_many(scenes, executor: concurrent.futures.Executor | None = None, progress: bool = True,
+def simulate_many(scenes: Iterable[Scene], executor: concurrent.futures.Executor | None = None, progress: bool = True,
                   max_workers: int | None = None) -> list[SimulationResult]:
     """Simulate many scenes, in order, on ``executor`` (default: a local process pool).
 
@@ -185,7 +186,8 @@ def simulate_many(scenes, executor: concurrent.futures.Executor | None = None, p
             executor.shutdown()
 
 
-def calibrate_friction(target_slip_time: float, scene: Scene | None = None, bracket=(0.3, 1.2),
+def calibrate_friction(target_slip_time: float, scene: Scene | None = None,
+                       bracket: tuple[float, float] = (0.3, 1.2),
                        tol: float = 2e-3) -> float:
     """Friction coefficient at which ``scene`` (default: the paper's fig6) reaches gross
     slip at ``target_slip_time`` s (bisection; slip time grows with friction)."""

@@ -97,7 +97,7 @@ class ContactSolver:
     max_active_set_iter = 25
 
     def __init__(self, model: RidgeModel, mu: float, tol: float = 1e-10, max_iter: int = 60,
-                 reduced: bool = True, mu_kinetic: float | None = None):
+                 reduced: bool = True, mu_kinetic: float | None = None) -> None:
         if not (np.isfinite(mu) and mu > 0):
             raise ValueError(f"mu must be a positive number, got {mu!r}")
         mu_k = mu if mu_kinetic is None else mu_kinetic
