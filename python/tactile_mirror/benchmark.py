@@ -282,16 +282,26 @@ def _bench_filters(quick: bool, progress: _Progress) -> KernelReport:
         forms = flt._forms(flt.validate_sos(sos.astype(dtype)), np.dtype(dtype), "auto")
         return " (auto)" if np.all(forms == flt._FORM_CODES[structure]) else ""
 
-    cases = [("scipy.signal.sosfilt float64", lambda x: ss.sosfilt(sos, x), np.float64, "tdf2")]
-    cases.append(("scipy.signal.sosfilt float32", lambda x: ss.sosfilt(sos32, x), np.float32, "tdf2"))
-    for dt, s in ((np.float64, sos), (np.float32, sos32)):
+    # (label, filter function, dtype, structure)
+    cases: list[tuple[str, Callable[[np.ndarray], np.ndarray], type, str]] = [
+        ("scipy.signal.sosfilt float64", lambda x: ss.sosfilt(sos, x), np.float64, "tdf2"),
+        ("scipy.signal.sosfilt float32", lambda x: ss.sosfilt(sos32, x), np.float32, "tdf2")]
+    for sos_dt in (sos, sos32):
         for structure in ("tdf2", "delta"):
-            cases.append((f"sosfilt {np.dtype(dt).name} {structure}{auto_tag(dt, structure)}",
-                          lambda x, s=s, structure=structure: flt.sosfilt(s, x, structure=structure), dt, structure))
+            def ours(x, s=sos_dt, structure=structure):
+                return flt.sosfilt(s, x, structure=structure)
+
+            name = sos_dt.dtype.name
+            cases.append((f"sosfilt {name} {structure}{auto_tag(sos_dt.dtype, structure)}", ours,
+                          sos_dt.dtype.type, structure))
     f32 = flt.SosFilter(sos, channels, np.float32)  # float64 design, float32 arithmetic, "auto"
     f32_structure = "/".join(dict.fromkeys(f32.structure))
-    cases.append((f"SosFilter float32 {f32_structure} (auto)",
-                  lambda x: (f32.reset(), f32.process(x))[1], np.float32, f32_structure))
+
+    def sos_filter32(x):
+        f32.reset()
+        return f32.process(x)
+
+    cases.append((f"SosFilter float32 {f32_structure} (auto)", sos_filter32, np.float32, f32_structure))
 
     bar = progress.bar("filters", len(cases) + repeat)
     errors, timed = [], []
@@ -354,8 +364,9 @@ def _bench_estimator(quick: bool, progress: _Progress) -> KernelReport:
     for order, bw in designs:
         est = StressRateEstimator(circuit, fs, channels, order=order, bandwidth=bw)
         rate, rate2 = est.process(v, u)
+        sos_v, sos_u = est.sos_rate, est.sos_rate2
         # scipy runs the very same sections: its error is that of the float64 design
-        r1, r2 = ss.sosfilt(est.sos_rate, v), ss.sosfilt(est.sos_rate2, u)
+        r1, r2 = ss.sosfilt(sos_v, v), ss.sosfilt(sos_u, u)
         measured.append((_rel_rms(rate, rate_true), _rel_rms(rate2, rate2_true), _rel_rms(r1, rate_true),
                          _rel_rms(r2, rate2_true)))
 
@@ -363,9 +374,9 @@ def _bench_estimator(quick: bool, progress: _Progress) -> KernelReport:
             est.reset()
             est.process(v_t, u_t)
 
-        def theirs(est=est):
-            ss.sosfilt(est.sos_rate, v_t)
-            ss.sosfilt(est.sos_rate2, u_t)
+        def theirs(sos_v=sos_v, sos_u=sos_u):
+            ss.sosfilt(sos_v, v_t)
+            ss.sosfilt(sos_u, u_t)
 
         timed += [ours, theirs]
         bar.update()
@@ -427,7 +438,8 @@ def _bench_detector(quick: bool, progress: _Progress) -> KernelReport:
             ys, _, yp = det.run(xc)
             err = max(float(np.max(np.abs(ys.astype(np.float64) - ref_s))),
                       float(np.max(np.abs(yp.astype(np.float64) - ref_p))))
-            sig = float(np.max(np.abs(_core.detector_sigmoid(g, act, det.simd_path).astype(np.float64) - g_ref)))
+            y_sig = _core.detector_sigmoid(g, act, det.simd_path)  # type: ignore[call-overload]
+            sig = float(np.max(np.abs(y_sig.astype(np.float64) - g_ref)))
             cases.append((f"{np.dtype(dt).name} {act}", err,
                           {"sigmoid": sig, "path": det.simd_path, "dtype": np.dtype(dt).name, "activation": act}))
             timed.append(lambda det=det, xc=xc: det.run(xc))
@@ -651,8 +663,8 @@ def _plain_log_axis(axis, lo: float, hi: float, suffix: str = "") -> None:
         axis.set_minor_formatter(NullFormatter())
 
 
-def _panel(ax, k: KernelReport) -> list:
-    """Draw one kernel; return the points to label as (x, y, text, pareto)."""
+def _panel(ax, k: KernelReport) -> tuple[list, list]:
+    """Draw one kernel; return the points to label, (x, y, text, pareto), and every marker, (x, y)."""
     errs = np.array([v.error for v in k.variants])
     times = np.array([v.seconds for v in k.variants]) * k.time_scale
     errs = np.maximum(errs, np.finfo(np.float64).tiny)  # an exact match has no place on a log axis
@@ -710,7 +722,7 @@ _OFFSETS = ((6, 3, "left", "bottom"), (6, -3, "left", "top"), (-6, 3, "right", "
 def _place_labels(ax, items, points, renderer) -> None:
     """Label points where the text covers no other label, no other point and stays in the axes."""
     pts = ax.transData.transform(points) if points else np.zeros((0, 2))
-    taken = []
+    taken: list = []
     box = ax.get_window_extent(renderer)
     for x, y, text, pareto in items:
         own = ax.transData.transform([(x, y)])[0]
@@ -733,7 +745,8 @@ def _place_labels(ax, items, points, renderer) -> None:
             else:
                 ann.remove()
         else:  # nowhere free: keep the first position
-            taken.append(first.get_window_extent(renderer))
+            if first is not None:
+                taken.append(first.get_window_extent(renderer))
 
 
 def _environment() -> dict:
