@@ -51,7 +51,7 @@ def test_library_and_header_are_installed():
     assert os.path.isfile(lib) and os.path.isabs(lib)
     assert os.path.isfile(header_path())
     _ffi, c = load()
-    assert c.tm_abi_version() == 1
+    assert c.tm_abi_version() == 2
 
 
 @pytest.mark.parametrize("use_u", [True, False])

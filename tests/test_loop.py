@@ -50,6 +50,8 @@ def samples(n, ni, seed=0):
     (VelocityController, {"a_max": -2}, "a_max"),
     (VelocityController, {"threshold": 0.6, "y_full": 0.5}, "y_full"),
     (VelocityController, {"y_full": 1.5}, "y_full"),
+    (VelocityController, {"ramp_gain": -1}, "ramp_gain"),
+    (VelocityController, {"pred_boost": -0.1}, "pred_boost"),
 ])
 def test_controller_validation(cls, kwargs, match):
     with pytest.raises(ValueError, match=match):
@@ -63,6 +65,8 @@ def test_controller_types_and_round_trip():
         VelocityController(v_max=True)
     c = VelocityController(v_max=0.03)
     assert controller_from_dict(c.params()) == c
+    boosted = VelocityController(ramp_gain=0.0, pred_boost=1.5, shear_gain=1e-3)
+    assert controller_from_dict(boosted.params()) == boosted
     assert controller_from_dict(None).kind == "none"
     with pytest.raises(ValueError, match="kind"):
         controller_from_dict({"kind": "pid"})
@@ -192,3 +196,22 @@ def test_recording_errors(tmp_path):
         Recording.load(tmp_path / "v99.npz")
     with pytest.raises(FileNotFoundError):
         Recording.load(tmp_path / "missing.npz")
+
+
+def test_boosted_shear_law_is_proportional_and_scheduled_by_y_pred():
+    # ramp_gain 0: no relay term; the speed is the shear feedback, its gain raised by y_pred.
+    c = VelocityController(threshold=0.2, y_full=0.6, v_max=5.0, a_max=1e6, shear_gain=0.5, ramp_gain=0.0,
+                           pred_boost=3.0, asym_tau=1e6, x_min=-100.0, x_max=100.0)
+    n = 40
+    asym = np.zeros(n)
+    asym[0] = 1.0 * FS  # a step of the asymmetry integrator to a = 1 (rate x s)
+    _, v_low = c.run(np.full(n, 0.1), asym, FS)      # below the threshold: plain shear gain
+    _, v_high = c.run(np.full(n, 0.6), asym, FS)     # at y_full: gain x (1 + pred_boost)
+    _, v_mid = c.run(np.full(n, 0.4), asym, FS)
+    np.testing.assert_allclose(v_low[5:], 0.5, rtol=1e-6)  # the integrator leaks 4e-8
+    np.testing.assert_allclose(v_high[5:], 0.5 * 4.0, rtol=1e-6)
+    np.testing.assert_allclose(v_mid[5:], 0.5 * 2.5, rtol=1e-6)
+    _, v_neg = c.run(np.full(n, 0.6), -asym, FS)    # no relay: the speed follows the sign of a
+    np.testing.assert_allclose(v_neg, -v_high, rtol=1e-12)
+    _, v_none = c.run(np.full(n, 0.9), np.zeros(n), FS)  # high y_pred alone does not move the stage
+    assert np.all(v_none == 0.0)

@@ -36,11 +36,14 @@ def make(n_ridges=3, use_u=True, controller=None, dtype=np.float64, activation="
 CONTROLLERS = [NoController(), PaperController(threshold=0.4, gain=0.02, arm_delay=0.2),
                VelocityController(threshold=0.3, y_full=0.8, v_max=0.01, a_max=0.5, x_min=-0.004, x_max=0.004),
                VelocityController(threshold=0.3, y_full=0.8, v_max=0.01, a_max=0.5, shear_gain=2e-3,
-                                  direction_sign=-1.0, asym_tau=0.2)]
+                                  direction_sign=-1.0, asym_tau=0.2),
+               VelocityController(threshold=0.2, y_full=0.7, v_max=0.01, a_max=0.5, shear_gain=2e-3,
+                                  asym_tau=0.2, ramp_gain=0.0, pred_boost=2.0)]
 
 
 @pytest.mark.parametrize("use_u", [True, False])
-@pytest.mark.parametrize("controller", CONTROLLERS, ids=["none", "paper", "velocity", "velocity-shear"])
+@pytest.mark.parametrize("controller", CONTROLLERS,
+                         ids=["none", "paper", "velocity", "velocity-shear", "velocity-boosted-shear"])
 def test_matches_reference(use_u, controller):
     pipe = make(use_u=use_u, controller=controller)
     x = signals(1500, pipe.n_inputs)
@@ -159,6 +162,8 @@ def test_weights_for_another_rate_are_refused():
     ({"controller": {"kind": "paper", "direction_sign": 2.0}}, "direction_sign"),
     ({"controller": {"kind": "magic"}}, "kind"),
     ({"controller": {"kind": "velocity", "shear_gain": -1.0}}, "shear_gain"),
+    ({"controller": {"kind": "velocity", "ramp_gain": -0.5}}, "ramp_gain"),
+    ({"controller": {"kind": "velocity", "pred_boost": float("nan")}}, "pred_boost"),
     ({"controller": {"kind": "paper", "arm_delay": -1.0}}, "arm_delay"),
     ({"v_limit": -1.0}, "v_limit"),
     ({"slip_threshold": 1.5}, "slip_threshold"),

@@ -173,6 +173,8 @@ class _ControllerParams(TypedDict, total=False):
     asym_deadband: float
     shear_gain: float
     arm_delay: float
+    ramp_gain: float
+    pred_boost: float
 
 @type_check_only
 class _ControllerState(TypedDict):

@@ -94,6 +94,8 @@ ControllerParams controller_from(const py::dict& d) {
         else if (k == "asym_deadband") f = &p.asym_deadband;
         else if (k == "shear_gain") f = &p.shear_gain;
         else if (k == "arm_delay") f = &p.arm_delay;
+        else if (k == "ramp_gain") f = &p.ramp_gain;
+        else if (k == "pred_boost") f = &p.pred_boost;
         else throw py::value_error("controller has no parameter '" + k + "'");
         *f = py::cast<double>(item.second);
     }
@@ -115,6 +117,8 @@ py::dict controller_dict(const ControllerParams& p) {
     d["asym_deadband"] = p.asym_deadband;
     d["shear_gain"] = p.shear_gain;
     d["arm_delay"] = p.arm_delay;
+    d["ramp_gain"] = p.ramp_gain;
+    d["pred_boost"] = p.pred_boost;
     return d;
 }
 

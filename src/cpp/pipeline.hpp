@@ -38,8 +38,12 @@
 //   velocity   a velocity command with a deadband and a linear ramp on y_pred, plus
 //              an optional shear feedback on the asymmetry a (which is proportional to
 //              the L/R stress difference, i.e. to the shear load the finger puts on the pad):
-//              v_des = dir * v_max * clip((y - threshold) / (y_full - threshold), 0, 1)
-//                      + direction_sign * shear_gain * a,   clipped to +-v_max,
+//              v_des = dir * ramp_gain * v_max * s
+//                      + direction_sign * shear_gain * (1 + pred_boost * s) * a,   clipped to +-v_max,
+//              with s = clip((y - threshold) / (y_full - threshold), 0, 1). The ramp term
+//              is a relay on sign(a): with the stage's lag it can limit-cycle, so a
+//              law can instead (ramp_gain = 0) let y_pred only raise the gain of the
+//              proportional shear loop as the contact nears slip (pred_boost),
 //              limited so that the stage can always stop before a travel limit
 //              (v^2 / (2 a_max) + |v| dt / 2 <= d, the distance left), then slewed
 //              at most a_max * dt per tick and integrated into the position target.
@@ -98,6 +102,8 @@ struct ControllerParams {
     double asym_deadband = 0.0;    // units of rate * s (Pa for stress-rate features)
     double shear_gain = 0.0;       // velocity: m/s per unit of asymmetry (shear feedback), >= 0
     double arm_delay = 0.0;        // s after reset during which the stage holds; then the asymmetry is tared
+    double ramp_gain = 1.0;        // velocity: share of v_max the y_pred ramp commands (0: no ramp term), >= 0
+    double pred_boost = 0.0;       // velocity: shear gain x (1 + pred_boost * ramp(y)), >= 0
 };
 
 // Everything a pipeline is built from. Arrays are borrowed for the duration of the
@@ -155,11 +161,13 @@ inline void validate_controller(const ControllerParams& c) {
     };
     const int k = static_cast<int>(c.kind);
     if (k < 0 || k > 2) bad("kind", "must be 0 (none), 1 (paper) or 2 (velocity)");
-    const double vals[] = {c.threshold, c.gain, c.y_full, c.v_max, c.a_max, c.x_min,
-                           c.x_max, c.direction_sign, c.asym_tau, c.asym_deadband, c.shear_gain, c.arm_delay};
-    const char* names[] = {"threshold", "gain", "y_full", "v_max", "a_max", "x_min",
-                           "x_max", "direction_sign", "asym_tau", "asym_deadband", "shear_gain", "arm_delay"};
-    for (int i = 0; i < 12; ++i)
+    const double vals[] = {c.threshold, c.gain, c.y_full, c.v_max, c.a_max, c.x_min, c.x_max,
+                           c.direction_sign, c.asym_tau, c.asym_deadband, c.shear_gain, c.arm_delay,
+                           c.ramp_gain, c.pred_boost};
+    const char* names[] = {"threshold", "gain", "y_full", "v_max", "a_max", "x_min", "x_max",
+                           "direction_sign", "asym_tau", "asym_deadband", "shear_gain", "arm_delay",
+                           "ramp_gain", "pred_boost"};
+    for (int i = 0; i < 14; ++i)
         if (!std::isfinite(vals[i])) bad(names[i], "must be finite");
     if (!(c.threshold >= 0.0 && c.threshold < 1.0)) bad("threshold", "must lie in [0, 1)");
     if (!(c.gain >= 0.0)) bad("gain", "must be >= 0 (m/s per unit y_pred)");
@@ -174,6 +182,8 @@ inline void validate_controller(const ControllerParams& c) {
     if (!(c.asym_deadband >= 0.0)) bad("asym_deadband", "must be >= 0");
     if (!(c.shear_gain >= 0.0)) bad("shear_gain", "must be >= 0 (m/s per unit of asymmetry)");
     if (!(c.arm_delay >= 0.0 && c.arm_delay <= 3600.0)) bad("arm_delay", "must lie in [0, 3600] s");
+    if (!(c.ramp_gain >= 0.0)) bad("ramp_gain", "must be >= 0 (share of v_max)");
+    if (!(c.pred_boost >= 0.0)) bad("pred_boost", "must be >= 0");
 }
 
 inline void validate_config(const PipelineConfig& c) {
@@ -251,7 +261,8 @@ public:
             case ControllerKind::velocity: {
                 double s = (y - p_.threshold) / (p_.y_full - p_.threshold);
                 s = s < 0.0 ? 0.0 : (s > 1.0 ? 1.0 : s);
-                double vd = dir_ * p_.v_max * s + (fault ? 0.0 : p_.direction_sign * p_.shear_gain * a_);
+                const double g = p_.shear_gain * (1.0 + p_.pred_boost * s);
+                double vd = dir_ * p_.ramp_gain * p_.v_max * s + (fault ? 0.0 : p_.direction_sign * g * a_);
                 vd = vd > p_.v_max ? p_.v_max : (vd < -p_.v_max ? -p_.v_max : vd);
                 // Largest speed from which decelerating by a_max dt per tick stops
                 // within the distance d left: v^2 / (2 a) + v dt / 2 <= d, i.e.

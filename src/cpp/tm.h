@@ -49,7 +49,7 @@ extern "C" {
 #endif
 
 /* ABI version: incremented on any incompatible change of this header. */
-#define TM_ABI_VERSION 1
+#define TM_ABI_VERSION 2
 
 typedef enum tm_status_code {
     TM_OK = 0,
@@ -83,6 +83,8 @@ typedef struct tm_controller_params {
     double asym_deadband;    /* >= 0: |asymmetry| below this keeps the previous direction */
     double shear_gain;       /* velocity: m/s per unit of asymmetry (shear feedback), >= 0; 0 = off */
     double arm_delay;        /* s after a reset during which the stage holds; then the asymmetry is tared */
+    double ramp_gain;        /* velocity: share of v_max commanded by the y_pred ramp, >= 0; 0 = no ramp term */
+    double pred_boost;       /* velocity: shear gain x (1 + pred_boost * ramp(y_pred)), >= 0 */
 } tm_controller_params;
 
 typedef struct tm_config {

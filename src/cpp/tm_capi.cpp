@@ -81,6 +81,8 @@ void controller_defaults(tm_controller_params* p) {
     p->asym_deadband = d.asym_deadband;
     p->shear_gain = d.shear_gain;
     p->arm_delay = d.arm_delay;
+    p->ramp_gain = d.ramp_gain;
+    p->pred_boost = d.pred_boost;
 }
 
 }  // namespace
@@ -191,6 +193,8 @@ int32_t tm_pipeline_create(const tm_config* cfg, tm_pipeline* out) {
     c.controller.asym_deadband = p.asym_deadband;
     c.controller.shear_gain = p.shear_gain;
     c.controller.arm_delay = p.arm_delay;
+    c.controller.ramp_gain = p.ramp_gain;
+    c.controller.pred_boost = p.pred_boost;
     // The sample-rate check first, with its own code.
     if (std::isfinite(c.fs) && c.fs > 0 && std::isfinite(c.weights_fs) && c.weights_fs > 0 &&
         std::fabs(c.fs - c.weights_fs) > 1e-9 * c.fs)

@@ -77,7 +77,7 @@ def _cdef_from_header(text: str) -> str:
             continue
         lines.append(line.replace("TM_API ", ""))
     body = "\n".join(lines)
-    body = body.replace("#define TM_ABI_VERSION 1", "")
+    body = re.sub(r"#define TM_ABI_VERSION \d+", "", body)
     return body
 
 

@@ -32,8 +32,8 @@ Arming (both laws)
 :class:`VelocityController`
     A velocity command with a deadband and a linear ramp, plus an optional shear
     feedback on the asymmetry ``a`` (proportional to the L/R stress difference):
-    ``v_des = dir * v_max * clip((y - threshold) / (y_full - threshold), 0, 1)
-    + direction_sign * shear_gain * a``, clipped to ``+-v_max``,
+    ``v_des = dir * ramp_gain * v_max * s + direction_sign * shear_gain * (1 + pred_boost * s) * a``
+    with ``s = clip((y - threshold) / (y_full - threshold), 0, 1)``, clipped to ``+-v_max``,
     bounded so that the stage can always stop before a travel limit
     (``v^2 / (2 a_max) + |v| dt / 2 <= d``, the distance left), slewed by at most ``a_max * dt`` per tick and
     integrated into the target: it respects the stage's speed, acceleration and travel.
@@ -228,6 +228,16 @@ class VelocityController(Controller):
         Shear feedback, m/s per unit of asymmetry (>= 0; 0 = off): adds
         ``direction_sign * shear_gain * a`` to the speed, so the stage also moves to
         null the shear the finger puts on the pad before any slip is predicted.
+    ramp_gain : float
+        Share of ``v_max`` the ``y_pred`` ramp commands (>= 0; default 1). The ramp
+        term ``dir * v_max * s`` switches with the sign of ``a``: a relay, which
+        with the stage's lag and the filters' delay limit-cycles (measured: a
+        ~25 Hz, +-2 N oscillation on the FEM pad). 0 removes it.
+    pred_boost : float
+        Gain scheduling of the shear feedback by the prediction (>= 0; default 0):
+        the shear gain is ``shear_gain * (1 + pred_boost * s)``, so the stage
+        follows the finger more tightly as the contact nears slip while staying
+        a proportional (smooth) loop.
     x_min, x_max, direction_sign, asym_tau, asym_deadband
         See :class:`Controller`.
     """
@@ -238,10 +248,12 @@ class VelocityController(Controller):
     v_max: float = 0.02
     a_max: float = 1.0
     shear_gain: float = 0.0
+    ramp_gain: float = 1.0
+    pred_boost: float = 0.0
 
     def __post_init__(self):
         super().__post_init__()
-        for name in ("y_full", "v_max", "a_max", "shear_gain"):
+        for name in ("y_full", "v_max", "a_max", "shear_gain", "ramp_gain", "pred_boost"):
             object.__setattr__(self, name, _real(getattr(self, name), name))
         if not self.threshold < self.y_full <= 1.0:
             raise ValueError(f"y_full must lie in (threshold, 1] = ({self.threshold}, 1], got {self.y_full}")
@@ -251,10 +263,15 @@ class VelocityController(Controller):
             raise ValueError(f"a_max must be > 0 m/s^2, got {self.a_max}")
         if not self.shear_gain >= 0:
             raise ValueError(f"shear_gain must be >= 0 m/s per unit of asymmetry, got {self.shear_gain}")
+        if not self.ramp_gain >= 0:
+            raise ValueError(f"ramp_gain must be >= 0 (share of v_max), got {self.ramp_gain}")
+        if not self.pred_boost >= 0:
+            raise ValueError(f"pred_boost must be >= 0, got {self.pred_boost}")
 
     def _move(self, x, v, y, dt, dirn, a=0.0):
         s = min(max((y - self.threshold) / (self.y_full - self.threshold), 0.0), 1.0)
-        vd = dirn * self.v_max * s + self.direction_sign * self.shear_gain * a
+        g = self.shear_gain * (1.0 + self.pred_boost * s)
+        vd = dirn * self.ramp_gain * self.v_max * s + self.direction_sign * g * a
         vd = min(max(vd, -self.v_max), self.v_max)
         h = 0.5 * self.a_max * dt
         if vd > 0:
@@ -294,7 +311,7 @@ def controller_from_dict(d) -> Controller:
     unknown = sorted(set(d) - names)
     # The C++ side reports every parameter; the ones a law does not use are dropped.
     known = {k: v for k, v in d.items() if k in names}
-    unused = {"gain", "y_full", "v_max", "a_max", "shear_gain"}
+    unused = {"gain", "y_full", "v_max", "a_max", "shear_gain", "ramp_gain", "pred_boost"}
     bad = [k for k in unknown if k not in unused]
     if bad:
         raise ValueError(f"controller {kind!r} has no parameter {bad[0]!r}")
