@@ -115,6 +115,66 @@ def default_detector():
         pytest.skip("bundled detector weights missing")
 
 
+# -- training targets and noise copies on simulated scenes --------------------------------------
+
+
+def test_load_ratio_target_follows_the_tangential_load(paper_results):
+    from tactile_mirror.detector import targets_from_result
+
+    r = paper_results["fig6"]
+    t = np.asarray(r.t)
+    ys, yp = targets_from_result(r)  # load_ratio, pred_scale 0.8
+    i_slip = np.flatnonzero(ys[0] >= 1)[0]
+    press = t < 0.5
+    # the press alone: the edges slide (slip fraction > 0) but there is no tangential load
+    assert np.asarray(r.slip_fraction)[0][press].max() > 0.1
+    assert yp[0][press].max() < 0.02
+    # grows with the pull, reaches ~pred_scale at gross slip, 1 while sliding
+    pre = yp[0][(t >= 0.6) & (t < t[i_slip])]
+    assert np.all(np.diff(pre) > -1e-3)
+    assert 0.75 <= yp[0][i_slip - 1] <= 0.8 + 1e-12
+    assert np.all(yp[0][ys[0] >= 1] == 1.0)
+    # the old target: the slip zone of the press already counts as "slip coming"
+    _, yz = targets_from_result(r, pred_target="slip_zone")
+    assert yz[0][np.searchsorted(t, 0.49)] > 0.1
+    with pytest.raises(ValueError, match="pred_target"):
+        targets_from_result(r, pred_target="zone")
+
+
+def test_augment_noise_copies(paper_results):
+    from tactile_mirror.detector import augment_noise
+
+    r = paper_results["fig7"]
+    a = augment_noise([r], copies=3, noise=(1e-3, 2e-3), seed=4)
+    b = augment_noise([r], copies=3, noise=(1e-3, 2e-3), seed=4)
+    assert len(a) == 3
+    clean_v, _ = r.scene.circuit.simulate(r.stress, r.fs)
+    levels = []
+    for x, y in zip(a, b):
+        np.testing.assert_array_equal(x.v_out, y.v_out)  # deterministic for a seed
+        assert x.v_out.shape == r.v_out.shape and x.slip_fraction is r.slip_fraction
+        levels.append(np.std(x.v_out - clean_v))
+    assert all(1e-3 * 0.9 < s < 2e-3 * 1.1 for s in levels)
+    assert len(set(np.round(levels, 6))) == 3  # each copy its own noise
+    with pytest.raises(ValueError, match="copies"):
+        augment_noise([r], copies=0)
+    with pytest.raises(ValueError, match="noise"):
+        augment_noise([r], noise=(2e-3, 1e-3))
+
+
+def test_onset_kinds_and_detection_by_onset(paper_results, default_detector):
+    import tactile_mirror
+    from tactile_mirror import scenes
+    from tactile_mirror.detector.evaluate import detection_by_onset, onset_kinds
+
+    no_slip = tactile_mirror.simulate(scenes.paper("fig6", duration=1.0))
+    # fig6 ends in a release of stored shear (the -1e8 Pa/s^2 spike of Fig. 10a)
+    assert onset_kinds([paper_results["fig6"], no_slip]) == ["release", None]
+    assert onset_kinds([paper_results["fig6"]], level=1e12) == ["gradual"]
+    by = detection_by_onset(default_detector, [paper_results["fig6"], paper_results["fig7"]])
+    assert by["release"] == (2, 1.0) and by["gradual"][0] == 0
+
+
 def test_default_detector_metadata(default_detector):
     md = default_detector.metadata
     assert md["features"] in ("stress_rate", "circuit")

@@ -13,7 +13,7 @@ from .data_prep import features_from_result, targets_from_result
 from .evaluate import DetectionMetrics, EvaluationReport, ForceRatioDetector, evaluate
 from .figures import figure10, figure10_data
 from .network import Params, forward, init_params, loss_and_grad
-from .training import TrainingSet, fit_normalisation, make_training_set, train_detector
+from .training import TrainingSet, augment_noise, fit_normalisation, make_training_set, train_detector
 from .weights import FEATURE_KINDS, FORMAT_VERSION, DetectorWeights, WeightsError
 
 __all__ = [
@@ -28,6 +28,7 @@ __all__ = [
     "SlipDetector",
     "TrainingSet",
     "WeightsError",
+    "augment_noise",
     "evaluate",
     "features_from_result",
     "figure10",

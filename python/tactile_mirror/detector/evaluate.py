@@ -25,7 +25,8 @@ import numpy as np
 
 from .data_prep import features_from_result, targets_from_result
 
-__all__ = ["DetectionMetrics", "EvaluationReport", "ForceRatioDetector", "analyse_sequence", "evaluate"]
+__all__ = ["DetectionMetrics", "EvaluationReport", "ForceRatioDetector", "analyse_sequence", "detection_by_onset",
+           "evaluate", "onset_kinds"]
 
 
 @dataclass
@@ -249,3 +250,67 @@ def evaluate(detector, scenes, baselines=None, slip_threshold: float = 0.8, pred
         rows.append(_metrics(name, items, slip_threshold, pred_threshold, max_latency))
     return EvaluationReport(rows, {"slip_threshold": slip_threshold, "pred_threshold": pred_threshold,
                                    "max_latency_s": max_latency, "n_scenes": len(results)})
+
+
+def onset_kinds(results, level: float = 1e8, window=(-0.003, 0.005)) -> list:
+    """How each slipping sequence's gross slip starts: with a release or gradually.
+
+    With static above kinetic friction, gross slip often frees shear the last
+    stuck zone held: a sharp spike of the 2nd-order stress rate on both strips.
+    When the slip zone has instead crept over the whole contact, the last nodes
+    let go with little stored shear and the strips show no event at the onset;
+    the rates only settle, as in a stop at the same load. This classifies the
+    onset from the noise-free circuit output (the result's strip stresses
+    through its scene's circuit and the detector's estimator):
+    ``"release"`` when ``|u_L + u_R|`` exceeds ``level`` (Pa/s^2) within
+    ``window`` (s) of the onset, else ``"gradual"``; ``None`` for a sequence
+    without gross slip.
+
+    Returns
+    -------
+    list of str or None, one per (result, ridge) sequence, in :func:`evaluate`'s order.
+    """
+    from types import SimpleNamespace
+
+    kinds = []
+    for res in results:
+        gross, _ = targets_from_result(res)
+        scene = getattr(res, "scene", None)
+        if getattr(res, "stress", None) is None or scene is None:
+            raise ValueError("onset_kinds needs results with strip stresses and their scene")
+        v, u = scene.circuit.simulate(res.stress, res.fs)
+        x = features_from_result(SimpleNamespace(v_out=v, u_out=u, fs=res.fs, circuit=scene.circuit))
+        t = np.asarray(res.t)
+        for r in range(x.shape[0]):
+            on = np.flatnonzero(gross[min(r, gross.shape[0] - 1)] >= 0.5)
+            if not on.size:
+                kinds.append(None)
+                continue
+            win = (t >= t[on[0]] + window[0]) & (t <= t[on[0]] + window[1])
+            peak = np.abs(x[r, 2] + x[r, 3])[win].max()
+            kinds.append("release" if peak > level else "gradual")
+    return kinds
+
+
+def detection_by_onset(detector, results, slip_threshold: float = 0.8, max_latency: float = 0.05,
+                       **kwargs) -> dict:
+    """Detection rate of ``detector`` per onset kind (:func:`onset_kinds`).
+
+    Returns ``{kind: (n_sequences, detection_rate)}`` for ``"release"`` and ``"gradual"``.
+    """
+    results = list(results)
+    kinds = onset_kinds(results, **kwargs)
+    hits = []
+    for res in results:
+        gross, _ = targets_from_result(res)
+        feats = features_from_result(res, detector.features, estimator=detector.metadata.get("estimator"))
+        ys, _, yp = detector.run(feats, fs=res.fs)
+        for r in range(ys.shape[0]):
+            a = analyse_sequence(res.t, ys[r], yp[r], gross[min(r, gross.shape[0] - 1)], slip_threshold,
+                                 max_latency=max_latency)
+            hits.append(a["detected"])
+    out = {}
+    for kind in ("release", "gradual"):
+        sel = [h for h, k in zip(hits, kinds) if k == kind]
+        out[kind] = (len(sel), float(np.mean(sel)) if sel else float("nan"))
+    return out

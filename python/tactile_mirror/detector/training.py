@@ -10,7 +10,7 @@ from .data_prep import DEFAULT_ESTIMATOR, features_from_result, targets_from_res
 from .network import Params, init_params, loss_and_grad
 from .weights import FEATURE_KINDS, DetectorWeights
 
-__all__ = ["TrainingSet", "fit_normalisation", "make_training_set", "train_detector"]
+__all__ = ["TrainingSet", "augment_noise", "fit_normalisation", "make_training_set", "train_detector"]
 
 
 class TrainingSet:
@@ -57,8 +57,13 @@ class TrainingSet:
 
 
 def make_training_set(results, features: str = "stress_rate", circuit=None, estimator=None,
-                      gross_level: float = 0.999, pred_scale: float = 0.9) -> TrainingSet:
-    """Stack simulation results (all at one rate) into a :class:`TrainingSet`."""
+                      gross_level: float = 0.999, pred_scale: float = 0.8,
+                      pred_target: str = "load_ratio") -> TrainingSet:
+    """Stack simulation results (all at one rate) into a :class:`TrainingSet`.
+
+    Targets as :func:`~tactile_mirror.detector.data_prep.targets_from_result`
+    (``gross_level``, ``pred_scale``, ``pred_target``).
+    """
     results = list(results)
     if not results:
         raise ValueError("results must not be empty")
@@ -68,7 +73,7 @@ def make_training_set(results, features: str = "stress_rate", circuit=None, esti
         if not np.isclose(float(r.fs), fs):
             raise ValueError(f"results[{k}].fs={r.fs} differs from results[0].fs={fs}")
         x = features_from_result(r, features, circuit, estimator)
-        ys, yp = targets_from_result(r, gross_level, pred_scale)
+        ys, yp = targets_from_result(r, gross_level, pred_scale, pred_target)
         if ys.shape[0] != x.shape[0]:
             ys = np.broadcast_to(ys[:1], (x.shape[0], ys.shape[1]))
             yp = np.broadcast_to(yp[:1], (x.shape[0], yp.shape[1]))
@@ -90,7 +95,45 @@ def make_training_set(results, features: str = "stress_rate", circuit=None, esti
         M[i:i + m, :L] = True
         i += m
     return TrainingSet(X, S, Pp, M, fs, features, estimator,
-                       {"gross_level": float(gross_level), "pred_scale": float(pred_scale)})
+                       {"gross_level": float(gross_level), "pred_scale": float(pred_scale),
+                        "pred_target": pred_target})
+
+
+def augment_noise(results, copies: int = 2, noise=(0.0, 5e-3), seed=0) -> list:
+    """Copies of simulation results with fresh sensor noise on ``v_out`` and ``u_out``.
+
+    Each copy reruns the result's strip stresses through its scene's circuit
+    (:meth:`~tactile_mirror.circuit.PVDFCircuit.simulate`) with a noise level drawn
+    uniformly from ``noise`` (V rms) and its own seed, so one simulated contact
+    gives ``copies`` sequences that differ only in noise. The contact simulation is
+    the expensive part; this is cheap. Deterministic for a seed.
+
+    Parameters
+    ----------
+    results : iterable of SimulationResult
+        With ``stress`` and ``scene`` (simulated with the "stress" output).
+    copies : int
+        Copies per result (>= 1).
+    noise : (float, float)
+        Range of the noise level, V rms.
+    """
+    import dataclasses
+
+    if int(copies) != copies or copies < 1:
+        raise ValueError(f"copies must be a positive integer, got {copies!r}")
+    lo, hi = (float(v) for v in noise)
+    if not (0.0 <= lo <= hi and np.isfinite(hi)):
+        raise ValueError(f"noise must be a range (low, high) with 0 <= low <= high, got {noise!r}")
+    rng = np.random.default_rng(seed)
+    out = []
+    for k, r in enumerate(results):
+        if getattr(r, "stress", None) is None or getattr(r, "scene", None) is None:
+            raise ValueError(f"results[{k}] has no strip stresses: simulate with the 'stress' output")
+        for _ in range(int(copies)):
+            level = float(rng.uniform(lo, hi))
+            v, u = r.scene.circuit.simulate(r.stress, r.fs, noise=level, seed=int(rng.integers(2**31)))
+            out.append(dataclasses.replace(r, v_out=v, u_out=u))
+    return out
 
 
 def augment_gains(ts: TrainingSet, gain_range=(0.6, 1.7), seed=0) -> TrainingSet:
@@ -142,6 +185,13 @@ def fit_normalisation(x, mask=None, method: str = "rms"):
     scale = np.repeat(ps, 2)
     scale = np.where(scale > 0, scale, 1.0)
     return np.zeros(4), scale
+
+
+_PRED_TARGET_TEXT = {
+    "load_ratio": "pred_scale x |F_y| / (mu_k F_z) (tangential load over what the sliding contact carries), "
+                  "1 during gross slip",
+    "slip_zone": "pred_scale x slip-zone extent (running maximum of the ridge's slip fraction), 1 during gross slip",
+}
 
 
 def _loss_weights(ts: TrainingSet, pred_weight: float, negative_weight: float = 1.0):
@@ -242,8 +292,8 @@ def train_detector(data, n_hidden: int = 16, feedback: bool = True, seed=0, maxi
         "channels": ["v_L", "v_R", "u_L", "u_R"],
         "estimator": data.estimator if data.features == "stress_rate" else None,
         "targets": {"y_slip": "1 while the ridge slips grossly (slip fraction >= gross_level)",
-                    "y_pred": "pred_scale x slip-zone extent (running maximum of the ridge's slip "
-                              "fraction), 1 during gross slip", **data.targets},
+                    "y_pred": _PRED_TARGET_TEXT.get(data.targets.get("pred_target", "slip_zone"), "see pred_target"),
+                    **data.targets},
         "feedback": bool(feedback),
         "slip_threshold": 0.8,
         "training": {"n_sequences": int(data.n_seq), "n_samples": int(data.mask.sum()), "seed": int(seed),
