@@ -53,9 +53,12 @@ __all__ = [
     "Scene",
     "calibrate_direction",
     "calibrate_shear",
+    "default_weights",
     "finger_trajectory",
     "gross_slip_events",
+    "make_laws",
     "make_plant",
+    "open_and_closed",
     "run_experiment",
     "run_scene",
     "scene_finger",
@@ -170,7 +173,7 @@ class Scene:
     duration: float = 3.0
     fs: float = 1000.0
     mu: float | None = None             # None: the plant's default (brush 1.0, fem DEFAULT_FRICTION)
-    mu_change: tuple | None = None      # (time s, new mu): sweat
+    mu_change: tuple | None = None      # (time s, new mu[, ramp s]): sweat; mu ramps linearly (default 0.2 s)
     mount_stiffness: float | None = None  # N/m between stage and pad (None: rigid)
     noise: float = 0.0                   # rms sensor noise on v_out and u_out, V
     drop_rate: float = 0.0               # fraction of ticks whose samples are lost (NaN)
@@ -194,11 +197,13 @@ class FemPad:
     def __init__(self, n_ridges: int = 6, mu: float | None = None, fs: float = 1000.0, indent: float = 30e-6,
                  press_speed: float = 0.06e-3, finger_radius: float = 2.0, circuit: PVDFCircuit | None = None):
         from ..contact import Pad, ridge_model
-        from ..scenes import DEFAULT_FRICTION
+        from ..scenes import DEFAULT_FRICTION, DEFAULT_KINETIC_RATIO
 
         self.n_ridges = int(n_ridges)
-        self.pad = Pad(ridge_model(), DEFAULT_FRICTION if mu is None else float(mu), n_ridges=self.n_ridges,
-                       finger_radius=finger_radius)
+        mu = DEFAULT_FRICTION if mu is None else float(mu)
+        # static above kinetic friction, as in the scenes of tactile_mirror.scenes
+        self.pad = Pad(ridge_model(), mu, n_ridges=self.n_ridges, finger_radius=finger_radius,
+                       mu_kinetic=mu * DEFAULT_KINETIC_RATIO)
         self.fs, self.indent, self.press_speed = float(fs), float(indent), float(press_speed)
         self.circuit = circuit or PVDFCircuit()
         self.reset()
@@ -206,6 +211,10 @@ class FemPad:
     def reset(self):
         self.pad.reset()
         self.k = 0
+
+    @property
+    def mu(self) -> float:
+        return self.pad.mu
 
     def set_mu(self, mu):
         self.pad.mu = float(np.mean(mu))
@@ -263,6 +272,8 @@ class PadSource:
                     "pad": np.zeros(n), "v_out": np.zeros((R, 2, n)), "u_out": np.zeros((R, 2, n))}
         self._fy = 0.0
         self._stress0 = None
+        self._mu0 = None
+        self._mu_done = False
 
     def read(self, stage_position: float, t: float):
         k = self.k
@@ -270,7 +281,16 @@ class PadSource:
             return None
         sc = self.scene
         if sc.mu_change is not None and t >= sc.mu_change[0]:
-            self.plant.set_mu(sc.mu_change[1])
+            # Sweat wets the contact over a fraction of a second; a step change of mu would
+            # also be a step of every node's friction limit at once, which no finger shows.
+            t0, mu1 = sc.mu_change[0], sc.mu_change[1]
+            ramp = sc.mu_change[2] if len(sc.mu_change) > 2 else 0.2
+            if self._mu0 is None:
+                self._mu0 = self.plant.mu
+            f = 1.0 if ramp <= 0 else min(1.0, (t - t0) / ramp)
+            if f < 1.0 or not self._mu_done:
+                self.plant.set_mu(self._mu0 + f * (np.asarray(mu1) - self._mu0))
+                self._mu_done = f >= 1.0
         pad = stage_position
         if sc.mount_stiffness:
             pad = stage_position + self._fy / sc.mount_stiffness
@@ -408,9 +428,19 @@ def calibrate_direction(weights, fs: float = 1000.0, n_ridges: int = 6, plant: s
 class _Result:
     """Result-like record of an open-loop run for the detector's training functions."""
 
-    def __init__(self, fs, t, v_out, u_out, slip_fraction):
+    def __init__(self, fs, t, v_out, u_out, slip_fraction, force_y=None, force_z=None, friction=None,
+                 kinetic_ratio=1.0):
         self.fs, self.t, self.v_out, self.u_out, self.slip_fraction = fs, t, v_out, u_out, slip_fraction
         self.slip_time = None
+        # what the load-ratio target of the detector reads (see detector.targets_from_result)
+        self.force_y, self.force_z = force_y, force_z
+        self.scene = None if friction is None else _Friction(float(friction), float(kinetic_ratio))
+
+
+@dataclass(frozen=True)
+class _Friction:
+    friction: float
+    kinetic_ratio: float
 
 
 def train_detector_on_brush(seeds=range(100, 106), fs: float = 1000.0, duration: float = 3.0, n_hidden: int = 8,
@@ -430,7 +460,15 @@ def train_detector_on_brush(seeds=range(100, 106), fs: float = 1000.0, duration:
         sc = Scene(seed=int(s), duration=duration, fs=fs, noise=noise, trajectory=dict(base, amplitude=amp),
                    plant=plant, mu=PLANTS[plant]["mu"])
         r = run_scene(sc, placeholder, None)
-        results.append(_Result(fs, r.t, r.log["v_out"], r.log["u_out"], r.log["slip_fraction"]))
+        if plant == "fem":
+            from ..scenes import DEFAULT_FRICTION, DEFAULT_KINETIC_RATIO
+
+            mu, kr = DEFAULT_FRICTION, DEFAULT_KINETIC_RATIO
+        else:
+            mu, kr = PLANTS[plant]["mu"], 1.0
+        n = r.t.size
+        results.append(_Result(fs, r.t, r.log["v_out"], r.log["u_out"], r.log["slip_fraction"],
+                               r.log["force_y"][:n], r.log["force_z"][:n], mu, kr))
     return train_detector(results, n_hidden=n_hidden, maxiter=maxiter, progress=False,
                           metadata={"data": f"{plant} open-loop runs", "seeds": [int(s) for s in seeds]})
 
@@ -439,6 +477,61 @@ def _weights_dict(w):
     p = w.params
     return {"w1": p.w1, "b1": p.b1, "w2": p.w2, "b2": p.b2, "input_mean": w.input_mean,
             "input_gain": 1.0 / w.input_scale, "fs": w.fs, "features": w.features}
+
+
+def default_weights(plant: str = "fem", fs: float = 1000.0):
+    """The detector of the experiment: the bundled one for the FEM pad (it was trained on
+    randomized FEM scenes); for the reduced brush model, one trained on its own open-loop runs."""
+    if plant == "fem":
+        from ..detector import SlipDetector
+
+        return SlipDetector.default().weights
+    return train_detector_on_brush(fs=fs, plant=plant)
+
+
+def make_laws(weights, fs: float = 1000.0, plant: str = "fem", n_ridges: int = 6):
+    """The controllers compared by the experiment, scaled to the plant.
+
+    ``"velocity"`` (the law of this library): the proportional shear loop, its gain
+    raised up to 2.5x by ``y_pred`` (``ramp_gain`` 0, ``pred_boost`` 1.5); base gain
+    60 rad/s of the calibrated shear signal. ``"paper"``: the paper's law (threshold
+    0.5, above the detector's resting ``y_pred``). Two ablations: ``"velocity, y_pred
+    ramp"`` (the ramp term of the velocity law, no shear feedback: the relay that
+    limit-cycles) and ``"velocity, shear only"`` (no ``y_pred``).
+
+    Returns ``(laws, direction_sign, asymmetry_per_m, shear_gain)``.
+    """
+    w = _weights_dict(weights) if not isinstance(weights, dict) else weights
+    cfg = PLANTS[plant]
+    sign, a_per_m = calibrate_shear(w, fs, n_ridges, plant=plant)
+    vf = cfg["finger_v_max"]
+    # 60 rad/s of the shear signal, 150 rad/s at full y_pred: the stage (1 ms delay, 2 ms lag)
+    # and the estimator (2nd order, 100 Hz) leave ~40 degrees of phase margin at 150 rad/s.
+    shear_gain = 60.0 / a_per_m
+    # The asymmetry integrator leaks slowly (20 s): the shear feedback must not drift over a
+    # steady finger motion.
+    arm = 0.5 if plant == "fem" else 0.0  # the FEM finger presses in first: hold, then tare
+    common = {"direction_sign": sign, "asym_tau": 20.0, "x_min": -0.02, "x_max": 0.02, "arm_delay": arm}
+    laws = {"velocity": VelocityController(threshold=0.2, y_full=0.7, v_max=2 * vf, a_max=1.0, ramp_gain=0.0,
+                                           pred_boost=1.5, shear_gain=shear_gain, **common),
+            "paper": PaperController(threshold=0.5, gain=7 * vf, **common),
+            "velocity, y_pred ramp": VelocityController(threshold=0.3, y_full=0.7, v_max=2 * vf, a_max=1.0,
+                                                        **common),
+            "velocity, shear only": VelocityController(threshold=0.99, y_full=1.0, v_max=2 * vf, a_max=1.0,
+                                                       shear_gain=shear_gain, **common)}
+    return laws, sign, a_per_m, shear_gain
+
+
+def open_and_closed(seed: int = 0, weights=None, law: str = "velocity", duration: float = 3.0,
+                    fs: float = 1000.0, plant: str = "fem"):
+    """One finger path, open loop and closed loop (Figs. 12 and 13): two :class:`SceneResult`."""
+    weights = default_weights(plant, fs) if weights is None else weights
+    w = _weights_dict(weights) if not isinstance(weights, dict) else weights
+    laws = make_laws(w, fs, plant)[0]
+    if law not in laws:
+        raise ValueError(f"law must be one of {sorted(laws)}, got {law!r}")
+    sc = Scene(seed=int(seed), duration=duration, fs=fs, plant=plant, trajectory=PLANTS[plant]["trajectory"])
+    return run_scene(sc, w, None), run_scene(sc, w, laws[law])
 
 
 def run_experiment(seeds=range(5), duration: float = 3.0, fs: float = 1000.0, weights=None, out_dir=None,
@@ -460,25 +553,9 @@ def run_experiment(seeds=range(5), duration: float = 3.0, fs: float = 1000.0, we
         raise ValueError(f"plant must be one of {sorted(PLANTS)}, got {plant!r}")
     cfg = PLANTS[plant]
     if weights is None:
-        weights = train_detector_on_brush(fs=fs, plant=plant, duration=duration)
+        weights = default_weights(plant, fs)
     w = _weights_dict(weights) if not isinstance(weights, dict) else weights
-    sign, a_per_m = calibrate_shear(w, fs, plant=plant)
-    vf = cfg["finger_v_max"]
-    shear_gain = 50.0 / a_per_m  # ~8 Hz shear loop
-    # Scaled by the finger's top speed; tuned on seeds 0-2 of the nominal brush scene. The asymmetry
-    # integrator leaks slowly (20 s): the shear feedback must not drift over a steady finger motion.
-    arm = 0.5 if plant == "fem" else 0.0  # the FEM finger presses in first: hold, then tare
-    laws = {"paper": PaperController(threshold=0.2, gain=7 * vf, direction_sign=sign, asym_tau=20.0,
-                                     x_min=-0.02, x_max=0.02, arm_delay=arm),
-            "velocity": VelocityController(threshold=0.3, y_full=0.7, v_max=2 * vf, a_max=1.0,
-                                           direction_sign=sign, asym_tau=20.0, x_min=-0.02, x_max=0.02,
-                                           shear_gain=shear_gain, arm_delay=arm),
-            "velocity, y_pred only": VelocityController(threshold=0.15, y_full=0.5, v_max=2 * vf, a_max=1.0,
-                                                        direction_sign=sign, asym_tau=20.0, x_min=-0.02,
-                                                        x_max=0.02, arm_delay=arm),
-            "velocity, shear only": VelocityController(threshold=0.99, y_full=1.0, v_max=2 * vf, a_max=1.0,
-                                                       direction_sign=sign, asym_tau=20.0, x_min=-0.02, x_max=0.02,
-                                                       shear_gain=shear_gain, arm_delay=arm)}
+    laws, sign, a_per_m, shear_gain = make_laws(w, fs, plant)
     base = {"duration": duration, "fs": fs, "plant": plant, "trajectory": cfg["trajectory"]}
     rows = []
     keep = {}
@@ -541,7 +618,7 @@ def run_experiment(seeds=range(5), duration: float = 3.0, fs: float = 1000.0, we
         if "open" in keep:
             figure(keep["open"], os.path.join(out_dir, "fig12_open_loop.png"), closed=False)
         names = {"velocity": "fig13_closed_loop.png", "paper": "fig13_paper_law.png",
-                 "velocity, y_pred only": "fig13_ypred_only.png", "velocity, shear only": "fig13_shear_only.png"}
+                 "velocity, y_pred ramp": "fig13_ypred_ramp.png", "velocity, shear only": "fig13_shear_only.png"}
         for name, fname in names.items():
             if name in keep:
                 figure(keep[name], os.path.join(out_dir, fname), closed=True, law=name)
@@ -589,9 +666,9 @@ def figure(r: SceneResult, path, closed: bool, ridge: int = 0, law: str | None =
         ax[6].set_ylabel("y (mm)")
         ax[6].legend(loc="upper right", fontsize=7, ncol=2)
     ax[-1].set_xlabel("t (s)")
-    law = {"paper": "paper's law", "velocity": "velocity law (y_pred ramp + shear feedback)",
-           "velocity, y_pred only": "velocity law, y_pred ramp only",
-           "velocity, shear only": "velocity law, shear feedback only"}.get(law or r.controller, law or r.controller)
+    law = {"paper": "paper's law", "velocity": "shear loop with y_pred gain scheduling",
+           "velocity, y_pred ramp": "velocity law, y_pred ramp only",
+           "velocity, shear only": "shear loop without y_pred"}.get(law or r.controller, law or r.controller)
     title = f"Fig. 13 (simulated): with feedback, {law}" if closed else "Fig. 12 (simulated): without feedback"
     fig.suptitle(f"{title}; seed {r.scene.seed}; gross slips: {r.gross_slips} (shaded)", fontsize=9)
     fig.tight_layout()
