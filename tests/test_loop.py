@@ -52,6 +52,7 @@ def samples(n, ni, seed=0):
     (VelocityController, {"y_full": 1.5}, "y_full"),
     (VelocityController, {"ramp_gain": -1}, "ramp_gain"),
     (VelocityController, {"pred_boost": -0.1}, "pred_boost"),
+    (PaperController, {"slip_hold": -1.0}, "slip_hold"),
 ])
 def test_controller_validation(cls, kwargs, match):
     with pytest.raises(ValueError, match=match):
@@ -215,3 +216,22 @@ def test_boosted_shear_law_is_proportional_and_scheduled_by_y_pred():
     np.testing.assert_allclose(v_neg, -v_high, rtol=1e-12)
     _, v_none = c.run(np.full(n, 0.9), np.zeros(n), FS)  # high y_pred alone does not move the stage
     assert np.all(v_none == 0.0)
+
+
+def test_slip_guard_holds_then_retares():
+    c = VelocityController(threshold=0.2, y_full=0.6, v_max=5.0, a_max=1e6, shear_gain=0.5, ramp_gain=0.0,
+                           asym_tau=1e6, x_min=-100.0, x_max=100.0, slip_hold=0.01)
+    n = 60
+    asym = np.zeros(n)
+    asym[0] = FS  # a = 1 from the first tick
+    slip = np.zeros(n, dtype=bool)
+    slip[20:25] = True
+    _, v = c.run(np.zeros(n), asym, FS, slip=slip)
+    _, v_free = c.run(np.zeros(n), asym, FS)
+    np.testing.assert_allclose(v[:20], v_free[:20])
+    hold = round(0.01 * FS)
+    assert np.all(v[20:24 + hold] == 0.0)  # held through the slip and slip_hold after it
+    assert np.all(v[24 + hold:] == 0.0)    # then tared: the asymmetry of before counts no more
+    assert np.all(v_free[20:] > 0.4)
+    with pytest.raises(ValueError, match="slip"):
+        c.run(np.zeros(n), asym, FS, slip=np.zeros(n + 1, dtype=bool))

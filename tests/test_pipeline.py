@@ -58,6 +58,24 @@ def test_matches_reference(use_u, controller):
         assert np.ptp(out[:, 0]) > 0  # the stage was commanded
 
 
+def test_slip_guard_matches_reference():
+    base = dict(threshold=0.2, y_full=0.7, v_max=0.01, a_max=0.5, shear_gain=2e-3, asym_tau=0.2, ramp_gain=0.0,
+                pred_boost=2.0)
+    x = signals(1500, make().n_inputs)
+    ys = make(controller=VelocityController(**base)).process_block(x)[0][:, 2::3].max(axis=1)
+    thr = float(np.quantile(ys, 0.9))  # "slip" on ~10 % of the ticks
+    pipe = make(controller=VelocityController(**base, slip_hold=0.02), slip_threshold=thr)
+    (out,) = pipe.process_block(x)
+    ref = ReferencePipeline(pipe.config).process_block(x)
+    np.testing.assert_allclose(out[:, :2], ref[:, :2], rtol=1e-9, atol=1e-12)
+    slip = out[:, 2::3].max(axis=1) >= thr
+    assert 0 < slip.sum() < slip.size
+    speed = np.abs(out[:, 1])
+    assert speed.max() > 0
+    k = np.flatnonzero(slip[1:] & slip[:-1]) + 1
+    assert np.all(speed[k] <= speed[k - 1] + 1e-15)  # held: only decelerating while slipping
+
+
 def test_raw_circuit_features():
     w = weights(features="circuit")
     pipe = MirrorPipeline(w, FS, 2, use_u=True, controller=PaperController(threshold=0.2), activation="exact")
@@ -164,6 +182,7 @@ def test_weights_for_another_rate_are_refused():
     ({"controller": {"kind": "velocity", "shear_gain": -1.0}}, "shear_gain"),
     ({"controller": {"kind": "velocity", "ramp_gain": -0.5}}, "ramp_gain"),
     ({"controller": {"kind": "velocity", "pred_boost": float("nan")}}, "pred_boost"),
+    ({"controller": {"kind": "paper", "slip_hold": -0.1}}, "slip_hold"),
     ({"controller": {"kind": "paper", "arm_delay": -1.0}}, "arm_delay"),
     ({"v_limit": -1.0}, "v_limit"),
     ({"slip_threshold": 1.5}, "slip_threshold"),

@@ -175,6 +175,7 @@ class _ControllerParams(TypedDict, total=False):
     arm_delay: float
     ramp_gain: float
     pred_boost: float
+    slip_hold: float
 
 @type_check_only
 class _ControllerState(TypedDict):

@@ -384,6 +384,7 @@ class ReferencePipeline:
         self.dir = 0.0
         self.consecutive = 0
         self.ticks = 0
+        self.hold_left = 0
         self.out = np.zeros(self.n_outputs)
         self.out[3::3] = 1.0
         self.out[0] = self.x
@@ -432,12 +433,22 @@ class ReferencePipeline:
             ypred = 0.0
         ctrl = self.ctrl
         arm = round(ctrl.arm_delay * c["fs"])
+        slip = float(np.max(self.det[:, 0])) >= c["slip_threshold"]
         if ctrl.kind != "none" and self.ticks < arm:
             self.ticks += 1
             if self.ticks == arm:
                 self.a, self.dir = 0.0, 0.0
             self.v = 0.0
         elif ctrl.kind != "none":
+            hold = round(ctrl.slip_hold * c["fs"])
+            if hold > 0:  # slip guard (see Controller)
+                if slip:
+                    self.hold_left = hold
+                if self.hold_left > 0:
+                    fault, ypred, asym = True, 0.0, 0.0
+                    self.hold_left -= 1
+                    if self.hold_left == 0:
+                        self.a, self.dir = 0.0, 0.0
             dt = 1.0 / c["fs"]
             self.a = math.exp(-dt / ctrl.asym_tau) * self.a + dt * asym
             if abs(self.a) > ctrl.asym_deadband:

@@ -96,6 +96,7 @@ ControllerParams controller_from(const py::dict& d) {
         else if (k == "arm_delay") f = &p.arm_delay;
         else if (k == "ramp_gain") f = &p.ramp_gain;
         else if (k == "pred_boost") f = &p.pred_boost;
+        else if (k == "slip_hold") f = &p.slip_hold;
         else throw py::value_error("controller has no parameter '" + k + "'");
         *f = py::cast<double>(item.second);
     }
@@ -119,6 +120,7 @@ py::dict controller_dict(const ControllerParams& p) {
     d["arm_delay"] = p.arm_delay;
     d["ramp_gain"] = p.ramp_gain;
     d["pred_boost"] = p.pred_boost;
+    d["slip_hold"] = p.slip_hold;
     return d;
 }
 

@@ -49,6 +49,10 @@
 //              at most a_max * dt per tick and integrated into the position target.
 //              Speed, acceleration and travel are all respected.
 //
+// Slip guard (both laws, slip_hold > 0): while the detector reports gross slip and for
+// slip_hold seconds after, the controller holds as in a fault; then the asymmetry is
+// tared again (the re-stuck contact is the new reference).
+//
 // Arming (both laws): for the first arm_delay seconds after a reset the command holds
 // (the finger settles on the pad); at the end the asymmetry integrator is zeroed, so the
 // shear of the settled contact is the reference (a tare).
@@ -104,6 +108,7 @@ struct ControllerParams {
     double arm_delay = 0.0;        // s after reset during which the stage holds; then the asymmetry is tared
     double ramp_gain = 1.0;        // velocity: share of v_max the y_pred ramp commands (0: no ramp term), >= 0
     double pred_boost = 0.0;       // velocity: shear gain x (1 + pred_boost * ramp(y)), >= 0
+    double slip_hold = 0.0;        // s, >= 0: on detected slip, hold and re-tare after this long (0: off)
 };
 
 // Everything a pipeline is built from. Arrays are borrowed for the duration of the
@@ -163,11 +168,11 @@ inline void validate_controller(const ControllerParams& c) {
     if (k < 0 || k > 2) bad("kind", "must be 0 (none), 1 (paper) or 2 (velocity)");
     const double vals[] = {c.threshold, c.gain, c.y_full, c.v_max, c.a_max, c.x_min, c.x_max,
                            c.direction_sign, c.asym_tau, c.asym_deadband, c.shear_gain, c.arm_delay,
-                           c.ramp_gain, c.pred_boost};
+                           c.ramp_gain, c.pred_boost, c.slip_hold};
     const char* names[] = {"threshold", "gain", "y_full", "v_max", "a_max", "x_min", "x_max",
                            "direction_sign", "asym_tau", "asym_deadband", "shear_gain", "arm_delay",
-                           "ramp_gain", "pred_boost"};
-    for (int i = 0; i < 14; ++i)
+                           "ramp_gain", "pred_boost", "slip_hold"};
+    for (int i = 0; i < 15; ++i)
         if (!std::isfinite(vals[i])) bad(names[i], "must be finite");
     if (!(c.threshold >= 0.0 && c.threshold < 1.0)) bad("threshold", "must lie in [0, 1)");
     if (!(c.gain >= 0.0)) bad("gain", "must be >= 0 (m/s per unit y_pred)");
@@ -184,6 +189,7 @@ inline void validate_controller(const ControllerParams& c) {
     if (!(c.arm_delay >= 0.0 && c.arm_delay <= 3600.0)) bad("arm_delay", "must lie in [0, 3600] s");
     if (!(c.ramp_gain >= 0.0)) bad("ramp_gain", "must be >= 0 (share of v_max)");
     if (!(c.pred_boost >= 0.0)) bad("pred_boost", "must be >= 0");
+    if (!(c.slip_hold >= 0.0 && c.slip_hold <= 3600.0)) bad("slip_hold", "must lie in [0, 3600] s");
 }
 
 inline void validate_config(const PipelineConfig& c) {
@@ -236,11 +242,13 @@ public:
         validate_controller(p);
         leak_ = std::exp(-dt_ / p.asym_tau);
         arm_ticks_ = static_cast<std::uint64_t>(std::llround(p.arm_delay * fs));
+        hold_ticks_ = static_cast<std::uint64_t>(std::llround(p.slip_hold * fs));
     }
 
     // y: max y_pred of the ridges; asym: sum over ridges of (rate_L - rate_R);
-    // fault: no valid input any more, bring the stage to rest.
-    TM_ALWAYS_INLINE void step(double y, double asym, bool fault = false) noexcept {
+    // fault: no valid input any more, bring the stage to rest; slip: the detector
+    // reports gross slip now (any ridge's y_slip at its threshold).
+    TM_ALWAYS_INLINE void step(double y, double asym, bool fault = false, bool slip = false) noexcept {
         if (ticks_ < arm_ticks_) {  // arming: hold, then tare the asymmetry
             if (++ticks_ == arm_ticks_) {
                 a_ = 0.0;
@@ -248,6 +256,23 @@ public:
             }
             v_ = 0.0;
             return;
+        }
+        // Slip guard: while the contact slides, the strips' asymmetry no longer measures
+        // the relative displacement (sliding friction holds it, and the release of
+        // static friction swings it), so acting on it can run the stage away. Hold
+        // (as in a fault) until slip_hold after the last detected slip, then tare:
+        // the re-stuck contact is the new reference.
+        if (hold_ticks_ > 0) {
+            if (slip) hold_left_ = hold_ticks_;
+            if (hold_left_ > 0) {
+                fault = true;
+                y = 0.0;
+                asym = 0.0;
+                if (--hold_left_ == 0) {
+                    a_ = 0.0;
+                    dir_ = 0.0;
+                }
+            }
         }
         a_ = leak_ * a_ + dt_ * asym;
         if (std::fabs(a_) > p_.asym_deadband) dir_ = (a_ > 0.0 ? p_.direction_sign : -p_.direction_sign);
@@ -294,6 +319,7 @@ public:
         a_ = 0.0;
         dir_ = 0.0;
         ticks_ = 0;
+        hold_left_ = 0;
     }
     void set_position(double x) noexcept {
         x_ = clamp(x);
@@ -311,7 +337,7 @@ private:
     ControllerParams p_{};
     double dt_ = 1e-3, leak_ = 1.0;
     double x_ = 0.0, v_ = 0.0, a_ = 0.0, dir_ = 0.0;
-    std::uint64_t ticks_ = 0, arm_ticks_ = 0;
+    std::uint64_t ticks_ = 0, arm_ticks_ = 0, hold_ticks_ = 0, hold_left_ = 0;
 };
 
 // ---- the pipeline -------------------------------------------------------------------
@@ -532,7 +558,7 @@ private:
         if (ok) st_.slip = ys >= slip_threshold_;
         if (!ok) asym = 0.0;  // no new rate information: the integrator only leaks
         if (st_.fault) y = 0.0;
-        if (ctrl_kind_ != ControllerKind::none) ctrl_.step(y, asym, st_.fault);
+        if (ctrl_kind_ != ControllerKind::none) ctrl_.step(y, asym, st_.fault, st_.slip);
         out_[0] = ctrl_.position();
         out_[1] = ctrl_.velocity();
         st_.at_limit = ctrl_kind_ != ControllerKind::none && ctrl_.at_limit();

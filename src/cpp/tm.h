@@ -85,6 +85,7 @@ typedef struct tm_controller_params {
     double arm_delay;        /* s after a reset during which the stage holds; then the asymmetry is tared */
     double ramp_gain;        /* velocity: share of v_max commanded by the y_pred ramp, >= 0; 0 = no ramp term */
     double pred_boost;       /* velocity: shear gain x (1 + pred_boost * ramp(y_pred)), >= 0 */
+    double slip_hold;        /* s, >= 0: on detected slip hold the stage, re-tare this long after (0 = off) */
 } tm_controller_params;
 
 typedef struct tm_config {

@@ -83,6 +83,7 @@ void controller_defaults(tm_controller_params* p) {
     p->arm_delay = d.arm_delay;
     p->ramp_gain = d.ramp_gain;
     p->pred_boost = d.pred_boost;
+    p->slip_hold = d.slip_hold;
 }
 
 }  // namespace
@@ -195,6 +196,7 @@ int32_t tm_pipeline_create(const tm_config* cfg, tm_pipeline* out) {
     c.controller.arm_delay = p.arm_delay;
     c.controller.ramp_gain = p.ramp_gain;
     c.controller.pred_boost = p.pred_boost;
+    c.controller.slip_hold = p.slip_hold;
     // The sample-rate check first, with its own code.
     if (std::isfinite(c.fs) && c.fs > 0 && std::isfinite(c.weights_fs) && c.weights_fs > 0 &&
         std::fabs(c.fs - c.weights_fs) > 1e-9 * c.fs)

@@ -78,6 +78,14 @@ class Controller:
     arm_delay : float
         Seconds after a reset during which the stage holds (the finger settles);
         then the asymmetry integrator is zeroed (a tare) and the law starts.
+    slip_hold : float
+        Slip guard, s (>= 0; 0 = off): while the detector reports gross slip
+        (``y_slip`` at the pipeline's slip threshold on any ridge) and for
+        ``slip_hold`` after, the law holds as in a fault (the velocity law
+        decelerates at ``a_max``), then re-tares the asymmetry. While the contact
+        slides the strips' asymmetry no longer measures the relative displacement
+        (sliding friction holds it and the release of static friction swings it), so
+        a law acting on it can run the stage away.
     """
 
     kind = "none"
@@ -88,9 +96,11 @@ class Controller:
     asym_tau: float = 1.0
     asym_deadband: float = 0.0
     arm_delay: float = 0.0
+    slip_hold: float = 0.0
 
     def __post_init__(self):
-        for name in ("threshold", "x_min", "x_max", "direction_sign", "asym_tau", "asym_deadband", "arm_delay"):
+        for name in ("threshold", "x_min", "x_max", "direction_sign", "asym_tau", "asym_deadband", "arm_delay",
+                     "slip_hold"):
             object.__setattr__(self, name, _real(getattr(self, name), name))
         if not 0.0 <= self.threshold < 1.0:
             raise ValueError(f"threshold must lie in [0, 1), got {self.threshold}")
@@ -106,6 +116,8 @@ class Controller:
             raise ValueError(f"asym_deadband must be >= 0, got {self.asym_deadband}")
         if not 0 <= self.arm_delay <= 3600:
             raise ValueError(f"arm_delay must lie in [0, 3600] s, got {self.arm_delay}")
+        if not 0 <= self.slip_hold <= 3600:
+            raise ValueError(f"slip_hold must lie in [0, 3600] s, got {self.slip_hold}")
 
     def params(self) -> dict:
         """The parameters as the C++ pipeline takes them (``kind`` included)."""
@@ -117,7 +129,7 @@ class Controller:
     def _move(self, x, v, y, dt, dirn, a=0.0):
         return x, v
 
-    def run(self, y_pred, asym, fs, x0: float = 0.0):
+    def run(self, y_pred, asym, fs, x0: float = 0.0, slip=None):
         """Reference run of the law over a sequence (plain Python, float64).
 
         Parameters
@@ -130,6 +142,8 @@ class Controller:
             Tick rate, Hz.
         x0 : float
             Start position, m.
+        slip : array_like of bool, shape (n,), optional
+            Gross slip reported by the detector per tick (for ``slip_hold``).
 
         Returns
         -------
@@ -140,6 +154,9 @@ class Controller:
         d = np.asarray(asym, dtype=np.float64)
         if y.ndim != 1 or d.shape != y.shape:
             raise ValueError(f"y_pred and asym must be 1-D of equal length, got {y.shape} and {d.shape}")
+        sl = np.zeros(y.shape, dtype=bool) if slip is None else np.asarray(slip, dtype=bool)
+        if sl.shape != y.shape:
+            raise ValueError(f"slip must have the shape of y_pred {y.shape}, got {sl.shape}")
         fs = _real(fs, "fs")
         if fs <= 0:
             raise ValueError(f"fs must be > 0 Hz, got {fs}")
@@ -152,6 +169,8 @@ class Controller:
         xs = np.empty_like(y)
         vs = np.empty_like(y)
         arm = round(self.arm_delay * fs)
+        hold = round(self.slip_hold * fs)
+        hold_left = 0
         for k in range(y.size):
             if k < arm:
                 if k + 1 == arm:
@@ -159,10 +178,19 @@ class Controller:
                 xs[k], vs[k] = x, 0.0
                 v = 0.0
                 continue
-            a = leak * a + dt * d[k]
+            yk, dk, fault = y[k], d[k], False
+            if hold > 0:
+                if sl[k]:
+                    hold_left = hold
+                if hold_left > 0:
+                    yk, dk, fault = 0.0, 0.0, True
+                    hold_left -= 1
+                    if hold_left == 0:
+                        a, dirn = 0.0, 0.0
+            a = leak * a + dt * dk
             if abs(a) > self.asym_deadband:
                 dirn = self.direction_sign if a > 0 else -self.direction_sign
-            x, v = self._move(x, v, y[k], dt, dirn, a)
+            x, v = self._move(x, v, yk, dt, dirn, 0.0 if fault else a)
             xs[k] = x
             vs[k] = v
         return xs, vs

@@ -494,7 +494,7 @@ def make_laws(weights, fs: float = 1000.0, plant: str = "fem", n_ridges: int = 6
 
     ``"velocity"`` (the law of this library): the proportional shear loop, its gain
     raised up to 2.5x by ``y_pred`` (``ramp_gain`` 0, ``pred_boost`` 1.5); base gain
-    60 rad/s of the calibrated shear signal. ``"paper"``: the paper's law (threshold
+    60 rad/s of the calibrated shear signal; a 0.1 s slip guard (``slip_hold``). ``"paper"``: the paper's law (threshold
     0.5, above the detector's resting ``y_pred``). Two ablations: ``"velocity, y_pred
     ramp"`` (the ramp term of the velocity law, no shear feedback: the relay that
     limit-cycles) and ``"velocity, shear only"`` (no ``y_pred``).
@@ -513,7 +513,7 @@ def make_laws(weights, fs: float = 1000.0, plant: str = "fem", n_ridges: int = 6
     arm = 0.5 if plant == "fem" else 0.0  # the FEM finger presses in first: hold, then tare
     common = {"direction_sign": sign, "asym_tau": 20.0, "x_min": -0.02, "x_max": 0.02, "arm_delay": arm}
     laws = {"velocity": VelocityController(threshold=0.2, y_full=0.7, v_max=2 * vf, a_max=1.0, ramp_gain=0.0,
-                                           pred_boost=1.5, shear_gain=shear_gain, **common),
+                                           pred_boost=1.5, shear_gain=shear_gain, slip_hold=0.1, **common),
             "paper": PaperController(threshold=0.5, gain=7 * vf, **common),
             "velocity, y_pred ramp": VelocityController(threshold=0.3, y_full=0.7, v_max=2 * vf, a_max=1.0,
                                                         **common),
