@@ -17,6 +17,7 @@ def test_help_everywhere(command, capsys):
     (["simulate", "--ridges", "two"], "expected a int"),
     (["simulate", "--scene", "fig9"], "invalid choice"),
     (["figure", "9"], "invalid choice"),
+    (["figure", "13", "--law", "pid"], "invalid choice"),
     (["train", "--hidden", "0"], "must be positive"),
     (["evaluate", "--scenes", "-3"], "must be positive"),
     (["fly"], "invalid choice"),
@@ -70,9 +71,30 @@ def test_parser_lists_the_subcommands():
 def test_train_writes_loadable_weights(tmp_path, capsys):
     out = tmp_path / "det.npz"
     assert main(["train", "--n-train", "2", "--n-test", "2", "--maxiter", "3", "--hidden", "4",
-                 "--out", str(out)]) == 0
+                 "--candidates", "2", "--n-validation", "2", "--out", str(out)]) == 0
     from tactile_mirror import SlipDetector
 
     det = SlipDetector.load(out)
     assert det.n_hidden == 4
+    sel = det.metadata["training"]["selection"]
+    assert len(sel["scores"]) == 2 and sel["chosen_seed"] in (0, 1)
     assert "detect %" in capsys.readouterr().out
+
+
+def test_demo_end_to_end(tmp_path, capsys):
+    """The README's first command: paper scenes, the detector on them, open and closed loop."""
+    assert main(["demo", "--out", str(tmp_path)]) == 0
+    out = capsys.readouterr().out
+    for name in ("fig6", "fig7", "fig8", "fig10", "fig12", "fig13"):
+        assert (tmp_path / f"{name}.png").stat().st_size > 10_000, name
+    rows = {line.split("|")[1].strip(): [c.strip() for c in line.split("|")[2:-1]]
+            for line in out.splitlines() if line.startswith("| ")}
+    # the detector fires at the paper scenes' slips, not in their stops (Fig. 10)
+    for scene in ("fig6", "fig7", "fig8"):
+        slip, alarm = (float(v.split()[0]) for v in rows[scene][1:3])
+        assert slip - 1e-9 <= alarm <= slip + 0.02, (scene, slip, alarm)
+    # Figs. 12 / 13: the finger slips on the still pad; with the stage in the loop it never does
+    open_row, closed_row = rows["open (stage still)"], rows["closed (shear loop + y_pred)"]
+    assert int(open_row[0]) >= 1 and int(closed_row[0]) == 0
+    assert float(closed_row[1].split()[0]) < 0.1 * float(open_row[1].split()[0])
+    assert float(closed_row[2]) < 0.8  # y_slip stays below the slip level all run

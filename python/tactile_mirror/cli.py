@@ -2,7 +2,7 @@
 
     tactile-mirror demo                       the paper's scenes, figures and a summary
     tactile-mirror simulate --scene fig8      one contact scene -> .npz (+ figure)
-    tactile-mirror figure 6 --out figures/    a paper figure reproduction (6, 7, 8, 10)
+    tactile-mirror figure 6 --out figures/    a paper figure reproduction (6, 7, 8, 10, 12, 13)
     tactile-mirror train / evaluate           slip-detector training and evaluation
     tactile-mirror bench --out report/        run time against error of every kernel (table + plot)
 
@@ -90,19 +90,44 @@ def cmd_demo(args) -> int:
     from . import scenes, simd_path, simulate_many
 
     out = pathlib.Path(args.out)
+    out.mkdir(parents=True, exist_ok=True)  # fail before the work, not after
     t_start = time.perf_counter()
     print(f"tactile-mirror demo: C++ kernels on the {simd_path()} path; output folder {out}/")
     names = list(PAPER_SCENES)
     results = simulate_many([scenes.paper(n) for n in names], progress=True)
+    import numpy as np
+
+    from .detector import SlipDetector, figure10, figure10_data
+    from .loop import experiment
+    from .plots import save
+
+    det = SlipDetector.default()
+    stops = {"fig6": [], "fig7": [(1.00, 1.05)], "fig8": [(1.40, 1.45)]}
     rows = []
     for name, res in tqdm(list(zip(names, results)), desc="figures", unit="fig"):
         _contact_figure(res, name, out / f"{name}.png")
-        rows.append((name, PAPER_SCENES[name], res.slip_time))
-    print("\n| scene | plate motion | gross slip |")
-    print("|---|---|---|")
-    for name, what, ts in rows:
-        print(f"| {name} | {what} | {'none' if ts is None else f'{ts:.3f} s'} |")
-    print(f"\nfigures: {', '.join(str(out / f'{n}.png') for n in names)}")
+        d = figure10_data(det, res, stops=stops[name])
+        alarm = np.flatnonzero(d["y_slip"] >= 0.8)
+        t_alarm = float(d["t"][alarm[0]]) if alarm.size else None
+        rows.append((name, PAPER_SCENES[name], res.slip_time, t_alarm))
+    save(figure10(det, results[0], results[2], stops_b=stops["fig8"]), out / "fig10.png")
+    print("\n| scene | plate motion | gross slip | detector: first y_slip >= 0.8 |")
+    print("|---|---|---|---|")
+    for name, what, ts, ta in rows:
+        print(f"| {name} | {what} | {'none' if ts is None else f'{ts:.3f} s'} | "
+              f"{'none' if ta is None else f'{ta:.3f} s'} |")
+
+    print("\nthe tactile mirror: a finger on the 6-ridge FEM pad, open loop, then with the stage in the loop")
+    r_open, r_closed = experiment.open_and_closed(seed=0)
+    experiment.figure(r_open, out / "fig12.png", closed=False)
+    experiment.figure(r_closed, out / "fig13.png", closed=True, law="velocity")
+    print("\n| loop | gross slips | tracking rms | max y_slip |")
+    print("|---|---|---|---|")
+    for label, r in (("open (stage still)", r_open), ("closed (shear loop + y_pred)", r_closed)):
+        s = r.summary()
+        print(f"| {label} | {r.gross_slips} | {s['tracking_rms_mm']:.3f} mm | {s['y_slip_max']:.2f} |")
+    figs = [*(f"{n}.png" for n in names), "fig10.png", "fig12.png", "fig13.png"]
+    print(f"\nfigures in {out}/: {', '.join(figs)}")
     print(f"done in {time.perf_counter() - t_start:.1f} s")
     return 0
 
@@ -119,7 +144,8 @@ def cmd_train(args) -> int:
     out = pathlib.Path(args.out)
     out.parent.mkdir(parents=True, exist_ok=True)
     _, report = build_default(out, n_train=args.n_train, n_test=args.n_test, n_hidden=args.hidden,
-                              maxiter=args.maxiter, report_path=args.report, figure_path=args.figure)
+                              maxiter=args.maxiter, report_path=args.report, figure_path=args.figure,
+                              candidates=args.candidates, n_validation=args.n_validation)
     print(report["evaluation_table"])
     print(f"wrote {out} ({report['total_seconds']:.0f} s)")
     return 0
@@ -146,7 +172,7 @@ def cmd_figure(args) -> int:
         res = simulate(scenes.paper(name), progress=True)
         path = out / f"{name}.png"
         _contact_figure(res, name, path)
-    else:  # 10: the detector on fig6 and fig8
+    elif args.number == 10:  # the detector on fig6 and fig8
         from .detector import figure10
         from .plots import save
 
@@ -154,6 +180,20 @@ def cmd_figure(args) -> int:
         a, b = simulate(scenes.paper("fig6")), simulate(scenes.paper("fig8"))
         path = out / "fig10.png"
         save(figure10(det, a, b, stops_b=[(1.40, 1.45)]), path)
+    else:  # 12, 13: the open / closed loop on the FEM pad
+        from .loop import experiment
+
+        w = None if args.weights is None else _load_detector(args.weights).weights
+        r_open, r_closed = experiment.open_and_closed(args.seed, w, law=args.law)
+        out.mkdir(parents=True, exist_ok=True)
+        if args.number == 12:
+            path = out / "fig12.png"
+            experiment.figure(r_open, path, closed=False)
+        else:
+            path = out / "fig13.png"
+            experiment.figure(r_closed, path, closed=True, law=args.law)
+        print(f"gross slips: open loop {r_open.gross_slips}, closed loop {r_closed.gross_slips}; tracking rms "
+              f"{r_open.tracking_rms * 1e3:.3f} mm open, {r_closed.tracking_rms * 1e3:.4f} mm closed")
     print(f"wrote {path}")
     return 0
 
@@ -194,13 +234,16 @@ def cmd_bench(args) -> int:
 
 # ---------------------------------------------------------------- parser
 def build_parser() -> argparse.ArgumentParser:
+    from .scenes import DEFAULT_FRICTION
+
     parser = argparse.ArgumentParser(prog="tactile-mirror",
                                      description="Closed-loop tactile displays that render static friction.")
     sub = parser.add_subparsers(dest="command", required=True, metavar="command")
 
     p = sub.add_parser("demo", help="the paper's scenes on the bundled defaults: summary and figures",
-                       description="Simulate the paper's three contact scenes (Figs. 6-8), print a summary "
-                                   "and write the figures.")
+                       description="Simulate the paper's three contact scenes (Figs. 6-8), run the bundled "
+                                   "slip detector on them (Fig. 10), run a finger on the 6-ridge pad open and "
+                                   "closed loop (Figs. 12, 13), print a summary and write the figures.")
     p.add_argument("--out", default="tactile-mirror-output", help="output folder (default: %(default)s)")
     p.set_defaults(func=cmd_demo)
 
@@ -208,7 +251,8 @@ def build_parser() -> argparse.ArgumentParser:
                        "and save its signals (t, stress, v_out, u_out, slip_fraction, forces) as .npz.")
     p.add_argument("--scene", choices=[*PAPER_SCENES, "random"], default="fig6",
                    help="paper scene or a random one (default: %(default)s)")
-    p.add_argument("--friction", type=_positive(float), default=None, help="Coulomb coefficient (default: 0.66)")
+    p.add_argument("--friction", type=_positive(float), default=None,
+                   help=f"static friction coefficient (default: {DEFAULT_FRICTION:g})")
     p.add_argument("--duration", type=_positive(float), default=None, help="seconds (default: 2.0)")
     p.add_argument("--ridges", type=_positive(int), default=1, help="ridges in the pad (default: 1)")
     p.add_argument("--noise", type=float, default=0.0, help="sensor noise, V rms (default: 0)")
@@ -219,10 +263,15 @@ def build_parser() -> argparse.ArgumentParser:
 
     p = sub.add_parser("figure", help="reproduce a figure of the paper",
                        description="Reproduce one of the paper's figures as a PNG: 6, 7, 8 (contact "
-                                   "signals) or 10 (the slip detector on the fig6 and fig8 scenes).")
-    p.add_argument("number", type=int, choices=[6, 7, 8, 10], help="figure number")
+                                   "signals), 10 (the slip detector on the fig6 and fig8 scenes), 12 (a "
+                                   "finger on the 6-ridge pad, open loop) or 13 (the same finger, closed loop).")
+    p.add_argument("number", type=int, choices=[6, 7, 8, 10, 12, 13], help="figure number")
     p.add_argument("--out", default="figures", help="output folder (default: %(default)s)")
     p.add_argument("--weights", default=None, help="detector weights file (default: the bundled ones)")
+    p.add_argument("--seed", type=int, default=0, help="figures 12, 13: finger path seed (default: 0)")
+    p.add_argument("--law", default="velocity",
+                   choices=["velocity", "paper", "velocity, y_pred ramp", "velocity, shear only"],
+                   help="figure 13: stage controller (default: %(default)s)")
     p.set_defaults(func=cmd_figure)
 
     p = sub.add_parser("train", help="simulate scenes, train and evaluate a slip detector",
@@ -232,7 +281,11 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--n-train", type=_positive(int), default=64, help="training scenes (default: 64)")
     p.add_argument("--n-test", type=_positive(int), default=60, help="held-out scenes (default: 60)")
     p.add_argument("--hidden", type=_positive(int), default=16, help="hidden units (default: 16)")
-    p.add_argument("--maxiter", type=_positive(int), default=400, help="L-BFGS-B iterations (default: 400)")
+    p.add_argument("--maxiter", type=_positive(int), default=800, help="L-BFGS-B iterations (default: 800)")
+    p.add_argument("--candidates", type=_positive(int), default=3,
+                   help="initial seeds to train from; the best on the validation scenes is kept (default: 3)")
+    p.add_argument("--n-validation", type=_positive(int), default=40,
+                   help="validation scenes for choosing among candidates (default: 40)")
     p.add_argument("--report", default=None, help="also write the evaluation report here")
     p.add_argument("--figure", default=None, help="also write Figure 10 here")
     p.set_defaults(func=cmd_train)
