@@ -25,11 +25,11 @@ from __future__ import annotations
 import json
 import math
 import os
-import zipfile
 from dataclasses import dataclass, field
 
 import numpy as np
 
+from .._npzfile import check_json, read_versioned
 from .network import Params
 
 __all__ = ["FEATURE_KINDS", "FORMAT", "FORMAT_VERSION", "DetectorWeights", "WeightsError"]
@@ -124,10 +124,7 @@ class DetectorWeights:
         if m - 1 != len(FEATURE_KINDS[kind]):
             raise WeightsError(f"features {kind!r} have {len(FEATURE_KINDS[kind])} channels, "
                                f"the weights take {m - 1}")
-        try:
-            json.dumps(self.metadata)
-        except (TypeError, ValueError) as exc:
-            raise WeightsError(f"metadata must be JSON-serialisable: {exc}") from None
+        check_json(self.metadata, "metadata", WeightsError)
 
     def save(self, path) -> None:
         """Write the weights to ``path`` (``.npz``; the suffix is not added)."""
@@ -152,25 +149,7 @@ class DetectorWeights:
             ``path`` does not exist.
         """
         path = os.fspath(path)
-        try:
-            with np.load(path, allow_pickle=False) as z:
-                data = {k: z[k] for k in z.files}
-        except FileNotFoundError:
-            raise
-        except (zipfile.BadZipFile, OSError, ValueError, EOFError, KeyError) as exc:
-            raise WeightsError(f"{path!r} is not a readable detector weights file: {exc}") from None
-        if not isinstance(data, dict):
-            raise WeightsError(f"{path!r} is not a detector weights file (not an npz archive)")
-        if "format" not in data or str(data["format"]) != FORMAT:
-            raise WeightsError(f"{path!r} is not a detector weights file (format key missing or wrong)")
-        if "format_version" not in data:
-            raise WeightsError(f"{path!r}: format_version missing")
-        version = data["format_version"]
-        if version.shape != () or version.dtype.kind not in "iu":
-            raise WeightsError(f"{path!r}: format_version must be an integer")
-        if int(version) != FORMAT_VERSION:
-            raise WeightsError(f"{path!r}: format_version {int(version)} is not supported "
-                               f"(this library reads version {FORMAT_VERSION})")
+        data = read_versioned(path, FORMAT, FORMAT_VERSION, WeightsError, "detector weights file")
         for key in ("w1", "b1", "w2", "b2", "input_mean", "input_scale", "fs", "metadata"):
             if key not in data:
                 raise WeightsError(f"{path!r}: key {key!r} missing")

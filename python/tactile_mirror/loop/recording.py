@@ -29,10 +29,11 @@ from __future__ import annotations
 import json
 import math
 import os
-import zipfile
 from dataclasses import dataclass, field
 
 import numpy as np
+
+from .._npzfile import check_json, read_versioned
 
 __all__ = ["FORMAT", "FORMAT_VERSION", "Recording", "RecordingError"]
 
@@ -112,10 +113,7 @@ class Recording:
             raise RecordingError(f"accepted must be a bool array, got {self.accepted.dtype}")
         if not math.isclose(float(self.config["fs"]), float(self.fs), rel_tol=1e-12):
             raise RecordingError(f"fs={self.fs} differs from the configuration's {self.config['fs']}")
-        try:
-            json.dumps(self.metadata)
-        except (TypeError, ValueError) as exc:
-            raise RecordingError(f"metadata must be JSON-serialisable: {exc}") from None
+        check_json(self.metadata, "metadata", RecordingError)
 
     # -- files ----------------------------------------------------------------------------
     def save(self, path) -> None:
@@ -138,21 +136,7 @@ class Recording:
     def load(cls, path) -> Recording:
         """Read and validate a file written by :meth:`save`."""
         path = os.fspath(path)
-        try:
-            with np.load(path, allow_pickle=False) as z:
-                data = {k: z[k] for k in z.files}
-        except FileNotFoundError:
-            raise
-        except (zipfile.BadZipFile, OSError, ValueError, EOFError) as exc:
-            raise RecordingError(f"{path!r} is not a readable recording: {exc}") from None
-        if str(data.get("format", "")) != FORMAT:
-            raise RecordingError(f"{path!r} is not a tactile-mirror recording (format key missing or wrong)")
-        version = data.get("format_version")
-        if version is None or version.shape != () or version.dtype.kind not in "iu":
-            raise RecordingError(f"{path!r}: format_version missing or not an integer")
-        if int(version) != FORMAT_VERSION:
-            raise RecordingError(f"{path!r}: format_version {int(version)} is not supported "
-                                 f"(this library reads version {FORMAT_VERSION})")
+        data = read_versioned(path, FORMAT, FORMAT_VERSION, RecordingError, "tactile-mirror recording")
         for key in ("fs", "x0", "samples", "outputs", "accepted", "stage_position", "config", "metadata"):
             if key not in data:
                 raise RecordingError(f"{path!r}: key {key!r} missing")
