@@ -19,6 +19,7 @@ def test_help_everywhere(command, capsys):
     (["figure", "9"], "invalid choice"),
     (["figure", "13", "--law", "pid"], "invalid choice"),
     (["train", "--hidden", "0"], "must be positive"),
+    (["train", "--candidates", "0"], "must be positive"),
     (["evaluate", "--scenes", "-3"], "must be positive"),
     (["fly"], "invalid choice"),
 ])

@@ -169,6 +169,11 @@ def build_default(out_path, n_train: int = 64, n_test: int = 60, n_hidden: int =
     weights : DetectorWeights
     report : dict
     """
+    if int(candidates) != candidates or candidates < 1:
+        raise ValueError(f"candidates must be a positive integer, got {candidates!r}")
+    if candidates > 1 and not (int(n_validation) == n_validation and n_validation >= 1):
+        raise ValueError(f"n_validation must be a positive integer to choose among {candidates} candidates, "
+                         f"got {n_validation!r}")
     t_all = time.perf_counter()
     train_kwargs = dict(TRAIN_KWARGS if train_kwargs is None else train_kwargs)
     test_kwargs = dict(TEST_KWARGS if test_kwargs is None else test_kwargs)
