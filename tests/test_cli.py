@@ -55,7 +55,7 @@ def test_figure10_and_evaluate(tmp_path, capsys):
     assert (tmp_path / "fig10.png").stat().st_size > 10_000
     assert main(["evaluate", "--scenes", "2", "--seed", "5"]) == 0
     out = capsys.readouterr().out
-    assert "detect %" in out and "false %" in out
+    assert "detect %" in out and "false %" in out and "detection by how gross slip starts" in out
 
 
 def test_missing_weights_file_is_an_error(tmp_path, capsys):

@@ -59,8 +59,8 @@ def test_matches_reference(use_u, controller):
 
 
 def test_slip_guard_matches_reference():
-    base = dict(threshold=0.2, y_full=0.7, v_max=0.01, a_max=0.5, shear_gain=2e-3, asym_tau=0.2, ramp_gain=0.0,
-                pred_boost=2.0)
+    base = {"threshold": 0.2, "y_full": 0.7, "v_max": 0.01, "a_max": 0.5, "shear_gain": 2e-3, "asym_tau": 0.2,
+            "ramp_gain": 0.0, "pred_boost": 2.0}
     x = signals(1500, make().n_inputs)
     ys = make(controller=VelocityController(**base)).process_block(x)[0][:, 2::3].max(axis=1)
     thr = float(np.quantile(ys, 0.9))  # "slip" on ~10 % of the ticks

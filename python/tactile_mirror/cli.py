@@ -152,14 +152,23 @@ def cmd_train(args) -> int:
 
 
 def cmd_evaluate(args) -> int:
+    from . import simulate_many
     from .detector import evaluate
     from .detector.build import TEST_KWARGS, TEST_SEED
+    from .detector.evaluate import detection_by_onset
     from .scenes import random
 
     det = _load_detector(args.weights)
     scenes = random(args.scenes, seed=TEST_SEED if args.seed is None else args.seed, **TEST_KWARGS)
-    report = evaluate(det, scenes, progress=True)
+    results = simulate_many(scenes, progress=True)
+    report = evaluate(det, results)
     print(report.table())
+    by = detection_by_onset(det, results)
+    print("\ndetection by how gross slip starts (detector.evaluate.onset_kinds):")
+    for kind, what in (("release", "release of stored shear (a spike on both strips)"),
+                       ("gradual", "gradual creep (the strips' rates only settle)")):
+        n, rate = by[kind]
+        print(f"  {what}: {n} slips, " + (f"{100 * rate:.1f} % detected" if n else "none"))
     return 0
 
 
