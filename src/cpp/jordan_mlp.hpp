@@ -19,19 +19,38 @@
 //
 // Design (RTNeural-like): sizes are fixed at construction, where all buffers are
 // allocated; step() and run() allocate nothing and throw nothing. N instances
-// (one per ridge) share one weight set; the instances sit in SIMD lanes
-// (structure of arrays, 8 float or 4 double lanes per 256-bit vector). The SIMD
-// code is written with GCC vector extensions and compiled twice: for the
-// baseline ISA and for AVX2+FMA; the AVX2 path is selected at construction with
-// __builtin_cpu_supports. No pybind11 or Python in this header.
+// (one per ridge) share one weight set. The SIMD code is written with GCC vector
+// extensions and compiled twice: for the baseline ISA and for AVX2+FMA; the AVX2
+// path is selected at construction with __builtin_cpu_supports. step() and run()
+// go through the same compiled function, so they agree bit for bit. No pybind11
+// or Python in this header.
 //
-// Activations: Activation::exact is accurate to a few ulp (vectorised exp with
-// Cody-Waite range reduction and a degree-13/7 Taylor polynomial, then a true
-// division; the scalar step_one uses std::exp); Activation::fast uses 2^x = 2^n * P6(f), |f| <= 1/2
-// (relative error below 1.9e-9) and, for float on x86, a reciprocal estimate
-// with one Newton step; it is vectorised in both paths. Measured over 2e6
-// points in [-100, 100] against scipy.special.expit: |error| <= 4.7e-10 in
-// double, <= 1.9e-7 in float (exact float: 8.9e-8).
+// Layout: the hidden units sit in the SIMD lanes (W1 columns, b1 and W2 rows are
+// stored as vectors of consecutive hidden units, H padded with zero weights) and
+// the instances go in groups of G <= lanes / 2 whose features and feedback are
+// broadcast. Per group and tick the 2G output sums are reduced across lanes into
+// one vector [o_slip(r0), o_pred(r0), o_slip(r1), ...] and one vector sigmoid
+// gives all the group's outputs. Against instances in lanes this wastes no lane
+// on 6 ridges (6 x 16 hidden sigmoids are 12 float or 24 double vectors, not 16
+// or 32) at the price of a short transpose-and-add per group. The groups of a
+// tick are independent; the ticks are software-pipelined across them (see
+// tick_pipelined). For the fast activation a second copy of the weights is
+// scaled by -log2(e), so that the pre-activations come out as y = -a log2(e),
+// the argument of 2^y, without a multiply per sigmoid; the clamp is then
+// +-clamp * log2(e) on y. Measured, 6 ridges x H = 16, one tick (step()) on an
+// AVX2 machine (Zen 3): about 0.7x the time of the previous instances-in-lanes
+// kernel in float, 0.6x in double.
+//
+// Activations: Activation::exact is accurate to a few ulp (exp with Cody-Waite
+// range reduction, a two-constant split of ln2 except for float on the AVX2 path,
+// see sigmoid_k, and a near-minimax polynomial, degree 11 for double, 6 for
+// float, then a true division; the scalar step_one uses std::exp);
+// Activation::fast uses 2^y = 2^n * P(f), |f| <= 1/2 (degree 6 for double,
+// relative error < 2e-9; degree 5 for float, < 1.1e-7) and, for float on x86, a
+// reciprocal estimate with one Newton step. Both evaluate the polynomials by
+// Estrin's scheme. Measured over 2e6 points in [-100, 100] against
+// scipy.special.expit: |error| <= 1.7e-16 exact double, <= 4.7e-10 fast double,
+// <= 8.9e-8 exact float, <= 1.9e-7 fast float (1.4e-7 on the AVX2 path).
 #pragma once
 
 #include <chrono>
@@ -50,6 +69,12 @@
 #if (defined(__x86_64__) || defined(__i386__)) && (defined(__GNUC__) || defined(__clang__))
 #define TM_DETECTOR_X86 1
 #include <immintrin.h>
+#endif
+
+#if defined(__clang__)
+#define TM_DETECTOR_SHUF(V, IV, a, b, ...) __builtin_shufflevector(a, b, __VA_ARGS__)
+#else
+#define TM_DETECTOR_SHUF(V, IV, a, b, ...) __builtin_shuffle(a, b, IV{__VA_ARGS__})
 #endif
 
 // Vector types are passed between always-inline helpers only; the ABI note about
@@ -83,8 +108,10 @@ template <>
 struct Scalar<float> {
     typedef std::int32_t iscalar;
     static constexpr float clamp = 80.0f;
-    static constexpr float round_magic = 12582912.0f;  // 1.5 * 2^23
-    static constexpr int bias = 127;
+    // 1.5 * 2^23 + 127: y + magic rounds y to an integer n (in the default
+    // rounding mode) and leaves n + 127 in the low mantissa bits, so that those
+    // bits shifted to the exponent field are 2^n.
+    static constexpr float round_magic = 12583039.0f;
     static constexpr int mant = 23;
 };
 
@@ -92,8 +119,7 @@ template <>
 struct Scalar<double> {
     typedef std::int64_t iscalar;
     static constexpr double clamp = 600.0;
-    static constexpr double round_magic = 6755399441055744.0;  // 1.5 * 2^52
-    static constexpr std::int64_t bias = 1023;
+    static constexpr double round_magic = 6755399441056767.0;  // 1.5 * 2^52 + 1023, as above
     static constexpr int mant = 52;
 };
 
@@ -114,14 +140,90 @@ TM_DETECTOR_VEC(double, std::uint64_t, 16)
 TM_DETECTOR_VEC(double, std::uint64_t, 32)
 #undef TM_DETECTOR_VEC
 
-// 2^f on [-1/2, 1/2]: relative error < 1.9e-9 (least squares on Chebyshev nodes).
-constexpr double kP0 = 1.0000000005920207;
-constexpr double kP1 = 0.69314720560051013;
-constexpr double kP2 = 0.24022646608714027;
-constexpr double kP3 = 0.055503289975174459;
-constexpr double kP4 = 0.0096185195343476276;
-constexpr double kP5 = 0.001339986036321298;
-constexpr double kP6 = 0.00015337576834253096;
+// Polynomial coefficients, lowest degree first.
+// fast: 2^f on [-1/2, 1/2]. Double: degree 6, relative error < 2e-9 (least
+// squares on Chebyshev nodes). Float: degree 5 with c0 = 1, relative error
+// < 1.1e-7 with the coefficients rounded to float (Lawson minimax); one degree
+// less than double because float rounding (6e-8) dominates anyway.
+template <typename T>
+struct FastPoly;
+template <>
+struct FastPoly<double> {
+    static constexpr int degree = 6;
+    static constexpr double c[7] = {1.0000000005920207,    0.69314720560051013,  0.24022646608714027,
+                                    0.055503289975174459,  0.0096185195343476276, 0.001339986036321298,
+                                    0.00015337576834253096};
+};
+template <>
+struct FastPoly<float> {
+    static constexpr int degree = 5;
+    static constexpr double c[6] = {1.0,
+                                    0.6931470036506653,
+                                    0.24022242426872253,
+                                    0.05550733581185341,
+                                    0.009671512991189957,
+                                    0.001326472731307149};
+};
+// exact: exp(r) on [-ln2/2, ln2/2], near-minimax with c0 = c1 = 1. Double: degree
+// 11 (Chebyshev fit, relative error 2e-17 with double coefficients); float:
+// degree 6 (Lawson minimax, 4e-9 with float coefficients).
+template <typename T>
+struct ExpPoly;
+template <>
+struct ExpPoly<double> {
+    static constexpr int degree = 11;
+    static constexpr double c[12] = {1.0,
+                                     1.0,
+                                     0.5000000000000019,
+                                     0.1666666666666668,
+                                     0.0416666666664881,
+                                     0.008333333333319601,
+                                     0.0013888888952314775,
+                                     0.00019841269890047113,
+                                     2.4801485482328494e-05,
+                                     2.755724091857897e-06,
+                                     2.763263963904103e-07,
+                                     2.5110037605963777e-08};
+};
+template <>
+struct ExpPoly<float> {
+    static constexpr int degree = 6;
+    static constexpr double c[7] = {1.0,
+                                    1.0,
+                                    0.4999999403953552,
+                                    0.1666652113199234,
+                                    0.04166838899254799,
+                                    0.008368710055947304,
+                                    0.001381461275741458};
+};
+
+// sum_k s_k c[k] x^k (s_k = -1 for odd k when Neg, that is P(-x)) by Estrin's
+// scheme (degree N <= 15): a dependency chain of about log2(N) + 1 multiply-adds
+// instead of N for Horner's rule, for a few more operations. Measured: as fast
+// as Horner's rule in the AVX2 kernel and clearly faster in the baseline SSE2
+// kernel (no FMA there, so Horner's chain is twice as long).
+template <typename T, int N, bool Neg>
+__attribute__((always_inline)) inline T coef(const double* c, int k) {
+    return T(k > N ? 0.0 : (Neg && (k & 1) ? -c[k] : c[k]));
+}
+
+template <typename T, int N, bool Neg, typename V>
+__attribute__((always_inline)) inline V estrin(const double* c, V x) {
+    const auto cf = [c](int k) __attribute__((always_inline)) { return coef<T, N, Neg>(c, k); };
+    V q[8];
+    constexpr int NQ = (N + 2) / 2;
+    _Pragma("GCC unroll 8") for (int k = 0; k < NQ; ++k) q[k] = (2 * k + 1 <= N) ? cf(2 * k + 1) * x + cf(2 * k)
+                                                                                  : V{} + cf(2 * k);
+    V x2 = x * x;
+    int n = NQ;
+    _Pragma("GCC unroll 4") for (int lvl = 0; lvl < 3 && n > 1; ++lvl) {
+        _Pragma("GCC unroll 8") for (int k = 0; 2 * k < n; ++k) q[k] = (2 * k + 1 < n) ? q[2 * k + 1] * x2 + q[2 * k]
+                                                                                       : q[2 * k];
+        n = (n + 1) / 2;
+        x2 = x2 * x2;
+    }
+    return q[0];
+}
 
 template <typename T>
 __attribute__((always_inline)) inline T clampv(T a, T lo, T hi) {
@@ -144,10 +246,8 @@ inline T sigmoid_fast_scalar(T a) {
     I tb;
     std::memcpy(&tb, &t, sizeof tb);
     const T f = y - (t - Scalar<T>::round_magic);
-    const T f2 = f * f;
-    const T p = ((T(kP3) * f + T(kP2)) * f2 + (T(kP1) * f + T(kP0))) +
-                (T(kP6) * f2 + (T(kP5) * f + T(kP4))) * (f2 * f2);
-    const I eb = static_cast<I>((tb + static_cast<I>(Scalar<T>::bias)) << Scalar<T>::mant);
+    const T p = estrin<T, FastPoly<T>::degree, false>(FastPoly<T>::c, f);
+    const I eb = static_cast<I>(tb << Scalar<T>::mant);
     T scale;
     std::memcpy(&scale, &eb, sizeof scale);
     return T(1) / (T(1) + p * scale);
@@ -204,75 +304,58 @@ __attribute__((always_inline)) inline Vec<double, 32>::type clamp_sym(Vec<double
 
 // K independent sigmoids in place, computed stage by stage across the K vectors
 // so that their dependency chains interleave in the instruction stream (the
-// sigmoid is a long chain; one at a time leaves the FP units idle).
-#define TM_K _Pragma("GCC unroll 8") for (int u = 0; u < K; ++u)
-template <typename T, int B, Activation A, int K>
+// sigmoid is a long chain, and the out-of-order window holds only a few of them
+// at a time). Scaled (fast only): the argument is already y = -a log2(e) (the
+// kernel folds the factor into the weights), which saves two multiply-adds.
+#define TM_K _Pragma("GCC unroll 16") for (int u = 0; u < K; ++u)
+template <typename T, int B, Activation A, int K, bool Scaled = false>
 __attribute__((always_inline)) inline void sigmoid_k(typename Vec<T, B>::type* a) {
     typedef Vec<T, B> VT;
     typedef typename VT::type V;
     typedef typename VT::itype IV;
-    typedef typename std::make_unsigned<typename VT::iscalar>::type U;  // modular shifts
-    V y[K], t[K], f[K], f2[K], p[K];
+    static_assert(!Scaled || A == Activation::fast, "scaled arguments are for the fast sigmoid");
+    V y[K], t[K], p[K];
     IV tb[K];
-    TM_K a[u] = clamp_sym(a[u], T(VT::clamp));
-    TM_K y[u] = a[u] * T(-1.4426950408889634);
-    TM_K t[u] = y[u] + VT::round_magic;
-    // The integer bits of t hold round(y) in the low mantissa bits.
-    TM_K std::memcpy(&tb[u], &t[u], sizeof(IV));
-    if (A == Activation::exact) {
-        // exp(-a) to about one ulp: -a = n ln2 + r, |r| <= ln2/2 (Cody-Waite split
-        // of ln2), exp(r) by its Taylor series (degree 13 for double, 7 for float:
-        // truncation below 5e-18 and 6e-9 relative), then 1/(1 + exp(-a)) with a
-        // true division.
-        TM_K t[u] = t[u] - VT::round_magic;  // n
-        if (sizeof(T) == 8) {
-            TM_K f[u] = (T(0) - a[u]) - t[u] * T(0.693147180369123816490);
-            TM_K f[u] = f[u] - t[u] * T(1.90821492927058770002e-10);
-        } else {
-            TM_K f[u] = (T(0) - a[u]) - t[u] * T(0.693359375);
-            TM_K f[u] = f[u] - t[u] * T(-2.12194440e-4);
-        }
-        TM_K f2[u] = f[u] * f[u];
-        if (sizeof(T) == 8) {
-            TM_K {
-                const V r = f[u], r2 = f2[u], r4 = r2 * r2;
-                const V q0 = T(1.0) * r + T(1.0);
-                const V q1 = T(1.0 / 6) * r + T(1.0 / 2);
-                const V q2 = T(1.0 / 120) * r + T(1.0 / 24);
-                const V q3 = T(1.0 / 5040) * r + T(1.0 / 720);
-                const V q4 = T(1.0 / 362880) * r + T(1.0 / 40320);
-                const V q5 = T(1.0 / 39916800) * r + T(1.0 / 3628800);
-                const V q6 = T(1.0 / 6227020800.0) * r + T(1.0 / 479001600);
-                const V u0 = (q3 * r2 + q2) * r4 + (q1 * r2 + q0);
-                const V u1 = q6 * r4 + (q5 * r2 + q4);
-                p[u] = u1 * (r4 * r4) + u0;
-            }
-        } else {
-            TM_K {
-                const V r = f[u], r2 = f2[u];
-                const V q0 = T(1.0) * r + T(1.0);
-                const V q1 = T(1.0 / 6) * r + T(1.0 / 2);
-                const V q2 = T(1.0 / 120) * r + T(1.0 / 24);
-                const V q3 = T(1.0 / 5040) * r + T(1.0 / 720);
-                p[u] = (q3 * r2 + q2) * (r2 * r2) + (q1 * r2 + q0);
-            }
-        }
+    if (Scaled) {
+        TM_K y[u] = clamp_sym(a[u], T(VT::clamp * 1.4426950408889634));
+        TM_K t[u] = y[u] + VT::round_magic;
     } else {
-        // 2^f, f = y - round(y), by Estrin's scheme.
-        TM_K f[u] = y[u] - (t[u] - VT::round_magic);
-        TM_K f2[u] = f[u] * f[u];
-        TM_K {
-            const V q01 = T(kP1) * f[u] + T(kP0);
-            const V q23 = T(kP3) * f[u] + T(kP2);
-            const V q456 = T(kP6) * f2[u] + (T(kP5) * f[u] + T(kP4));
-            p[u] = (q23 * f2[u] + q01) + q456 * (f2[u] * f2[u]);
+        TM_K a[u] = clamp_sym(a[u], T(VT::clamp));
+        TM_K y[u] = a[u] * T(-1.4426950408889634);
+        TM_K t[u] = y[u] + VT::round_magic;
+    }
+    // The low mantissa bits of t hold round(y) + bias.
+    TM_K std::memcpy(&tb[u], &t[u], sizeof(IV));
+    TM_K t[u] = t[u] - VT::round_magic;  // n = round(y)
+    if (A == Activation::exact) {
+        // exp(-a) to about one ulp: -a = n ln2 - s, |s| <= ln2/2 (Cody-Waite split
+        // of ln2, s = a + n ln2), exp(-s) by the polynomial, then 1/(1 + exp(-a))
+        // with a true division.
+        if (sizeof(T) == 8) {
+            TM_K y[u] = t[u] * T(0.693147180369123816490) + a[u];
+            TM_K y[u] = t[u] * T(1.90821492927058770002e-10) + y[u];
+        } else if (B == 32) {
+            // Float on the FMA path: one fused step with ln2 rounded to float. Its
+            // error, |n| * 1.9e-9 relative in exp(-a), exceeds a float ulp only for
+            // |n| > 30, where the sigmoid is below 1e-9 or rounds to 1: there the
+            // relative error grows from 2.3e-7 to 3.3e-7 (measured); the absolute
+            // error bound (8.9e-8) does not change. One multiply-add less is 7%
+            // of the float tick.
+            TM_K y[u] = t[u] * T(0.693147180559945309) + a[u];
+        } else {
+            TM_K y[u] = t[u] * T(0.693359375) + a[u];
+            TM_K y[u] = t[u] * T(-2.12194440e-4) + y[u];
         }
+        TM_K p[u] = estrin<T, ExpPoly<T>::degree, true>(ExpPoly<T>::c, y[u]);
+    } else {
+        TM_K y[u] = y[u] - t[u];  // f = y - n, |f| <= 1/2 (exact)
+        TM_K p[u] = estrin<T, FastPoly<T>::degree, false>(FastPoly<T>::c, y[u]);
     }
     TM_K {
-        const IV eb = (tb[u] + static_cast<U>(VT::bias)) << VT::mant;
+        const IV eb = tb[u] << VT::mant;
         V scale;
         std::memcpy(&scale, &eb, sizeof scale);
-        t[u] = T(1) + p[u] * scale;
+        t[u] = p[u] * scale + T(1);
     }
     if (A == Activation::exact) {
         TM_K a[u] = T(1) / t[u];
@@ -282,9 +365,16 @@ __attribute__((always_inline)) inline void sigmoid_k(typename Vec<T, B>::type* a
 }
 #undef TM_K
 
+// The sigmoid as the kernel's hidden layer computes it (for the fast activation
+// the kernel's pre-activation is already scaled by -log2(e); here one multiply).
 template <typename T, int B, Activation A>
 __attribute__((always_inline)) inline typename Vec<T, B>::type sigmoid_vec(typename Vec<T, B>::type a) {
-    sigmoid_k<T, B, A, 1>(&a);
+    if (A == Activation::fast) {
+        a = a * T(-1.4426950408889634);
+        sigmoid_k<T, B, Activation::fast, 1, true>(&a);
+    } else {
+        sigmoid_k<T, B, A, 1>(&a);
+    }
     return a;
 }
 
@@ -313,6 +403,93 @@ __attribute__((target("avx2,fma"), noinline)) void sigmoid_array_avx2(const T* i
     sigmoid_array_impl<T, 32, A>(in, out, n);
 }
 #endif
+
+// One value from memory into every lane (a single broadcast load on x86).
+template <typename T, int B>
+__attribute__((always_inline)) inline typename Vec<T, B>::type bcast(const T* p) {
+    return typename Vec<T, B>::type{} + *p;
+}
+#ifdef TM_DETECTOR_X86
+template <>
+__attribute__((always_inline)) inline Vec<float, 16>::type bcast<float, 16>(const float* p) {
+    return (Vec<float, 16>::type)_mm_load1_ps(p);
+}
+template <>
+__attribute__((always_inline)) inline Vec<double, 16>::type bcast<double, 16>(const double* p) {
+    return (Vec<double, 16>::type)_mm_load1_pd(p);
+}
+// The 32-byte versions are only ever inlined into the AVX2 tick.
+template <>
+__attribute__((always_inline)) inline Vec<float, 32>::type bcast<float, 32>(const float* p) {
+    return (Vec<float, 32>::type)__builtin_ia32_vbroadcastss256(p);
+}
+template <>
+__attribute__((always_inline)) inline Vec<double, 32>::type bcast<double, 32>(const double* p) {
+    return (Vec<double, 32>::type)__builtin_ia32_vbroadcastsd256(p);
+}
+#endif
+
+// Transpose-and-add: s[0..lanes-1] -> one vector whose lane k is the sum of the
+// lanes of s[k]. log2(lanes) levels of two in-lane shuffles and one add per pair.
+template <typename T, int B>
+struct Reduce;
+template <>
+struct Reduce<float, 32> {
+    typedef Vec<float, 32>::type V;
+    typedef Vec<float, 32>::itype IV;
+    static __attribute__((always_inline)) inline V pair(V x, V y, int lvl) {
+        if (lvl < 2)  // [x0+x1, x2+x3, y0+y1, y2+y3 | ...]
+            return TM_DETECTOR_SHUF(V, IV, x, y, 0, 2, 8, 10, 4, 6, 12, 14) +
+                   TM_DETECTOR_SHUF(V, IV, x, y, 1, 3, 9, 11, 5, 7, 13, 15);
+        return TM_DETECTOR_SHUF(V, IV, x, y, 0, 1, 2, 3, 8, 9, 10, 11) +
+               TM_DETECTOR_SHUF(V, IV, x, y, 4, 5, 6, 7, 12, 13, 14, 15);
+    }
+};
+template <>
+struct Reduce<float, 16> {
+    typedef Vec<float, 16>::type V;
+    typedef Vec<float, 16>::itype IV;
+    static __attribute__((always_inline)) inline V pair(V x, V y, int) {
+        return TM_DETECTOR_SHUF(V, IV, x, y, 0, 2, 4, 6) + TM_DETECTOR_SHUF(V, IV, x, y, 1, 3, 5, 7);
+    }
+};
+template <>
+struct Reduce<double, 32> {
+    typedef Vec<double, 32>::type V;
+    typedef Vec<double, 32>::itype IV;
+    static __attribute__((always_inline)) inline V pair(V x, V y, int lvl) {
+        if (lvl == 0) return TM_DETECTOR_SHUF(V, IV, x, y, 0, 4, 2, 6) + TM_DETECTOR_SHUF(V, IV, x, y, 1, 5, 3, 7);
+        return TM_DETECTOR_SHUF(V, IV, x, y, 0, 1, 4, 5) + TM_DETECTOR_SHUF(V, IV, x, y, 2, 3, 6, 7);
+    }
+};
+template <>
+struct Reduce<double, 16> {
+    typedef Vec<double, 16>::type V;
+    typedef Vec<double, 16>::itype IV;
+    static __attribute__((always_inline)) inline V pair(V x, V y, int) {
+        return TM_DETECTOR_SHUF(V, IV, x, y, 0, 2) + TM_DETECTOR_SHUF(V, IV, x, y, 1, 3);
+    }
+};
+
+// One level of the transpose-and-add over the first M entries of s (the others
+// are zero); all bounds are compile-time so that s stays in registers.
+template <typename T, int B, int M, int Lvl>
+__attribute__((always_inline)) inline void reduce_level(typename Vec<T, B>::type* s) {
+    typedef typename Vec<T, B>::type V;
+    _Pragma("GCC unroll 8") for (int k = 0; k < (M + 1) / 2; ++k) s[k] =
+        Reduce<T, B>::pair(s[2 * k], 2 * k + 1 < M ? s[2 * k + 1] : V{}, Lvl);
+}
+
+// s: the first N entries are live; returns lane k = sum of the lanes of s[k].
+template <typename T, int B, int N>
+__attribute__((always_inline)) inline typename Vec<T, B>::type reduce_lanes(typename Vec<T, B>::type* s) {
+    constexpr int NL = Vec<T, B>::lanes;
+    static_assert(N <= NL, "too many sums for one vector");
+    reduce_level<T, B, N, 0>(s);
+    if (NL >= 4) reduce_level<T, B, (N + 1) / 2, 1>(s);
+    if (NL >= 8) reduce_level<T, B, (N + 3) / 4, 2>(s);
+    return s[0];
+}
 
 }  // namespace detail
 
@@ -353,7 +530,7 @@ template <typename T>
 class JordanMLP {
     static_assert(std::is_same<T, float>::value || std::is_same<T, double>::value,
                   "JordanMLP supports float and double");
-    static constexpr int L = 32 / int(sizeof(T));  // padding unit: lanes of the widest path
+    static constexpr int L = 32 / int(sizeof(T));  // lanes of the widest path: the hidden-unit padding
 
 public:
     static constexpr int n_outputs = 3;  // y_slip, y_non, y_pred
@@ -369,35 +546,40 @@ public:
         if (n_hidden < 1 || n_hidden > 1024) throw std::invalid_argument("n_hidden must be in [1, 1024]");
         if (n_instances < 1 || n_instances > 65536)
             throw std::invalid_argument("n_instances must be in [1, 65536]");
-        n_pad_ = ((n_inst_ + L - 1) / L) * L;
+        hp_ = ((n_h_ + L - 1) / L) * L;
+        // Instance slots: the last group of a tick may be padded with ghost
+        // instances (zero inputs, outputs never read), at most L / 2 - 1 of them.
+        const std::size_t n_slot = std::size_t(n_inst_) + L / 2;
+        urec_ = ((2 * n_slot + L + L - 1) / L) * L;  // + L: a group's vector store may overhang
         const std::size_t n_w1 = std::size_t(n_h_) * (n_in_ + 1);
         const std::size_t n_w = n_w1 + n_h_ + 2 * std::size_t(n_h_) + 2 + 2 * std::size_t(n_in_);
-        // State: xs_ (n_in, n_pad) inputs of one tick, prev_, yslip_, and the chunk
-        // buffers of run(): xch_ (kChunk, n_in, n_pad), ych_ (kChunk, 2, n_pad).
-        const std::size_t n_state = std::size_t(n_in_) * n_pad_ + 2 * std::size_t(n_pad_) +
-                                    std::size_t(kChunk) * (n_in_ + 2) * n_pad_;
-        // Replicated weights: per hidden unit, n_in + 4 slots of L copies
-        // [b1, w1[j, 0..n_in-1], w1[j, n_in], w2[0, j], w2[1, j]].
-        const std::size_t n_rep = std::size_t(n_h_) * (n_in_ + 4) * L;
-        const std::size_t count = n_rep + n_w + n_state + 64;
+        // Column-major weights, twice (as given, and times -log2(e) for the fast
+        // sigmoid): (n_in + 4) columns of hp_ values [b1, w1[:, 0..n_in-1],
+        // w1[:, n_in], w2[0, :], w2[1, :]], zero beyond n_hidden; then b2 as two
+        // vectors [b2[k], 0, ...].
+        const std::size_t n_col = std::size_t(n_in_ + 4) * hp_ + 2 * L;
+        const std::size_t n_slot_pad = ((n_slot + L - 1) / L) * L;
+        // State: prev_ (n_slot); scratch: xs_ (one tick's normalised inputs), the
+        // chunk buffers of run(): xch_ (n_slot * n_in, kChunk), ych_ (kChunk, urec_).
+        const std::size_t n_state = n_slot_pad + n_slot * n_in_ + L + std::size_t(kChunk) * (n_slot * n_in_ + urec_);
+        const std::size_t count = 2 * n_col + n_w + n_state + 64;
         void* mem = std::aligned_alloc(64, ((count * sizeof(T) + 63) / 64) * 64);
         if (!mem) throw std::bad_alloc();
         buf_.reset(mem);
         T* p = static_cast<T*>(mem);
         std::memset(p, 0, count * sizeof(T));
-        // Replicated weights and state first (vector-aligned), then weights.
-        wrep_ = p;
-        p += n_rep;
-        xs_ = p;
-        p += std::size_t(n_in_) * n_pad_;
-        prev_ = p;
-        p += n_pad_;
-        yslip_ = p;
-        p += n_pad_;
-        xch_ = p;
-        p += std::size_t(kChunk) * n_in_ * n_pad_;
+        wcol_[0] = p;
+        p += n_col;
+        wcol_[1] = p;
+        p += n_col;
         ych_ = p;
-        p += std::size_t(kChunk) * 2 * n_pad_;
+        p += std::size_t(kChunk) * urec_;
+        xch_ = p;
+        p += std::size_t(kChunk) * n_slot * n_in_;
+        prev_ = p;
+        p += n_slot_pad;
+        xs_ = p;
+        p += n_slot * n_in_ + L;
         w1_ = p;
         p += n_w1;
         b1_ = p;
@@ -417,14 +599,20 @@ public:
             mean_[k] = static_cast<T>(input_mean[k]);
             gain_[k] = static_cast<T>(input_gain[k]);
         }
-        for (int j = 0; j < n_h_; ++j) {
-            T* slot = wrep_ + std::size_t(j) * (n_in_ + 4) * L;
-            for (int l = 0; l < L; ++l) {
-                slot[l] = b1_[j];
-                for (int i = 0; i <= n_in_; ++i) slot[(1 + i) * L + l] = w1_[std::size_t(j) * (n_in_ + 1) + i];
-                slot[(n_in_ + 2) * L + l] = w2_[j];
-                slot[(n_in_ + 3) * L + l] = w2_[n_h_ + j];
+        for (int s = 0; s < 2; ++s) {
+            // The scale is applied to the double weights before rounding to T.
+            const double f = s == 0 ? 1.0 : -1.4426950408889634;
+            T* w = wcol_[s];
+            for (int j = 0; j < n_h_; ++j) {
+                w[j] = static_cast<T>(f * b1[j]);
+                for (int i = 0; i <= n_in_; ++i)
+                    w[std::size_t(1 + i) * hp_ + j] = static_cast<T>(f * w1[std::size_t(j) * (n_in_ + 1) + i]);
+                w[std::size_t(n_in_ + 2) * hp_ + j] = static_cast<T>(f * w2[j]);
+                w[std::size_t(n_in_ + 3) * hp_ + j] = static_cast<T>(f * w2[n_h_ + j]);
             }
+            T* b2v = w + std::size_t(n_in_ + 4) * hp_;
+            b2v[0] = static_cast<T>(f * b2[0]);
+            b2v[L] = static_cast<T>(f * b2[1]);
         }
         path_ = cpu_has_avx2_fma() ? SimdPath::avx2 : SimdPath::generic;
     }
@@ -455,21 +643,12 @@ public:
         for (int r = 0; r < n_inst_; ++r) prev_[r] = in[r];
     }
     void reset() noexcept {
-        for (int r = 0; r < n_pad_; ++r) prev_[r] = T(0);
+        for (int r = 0; r < n_inst_; ++r) prev_[r] = T(0);
     }
 
     /// One tick of all instances. in: (n_instances, n_inputs) row-major raw features;
     /// out: (n_instances, 3) row-major [y_slip, y_non, y_pred].
-    void step(const T* in, T* out) noexcept {
-        for (int r = 0; r < n_inst_; ++r)
-            for (int i = 0; i < n_in_; ++i) xs_[std::size_t(i) * n_pad_ + r] = (in[r * n_in_ + i] - mean_[i]) * gain_[i];
-        tick(xs_, yslip_, prev_, 1, n_pad_);
-        for (int r = 0; r < n_inst_; ++r) {
-            out[3 * r + 0] = yslip_[r];
-            out[3 * r + 1] = T(1) - yslip_[r];
-            out[3 * r + 2] = prev_[r];
-        }
-    }
+    void step(const T* in, T* out) noexcept { run(in, n_in_, 1, 0, 1, out, out + 1, out + 2, 3); }
 
     /// One tick of one instance (scalar code). in: n_inputs values; out: 3 values.
     void step_one(int instance, const T* in, T* out) noexcept {
@@ -499,32 +678,20 @@ public:
     /// row-major with row stride ld (>= n).
     void run(const T* x, std::ptrdiff_t sr, std::ptrdiff_t si, std::ptrdiff_t st, std::ptrdiff_t n,
              T* y_slip, T* y_non, T* y_pred, std::ptrdiff_t ld) noexcept {
-        // Chunks of kChunk ticks: normalise and transpose the inputs into the SoA
-        // chunk buffer (reading each input row sequentially), run the ticks with
-        // the state in registers, then write the outputs row by row.
-        const std::size_t tick_in = std::size_t(n_in_) * n_pad_;
-        for (std::ptrdiff_t t0 = 0; t0 < n; t0 += kChunk) {
-            const int m = int(n - t0 < kChunk ? n - t0 : kChunk);
-            for (int r = 0; r < n_inst_; ++r)
-                for (int i = 0; i < n_in_; ++i) {
-                    const T* src = x + r * sr + i * si + t0 * st;
-                    T* dst = xch_ + std::size_t(i) * n_pad_ + r;
-                    const T mu = mean_[i], g = gain_[i];
-                    for (int k = 0; k < m; ++k) dst[k * tick_in] = (src[k * st] - mu) * g;
-                }
-            tick(xch_, ych_, ych_ + n_pad_, m, 2 * n_pad_);
-            for (int r = 0; r < n_inst_; ++r) {
-                T* ys = y_slip + r * ld + t0;
-                T* yn = y_non + r * ld + t0;
-                T* yp = y_pred + r * ld + t0;
-                for (int k = 0; k < m; ++k) {
-                    const T a = ych_[std::size_t(k) * 2 * n_pad_ + r];
-                    ys[k] = a;
-                    yn[k] = T(1) - a;
-                    yp[k] = ych_[std::size_t(k) * 2 * n_pad_ + n_pad_ + r];
-                }
-            }
+        const Io io{x, sr, si, st, n, y_slip, y_non, y_pred, ld};
+#ifdef TM_DETECTOR_X86
+        if (path_ == SimdPath::avx2) {
+            if (act_ == Activation::exact)
+                run_avx2_exact(io);
+            else
+                run_avx2_fast(io);
+            return;
         }
+#endif
+        if (act_ == Activation::exact)
+            run_generic_exact(io);
+        else
+            run_generic_fast(io);
     }
 
     /// Mean time of one tick of all instances over n_iter ticks, in ns (best of
@@ -560,132 +727,320 @@ public:
     }
 
 private:
+    struct Io {
+        const T* x;
+        std::ptrdiff_t sr, si, st, n;
+        T *ys, *yn, *yp;
+        std::ptrdiff_t ld;
+    };
+
     T sig_scalar(T a) const noexcept {
         return act_ == Activation::exact ? detail::sigmoid_exact_scalar<T>(a) : detail::sigmoid_fast_scalar<T>(a);
     }
 
-    // m ticks: inputs xs + k * n_in * n_pad (layout (n_in, n_pad)), outputs y_slip
-    // at ys + k * out_stride and y_pred at yp + k * out_stride; state in prev_.
-    void tick(const T* xs, T* ys, T* yp, int m, std::size_t out_stride) noexcept {
+    // One entry point per code path and activation, so that step() and run()
+    // execute the same machine code and agree bit for bit.
 #ifdef TM_DETECTOR_X86
-        if (path_ == SimdPath::avx2) {
-            if (act_ == Activation::exact)
-                tick_avx2_exact(xs, ys, yp, m, out_stride);
-            else
-                tick_avx2_fast(xs, ys, yp, m, out_stride);
+    __attribute__((target("avx2,fma"), noinline)) void run_avx2_exact(const Io& io) noexcept {
+        run_dispatch<32, Activation::exact>(io);
+    }
+    __attribute__((target("avx2,fma"), noinline)) void run_avx2_fast(const Io& io) noexcept {
+        run_dispatch<32, Activation::fast>(io);
+    }
+#endif
+    __attribute__((noinline)) void run_generic_exact(const Io& io) noexcept { run_dispatch<16, Activation::exact>(io); }
+    __attribute__((noinline)) void run_generic_fast(const Io& io) noexcept { run_dispatch<16, Activation::fast>(io); }
+
+    // The paper's network (4 inputs, 16 hidden units) is unrolled at compile time.
+    template <int B, Activation A>
+    __attribute__((always_inline)) inline void run_dispatch(const Io& io) noexcept {
+        constexpr int NL = detail::Vec<T, B>::lanes;
+        if (n_in_ == 4 && hp_ == 16)
+            run_impl<B, A, 4, 16 / NL>(io);
+        else
+            run_impl<B, A, 0, 0>(io);
+    }
+
+    template <int B, Activation A, int NIN, int NV>
+    __attribute__((always_inline)) inline void run_impl(const Io& io) noexcept {
+        const int nin = NIN > 0 ? NIN : n_in_;
+        if (io.n == 1 && io.si == 1 && io.sr == nin) {
+            // One tick of contiguous features (step()): normalise into xs_.
+            const int ni = n_inst_;
+            const T* __restrict xin = io.x;
+            T* __restrict xs = xs_;
+            if (NIN == 4) {
+                // One 4-lane vector per instance.
+                typedef typename detail::Vec<T, 4 * sizeof(T)>::type V4;
+                V4 mu, g;
+                std::memcpy(&mu, mean_, sizeof mu);
+                std::memcpy(&g, gain_, sizeof g);
+                for (int r = 0; r < ni; ++r) {
+                    V4 v;
+                    std::memcpy(&v, xin + 4 * r, sizeof v);
+                    v = (v - mu) * g;
+                    std::memcpy(xs + 4 * r, &v, sizeof v);
+                }
+            } else {
+                const T* __restrict mu = mean_;
+                const T* __restrict g = gain_;
+                for (int r = 0; r < ni; ++r)
+                    for (int i = 0; i < nin; ++i) xs[r * nin + i] = (xin[r * nin + i] - mu[i]) * g[i];
+            }
+            tick_impl<B, A, NIN, NV>(xs_, nin, 1, 0, 1, ych_);
+            const T* __restrict u = ych_;
+            T* __restrict pv = prev_;
+            T* __restrict ys = io.ys;
+            T* __restrict yn = io.yn;
+            T* __restrict yp = io.yp;
+            const std::ptrdiff_t ld = io.ld;
+            for (int r = 0; r < ni; ++r) {
+                const T a = u[2 * r], b = u[2 * r + 1];
+                ys[r * ld] = a;
+                yn[r * ld] = T(1) - a;
+                yp[r * ld] = b;
+                pv[r] = b;
+            }
             return;
         }
-#endif
-        if (act_ == Activation::exact)
-            tick_dispatch<16, Activation::exact>(xs, ys, yp, m, out_stride);
-        else
-            tick_dispatch<16, Activation::fast>(xs, ys, yp, m, out_stride);
+        // Chunks of kChunk ticks: normalise the chunk's inputs into xch_ with time
+        // contiguous (reading each input row sequentially), run the ticks, then
+        // write the outputs row by row.
+        for (std::ptrdiff_t t0 = 0; t0 < io.n; t0 += kChunk) {
+            const int m = int(io.n - t0 < kChunk ? io.n - t0 : kChunk);
+            for (int r = 0; r < n_inst_; ++r)
+                for (int i = 0; i < nin; ++i) {
+                    const T* src = io.x + r * io.sr + i * io.si + t0 * io.st;
+                    T* dst = xch_ + std::size_t(r * nin + i) * kChunk;
+                    const T mu = mean_[i], g = gain_[i];
+                    if (io.st == 1)
+                        for (int k = 0; k < m; ++k) dst[k] = (src[k] - mu) * g;
+                    else
+                        for (int k = 0; k < m; ++k) dst[k] = (src[k * io.st] - mu) * g;
+                }
+            tick_impl<B, A, NIN, NV>(xch_, std::ptrdiff_t(nin) * kChunk, kChunk, 1, m, ych_);
+            for (int r = 0; r < n_inst_; ++r) {
+                T* ys = io.ys + r * io.ld + t0;
+                T* yn = io.yn + r * io.ld + t0;
+                T* yp = io.yp + r * io.ld + t0;
+                const T* u = ych_ + 2 * r;
+                for (int k = 0; k < m; ++k) {
+                    const T a = u[k * urec_];
+                    ys[k] = a;
+                    yn[k] = T(1) - a;
+                    yp[k] = u[k * urec_ + 1];
+                }
+                prev_[r] = u[std::size_t(m - 1) * urec_ + 1];
+            }
+        }
     }
 
-#ifdef TM_DETECTOR_X86
-    __attribute__((target("avx2,fma"), noinline)) void tick_avx2_exact(const T* xs, T* ys, T* yp, int m,
-                                                                       std::size_t os) noexcept {
-        tick_dispatch<32, Activation::exact>(xs, ys, yp, m, os);
+    // m ticks: normalised feature i of instance r at tick k is xs[r * xr + i * xi
+    // + k * xk]; outputs [y_slip, y_pred] of instance r at u + k * urec_ + 2 r. The
+    // feedback of the first tick comes from prev_, of the others from the previous
+    // tick's outputs; prev_ itself is not updated here. Instances go in ng groups
+    // of G <= lanes / 2 (the last one padded with ghost instances if needed).
+    template <int B, Activation A, int NIN, int NV>
+    __attribute__((always_inline)) inline void tick_impl(const T* xs, std::ptrdiff_t xr, std::ptrdiff_t xi,
+                                                         std::ptrdiff_t xk, int m, T* u) noexcept {
+        constexpr int NL = detail::Vec<T, B>::lanes;
+        constexpr int GM = NL / 2 > 0 ? NL / 2 : 1;
+        const int ng = (n_inst_ + GM - 1) / GM;
+        const int g = (n_inst_ + ng - 1) / ng;
+        const Ticks t{xs, xr, xi, xk, m, u, ng};
+        // g <= GM <= 4; each size is instantiated once.
+        if constexpr (GM >= 4) {
+            if (g == 4) return tick_groups<B, A, NIN, NV, 4>(t);
+        }
+        if constexpr (GM >= 3) {
+            if (g == 3) return tick_groups<B, A, NIN, NV, 3>(t);
+        }
+        if constexpr (GM >= 2) {
+            if (g == 2) return tick_groups<B, A, NIN, NV, 2>(t);
+        }
+        tick_groups<B, A, NIN, NV, 1>(t);
     }
-    __attribute__((target("avx2,fma"), noinline)) void tick_avx2_fast(const T* xs, T* ys, T* yp, int m,
-                                                                      std::size_t os) noexcept {
-        tick_dispatch<32, Activation::fast>(xs, ys, yp, m, os);
-    }
-#endif
 
-    // The paper's network has 4 inputs: that size is unrolled at compile time.
-    template <int B, Activation A>
-    __attribute__((always_inline)) inline void tick_dispatch(const T* xs, T* ys, T* yp, int m,
-                                                             std::size_t os) noexcept {
-        if (n_in_ == 4)
-            tick_impl<B, A, 4>(xs, ys, yp, m, os);
-        else
-            tick_impl<B, A, 0>(xs, ys, yp, m, os);
+    struct Ticks {
+        const T* xs;
+        std::ptrdiff_t xr, xi, xk;
+        int m;
+        T* u;
+        int ng;
+    };
+
+    template <int B, Activation A, int NIN, int NV, int G>
+    __attribute__((always_inline)) inline void tick_groups(const Ticks& t) noexcept {
+        if constexpr (NV > 0) {
+            if (t.ng > 1) {
+                tick_pipelined<B, A, NIN, NV, G>(t);
+                return;
+            }
+        }
+        for (int k = 0; k < t.m; ++k) {
+            const T* xk = t.xs + k * t.xk;
+            T* uk = t.u + std::size_t(k) * urec_;
+            // y_pred of the previous tick: the state, then the previous record.
+            const T* pk = k == 0 ? prev_ : uk - urec_ + 1;
+            const std::ptrdiff_t ps = k == 0 ? 1 : 2;
+            for (int g = 0, r0 = 0; g < t.ng; ++g, r0 += G)
+                group<B, A, NIN, NV, G>(xk + r0 * t.xr, t.xr, t.xi, pk + r0 * ps, ps, uk + 2 * r0);
+        }
     }
 
-    // Core: instances sit in the lanes of B-byte vectors; for each lane block the
-    // state p stays in a register over the m ticks. The input part of each
-    // pre-activation does not depend on the state, so the recurrent dependency
-    // chain per tick is one FMA, the hidden sigmoid, the output sum and the
-    // output sigmoid.
-    template <int B, Activation A, int NIN>
-    __attribute__((always_inline)) inline void tick_impl(const T* xs, T* ys_out, T* yp_out, int m,
-                                                         std::size_t os) noexcept {
+    // Software-pipelined ticks for ng >= 2 groups of G instances (NV known): the
+    // output sigmoid of one group is computed right after the hidden sigmoids of
+    // the next group (for the last group of a tick, of the first group of the next
+    // tick). A group's chain hidden layer -> sums -> output is long and serial, and
+    // the out-of-order window does not reach far enough to overlap consecutive
+    // groups by itself (measured: groups ran almost one after the other); placing
+    // independent work next to it in program order does.
+    template <int B, Activation A, int NIN, int NV, int G>
+    __attribute__((always_inline)) inline void tick_pipelined(const Ticks& t) noexcept {
+        typedef typename detail::Vec<T, B>::type V;
+        constexpr int KH = NV * G;
+        V o;              // pending output pre-activations
+        T* od = nullptr;  // and where their sigmoids go
+        for (int k = 0; k < t.m; ++k) {
+            const T* xk = t.xs + k * t.xk;
+            T* uk = t.u + std::size_t(k) * urec_;
+            const T* pk = k == 0 ? prev_ : uk - urec_ + 1;
+            const std::ptrdiff_t ps = k == 0 ? 1 : 2;
+            for (int g = 0, r0 = 0; g < t.ng; ++g, r0 += G) {
+                V a[KH];
+                hidden_pre<B, A, NIN, NV, G>(xk + r0 * t.xr, t.xr, t.xi, pk + r0 * ps, ps, a);
+                sigmoid_batch<B, A, KH>(a);
+                if (od) {
+                    detail::sigmoid_k<T, B, A, 1, A == Activation::fast>(&o);
+                    std::memcpy(od, &o, sizeof(V));
+                }
+                o = hidden_post<B, A, NV, G>(a);
+                od = uk + 2 * r0;
+            }
+        }
+        detail::sigmoid_k<T, B, A, 1, A == Activation::fast>(&o);
+        std::memcpy(od, &o, sizeof(V));
+    }
+
+    // K sigmoids in interleaved passes of at most 4 vectors: measured as fast as
+    // passes of 2 to 9 on the reference machine, with fewer spills.
+    template <int B, Activation A, int K>
+    static __attribute__((always_inline)) inline void sigmoid_batch(typename detail::Vec<T, B>::type* a) noexcept {
+        constexpr int SB = 4;
+        constexpr int NP = (K + SB - 1) / SB;           // passes
+        constexpr int P0 = K / NP, PX = K % NP;         // balanced sizes: PX passes of P0 + 1
+        int off = 0;
+        _Pragma("GCC unroll 8") for (int q = 0; q < NP; ++q) {
+            if (q < PX) {
+                detail::sigmoid_k<T, B, A, P0 + 1, A == Activation::fast>(a + off);
+                off += P0 + 1;
+            } else {
+                detail::sigmoid_k<T, B, A, P0, A == Activation::fast>(a + off);
+                off += P0;
+            }
+        }
+    }
+
+    // Pre-activations of the G * NV hidden vectors of a group (a[v * G + j]).
+    template <int B, Activation A, int NIN, int NV, int G>
+    __attribute__((always_inline)) inline void hidden_pre(const T* xg, std::ptrdiff_t xr, std::ptrdiff_t xi,
+                                                          const T* pg, std::ptrdiff_t ps,
+                                                          typename detail::Vec<T, B>::type* a) const noexcept {
         typedef typename detail::Vec<T, B>::type V;
         constexpr int NL = detail::Vec<T, B>::lanes;
-        const std::size_t tick_in = std::size_t(NIN > 0 ? NIN : n_in_) * n_pad_;
-        if (n_inst_ <= NL) {
-            // One lane block: the state stays in a register over the m ticks.
-            V p;
-            std::memcpy(&p, prev_, sizeof(V));
-            for (int k = 0; k < m; ++k) {
-                V ys;
-                one_tick<B, A, NIN>(xs + k * tick_in, p, ys);
-                std::memcpy(ys_out + k * os, &ys, sizeof(V));
-                std::memcpy(yp_out + k * os, &p, sizeof(V));
-            }
-            std::memcpy(prev_, &p, sizeof(V));
-            return;
-        }
-        // Several lane blocks: ticks outside, blocks inside, so that the blocks'
-        // dependency chains overlap.
-        for (int k = 0; k < m; ++k) {
-            for (int r0 = 0; r0 < n_inst_; r0 += NL) {
-                V p, ys;
-                std::memcpy(&p, prev_ + r0, sizeof(V));
-                one_tick<B, A, NIN>(xs + k * tick_in + r0, p, ys);
-                std::memcpy(prev_ + r0, &p, sizeof(V));
-                std::memcpy(ys_out + k * os + r0, &ys, sizeof(V));
-                std::memcpy(yp_out + k * os + r0, &p, sizeof(V));
+        constexpr std::size_t cs = std::size_t(NV * NL);
+        const T* __restrict wc = wcol_[A == Activation::fast ? 1 : 0];
+        V pb[G];
+        _Pragma("GCC unroll 4") for (int j = 0; j < G; ++j) pb[j] = detail::bcast<T, B>(pg + j * ps);
+        _Pragma("GCC unroll 8") for (int v = 0; v < NV; ++v) {
+            const T* w = wc + std::size_t(v) * NL;
+            _Pragma("GCC unroll 4") for (int j = 0; j < G; ++j) {
+                V acc = load<V>(w);
+                _Pragma("GCC unroll 8") for (int i = 0; i < NIN; ++i)
+                    acc += load<V>(w + (1 + i) * cs) * detail::bcast<T, B>(xg + j * xr + i * xi);
+                a[v * G + j] = acc + load<V>(w + (1 + NIN) * cs) * pb[j];
             }
         }
     }
 
-    // One tick of one lane block: xk points at its inputs (layout (n_in, n_pad));
-    // p is the state in and y_pred out. Hidden units go in groups of G whose
-    // sigmoids are interleaved; weights come from the replicated slots.
-    template <int B, Activation A, int NIN>
-    __attribute__((always_inline)) inline void one_tick(const T* xk, typename detail::Vec<T, B>::type& p,
-                                                        typename detail::Vec<T, B>::type& ys) const noexcept {
+    // Output pre-activations of a group from its hidden activations: one vector
+    // [o_slip(0), o_pred(0), o_slip(1), ...].
+    template <int B, Activation A, int NV, int G>
+    __attribute__((always_inline)) inline typename detail::Vec<T, B>::type hidden_post(
+        const typename detail::Vec<T, B>::type* a) const noexcept {
         typedef typename detail::Vec<T, B>::type V;
-        constexpr int G = 4;
-        const int nin = NIN > 0 ? NIN : n_in_, nh = n_h_;
-        const std::size_t slot = std::size_t(nin + 4) * L;
-        V x[NIN > 0 ? NIN : 64];
-        for (int i = 0; i < nin; ++i) std::memcpy(&x[i], xk + std::size_t(i) * n_pad_, sizeof(V));
-        V o0[2] = {V{} + b2_[0], V{}};
-        V o1[2] = {V{} + b2_[1], V{}};
-        int j = 0;
-        for (; j + G <= nh; j += G) group<B, A, NIN, G>(j, x, p, o0, o1, slot);
-        for (; j < nh; ++j) group<B, A, NIN, 1>(j, x, p, o0, o1, slot);
-        V out[2] = {o0[0] + o0[1], o1[0] + o1[1]};
-        detail::sigmoid_k<T, B, A, 2>(out);
-        ys = out[0];
-        p = out[1];
+        constexpr int NL = detail::Vec<T, B>::lanes;
+        constexpr std::size_t cs = std::size_t(NV * NL);
+        const int nin = n_in_;
+        const T* __restrict wc = wcol_[A == Activation::fast ? 1 : 0];
+        const T* b2v = wc + (nin + 4) * cs;
+        V s[NL];
+        _Pragma("GCC unroll 4") for (int j = 0; j < G; ++j) {
+            s[2 * j] = load<V>(b2v);
+            s[2 * j + 1] = load<V>(b2v + L);
+        }
+        _Pragma("GCC unroll 8") for (int v = 0; v < NV; ++v) {
+            const T* w = wc + std::size_t(v) * NL;
+            _Pragma("GCC unroll 4") for (int j = 0; j < G; ++j) {
+                s[2 * j] += load<V>(w + (2 + nin) * cs) * a[v * G + j];
+                s[2 * j + 1] += load<V>(w + (3 + nin) * cs) * a[v * G + j];
+            }
+        }
+        return detail::reduce_lanes<T, B, 2 * G>(s);
     }
 
-    template <int B, Activation A, int NIN, int G>
-    __attribute__((always_inline)) inline void group(int j, const typename detail::Vec<T, B>::type* x,
-                                                     typename detail::Vec<T, B>::type p,
-                                                     typename detail::Vec<T, B>::type* o0,
-                                                     typename detail::Vec<T, B>::type* o1,
-                                                     std::size_t slot) const noexcept {
+    // One tick of G instances: feature i of instance j at xg[j * xr + i * xi],
+    // feedback at pg[j * ps]; writes lanes [y_slip(0), y_pred(0), y_slip(1), ...]
+    // (one vector) at ug. NIN, NV > 0: number of inputs and of hidden vectors known
+    // at compile time; then all G * NV hidden sigmoids of the group go through one
+    // interleaved pass (measured faster than a pass per hidden vector, and than one
+    // pass over all groups, which spills too much).
+    template <int B, Activation A, int NIN, int NV, int G>
+    __attribute__((always_inline)) inline void group(const T* xg, std::ptrdiff_t xr, std::ptrdiff_t xi, const T* pg,
+                                                     std::ptrdiff_t ps, T* ug) const noexcept {
         typedef typename detail::Vec<T, B>::type V;
+        constexpr int NL = detail::Vec<T, B>::lanes;
+        constexpr int KB = NV > 0 ? NV : 1;  // hidden vectors per sigmoid pass
+        constexpr bool S = A == Activation::fast;  // pre-activations scaled by -log2(e)
         const int nin = NIN > 0 ? NIN : n_in_;
-        const T* __restrict w = wrep_ + std::size_t(j) * slot;
-        V a[G];
-        _Pragma("GCC unroll 8") for (int g = 0; g < G; ++g) {
-            const T* wg = w + g * slot;
-            V acc = load<V>(wg);
-            for (int i = 0; i < nin; ++i) acc += load<V>(wg + (1 + i) * L) * x[i];
-            a[g] = acc + load<V>(wg + (1 + nin) * L) * p;
+        const int nv = NV > 0 ? NV : hp_ / NL;
+        const std::size_t cs = NV > 0 ? std::size_t(NV * NL) : std::size_t(hp_);  // column stride
+        const T* __restrict wc = wcol_[S ? 1 : 0];
+        const T* b2v = wc + (nin + 4) * cs;
+        V pb[G], s0[G], s1[G];
+        _Pragma("GCC unroll 4") for (int j = 0; j < G; ++j) {
+            pb[j] = detail::bcast<T, B>(pg + j * ps);
+            s0[j] = load<V>(b2v);
+            s1[j] = load<V>(b2v + L);
         }
-        detail::sigmoid_k<T, B, A, G>(a);
-        _Pragma("GCC unroll 8") for (int g = 0; g < G; ++g) {
-            const T* wg = w + g * slot;
-            o0[g & 1] += load<V>(wg + (2 + nin) * L) * a[g];
-            o1[g & 1] += load<V>(wg + (3 + nin) * L) * a[g];
+        for (int v0 = 0; v0 < nv; v0 += KB) {
+            V a[KB * G];
+            _Pragma("GCC unroll 8") for (int v = 0; v < KB; ++v) {
+                const T* w = wc + std::size_t(v0 + v) * NL;
+                _Pragma("GCC unroll 4") for (int j = 0; j < G; ++j) {
+                    V acc = load<V>(w);
+                    _Pragma("GCC unroll 8") for (int i = 0; i < nin; ++i)
+                        acc += load<V>(w + (1 + i) * cs) * detail::bcast<T, B>(xg + j * xr + i * xi);
+                    a[v * G + j] = acc + load<V>(w + (1 + nin) * cs) * pb[j];
+                }
+            }
+            sigmoid_batch<B, A, KB * G>(a);
+            _Pragma("GCC unroll 8") for (int v = 0; v < KB; ++v) {
+                const T* w = wc + std::size_t(v0 + v) * NL;
+                _Pragma("GCC unroll 4") for (int j = 0; j < G; ++j) {
+                    s0[j] += load<V>(w + (2 + nin) * cs) * a[v * G + j];
+                    s1[j] += load<V>(w + (3 + nin) * cs) * a[v * G + j];
+                }
+            }
         }
+        V s[NL];
+        _Pragma("GCC unroll 4") for (int j = 0; j < G; ++j) {
+            s[2 * j] = s0[j];
+            s[2 * j + 1] = s1[j];
+        }
+        V o = detail::reduce_lanes<T, B, 2 * G>(s);
+        detail::sigmoid_k<T, B, A, 1, S>(&o);
+        std::memcpy(ug, &o, sizeof(V));
     }
 
     template <typename V>
@@ -695,17 +1050,17 @@ private:
         return v;
     }
 
-    int n_in_, n_h_, n_inst_, n_pad_ = 0;
+    int n_in_, n_h_, n_inst_, hp_ = 0;
+    std::size_t urec_ = 0;
     Activation act_;
     SimdPath path_ = SimdPath::generic;
     std::unique_ptr<void, detail::AlignedFree> buf_;
-    T* wrep_ = nullptr;
     static constexpr int kChunk = 64;
+    T* wcol_[2] = {nullptr, nullptr};
     T* xs_ = nullptr;
     T* xch_ = nullptr;
     T* ych_ = nullptr;
     T* prev_ = nullptr;
-    T* yslip_ = nullptr;
     T* w1_ = nullptr;
     T* b1_ = nullptr;
     T* w2_ = nullptr;
@@ -717,4 +1072,5 @@ private:
 }  // namespace detector
 }  // namespace tm_core
 
+#undef TM_DETECTOR_SHUF
 #pragma GCC diagnostic pop
