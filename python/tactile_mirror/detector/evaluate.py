@@ -261,7 +261,7 @@ def onset_kinds(results, level: float = 1e8, window=(-0.003, 0.005)) -> list:
     let go with little stored shear and the strips show no event at the onset;
     the rates only settle, as in a stop at the same load. This classifies the
     onset from the noise-free circuit output (the result's strip stresses
-    through its scene's circuit and the detector's estimator):
+    through its scene's circuit and the default estimator, ``DEFAULT_ESTIMATOR``):
     ``"release"`` when ``|u_L + u_R|`` exceeds ``level`` (Pa/s^2) within
     ``window`` (s) of the onset, else ``"gradual"``; ``None`` for a sequence
     without gross slip.
