@@ -8,6 +8,10 @@
    per Python call.
 3. Run time against output error: exact/fast sigmoid x float32/float64, error
    measured against the float64 numpy reference.
+4. Training: one loss-and-gradient evaluation (exact BPTT) of the C++ kernel
+   (``_core.jordan_loss_grad``, 1 and 2 threads) against the numpy specification
+   (``network.loss_and_grad``) on the same padded training batch, with the
+   difference of their results.
 
 Run: ``python bench/bench_detector.py [--quick]``. Prints which code path ran.
 """
@@ -122,6 +126,35 @@ def main(argv=None):
             for path in paths:
                 y = _core.detector_sigmoid(ad, act, path).astype(np.float64)
                 print(f"     {np.dtype(dtype).name:<8} {act:<6} {path:<9} {np.max(np.abs(y - ref)):.2e}")
+
+
+    # 4. training gradient
+    from tactile_mirror.detector.network import init_params, loss_and_grad
+
+    n_seq, n_len = (32, 2500) if args.quick else (128, 2500)
+    rng = np.random.default_rng(5)
+    xs = make_features(n_seq, n_len, seed=6)
+    length = rng.integers(n_len // 2, n_len + 1, n_seq)  # sequences end at slip + 0.3 s: ragged
+    real = np.arange(n_len)[None, :] < length[:, None]
+    xs *= real[:, None, :]
+    ts = (np.arange(n_len)[None, :] > 0.8 * length[:, None]).astype(float) * real
+    tp = np.clip(np.arange(n_len)[None, :] / length[:, None], 0, 1) * real
+    ws = real / real.sum()
+    theta = init_params(4, 16, seed=2).pack()
+    args_np = (theta, xs, ts, tp, ws, ws, 4, 16)
+    t_np = best_time(lambda: loss_and_grad(*args_np), 3)
+    f_np, g_np = loss_and_grad(*args_np)
+    print(f"\n4) training loss + exact BPTT gradient, {n_seq} sequences of up to {n_len} samples "
+          f"({int(length.sum())} real), H = 16")
+    print(f"   numpy network.loss_and_grad (padded batch): {t_np * 1e3:8.1f} ms")
+    for nt in (1, 2):
+        t_c = best_time(lambda: _core.jordan_loss_grad(theta, xs, ts, tp, ws, ws, length, 16, nt), 5)
+        f_c, g_c = _core.jordan_loss_grad(theta, xs, ts, tp, ws, ws, length, 16, nt)
+        print(f"   C++ jordan_loss_grad, {nt} thread{'s' if nt > 1 else ' '}:        {t_c * 1e3:8.1f} ms"
+              f"   {t_np / t_c:5.1f}x   {t_c / length.sum() * 1e9 * nt:5.0f} ns per sample-thread"
+              f"   |dloss|/loss {abs(f_c - f_np) / abs(f_np):.1e}"
+              f"   max|dgrad|/max|grad| {np.abs(g_c - g_np).max() / np.abs(g_np).max():.1e}")
+
 
 if __name__ == "__main__":
     main()

@@ -88,6 +88,85 @@ def test_bptt_gradient_matches_finite_differences(feedback):
     assert np.isfinite(f0)
 
 
+def _loss_problem(seed=0, n_hidden=6, s=11, n=300, scale=1.0):
+    rng = np.random.default_rng(seed)
+    theta = scale * rng.normal(size=n_hidden * 5 + 3 * n_hidden + 2)
+    x = rng.normal(size=(s, 4, n)) + rng.standard_t(2, size=(s, 4, n)) * 0.3
+    length = rng.integers(1, n + 1, s)
+    length[0] = n
+    length[1] = 0  # an empty sequence contributes nothing
+    real = np.arange(n)[None, :] < length[:, None]
+    x *= real[:, None, :]
+    ts = (rng.uniform(size=(s, n)) > 0.6).astype(float)
+    tp = rng.uniform(size=(s, n))
+    ws = rng.uniform(size=(s, n)) / (s * n) * real
+    wp = rng.uniform(size=(s, n)) / (s * n) * real
+    return theta, x, ts, tp, ws, wp, length
+
+
+@pytest.mark.parametrize("scale", [1.0, 8.0])
+def test_cpp_loss_and_gradient_match_numpy(scale):
+    theta, x, ts, tp, ws, wp, length = _loss_problem(scale=scale)
+    f_ref, g_ref = loss_and_grad(theta, x, ts, tp, ws, wp, 4, 6)
+    f1, g1 = core.jordan_loss_grad(theta, x, ts, tp, ws, wp, length, 6, 1)
+    np.testing.assert_allclose(f1, f_ref, rtol=1e-12)
+    np.testing.assert_allclose(g1, g_ref, rtol=1e-12, atol=1e-12 * np.abs(g_ref).max())
+    # The sums are made in fixed blocks: the thread count changes no bit.
+    f3, g3 = core.jordan_loss_grad(theta, x, ts, tp, ws, wp, length, 6, 3)
+    assert f3 == f1
+    np.testing.assert_array_equal(g3, g1)
+
+
+def test_loss_is_exact_when_outputs_saturate():
+    # Logits of +-60: y rounds to 1.0 or 0.0, where log(1 - y) would give -inf or a
+    # clipped constant; softplus(o) - t o stays the exact cross-entropy.
+    p = Params(np.zeros((1, 5)), np.zeros(1), np.array([[0.0], [0.0]]), np.array([60.0, -60.0]))
+    x = np.zeros((1, 4, 3))
+    ts, tp = np.zeros((1, 3)), np.ones((1, 3))
+    w = np.full((1, 3), 1.0)
+    f, g = loss_and_grad(p.pack(), x, ts, tp, w, w, 4, 1)
+    assert f == pytest.approx(3 * 60.0 + 3 * 60.0, rel=1e-12)
+    f_c, g_c = core.jordan_loss_grad(p.pack(), x, ts, tp, w, w, np.array([3]), 1)
+    assert f_c == pytest.approx(f, rel=1e-12)
+    np.testing.assert_allclose(g_c, g, rtol=1e-12)
+
+
+def test_cpp_loss_validation_names_arguments():
+    theta, x, ts, tp, ws, wp, length = _loss_problem(s=3, n=20)
+    ok = (theta, x, ts, tp, ws, wp, length, 6)
+    with pytest.raises(ValueError, match="theta must have shape"):
+        core.jordan_loss_grad(theta[:-1], *ok[1:])
+    bad = theta.copy()
+    bad[3] = np.nan
+    with pytest.raises(ValueError, match="theta must be finite"):
+        core.jordan_loss_grad(bad, *ok[1:])
+    with pytest.raises(ValueError, match="t_pred must have shape"):
+        core.jordan_loss_grad(theta, x, ts, tp[:, :-1], ws, wp, length, 6)
+    with pytest.raises(ValueError, match="length must be in"):
+        core.jordan_loss_grad(theta, x, ts, tp, ws, wp, np.array([1, 2, 21]), 6)
+    with pytest.raises(TypeError, match="length must be an integer"):
+        core.jordan_loss_grad(theta, x, ts, tp, ws, wp, length.astype(float), 6)
+    with pytest.raises(TypeError, match="xn must have dtype float64"):
+        core.jordan_loss_grad(theta, x.astype(np.float32), ts, tp, ws, wp, length, 6)
+    with pytest.raises(ValueError, match="n_threads"):
+        core.jordan_loss_grad(*ok, 0)
+
+
+def test_training_backends_agree():
+    ts = small_set(3)
+    w_c = train_detector(ts, n_hidden=4, maxiter=10, seed=3, progress=False, backend="cpp")
+    w_n = train_detector(ts, n_hidden=4, maxiter=10, seed=3, progress=False, backend="numpy")
+    assert w_c.metadata["training"]["backend"] == "cpp"
+    # Same function to round-off: a few L-BFGS steps end at the same weights.
+    np.testing.assert_allclose(w_c.params.pack(), w_n.params.pack(), rtol=1e-6, atol=1e-8)
+    w_nf = train_detector(ts, n_hidden=3, maxiter=5, feedback=False, progress=False, backend="cpp")
+    assert np.all(w_nf.params.w1[:, -1] == 0.0)
+    with pytest.raises(ValueError, match="backend"):
+        train_detector(ts, n_hidden=3, maxiter=1, progress=False, backend="torch")
+    with pytest.raises(ValueError, match="n_threads"):
+        train_detector(ts, n_hidden=3, maxiter=1, progress=False, n_threads=0)
+
+
 def small_set(n_scenes=4, seed=0, ridges=2):
     res = [synthetic_scene(seed=seed + k, n_ridges=ridges, duration=1.6) for k in range(n_scenes)]
     return make_training_set(res)

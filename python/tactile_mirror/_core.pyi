@@ -154,6 +154,19 @@ def detector_sigmoid(
 def detector_cpu_has_avx2_fma() -> bool:
     """True if the AVX2+FMA path of the detector kernel can run on this CPU."""
 
+def jordan_loss_grad(
+    theta: npt.NDArray[np.float64],
+    xn: npt.NDArray[np.float64],
+    t_slip: npt.NDArray[np.float64],
+    t_pred: npt.NDArray[np.float64],
+    w_slip: npt.NDArray[np.float64],
+    w_pred: npt.NDArray[np.float64],
+    length: npt.NDArray[np.integer[Any]],
+    n_hidden: int,
+    n_threads: int = 1,
+) -> tuple[float, npt.NDArray[np.float64]]:
+    """Weighted cross-entropy loss of the Jordan net and its exact BPTT gradient (float64)."""
+
 # ---- real-time pipeline (bind_pipeline.cpp) ------------------------------------------
 
 @type_check_only

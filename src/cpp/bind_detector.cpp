@@ -6,6 +6,7 @@
 //   run(x)         x: (n_instances, n_inputs, n) -> (3, n_instances, n); GIL released
 //   state          y_pred(t-1) per instance (get/set), reset()
 //   simd_path, set_simd_path(name), activation, time_step_ns(n_iter, repeats)
+// _core.jordan_loss_grad: training loss and exact BPTT gradient (jordan_bptt.hpp).
 #include <pybind11/numpy.h>
 #include <pybind11/pybind11.h>
 
@@ -14,6 +15,7 @@
 #include <sstream>
 #include <string>
 
+#include "jordan_bptt.hpp"
 #include "jordan_mlp.hpp"
 #include "simd.hpp"  // DenormalGuard
 
@@ -267,6 +269,66 @@ void tm_bind_detector(py::module_& m) {
         },
         py::arg("a"), py::arg("activation") = "fast", py::arg("path") = "avx2+fma",
         "The detector kernel's sigmoid (with its clamp) applied to a flat copy of a; for error measurements.");
+    m.def(
+        "jordan_loss_grad",
+        [](py::handle theta, py::handle xn, py::handle t_slip, py::handle t_pred, py::handle w_slip,
+           py::handle w_pred, py::handle length, int n_hidden, int n_threads) {
+            auto th = input<double>(theta, "theta");
+            auto x = input<double>(xn, "xn");
+            if (x.ndim() != 3) throw py::value_error("xn must have shape (n_seq, n_inputs, n), got " + shape_str(x));
+            const py::ssize_t S = x.shape(0), nin = x.shape(1), n = x.shape(2);
+            if (nin < 1 || nin > 64) throw py::value_error("xn must have 1 to 64 inputs, got " + std::to_string(nin));
+            if (n_hidden < 1 || n_hidden > 1024)
+                throw py::value_error("n_hidden must be in [1, 1024], got " + std::to_string(n_hidden));
+            if (n_threads < 1 || n_threads > 256)
+                throw py::value_error("n_threads must be in [1, 256], got " + std::to_string(n_threads));
+            const py::ssize_t n_par = py::ssize_t(n_hidden) * (nin + 1) + 3 * py::ssize_t(n_hidden) + 2;
+            if (th.ndim() != 1 || th.shape(0) != n_par)
+                throw py::value_error("theta must have shape (" + std::to_string(n_par) + ",), got " + shape_str(th));
+            for (py::ssize_t k = 0; k < n_par; ++k)
+                if (!std::isfinite(th.data()[k])) throw py::value_error("theta must be finite");
+            py::array_t<double, py::array::c_style> seq[4] = {input<double>(t_slip, "t_slip"),
+                                                              input<double>(t_pred, "t_pred"),
+                                                              input<double>(w_slip, "w_slip"),
+                                                              input<double>(w_pred, "w_pred")};
+            const char* names[4] = {"t_slip", "t_pred", "w_slip", "w_pred"};
+            for (int k = 0; k < 4; ++k)
+                if (seq[k].ndim() != 2 || seq[k].shape(0) != S || seq[k].shape(1) != n)
+                    throw py::value_error(std::string(names[k]) + " must have shape (" + std::to_string(S) + ", " +
+                                          std::to_string(n) + "), got " + shape_str(seq[k]));
+            py::array la = py::array::ensure(length);
+            if (!la || (la.dtype().kind() != 'i' && la.dtype().kind() != 'u'))
+                throw py::type_error("length must be an integer array");
+            auto len = py::array_t<std::ptrdiff_t, py::array::c_style | py::array::forcecast>::ensure(la);
+            if (len.ndim() != 1 || len.shape(0) != S)
+                throw py::value_error("length must have shape (" + std::to_string(S) + ",), got " + shape_str(len));
+            for (py::ssize_t k = 0; k < S; ++k)
+                if (len.data()[k] < 0 || len.data()[k] > n)
+                    throw py::value_error("length must be in [0, " + std::to_string(n) + "], got " +
+                                          std::to_string(len.data()[k]) + " at " + std::to_string(k));
+            tm_core::detector::BpttProblem P;
+            P.n_inputs = int(nin);
+            P.n_hidden = n_hidden;
+            P.n_seq = int(S);
+            P.n = n;
+            P.x = x.data();
+            P.t_slip = seq[0].data();
+            P.t_pred = seq[1].data();
+            P.w_slip = seq[2].data();
+            P.w_pred = seq[3].data();
+            P.length = len.data();
+            py::array_t<double> grad(n_par);
+            double loss;
+            {
+                py::gil_scoped_release release;
+                loss = tm_core::detector::jordan_loss_grad(P, th.data(), grad.mutable_data(), n_threads);
+            }
+            return py::make_tuple(loss, grad);
+        },
+        py::arg("theta"), py::arg("xn"), py::arg("t_slip"), py::arg("t_pred"), py::arg("w_slip"), py::arg("w_pred"),
+        py::arg("length"), py::arg("n_hidden"), py::arg("n_threads") = 1,
+        "Weighted cross-entropy loss of the Jordan net and its exact BPTT gradient (float64, no weight decay): "
+        "network.loss_and_grad in C++, each sequence run for its first length[s] samples. Returns (loss, grad).");
     m.def("detector_cpu_has_avx2_fma", &tm_core::detector::cpu_has_avx2_fma,
           "True if the AVX2+FMA path of the detector kernel can run on this CPU.");
 }

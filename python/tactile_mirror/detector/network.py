@@ -17,9 +17,11 @@ kernel (600 in float64, 80 in float32) so that outputs never become subnormal;
 the numpy recurrence skips the clamp, which changes no output by more than
 ``sigmoid(-600) < 3e-261`` (float64) or ``sigmoid(-80) < 2e-35`` (float32).
 
-This module is the specification that the C++ kernel (``jordan_mlp.hpp``) is
-tested against; it also serves training, so all functions are vectorised over
-sequences: inputs have shape ``(n_seq, n_inputs, n)``, time last.
+This module is the specification that the C++ kernels are tested against: the
+inference kernel (``jordan_mlp.hpp``) against :func:`forward`, and the training
+kernel (``jordan_bptt.hpp``, ``_core.jordan_loss_grad``, the default backend of
+``train_detector``) against :func:`loss_and_grad`. All functions are vectorised
+over sequences: inputs have shape ``(n_seq, n_inputs, n)``, time last.
 """
 from __future__ import annotations
 
@@ -170,7 +172,10 @@ def loss_and_grad(theta, xn, t_slip, t_pred, w_slip, w_pred, n_inputs: int, n_hi
     """Weighted cross-entropy of both outputs and its exact BPTT gradient.
 
     ``L = sum(w_slip * CE(y_slip, t_slip) + w_pred * CE(y_pred, t_pred)) + l2/2 * |W|^2``
-    with ``CE(y, t) = -t log y - (1 - t) log(1 - y)``; the weights ``w_*`` are
+    with ``CE(y, t) = -t log y - (1 - t) log(1 - y)``, evaluated from the logit
+    ``o`` (``y = sigmoid(o)``) as ``softplus(o) - t o`` so that it stays exact when
+    ``y`` rounds to 0 or 1 (the gradient ``y - t`` does not saturate either, and the
+    line search needs both to agree). The weights ``w_*`` are
     already normalised by the caller (e.g. to sum to one). Biases are not
     regularised. With ``feedback=False`` the feedback column of ``w1`` is held
     at zero (the no-feedback baseline) and its gradient is zero.
@@ -195,9 +200,11 @@ def loss_and_grad(theta, xn, t_slip, t_pred, w_slip, w_pred, n_inputs: int, n_hi
     ys, yp, hs = forward(prm, x, return_hidden=True)
     ys, yp = ys.T, yp.T  # (n, s)
     ts, tp, ws, wp = (np.asarray(a, dtype=np.float64).T for a in (t_slip, t_pred, w_slip, w_pred))
-    eps = 1e-300
-    loss = -np.sum(ws * (ts * np.log(ys + eps) + (1 - ts) * np.log(1 - ys + eps)))
-    loss -= np.sum(wp * (tp * np.log(yp + eps) + (1 - tp) * np.log(1 - yp + eps)))
+    # Cross-entropy from the logits, softplus(o) - t o: exact where the output
+    # rounds to 0 or 1 (log(1 - y) would not be), so loss and gradient agree.
+    o = hs @ prm.w2.T + prm.b2  # (n, s, 2)
+    loss = np.sum(ws * (np.logaddexp(0.0, o[..., 0]) - ts * o[..., 0]))
+    loss += np.sum(wp * (np.logaddexp(0.0, o[..., 1]) - tp * o[..., 1]))
     # dL/do for sigmoid + cross-entropy.
     do_s = ws * (ys - ts)  # (n, s)
     do_p_direct = wp * (yp - tp)
