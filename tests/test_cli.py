@@ -20,6 +20,7 @@ def test_help_everywhere(command, capsys):
     (["figure", "13", "--law", "pid"], "invalid choice"),
     (["train", "--hidden", "0"], "must be positive"),
     (["train", "--candidates", "0"], "must be positive"),
+    (["train", "--checkpoint-every", "-1"], "must be non-negative"),
     (["evaluate", "--scenes", "-3"], "must be positive"),
     (["fly"], "invalid choice"),
 ])
@@ -72,13 +73,14 @@ def test_parser_lists_the_subcommands():
 def test_train_writes_loadable_weights(tmp_path, capsys):
     out = tmp_path / "det.npz"
     assert main(["train", "--n-train", "2", "--n-test", "2", "--maxiter", "3", "--hidden", "4",
-                 "--candidates", "2", "--n-validation", "2", "--out", str(out)]) == 0
+                 "--candidates", "2", "--checkpoint-every", "1", "--n-validation", "2", "--out", str(out)]) == 0
     from tactile_mirror import SlipDetector
 
     det = SlipDetector.load(out)
     assert det.n_hidden == 4
     sel = det.metadata["training"]["selection"]
-    assert len(sel["scores"]) == 2 and sel["chosen_seed"] in (0, 1)
+    # 2 seeds x (3 checkpoints + the final weights)
+    assert sel["n_candidates"] == 8 and sel["chosen_seed"] in (0, 1) and 1 <= sel["chosen_iteration"] <= 3
     assert "detect %" in capsys.readouterr().out
 
 

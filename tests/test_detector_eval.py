@@ -80,6 +80,47 @@ def test_evaluate_reports_all_rows(synthetic_detectors):
         evaluate(det, [])
 
 
+def test_validation_selection_prefers_fewer_false_alarms(synthetic_detectors):
+    from tactile_mirror.detector.build import ValidationScorer, select_candidate
+
+    det, _, _ = synthetic_detectors
+    val = [synthetic_scene(seed=3000 + s, n_ridges=1) for s in range(4)]
+    alarm = det.weights.params.copy()
+    alarm.b2[0] = 50.0  # y_slip ~ 1 everywhere: detects everything, false alarm everywhere
+    w_alarm = type(det.weights)(alarm, det.weights.input_mean, det.weights.input_scale, det.weights.fs,
+                                det.metadata)
+    scorer = ValidationScorer(val, fa_cost=10.0)
+    s_alarm = scorer(w_alarm)
+    assert s_alarm["false_alarm_rate"] == 1.0 and s_alarm["score"] == pytest.approx(
+        s_alarm["detection_rate"] - 10.0)
+    quiet = det.weights.params.copy()
+    quiet.b2[0] = -50.0  # never fires: no detection, no false alarm
+    w_quiet = type(det.weights)(quiet, det.weights.input_mean, det.weights.input_scale, det.weights.fs,
+                                det.metadata)
+    best, k, scores = select_candidate([w_alarm, w_quiet], scorer)
+    assert k == 1 and best is w_quiet and len(scores) == 2
+    assert scores[1] == {**scores[1], "detection_rate": 0.0, "false_alarm_rate": 0.0, "score": 0.0}
+    with pytest.raises(ValueError, match="candidates must not be empty"):
+        select_candidate([], scorer)
+    with pytest.raises(ValueError, match="fa_cost"):
+        ValidationScorer(val, fa_cost=-1.0)
+
+
+def test_training_checkpoints_reach_the_callback():
+    ts = make_training_set([synthetic_scene(seed=s, n_ridges=1, duration=1.2) for s in range(2)])
+    seen = []
+    w = train_detector(ts, n_hidden=3, maxiter=6, seed=0, progress=False,
+                       callback=lambda it, wk: seen.append((it, wk)), callback_every=2)
+    assert [it for it, _ in seen] == [2, 4, 6][:len(seen)] and len(seen) >= 2
+    assert all(wk.metadata["training"]["checkpoint"] for _, wk in seen)
+    if w.metadata["training"]["iterations"] == 6:  # the last checkpoint is the final iterate
+        np.testing.assert_array_equal(seen[-1][1].params.pack(), w.params.pack())
+    with pytest.raises(TypeError, match="callback must be callable"):
+        train_detector(ts, n_hidden=3, maxiter=1, progress=False, callback=3)
+    with pytest.raises(ValueError, match="callback_every"):
+        train_detector(ts, n_hidden=3, maxiter=1, progress=False, callback=print, callback_every=0)
+
+
 def test_figure10_on_synthetic_scenes(synthetic_detectors, tmp_path):
     pytest.importorskip("matplotlib")
     import matplotlib

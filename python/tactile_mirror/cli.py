@@ -23,14 +23,14 @@ class CommandError(Exception):
     """A failure to report as ``error: ...`` without a traceback."""
 
 
-def _positive(kind):
+def _positive(kind, allow_zero=False):
     def parse(text):
         try:
             v = kind(text)
         except ValueError:
             raise argparse.ArgumentTypeError(f"expected a {kind.__name__}, got {text!r}") from None
-        if not v > 0:
-            raise argparse.ArgumentTypeError(f"must be positive, got {text!r}")
+        if not (v >= 0 if allow_zero else v > 0):
+            raise argparse.ArgumentTypeError(f"must be {'non-negative' if allow_zero else 'positive'}, got {text!r}")
         return v
 
     return parse
@@ -145,7 +145,8 @@ def cmd_train(args) -> int:
     out.parent.mkdir(parents=True, exist_ok=True)
     _, report = build_default(out, n_train=args.n_train, n_test=args.n_test, n_hidden=args.hidden,
                               maxiter=args.maxiter, report_path=args.report, figure_path=args.figure,
-                              candidates=args.candidates, n_validation=args.n_validation)
+                              candidates=args.candidates, n_validation=args.n_validation,
+                              checkpoint_every=args.checkpoint_every)
     print(report["evaluation_table"])
     print(f"wrote {out} ({report['total_seconds']:.0f} s)")
     return 0
@@ -288,13 +289,15 @@ def build_parser() -> argparse.ArgumentParser:
                                    "detector (and the baselines), evaluate and save the weights.")
     p.add_argument("--out", default="detector.npz", help="weights file to write (default: %(default)s)")
     p.add_argument("--n-train", type=_positive(int), default=64, help="training scenes (default: 64)")
-    p.add_argument("--n-test", type=_positive(int), default=60, help="held-out scenes (default: 60)")
+    p.add_argument("--n-test", type=_positive(int), default=200, help="held-out scenes (default: 200)")
     p.add_argument("--hidden", type=_positive(int), default=16, help="hidden units (default: 16)")
     p.add_argument("--maxiter", type=_positive(int), default=800, help="L-BFGS-B iterations (default: 800)")
-    p.add_argument("--candidates", type=_positive(int), default=3,
-                   help="initial seeds to train from; the best on the validation scenes is kept (default: 3)")
-    p.add_argument("--n-validation", type=_positive(int), default=40,
-                   help="validation scenes for choosing among candidates (default: 40)")
+    p.add_argument("--candidates", type=_positive(int), default=4,
+                   help="initial seeds to train from; the best on the validation scenes is kept (default: 4)")
+    p.add_argument("--checkpoint-every", type=_positive(int, allow_zero=True), default=25,
+                   help="also score checkpoints every this many iterations (0: final weights only; default: 25)")
+    p.add_argument("--n-validation", type=_positive(int), default=120,
+                   help="validation scenes for choosing among candidates (default: 120)")
     p.add_argument("--report", default=None, help="also write the evaluation report here")
     p.add_argument("--figure", default=None, help="also write Figure 10 here")
     p.set_defaults(func=cmd_train)
