@@ -279,3 +279,31 @@ def test_simulate_many_with_a_dask_executor():
     direct = [simulate(s) for s in scenes]
     for r, d in zip(res, direct):
         np.testing.assert_array_equal(r.force_z, d.force_z)
+
+
+def test_own_worker_pool_runs_single_threaded_blas(monkeypatch):
+    import concurrent.futures
+    import multiprocessing
+    import os
+
+    from tactile_mirror.contact.simulate import WORKER_THREAD_VARS, _worker_env
+
+    monkeypatch.delenv("OMP_NUM_THREADS", raising=False)
+    monkeypatch.setenv("OPENBLAS_NUM_THREADS", "3")  # the user's choice is kept
+    ex = concurrent.futures.ProcessPoolExecutor(1, mp_context=multiprocessing.get_context("spawn"))
+    try:
+        with _worker_env(WORKER_THREAD_VARS):
+            f_omp = ex.submit(os.getenv, "OMP_NUM_THREADS")
+            f_blas = ex.submit(os.getenv, "OPENBLAS_NUM_THREADS")
+        assert "OMP_NUM_THREADS" not in os.environ  # restored in the parent
+        assert f_omp.result(timeout=60) == "1" and f_blas.result(timeout=60) == "3"
+    finally:
+        ex.shutdown()
+    assert os.environ["OPENBLAS_NUM_THREADS"] == "3"
+    # And the pool simulate_many makes for itself gives the direct results (to round-off:
+    # another BLAS thread count may sum in another order).
+    scenes = [tm.scenes.paper("fig6", duration=0.2, outputs=frozenset({"forces"}), friction=f) for f in (0.5, 0.7)]
+    res = tm.simulate_many(scenes, progress=False, max_workers=2)
+    assert "OMP_NUM_THREADS" not in os.environ
+    for r, s in zip(res, scenes):
+        np.testing.assert_allclose(r.force_z, simulate(s).force_z, rtol=1e-9, atol=1e-12)
