@@ -15,7 +15,7 @@ pytestmark = pytest.mark.skipif(CXX is None, reason="no C++ compiler on PATH")
 
 def build(tmp_path, source, sanitize=True):
     exe = tmp_path / pathlib.Path(source).stem
-    flags = ["-std=c++17", "-O1", "-g", "-Wall", "-Wextra", "-Wno-psabi", "-ffp-contract=fast"]
+    flags = ["-std=c++17", "-O1", "-g", "-Wall", "-Wextra", "-Wno-psabi", "-ffp-contract=fast", "-pthread"]
     if sanitize:
         flags += ["-fsanitize=address,undefined", "-fno-sanitize-recover=undefined", "-fno-omit-frame-pointer"]
     cmd = [CXX, *flags, f"-I{ROOT / 'src' / 'cpp'}", str(ROOT / "tests" / "cpp" / source), "-o", str(exe)]
@@ -44,6 +44,36 @@ def test_sos_kernel_under_sanitizers(tmp_path, sos_test_exe, channels, n):
         sos.astype(np.float64).tofile(f)
         x.tofile(f)
         ref.tofile(f)
+    out = subprocess.run([str(exe), str(data)], check=False, capture_output=True, text=True, timeout=120)
+    assert out.returncode == 0, out.stdout + out.stderr
+    assert "ok: 0 failures" in out.stdout
+
+
+def test_bptt_kernel_under_sanitizers(tmp_path):
+    from tactile_mirror.detector.network import loss_and_grad
+
+    try:
+        exe = build(tmp_path, "test_bptt.cpp")
+    except subprocess.CalledProcessError as exc:
+        raise AssertionError(f"building tests/cpp/test_bptt.cpp with sanitizers failed:\n{exc.stderr}") from exc
+    rng = np.random.default_rng(4)
+    nin, h, s, n = 4, 7, 19, 150  # 19 sequences: three blocks of 8, the last one short
+    theta = 1.5 * rng.standard_normal(h * (nin + 1) + 3 * h + 2)
+    length = rng.integers(0, n + 1, s)
+    real = np.arange(n)[None, :] < length[:, None]
+    x = rng.standard_normal((s, nin, n)) * real[:, None, :]
+    ts = (rng.uniform(size=(s, n)) > 0.5) * 1.0
+    tp = rng.uniform(size=(s, n))
+    ws, wp = (rng.uniform(size=(s, n)) * real / (s * n) for _ in range(2))
+    loss, grad = loss_and_grad(theta, x, ts, tp, ws, wp, nin, h)
+    data = tmp_path / "bptt.bin"
+    with open(data, "wb") as f:
+        np.array([nin, h, s, n], dtype=np.uint64).tofile(f)
+        for a in (theta, x, ts, tp, ws, wp):
+            np.ascontiguousarray(a, dtype=np.float64).tofile(f)
+        length.astype(np.int64).tofile(f)
+        np.array([loss], dtype=np.float64).tofile(f)
+        grad.astype(np.float64).tofile(f)
     out = subprocess.run([str(exe), str(data)], check=False, capture_output=True, text=True, timeout=120)
     assert out.returncode == 0, out.stdout + out.stderr
     assert "ok: 0 failures" in out.stdout
