@@ -30,7 +30,11 @@ class SlipDetector:
     ----------
     weights : DetectorWeights
     dtype : {numpy.float64, numpy.float32}
-        Precision of the C++ kernel.
+        Precision of the C++ kernel. Output error against the float64 numpy
+        recurrence, measured with the bundled weights: about 2e-13 in float64;
+        in float32 1.8e-5 (exact) / 2.2e-5 (fast) on simulated scenes and up to
+        5e-5 on the benchmark's synthetic stick-slip input (the recurrence
+        amplifies round-off; random weights stay within 1e-5 over 1e6 steps).
     activation : {"exact", "fast"}
         Sigmoid of the kernel: ``"exact"`` (``exp``) or ``"fast"`` (polynomial
         ``2^x``; |error| <= 5e-10 in float64, about 2e-7 in float32).
