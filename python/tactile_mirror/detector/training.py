@@ -273,8 +273,8 @@ def train_detector(data, n_hidden: int = 16, feedback: bool = True, seed=0, maxi
     backend : {"cpp", "numpy"}
         Where the loss and gradient are computed: ``"cpp"`` (the compiled
         ``_core.jordan_loss_grad``, each sequence run only for its real samples,
-        sequences spread over ``n_threads`` threads; 8-13x the numpy speed on one
-        thread, ``bench/bench_detector.py``) or ``"numpy"``
+        sequences spread over ``n_threads`` threads; 6-9x the numpy speed on one
+        thread, 9-11x on two, ``bench/bench_detector.py``) or ``"numpy"``
         (:func:`~tactile_mirror.detector.network.loss_and_grad`, the specification).
         Both give the same loss and gradient to round-off (tested to 1e-12), so the
         trained weights agree closely but not bit for bit. Either is deterministic
