@@ -20,8 +20,7 @@ import time
 import numpy as np
 
 from .core import SlipDetector
-from .data_prep import features_from_result
-from .evaluate import ForceRatioDetector, _metrics, evaluate
+from .evaluate import ForceRatioDetector, evaluate
 from .training import TrainingSet, augment_gains, augment_noise, make_training_set, train_detector
 
 __all__ = [
@@ -119,16 +118,7 @@ class ValidationScorer:
         self._features = {}
 
     def __call__(self, weights) -> dict:
-        det = SlipDetector(weights)
-        est = det.metadata.get("estimator")
-        key = (det.features, json.dumps(est, sort_keys=True))
-        if key not in self._features:
-            self._features[key] = [features_from_result(r, det.features, estimator=est) for r in self.validation]
-        items = []
-        for f, r in zip(self._features[key], self.validation):
-            ys, _, yp = det.run(f, fs=r.fs)
-            items.append(((ys, yp), r))
-        m = _metrics("detector", items, 0.8, 0.5, 0.05)
+        m = evaluate(SlipDetector(weights), self.validation, features_cache=self._features)["detector"]
         return {"detection_rate": m.detection_rate, "false_alarm_rate": m.false_alarm_rate,
                 "false_alarm_samples": m.false_alarm_samples, "pred_lead_mean_ms": m.pred_lead_mean_ms,
                 "score": m.detection_rate - self.fa_cost * m.false_alarm_rate}

@@ -198,7 +198,7 @@ def _as_results(scenes, progress):
 
 
 def evaluate(detector, scenes, baselines=None, slip_threshold: float = 0.8, pred_threshold: float = 0.5,
-             max_latency: float = 0.05, progress: bool = False) -> EvaluationReport:
+             max_latency: float = 0.05, progress: bool = False, features_cache=None) -> EvaluationReport:
     """Evaluate a detector (and baselines) on held-out scenes.
 
     Parameters
@@ -218,6 +218,10 @@ def evaluate(detector, scenes, baselines=None, slip_threshold: float = 0.8, pred
         Detection window after gross-slip onset, s.
     progress : bool
         Progress bar while simulating scenes.
+    features_cache : dict, optional
+        Detector features per (scene index, feature kind, estimator) kept between
+        calls on the same ``scenes`` (e.g. scoring many candidate weights): pass the
+        same dict each time and the features are computed once.
 
     Returns
     -------
@@ -228,7 +232,7 @@ def evaluate(detector, scenes, baselines=None, slip_threshold: float = 0.8, pred
     if not results:
         raise ValueError("scenes must not be empty")
     dets = [("detector", detector)] + list((baselines or {}).items())
-    feats_cache = {}
+    feats_cache = {} if features_cache is None else features_cache
     rows = []
     for name, det in dets:
         items = []
@@ -241,10 +245,10 @@ def evaluate(detector, scenes, baselines=None, slip_threshold: float = 0.8, pred
                     pass
                 ys, yp = det.outputs(res, n_r)
             else:
-                key = (k, det.features)
+                est = det.metadata.get("estimator")
+                key = (k, det.features, repr(sorted(est.items())) if isinstance(est, dict) else repr(est))
                 if key not in feats_cache:
-                    feats_cache[key] = features_from_result(res, det.features,
-                                                            estimator=det.metadata.get("estimator"))
+                    feats_cache[key] = features_from_result(res, det.features, estimator=est)
                 ys, _, yp = det.run(feats_cache[key], fs=res.fs)
             items.append(((ys, yp), res))
         rows.append(_metrics(name, items, slip_threshold, pred_threshold, max_latency))
