@@ -152,6 +152,20 @@ def test_cpp_loss_validation_names_arguments():
         core.jordan_loss_grad(*ok, 0)
 
 
+@pytest.mark.parametrize("feedback", [True, False])
+def test_cpp_training_objective_with_weight_decay_matches_numpy(feedback):
+    from tactile_mirror.detector.training import _cpp_loss, _loss_weights
+
+    ts = small_set(2)
+    xn = ts.x / ts.x.std(axis=(0, 2))[None, :, None]
+    ws, wp = _loss_weights(ts, 4.0, 10.0)
+    theta = np.random.default_rng(0).normal(size=6 * 5 + 6 * 3 + 2)
+    f_c, g_c = _cpp_loss(xn, ts, ws, wp, 6, 1e-2, feedback, 2)(theta)
+    f_n, g_n = loss_and_grad(theta, xn, ts.y_slip, ts.y_pred, ws, wp, 4, 6, l2=1e-2, feedback=feedback)
+    assert f_c == pytest.approx(f_n, rel=1e-12)
+    np.testing.assert_allclose(g_c, g_n, rtol=1e-12, atol=1e-12 * np.abs(g_n).max())
+
+
 def test_training_backends_agree():
     ts = small_set(3)
     w_c = train_detector(ts, n_hidden=4, maxiter=10, seed=3, progress=False, backend="cpp")

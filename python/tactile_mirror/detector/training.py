@@ -216,17 +216,19 @@ def _cpp_loss(xn, data, w_slip, w_pred, n_hidden, l2, feedback, n_threads):
     args = [np.ascontiguousarray(a, dtype=np.float64) for a in (data.y_slip, data.y_pred, w_slip, w_pred)]
     fb = np.arange(n_hidden) * 5 + 4  # feedback column of w1 in the packed vector
 
+    # Weight decay on w1 and w2 (not the biases), as in network.loss_and_grad.
+    decay = Params.unpack(np.ones(n_hidden * 5 + 3 * n_hidden + 2), 4, n_hidden)
+    decay.b1[:] = 0.0
+    decay.b2[:] = 0.0
+    decay = l2 * decay.pack()
+
     def fun(theta):
         theta = np.array(theta, dtype=np.float64)
         if not feedback:
             theta[fb] = 0.0
         loss, grad = jordan_loss_grad(theta, xn, *args, length, n_hidden, n_threads)
-        if l2:
-            nw1 = n_hidden * 5
-            w = np.concatenate([theta[:nw1], theta[nw1 + n_hidden:nw1 + 3 * n_hidden]])
-            loss += 0.5 * l2 * float(w @ w)
-            grad[:nw1] += l2 * theta[:nw1]
-            grad[nw1 + n_hidden:nw1 + 3 * n_hidden] += l2 * theta[nw1 + n_hidden:nw1 + 3 * n_hidden]
+        loss += 0.5 * float(theta @ (decay * theta))
+        grad += decay * theta
         if not feedback:
             grad[fb] = 0.0
         return float(loss), grad
