@@ -7,7 +7,7 @@ Command line (writes the weights, a report and Figure 10)::
 The bundled ``data/default_detector.npz`` was made with the defaults of :func:`build_default`
 (64 training scenes, two noise copies of each at 0-5 mV, gain augmentation 0.6-1.7, H = 16,
 :data:`TRAIN_OPTIONS`, 4 initial seeds with checkpoints every 25 iterations, the best on 120
-validation scenes kept, evaluated on 200 held-out scenes; about 10 min on 2 cores); its
+validation scenes kept, evaluated on 200 held-out scenes; about 8 min on 2 cores); its
 metadata records the scenes, the training settings, the selection and the held-out evaluation.
 """
 from __future__ import annotations
