@@ -13,17 +13,7 @@
 #include <vector>
 
 #include "jordan_bptt.hpp"
-
-static int failures = 0;
-#define CHECK(cond, ...)                                              \
-    do {                                                              \
-        if (!(cond)) {                                                \
-            std::fprintf(stderr, "FAIL %s:%d: ", __FILE__, __LINE__); \
-            std::fprintf(stderr, __VA_ARGS__);                        \
-            std::fprintf(stderr, "\n");                               \
-            ++failures;                                               \
-        }                                                             \
-    } while (0)
+#include "check.hpp"
 
 template <typename T>
 static std::vector<T> read(std::FILE* f, std::size_t n) {

@@ -11,19 +11,9 @@
 #include <vector>
 
 #include "sos.hpp"
+#include "check.hpp"
 
 using tactile::SosCascade;
-
-static int failures = 0;
-#define CHECK(cond, ...)                                   \
-    do {                                                   \
-        if (!(cond)) {                                     \
-            std::fprintf(stderr, "FAIL %s:%d: ", __FILE__, __LINE__); \
-            std::fprintf(stderr, __VA_ARGS__);             \
-            std::fprintf(stderr, "\n");                    \
-            ++failures;                                    \
-        }                                                  \
-    } while (0)
 
 template <typename T>
 double max_err(const std::vector<T>& y, const std::vector<double>& ref) {
