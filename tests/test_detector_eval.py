@@ -106,6 +106,22 @@ def test_validation_selection_prefers_fewer_false_alarms(synthetic_detectors):
         ValidationScorer(val, fa_cost=-1.0)
 
 
+def test_hidden_size_study_uses_the_build_selection():
+    from tactile_mirror.detector.build import ValidationScorer, hidden_size_study, train_selected
+
+    ts = make_training_set([synthetic_scene(seed=s, n_ridges=1, duration=1.2) for s in range(2)])
+    scorer = ValidationScorer([synthetic_scene(seed=50 + s, n_ridges=1, duration=1.2) for s in range(2)])
+    rows = hidden_size_study(ts, scorer, sizes=(2, 3), maxiter=4, candidates=2, checkpoint_every=2, progress=False)
+    assert [r["n_hidden"] for r in rows] == [2, 3]
+    for r in rows:
+        assert {"seconds", "iterations", "seed", "detection_rate", "false_alarm_rate", "score"} <= set(r)
+        assert r["seed"] in (0, 1) and 1 <= r["iterations"] <= 4
+    # The study's row for a size is the build's selection for that size.
+    w, k, scores = train_selected(ts, 3, 4, 0, 2, 2, scorer, progress=False)
+    assert scores[k] == {key: rows[1][key] for key in scores[k]}
+    assert w.n_hidden == 3
+
+
 def test_training_checkpoints_reach_the_callback():
     ts = make_training_set([synthetic_scene(seed=s, n_ridges=1, duration=1.2) for s in range(2)])
     seen = []

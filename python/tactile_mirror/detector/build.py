@@ -37,6 +37,7 @@ __all__ = [
     "hidden_size_study",
     "select_candidate",
     "simulate_scenes",
+    "train_selected",
 ]
 
 #: Seeds of the training, validation and held-out scene sets (different on purpose).
@@ -77,25 +78,56 @@ def subset(ts: TrainingSet, ridges_per_scene: int, n_ridges: int) -> TrainingSet
                        ts.estimator, ts.targets)
 
 
-def hidden_size_study(train, validation, sizes=(4, 8, 12, 16, 24), maxiter: int = 300, seed: int = 0,
-                      progress: bool = True, **train_options) -> list:
-    """Train one detector per hidden size and evaluate it on validation results.
+def hidden_size_study(train, validation, sizes=(4, 8, 12, 16, 24), maxiter: int = 800, seed: int = 0,
+                      candidates: int = 4, checkpoint_every: int = 25, progress: bool = True,
+                      **train_options) -> list:
+    """Train a detector per hidden size as the build does and score it on validation results.
+
+    Each size gets the build's procedure (:func:`train_selected`: ``candidates``
+    seeds, checkpoints, the best on ``validation`` kept), so sizes are compared
+    at their best rather than at one arbitrary iteration count. ``validation``
+    must not be the held-out set the chosen size is reported on.
 
     Returns
     -------
     list of dict
-        Per size: ``n_hidden``, ``seconds`` (training), ``loss``, and the
-        :class:`~tactile_mirror.detector.evaluate.DetectionMetrics` fields.
+        Per size: ``n_hidden``, ``seconds`` (training and selection), ``iterations``
+        and ``seed`` of the kept candidate, and its validation detection rate,
+        false-alarm rate, y_pred lead and score.
     """
+    scorer = validation if isinstance(validation, ValidationScorer) else ValidationScorer(validation)
     rows = []
     for h in sizes:
         t0 = time.perf_counter()
-        w = train_detector(train, n_hidden=int(h), maxiter=maxiter, seed=seed, progress=progress, **train_options)
-        secs = time.perf_counter() - t0
-        m = evaluate(SlipDetector(w), validation)["detector"]
-        rows.append({"n_hidden": int(h), "seconds": round(secs, 1), "loss": w.metadata["training"]["loss"],
-                     **m.as_dict()})
+        w, k, scores = train_selected(train, int(h), maxiter, seed, candidates, checkpoint_every, scorer,
+                                      progress=progress, **train_options)
+        rows.append({"n_hidden": int(h), "seconds": round(time.perf_counter() - t0, 1),
+                     "iterations": int(w.metadata["training"]["iterations"]),
+                     "seed": int(w.metadata["training"]["seed"]), **scores[k]})
     return rows
+
+
+def train_selected(ts, n_hidden: int, maxiter: int, seed: int, candidates: int, checkpoint_every: int, scorer,
+                   feedback: bool = True, progress: bool = True, metadata=None, **train_options):
+    """Train ``candidates`` seeds (``seed``, ``seed + 1``, ...) and keep the best on ``scorer``.
+
+    With ``checkpoint_every`` > 0 the iterates every that many L-BFGS-B
+    iterations are candidates too (early stopping). Without a scorer the last
+    seed's final weights are returned.
+
+    Returns
+    -------
+    weights, index of the kept candidate, list of candidate scores (empty without a scorer)
+    """
+    ws = []
+    for k in range(max(1, int(candidates))):
+        cb = (lambda it, wk: ws.append(wk)) if scorer is not None and checkpoint_every else None
+        ws.append(train_detector(ts, n_hidden=int(n_hidden), maxiter=maxiter, seed=seed + k, feedback=feedback,
+                                 progress=progress, metadata=metadata, callback=cb,
+                                 callback_every=checkpoint_every or 1, **train_options))
+    if scorer is None:
+        return ws[-1], len(ws) - 1, []
+    return select_candidate(ws, scorer)
 
 
 class ValidationScorer:
@@ -186,8 +218,8 @@ def build_default(out_path, n_train: int = 64, n_test: int = 200, n_hidden: int 
     ridges_per_scene : int
         Ridges of each training scene used as sequences.
     study_sizes : sequence of int, optional
-        Also run :func:`hidden_size_study` with these sizes (validation: the
-        first half of the held-out set).
+        Also run :func:`hidden_size_study` with these sizes (scored on the
+        validation scenes, not the held-out set).
     train_kwargs, test_kwargs : dict, optional
         Scene options; default :data:`TRAIN_KWARGS`, :data:`TEST_KWARGS`.
     results : (list, list) or (list, list, list), optional
@@ -241,24 +273,18 @@ def build_default(out_path, n_train: int = 64, n_test: int = 200, n_hidden: int 
               "train_kwargs": train_kwargs, "test_kwargs": test_kwargs, "train_options": opts,
               "gain_range": None if gain_range is None else list(gain_range),
               "noise_copies": int(noise_copies), "noise_range": list(noise_range)}
+    scorer = ValidationScorer(val_res) if selecting else None
     if study_sizes:
-        half = test_res[: max(1, len(test_res) // 2)]
-        report["hidden_size_study"] = hidden_size_study(ts, half, study_sizes, maxiter, seed, progress, **opts)
+        if scorer is None:
+            raise ValueError("study_sizes needs validation scenes: candidates > 1 or checkpoint_every > 0")
+        report["hidden_size_study"] = hidden_size_study(ts, scorer, study_sizes, maxiter, seed, candidates,
+                                                        checkpoint_every, progress, **opts)
     meta = {"scenes": f"scenes.random({n_train}, seed={TRAIN_SEED}, **{train_kwargs})",
             "ridges_per_scene": ridges_per_scene}
 
-    scorer = ValidationScorer(val_res) if selecting else None
-
     def train(feedback):
-        ws = []
-        for k in range(max(1, candidates)):
-            cb = (lambda it, wk: ws.append(wk)) if scorer is not None and checkpoint_every else None
-            ws.append(train_detector(ts, n_hidden=n_hidden, maxiter=maxiter, seed=seed + k, feedback=feedback,
-                                     progress=progress, metadata=meta, callback=cb,
-                                     callback_every=checkpoint_every or 1, **opts))
-        if scorer is None:
-            return ws[-1], len(ws) - 1, []
-        return select_candidate(ws, scorer)
+        return train_selected(ts, n_hidden, maxiter, seed, candidates, checkpoint_every, scorer, feedback,
+                              progress, meta, **opts)
 
     t0 = time.perf_counter()
     w, k_best, scores = train(True)
