@@ -7,6 +7,8 @@ asks for is computed (:data:`tactile_mirror.scenes.OUTPUTS`).
 from __future__ import annotations
 
 import concurrent.futures
+import contextlib
+import os
 from collections.abc import Iterable
 from dataclasses import dataclass, field
 from typing import TYPE_CHECKING
@@ -151,29 +153,16 @@ def _simulate_quiet(scene):
 WORKER_THREAD_VARS = ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS")
 
 
-class _worker_env:
-    """Set unset variables of ``names`` to "1" in os.environ for the block, then restore."""
-
-    def __init__(self, names):
-        self.names = names
-        self.added = []
-
-    def __enter__(self):
-        import os
-
-        for n in self.names:
-            if n not in os.environ:
-                os.environ[n] = "1"
-                self.added.append(n)
-        return self
-
-    def __exit__(self, *exc):
-        import os
-
-        for n in self.added:
+@contextlib.contextmanager
+def _worker_env(names):
+    """Set the unset variables of ``names`` to "1" in os.environ for the block, then remove them."""
+    added = [n for n in names if n not in os.environ]
+    os.environ.update(dict.fromkeys(added, "1"))
+    try:
+        yield
+    finally:
+        for n in added:
             os.environ.pop(n, None)
-        self.added = []
-        return False
 
 
 def simulate_many(scenes: Iterable[Scene], executor: concurrent.futures.Executor | None = None, progress: bool = True,
@@ -194,19 +183,15 @@ def simulate_many(scenes: Iterable[Scene], executor: concurrent.futures.Executor
     own = executor is None
     if own:
         import multiprocessing
-        import os
 
         workers = max_workers or min(len(scenes), os.cpu_count() or 1)
         ctx = multiprocessing.get_context("spawn")  # safe with threads in the parent
         executor = concurrent.futures.ProcessPoolExecutor(max_workers=workers, mp_context=ctx)
     try:
-        if own:
-            # One BLAS/OpenMP thread per worker process: the workers already fill the
-            # cores, and threaded BLAS on these small solves measured 3-10x slower. The
-            # spawned workers read the variables when they start, i.e. during submit().
-            with _worker_env(WORKER_THREAD_VARS):
-                futures = [executor.submit(_simulate_quiet, s) for s in scenes]
-        else:
+        # Own pool: one BLAS/OpenMP thread per worker process. The workers already fill
+        # the cores, and threaded BLAS on these small solves measured 3-10x slower. The
+        # spawned workers read the variables when they start, i.e. during submit().
+        with _worker_env(WORKER_THREAD_VARS) if own else contextlib.nullcontext():
             futures = [executor.submit(_simulate_quiet, s) for s in scenes]
         index = {f: k for k, f in enumerate(futures)}
         results: list = [None] * len(scenes)
