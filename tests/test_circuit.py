@@ -7,7 +7,7 @@ import pytest
 import scipy.signal
 from hypothesis import given, settings
 from hypothesis import strategies as st
-from tactile_mirror.circuit import SLOPE_BAND, PVDFCircuit, fit_circuit
+from tactile_mirror.circuit import SLOPE_BAND, CircuitStream, PVDFCircuit, fit_circuit
 
 FAST = settings(max_examples=25, deadline=None)
 
@@ -268,6 +268,81 @@ def test_simulate_noise_is_seeded_and_sized():
     v4, u4 = c.simulate(stress, 1000.0, noise=5e-4, seed=np.random.default_rng(1))
     assert np.std(v4 - v0) == pytest.approx(5e-4, rel=0.03)
     assert np.std(u4 - u0) == pytest.approx(5e-4, rel=0.03)
+
+
+# ---------------------------------------------------------------- streaming form
+@FAST
+@given(
+    lead=st.sampled_from([(), (3,), (2, 2)]),
+    n=st.integers(1, 200),
+    cuts=st.lists(st.integers(0, 200), max_size=4),
+    seed=st.integers(0, 2**32 - 1),
+)
+def test_stream_in_any_chunks_equals_simulate_bit_for_bit(lead, n, cuts, seed):
+    c = PVDFCircuit()
+    stress = np.random.default_rng(seed).normal(0, 1e4, lead + (3, n))
+    v_ref, u_ref = c.simulate(stress, 1000.0)
+    stream = c.stream(1000.0, lead)
+    edges = [0, *sorted(min(k, n) for k in cuts), n]
+    parts = [stream.process(stress[..., a:b]) for a, b in zip(edges[:-1], edges[1:])]
+    np.testing.assert_array_equal(np.concatenate([p[0] for p in parts], axis=-1), v_ref)
+    np.testing.assert_array_equal(np.concatenate([p[1] for p in parts], axis=-1), u_ref)
+    stream.reset()
+    steps = [stream.step(stress[..., k]) for k in range(n)]
+    np.testing.assert_array_equal(np.stack([p[0] for p in steps], axis=-1), v_ref)
+    np.testing.assert_array_equal(np.stack([p[1] for p in steps], axis=-1), u_ref)
+
+
+def test_stream_loads_and_noise_match_simulate():
+    c = PVDFCircuit()
+    stress = np.random.default_rng(3).normal(0, 1e3, (2, 2, 3, 500))
+    v_ref, u_ref = c.simulate(stress, 1000.0, noise=(1e-3, 2e-3), seed=11)
+    v, u = c.stream(1000.0, (2, 2), noise=(1e-3, 2e-3), seed=11).process(stress)
+    np.testing.assert_array_equal(v, v_ref)
+    np.testing.assert_array_equal(u, u_ref)
+    # equivalent loads in, one sample at a time, flat channels
+    lo = c.equivalent_load(stress).reshape(4, -1)
+    s = CircuitStream(c, 1000.0, 4)
+    out = [s.step_load(lo[:, k]) for k in range(lo.shape[1])]
+    v0, _ = c.simulate(stress, 1000.0)
+    np.testing.assert_array_equal(np.stack([o[0] for o in out], axis=-1), v0.reshape(4, -1))
+    # a shared generator goes on being drawn from
+    rng = np.random.default_rng(5)
+    s = c.stream(1000.0, 4, noise=1e-3, seed=rng)
+    assert s._rng is rng
+
+
+def test_stream_rejects_bad_input_and_keeps_its_state():
+    c = PVDFCircuit()
+    x = np.random.default_rng(0).normal(0, 1e3, (2, 3, 50))
+    s = c.stream(1000.0, 2)
+    v_first, _ = s.process(x[..., :20])
+    bad = x[..., 20:].copy()
+    bad[1, 2, 5] = np.inf
+    with pytest.raises(ValueError, match="stress"):
+        s.process(bad)
+    with pytest.raises(ValueError, match="stress"):
+        s.process(np.zeros((3, 3, 10)))   # 3 strips, stream of 2
+    with pytest.raises(ValueError, match="stress"):
+        s.step(np.zeros((2, 2)))
+    with pytest.raises(ValueError, match="load"):
+        s.step_load(np.zeros(3))
+    with pytest.raises(ValueError, match="load"):
+        s.process_load(np.zeros((3, 5)))
+    v_rest, _ = s.process(x[..., 20:])  # the failed calls changed nothing
+    np.testing.assert_array_equal(np.concatenate([v_first, v_rest], axis=-1), c.simulate(x, 1000.0)[0])
+    with pytest.raises(ValueError, match="channels"):
+        c.stream(1000.0, -1)
+    with pytest.raises(TypeError, match="channels"):
+        c.stream(1000.0, 2.5)
+    with pytest.raises(ValueError, match="fs"):
+        c.stream(0.0, 2)
+    with pytest.raises(ValueError, match="noise"):
+        c.stream(1000.0, 2, noise=-1.0)
+    with pytest.raises(TypeError, match="circuit"):
+        CircuitStream("circuit", 1000.0)  # type: ignore[arg-type]
+    v, u = c.stream(1000.0, (0,)).process(np.zeros((0, 3, 7)))
+    assert v.shape == u.shape == (0, 7)
 
 
 def test_simulate_stress_rate_of_a_ramp():

@@ -140,7 +140,8 @@ def simulate(scene: Scene, progress: bool = False) -> SimulationResult:
     if want_state:
         res.node_state, res.node_position = node_state[..., :n], node_pos[..., :n]
     if "signals" in outs:
-        res.v_out, res.u_out = scene.circuit.simulate(res.stress, scene.fs, noise=scene.noise, seed=scene.seed)
+        stream = scene.circuit.stream(scene.fs, res.stress.shape[:-2], noise=scene.noise, seed=scene.seed)
+        res.v_out, res.u_out = stream.process(res.stress)
     return res
 
 
