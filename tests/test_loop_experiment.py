@@ -1,17 +1,21 @@
-"""The closed-loop experiment's pieces: contact model, finger paths, slip counting, one short run."""
+"""The closed-loop experiment's pieces: contact plants, finger paths, slip counting, short
+runs, the experiment's options, and the names that moved out of the experiment module."""
 from __future__ import annotations
+
+import dataclasses
+import warnings
 
 import numpy as np
 import pytest
-from tactile_mirror.loop import VelocityController
-from tactile_mirror.loop.experiment import (
-    BrushRidges,
-    Scene,
-    calibrate_direction,
-    finger_trajectory,
-    gross_slip_events,
-    run_scene,
-)
+import tactile_mirror
+from tactile_mirror.circuit import PVDFCircuit
+from tactile_mirror.contact.brush import BrushRidges
+from tactile_mirror.contact.plants import ContactPlant
+from tactile_mirror.loop import VelocityController, experiment
+from tactile_mirror.loop.experiment import ExperimentOptions, calibrate_direction, run_experiment
+from tactile_mirror.loop.finger import finger_trajectory, pressed_finger_path
+from tactile_mirror.loop.scene import LoopScene as Scene
+from tactile_mirror.loop.scene import gross_slip_events, make_plant, run_scene, scene_finger
 
 FS = 1000.0
 
@@ -102,3 +106,112 @@ def test_fem_pad_plant_short_closed_loop():
     assert np.all(r.outputs[:500, 0] == 0.0)  # armed after it
     assert r.log["force_z"][499] > r.log["force_z"][10] > 0
     assert np.ptp(r.stage) > 0
+
+
+def test_moved_names_warn_and_resolve_to_their_new_home():
+    import importlib
+
+    for name, (module, new) in experiment._MOVED.items():
+        with pytest.warns(DeprecationWarning, match=f"{module}.{new}"):
+            old = getattr(experiment, name)
+        assert old is getattr(importlib.import_module(module), new), name
+    with pytest.warns(DeprecationWarning, match="LoopScene"):
+        from tactile_mirror.loop.experiment import Scene as OldScene
+    assert OldScene is Scene and OldScene is not tactile_mirror.Scene
+    with pytest.raises(AttributeError, match="no_such_name"):
+        experiment.no_such_name  # noqa: B018
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")  # the names that stay do not warn
+        for name in experiment.__all__:
+            getattr(experiment, name)
+
+
+def test_brush_plant_has_the_plant_interface():
+    plant = BrushRidges(n_ridges=3)
+    assert isinstance(plant, ContactPlant)
+    st = plant.advance(1e-4)
+    assert st.stress.shape == (3, 2) and st.slip_fraction.shape == (3,)
+    plant.set_mu(0.5)
+    assert np.all(plant.mu == 0.5)
+
+
+def test_fem_plant_has_the_plant_interface():
+    pytest.importorskip("skfem")
+    from tactile_mirror.contact.plants import FemPad
+
+    plant = FemPad(n_ridges=1, fs=FS)
+    assert isinstance(plant, ContactPlant)
+    plant.set_mu([0.4, 0.6])
+    assert plant.mu == pytest.approx(0.5)
+    st = plant.advance(0.0)
+    assert st.stress.shape == (1, 2) and st.force_z > 0
+
+
+def test_pressed_finger_path_rests_then_follows_the_trajectory():
+    y = pressed_finger_path(5, 1.5, FS, press=0.5, amplitude=1e-3)
+    assert np.all(y[:500] == 0.0)
+    np.testing.assert_array_equal(y[500:], finger_trajectory(5, 1.0, FS, amplitude=1e-3))
+    np.testing.assert_array_equal(pressed_finger_path(5, 1.0, FS), finger_trajectory(5, 1.0, FS))
+
+
+def test_loop_signals_are_the_circuit_stream_of_the_plant_loads():
+    """Open loop, no noise: the source's v_out/u_out are the circuit's streaming form run
+    offline over the plant's change of load, bit for bit."""
+    sc = Scene(seed=4, duration=0.4)
+    r = run_scene(sc, weights(), None)
+    plant = make_plant(sc)
+    loads = np.stack([plant.advance(y).stress.reshape(-1) for y in scene_finger(sc)], axis=-1)  # (12, n)
+    loads = loads - loads[:, :1]
+    v, u = PVDFCircuit().stream(FS, 12).process_load(loads)
+    np.testing.assert_array_equal(r.log["v_out"], v.reshape(6, 2, -1))
+    np.testing.assert_array_equal(r.log["u_out"], u.reshape(6, 2, -1))
+
+
+@pytest.mark.parametrize("field,value,exc,match", [
+    ("plant", "rubber", ValueError, "plant"),
+    ("duration", -1.0, ValueError, "duration"),
+    ("fs", float("nan"), ValueError, "fs"),
+    ("seeds", [0, True], TypeError, "seeds"),
+    ("seeds", 3, TypeError, "seeds"),
+    ("robustness_seeds", -1, ValueError, "robustness_seeds"),
+    ("robustness", "yes", TypeError, "robustness"),
+])
+def test_experiment_options_name_the_bad_field(field, value, exc, match):
+    with pytest.raises(exc, match=match):
+        ExperimentOptions(**{field: value})
+
+
+def test_experiment_options_are_frozen_and_normalised():
+    o = ExperimentOptions(seeds=range(3), duration=1, plant="fem")
+    assert o.seeds == (0, 1, 2) and isinstance(o.duration, float)
+    with pytest.raises(dataclasses.FrozenInstanceError):
+        o.plant = "brush"  # type: ignore[misc]
+
+
+def test_run_experiment_old_keywords_warn_and_give_the_same_result():
+    w = weights()
+    opts = ExperimentOptions(seeds=(1,), duration=0.3, robustness=False)
+    new = run_experiment(opts, weights=w)
+    with pytest.warns(DeprecationWarning, match="ExperimentOptions"):
+        old_kw = run_experiment(seeds=[1], duration=0.3, weights=w, robustness=False)
+    with pytest.warns(DeprecationWarning, match="ExperimentOptions"):
+        old_pos = run_experiment([1], 0.3, 1000.0, w, None, False)
+    assert new["rows"] == old_kw["rows"] == old_pos["rows"]
+    assert new["rows"][0]["controller"] == "open loop" and len(new["rows"]) == 5
+    with pytest.raises(TypeError, match="not both"):
+        run_experiment(opts, duration=1.0)
+    with pytest.raises(TypeError, match="nope"):
+        run_experiment(nope=1)
+    with pytest.warns(DeprecationWarning), pytest.raises(ValueError, match="plant"):
+        run_experiment(plant="rubber")
+
+
+def test_experiment_command_line_maps_onto_the_options():
+    import argparse
+
+    args = argparse.Namespace(seeds=3, duration=1.5, plant="fem", no_robustness=True, robustness_seeds=1)
+    o = experiment.options_from_args(args)
+    assert o == ExperimentOptions(seeds=(0, 1, 2), duration=1.5, plant="fem", robustness=False,
+                                  robustness_seeds=1, progress=True)
+    with pytest.raises(SystemExit):
+        experiment.main(["--duration", "0", "--out", "unused"])

@@ -99,6 +99,7 @@ def cmd_demo(args) -> int:
 
     from .detector import SlipDetector, figure10, figure10_data
     from .loop import experiment
+    from .loop.figures import loop_figure
     from .plots import save
 
     det = SlipDetector.default()
@@ -119,8 +120,8 @@ def cmd_demo(args) -> int:
 
     print("\nthe tactile mirror: a finger on the 6-ridge FEM pad, open loop, then with the stage in the loop")
     r_open, r_closed = experiment.open_and_closed(seed=0)
-    experiment.figure(r_open, out / "fig12.png", closed=False)
-    experiment.figure(r_closed, out / "fig13.png", closed=True, law="velocity")
+    loop_figure(r_open, out / "fig12.png", closed=False)
+    loop_figure(r_closed, out / "fig13.png", closed=True, law="velocity")
     print("\n| loop | gross slips | tracking rms | max y_slip |")
     print("|---|---|---|---|")
     for label, r in (("open (stage still)", r_open), ("closed (shear loop + y_pred)", r_closed)):
@@ -192,16 +193,17 @@ def cmd_figure(args) -> int:
         save(figure10(det, a, b, stops_b=[(1.40, 1.45)]), path)
     else:  # 12, 13: the open / closed loop on the FEM pad
         from .loop import experiment
+        from .loop.figures import loop_figure
 
         w = None if args.weights is None else _load_detector(args.weights).weights
         r_open, r_closed = experiment.open_and_closed(args.seed, w, law=args.law)
         out.mkdir(parents=True, exist_ok=True)
         if args.number == 12:
             path = out / "fig12.png"
-            experiment.figure(r_open, path, closed=False)
+            loop_figure(r_open, path, closed=False)
         else:
             path = out / "fig13.png"
-            experiment.figure(r_closed, path, closed=True, law=args.law)
+            loop_figure(r_closed, path, closed=True, law=args.law)
         print(f"gross slips: open loop {r_open.gross_slips}, closed loop {r_closed.gross_slips}; tracking rms "
               f"{r_open.tracking_rms * 1e3:.3f} mm open, {r_closed.tracking_rms * 1e3:.4f} mm closed")
     print(f"wrote {path}")

@@ -6,7 +6,12 @@
 - :mod:`~tactile_mirror.loop.runner`: :class:`LoopRunner` (fixed rate, latency percentiles);
 - :mod:`~tactile_mirror.loop.recording`: :class:`Recording` (npz, bit-identical replay);
 - :mod:`~tactile_mirror.loop.capi`: the C ABI's library path and a cffi binding;
-- :mod:`~tactile_mirror.loop.experiment`: the closed-loop experiment of the paper's section 4.
+- :mod:`~tactile_mirror.loop.finger`: finger paths (seeded, band-limited, within a stage's limits);
+- :mod:`~tactile_mirror.loop.scene`: one simulated closed-loop scene (:class:`LoopScene`,
+  :func:`run_scene`): finger, contact plant, circuit, pipeline and stage;
+- :mod:`~tactile_mirror.loop.figures`: the Fig. 12/13 layout of a run;
+- :mod:`~tactile_mirror.loop.experiment`: the closed-loop experiment of the paper's section 4
+  (:class:`~tactile_mirror.loop.experiment.ExperimentOptions`, ``run_experiment``).
 """
 from __future__ import annotations
 
@@ -14,6 +19,7 @@ from .capi import header_path, library_path
 from .controller import Controller, NoController, PaperController, VelocityController, controller_from_dict
 from .recording import Recording, RecordingError
 from .runner import ArraySource, LoopResult, LoopRunner
+from .scene import LoopScene, SceneResult, run_scene
 from .stage import SimulatedStage, Stage, StageLimits
 
 __all__ = [
@@ -21,10 +27,12 @@ __all__ = [
     "Controller",
     "LoopResult",
     "LoopRunner",
+    "LoopScene",
     "NoController",
     "PaperController",
     "Recording",
     "RecordingError",
+    "SceneResult",
     "SimulatedStage",
     "Stage",
     "StageLimits",
@@ -32,4 +40,5 @@ __all__ = [
     "controller_from_dict",
     "header_path",
     "library_path",
+    "run_scene",
 ]

@@ -1,398 +1,101 @@
 """The closed-loop experiment of the paper's section 4, in simulation.
 
-The finger is the moving plate: a seeded, band-limited random ``y`` trajectory at
-constant normal load. The pad sits on a stage; the contact model is stepped with the
-relative displacement ``finger - pad`` every tick; its strip stresses go through the
-PVDF circuit (streaming sections of :class:`~tactile_mirror.circuit.PVDFCircuit`,
-plus sensor noise) into the pipeline, whose command drives the stage. Open loop
-(Fig. 12) never commands the stage; closed loop (Fig. 13) does.
+This module composes the loop's pieces; it holds the experiment itself, not its parts:
 
-Any contact model with ``reset()`` and ``advance(dy) -> state`` plugs in (``state``
-with ``stress`` (n_ridges, 2) equivalent loads in Pa [L, R], ``force_y``,
-``force_z`` in N, ``slip_fraction`` (n_ridges,) in [0, 1]). :class:`BrushRidges` is
-the one used here: a reduced quasi-static model, *not* the FEM of
-:mod:`tactile_mirror.contact`. Each ridge is a row of surface points in series with
-the finger pad's tangential compliance, each point holding traction up to
-``mu p_i`` (Coulomb) and sliding beyond it. Traction concentrates at the ridge
-edges (flat-punch-like stiffness) while pressure is highest at the centre, so
-local slip starts at the edges and spreads inward as the tangential load grows,
-and gross slip is every point sliding. The strips see the bending of the ridge
-(opposite signs, L vs R) plus the traction near their own edge.
+* the contact plants: :mod:`tactile_mirror.contact.plants` (:class:`~tactile_mirror.contact.plants.FemPad`,
+  the :class:`~tactile_mirror.contact.plants.ContactPlant` interface) and
+  :mod:`tactile_mirror.contact.brush` (:class:`~tactile_mirror.contact.brush.BrushRidges`);
+* finger paths: :mod:`tactile_mirror.loop.finger`;
+* one scene and its run: :mod:`tactile_mirror.loop.scene` (:class:`~tactile_mirror.loop.scene.LoopScene`,
+  :func:`~tactile_mirror.loop.scene.run_scene`), the circuit in streaming form
+  (:class:`tactile_mirror.circuit.CircuitStream`);
+* the Fig. 12/13 layout: :mod:`tactile_mirror.loop.figures`.
 
-:func:`run_experiment` trains a detector on open-loop runs of the same model (so
-the detector sees the signals it will meet), then runs open and closed loop over a
-set of seeded trajectories and the robustness scenes (friction change, compliant
-mounting, sensor noise, dropped samples), and reports gross slips and tracking
-errors for the paper's law and the velocity law. ``python -m
-tactile_mirror.loop.experiment --out DIR`` writes the tables and the Fig. 12/13
-reproductions.
+Here: the per-plant settings (:data:`PLANTS`), the shear calibration, the detector
+trained on the plant's open-loop runs, the control laws scaled to the plant
+(:func:`make_laws`), and :func:`run_experiment`, which runs open and closed loop over
+a set of seeded trajectories and the robustness scenes (friction change, compliant
+mounting, sensor noise, dropped samples) and reports gross slips and tracking
+errors for the paper's law and the velocity law (:class:`ExperimentOptions` says
+what it runs). ``python -m tactile_mirror.loop.experiment --out DIR`` writes the
+tables and the Fig. 12/13 reproductions.
+
+The names that lived here before (``Scene``, ``BrushRidges``, ``FemPad``,
+``ContactState``, ``PadSource``, ``finger_trajectory``, ``run_scene``, ...) still
+import from here, with a ``DeprecationWarning`` naming their new home.
 """
 from __future__ import annotations
 
 import argparse
 import json
+import math
+import numbers
 import os
-from dataclasses import dataclass, field
+import warnings
+from collections.abc import Iterable
+from dataclasses import dataclass
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
-import scipy.signal
 
 from ..circuit import PVDFCircuit
-from ..estimator import StressRateEstimator
-from ..filters import SosFilter
-from .controller import Controller, NoController, PaperController, VelocityController
+from .controller import PaperController, VelocityController
+from .figures import loop_figure
 from .runner import LoopRunner
-from .stage import SimulatedStage, StageLimits
+from .scene import LoopScene, PlantSource, loop_pipeline
+from .scene import make_plant as _make_plant
+from .scene import run_scene as _run_scene
+from .stage import SimulatedStage
+
+if TYPE_CHECKING:  # not a name of this module: it moved to .scene
+    from .scene import SceneResult
 
 __all__ = [
     "PLANTS",
-    "BrushRidges",
-    "ContactState",
-    "FemPad",
-    "PadSource",
-    "Scene",
+    "ExperimentOptions",
     "calibrate_direction",
     "calibrate_shear",
     "default_weights",
-    "finger_trajectory",
-    "gross_slip_events",
     "make_laws",
-    "make_plant",
     "open_and_closed",
     "run_experiment",
-    "run_scene",
-    "scene_finger",
     "train_detector_on_brush",
 ]
 
-
-@dataclass
-class ContactState:
-    stress: np.ndarray          # (n_ridges, 2) equivalent load of the L, R strips, Pa
-    force_y: float              # N, on the pad
-    force_z: float              # N
-    slip_fraction: np.ndarray   # (n_ridges,) fraction of surface points at the friction limit
-
-
-class BrushRidges:
-    """Reduced quasi-static contact of a finger on the ridges (see the module docstring).
-
-    Parameters
-    ----------
-    n_ridges : int
-    mu : float or sequence
-        Friction coefficient (per ridge if a sequence).
-    normal_load : float
-        Normal force per ridge, N.
-    k_finger : float
-        Tangential stiffness of the finger pad + ridge per ridge, N/m.
-    n_points : int
-        Surface points per ridge.
-    strip_area : float
-        Strip area used to turn forces into stresses, m^2 (1 x 10 mm).
-    bending, edge, normal : float
-        Strip stress per unit of (tangential force, edge traction, normal force) / area.
-    """
-
-    def __init__(self, n_ridges: int = 6, mu=1.0, normal_load: float = 0.15, k_finger: float = 150.0,
-                 n_points: int = 24, strip_area: float = 1e-5, bending: float = 0.6, edge: float = 0.8,
-                 normal: float = 0.3):
-        self.n_ridges = int(n_ridges)
-        self.mu = np.broadcast_to(np.asarray(mu, dtype=np.float64), (self.n_ridges,)).copy()
-        if np.any(self.mu <= 0):
-            raise ValueError("mu must be positive")
-        self.P = float(normal_load)
-        x = np.linspace(-1, 1, int(n_points) + 2)[1:-1]
-        kw = 1.0 / np.sqrt(1.0 - x**2 + 0.02)
-        self.k = k_finger * kw / kw.sum()                 # (n,) N/m per point
-        pw = np.sqrt(1.0 - x**2 + 0.05)
-        self.p = self.P * pw / pw.sum()                    # (n,) N per point
-        self.gL = np.exp(-((x + 1.0) ** 2) / 0.15)
-        self.gR = np.exp(-((x - 1.0) ** 2) / 0.15)
-        self.A = float(strip_area)
-        self.bending, self.edge, self.normal = float(bending), float(edge), float(normal)
-        self.reset()
-
-    def reset(self):
-        self.s = np.zeros((self.n_ridges, self.k.size))   # slid offsets of the points, m
-
-    def set_mu(self, mu):
-        self.mu = np.broadcast_to(np.asarray(mu, dtype=np.float64), (self.n_ridges,)).copy()
-
-    def advance(self, dy: float) -> ContactState:
-        """Relative displacement finger - pad (m) -> contact state."""
-        lim = self.mu[:, None] * self.p[None, :]           # (R, n) N
-        q = self.k[None, :] * (dy - self.s)
-        over = np.abs(q) > lim
-        if np.any(over):
-            qs = np.sign(q) * lim
-            self.s = np.where(over, dy - qs / self.k[None, :], self.s)
-            q = np.where(over, qs, q)
-        at_limit = np.abs(q) >= lim * (1.0 - 1e-9)
-        fy = q.sum(axis=1)                                   # (R,)
-        eL = q @ self.gL
-        eR = q @ self.gR
-        fz = self.P
-        sL = (-self.bending * fy + self.edge * eL + self.normal * fz) / self.A
-        sR = (self.bending * fy + self.edge * eR + self.normal * fz) / self.A
-        return ContactState(stress=np.stack([sL, sR], axis=1), force_y=float(fy.sum()),
-                            force_z=float(fz * self.n_ridges), slip_fraction=at_limit.mean(axis=1))
+#: Names that moved out of this module: name -> (module, name there).
+_MOVED = {
+    "Scene": ("tactile_mirror.loop.scene", "LoopScene"),
+    "SceneResult": ("tactile_mirror.loop.scene", "SceneResult"),
+    "PadSource": ("tactile_mirror.loop.scene", "PlantSource"),
+    "make_plant": ("tactile_mirror.loop.scene", "make_plant"),
+    "scene_finger": ("tactile_mirror.loop.scene", "scene_finger"),
+    "run_scene": ("tactile_mirror.loop.scene", "run_scene"),
+    "gross_slip_events": ("tactile_mirror.loop.scene", "gross_slip_events"),
+    "finger_trajectory": ("tactile_mirror.loop.finger", "finger_trajectory"),
+    "figure": ("tactile_mirror.loop.figures", "loop_figure"),
+    "BrushRidges": ("tactile_mirror.contact.brush", "BrushRidges"),
+    "FemPad": ("tactile_mirror.contact.plants", "FemPad"),
+    "ContactState": ("tactile_mirror.contact.plants", "ContactState"),
+}
 
 
-def finger_trajectory(seed, duration: float, fs: float, amplitude: float = 3e-3, bandwidth: float = 1.0,
-                      v_max: float = 0.015, a_max: float = 0.3, ramp: float = 0.3) -> np.ndarray:
-    """A seeded band-limited random finger path, m, starting at rest at 0.
+def __getattr__(name: str):
+    if name in _MOVED:
+        import importlib
 
-    White noise low-passed (4th-order Butterworth at ``bandwidth`` Hz, forward-backward),
-    scaled to ``amplitude`` rms, faded in over ``ramp`` s, then scaled down if needed so
-    that its speed and acceleration stay within ``v_max`` and ``a_max`` (a stage with those
-    limits can follow it).
-    """
-    rng = np.random.default_rng(seed)
-    n = round(duration * fs)
-    pad = int(fs * 2)
-    w = rng.standard_normal(n + 2 * pad)
-    sos = scipy.signal.butter(4, bandwidth, fs=fs, output="sos")
-    y = scipy.signal.sosfiltfilt(sos, w)[pad:pad + n]
-    y = y / np.sqrt(np.mean(y**2)) * amplitude
-    t = np.arange(n) / fs
-    fade = np.clip(t / ramp, 0, 1)
-    fade = fade * fade * (3 - 2 * fade)
-    y = (y - y[0]) * fade
-    v = np.gradient(y, 1 / fs)
-    a = np.gradient(v, 1 / fs)
-    s = min(1.0, v_max / max(np.abs(v).max(), 1e-12), a_max / max(np.abs(a).max(), 1e-12))
-    return y * s
-
-
-@dataclass
-class Scene:
-    """One closed-loop simulation setting."""
-
-    seed: int = 0
-    duration: float = 3.0
-    fs: float = 1000.0
-    mu: float | None = None             # None: the plant's default (brush 1.0, fem DEFAULT_FRICTION)
-    mu_change: tuple | None = None      # (time s, new mu[, ramp s]): sweat; mu ramps linearly (default 0.2 s)
-    mount_stiffness: float | None = None  # N/m between stage and pad (None: rigid)
-    noise: float = 0.0                   # rms sensor noise on v_out and u_out, V
-    drop_rate: float = 0.0               # fraction of ticks whose samples are lost (NaN)
-    stage_delay: float = 0.001
-    stage_lag: float = 0.002
-    label: str = "nominal"
-    trajectory: dict = field(default_factory=dict)
-    plant: str = "brush"                 # "brush" (BrushRidges) or "fem" (tactile_mirror.contact.Pad)
-    press: float = 0.5                   # fem: the finger presses in for this long before moving, s
-
-
-class FemPad:
-    """The FEM pad of :mod:`tactile_mirror.contact` behind the plant interface.
-
-    The finger first presses in (``indent`` reached at ``press_speed``, as in the paper's
-    Fig. 5b), then holds that indent; :meth:`advance` takes the tangential relative
-    displacement. Strip stresses become equivalent loads of the circuit
-    (:meth:`PVDFCircuit.equivalent_load`).
-    """
-
-    def __init__(self, n_ridges: int = 6, mu: float | None = None, fs: float = 1000.0, indent: float = 30e-6,
-                 press_speed: float = 0.06e-3, finger_radius: float = 2.0, circuit: PVDFCircuit | None = None):
-        from ..contact import Pad, ridge_model
-        from ..scenes import DEFAULT_FRICTION, DEFAULT_KINETIC_RATIO
-
-        self.n_ridges = int(n_ridges)
-        mu = DEFAULT_FRICTION if mu is None else float(mu)
-        # static above kinetic friction, as in the scenes of tactile_mirror.scenes
-        self.pad = Pad(ridge_model(), mu, n_ridges=self.n_ridges, finger_radius=finger_radius,
-                       mu_kinetic=mu * DEFAULT_KINETIC_RATIO)
-        self.fs, self.indent, self.press_speed = float(fs), float(indent), float(press_speed)
-        self.circuit = circuit or PVDFCircuit()
-        self.reset()
-
-    def reset(self):
-        self.pad.reset()
-        self.k = 0
-
-    @property
-    def mu(self) -> float:
-        return self.pad.mu
-
-    def set_mu(self, mu):
-        self.pad.mu = float(np.mean(mu))
-
-    def advance(self, dy: float) -> ContactState:
-        self.k += 1
-        z = min(self.indent, self.k * self.press_speed / self.fs)
-        st = self.pad.advance(dy, z)
-        load = self.circuit.equivalent_load(st.strip_stress[..., None])[..., 0]   # (R, 2)
-        return ContactState(stress=load, force_y=st.force_y, force_z=st.force_z,
-                            slip_fraction=np.asarray(st.slip_fraction, dtype=np.float64))
+        module, new = _MOVED[name]
+        warnings.warn(f"tactile_mirror.loop.experiment.{name} moved to {module}.{new}; import it from there",
+                      DeprecationWarning, stacklevel=2)
+        return getattr(importlib.import_module(module), new)
+    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
 
 
 #: Per-plant settings of the experiment: finger paths, travel, laws' scale, robustness.
-PLANTS = {
+PLANTS: dict[str, dict[str, Any]] = {
     "brush": {"trajectory": {}, "mu": 1.0, "sweat": (1.5, 0.6), "mount": 2000.0, "finger_v_max": 0.015},
     "fem": {"trajectory": {"amplitude": 0.5e-3, "bandwidth": 0.5, "v_max": 2e-3, "a_max": 0.02},
             "mu": None, "sweat": (1.75, 0.45), "mount": 5e5, "finger_v_max": 2e-3},
 }
-
-
-def make_plant(scene: Scene, n_ridges: int = 6):
-    """The contact model of a scene."""
-    if scene.plant == "brush":
-        mu = 1.0 if scene.mu is None else scene.mu
-        return BrushRidges(n_ridges, mu=mu * (1 + 0.04 * np.linspace(-1, 1, n_ridges)))
-    if scene.plant == "fem":
-        return FemPad(n_ridges, mu=scene.mu, fs=scene.fs)
-    raise ValueError(f"plant must be 'brush' or 'fem', got {scene.plant!r}")
-
-
-def scene_finger(scene: Scene) -> np.ndarray:
-    """The finger path of a scene (with the press phase at rest for the FEM pad)."""
-    if scene.plant == "fem":
-        n0 = round(scene.press * scene.fs)
-        rest = finger_trajectory(scene.seed, scene.duration - scene.press, scene.fs, **scene.trajectory)
-        return np.concatenate([np.zeros(n0), rest])
-    return finger_trajectory(scene.seed, scene.duration, scene.fs, **scene.trajectory)
-
-
-class PadSource:
-    """Sample source for :class:`LoopRunner`: finger, contact, circuit, noise, drops."""
-
-    def __init__(self, scene: Scene, plant: BrushRidges, circuit: PVDFCircuit, finger: np.ndarray):
-        self.scene = scene
-        self.plant = plant
-        self.finger = finger
-        R = plant.n_ridges
-        self.cv = SosFilter(circuit.sos(scene.fs, "v"), 2 * R)
-        self.cu = SosFilter(circuit.sos(scene.fs, "u"), 2 * R)
-        self.rng = np.random.default_rng(10_000 + scene.seed)
-        n = finger.size
-        self.k = 0
-        self.log = {"force_y": np.zeros(n), "force_z": np.zeros(n), "slip_fraction": np.zeros((R, n)),
-                    "pad": np.zeros(n), "v_out": np.zeros((R, 2, n)), "u_out": np.zeros((R, 2, n))}
-        self._fy = 0.0
-        self._stress0 = None
-        self._mu0 = None
-        self._mu_done = False
-
-    def read(self, stage_position: float, t: float):
-        k = self.k
-        if k >= self.finger.size:
-            return None
-        sc = self.scene
-        if sc.mu_change is not None and t >= sc.mu_change[0]:
-            # Sweat wets the contact over a fraction of a second; a step change of mu would
-            # also be a step of every node's friction limit at once, which no finger shows.
-            t0, mu1 = sc.mu_change[0], sc.mu_change[1]
-            ramp = sc.mu_change[2] if len(sc.mu_change) > 2 else 0.2
-            if self._mu0 is None:
-                self._mu0 = self.plant.mu
-            f = 1.0 if ramp <= 0 else min(1.0, (t - t0) / ramp)
-            if f < 1.0 or not self._mu_done:
-                self.plant.set_mu(self._mu0 + f * (np.asarray(mu1) - self._mu0))
-                self._mu_done = f >= 1.0
-        pad = stage_position
-        if sc.mount_stiffness:
-            pad = stage_position + self._fy / sc.mount_stiffness
-        st = self.plant.advance(self.finger[k] - pad)
-        self._fy = st.force_y
-        load = st.stress.reshape(-1)
-        if self._stress0 is None:
-            self._stress0 = load.copy()  # the static normal preload is not a change of stress
-        load = load - self._stress0
-        v = self.cv.step(load)
-        u = self.cu.step(load)
-        if sc.noise > 0:
-            v = v + sc.noise * self.rng.standard_normal(v.size)
-            u = u + sc.noise * self.rng.standard_normal(u.size)
-        lg = self.log
-        lg["force_y"][k] = st.force_y
-        lg["force_z"][k] = st.force_z
-        lg["slip_fraction"][:, k] = st.slip_fraction
-        lg["pad"][k] = pad
-        lg["v_out"][:, :, k] = v.reshape(-1, 2)
-        lg["u_out"][:, :, k] = u.reshape(-1, 2)
-        self.k += 1
-        x = np.concatenate([v, u])
-        if sc.drop_rate > 0 and self.rng.random() < sc.drop_rate:
-            x[:] = np.nan
-        return x
-
-
-def gross_slip_events(slip_fraction, level: float = 0.999, min_gap: int = 20) -> int:
-    """Number of gross-slip events of the contact: every ridge grossly slipping
-    (slip fraction >= ``level``); events closer than ``min_gap`` ticks are merged."""
-    g = np.all(np.asarray(slip_fraction) >= level, axis=0)
-    starts = np.flatnonzero(g[1:] & ~g[:-1]) + 1
-    if g.size and g[0]:
-        starts = np.concatenate([[0], starts])
-    if starts.size == 0:
-        return 0
-    ends = np.flatnonzero(g[:-1] & ~g[1:]) + 1
-    n = 1
-    for s in starts[1:]:
-        prev_end = ends[ends < s]
-        if prev_end.size == 0 or s - prev_end[-1] >= min_gap:
-            n += 1
-    return n
-
-
-@dataclass
-class SceneResult:
-    scene: Scene
-    controller: str
-    t: np.ndarray
-    finger: np.ndarray
-    stage: np.ndarray
-    outputs: np.ndarray
-    log: dict
-    gross_slips: int
-    ridge_gross_slips: int
-    tracking_rms: float
-    tracking_max: float
-    status: dict
-    run: object = None  # the LoopResult
-
-    def summary(self) -> dict:
-        n = self.t.size
-        y = self.outputs[:, 2:].reshape(n, -1, 3)
-        gross = np.all(self.log["slip_fraction"][:, :n] >= 0.999, axis=0)
-        return {"label": self.scene.label, "seed": self.scene.seed, "controller": self.controller,
-                "gross_slips": self.gross_slips, "ridge_gross_slips": self.ridge_gross_slips,
-                "gross_slip_time_s": float(gross.sum() / self.scene.fs),
-                "y_slip_max": float(y[:, :, 0].max()), "y_slip_p99": float(np.percentile(y[:, :, 0].max(axis=1), 99)),
-                "tracking_rms_mm": 1e3 * self.tracking_rms, "tracking_max_mm": 1e3 * self.tracking_max,
-                "rejected": int(self.status.get("rejected", 0))}
-
-
-def _pipeline(weights, fs, controller, n_ridges):
-    from ..pipeline import MirrorPipeline
-
-    est = StressRateEstimator(PVDFCircuit(), fs, 2 * n_ridges, order=2, bandwidth=100.0)
-    return MirrorPipeline(weights, fs, n_ridges, estimator=est, controller=controller, activation="fast",
-                          max_hold_ticks=50)
-
-
-def run_scene(scene: Scene, weights, controller: Controller | None, limits: StageLimits | None = None,
-              n_ridges: int = 6) -> SceneResult:
-    """Run one scene, open loop (``controller`` None or :class:`NoController`) or closed loop."""
-    controller = controller or NoController()
-    limits = limits or StageLimits(-0.02, 0.02, 0.03, 1.0)
-    finger = scene_finger(scene)
-    plant = make_plant(scene, n_ridges)
-    source = PadSource(scene, plant, PVDFCircuit(), finger)
-    stage = SimulatedStage(limits, delay=scene.stage_delay, lag=scene.stage_lag)
-    pipe = _pipeline(weights, scene.fs, controller, n_ridges)
-    closed = controller.kind != "none"
-    res = LoopRunner(pipe, stage, source, command=closed).run(n_ticks=finger.size, x0=0.0)
-    log = source.log
-    rel = finger[: len(res.t)] - log["pad"][: len(res.t)]
-    sf = log["slip_fraction"][:, : len(res.t)]
-    ridge = sum(gross_slip_events(sf[r:r + 1]) for r in range(n_ridges))
-    return SceneResult(scene=scene, controller=controller.kind, t=res.t, finger=finger[: len(res.t)],
-                       stage=res.stage_position, outputs=res.outputs, log=log, gross_slips=gross_slip_events(sf),
-                       ridge_gross_slips=ridge, tracking_rms=float(np.sqrt(np.mean(rel**2))),
-                       tracking_max=float(np.abs(rel).max()), status=res.status, run=res)
 
 
 def calibrate_shear(weights, fs: float = 1000.0, n_ridges: int = 6, plant: str = "brush"):
@@ -402,12 +105,12 @@ def calibrate_shear(weights, fs: float = 1000.0, n_ridges: int = 6, plant: str =
     relative displacement (to scale ``shear_gain``)."""
     push = 20e-6 if plant == "fem" else 2e-4
     n = int(0.2 * fs)
-    scene = Scene(duration=0.7 if plant == "fem" else 0.2, fs=fs, label="calibration", plant=plant)
+    scene = LoopScene(duration=0.7 if plant == "fem" else 0.2, fs=fs, label="calibration", plant=plant)
     n0 = round(scene.press * fs) if plant == "fem" else 0
     finger = np.concatenate([np.zeros(n0), np.linspace(0, push, n)])
-    source = PadSource(scene, make_plant(scene, n_ridges), PVDFCircuit(), finger)
+    source = PlantSource(scene, _make_plant(scene, n_ridges), PVDFCircuit(), finger)
     ctrl = PaperController(threshold=0.99, gain=0.0, asym_tau=100.0)
-    pipe = _pipeline(weights, fs, ctrl, n_ridges)
+    pipe = loop_pipeline(weights, fs, ctrl, n_ridges)
     runner = LoopRunner(pipe, SimulatedStage(), source, command=False)
     if n0:
         runner.run(n_ticks=n0)
@@ -445,8 +148,8 @@ class _Friction:
 
 def train_detector_on_brush(seeds=range(100, 106), fs: float = 1000.0, duration: float = 3.0, n_hidden: int = 8,
                             maxiter: int = 150, noise: float = 0.0, plant: str = "brush"):
-    """Train a Jordan detector on open-loop runs of the plant (:class:`BrushRidges` or
-    :class:`FemPad`; seeds apart from the evaluation ones); targets as in
+    """Train a Jordan detector on open-loop runs of the plant (:class:`~tactile_mirror.contact.brush.BrushRidges` or
+    :class:`~tactile_mirror.contact.plants.FemPad`; seeds apart from the evaluation ones); targets as in
     :func:`tactile_mirror.detector.targets_from_result`."""
     from ..detector import train_detector
 
@@ -457,9 +160,9 @@ def train_detector_on_brush(seeds=range(100, 106), fs: float = 1000.0, duration:
         # open-loop runs at a range of trajectory amplitudes: stick, incipient and gross slip
         base = PLANTS[plant]["trajectory"]
         amp = base.get("amplitude", 3e-3) * (1 / 6 + ((s * 7919) % 10) / 10)
-        sc = Scene(seed=int(s), duration=duration, fs=fs, noise=noise, trajectory=dict(base, amplitude=amp),
+        sc = LoopScene(seed=int(s), duration=duration, fs=fs, noise=noise, trajectory=dict(base, amplitude=amp),
                    plant=plant, mu=PLANTS[plant]["mu"])
-        r = run_scene(sc, placeholder, None)
+        r = _run_scene(sc, placeholder, None)
         if plant == "fem":
             from ..scenes import DEFAULT_FRICTION, DEFAULT_KINETIC_RATIO
 
@@ -524,64 +227,175 @@ def make_laws(weights, fs: float = 1000.0, plant: str = "fem", n_ridges: int = 6
 
 def open_and_closed(seed: int = 0, weights=None, law: str = "velocity", duration: float = 3.0,
                     fs: float = 1000.0, plant: str = "fem"):
-    """One finger path, open loop and closed loop (Figs. 12 and 13): two :class:`SceneResult`."""
+    """One finger path, open loop and closed loop (Figs. 12 and 13): two
+    :class:`~tactile_mirror.loop.scene.SceneResult`."""
     weights = default_weights(plant, fs) if weights is None else weights
     w = _weights_dict(weights) if not isinstance(weights, dict) else weights
     laws = make_laws(w, fs, plant)[0]
     if law not in laws:
         raise ValueError(f"law must be one of {sorted(laws)}, got {law!r}")
-    sc = Scene(seed=int(seed), duration=duration, fs=fs, plant=plant, trajectory=PLANTS[plant]["trajectory"])
-    return run_scene(sc, w, None), run_scene(sc, w, laws[law])
+    sc = LoopScene(seed=int(seed), duration=duration, fs=fs, plant=plant, trajectory=PLANTS[plant]["trajectory"])
+    return _run_scene(sc, w, None), _run_scene(sc, w, laws[law])
 
 
-def run_experiment(seeds=range(5), duration: float = 3.0, fs: float = 1000.0, weights=None, out_dir=None,
-                   robustness: bool = True, progress: bool = False, plant: str = "brush",
-                   robustness_seeds: int = 2) -> dict:
-    """Open vs closed loop over seeded trajectories, both laws, and the robustness scenes.
+@dataclass(frozen=True)
+class ExperimentOptions:
+    """What :func:`run_experiment` runs. Frozen; fields are checked on construction
+    (``ValueError``/``TypeError`` naming the field).
+
+    Attributes
+    ----------
+    seeds : tuple of int
+        Seeds of the finger paths (one open-loop run and one run per law each).
+        Any iterable of ints is accepted and stored as a tuple. Default ``(0, ..., 4)``.
+    duration : float
+        Length of each run, s (> 0). Default 3.
+    fs : float
+        Tick rate of the loop, Hz (> 0). Default 1000.
+    plant : {"brush", "fem"}
+        The contact model (:data:`PLANTS`): the brush model
+        (:class:`~tactile_mirror.contact.brush.BrushRidges`) or the FEM pad
+        (:class:`~tactile_mirror.contact.plants.FemPad`). Default ``"brush"``.
+    robustness : bool
+        Also run the robustness scenes (sweat, compliant mounting, sensor noise,
+        dropped samples). Default True.
+    robustness_seeds : int
+        How many of the first ``seeds`` each robustness scene runs (>= 0). Default 2.
+    progress : bool
+        Print one line per seed. Default False.
+    """
+
+    seeds: tuple[int, ...] = (0, 1, 2, 3, 4)
+    duration: float = 3.0
+    fs: float = 1000.0
+    plant: str = "brush"
+    robustness: bool = True
+    robustness_seeds: int = 2
+    progress: bool = False
+
+    def __post_init__(self) -> None:
+        try:
+            seeds = tuple(self.seeds)
+        except TypeError:
+            raise TypeError(f"seeds must be an iterable of ints, got {self.seeds!r}") from None
+        if any(isinstance(s, bool) or not isinstance(s, numbers.Integral) for s in seeds):
+            raise TypeError(f"seeds must be ints, got {seeds!r}")
+        object.__setattr__(self, "seeds", tuple(int(s) for s in seeds))
+        for name in ("duration", "fs"):
+            v = getattr(self, name)
+            if isinstance(v, bool) or not isinstance(v, numbers.Real):
+                raise TypeError(f"{name} must be a real number, got {v!r}")
+            if not (math.isfinite(float(v)) and float(v) > 0):
+                raise ValueError(f"{name} must be positive and finite, got {v!r}")
+            object.__setattr__(self, name, float(v))
+        if self.plant not in PLANTS:
+            raise ValueError(f"plant must be one of {sorted(PLANTS)}, got {self.plant!r}")
+        rs = self.robustness_seeds
+        if isinstance(rs, bool) or not isinstance(rs, numbers.Integral) or int(rs) < 0:
+            raise ValueError(f"robustness_seeds must be a non-negative int, got {rs!r}")
+        object.__setattr__(self, "robustness_seeds", int(rs))
+        for name in ("robustness", "progress"):
+            if not isinstance(getattr(self, name), (bool, np.bool_)):
+                raise TypeError(f"{name} must be a bool, got {getattr(self, name)!r}")
+            object.__setattr__(self, name, bool(getattr(self, name)))
+
+
+#: The parameters of the old keyword form of run_experiment, in their positional order.
+_LEGACY_PARAMS = ("seeds", "duration", "fs", "weights", "out_dir", "robustness", "progress", "plant",
+                  "robustness_seeds")
+
+
+def _legacy_options(args: tuple, kwargs: dict, weights, out_dir):
+    """Map the old call ``run_experiment(seeds, duration, fs, weights, out_dir, ...)`` onto options."""
+    if len(args) > len(_LEGACY_PARAMS):
+        raise TypeError(f"run_experiment takes at most {len(_LEGACY_PARAMS)} positional arguments")
+    given = dict(zip(_LEGACY_PARAMS, args))
+    for k, v in kwargs.items():
+        if k not in _LEGACY_PARAMS:
+            raise TypeError(f"run_experiment got an unexpected keyword argument {k!r}")
+        if k in given:
+            raise TypeError(f"run_experiment got multiple values for argument {k!r}")
+        given[k] = v
+    warnings.warn("run_experiment(seeds, duration, ...) with keyword options is deprecated; pass "
+                  "run_experiment(ExperimentOptions(...), weights=..., out_dir=...)", DeprecationWarning,
+                  stacklevel=3)
+    if "weights" in given:
+        weights = given.pop("weights")
+    if "out_dir" in given:
+        out_dir = given.pop("out_dir")
+    if "seeds" in given:
+        given["seeds"] = tuple(given["seeds"])
+    return ExperimentOptions(**given), weights, out_dir
+
+
+def run_experiment(options: ExperimentOptions | Iterable[int] | None = None, *args, weights=None, out_dir=None,
+                   **kwargs) -> dict:
+    """Open vs closed loop over seeded trajectories, all laws, and the robustness scenes.
 
     Parameters
     ----------
-    plant : {"brush", "fem"}
-        The contact model: :class:`BrushRidges` or the FEM pad (:class:`FemPad`).
+    options : ExperimentOptions, optional
+        What to run (default ``ExperimentOptions()``).
+    weights : DetectorWeights or dict, optional
+        The detector; default :func:`default_weights` for the plant.
+    out_dir : path, optional
+        Where to write the results (see below).
+
+    The old form ``run_experiment(seeds, duration, fs, weights, out_dir, robustness,
+    progress, plant, robustness_seeds)`` (positional or keywords) still works and
+    warns with a ``DeprecationWarning``.
 
     Returns a dict with ``rows`` (one summary per run), ``totals`` and the trained
     weights' metadata; with ``out_dir``, writes ``experiment.json``, the figures
     ``fig12_open_loop.png``, ``fig13_closed_loop.png``, ``fig13_paper_law.png``, the
     detector and a recording of one closed-loop run.
     """
-    if plant not in PLANTS:
-        raise ValueError(f"plant must be one of {sorted(PLANTS)}, got {plant!r}")
+    if isinstance(options, ExperimentOptions):
+        if args or kwargs:
+            raise TypeError("run_experiment takes ExperimentOptions or the old keyword options, not both")
+    elif options is None and not args and not kwargs:
+        options = ExperimentOptions()
+    else:
+        legacy_args = (options, *args) if (options is not None or args) else ()
+        options, weights, out_dir = _legacy_options(legacy_args, kwargs, weights, out_dir)
+    assert isinstance(options, ExperimentOptions)
+    return _run_experiment(options, weights, out_dir)
+
+
+def _run_experiment(options: ExperimentOptions, weights, out_dir) -> dict:
+    seeds, duration, fs, plant = options.seeds, options.duration, options.fs, options.plant
+    robustness, progress, robustness_seeds = options.robustness, options.progress, options.robustness_seeds
     cfg = PLANTS[plant]
     if weights is None:
         weights = default_weights(plant, fs)
     w = _weights_dict(weights) if not isinstance(weights, dict) else weights
     laws, sign, a_per_m, shear_gain = make_laws(w, fs, plant)
     base = {"duration": duration, "fs": fs, "plant": plant, "trajectory": cfg["trajectory"]}
-    rows = []
-    keep = {}
+    rows: list[dict] = []
+    keep: dict[str, SceneResult] = {}
     for s in seeds:
-        sc = Scene(seed=int(s), **base)
-        r_open = run_scene(sc, w, None)
+        sc = LoopScene(seed=int(s), **base)
+        r_open = _run_scene(sc, w, None)
         rows.append(dict(r_open.summary(), controller="open loop"))
         keep.setdefault("open", r_open)
         for name, law in laws.items():
-            r = run_scene(sc, w, law)
+            r = _run_scene(sc, w, law)
             rows.append(dict(r.summary(), controller=name))
             keep.setdefault(name, r)
         if progress:
             print(f"seed {s}: " + ", ".join(f"{x['controller']} {x['gross_slips']}" for x in rows[-5:]), flush=True)
     if robustness:
         ts, mu2 = cfg["sweat"]
-        variants = [Scene(label=f"sweat (mu -> {mu2:g} at {ts:g} s)", mu_change=(ts, mu2)),
-                    Scene(label=f"compliant mounting ({cfg['mount'] / 1e3:g} kN/m)", mount_stiffness=cfg["mount"]),
-                    Scene(label="sensor noise (1 mV rms)", noise=1e-3),
-                    Scene(label="dropped samples (5 %)", drop_rate=0.05)]
+        variants = [LoopScene(label=f"sweat (mu -> {mu2:g} at {ts:g} s)", mu_change=(ts, mu2)),
+                    LoopScene(label=f"compliant mounting ({cfg['mount'] / 1e3:g} kN/m)", mount_stiffness=cfg["mount"]),
+                    LoopScene(label="sensor noise (1 mV rms)", noise=1e-3),
+                    LoopScene(label="dropped samples (5 %)", drop_rate=0.05)]
         for v in variants:
             for s in list(seeds)[:robustness_seeds]:
-                sc = Scene(**{**v.__dict__, **base, "seed": int(s)})
+                sc = LoopScene(**{**v.__dict__, **base, "seed": int(s)})
                 for name, law in [("open loop", None), *laws.items()]:
-                    rows.append(dict(run_scene(sc, w, law).summary(), controller=name))
-    totals = {}
+                    rows.append(dict(_run_scene(sc, w, law).summary(), controller=name))
+    totals: dict[tuple[str, str], dict[str, Any]] = {}
     for row in rows:
         key = (row["label"], row["controller"])
         t = totals.setdefault(key, {"runs": 0, "gross_slips": 0, "runs_with_slip": 0, "gross_slip_time_s": 0.0,
@@ -605,7 +419,7 @@ def run_experiment(seeds=range(5), duration: float = 3.0, fs: float = 1000.0, we
             weights.save(os.path.join(out_dir, "detector.npz"))
         if "velocity" in keep:
             r = keep["velocity"]
-            pcfg = _pipeline(w, fs, laws["velocity"], r.log["v_out"].shape[0]).config
+            pcfg = loop_pipeline(w, fs, laws["velocity"], r.log["v_out"].shape[0]).config
             rec = r.run.to_recording(pcfg, {"scene": r.scene.label, "seed": r.scene.seed, "plant": plant})
             path = os.path.join(out_dir, "closed_loop_recording.npz")
             rec.save(path)
@@ -616,64 +430,20 @@ def run_experiment(seeds=range(5), duration: float = 3.0, fs: float = 1000.0, we
             with open(os.path.join(out_dir, "experiment.json"), "w") as f:
                 json.dump(result, f, indent=1)
         if "open" in keep:
-            figure(keep["open"], os.path.join(out_dir, "fig12_open_loop.png"), closed=False)
+            loop_figure(keep["open"], os.path.join(out_dir, "fig12_open_loop.png"), closed=False)
         names = {"velocity": "fig13_closed_loop.png", "paper": "fig13_paper_law.png",
                  "velocity, y_pred ramp": "fig13_ypred_ramp.png", "velocity, shear only": "fig13_shear_only.png"}
         for name, fname in names.items():
             if name in keep:
-                figure(keep[name], os.path.join(out_dir, fname), closed=True, law=name)
+                loop_figure(keep[name], os.path.join(out_dir, fname), closed=True, law=name)
     return result
 
 
-def figure(r: SceneResult, path, closed: bool, ridge: int = 0, law: str | None = None):
-    """The paper's Fig. 12 (open loop) / Fig. 13 (closed loop) layout for one run."""
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    t = r.t
-    n = t.size
-    R = r.log["v_out"].shape[0]
-    y = r.outputs[:, 2:].reshape(n, R, 3)
-    rows = 7 if closed else 6
-    fig, ax = plt.subplots(rows, 1, figsize=(7, 1.45 * rows + 0.6), sharex=True)
-    ax[0].plot(t, 1e3 * r.log["v_out"][ridge, 0, :n], lw=0.7, label="L")
-    ax[0].plot(t, 1e3 * r.log["v_out"][ridge, 1, :n], lw=0.7, label="R")
-    ax[0].set_ylabel("v_out\n(mV)")
-    ax[0].legend(loc="upper right", fontsize=7, ncol=2)
-    ax[1].plot(t, 1e3 * r.log["u_out"][ridge, 0, :n], lw=0.7)
-    ax[1].plot(t, 1e3 * r.log["u_out"][ridge, 1, :n], lw=0.7)
-    ax[1].set_ylabel("u_out\n(mV)")
-    ax[2].plot(t, r.log["force_y"][:n], "k", lw=0.8)
-    ax[2].set_ylabel("F_y (N)")
-    ax[3].plot(t, r.log["force_z"][:n], "k", lw=0.8)
-    ax[3].set_ylabel("F_z (N)")
-    ax[3].set_ylim(0, 1.5 * max(r.log["force_z"].max(), 1e-6))
-    ax[4].plot(t, y[:, :, 0].max(axis=1), "r", lw=0.8)
-    ax[4].axhline(0.8, color="gray", ls="--", lw=0.6)
-    ax[4].set_ylabel("y_slip")
-    ax[4].set_ylim(-0.05, 1.05)
-    gross = np.all(r.log["slip_fraction"][:, :n] >= 0.999, axis=0)
-    for a in ax[4:6]:
-        a.fill_between(t, 0, 1, where=gross, color="orange", alpha=0.25, lw=0, transform=a.get_xaxis_transform())
-    ax[5].plot(t, y[:, :, 2].max(axis=1), "b", lw=0.8)
-    ax[5].set_ylabel("y_pred")
-    ax[5].set_ylim(-0.05, 1.05)
-    if closed:
-        ax[6].plot(t, 1e3 * r.finger, "k", lw=0.8, label="finger")
-        ax[6].plot(t, 1e3 * r.stage, "g", lw=0.9, label="stage")
-        ax[6].set_ylabel("y (mm)")
-        ax[6].legend(loc="upper right", fontsize=7, ncol=2)
-    ax[-1].set_xlabel("t (s)")
-    law = {"paper": "paper's law", "velocity": "shear loop with y_pred gain scheduling",
-           "velocity, y_pred ramp": "velocity law, y_pred ramp only",
-           "velocity, shear only": "shear loop without y_pred"}.get(law or r.controller, law or r.controller)
-    title = f"Fig. 13 (simulated): with feedback, {law}" if closed else "Fig. 12 (simulated): without feedback"
-    fig.suptitle(f"{title}; seed {r.scene.seed}; gross slips: {r.gross_slips} (shaded)", fontsize=9)
-    fig.tight_layout()
-    fig.savefig(path, dpi=110)
-    plt.close(fig)
+def options_from_args(args: argparse.Namespace) -> ExperimentOptions:
+    """The options of the command line's arguments (``--seeds N`` runs seeds 0 .. N-1)."""
+    return ExperimentOptions(seeds=tuple(range(args.seeds)), duration=args.duration, plant=args.plant,
+                             robustness=not args.no_robustness, robustness_seeds=args.robustness_seeds,
+                             progress=True)
 
 
 def main(argv=None):
@@ -686,14 +456,16 @@ def main(argv=None):
     ap.add_argument("--plant", default="brush", choices=sorted(PLANTS))
     ap.add_argument("--robustness-seeds", type=int, default=2)
     args = ap.parse_args(argv)
+    try:
+        options = options_from_args(args)
+    except (TypeError, ValueError) as exc:
+        ap.error(str(exc))
     weights = None
     if args.weights:
         from ..detector import DetectorWeights
 
         weights = DetectorWeights.load(args.weights)
-    res = run_experiment(range(args.seeds), args.duration, weights=weights, out_dir=args.out,
-                         robustness=not args.no_robustness, progress=True, plant=args.plant,
-                         robustness_seeds=args.robustness_seeds)
+    res = run_experiment(options, weights=weights, out_dir=args.out)
     print(f"plant {res['plant']}; direction_sign {res['direction_sign']:+g}; asymmetry {res['asymmetry_per_m']:.3g} "
           f"per m; shear_gain {res['shear_gain']:.3g}; detector: {res['detector']}")
     if "recording" in res:

@@ -1,0 +1,88 @@
+"""A reduced quasi-static contact model of a finger on the ridges: the brush model.
+
+Not the FEM of :mod:`tactile_mirror.contact` (see :class:`~tactile_mirror.contact.plants.FemPad`
+for that one behind the same interface): each ridge is a row of surface points in
+series with the finger pad's tangential compliance, each point holding traction up
+to ``mu p_i`` (Coulomb) and sliding beyond it. Traction concentrates at the ridge
+edges (flat-punch-like stiffness) while pressure is highest at the centre, so local
+slip starts at the edges and spreads inward as the tangential load grows, and gross
+slip is every point sliding. The strips see the bending of the ridge (opposite
+signs, L vs R) plus the traction near their own edge.
+
+It implements :class:`~tactile_mirror.contact.plants.ContactPlant`. Units:
+displacements m, forces N, stiffnesses N/m, stresses Pa.
+"""
+from __future__ import annotations
+
+import numpy as np
+import numpy.typing as npt
+
+from .plants import ContactState
+
+__all__ = ["BrushRidges"]
+
+
+class BrushRidges:
+    """Reduced quasi-static contact of a finger on the ridges (see :mod:`tactile_mirror.contact.brush`).
+
+    Parameters
+    ----------
+    n_ridges : int
+    mu : float or sequence
+        Friction coefficient (per ridge if a sequence).
+    normal_load : float
+        Normal force per ridge, N.
+    k_finger : float
+        Tangential stiffness of the finger pad + ridge per ridge, N/m.
+    n_points : int
+        Surface points per ridge.
+    strip_area : float
+        Strip area used to turn forces into stresses, m^2 (1 x 10 mm).
+    bending, edge, normal : float
+        Strip stress per unit of (tangential force, edge traction, normal force) / area.
+    """
+
+    def __init__(self, n_ridges: int = 6, mu=1.0, normal_load: float = 0.15, k_finger: float = 150.0,
+                 n_points: int = 24, strip_area: float = 1e-5, bending: float = 0.6, edge: float = 0.8,
+                 normal: float = 0.3):
+        self.n_ridges = int(n_ridges)
+        self.mu = np.broadcast_to(np.asarray(mu, dtype=np.float64), (self.n_ridges,)).copy()
+        if np.any(self.mu <= 0):
+            raise ValueError("mu must be positive")
+        self.P = float(normal_load)
+        x = np.linspace(-1, 1, int(n_points) + 2)[1:-1]
+        kw = 1.0 / np.sqrt(1.0 - x**2 + 0.02)
+        self.k = k_finger * kw / kw.sum()                 # (n,) N/m per point
+        pw = np.sqrt(1.0 - x**2 + 0.05)
+        self.p = self.P * pw / pw.sum()                    # (n,) N per point
+        self.gL = np.exp(-((x + 1.0) ** 2) / 0.15)
+        self.gR = np.exp(-((x - 1.0) ** 2) / 0.15)
+        self.A = float(strip_area)
+        self.bending, self.edge, self.normal = float(bending), float(edge), float(normal)
+        self.reset()
+
+    def reset(self) -> None:
+        self.s = np.zeros((self.n_ridges, self.k.size))   # slid offsets of the points, m
+
+    def set_mu(self, mu: npt.ArrayLike) -> None:
+        """Set the friction coefficient (one value, or one per ridge)."""
+        self.mu = np.broadcast_to(np.asarray(mu, dtype=np.float64), (self.n_ridges,)).copy()
+
+    def advance(self, dy: float) -> ContactState:
+        """Relative displacement finger - pad (m) -> contact state."""
+        lim = self.mu[:, None] * self.p[None, :]           # (R, n) N
+        q = self.k[None, :] * (dy - self.s)
+        over = np.abs(q) > lim
+        if np.any(over):
+            qs = np.sign(q) * lim
+            self.s = np.where(over, dy - qs / self.k[None, :], self.s)
+            q = np.where(over, qs, q)
+        at_limit = np.abs(q) >= lim * (1.0 - 1e-9)
+        fy = q.sum(axis=1)                                   # (R,)
+        eL = q @ self.gL
+        eR = q @ self.gR
+        fz = self.P
+        sL = (-self.bending * fy + self.edge * eL + self.normal * fz) / self.A
+        sR = (self.bending * fy + self.edge * eR + self.normal * fz) / self.A
+        return ContactState(stress=np.stack([sL, sR], axis=1), force_y=float(fy.sum()),
+                            force_z=float(fz * self.n_ridges), slip_fraction=at_limit.mean(axis=1))

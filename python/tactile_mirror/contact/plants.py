@@ -1,0 +1,137 @@
+"""Contact plants: the contact models the closed loop steps, behind one interface.
+
+A plant (:class:`ContactPlant`) is a contact model stepped tick by tick with the
+tangential displacement of the finger relative to the pad. Two plants exist:
+
+* :class:`FemPad`: the FEM pad of this package (:class:`~tactile_mirror.contact.Pad`,
+  plane-strain ridges with Coulomb friction) with a pressing finger;
+* :class:`~tactile_mirror.contact.brush.BrushRidges`: a reduced quasi-static brush model
+  of the same ridges (fast, for training and sweeps; not the FEM).
+
+Units: displacements m, forces N, stresses Pa, friction coefficients dimensionless.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import TYPE_CHECKING, Protocol, runtime_checkable
+
+import numpy as np
+import numpy.typing as npt
+
+from ..circuit import PVDFCircuit
+
+if TYPE_CHECKING:
+    from .pad import Pad
+
+__all__ = ["ContactPlant", "ContactState", "FemPad"]
+
+
+@dataclass
+class ContactState:
+    """What a plant reports after one step.
+
+    Attributes
+    ----------
+    stress : ndarray, shape (n_ridges, 2)
+        Equivalent load of the L and R strips (:meth:`PVDFCircuit.equivalent_load`), Pa.
+    force_y : float
+        Tangential force of the finger on the pad, N.
+    force_z : float
+        Normal (pressing) force, N.
+    slip_fraction : ndarray, shape (n_ridges,)
+        Share of each ridge's contact at the friction limit, in [0, 1].
+    """
+
+    stress: np.ndarray
+    force_y: float
+    force_z: float
+    slip_fraction: np.ndarray
+
+
+@runtime_checkable
+class ContactPlant(Protocol):
+    """The interface of a contact model in the loop.
+
+    ``n_ridges`` ridges with two strips each; :meth:`advance` is called once per tick
+    with the relative tangential displacement ``finger - pad`` (m) and returns the
+    :class:`ContactState` of that tick. :meth:`reset` returns the contact to rest
+    (unloaded, nothing slid). ``mu`` is the static friction coefficient now in force
+    (a float, or one per ridge); :meth:`set_mu` changes it between ticks (e.g. sweat).
+    """
+
+    n_ridges: int
+
+    @property
+    def mu(self) -> float | np.ndarray: ...
+
+    def set_mu(self, mu: npt.ArrayLike) -> None: ...
+
+    def reset(self) -> None: ...
+
+    def advance(self, dy: float) -> ContactState: ...
+
+
+class FemPad:
+    """The FEM pad of :mod:`tactile_mirror.contact` behind the plant interface.
+
+    The finger first presses in (``indent`` reached at ``press_speed``, as in the paper's
+    Fig. 5b), then holds that indent; :meth:`advance` takes the tangential relative
+    displacement. Strip stresses become equivalent loads of the circuit
+    (:meth:`PVDFCircuit.equivalent_load`).
+
+    Parameters
+    ----------
+    n_ridges : int
+    mu : float, optional
+        Static friction coefficient (default :data:`tactile_mirror.scenes.DEFAULT_FRICTION`);
+        the kinetic one is ``mu * DEFAULT_KINETIC_RATIO``, as in the scenes.
+    fs : float
+        Tick rate, Hz (sets the press: ``press_speed / fs`` m of indent per tick).
+    indent : float
+        Final indent of the finger, m.
+    press_speed : float
+        Indent speed of the press, m/s.
+    finger_radius : float
+        Radius of the finger's curvature over the ridges, m.
+    circuit : PVDFCircuit, optional
+        Circuit whose load the strip stresses are expressed in (default ``PVDFCircuit()``).
+    """
+
+    pad: Pad
+
+    def __init__(self, n_ridges: int = 6, mu: float | None = None, fs: float = 1000.0, indent: float = 30e-6,
+                 press_speed: float = 0.06e-3, finger_radius: float = 2.0, circuit: PVDFCircuit | None = None):
+        from ..scenes import DEFAULT_FRICTION, DEFAULT_KINETIC_RATIO
+        from .model import ridge_model
+        from .pad import Pad
+
+        self.n_ridges = int(n_ridges)
+        mu = DEFAULT_FRICTION if mu is None else float(mu)
+        # static above kinetic friction, as in the scenes of tactile_mirror.scenes
+        self.pad = Pad(ridge_model(), mu, n_ridges=self.n_ridges, finger_radius=finger_radius,
+                       mu_kinetic=mu * DEFAULT_KINETIC_RATIO)
+        self.fs, self.indent, self.press_speed = float(fs), float(indent), float(press_speed)
+        self.circuit = circuit or PVDFCircuit()
+        self.reset()
+
+    def reset(self) -> None:
+        self.pad.reset()
+        self.k = 0
+
+    @property
+    def mu(self) -> float:
+        """Static friction coefficient now in force."""
+        return self.pad.mu
+
+    def set_mu(self, mu: npt.ArrayLike) -> None:
+        """Set the static friction coefficient (the mean of ``mu`` if one per ridge)."""
+        self.pad.mu = float(np.mean(np.asarray(mu, dtype=np.float64)))
+
+    def advance(self, dy: float) -> ContactState:
+        """One tick: relative displacement finger - pad ``dy`` (m) -> contact state."""
+        self.k += 1
+        z = min(self.indent, self.k * self.press_speed / self.fs)
+        st = self.pad.advance(dy, z)
+        load = self.circuit.equivalent_load(st.strip_stress[..., None])[..., 0]   # (R, 2)
+        return ContactState(stress=load, force_y=st.force_y, force_z=st.force_z,
+                            slip_fraction=np.asarray(st.slip_fraction, dtype=np.float64))

@@ -1,0 +1,65 @@
+"""Figures of the closed loop: the paper's Fig. 12 (open loop) and Fig. 13 (closed loop)."""
+from __future__ import annotations
+
+from typing import TYPE_CHECKING
+
+import numpy as np
+
+if TYPE_CHECKING:
+    from .scene import SceneResult
+
+__all__ = ["loop_figure"]
+
+#: What the figures call each law of :func:`tactile_mirror.loop.experiment.make_laws`.
+LAW_TITLES = {"paper": "paper's law", "velocity": "shear loop with y_pred gain scheduling",
+              "velocity, y_pred ramp": "velocity law, y_pred ramp only",
+              "velocity, shear only": "shear loop without y_pred"}
+
+
+def loop_figure(r: SceneResult, path, closed: bool, ridge: int = 0, law: str | None = None):
+    """The paper's Fig. 12 (open loop) / Fig. 13 (closed loop) layout for one run."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    t = r.t
+    n = t.size
+    R = r.log["v_out"].shape[0]
+    y = r.outputs[:, 2:].reshape(n, R, 3)
+    rows = 7 if closed else 6
+    fig, ax = plt.subplots(rows, 1, figsize=(7, 1.45 * rows + 0.6), sharex=True)
+    ax[0].plot(t, 1e3 * r.log["v_out"][ridge, 0, :n], lw=0.7, label="L")
+    ax[0].plot(t, 1e3 * r.log["v_out"][ridge, 1, :n], lw=0.7, label="R")
+    ax[0].set_ylabel("v_out\n(mV)")
+    ax[0].legend(loc="upper right", fontsize=7, ncol=2)
+    ax[1].plot(t, 1e3 * r.log["u_out"][ridge, 0, :n], lw=0.7)
+    ax[1].plot(t, 1e3 * r.log["u_out"][ridge, 1, :n], lw=0.7)
+    ax[1].set_ylabel("u_out\n(mV)")
+    ax[2].plot(t, r.log["force_y"][:n], "k", lw=0.8)
+    ax[2].set_ylabel("F_y (N)")
+    ax[3].plot(t, r.log["force_z"][:n], "k", lw=0.8)
+    ax[3].set_ylabel("F_z (N)")
+    ax[3].set_ylim(0, 1.5 * max(r.log["force_z"].max(), 1e-6))
+    ax[4].plot(t, y[:, :, 0].max(axis=1), "r", lw=0.8)
+    ax[4].axhline(0.8, color="gray", ls="--", lw=0.6)
+    ax[4].set_ylabel("y_slip")
+    ax[4].set_ylim(-0.05, 1.05)
+    gross = np.all(r.log["slip_fraction"][:, :n] >= 0.999, axis=0)
+    for a in ax[4:6]:
+        a.fill_between(t, 0, 1, where=gross, color="orange", alpha=0.25, lw=0, transform=a.get_xaxis_transform())
+    ax[5].plot(t, y[:, :, 2].max(axis=1), "b", lw=0.8)
+    ax[5].set_ylabel("y_pred")
+    ax[5].set_ylim(-0.05, 1.05)
+    if closed:
+        ax[6].plot(t, 1e3 * r.finger, "k", lw=0.8, label="finger")
+        ax[6].plot(t, 1e3 * r.stage, "g", lw=0.9, label="stage")
+        ax[6].set_ylabel("y (mm)")
+        ax[6].legend(loc="upper right", fontsize=7, ncol=2)
+    ax[-1].set_xlabel("t (s)")
+    law = LAW_TITLES.get(law or r.controller, law or r.controller)
+    title = f"Fig. 13 (simulated): with feedback, {law}" if closed else "Fig. 12 (simulated): without feedback"
+    fig.suptitle(f"{title}; seed {r.scene.seed}; gross slips: {r.gross_slips} (shaded)", fontsize=9)
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)

@@ -1,0 +1,223 @@
+"""One closed-loop scene: its setting, its plant and finger, the sample source, the run.
+
+The finger is the moving plate: a seeded, band-limited random ``y`` trajectory
+(:mod:`~tactile_mirror.loop.finger`) at constant normal load. The pad sits on a stage;
+the contact plant (:mod:`tactile_mirror.contact.plants`) is stepped with the relative
+displacement ``finger - pad`` every tick; its strip loads go through the PVDF circuit
+in streaming form (:class:`~tactile_mirror.circuit.CircuitStream`, with sensor noise)
+into the pipeline, whose command drives the stage. Open loop (Fig. 12) never commands
+the stage; closed loop (Fig. 13) does.
+
+:func:`run_scene` runs one :class:`LoopScene` and returns a :class:`SceneResult`;
+:mod:`~tactile_mirror.loop.experiment` composes many of them.
+"""
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+
+from ..circuit import PVDFCircuit
+from ..contact.brush import BrushRidges
+from ..contact.plants import ContactPlant, FemPad
+from ..estimator import StressRateEstimator
+from .controller import Controller, NoController
+from .finger import pressed_finger_path
+from .runner import LoopRunner
+from .stage import SimulatedStage, StageLimits
+
+__all__ = ["PLANT_KINDS", "LoopScene", "PlantSource", "SceneResult", "gross_slip_events", "make_plant",
+           "run_scene", "scene_finger"]
+
+#: The plants a scene can name: ``"brush"`` (:class:`~tactile_mirror.contact.brush.BrushRidges`)
+#: and ``"fem"`` (:class:`~tactile_mirror.contact.plants.FemPad`).
+PLANT_KINDS = ("brush", "fem")
+
+
+@dataclass
+class LoopScene:
+    """One closed-loop simulation setting: finger, plant, robustness conditions, stage.
+
+    Not :class:`tactile_mirror.Scene` (a contact scene of :func:`tactile_mirror.simulate`,
+    plate motion prescribed): here the finger moves and the pad rides on a stage that
+    the pipeline may command. Times in s, rates in Hz, stiffness in N/m, noise in V rms.
+    """
+
+    seed: int = 0
+    duration: float = 3.0
+    fs: float = 1000.0
+    mu: float | None = None             # None: the plant's default (brush 1.0, fem DEFAULT_FRICTION)
+    mu_change: tuple | None = None      # (time s, new mu[, ramp s]): sweat; mu ramps linearly (default 0.2 s)
+    mount_stiffness: float | None = None  # N/m between stage and pad (None: rigid)
+    noise: float = 0.0                   # rms sensor noise on v_out and u_out, V
+    drop_rate: float = 0.0               # fraction of ticks whose samples are lost (NaN)
+    stage_delay: float = 0.001
+    stage_lag: float = 0.002
+    label: str = "nominal"
+    trajectory: dict = field(default_factory=dict)
+    plant: str = "brush"                 # "brush" (BrushRidges) or "fem" (tactile_mirror.contact.Pad)
+    press: float = 0.5                   # fem: the finger presses in for this long before moving, s
+
+
+def make_plant(scene: LoopScene, n_ridges: int = 6) -> ContactPlant:
+    """The contact plant of a scene."""
+    if scene.plant == "brush":
+        mu = 1.0 if scene.mu is None else scene.mu
+        return BrushRidges(n_ridges, mu=mu * (1 + 0.04 * np.linspace(-1, 1, n_ridges)))
+    if scene.plant == "fem":
+        return FemPad(n_ridges, mu=scene.mu, fs=scene.fs)
+    raise ValueError(f"plant must be 'brush' or 'fem', got {scene.plant!r}")
+
+
+def scene_finger(scene: LoopScene) -> np.ndarray:
+    """The finger path of a scene, m (with the press phase at rest for the FEM pad)."""
+    press = scene.press if scene.plant == "fem" else 0.0
+    return pressed_finger_path(scene.seed, scene.duration, scene.fs, press, **scene.trajectory)
+
+
+class PlantSource:
+    """Sample source for :class:`LoopRunner`: finger, contact plant, circuit, noise, drops.
+
+    Each :meth:`read` steps the plant with ``finger - pad`` (the pad is the stage, plus
+    the mount's give under ``force_y`` for a compliant mounting), feeds the strips'
+    change of load since the first tick (the static normal preload is no change of
+    stress) through the circuit's streaming form and returns ``[v_out, u_out]`` (V,
+    2 n_ridges each; NaN for a dropped tick). Everything is logged in :attr:`log`.
+    """
+
+    def __init__(self, scene: LoopScene, plant: ContactPlant, circuit: PVDFCircuit, finger: np.ndarray):
+        self.scene = scene
+        self.plant = plant
+        self.finger = finger
+        R = plant.n_ridges
+        # one generator for the sensor noise and the drops, in this order per tick
+        self.rng = np.random.default_rng(10_000 + scene.seed)
+        self.circuit = circuit.stream(scene.fs, 2 * R, noise=scene.noise, seed=self.rng)
+        n = finger.size
+        self.k = 0
+        self.log = {"force_y": np.zeros(n), "force_z": np.zeros(n), "slip_fraction": np.zeros((R, n)),
+                    "pad": np.zeros(n), "v_out": np.zeros((R, 2, n)), "u_out": np.zeros((R, 2, n))}
+        self._fy = 0.0
+        self._stress0: np.ndarray | None = None
+        self._mu0: float | np.ndarray | None = None
+        self._mu_done = False
+
+    def read(self, stage_position: float, t: float):
+        k = self.k
+        if k >= self.finger.size:
+            return None
+        sc = self.scene
+        if sc.mu_change is not None and t >= sc.mu_change[0]:
+            # Sweat wets the contact over a fraction of a second; a step change of mu would
+            # also be a step of every node's friction limit at once, which no finger shows.
+            t0, mu1 = sc.mu_change[0], sc.mu_change[1]
+            ramp = sc.mu_change[2] if len(sc.mu_change) > 2 else 0.2
+            if self._mu0 is None:
+                self._mu0 = self.plant.mu
+            f = 1.0 if ramp <= 0 else min(1.0, (t - t0) / ramp)
+            if f < 1.0 or not self._mu_done:
+                self.plant.set_mu(self._mu0 + f * (np.asarray(mu1) - self._mu0))
+                self._mu_done = f >= 1.0
+        pad = stage_position
+        if sc.mount_stiffness:
+            pad = stage_position + self._fy / sc.mount_stiffness
+        st = self.plant.advance(self.finger[k] - pad)
+        self._fy = st.force_y
+        load = st.stress.reshape(-1)
+        if self._stress0 is None:
+            self._stress0 = load.copy()  # the static normal preload is not a change of stress
+        load = load - self._stress0
+        v, u = self.circuit.step_load(load)
+        lg = self.log
+        lg["force_y"][k] = st.force_y
+        lg["force_z"][k] = st.force_z
+        lg["slip_fraction"][:, k] = st.slip_fraction
+        lg["pad"][k] = pad
+        lg["v_out"][:, :, k] = v.reshape(-1, 2)
+        lg["u_out"][:, :, k] = u.reshape(-1, 2)
+        self.k += 1
+        x = np.concatenate([v, u])
+        if sc.drop_rate > 0 and self.rng.random() < sc.drop_rate:
+            x[:] = np.nan
+        return x
+
+
+def gross_slip_events(slip_fraction, level: float = 0.999, min_gap: int = 20) -> int:
+    """Number of gross-slip events of the contact: every ridge grossly slipping
+    (slip fraction >= ``level``); events closer than ``min_gap`` ticks are merged."""
+    g = np.all(np.asarray(slip_fraction) >= level, axis=0)
+    starts = np.flatnonzero(g[1:] & ~g[:-1]) + 1
+    if g.size and g[0]:
+        starts = np.concatenate([[0], starts])
+    if starts.size == 0:
+        return 0
+    ends = np.flatnonzero(g[:-1] & ~g[1:]) + 1
+    n = 1
+    for s in starts[1:]:
+        prev_end = ends[ends < s]
+        if prev_end.size == 0 or s - prev_end[-1] >= min_gap:
+            n += 1
+    return n
+
+
+@dataclass
+class SceneResult:
+    """One run of a :class:`LoopScene`: time (s), finger and stage (m), pipeline outputs,
+    the source's log, gross-slip counts and tracking errors (m)."""
+
+    scene: LoopScene
+    controller: str
+    t: np.ndarray
+    finger: np.ndarray
+    stage: np.ndarray
+    outputs: np.ndarray
+    log: dict
+    gross_slips: int
+    ridge_gross_slips: int
+    tracking_rms: float
+    tracking_max: float
+    status: dict
+    run: Any = None  # the LoopResult
+
+    def summary(self) -> dict:
+        n = self.t.size
+        y = self.outputs[:, 2:].reshape(n, -1, 3)
+        gross = np.all(self.log["slip_fraction"][:, :n] >= 0.999, axis=0)
+        return {"label": self.scene.label, "seed": self.scene.seed, "controller": self.controller,
+                "gross_slips": self.gross_slips, "ridge_gross_slips": self.ridge_gross_slips,
+                "gross_slip_time_s": float(gross.sum() / self.scene.fs),
+                "y_slip_max": float(y[:, :, 0].max()), "y_slip_p99": float(np.percentile(y[:, :, 0].max(axis=1), 99)),
+                "tracking_rms_mm": 1e3 * self.tracking_rms, "tracking_max_mm": 1e3 * self.tracking_max,
+                "rejected": int(self.status.get("rejected", 0))}
+
+
+def loop_pipeline(weights, fs: float, controller: Controller, n_ridges: int):
+    """The pipeline of the experiment: 2nd-order 100 Hz estimator, fast activation, 50-tick hold."""
+    from ..pipeline import MirrorPipeline
+
+    est = StressRateEstimator(PVDFCircuit(), fs, 2 * n_ridges, order=2, bandwidth=100.0)
+    return MirrorPipeline(weights, fs, n_ridges, estimator=est, controller=controller, activation="fast",
+                          max_hold_ticks=50)
+
+
+def run_scene(scene: LoopScene, weights, controller: Controller | None, limits: StageLimits | None = None,
+              n_ridges: int = 6) -> SceneResult:
+    """Run one scene, open loop (``controller`` None or :class:`NoController`) or closed loop."""
+    controller = controller or NoController()
+    limits = limits or StageLimits(-0.02, 0.02, 0.03, 1.0)
+    finger = scene_finger(scene)
+    plant = make_plant(scene, n_ridges)
+    source = PlantSource(scene, plant, PVDFCircuit(), finger)
+    stage = SimulatedStage(limits, delay=scene.stage_delay, lag=scene.stage_lag)
+    pipe = loop_pipeline(weights, scene.fs, controller, n_ridges)
+    closed = controller.kind != "none"
+    res = LoopRunner(pipe, stage, source, command=closed).run(n_ticks=finger.size, x0=0.0)
+    log = source.log
+    rel = finger[: len(res.t)] - log["pad"][: len(res.t)]
+    sf = log["slip_fraction"][:, : len(res.t)]
+    ridge = sum(gross_slip_events(sf[r:r + 1]) for r in range(n_ridges))
+    return SceneResult(scene=scene, controller=controller.kind, t=res.t, finger=finger[: len(res.t)],
+                       stage=res.stage_position, outputs=res.outputs, log=log, gross_slips=gross_slip_events(sf),
+                       ridge_gross_slips=ridge, tracking_rms=float(np.sqrt(np.mean(rel**2))),
+                       tracking_max=float(np.abs(rel).max()), status=res.status, run=res)
