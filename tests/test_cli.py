@@ -101,3 +101,17 @@ def test_demo_end_to_end(tmp_path, capsys):
     assert int(open_row[0]) >= 1 and int(closed_row[0]) == 0
     assert float(closed_row[1].split()[0]) < 0.1 * float(open_row[1].split()[0])
     assert float(closed_row[2]) < 0.8  # y_slip stays below the slip level all run
+
+
+def test_train_maps_its_flags_onto_build_options():
+    from tactile_mirror.cli import build_options_from_args
+    from tactile_mirror.detector.build import BuildOptions
+
+    parser = build_parser()
+    # the command's defaults are the bundled detector's
+    assert build_options_from_args(parser.parse_args(["train"])) == BuildOptions()
+    args = parser.parse_args(["train", "--n-train", "5", "--n-test", "6", "--hidden", "7", "--maxiter", "8",
+                              "--candidates", "2", "--checkpoint-every", "0", "--n-validation", "3"])
+    assert build_options_from_args(args) == BuildOptions(n_train=5, n_test=6, n_hidden=7, maxiter=8, candidates=2,
+                                                         checkpoint_every=0, n_validation=3)
+

@@ -139,15 +139,22 @@ def _load_detector(path):
     return SlipDetector.default() if path is None else SlipDetector.load(path)
 
 
+def build_options_from_args(args):
+    """The :class:`~tactile_mirror.detector.build.BuildOptions` of ``tactile-mirror train``'s arguments."""
+    from .detector.build import BuildOptions
+
+    return BuildOptions(n_train=args.n_train, n_test=args.n_test, n_hidden=args.hidden, maxiter=args.maxiter,
+                        candidates=args.candidates, n_validation=args.n_validation,
+                        checkpoint_every=args.checkpoint_every)
+
+
 def cmd_train(args) -> int:
     from .detector.build import build_default
 
+    options = build_options_from_args(args)  # bad combinations fail before any work
     out = pathlib.Path(args.out)
     out.parent.mkdir(parents=True, exist_ok=True)
-    _, report = build_default(out, n_train=args.n_train, n_test=args.n_test, n_hidden=args.hidden,
-                              maxiter=args.maxiter, report_path=args.report, figure_path=args.figure,
-                              candidates=args.candidates, n_validation=args.n_validation,
-                              checkpoint_every=args.checkpoint_every)
+    _, report = build_default(out, options, report_path=args.report, figure_path=args.figure)
     print(report["evaluation_table"])
     print(f"wrote {out} ({report['total_seconds']:.0f} s)")
     return 0

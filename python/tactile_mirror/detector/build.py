@@ -4,7 +4,7 @@ Command line (writes the weights, a report and Figure 10)::
 
     python -m tactile_mirror.detector.build --out weights.npz [--study] [--report report.txt]
 
-The bundled ``data/default_detector.npz`` was made with the defaults of :func:`build_default`
+The bundled ``data/default_detector.npz`` was made with the defaults of :class:`BuildOptions`
 (64 training scenes, two noise copies of each at 0-5 mV, gain augmentation 0.6-1.7, H = 16,
 :data:`TRAIN_OPTIONS`, 4 initial seeds with checkpoints every 25 iterations, the best on 120
 validation scenes kept, evaluated on 200 held-out scenes; about 8 min on 2 cores); its
@@ -16,6 +16,8 @@ import argparse
 import json
 import os
 import time
+import warnings
+from dataclasses import dataclass
 
 import numpy as np
 
@@ -32,6 +34,7 @@ __all__ = [
     "TRAIN_OPTIONS",
     "TRAIN_SEED",
     "VALIDATION_SEED",
+    "BuildOptions",
     "ValidationScorer",
     "build_default",
     "hidden_size_study",
@@ -192,66 +195,194 @@ def _random_scenes(n, seed, **kwargs):
     return scenes.random(n, seed=seed, **kwargs)
 
 
-def build_default(out_path, n_train: int = 64, n_test: int = 200, n_hidden: int = 16, maxiter: int = 800,
-                  ridges_per_scene: int = 1, seed: int = 0, study_sizes=None, report_path=None,
-                  figure_path=None, train_kwargs=None, test_kwargs=None, progress: bool = True,
-                  results=None, train_options=None, gain_range=(0.6, 1.7), noise_copies: int = NOISE_COPIES,
-                  noise_range=NOISE_RANGE, n_validation: int = 120, candidates: int = 4,
-                  checkpoint_every: int = 25):
+def _positive_int(name: str, value, minimum: int = 1) -> int:
+    if isinstance(value, bool) or int(value) != value or value < minimum:
+        kind = "positive" if minimum == 1 else "non-negative"
+        raise ValueError(f"{name} must be a {kind} integer, got {value!r}")
+    return int(value)
+
+
+def _pair(name: str, value) -> tuple[float, float]:
+    try:
+        lo, hi = (float(v) for v in value)
+    except (TypeError, ValueError):
+        raise TypeError(f"{name} must be a pair of numbers (low, high), got {value!r}") from None
+    if not (np.isfinite(lo) and np.isfinite(hi) and 0 <= lo <= hi):
+        raise ValueError(f"{name} must satisfy 0 <= low <= high (finite), got {value!r}")
+    return lo, hi
+
+
+@dataclass(frozen=True)
+class BuildOptions:
+    """How :func:`build_default` builds the detector. Frozen; fields are checked on
+    construction (``ValueError``/``TypeError`` naming the field). The defaults made the
+    bundled weights.
+
+    Attributes
+    ----------
+    n_train, n_test : int
+        Randomised training scenes (seed :data:`TRAIN_SEED`) and held-out scenes
+        (seed :data:`TEST_SEED`, wider parameters via ``test_kwargs``). Defaults 64, 200.
+    n_hidden : int
+        Hidden size of the shipped net. Default 16.
+    maxiter : int
+        L-BFGS-B iterations per training run. Default 800.
+    ridges_per_scene : int
+        Ridges of each training scene used as sequences. Default 1.
+    seed : int
+        First initial seed of the training runs. Default 0.
+    study_sizes : tuple of int, optional
+        Also run :func:`hidden_size_study` with these hidden sizes (scored on the
+        validation scenes, not the held-out set).
+    train_kwargs, test_kwargs : dict, optional
+        Scene options of :func:`tactile_mirror.scenes.random`; default
+        :data:`TRAIN_KWARGS`, :data:`TEST_KWARGS` (stored as copies).
+    train_options : dict, optional
+        Extra :func:`train_detector` options; default :data:`TRAIN_OPTIONS`.
+    gain_range : (float, float) or None
+        Gain augmentation of the training sequences (:func:`augment_gains`), as
+        factors. Default (0.6, 1.7); None: none.
+    noise_copies : int
+        Each training scene enters ``noise_copies`` times with fresh sensor noise
+        (:func:`augment_noise`; 0: the scenes' own noise). Default :data:`NOISE_COPIES`.
+    noise_range : (float, float)
+        Range of that noise, V rms. Default :data:`NOISE_RANGE`.
+    n_validation, candidates, checkpoint_every : int
+        Each net (and the no-feedback baseline) is trained from ``candidates``
+        initial seeds (``seed``, ``seed + 1``, ...); of these runs, and of their
+        checkpoints every ``checkpoint_every`` iterations (0: final weights only),
+        the best on ``n_validation`` scenes (seed :data:`VALIDATION_SEED`, held-out
+        ranges) is kept (:func:`select_candidate`). Defaults 120, 4, 25.
+    progress : bool
+        Progress bars. Default True.
+    """
+
+    n_train: int = 64
+    n_test: int = 200
+    n_hidden: int = 16
+    maxiter: int = 800
+    ridges_per_scene: int = 1
+    seed: int = 0
+    study_sizes: tuple[int, ...] | None = None
+    train_kwargs: dict | None = None
+    test_kwargs: dict | None = None
+    train_options: dict | None = None
+    gain_range: tuple[float, float] | None = (0.6, 1.7)
+    noise_copies: int = NOISE_COPIES
+    noise_range: tuple[float, float] = NOISE_RANGE
+    n_validation: int = 120
+    candidates: int = 4
+    checkpoint_every: int = 25
+    progress: bool = True
+
+    def __post_init__(self) -> None:
+        def put(name, value):
+            object.__setattr__(self, name, value)
+
+        for name in ("n_train", "n_test", "n_hidden", "maxiter", "ridges_per_scene", "candidates"):
+            put(name, _positive_int(name, getattr(self, name)))
+        for name in ("noise_copies", "checkpoint_every"):
+            put(name, _positive_int(name, getattr(self, name), minimum=0))
+        if isinstance(self.seed, bool) or int(self.seed) != self.seed:
+            raise ValueError(f"seed must be an integer, got {self.seed!r}")
+        put("seed", int(self.seed))
+        if self.selecting:
+            put("n_validation", _positive_int("n_validation", self.n_validation))
+        if self.study_sizes is not None:
+            put("study_sizes", tuple(_positive_int("study_sizes", h) for h in self.study_sizes))
+        for name, default in (("train_kwargs", TRAIN_KWARGS), ("test_kwargs", TEST_KWARGS),
+                              ("train_options", TRAIN_OPTIONS)):
+            value = getattr(self, name)
+            if value is not None and not isinstance(value, dict):
+                raise TypeError(f"{name} must be a dict or None, got {type(value).__name__}")
+            put(name, dict(default if value is None else value))
+        if self.gain_range is not None:
+            put("gain_range", _pair("gain_range", self.gain_range))
+        put("noise_range", _pair("noise_range", self.noise_range))
+        put("progress", bool(self.progress))
+
+    @property
+    def selecting(self) -> bool:
+        """Whether the build chooses among candidates on validation scenes."""
+        return self.candidates > 1 or self.checkpoint_every > 0
+
+
+#: The parameters of the old keyword form of build_default after ``out_path``, in order.
+_LEGACY_BUILD_PARAMS = ("n_train", "n_test", "n_hidden", "maxiter", "ridges_per_scene", "seed", "study_sizes",
+                        "report_path", "figure_path", "train_kwargs", "test_kwargs", "progress", "results",
+                        "train_options", "gain_range", "noise_copies", "noise_range", "n_validation",
+                        "candidates", "checkpoint_every")
+_BUILD_IO = ("report_path", "figure_path", "results")
+
+
+def build_default(out_path, options: BuildOptions | None = None, *args, report_path=None, figure_path=None,
+                  results=None, **kwargs):
     """Simulate, train and evaluate the default detector; save its weights.
 
     Parameters
     ----------
     out_path : path
         Where the weights go.
-    n_train, n_test : int
-        Randomised training scenes (seed :data:`TRAIN_SEED`) and held-out scenes
-        (seed :data:`TEST_SEED`, wider parameters via ``test_kwargs``).
-    n_hidden : int
-        Hidden size of the shipped net.
-    n_validation, candidates, checkpoint_every : int
-        Each net (and the no-feedback baseline) is trained from ``candidates``
-        initial seeds (``seed``, ``seed + 1``, ...); of these runs, and of their
-        checkpoints every ``checkpoint_every`` iterations (0: final weights only),
-        the best on ``n_validation`` scenes (seed :data:`VALIDATION_SEED`,
-        held-out ranges) is kept (:func:`select_candidate`).
-    ridges_per_scene : int
-        Ridges of each training scene used as sequences.
-    study_sizes : sequence of int, optional
-        Also run :func:`hidden_size_study` with these sizes (scored on the
-        validation scenes, not the held-out set).
-    train_kwargs, test_kwargs : dict, optional
-        Scene options; default :data:`TRAIN_KWARGS`, :data:`TEST_KWARGS`.
-    results : (list, list) or (list, list, list), optional
-        Already simulated (training, held-out[, validation]) results of exactly these scenes.
-    train_options : dict, optional
-        Extra :func:`train_detector` options; default :data:`TRAIN_OPTIONS`.
-    gain_range : (float, float) or None
-        Gain augmentation of the training sequences (:func:`augment_gains`).
-    noise_copies, noise_range
-        Each training scene enters ``noise_copies`` times with fresh sensor noise
-        drawn from ``noise_range`` V rms (:func:`augment_noise`; 0 copies: the
-        scenes' own noise).
+    options : BuildOptions, optional
+        How to build (default ``BuildOptions()``, the bundled detector's settings).
     report_path, figure_path : path, optional
         Text report (evaluation table, study) and Figure 10 image.
+    results : (list, list) or (list, list, list), optional
+        Already simulated (training, held-out[, validation]) results of exactly these scenes.
+
+    The old form ``build_default(out_path, n_train, n_test, n_hidden, maxiter, ...)``
+    with the options as positional or keyword arguments still works and warns with a
+    ``DeprecationWarning``.
 
     Returns
     -------
     weights : DetectorWeights
     report : dict
     """
-    if int(candidates) != candidates or candidates < 1:
-        raise ValueError(f"candidates must be a positive integer, got {candidates!r}")
-    if int(checkpoint_every) != checkpoint_every or checkpoint_every < 0:
-        raise ValueError(f"checkpoint_every must be a non-negative integer, got {checkpoint_every!r}")
-    selecting = candidates > 1 or checkpoint_every > 0
-    if selecting and not (int(n_validation) == n_validation and n_validation >= 1):
-        raise ValueError(f"n_validation must be a positive integer to choose among candidates, "
-                         f"got {n_validation!r}")
+    if not isinstance(options, BuildOptions):
+        if options is None and not args and not kwargs:
+            options = BuildOptions()
+        else:
+            io = {"report_path": report_path, "figure_path": figure_path, "results": results}
+            legacy = (options, *args) if (options is not None or args) else ()
+            options, io = _legacy_build_options(legacy, kwargs, io)
+            report_path, figure_path, results = io["report_path"], io["figure_path"], io["results"]
+    elif args or kwargs:
+        raise TypeError("build_default takes BuildOptions or the old keyword options, not both")
+    return _build(out_path, options, report_path, figure_path, results)
+
+
+def _legacy_build_options(args: tuple, kwargs: dict, io: dict):
+    if len(args) > len(_LEGACY_BUILD_PARAMS):
+        raise TypeError(f"build_default takes at most {len(_LEGACY_BUILD_PARAMS) + 1} positional arguments")
+    given = dict(zip(_LEGACY_BUILD_PARAMS, args))
+    for k, v in kwargs.items():
+        if k not in _LEGACY_BUILD_PARAMS:
+            raise TypeError(f"build_default got an unexpected keyword argument {k!r}")
+        if k in given:
+            raise TypeError(f"build_default got multiple values for argument {k!r}")
+        given[k] = v
+    warnings.warn("build_default(out_path, n_train, ...) with keyword options is deprecated; pass "
+                  "build_default(out_path, BuildOptions(...), report_path=..., figure_path=...)",
+                  DeprecationWarning, stacklevel=3)
+    for k in _BUILD_IO:
+        if k in given:
+            value = given.pop(k)
+            if io[k] is not None and value is not None:
+                raise TypeError(f"build_default got multiple values for argument {k!r}")
+            io[k] = value if value is not None else io[k]
+    return BuildOptions(**given), io
+
+
+def _build(out_path, options: BuildOptions, report_path, figure_path, results):
+    o = options
+    n_train, n_test, n_hidden, maxiter = o.n_train, o.n_test, o.n_hidden, o.maxiter
+    ridges_per_scene, seed, study_sizes, progress = o.ridges_per_scene, o.seed, o.study_sizes, o.progress
+    gain_range, noise_copies, noise_range = o.gain_range, o.noise_copies, o.noise_range
+    n_validation, candidates, checkpoint_every = o.n_validation, o.candidates, o.checkpoint_every
+    selecting = o.selecting
     t_all = time.perf_counter()
-    train_kwargs = dict(TRAIN_KWARGS if train_kwargs is None else train_kwargs)
-    test_kwargs = dict(TEST_KWARGS if test_kwargs is None else test_kwargs)
-    opts = dict(TRAIN_OPTIONS if train_options is None else train_options)
+    train_kwargs, test_kwargs, opts = dict(o.train_kwargs), dict(o.test_kwargs), dict(o.train_options)
     t0 = time.perf_counter()
     results = list(results) if results is not None else []
     train_res = list(results[0]) if len(results) > 0 else simulate_scenes(
@@ -339,11 +470,11 @@ def main(argv=None):
     ap.add_argument("--pred-weight", type=float, default=TRAIN_OPTIONS["pred_weight"])
     ap.add_argument("--normalisation", default="rms", choices=["rms", "median"])
     args = ap.parse_args(argv)
-    _w, report = build_default(args.out, args.n_train, args.n_test, args.hidden, args.maxiter,
-                              study_sizes=args.study, report_path=args.report, figure_path=args.figure,
-                              train_options={"negative_weight": args.negative_weight,
-                                             "pred_weight": args.pred_weight,
-                                             "normalisation": args.normalisation})
+    options = BuildOptions(n_train=args.n_train, n_test=args.n_test, n_hidden=args.hidden, maxiter=args.maxiter,
+                           study_sizes=args.study or None,
+                           train_options={"negative_weight": args.negative_weight, "pred_weight": args.pred_weight,
+                                          "normalisation": args.normalisation})
+    _w, report = build_default(args.out, options, report_path=args.report, figure_path=args.figure)
     print(report["evaluation_table"])
     if "hidden_size_study" in report:
         for row in report["hidden_size_study"]:

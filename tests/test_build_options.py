@@ -1,0 +1,103 @@
+"""BuildOptions: what build_default builds, checked on construction; the old keyword
+form of build_default maps onto it with a DeprecationWarning."""
+from __future__ import annotations
+
+import dataclasses
+
+import pytest
+from tactile_mirror.detector import build
+from tactile_mirror.detector.build import (
+    TEST_KWARGS,
+    TRAIN_KWARGS,
+    TRAIN_OPTIONS,
+    BuildOptions,
+    build_default,
+)
+
+
+@pytest.fixture
+def captured(monkeypatch):
+    """build_default's arguments as they reach the build, without building."""
+    calls = []
+
+    def fake_build(out_path, options, report_path, figure_path, results):
+        calls.append({"out": out_path, "options": options, "report_path": report_path,
+                      "figure_path": figure_path, "results": results})
+        return None, {}
+
+    monkeypatch.setattr(build, "_build", fake_build)
+    return calls
+
+
+def test_defaults_are_the_bundled_settings_as_copies():
+    o = BuildOptions()
+    assert (o.n_train, o.n_test, o.n_hidden, o.maxiter, o.candidates, o.checkpoint_every, o.n_validation) == \
+        (64, 200, 16, 800, 4, 25, 120)
+    assert o.train_kwargs == TRAIN_KWARGS and o.train_kwargs is not TRAIN_KWARGS
+    assert o.test_kwargs == TEST_KWARGS and o.train_options == TRAIN_OPTIONS
+    assert o.selecting
+    with pytest.raises(dataclasses.FrozenInstanceError):
+        o.n_hidden = 8  # type: ignore[misc]
+
+
+@pytest.mark.parametrize("field,value,exc,match", [
+    ("n_train", 0, ValueError, "n_train must be a positive integer"),
+    ("n_hidden", 2.5, ValueError, "n_hidden"),
+    ("candidates", 0, ValueError, "candidates must be a positive integer"),
+    ("checkpoint_every", -1, ValueError, "checkpoint_every must be a non-negative integer"),
+    ("noise_copies", True, ValueError, "noise_copies"),
+    ("n_validation", 0, ValueError, "n_validation"),
+    ("gain_range", (1.7, 0.6), ValueError, "gain_range"),
+    ("noise_range", "loud", TypeError, "noise_range"),
+    ("train_kwargs", [("stop_after_slip", 0.3)], TypeError, "train_kwargs"),
+    ("study_sizes", (8, 0), ValueError, "study_sizes"),
+])
+def test_bad_fields_are_named(field, value, exc, match):
+    with pytest.raises(exc, match=match):
+        BuildOptions(**{field: value})
+
+
+def test_validation_scenes_only_needed_when_choosing():
+    o = BuildOptions(candidates=1, checkpoint_every=0, n_validation=0)
+    assert not o.selecting
+
+
+def test_options_call_reaches_the_build_unchanged(captured, tmp_path):
+    o = BuildOptions(n_hidden=8)
+    build_default(tmp_path / "w.npz", o, report_path="r.txt")
+    assert captured[0]["options"] is o and captured[0]["report_path"] == "r.txt"
+    build_default(tmp_path / "w.npz")
+    assert captured[1]["options"] == BuildOptions()
+
+
+def test_old_keyword_and_positional_calls_warn_and_map(captured, tmp_path):
+    with pytest.warns(DeprecationWarning, match="BuildOptions"):
+        build_default(tmp_path / "w.npz", n_hidden=8, candidates=2, report_path="r.txt", gain_range=None)
+    assert captured[0]["options"] == BuildOptions(n_hidden=8, candidates=2, gain_range=None)
+    assert captured[0]["report_path"] == "r.txt"
+    with pytest.warns(DeprecationWarning):
+        build_default(tmp_path / "w.npz", 2, 3, 4, 5, 1, 0, None, None, "f.png")
+    assert captured[1]["options"] == BuildOptions(n_train=2, n_test=3, n_hidden=4, maxiter=5)
+    assert captured[1]["figure_path"] == "f.png"
+    with pytest.raises(TypeError, match="not both"):
+        build_default(tmp_path / "w.npz", BuildOptions(), n_hidden=4)
+    with pytest.raises(TypeError, match="hidden"):
+        build_default(tmp_path / "w.npz", hidden=4)
+    with pytest.raises(TypeError, match="multiple values"):
+        build_default(tmp_path / "w.npz", 2, n_train=3)
+    with pytest.warns(DeprecationWarning), pytest.raises(ValueError, match="n_train"):
+        build_default(tmp_path / "w.npz", n_train=0)
+    assert len(captured) == 2
+
+
+def test_module_command_maps_onto_options(monkeypatch, tmp_path):
+    seen = {}
+
+    def fake(out_path, options, report_path=None, figure_path=None):
+        seen.update(out=out_path, options=options, report=report_path, figure=figure_path)
+        return None, {"evaluation_table": ""}
+
+    monkeypatch.setattr(build, "build_default", fake)
+    build.main(["--out", str(tmp_path / "w.npz"), "--hidden", "8", "--pred-weight", "2", "--report", "r.txt"])
+    assert seen["options"] == BuildOptions(n_hidden=8, train_options=dict(TRAIN_OPTIONS, pred_weight=2.0))
+    assert seen["report"] == "r.txt" and seen["figure"] is None
