@@ -382,7 +382,9 @@ def _build(out_path, options: BuildOptions, report_path, figure_path, results):
     n_validation, candidates, checkpoint_every = o.n_validation, o.candidates, o.checkpoint_every
     selecting = o.selecting
     t_all = time.perf_counter()
-    train_kwargs, test_kwargs, opts = dict(o.train_kwargs), dict(o.test_kwargs), dict(o.train_options)
+    # never None after BuildOptions.__post_init__
+    train_kwargs, test_kwargs = dict(o.train_kwargs or {}), dict(o.test_kwargs or {})
+    opts = dict(o.train_options or {})
     t0 = time.perf_counter()
     results = list(results) if results is not None else []
     train_res = list(results[0]) if len(results) > 0 else simulate_scenes(
