@@ -1,37 +1,20 @@
-"""Helpers shared by the benchmark scripts (run as ``python bench/<script>.py``)."""
+"""Helpers of the benchmark scripts (run as ``python bench/<script>.py``).
+
+The measuring functions themselves live in :mod:`tactile_mirror.measure`, shared with
+``tactile-mirror bench``; this module only names them for the scripts and prints.
+"""
 from __future__ import annotations
 
-import time
+from tactile_mirror.measure import best_time, best_times, environment_line, markdown_table, timed
 
-import numpy as np
-
-
-def best_time(fn, repeat: int = 5) -> float:
-    """Shortest wall time of ``repeat`` calls of ``fn``, s."""
-    best = np.inf
-    for _ in range(repeat):
-        t0 = time.perf_counter()
-        fn()
-        best = min(best, time.perf_counter() - t0)
-    return best
-
-
-def timed(fn, repeat: int = 3, clock=time.perf_counter):
-    """``(shortest time, last result)`` of ``repeat`` calls of ``fn``; ``clock`` is
-    wall time by default, ``time.process_time`` for this process's CPU time (robust
-    on a shared machine)."""
-    best, out = np.inf, None
-    for _ in range(repeat):
-        t0 = clock()
-        out = fn()
-        best = min(best, clock() - t0)
-    return best, out
+__all__ = ["best_time", "best_times", "environment_line", "header", "table", "timed"]
 
 
 def table(title: str, header, rows) -> None:
     """Print a markdown table under a heading."""
-    print(f"\n### {title}\n")
-    print("| " + " | ".join(header) + " |")
-    print("|" + "|".join("---" for _ in header) + "|")
-    for r in rows:
-        print("| " + " | ".join(str(c) for c in r) + " |")
+    print(markdown_table(title, header, rows))
+
+
+def header(what: str) -> None:
+    """Print what is measured and where (versions, SIMD path, CPU model, threads)."""
+    print(f"# {what}\n# {environment_line()}")

@@ -7,7 +7,8 @@
    implementation of the same recurrence, and against numpy stepping one tick
    per Python call.
 3. Run time against output error: exact/fast sigmoid x float32/float64, error
-   measured against the float64 numpy reference.
+   measured against the float64 numpy reference (the detector kernel of
+   ``tactile-mirror bench``: :func:`tactile_mirror.measure.detector_variants`).
 4. Training: one loss-and-gradient evaluation (exact BPTT) of the C++ kernel
    (``_core.jordan_loss_grad``, 1 and 2 threads) against the numpy specification
    (``network.loss_and_grad``) on the same padded training batch, with the
@@ -19,16 +20,16 @@ from __future__ import annotations
 
 import argparse
 import os
-import platform
 
 os.environ.setdefault("OMP_NUM_THREADS", "1")
 os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
 
 import numpy as np
-from _common import best_time
+from _common import best_time, header
 from tactile_mirror import _core
-from tactile_mirror.detector import DetectorWeights, Params, SlipDetector, reference_run
+from tactile_mirror.detector import DetectorWeights, Params, SlipDetector
 from tactile_mirror.detector.network import forward
+from tactile_mirror.measure import detector_variants, sigmoid_error
 
 
 def make_weights(n_hidden=16, seed=0):
@@ -66,7 +67,7 @@ def main(argv=None):
     n_iter = 200_000 if args.quick else 2_000_000
     n_block = 20_000 if args.quick else 100_000
     w = make_weights(16)
-    print(f"machine: {platform.machine()}, {platform.processor() or platform.platform()}")
+    header("slip-detector kernel")
     print(f"AVX2+FMA available: {_core.detector_cpu_has_avx2_fma()}")
 
     # 1. one tick, timed inside C++
@@ -101,32 +102,17 @@ def main(argv=None):
             print(f"   C++ run() {np.dtype(dtype).name} {act:<5} ({det.simd_path}): {t_c * 1e6:8.3f} us/tick"
                   f"   speed-up {t_np / t_c:6.0f}x vs forward, {t_loop / t_c:6.0f}x vs per-tick numpy")
 
-    # 3. run time against error
+    # 3. run time against error: the detector kernel of ``tactile-mirror bench`` (same functions)
     print(f"\n3) run time vs output error (block run over (6, 4, {n_block}); error vs float64 numpy)")
-    ref_s, _, ref_p = reference_run(w, x)
     print(f"   {'dtype':<8} {'sigmoid':<7} {'ns/tick':>9} {'max|dy_slip|':>13} {'max|dy_pred|':>13}")
-    for dtype in (np.float64, np.float32):
-        for act in ("exact", "fast"):
-            det = SlipDetector(w, dtype=dtype, activation=act)
-            xc = np.ascontiguousarray(x, dtype=dtype)
-            t_c = best_time(lambda: det.run(xc), 5) / n_block
-            ys, _, yp = det.run(xc)
-            es = np.max(np.abs(ys.astype(np.float64) - ref_s))
-            ep = np.max(np.abs(yp.astype(np.float64) - ref_p))
-            print(f"   {np.dtype(dtype).name:<8} {act:<7} {t_c * 1e9:>9.1f} {es:>13.2e} {ep:>13.2e}")
-    # The sigmoid alone on a dense grid, against scipy.special.expit of the same input.
-    from scipy.special import expit
-
-    a = np.linspace(-100, 100, 2_000_001)
+    for row in detector_variants(w, x, repeat=5):
+        print(f"   {row['dtype']:<8} {row['activation']:<7} {row['seconds'] * 1e9:>9.1f} "
+              f"{row['error_slip']:>13.2e} {row['error_pred']:>13.2e}")
     print("   sigmoid alone over a in [-100, 100] (2e6 points): max |sigmoid_kernel - expit|")
     for dtype in (np.float64, np.float32):
-        ad = a.astype(dtype)
-        ref = expit(ad.astype(np.float64))
         for act in ("exact", "fast"):
             for path in paths:
-                y = _core.detector_sigmoid(ad, act, path).astype(np.float64)
-                print(f"     {np.dtype(dtype).name:<8} {act:<6} {path:<9} {np.max(np.abs(y - ref)):.2e}")
-
+                print(f"     {np.dtype(dtype).name:<8} {act:<6} {path:<9} {sigmoid_error(dtype, act, path):.2e}")
 
     # 4. training gradient
     from tactile_mirror.detector.network import init_params, loss_and_grad

@@ -18,37 +18,21 @@ Columns:
   outputs, best of 5;
 - ``step us``: one ``StressRateEstimator.step`` call from Python, 12 channels.
 
+Signals and errors come from :mod:`tactile_mirror.measure` (``estimator_signals``,
+``estimator_errors``, ``lowpass_delay_ms``), as in ``tactile-mirror bench``.
+
 Run: ``python bench/bench_estimator.py`` (options: ``--fs``, ``--noise``, ``--kind``,
 ``--seeds``).
 """
 from __future__ import annotations
 
 import argparse
-import time
 
 import numpy as np
-import scipy.signal
-import tactile_mirror
+from _common import best_time, environment_line
 from tactile_mirror.circuit import PVDFCircuit
 from tactile_mirror.estimator import StressRateEstimator, estimate_stress_rate
-from tactile_mirror.testing import known_load
-
-
-def rel_rms(a, b):
-    return float(np.sqrt(np.mean((a - b) ** 2) / np.mean(b**2)))
-
-
-def aligned(a, b, max_shift=30):
-    return min(rel_rms(a[k:], b[: b.size - k]) for k in range(max_shift + 1))
-
-
-def lowpass_delay_ms(order, bandwidth, fs, kind):
-    if kind == "butter":
-        b, a = scipy.signal.butter(order, bandwidth, fs=fs)
-    else:
-        b, a = scipy.signal.bessel(order, bandwidth, fs=fs, norm="mag")
-    _, gd = scipy.signal.group_delay((b, a), w=[1.0], fs=fs)
-    return 1e3 * gd[0] / fs
+from tactile_mirror.measure import estimator_errors, estimator_signals, lowpass_delay_ms
 
 
 def timing(circuit, fs, order, bandwidth, use_u, kind, channels=12, n=100_000):
@@ -56,21 +40,16 @@ def timing(circuit, fs, order, bandwidth, use_u, kind, channels=12, n=100_000):
     v = rng.normal(0, 0.05, (channels, n))
     u = rng.normal(0, 0.05, (channels, n)) if use_u else None
     est = StressRateEstimator(circuit, fs, channels, order=order, bandwidth=bandwidth, use_u=use_u, kind=kind)
-    best = np.inf
-    for _ in range(5):
-        est.reset()
-        t0 = time.perf_counter()
-        est.process(v, u)
-        best = min(best, time.perf_counter() - t0)
+    best = best_time(lambda: (est.reset(), est.process(v, u)), 5)
     vs = v[:, 0].copy()
     us = u[:, 0].copy() if use_u else None
     reps = 2000
-    best_step = np.inf
-    for _ in range(3):
-        t0 = time.perf_counter()
+
+    def steps():
         for _ in range(reps):
             est.step(vs, us)
-        best_step = min(best_step, (time.perf_counter() - t0) / reps)
+
+    best_step = best_time(steps, 3) / reps
     return 1e9 * best / (channels * n), 1e6 * best_step
 
 
@@ -84,16 +63,13 @@ def main(argv=None):
     fs = args.fs
 
     c = PVDFCircuit()
-    t = np.arange(round(2.0 * fs)) / fs
-    s, d, d2 = known_load(t)
-    stress = np.zeros((3, t.size))
-    stress[2] = s
-    runs = [c.simulate(stress, fs, noise=args.noise, seed=seed) for seed in range(args.seeds)]
-    v0, u0 = c.simulate(stress, fs)
+    runs = [estimator_signals(c, fs, 2.0, args.noise, channels=1, seed=seed)[:2] for seed in range(args.seeds)]
+    v0, u0, d, d2 = estimator_signals(c, fs, 2.0, 0.0, channels=1)
 
     print(f"# Stress-rate estimation: fs = {fs:g} Hz, sensor noise {args.noise * 1e3:g} mV rms "
           f"(v_out peak {np.abs(v0).max() * 1e3:.0f} mV, u_out peak {np.abs(u0).max() * 1e3:.0f} mV), "
-          f"{args.seeds} seeds, {args.kind} low-pass, SIMD path {tactile_mirror.simd_path()}")
+          f"{args.seeds} seeds, {args.kind} low-pass")
+    print(f"# {environment_line()}")
     print(f"# circuit: fc = {c.fc:.1f} Hz, fd = {c.fd:.0f} Hz, tau_d = {c.tau_d * 1e3:g} ms; "
           f"load rms rate {np.sqrt(np.mean(d**2)):.3g} Pa/s, rms 2nd-order rate {np.sqrt(np.mean(d2**2)):.3g} Pa/s^2")
     print()
@@ -108,10 +84,11 @@ def main(argv=None):
                 for v, u in runs:
                     r, r2 = estimate_stress_rate(v, u if use_u else None, c, fs, order=order, bandwidth=bw,
                                                  kind=args.kind)
-                    e1.append(rel_rms(r, d))
-                    e2.append(rel_rms(r2, d2))
-                    ea.append(aligned(r, d))
-                    ea2.append(aligned(r2, d2))
+                    err = estimator_errors(r, r2, d, d2, aligned=True)
+                    e1.append(err["rate"])
+                    e2.append(err["rate2"])
+                    ea.append(err["rate_aligned"])
+                    ea2.append(err["rate2_aligned"])
                 ns, step_us = timing(c, fs, order, bw, use_u, args.kind)
                 print(f"| {'u_out' if use_u else 'differentiator'} | {order} | {bw:g} | {np.mean(e1):.3f} "
                       f"| {np.mean(e2):.3f} | {np.mean(ea):.3f} | {np.mean(ea2):.3f} | {lowpass_delay_ms(order, bw, fs, args.kind):.2f} "

@@ -6,13 +6,13 @@
 Prints markdown tables: block throughput (ratio to scipy.signal.sosfilt), per-sample
 step cost from Python and inside C++, the cost of a decay into the subnormal range,
 a long soak against an extended-precision reference, and run time against error for
-each structure and dtype.
+each structure and dtype (the filters kernel of ``tactile-mirror bench``, measured by
+the same function, :func:`tactile_mirror.measure.filter_variants`).
 """
 from __future__ import annotations
 
 import argparse
 import os
-import platform
 import time
 
 os.environ.setdefault("OMP_NUM_THREADS", "1")
@@ -20,7 +20,8 @@ os.environ.setdefault("OMP_NUM_THREADS", "1")
 import numpy as np
 import scipy.signal as ss
 import tactile_mirror as tm
-from _common import best_time, table
+from _common import best_time, header, table
+from tactile_mirror.measure import filter_variants
 
 
 def bench_block(n, channels=12):
@@ -146,38 +147,22 @@ def bench_soak(n_total, chunk=1_000_000):
     print(f"\n(soak wall time {time.perf_counter() - t0_all:.1f} s; our float64 filtering {t_ours:.2f} s)")
 
 
-def bench_accuracy(n):
-    fs = 10_000.0
-    sos = ss.butter(4, 0.5, "highpass", fs=fs, output="sos")
-    x = np.random.default_rng(4).standard_normal((12, n))
-    ref = ss.sosfilt(sos.astype(np.longdouble), x.astype(np.longdouble)).astype(np.float64)
-    peak = np.max(np.abs(ref))
-    rows = []
-    t_ref = best_time(lambda: ss.sosfilt(sos, x), 3)
-    rows.append(["scipy sosfilt float64", f"{np.max(np.abs(ss.sosfilt(sos, x) - ref)) / peak:.1e}", "1.00x"])
-    s32, x32 = sos.astype(np.float32), x.astype(np.float32)
-    rows.append(["scipy sosfilt float32",
-                 f"{np.max(np.abs(ss.sosfilt(s32, x32) - ref)) / peak:.1e}",
-                 f"{t_ref / best_time(lambda: ss.sosfilt(s32, x32), 3):.2f}x"])
-    for dt in (np.float64, np.float32):
-        for structure in ("tdf2", "delta"):
-            f = tm.SosFilter(sos, 12, dt, structure=structure)
-            xx = x.astype(dt)
-            y = f.process(xx)
-            f.reset()
-            t = best_time(lambda: f.process(xx), 3)
-            rows.append([f"SosFilter {np.dtype(dt).name} {structure}", f"{np.max(np.abs(y - ref)) / peak:.1e}",
-                         f"{t_ref / t:.2f}x"])
-    table("Run time against error: butter(4, 0.5 Hz, highpass, fs=10 kHz), 12 channels, long-double reference",
-          ["implementation", "max |error| / peak", "speed (vs scipy float64)"], rows)
+def bench_accuracy(n, repeat=3):
+    """The filters kernel of ``tactile-mirror bench`` (measure.filter_variants), at size n."""
+    sos = ss.butter(4, 0.5, "highpass", fs=10_000.0, output="sos")
+    cases = filter_variants(sos, 12, n_err=min(n, 20_000), n_time=n, repeat=repeat)
+    t_ref = cases[0].seconds
+    rows = [[c.label, f"{c.error:.1e}", f"{c.seconds * 1e9:.2f}", f"{t_ref / c.seconds:.2f}x"] for c in cases]
+    table("Run time against error: butter(4, 0.5 Hz, highpass, fs=10 kHz), 12 channels, extended-precision "
+          "reference", ["implementation", "max |error| / peak", "ns per channel-sample", "speed (vs scipy float64)"],
+          rows)
 
 
 def main(argv=None):
     p = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("--quick", action="store_true", help="smaller sizes (a smoke run)")
     args = p.parse_args(argv)
-    print(f"tactile_mirror {tm.__version__}, SIMD path: {tm.simd_path()}, numpy {np.__version__}, "
-          f"scipy {__import__('scipy').__version__}, {platform.processor() or platform.machine()}")
+    header("SOS engine against scipy.signal")
     n = 100_000 if args.quick else 1_000_000
     bench_block(n)
     bench_step()

@@ -30,6 +30,7 @@ import time
 from pathlib import Path
 
 import numpy as np
+from _common import best_time, header
 from tactile_mirror.circuit import PVDFCircuit
 from tactile_mirror.estimator import StressRateEstimator
 from tactile_mirror.filters import simd_path
@@ -67,22 +68,16 @@ def make(fs=1000.0, n_ridges=6, use_u=True, estimator=True, controller=True, dty
                           activation=activation, v_limit=10.0, u_limit=10.0, **kw)
 
 
-def best_of(f, repeats=5):
-    return min(f() for _ in range(repeats))
-
-
 def python_step_ns(pipe, n):
     x = np.ascontiguousarray(0.01 * np.sin(np.arange(pipe.n_inputs)))
     out = np.zeros(pipe.n_outputs)
     step = pipe.step
 
     def run():
-        t0 = time.perf_counter_ns()
         for _ in range(n):
             step(x, out)
-        return (time.perf_counter_ns() - t0) / n
 
-    return best_of(run)
+    return best_time(run, 5, clock=time.perf_counter_ns) / n
 
 
 def reference_step_ns(pipe, n):
@@ -90,12 +85,10 @@ def reference_step_ns(pipe, n):
     x = 0.01 * np.sin(np.arange(pipe.n_inputs))
 
     def run():
-        t0 = time.perf_counter_ns()
         for _ in range(n):
             ref.step(x)
-        return (time.perf_counter_ns() - t0) / n
 
-    return best_of(run, 3)
+    return best_time(run, 3, clock=time.perf_counter_ns) / n
 
 
 def c_program(n, paced_seconds=0.0):
@@ -190,6 +183,7 @@ def main(argv=None):
     n_ref = 300 if args.quick else 2000
     lat_s = args.latency_seconds if args.latency_seconds is not None else (1.0 if args.quick else 10.0)
     p = make()
+    header("real-time pipeline tick")
     print(f"code paths: filters {simd_path()}; pipeline {p.simd_path}")
     table_scaling(n_iter)
     table_doors(n_iter, n_py, n_ref)

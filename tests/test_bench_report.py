@@ -202,3 +202,90 @@ def test_cli_bench_unusable_output_fails_before_any_work(tmp_path, capsys):
     assert err.startswith("error:") and "not a folder" in err
     assert main(["bench", "--quick", "--out", str(target / "sub")]) == 1  # parent is a file
     assert capsys.readouterr().err.startswith("error:")
+
+
+# ---------------------------------------------------------------- one measuring path
+def test_report_and_measure_functions_give_the_same_errors(quick):
+    """The report's rows come from tactile_mirror.measure: the same function on the same
+    data gives the same errors (the times differ run to run)."""
+    from tactile_mirror import PVDFCircuit, SlipDetector, StressRateEstimator, measure
+
+    _, report = quick
+    sos = ss.butter(4, 0.5, "highpass", fs=10_000.0, output="sos")
+    cases = measure.filter_variants(sos, 12, n_err=4_000, n_time=64, repeat=1)
+    assert {c.label: c.error for c in cases} == {v.label: v.error for v in report.kernels["filters"].variants}
+    weights = SlipDetector.default().weights
+    rows = measure.detector_variants(weights, measure.detector_features(weights, 3), repeat=1)
+    assert {r["label"]: r["error"] for r in rows} == {v.label: v.error for v in report.kernels["detector"].variants}
+    v, u, rate, rate2 = measure.estimator_signals(noise=1e-3, channels=12, seed=0)
+    est = StressRateEstimator(PVDFCircuit(), 1000.0, 12, order=3, bandwidth=100.0)
+    err = measure.estimator_errors(*est.process(v, u), rate, rate2)
+    row = by_label(report.kernels["estimator"])["order 3, 100 Hz"]
+    assert (err["rate"], err["rate2"]) == (row.error, row.extra["rate2"])
+
+
+def test_bench_scripts_time_with_the_shared_functions():
+    import importlib.util
+    import pathlib
+
+    from tactile_mirror import measure
+
+    path = pathlib.Path(__file__).resolve().parents[1] / "bench" / "_common.py"
+    spec = importlib.util.spec_from_file_location("bench_common", path)
+    common = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(common)
+    assert common.best_time is measure.best_time and common.timed is measure.timed
+
+
+def test_measure_timing_and_errors():
+    from tactile_mirror import measure
+
+    ticks = []
+    calls = []
+    t = measure.best_times([lambda: calls.append("a"), lambda: calls.append("b")], 3, tick=lambda: ticks.append(1))
+    assert calls == ["a", "b"] * 3 and len(ticks) == 3 and all(x >= 0 for x in t)
+    clock = iter(range(100)).__next__  # each call advances by 1
+    assert measure.best_time(lambda: None, 4, clock=clock) == 1
+    assert measure.timed(lambda: 7, 2)[1] == 7
+    a = np.sin(np.arange(200) / 10.0)
+    assert measure.rel_rms(a, a) == 0.0
+    late = np.concatenate([np.zeros(5), a[:-5]])  # the estimate 5 samples late
+    assert measure.rel_rms_aligned(late, a, max_shift=3) > 0.1
+    assert measure.rel_rms_aligned(late, a, max_shift=8) == 0.0  # shifting back by 5 aligns them
+    assert measure.rel_max(2 * a, a) == pytest.approx(1.0)
+    assert measure.lowpass_delay_ms(2, 100.0, 1000.0) > 0
+    with pytest.raises(ValueError, match="kind"):
+        measure.lowpass_delay_ms(2, 100.0, 1000.0, kind="cheby")
+    env = measure.environment()
+    assert env["cpu_model"] and env["cpu_model"] in measure.environment_line(env)
+    assert measure.markdown_table("t", ["a", "b"], [[1, 2]]).splitlines()[-1] == "| 1 | 2 |"
+
+
+def test_place_labels_keeps_labels_apart_and_inside():
+    """The plot helper (tactile_mirror.plots) puts every label where it covers no other
+    label and stays in the axes, for a cluster of points."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+    from tactile_mirror.plots import place_labels
+
+    fig, ax = plt.subplots(figsize=(5, 4))
+    ax.set_xscale("log")
+    ax.set_yscale("log")
+    x = np.array([1e-6, 1.3e-6, 1.6e-6, 1e-3, 1.2e-3, 1e-9])
+    y = np.array([10.0, 11.0, 12.0, 30.0, 31.0, 100.0])
+    ax.scatter(x, y)
+    ax.set_xlim(1e-10, 1e-1)
+    ax.set_ylim(5, 200)
+    fig.tight_layout()
+    renderer = fig.canvas.get_renderer()
+    items = [(xi, yi, f"variant {i}", i % 2 == 0) for i, (xi, yi) in enumerate(zip(x, y))]
+    place_labels(ax, items, list(zip(x, y)), renderer)
+    boxes = [t.get_window_extent(renderer) for t in ax.texts]
+    assert len(boxes) == len(items)
+    frame = ax.get_window_extent(renderer)
+    for i, b in enumerate(boxes):
+        assert frame.x0 <= b.x0 and b.x1 <= frame.x1 and frame.y0 <= b.y0 and b.y1 <= frame.y1
+        assert not any(b.overlaps(o) for o in boxes[i + 1:])
+    plt.close(fig)

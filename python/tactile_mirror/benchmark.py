@@ -34,6 +34,10 @@ reference computed in the same run:
 A variant is Pareto-optimal when no other variant of the same kernel is at least as
 accurate and at least as fast, and strictly better in one of the two.
 
+The measuring itself (timing rounds, error functions, the filter, estimator and
+detector measurements) lives in :mod:`tactile_mirror.measure`, which the scripts in
+``bench/`` call too; the figure is :func:`tactile_mirror.plots.pareto_figure`.
+
 Run times are the best of a few wall-clock rounds in which every variant of a kernel
 runs in turn (one run for the contact model); on a shared machine compare the speed
 ratios, which come from the same run, rather than absolute times. Run with ``OMP_NUM_THREADS=1 OPENBLAS_NUM_THREADS=1``.
@@ -47,12 +51,9 @@ Example
 from __future__ import annotations
 
 import dataclasses
-import datetime
 import json
 import math
-import os
 import pathlib
-import platform
 import sys
 import time
 from collections.abc import Callable, Iterable, Sequence
@@ -60,8 +61,12 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from . import measure
+from .measure import extended_sosfilt
+
 __all__ = [
     "KERNELS",
+    "KERNEL_BENCHES",
     "BenchReport",
     "KernelReport",
     "Reference",
@@ -164,19 +169,6 @@ def pareto_front(errors: Sequence[float], seconds: Sequence[float]) -> np.ndarra
 
 
 # ---------------------------------------------------------------- helpers
-def _best_times(fns: Sequence[Callable[[], object]], repeat: int, tick: Callable[[], object] = lambda: None):
-    """Shortest wall time of each function over ``repeat`` rounds; every round runs all of
-    them in turn, so that a burst of load elsewhere on the machine hits them alike."""
-    best = [math.inf] * len(fns)
-    for _ in range(max(1, repeat)):
-        for i, fn in enumerate(fns):
-            t0 = time.perf_counter()
-            fn()
-            best[i] = min(best[i], time.perf_counter() - t0)
-        tick()
-    return best
-
-
 class _Progress:
     """A tqdm bar per kernel, or nothing."""
 
@@ -190,135 +182,20 @@ class _Progress:
                     file=sys.stderr)
 
 
-def extended_sosfilt(sos, x) -> np.ndarray:
-    """Filter ``x`` (channels, n) with ``sos`` in extended precision; float64-or-better reference.
-
-    The sections run in the delta-operator structure (Kauraniemi et al. 1998), whose
-    round-off does not grow for poles near ``z = 1``, in ``numpy.longdouble`` (80-bit on
-    x86-64: about 1e-18 of peak for the filters used here, checked against mpmath by the
-    tests). Where ``longdouble`` is no wider than float64 it falls back to mpmath (36
-    digits; slow, use short signals) and raises ``RuntimeError`` without it.
-
-    Returns
-    -------
-    ndarray of numpy.longdouble, shape of ``x``
-    """
-    sos = np.atleast_2d(np.asarray(sos, dtype=np.float64))
-    x = np.atleast_2d(np.asarray(x, dtype=np.float64))
-    if np.finfo(np.longdouble).eps < 1e-18:
-        return _delta_longdouble(sos, x)
-    try:
-        import mpmath
-    except ImportError:  # pragma: no cover - platforms without an extended long double
-        raise RuntimeError("the filter reference needs an extended long double or mpmath "
-                           "(pip install mpmath)") from None
-    return _sosfilt_mpmath(sos, x, mpmath)  # pragma: no cover
-
-
-def _delta_longdouble(sos: np.ndarray, x: np.ndarray) -> np.ndarray:
-    L = np.longdouble
-    y = x.astype(L)
-    for row in sos:
-        b0, b1, b2, a0, a1, a2 = (L(v) for v in row)
-        b0, b1, b2, a1, a2 = b0 / a0, b1 / a0, b2 / a0, a1 / a0, a2 / a0
-        c1, c2 = 2 * b0 + b1, (b0 + b1) + b2  # numerator in d = z - 1
-        d1, d2 = 2 + a1, (1 + a1) + a2  # denominator in d
-        s1 = np.zeros(y.shape[0], L)
-        s2 = np.zeros(y.shape[0], L)
-        out = np.empty_like(y)
-        for i in range(y.shape[1]):
-            xi = y[:, i]
-            yi = b0 * xi + s1
-            s1, s2 = s1 + (c1 * xi + s2) - d1 * yi, (s2 + c2 * xi) - d2 * yi
-            out[:, i] = yi
-        y = out
-    return y
-
-
-def _sosfilt_mpmath(sos: np.ndarray, x: np.ndarray, mpmath) -> np.ndarray:  # pragma: no cover
-    out = np.empty(x.shape, dtype=object)
-    with mpmath.workdps(36):
-        coefs = [[mpmath.mpf(float(v)) for v in row] for row in sos]
-        for ch in range(x.shape[0]):
-            y = [mpmath.mpf(float(v)) for v in x[ch]]
-            for b0, b1, b2, a0, a1, a2 in coefs:
-                b0, b1, b2, a1, a2 = b0 / a0, b1 / a0, b2 / a0, a1 / a0, a2 / a0
-                z1 = z2 = mpmath.mpf(0)
-                for i, xi in enumerate(y):
-                    yi = b0 * xi + z1
-                    z1 = b1 * xi - a1 * yi + z2
-                    z2 = b2 * xi - a2 * yi
-                    y[i] = yi
-            out[ch] = y
-    return out.astype(np.longdouble)
-
-
-def _rel_max(y, ref) -> float:
-    ref = np.asarray(ref, dtype=np.longdouble)
-    return float(np.max(np.abs(np.asarray(y).astype(np.longdouble) - ref)) / np.max(np.abs(ref)))
-
-
-def _rel_rms(a, b) -> float:
-    return float(np.sqrt(np.mean((a - b) ** 2) / np.mean(np.broadcast_to(b, np.shape(a)) ** 2)))
-
-
 # ---------------------------------------------------------------- kernels
 def _bench_filters(quick: bool, progress: _Progress) -> KernelReport:
     import scipy.signal as ss
-
-    from . import filters as flt
 
     fs = 10_000.0
     sos = ss.butter(4, 0.5, "highpass", fs=fs, output="sos")
     channels = 12
     n_err, n_time, repeat = (4_000, 40_000, 3) if quick else (20_000, 200_000, 5)
-    rng = np.random.default_rng(4)
-    x_err = rng.standard_normal((channels, n_err))
-    x_time = rng.standard_normal((channels, n_time))
-    ref = extended_sosfilt(sos, x_err)
-    sos32 = sos.astype(np.float32)
-
-    def auto_tag(dtype, structure):
-        forms = flt._forms(flt.validate_sos(sos.astype(dtype)), np.dtype(dtype), "auto")
-        return " (auto)" if np.all(forms == flt._FORM_CODES[structure]) else ""
-
-    # (label, filter function, dtype, structure)
-    cases: list[tuple[str, Callable[[np.ndarray], np.ndarray], type, str]] = [
-        ("scipy.signal.sosfilt float64", lambda x: ss.sosfilt(sos, x), np.float64, "tdf2"),
-        ("scipy.signal.sosfilt float32", lambda x: ss.sosfilt(sos32, x), np.float32, "tdf2")]
-    for sos_dt in (sos, sos32):
-        for structure in ("tdf2", "delta"):
-            def ours(x, s=sos_dt, structure=structure):
-                return flt.sosfilt(s, x, structure=structure)
-
-            name = sos_dt.dtype.name
-            cases.append((f"sosfilt {name} {structure}{auto_tag(sos_dt.dtype, structure)}", ours,
-                          sos_dt.dtype.type, structure))
-    f32 = flt.SosFilter(sos, channels, np.float32)  # float64 design, float32 arithmetic, "auto"
-    f32_structure = "/".join(dict.fromkeys(f32.structure))
-
-    def sos_filter32(x):
-        f32.reset()
-        return f32.process(x)
-
-    cases.append((f"SosFilter float32 {f32_structure} (auto)", sos_filter32, np.float32, f32_structure))
-
-    bar = progress.bar("filters", len(cases) + repeat)
-    errors, timed = [], []
-    blocks = {np.dtype(dt): x_time.astype(dt) for dt in (np.float64, np.float32)}
-    for _, fn, dt, _ in cases:
-        errors.append(_rel_max(fn(x_err.astype(dt)), ref))
-        xt = blocks[np.dtype(dt)]
-        timed.append(lambda fn=fn, xt=xt: fn(xt))
-        bar.update()
-    secs = [t / x_time.size for t in _best_times(timed, repeat, bar.update)]
+    bar = progress.bar("filters", 7 + repeat)
+    cases = measure.filter_variants(sos, channels, n_err, n_time, repeat, tick=bar.update)
     bar.close()
-    t_scipy = secs[0]
-    variants = []
-    for (label, _, dt, structure), err, t in zip(cases, errors, secs):
-        api = "scipy" if label.startswith("scipy") else label.split()[0]
-        variants.append(Variant(label, err, t, t_scipy / t,
-                                {"dtype": np.dtype(dt).name, "structure": structure, "api": api}))
+    t_scipy = cases[0].seconds
+    variants = [Variant(c.label, c.error, c.seconds, t_scipy / c.seconds,
+                        {"dtype": c.dtype, "structure": c.structure, "api": c.api}) for c in cases]
     return KernelReport(
         name="filters",
         title=f"filters: butter(4, 0.5 Hz, highpass, fs = 10 kHz), {channels} channels",
@@ -332,31 +209,19 @@ def _bench_filters(quick: bool, progress: _Progress) -> KernelReport:
     )
 
 
-def _lowpass_delay_ms(order: int, bandwidth: float, fs: float) -> float:
-    import scipy.signal as ss
-
-    b, a = ss.butter(order, bandwidth, fs=fs)
-    _, gd = ss.group_delay((b, a), w=[1.0], fs=fs)
-    return float(1e3 * gd[0] / fs)
-
-
 def _bench_estimator(quick: bool, progress: _Progress) -> KernelReport:
     import scipy.signal as ss
 
     from .circuit import PVDFCircuit
     from .estimator import StressRateEstimator
-    from .testing import known_load
 
     fs, duration, noise, channels = 1000.0, 2.0, 1e-3, 12
     tile, repeat = (10, 3) if quick else (50, 5)
     orders = (2, 3, 4)
     bandwidths = (50.0, 100.0, 200.0, 300.0)
     circuit = PVDFCircuit()
-    t = np.arange(round(duration * fs)) / fs
-    load, rate_true, rate2_true = known_load(t)
-    stress = np.zeros((channels, 3, t.size))
-    stress[:, 2] = load
-    v, u = circuit.simulate(stress, fs, noise=noise, seed=0)  # independent noise per strip
+    # independent noise per strip
+    v, u, rate_true, rate2_true = measure.estimator_signals(circuit, fs, duration, noise, channels, seed=0)
     v_t, u_t = np.tile(v, tile), np.tile(u, tile)  # the timing block
     designs = [(order, bw) for order in orders for bw in bandwidths]
     bar = progress.bar("estimator", len(designs) + repeat)
@@ -367,8 +232,9 @@ def _bench_estimator(quick: bool, progress: _Progress) -> KernelReport:
         sos_v, sos_u = est.sos_rate, est.sos_rate2
         # scipy runs the very same sections: its error is that of the float64 design
         r1, r2 = ss.sosfilt(sos_v, v), ss.sosfilt(sos_u, u)
-        measured.append((_rel_rms(rate, rate_true), _rel_rms(rate2, rate2_true), _rel_rms(r1, rate_true),
-                         _rel_rms(r2, rate2_true)))
+        ours_err = measure.estimator_errors(rate, rate2, rate_true, rate2_true)
+        ref_err = measure.estimator_errors(r1, r2, rate_true, rate2_true)
+        measured.append((ours_err["rate"], ours_err["rate2"], ref_err["rate"], ref_err["rate2"]))
 
         def ours(est=est):
             est.reset()
@@ -380,14 +246,14 @@ def _bench_estimator(quick: bool, progress: _Progress) -> KernelReport:
 
         timed += [ours, theirs]
         bar.update()
-    secs = [t / v_t.size for t in _best_times(timed, repeat, bar.update)]
+    secs = [t / v_t.size for t in measure.best_times(timed, repeat, bar.update)]
     bar.close()
     variants, references = [], []
     for i, ((order, bw), (e1, e2, e1_ref, e2_ref)) in enumerate(zip(designs, measured)):
         t_ours, t_ref = secs[2 * i], secs[2 * i + 1]
         label = f"order {order}, {bw:g} Hz"
         variants.append(Variant(label, e1, t_ours, t_ref / t_ours,
-                                {"rate2": e2, "delay": _lowpass_delay_ms(order, bw, fs)}))
+                                {"rate2": e2, "delay": measure.lowpass_delay_ms(order, bw, fs)}))
         references.append(Reference(f"scipy, {label}", t_ref, e1_ref, {"rate2": e2_ref}))
     return KernelReport(
         name="estimator",
@@ -406,49 +272,21 @@ def _bench_estimator(quick: bool, progress: _Progress) -> KernelReport:
     )
 
 
-def _detector_features(weights, n_scenes: int) -> np.ndarray:
-    from .detector.synthetic import synthetic_scene
-
-    x = np.concatenate([synthetic_scene(seed=s, n_ridges=6).features for s in range(n_scenes)], axis=-1)
-    rms = np.sqrt(np.mean(x**2, axis=(0, 2)))
-    # unit rms after the weights' normalisation, as in training
-    return weights.input_mean[None, :, None] + x / rms[None, :, None] / weights.input_gain[None, :, None]
-
-
 def _bench_detector(quick: bool, progress: _Progress) -> KernelReport:
-    from scipy.special import expit
-
-    from . import _core
     from .detector import SlipDetector, reference_run
 
     n_scenes, repeat, repeat_ref = (3, 5, 2) if quick else (10, 7, 3)
     weights = SlipDetector.default().weights
-    x = _detector_features(weights, n_scenes)
+    x = measure.detector_features(weights, n_scenes)
     n = x.shape[2]
     bar = progress.bar("detector", 4 + repeat + 1)
-    ref_s, _, ref_p = reference_run(weights, x)
-    grid = np.linspace(-100.0, 100.0, 2_000_001)
-    cases, timed = [], []
-    for dt in (np.float64, np.float32):
-        g = grid.astype(dt)
-        g_ref = expit(g.astype(np.float64))
-        xc = np.ascontiguousarray(x, dtype=dt)
-        for act in ("exact", "fast"):
-            det = SlipDetector(weights, dtype=dt, activation=act)
-            ys, _, yp = det.run(xc)
-            err = max(float(np.max(np.abs(ys.astype(np.float64) - ref_s))),
-                      float(np.max(np.abs(yp.astype(np.float64) - ref_p))))
-            y_sig = _core.detector_sigmoid(g, act, det.simd_path)  # type: ignore[call-overload]
-            sig = float(np.max(np.abs(y_sig.astype(np.float64) - g_ref)))
-            cases.append((f"{np.dtype(dt).name} {act}", err,
-                          {"sigmoid": sig, "path": det.simd_path, "dtype": np.dtype(dt).name, "activation": act}))
-            timed.append(lambda det=det, xc=xc: det.run(xc))
-            bar.update()
-    secs = [t / n for t in _best_times(timed, repeat, bar.update)]
-    t_ref = _best_times([lambda: reference_run(weights, x)], repeat_ref)[0] / n
+    rows = measure.detector_variants(weights, x, repeat, tick=bar.update)
+    t_ref = measure.best_times([lambda: reference_run(weights, x)], repeat_ref)[0] / n
     bar.update()
     bar.close()
-    variants = [Variant(label, err, t, t_ref / t, extra) for (label, err, extra), t in zip(cases, secs)]
+    variants = [Variant(r["label"], r["error"], r["seconds"], t_ref / r["seconds"],
+                        {"sigmoid": measure.sigmoid_error(np.dtype(r["dtype"]).type, r["activation"], r["path"]),
+                         "path": r["path"], "dtype": r["dtype"], "activation": r["activation"]}) for r in rows]
     return KernelReport(
         name="detector",
         title=f"slip detector: SlipDetector.run, default weights (H = {weights.n_hidden}), 6 ridges",
@@ -516,8 +354,11 @@ def _bench_contact(quick: bool, progress: _Progress) -> KernelReport:
     )
 
 
-_BENCHES = {"filters": _bench_filters, "estimator": _bench_estimator, "detector": _bench_detector,
-            "contact": _bench_contact}
+#: The measuring function of each kernel: ``(quick, progress) -> KernelReport``. A new
+#: kernel joins the report by adding its name to :data:`KERNELS` and its function here.
+KERNEL_BENCHES: dict[str, Callable[[bool, _Progress], KernelReport]] = {
+    "filters": _bench_filters, "estimator": _bench_estimator, "detector": _bench_detector,
+    "contact": _bench_contact}
 
 
 # ---------------------------------------------------------------- report
@@ -574,27 +415,11 @@ class BenchReport:
 
     # ---- figure
     def figure(self):
-        """Matplotlib figure: one panel per kernel, error against run time, log scales."""
-        import matplotlib
+        """Matplotlib figure: one panel per kernel, error against run time, log scales
+        (:func:`tactile_mirror.plots.pareto_figure`)."""
+        from .plots import pareto_figure
 
-        matplotlib.use("Agg", force=False)
-        import matplotlib.pyplot as plt
-
-        ks = list(self.kernels.values())
-        ncols = 1 if len(ks) == 1 else 2
-        nrows = math.ceil(len(ks) / ncols)
-        fig, axes = plt.subplots(nrows, ncols, figsize=(7.2 * ncols, 5.4 * nrows), squeeze=False)
-        labels = [_panel(ax, k) for ax, k in zip(axes.ravel(), ks)]
-        for ax in axes.ravel()[len(ks):]:
-            ax.set_visible(False)
-        fig.suptitle(f"Run time against error ({'quick' if self.quick else 'full'} run, "
-                     f"{self.environment['machine']}, SIMD {self.environment['simd_path']}); "
-                     "filled: Pareto-optimal", fontsize=11)
-        fig.tight_layout()
-        renderer = fig.canvas.get_renderer()
-        for ax, (items, points) in zip(axes.ravel(), labels):
-            _place_labels(ax, items, points, renderer)
-        return fig
+        return pareto_figure(self)
 
     # ---- json
     def as_dict(self) -> dict:
@@ -637,131 +462,6 @@ def _fmt_time(x: float) -> str:
     return f"{x:.3g}" if x < 1000 else f"{x:.0f}"
 
 
-_PARETO_COLOR = "tab:blue"
-
-
-def _plain(v, _pos=None) -> str:
-    return f"{v:g}"
-
-
-def _plain_log_axis(axis, lo: float, hi: float, suffix: str = "") -> None:
-    """Plain numbers on a log axis; minor ticks labelled at 2, 3, 5 (2 and 5 over 2-3 decades)."""
-    from matplotlib.ticker import FuncFormatter, NullFormatter
-
-    axis.set_major_formatter(FuncFormatter(lambda v, _p: f"{v:g}{suffix}"))
-    if hi / lo < 1000:
-        marks = (2, 3, 5) if hi / lo < 100 else (2, 5)
-
-        def minor(v, _p):
-            if v <= 0:
-                return ""
-            m = v / 10 ** math.floor(math.log10(v) + 1e-9)
-            return f"{v:g}{suffix}" if any(abs(m - k) < 1e-6 for k in marks) else ""
-
-        axis.set_minor_formatter(FuncFormatter(minor))
-    else:
-        axis.set_minor_formatter(NullFormatter())
-
-
-def _panel(ax, k: KernelReport) -> tuple[list, list]:
-    """Draw one kernel; return the points to label, (x, y, text, pareto), and every marker, (x, y)."""
-    errs = np.array([v.error for v in k.variants])
-    times = np.array([v.seconds for v in k.variants]) * k.time_scale
-    errs = np.maximum(errs, np.finfo(np.float64).tiny)  # an exact match has no place on a log axis
-    pareto = np.array([v.pareto for v in k.variants])
-    ax.set_xscale("log")
-    ax.set_yscale("log")
-    for r in k.references:
-        if r.error is None:
-            y = r.seconds * k.time_scale
-            ax.axhline(y, color="0.45", ls="--", lw=1)
-            ax.annotate(r.label, (0.01, y), xycoords=("axes fraction", "data"), xytext=(0, 3),
-                        textcoords="offset points", fontsize=7.5, color="0.3", va="bottom")
-    speed_refs = [r for r in k.references if r.error is not None]
-    if speed_refs:
-        ax.scatter([r.error for r in speed_refs], [r.seconds * k.time_scale for r in speed_refs], marker="x",
-                   color="0.6", s=22, lw=1, label=k.ratio_reference.split(",")[0] + " (same sections)", zorder=2)
-    if np.any(~pareto):
-        ax.scatter(errs[~pareto], times[~pareto], facecolors="none", edgecolors="0.45", s=36, zorder=3,
-                   label="dominated")
-    ax.scatter(errs[pareto], times[pareto], color=_PARETO_COLOR, s=48, zorder=4, label="Pareto-optimal")
-    order = np.argsort(errs[pareto])
-    pe, pt = errs[pareto][order], times[pareto][order]
-    if pe.size > 1:
-        ax.step(pe, pt, where="post", color=_PARETO_COLOR, lw=1, alpha=0.6, zorder=3)
-    all_e = [*errs, *(r.error for r in speed_refs)]
-    all_t = [*times, *(r.seconds * k.time_scale for r in k.references)]
-    lo_x, hi_x = min(all_e), max(all_e)
-    span_x = max(hi_x / lo_x, 10.0)
-    ax.set_xlim(lo_x / span_x**0.08, hi_x * span_x**0.3)  # room for labels on the right
-    lo_y, hi_y = min(all_t) / 1.6, max(all_t) * 1.8
-    ax.set_ylim(lo_y, hi_y)
-    _plain_log_axis(ax.yaxis, lo_y, hi_y)
-    ax.set_xlabel(f"error: {k.error_name}")
-    ax.set_ylabel(f"run time, {k.time_unit} per {k.unit}")
-    ax.set_title(k.title, fontsize=9.5)
-    ax.grid(True, which="major", alpha=0.3)
-    if k.ratio_seconds is not None:
-        r_s = k.ratio_seconds * k.time_scale
-        sec = ax.secondary_yaxis("right", functions=(lambda y, r_s=r_s: r_s / np.maximum(y, 1e-300),
-                                                     lambda q, r_s=r_s: r_s / np.maximum(q, 1e-300)))
-        sec.set_ylabel("speed ratio to the reference", fontsize=8)
-        _plain_log_axis(sec.yaxis, r_s / hi_y, r_s / lo_y, suffix="x")
-    ax.legend(fontsize=7, loc="lower left")
-    label_all = len(k.variants) <= 8
-    items = [(e, t, v.label, v.pareto) for v, e, t in zip(k.variants, errs, times) if v.pareto or label_all]
-    points = [*zip(errs, times), *((r.error, r.seconds * k.time_scale) for r in speed_refs)]
-    return items, points
-
-
-_OFFSETS = ((6, 3, "left", "bottom"), (6, -3, "left", "top"), (-6, 3, "right", "bottom"),
-            (-6, -3, "right", "top"), (6, 12, "left", "bottom"), (6, -12, "left", "top"),
-            (-6, 12, "right", "bottom"), (-6, -12, "right", "top"))
-
-
-def _place_labels(ax, items, points, renderer) -> None:
-    """Label points where the text covers no other label, no other point and stays in the axes."""
-    pts = ax.transData.transform(points) if points else np.zeros((0, 2))
-    taken: list = []
-    box = ax.get_window_extent(renderer)
-    for x, y, text, pareto in items:
-        own = ax.transData.transform([(x, y)])[0]
-        kw = {"fontsize": 8 if pareto else 7, "color": _PARETO_COLOR if pareto else "0.3",
-              "fontweight": "bold" if pareto else "normal", "zorder": 5}
-        first = None
-        for dx, dy, ha, va in _OFFSETS:
-            ann = ax.annotate(text, (x, y), xytext=(dx, dy), textcoords="offset points", ha=ha, va=va, **kw)
-            bb = ann.get_window_extent(renderer)
-            hits_point = any(bb.x0 - 4 < qx < bb.x1 + 4 and bb.y0 - 4 < qy < bb.y1 + 4
-                             for qx, qy in pts if abs(qx - own[0]) + abs(qy - own[1]) > 0.5)
-            inside = bb.x0 >= box.x0 and bb.x1 <= box.x1 and bb.y0 >= box.y0 and bb.y1 <= box.y1
-            if inside and not hits_point and not any(bb.overlaps(o) for o in taken):
-                taken.append(bb)
-                if first is not None:
-                    first.remove()
-                break
-            if first is None:
-                first = ann
-            else:
-                ann.remove()
-        else:  # nowhere free: keep the first position
-            if first is not None:
-                taken.append(first.get_window_extent(renderer))
-
-
-def _environment() -> dict:
-    import scipy
-
-    from . import __version__, simd_path
-
-    threads = ", ".join(f"{v}={os.environ[v]}" for v in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS")
-                        if v in os.environ) or "library defaults"
-    return {"version": __version__, "simd_path": simd_path(), "machine": platform.machine(),
-            "processor": platform.processor(), "cpus": os.cpu_count(), "python": platform.python_version(),
-            "numpy": np.__version__, "scipy": scipy.__version__, "threads": threads,
-            "date": datetime.datetime.now(datetime.timezone.utc).strftime("%Y-%m-%d %H:%M UTC")}
-
-
 def _check_kernels(kernels: Iterable[str]) -> list:
     if isinstance(kernels, str):
         kernels = [kernels]
@@ -793,11 +493,11 @@ def run(kernels: Iterable[str] = KERNELS, quick: bool = False, progress: bool = 
     out = {}
     for name in names:
         t_k = time.perf_counter()
-        k = _BENCHES[name](bool(quick), prog)
+        k = KERNEL_BENCHES[name](bool(quick), prog)
         k.seconds_total = time.perf_counter() - t_k
         k.check()
         out[name] = k
-    return BenchReport(out, bool(quick), _environment(), time.perf_counter() - t0)
+    return BenchReport(out, bool(quick), measure.environment(), time.perf_counter() - t0)
 
 
 def bench_report(out, kernels: Iterable[str] = KERNELS, quick: bool = False, progress: bool = True) -> BenchReport:
