@@ -77,9 +77,6 @@ __all__ = [
     "run",
 ]
 
-#: Kernels measured by the report, in report order.
-KERNELS = ("filters", "estimator", "detector", "contact")
-
 MD_NAME = "bench_report.md"
 PNG_NAME = "bench_pareto.png"
 JSON_NAME = "bench_report.json"
@@ -354,11 +351,15 @@ def _bench_contact(quick: bool, progress: _Progress) -> KernelReport:
     )
 
 
-#: The measuring function of each kernel: ``(quick, progress) -> KernelReport``. A new
-#: kernel joins the report by adding its name to :data:`KERNELS` and its function here.
+#: The measuring function of each kernel, in report order: ``(quick, progress) ->
+#: KernelReport``. A new kernel joins the report (and ``tactile-mirror bench --kernels``)
+#: by adding its function here.
 KERNEL_BENCHES: dict[str, Callable[[bool, _Progress], KernelReport]] = {
     "filters": _bench_filters, "estimator": _bench_estimator, "detector": _bench_detector,
     "contact": _bench_contact}
+
+#: Kernels measured by the report, in report order.
+KERNELS = tuple(KERNEL_BENCHES)
 
 
 # ---------------------------------------------------------------- report
