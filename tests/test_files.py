@@ -111,6 +111,24 @@ def test_atomic_write_keeps_permissions_and_symlinks(tmp_path):
     assert (os.stat(tmp_path / "fresh.txt").st_mode & 0o777) == 0o666 & ~umask
 
 
+@pytest.mark.skipif(not hasattr(os, "mkfifo"), reason="POSIX FIFOs")
+def test_atomic_write_to_a_pipe_writes_into_it_and_keeps_it_a_pipe(tmp_path):
+    import stat
+    import threading
+
+    fifo = tmp_path / "pipe"
+    os.mkfifo(fifo)
+    got = []
+    reader = threading.Thread(target=lambda: got.append(fifo.read_bytes()))
+    reader.start()
+    _io.check_writable(fifo)
+    with _io.atomic_write(fifo) as f:
+        f.write(b"through the pipe")
+    reader.join(10)
+    assert got == [b"through the pipe"]
+    assert stat.S_ISFIFO(os.stat(fifo).st_mode) and leftovers(tmp_path) == []
+
+
 def test_atomic_write_refuses_a_folder_and_bad_modes(tmp_path):
     with pytest.raises(IsADirectoryError):
         _io.write_text(tmp_path, "x")

@@ -38,6 +38,14 @@ def _target(path) -> str:
     return path
 
 
+def _is_special(target: str) -> bool:
+    """True if ``target`` exists and is not a regular file (a pipe, a device, a socket)."""
+    try:
+        return not stat.S_ISREG(os.stat(target).st_mode)
+    except OSError:
+        return False
+
+
 def _open_temporary(target: str) -> tuple[int, str]:
     """A new file beside ``target``, created with the permissions ``open(target, "w")`` would give."""
     folder, name = os.path.split(os.path.abspath(target))
@@ -89,7 +97,8 @@ def atomic_write(path, mode: str = "wb", *, encoding: str | None = None) -> Iter
     On leaving the block normally the file is flushed, ``fsync``-ed and moved into
     place with :func:`os.replace`. On any exception, ``KeyboardInterrupt`` included,
     the temporary file is removed, ``path`` is left as it was, and the exception
-    propagates.
+    propagates. A ``path`` that is a pipe or a device (``/dev/null``, a FIFO) is
+    written directly: it has no old content to keep and must not be replaced.
     """
     if mode not in ("wb", "w"):
         raise ValueError(f"mode must be 'wb' or 'w', got {mode!r}")
@@ -98,6 +107,12 @@ def atomic_write(path, mode: str = "wb", *, encoding: str | None = None) -> Iter
     target = _target(path)
     if os.path.isdir(target):
         raise IsADirectoryError(f"{os.fspath(path)!r} is a folder, not a file")
+    if _is_special(target):
+        # a pipe or a device (/dev/null, a FIFO): nothing to keep, and replacing it would
+        # put a regular file in its place; write to it directly
+        with open(target, mode, **({"encoding": encoding or "utf-8", "newline": ""} if mode == "w" else {})) as f:
+            yield f
+        return
     fd, tmp = _open_temporary(target)
     try:
         if mode == "w":
@@ -140,6 +155,8 @@ def check_writable(path, *, make_folder: bool = False) -> None:
         raise FileNotFoundError(f"the folder of {os.fspath(path)!r} does not exist")
     if os.path.exists(target) and not os.access(target, os.W_OK):
         raise PermissionError(f"{os.fspath(path)!r} is not writable")
+    if _is_special(target):
+        return
     fd, tmp = _open_temporary(target)
     os.close(fd)
     os.unlink(tmp)
