@@ -1,11 +1,13 @@
 """tactile_mirror.sosfilt / SosFilter against scipy.signal.sosfilt."""
+import warnings
+
 import numpy as np
 import pytest
 import scipy.signal as ss
 import tactile_mirror as tm
 from hypothesis import assume, given
 from hypothesis import strategies as st
-from tactile_mirror.filters import roundoff_bound
+from tactile_mirror.filters import POLE_TOLERANCE, UnstableFilterWarning, roundoff_bound
 
 F64_RTOL = 1e-12  # relative to the signal scale
 F32_BOUND_FACTOR = 8.0  # x roundoff_bound(); measured worst 1.6x
@@ -255,14 +257,69 @@ def test_bad_sos_shapes_and_values():
     with pytest.raises(ValueError, match="non-finite"):
         tm.sosfilt([[1, np.nan, 0, 1, 0, 0]], x)
     with pytest.raises(ValueError, match="unit circle"):
-        tm.sosfilt([[1, 0, 0, 1, -2, 1]], x)  # double pole at z = 1
-    with pytest.raises(ValueError, match="unit circle"):
         tm.SosFilter([[1, 0, 0, 1, 0, 1.2]], 1)
     with pytest.raises(TypeError, match="sos"):
         tm.SosFilter(np.ones((1, 6), dtype=complex), 1)
-    # explicitly allowed: an integrator
-    y = tm.sosfilt([[1, 0, 0, 1, -1, 0]], np.ones(5), allow_unstable=True)
+    # explicitly allowed: a pole outside the circle
+    y = tm.SosFilter([[1, 0, 0, 1, 0, 1.2]], 1, allow_unstable=True).process(np.ones(5))
+    np.testing.assert_array_equal(y, ss.sosfilt([[1, 0, 0, 1, 0, 1.2]], np.ones(5)))
+
+
+# Sections with poles on the unit circle: what scipy runs, the library runs.
+MARGINAL = {
+    "integrator": [[1, 0, 0, 1, -1, 0]],  # stress rate -> stress
+    "double integrator": [[1, 0, 0, 1, -2, 1]],
+    "dc-marginal": [[0.5, -0.5, 0, 1, -1, 0]],
+    "undamped resonator": [[1, 0, 0, 1, -2 * np.cos(0.3), 1]],
+    "poles at +-1": [[1, 0, 0, 1, 0, -1]],
+    "integrator after a lowpass": np.vstack([ss.butter(2, 0.1, output="sos"), [[1, 0, 0, 1, -1, 0]]]),
+}
+
+
+@pytest.mark.parametrize("name", sorted(MARGINAL))
+@pytest.mark.parametrize("dtype", [np.float64, np.float32])
+def test_poles_on_the_unit_circle_run_like_scipy(name, dtype):
+    sos = np.asarray(MARGINAL[name], dtype=dtype)
+    x = signal(3, 2000).astype(dtype)
+    ref = ss.sosfilt(sos, x)
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")  # no warning for a pole on the circle
+        y = tm.sosfilt(sos, x)
+    assert y.dtype == ref.dtype
+    tol = 1e-12 if dtype == np.float64 else 2e-4
+    np.testing.assert_allclose(y, ref, rtol=0, atol=tol * np.max(np.abs(ref)))
+    # the streaming object runs them too, in chunks, and agrees with the block function
+    f = tm.SosFilter(sos, 1, dtype)
+    parts = [f.process(x[:700]), *(f.step(np.array([v]))[0:1] for v in x[700:710]), f.process(x[710:])]
+    np.testing.assert_array_equal(np.concatenate(parts), y if dtype == np.float64 else tm.sosfilt(sos, x))
+
+
+def test_integrator_integrates_exactly():
+    y = tm.sosfilt([[1, 0, 0, 1, -1, 0]], np.ones(5))
     np.testing.assert_array_equal(y, [1, 2, 3, 4, 5])
+    np.testing.assert_array_equal(tm.SosFilter([[1, 0, 0, 1, -1, 0]], 1).process(np.ones(5)), [1, 2, 3, 4, 5])
+
+
+def test_pole_outside_the_circle_warns_in_sosfilt_and_is_refused_by_sosfilter():
+    sos = [[1, 0, 0, 1, -1.0, -0.1]]  # poles 1.092, -0.092
+    x = signal(4, 300)
+    with pytest.warns(UnstableFilterWarning, match=r"section 0 .*magnitude 1\.09"):
+        y = tm.sosfilt(sos, x)
+    np.testing.assert_allclose(y, ss.sosfilt(sos, x), rtol=1e-12)
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        tm.sosfilt(sos, x, allow_unstable=True)
+    with pytest.raises(ValueError, match="outside the unit circle"):
+        tm.SosFilter(sos, 1)
+    # the tolerance for "on the circle" is rounding, not a margin
+    with pytest.raises(ValueError, match="outside the unit circle"):
+        tm.SosFilter([[1, 0, 0, 1, 0, 1 + 1e-9]], 1)
+    tm.SosFilter([[1, 0, 0, 1, 0, 1 + POLE_TOLERANCE / 2]], 1)
+
+
+def test_roundoff_bound_needs_poles_inside_the_circle():
+    with pytest.raises(ValueError, match="on the unit circle"):
+        roundoff_bound([[1, 0, 0, 1, -1, 0]], np.ones(10))
 
 
 def test_a0_is_normalised():

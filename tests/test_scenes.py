@@ -58,3 +58,56 @@ def test_random_scenes_stay_in_their_ranges_and_take_overrides():
         tm.scenes.random(2, stop_probability=2.0)
     with pytest.raises(ValueError, match="n must"):
         tm.scenes.random(-1)
+
+
+# ---------------------------------------------------------------- validity of the model
+def test_an_indent_beyond_the_small_strain_range_is_refused_naming_the_limit():
+    with pytest.raises(ValueError, match=r"indent_speed.*small-strain limit of 200 um.*MAX_INDENT_STRAIN = 0\.1"):
+        tm.Scene(indent_speed=1.0)  # 0.5 m on a 2 mm ridge
+    limit = tm.scenes.MAX_INDENT_STRAIN * tm.Scene().geometry.height
+    # the indent reached is what counts: speed x the indent phase, or x the run if shorter
+    tm.Scene(indent_speed=limit / 0.5 * 0.999)
+    with pytest.raises(ValueError, match="small-strain"):
+        tm.Scene(indent_speed=limit / 0.5 * 1.001)
+    tm.Scene(indent_speed=limit / 0.2, duration=0.19)  # stops short of the limit
+    # the limit scales with the ridge
+    from tactile_mirror.contact.geometry import RidgeGeometry
+
+    tall = RidgeGeometry(height=4e-3)
+    tm.Scene(indent_speed=limit / 0.5 * 1.5, geometry=tall)
+    # explicit trajectories are held to the same limit
+    y = np.zeros(10)
+    with pytest.raises(ValueError, match="trajectory.*small-strain"):
+        tm.Scene(trajectory=(y, np.linspace(0, 1.01 * limit, 10)))
+    tm.Scene(trajectory=(y, np.linspace(-1e-3, limit, 10)))  # above the ridge is fine
+
+
+@pytest.mark.parametrize("kw, match", [
+    ({"noise": 1e308}, "noise must be below 1 V rms"),
+    ({"noise": 1.0}, "noise must be below"),
+    ({"seed": -1}, "seed must be a non-negative integer"),
+    ({"seed": 1.5}, "seed"),
+    ({"seed": True}, "seed"),
+    ({"seed": "1"}, "seed"),
+    ({"duration": 1e-4}, "at least 2 samples, got 0"),
+    ({"duration": 1e-3}, "at least 2 samples, got 1"),
+    ({"fs": 1.0, "duration": 1.0}, "at least 2 samples"),
+])
+def test_scenes_the_model_cannot_mean_are_refused(kw, match):
+    with pytest.raises(ValueError, match=match):
+        tm.Scene(**kw)
+
+
+def test_the_edges_of_validity_are_accepted():
+    assert tm.Scene(duration=2e-3).n_samples == 2
+    assert tm.Scene(noise=0.5, seed=2**70).noise == 0.5
+    assert tm.Scene(seed=np.int64(3)).seed == 3
+
+
+def test_every_scene_the_library_builds_is_valid():
+    from tactile_mirror.detector.build import TEST_KWARGS, TRAIN_KWARGS
+
+    for name in ("fig6", "fig7", "fig8"):
+        tm.scenes.paper(name)
+    for kw in ({}, TRAIN_KWARGS, TEST_KWARGS):
+        assert len(tm.scenes.random(300, seed=11, **kw)) == 300

@@ -65,17 +65,21 @@ def cmd_simulate(args) -> int:
     import numpy as np
 
     from . import simulate
+    from ._io import check_writable, save_npz
 
     scene = _scene_from_args(args)
     out = pathlib.Path(args.out)
-    out.parent.mkdir(parents=True, exist_ok=True)  # fail before the work, not after
+    check_writable(out, make_folder=True)  # fail before the work, not after
+    if args.figure:
+        check_writable(args.figure, make_folder=True)
     t0 = time.perf_counter()
     res = simulate(scene, progress=True)
-    np.savez_compressed(out, t=res.t, fs=res.fs, plate_y=res.plate_y, indent=res.indent, stress=res.stress,
-                        v_out=res.v_out, u_out=res.u_out, slip_fraction=res.slip_fraction,
-                        force_y=res.force_y, force_z=res.force_z,
-                        slip_time=np.nan if res.slip_time is None else res.slip_time,
-                        friction=scene.friction, n_ridges=scene.n_ridges)
+    # written to exactly --out (no suffix added), atomically
+    save_npz(out, compressed=True, t=res.t, fs=res.fs, plate_y=res.plate_y, indent=res.indent,
+             stress=res.stress, v_out=res.v_out, u_out=res.u_out, slip_fraction=res.slip_fraction,
+             force_y=res.force_y, force_z=res.force_z,
+             slip_time=np.nan if res.slip_time is None else res.slip_time,
+             friction=scene.friction, n_ridges=scene.n_ridges)
     print(f"simulated {res.t.size} steps in {time.perf_counter() - t0:.2f} s; gross slip: "
           f"{'none' if res.slip_time is None else f'{res.slip_time:.3f} s'}; wrote {out}")
     if args.figure:
@@ -149,11 +153,14 @@ def build_options_from_args(args):
 
 
 def cmd_train(args) -> int:
+    from ._io import check_writable
     from .detector.build import build_default
 
     options = build_options_from_args(args)  # bad combinations fail before any work
     out = pathlib.Path(args.out)
-    out.parent.mkdir(parents=True, exist_ok=True)
+    for path in (out, args.report, args.figure):  # fail before training, not after
+        if path is not None:
+            check_writable(path, make_folder=True)
     _, report = build_default(out, options, report_path=args.report, figure_path=args.figure)
     print(report["evaluation_table"])
     print(f"wrote {out} ({report['total_seconds']:.0f} s)")
@@ -276,7 +283,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--ridges", type=_positive(int), default=1, help="ridges in the pad (default: 1)")
     p.add_argument("--noise", type=float, default=0.0, help="sensor noise, V rms (default: 0)")
     p.add_argument("--seed", type=int, default=0, help="noise / random-scene seed (default: 0)")
-    p.add_argument("--out", default="scene.npz", help="output .npz file (default: %(default)s)")
+    p.add_argument("--out", default="scene.npz",
+                   help="output file, npz format, written as named (default: %(default)s)")
     p.add_argument("--figure", default=None, help="also write the Figs. 6-8 style plot to this file")
     p.set_defaults(func=cmd_simulate)
 

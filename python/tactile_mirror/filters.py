@@ -28,14 +28,22 @@ Each section runs in one of two structures (the ``structure`` argument):
     right half plane (``-a1 > 0``, the low-frequency sections), tdf2 for the rest,
     where the delta form has no advantage.
 
+Poles: :func:`sosfilt` runs every section scipy runs. Poles on the unit circle
+(an integrator ``1 / (1 - z^-1)``, a DC-marginal or an undamped resonant section)
+are ordinary there; a pole outside the circle gives an :class:`UnstableFilterWarning`
+(not an error) unless ``allow_unstable=True``. The streaming :class:`SosFilter` runs
+poles on the circle and refuses poles outside it unless ``allow_unstable=True``: a
+real-time loop should not be built around an exponentially growing state by accident.
+"On the circle" allows :data:`POLE_TOLERANCE` of rounding in designed coefficients.
+
 Differences from scipy, all deliberate: a NaN/Inf sample raises ``ValueError``
 (naming the first bad sample) instead of spreading NaN through the state;
-unstable sections (poles on or outside the unit circle) raise unless
-``allow_unstable=True``; ``a0`` need not be 1 (each section is normalised) but must
+``a0`` need not be 1 (each section is normalised; scipy refuses it) but must
 be non-zero. Complex, long-double and object inputs are passed to scipy itself.
 """
 from __future__ import annotations
 
+import warnings
 from typing import overload
 
 import numpy as np
@@ -43,9 +51,20 @@ import numpy.typing as npt
 
 from . import _core
 
-__all__ = ["STRUCTURES", "SosFilter", "roundoff_bound", "simd_path", "sosfilt", "validate_sos"]
+__all__ = ["POLE_TOLERANCE", "STRUCTURES", "SosFilter", "UnstableFilterWarning", "roundoff_bound", "simd_path",
+           "sosfilt", "validate_sos"]
 
 STRUCTURES = ("auto", "tdf2", "delta")
+
+#: How far (in the Jury conditions on ``a1``, ``a2``) a section may lie outside the
+#: closed unit disc and still count as "on the circle": 8 float64 ulps of 1, the
+#: rounding of a designed ``a2 = r**2 = 1`` or ``a1 = -2 cos(w)``. A pole radius of
+#: ``1 + 1e-15`` grows a state by a factor ``exp(1e-15 n)``: 1.0000001 after 1e8 samples.
+POLE_TOLERANCE = 8 * float(np.finfo(np.float64).eps)
+
+
+class UnstableFilterWarning(RuntimeWarning):
+    """:func:`sosfilt` runs a section with a pole outside the unit circle (its output grows)."""
 _FORM_CODES = {"tdf2": 0, "delta": 1}
 _FORM_NAMES = {0: "tdf2", 1: "delta"}
 _CASCADES = {np.dtype(np.float64): _core._SosCascade64, np.dtype(np.float32): _core._SosCascade32}
@@ -73,7 +92,9 @@ def validate_sos(sos: npt.ArrayLike, *, allow_unstable: bool = False, name: str 
     sos : array_like, shape (n_sections, 6)
         Rows ``(b0, b1, b2, a0, a1, a2)``; a single row of 6 is one section.
     allow_unstable : bool
-        Accept sections with poles on or outside the unit circle.
+        Accept sections with poles outside the unit circle. Poles on the circle
+        (integrators, undamped resonators; within :data:`POLE_TOLERANCE`) are
+        always accepted.
 
     Raises
     ------
@@ -81,7 +102,7 @@ def validate_sos(sos: npt.ArrayLike, *, allow_unstable: bool = False, name: str 
         Non-numeric or complex coefficients.
     ValueError
         Wrong shape, no sections, non-finite values, ``a0 == 0``, or (unless
-        allowed) a pole of magnitude >= 1.
+        allowed) a pole of magnitude > 1.
     """
     arr = np.asarray(sos)
     _real_numeric(arr, name)
@@ -99,17 +120,34 @@ def validate_sos(sos: npt.ArrayLike, *, allow_unstable: bool = False, name: str 
         raise ValueError(f"{name}[{bad}, 3] (a0) is zero: the section has no defined output")
     arr = arr / a0[:, None]
     if not allow_unstable:
-        a1, a2 = arr[:, 4], arr[:, 5]
-        # Jury: both roots of z^2 + a1 z + a2 strictly inside the unit circle.
-        stable = (np.abs(a2) < 1.0) & (np.abs(a1) < 1.0 + a2)
-        if not np.all(stable):
-            bad = int(np.flatnonzero(~stable)[0])
-            radius = float(np.max(np.abs(np.roots([1.0, a1[bad], a2[bad]]))))
+        bad = _first_outside(arr)
+        if bad is not None:
             raise ValueError(
-                f"{name} section {bad} has a pole of magnitude {radius:.12g} (on or outside the "
+                f"{name} section {bad} has a pole of magnitude {_pole_radius(arr[bad]):.12g} (outside the "
                 f"unit circle); pass allow_unstable=True to run it anyway"
             )
     return arr
+
+
+def _first_outside(sos: np.ndarray, strict: bool = False) -> int | None:
+    """Index of the first normalised section with a pole outside the unit circle.
+
+    Jury's conditions for both roots of ``z^2 + a1 z + a2`` in the closed unit disc:
+    ``|a2| <= 1`` and ``|a1| <= 1 + a2`` (with :data:`POLE_TOLERANCE`). ``strict``
+    asks for the open disc instead (no pole on the circle).
+    """
+    a1, a2 = sos[:, 4], sos[:, 5]
+    if strict:
+        inside = (np.abs(a2) < 1.0) & (np.abs(a1) < 1.0 + a2)
+    else:
+        inside = (np.abs(a2) <= 1.0 + POLE_TOLERANCE) & (np.abs(a1) <= 1.0 + a2 + POLE_TOLERANCE)
+    if np.all(inside):
+        return None
+    return int(np.flatnonzero(~inside)[0])
+
+
+def _pole_radius(section: np.ndarray) -> float:
+    return float(np.max(np.abs(np.roots([1.0, section[4], section[5]]))))
 
 
 def _forms(sos: np.ndarray, dtype: np.dtype, structure: str) -> np.ndarray:
@@ -155,7 +193,9 @@ def sosfilt(sos: npt.ArrayLike, x: npt.ArrayLike, axis: int = -1, zi: npt.ArrayL
     structure : {"auto", "tdf2", "delta"}
         Section structure (see the module docstring). Keyword only.
     allow_unstable : bool
-        Run sections with poles on or outside the unit circle. Keyword only.
+        Run sections with poles outside the unit circle without an
+        :class:`UnstableFilterWarning` (they run either way, as in scipy; poles
+        on the circle never warn). Keyword only.
 
     Returns
     -------
@@ -192,10 +232,17 @@ def sosfilt(sos: npt.ArrayLike, x: npt.ArrayLike, axis: int = -1, zi: npt.ArrayL
 
             return scipy.signal.sosfilt(sos, x, axis=axis, zi=zi)
         raise TypeError(f"input type '{dtype}' not supported")
-    sos64 = validate_sos(sos_arr, allow_unstable=allow_unstable)
+    # scipy runs any section; so does the block function (a pole outside the circle warns)
+    sos64 = validate_sos(sos_arr, allow_unstable=True)
     if sos_arr.dtype == np.float32 or dtype == np.float32:
         # scipy computes with the sos cast to the result type
-        sos64 = validate_sos(sos64.astype(dtype), allow_unstable=allow_unstable)
+        sos64 = validate_sos(sos64.astype(dtype), allow_unstable=True)
+    if not allow_unstable:
+        bad = _first_outside(sos64)
+        if bad is not None:
+            warnings.warn(f"sos section {bad} has a pole of magnitude {_pole_radius(sos64[bad]):.12g} (outside "
+                          f"the unit circle): the output grows without bound; pass allow_unstable=True to "
+                          f"silence this", UnstableFilterWarning, stacklevel=2)
     if x_arr.ndim == 0:
         raise ValueError("x must have at least one dimension")
     if not -x_arr.ndim <= axis < x_arr.ndim:
@@ -264,7 +311,8 @@ class SosFilter:
         which keeps ``butter(4, 0.5, 'highpass', fs=10000)`` within ~1e-6 of peak where
         float32 tdf2 is off by ~2 %.
     allow_unstable : bool
-        Accept sections with poles on or outside the unit circle.
+        Accept sections with poles outside the unit circle. Poles on the circle
+        (an integrator, a DC-marginal section) are always accepted.
 
     Notes
     -----
@@ -413,6 +461,11 @@ def roundoff_bound(sos: npt.ArrayLike, x: npt.ArrayLike, dtype: npt.DTypeLike = 
     import scipy.signal
 
     sos64 = validate_sos(sos, allow_unstable=False)
+    bad = _first_outside(sos64, strict=True)
+    if bad is not None:
+        # the impulse response of a pole on the circle does not decay: no finite bound
+        raise ValueError(f"sos section {bad} has a pole on the unit circle; the bound needs poles strictly "
+                         f"inside it")
     u = np.asarray(x, dtype=np.float64)
     if u.ndim != 1:
         raise ValueError(f"x must be 1-D, got shape {u.shape}")

@@ -88,15 +88,23 @@ def contact_scene_figure(result: SimulationResult, ridge: int = 0, title: str | 
 
 
 def save(fig: Figure, path: str | os.PathLike[str]) -> None:
-    """Write a figure (format from the file name) and close it."""
+    """Write a figure (format from the file name) and close it.
+
+    The folder is created if missing. Atomic: the image is written beside ``path``
+    and moved into place, so a failed save leaves a previous file intact.
+    """
     import pathlib
 
     import matplotlib.pyplot as plt
 
+    from ._io import save_figure
+
     p = pathlib.Path(path)
-    p.parent.mkdir(parents=True, exist_ok=True)
-    fig.savefig(p, dpi=130)
-    plt.close(fig)
+    try:
+        p.parent.mkdir(parents=True, exist_ok=True)
+        save_figure(fig, p, dpi=130)
+    finally:
+        plt.close(fig)
 
 
 # ---------------------------------------------------------------- run time against error

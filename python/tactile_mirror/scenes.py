@@ -18,7 +18,8 @@ import numpy as np
 from .circuit import PVDFCircuit
 from .contact.geometry import RidgeGeometry
 
-__all__ = ["DEFAULT_FRICTION", "DEFAULT_KINETIC_RATIO", "OUTPUTS", "Scene", "paper", "random"]
+__all__ = ["DEFAULT_FRICTION", "DEFAULT_KINETIC_RATIO", "MAX_INDENT_STRAIN", "MAX_NOISE", "OUTPUTS", "Scene", "paper",
+           "random"]
 
 #: Coulomb friction between finger and ridge. Chosen so that the paper's fig6 scene
 #: (default ridge, kinetic ratio 0.85) reaches gross slip at t = 1.448 s, inside the 1.4-1.5 s the paper
@@ -34,6 +35,20 @@ DEFAULT_KINETIC_RATIO = 0.85
 #: every surface node's stick/slip/open state and position; "fields" the full stress
 #: field at ``field_times`` (one sparse solve each).
 OUTPUTS = frozenset({"forces", "slip", "stress", "signals", "state", "fields"})
+
+#: Deepest indent a scene may ask for, as a fraction of the ridge height (the
+#: nominal compressive strain of the ridge). The contact model is linear
+#: small-strain elasticity on the undeformed geometry; at 10 % nominal strain a
+#: neo-Hookean solid (the usual model of silicone) already carries about 12 % more
+#: stress than the linear law gives, and the error grows quickly beyond. The paper's
+#: 30 um on a 2 mm ridge is 1.5 %; the training and held-out scenes reach at most 2.5 %.
+MAX_INDENT_STRAIN = 0.10
+
+#: Largest sensor noise a scene may add, V rms. The signals are tens of mV and the
+#: front end's op-amps swing a few volts; Gaussian noise of 1 V rms would clip a
+#: +-5 V swing in one sample of about 1.7 million, and beyond that the unclipped
+#: noise model describes no real circuit.
+MAX_NOISE = 1.0
 _DEFAULT_OUTPUTS = frozenset({"forces", "slip", "stress", "signals"})
 
 
@@ -72,9 +87,9 @@ class Scene:
         larger than the fingertip's own radius; the default 2 m makes the outer ridges
         of a 6-ridge pad (7.5 mm off centre) press 14 um less than the centre ones.
     noise : float
-        Sensor noise added to v_out and u_out, V rms.
+        Sensor noise added to v_out and u_out, V rms, below :data:`MAX_NOISE`.
     seed : int
-        Seed of the noise.
+        Seed of the noise: a non-negative integer (what ``numpy.random.default_rng`` takes).
     outputs : frozenset of str
         Subset of :data:`OUTPUTS`.
     stop_after_slip : float or None
@@ -114,6 +129,11 @@ class Scene:
             v = getattr(self, name)
             if not (np.isfinite(v) and v >= 0):
                 raise ValueError(f"{name} must be a non-negative number, got {v!r}")
+        if not self.noise < MAX_NOISE:
+            raise ValueError(f"noise must be below {MAX_NOISE:g} V rms (MAX_NOISE: the front end swings a few "
+                             f"volts), got {self.noise!r}")
+        if isinstance(self.seed, (bool, np.bool_)) or not isinstance(self.seed, (int, np.integer)) or self.seed < 0:
+            raise ValueError(f"seed must be a non-negative integer (a numpy random seed), got {self.seed!r}")
         if not (np.isfinite(self.friction) and self.friction > 0):
             raise ValueError(f"friction must be a positive number, got {self.friction!r}")
         if not (0 < self.kinetic_ratio <= 1):
@@ -141,6 +161,25 @@ class Scene:
             object.__setattr__(self, "trajectory", (y, z))
         if self.stop_after_slip is not None and not (self.stop_after_slip >= 0):
             raise ValueError(f"stop_after_slip must be >= 0, got {self.stop_after_slip!r}")
+        if self.n_samples < 2:
+            raise ValueError(f"duration x fs must give at least 2 samples, got {self.n_samples} "
+                             f"(duration={self.duration!r} s, fs={self.fs!r} Hz)")
+        self._check_indent()
+
+    def _check_indent(self) -> None:
+        """Refuse an indent beyond the contact model's small-strain range (:data:`MAX_INDENT_STRAIN`)."""
+        height = float(self.geometry.height)
+        limit = MAX_INDENT_STRAIN * height
+        if self.trajectory is not None:
+            deepest, what = float(np.max(self.trajectory[1])), "trajectory"
+        else:
+            deepest = self.indent_speed * min(self.duration, self.indent_duration)
+            what = "indent_speed"
+        if deepest > limit:
+            raise ValueError(
+                f"{what}: the plate would indent {deepest * 1e6:.4g} um, beyond the model's small-strain limit "
+                f"of {limit * 1e6:.4g} um (MAX_INDENT_STRAIN = {MAX_INDENT_STRAIN:g} of the {height * 1e3:g} mm "
+                f"ridge height; the contact model is linear elasticity, which stops holding at larger strain)")
 
     @property
     def n_samples(self) -> int:

@@ -14,13 +14,13 @@ from __future__ import annotations
 
 import argparse
 import json
-import os
 import time
 import warnings
 from dataclasses import dataclass
 
 import numpy as np
 
+from .._io import save_figure, write_text
 from .core import SlipDetector
 from .evaluate import ForceRatioDetector, evaluate
 from .training import TrainingSet, augment_gains, augment_noise, make_training_set, train_detector
@@ -444,9 +444,7 @@ def _build(out_path, options: BuildOptions, report_path, figure_path, results):
     w.save(out_path)
     report["total_seconds"] = round(time.perf_counter() - t_all, 1)
     if report_path is not None:
-        with open(os.fspath(report_path), "w") as f:
-            f.write(rep.table() + "\n\n")
-            f.write(json.dumps(report, indent=1, default=float) + "\n")
+        write_text(report_path, rep.table() + "\n\n" + json.dumps(report, indent=1, default=float) + "\n")
     if figure_path is not None:
         from .. import scenes
         from .figures import figure10
@@ -454,7 +452,7 @@ def _build(out_path, options: BuildOptions, report_path, figure_path, results):
         ra = simulate_scenes([scenes.paper("fig6")], False)[0]
         rb = simulate_scenes([scenes.paper("fig8")], False)[0]
         fig = figure10(det, ra, rb, stops_b=[(1.40, 1.45)])
-        fig.savefig(os.fspath(figure_path), dpi=120)
+        save_figure(fig, figure_path, dpi=120)
     return w, report
 
 

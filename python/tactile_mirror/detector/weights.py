@@ -17,8 +17,13 @@ key                 shape / type           meaning
 ``metadata``        str (JSON)             features kind and units, targets, training
 ==================  =====================  ==========================================
 
-The loader checks every key, shape, dtype and finiteness and raises
-:class:`WeightsError` (a :class:`ValueError`) saying what is wrong.
+The loader reads only these members (others are ignored, unread), checks each
+one's dtype and shape against bounds (``n_hidden <=`` :data:`MAX_HIDDEN`) from its npy
+header before reading its data, then checks every key, shape, dtype and
+finiteness. Anything wrong with the file's content raises :class:`WeightsError` (a
+:class:`ValueError`) saying what; only a path that cannot be opened raises
+:class:`OSError`. :meth:`DetectorWeights.save` writes a temporary file beside the
+target and moves it into place, so a failed save leaves the previous file intact.
 """
 from __future__ import annotations
 
@@ -29,13 +34,28 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from .._npzfile import check_json, read_versioned
+from .._npzfile import Member, check_json, parse_json, read_versioned, write_versioned
 from .network import Params
 
-__all__ = ["FEATURE_KINDS", "FORMAT", "FORMAT_VERSION", "DetectorWeights", "WeightsError"]
+__all__ = ["FEATURE_KINDS", "FORMAT", "FORMAT_VERSION", "MAX_HIDDEN", "DetectorWeights", "WeightsError"]
 
 FORMAT = "tactile-mirror-detector"
 FORMAT_VERSION = 1
+
+#: Largest hidden size a weights object or file may have: the C++ detector kernel's limit.
+MAX_HIDDEN = 1024
+_MAX_INPUTS = 64  # bound on stored input widths; the feature kinds have 4
+_MAX_METADATA_CHARS = 1 << 20
+_MEMBERS = {
+    "w1": Member("f", 2, (MAX_HIDDEN, _MAX_INPUTS + 1)),
+    "b1": Member("f", 1, (MAX_HIDDEN,)),
+    "w2": Member("f", 2, (16, MAX_HIDDEN)),  # bounds only; validate() checks exact shapes
+    "b2": Member("f", 1, (16,)),
+    "input_mean": Member("f", 1, (_MAX_INPUTS,)),
+    "input_scale": Member("f", 1, (_MAX_INPUTS,)),
+    "fs": Member("f", 0),
+    "metadata": Member("U", 0, max_itemsize=4 * _MAX_METADATA_CHARS),
+}
 
 #: Kinds of input features and their channel units ([v_L, v_R, u_L, u_R] order).
 FEATURE_KINDS = {
@@ -104,6 +124,8 @@ class DetectorWeights:
         if p.w1.ndim != 2 or p.w1.shape[1] < 2 or p.w1.shape[0] < 1:
             raise WeightsError(f"w1 must have shape (n_hidden, n_inputs + 1), got {p.w1.shape}")
         h, m = p.w1.shape
+        if h > MAX_HIDDEN:
+            raise WeightsError(f"n_hidden = {h} exceeds {MAX_HIDDEN}, the detector kernel's limit")
         expected = {"b1": (h,), "w2": (2, h), "b2": (2,), "input_mean": (m - 1,), "input_scale": (m - 1,)}
         for name, shape in expected.items():
             if arrays[name].shape != shape:
@@ -119,7 +141,7 @@ class DetectorWeights:
         if not isinstance(self.metadata, dict):
             raise WeightsError(f"metadata must be a dict, got {type(self.metadata).__name__}")
         kind = self.metadata.get("features", "stress_rate")
-        if kind not in FEATURE_KINDS:
+        if not isinstance(kind, str) or kind not in FEATURE_KINDS:
             raise WeightsError(f"metadata['features'] must be one of {sorted(FEATURE_KINDS)}, got {kind!r}")
         if m - 1 != len(FEATURE_KINDS[kind]):
             raise WeightsError(f"features {kind!r} have {len(FEATURE_KINDS[kind])} channels, "
@@ -127,14 +149,17 @@ class DetectorWeights:
         check_json(self.metadata, "metadata", WeightsError)
 
     def save(self, path) -> None:
-        """Write the weights to ``path`` (``.npz``; the suffix is not added)."""
+        """Write the weights to ``path`` (``.npz``; the suffix is not added).
+
+        Atomic: the file is written beside ``path`` and moved into place, so a
+        failed or interrupted save leaves a previous file at ``path`` intact.
+        """
         self.validate()
         p = self.params
-        with open(os.fspath(path), "wb") as f:
-            np.savez(f, format=np.array(FORMAT), format_version=np.array(FORMAT_VERSION),
-                     w1=p.w1, b1=p.b1, w2=p.w2, b2=p.b2, input_mean=self.input_mean,
-                     input_scale=self.input_scale, fs=np.array(float(self.fs)),
-                     metadata=np.array(json.dumps(self.metadata, sort_keys=True)))
+        write_versioned(path, FORMAT, FORMAT_VERSION,
+                        w1=p.w1, b1=p.b1, w2=p.w2, b2=p.b2, input_mean=self.input_mean,
+                        input_scale=self.input_scale, fs=np.array(float(self.fs)),
+                        metadata=np.array(json.dumps(self.metadata, sort_keys=True)))
 
     @classmethod
     def load(cls, path) -> DetectorWeights:
@@ -143,23 +168,16 @@ class DetectorWeights:
         Raises
         ------
         WeightsError
-            Not a weights file, unsupported ``format_version``, missing key, wrong
-            shape or dtype, non-finite value, or invalid metadata.
-        FileNotFoundError
-            ``path`` does not exist.
+            Not a weights file (or a damaged one), unsupported ``format_version``,
+            missing key, wrong or oversized shape, wrong dtype, non-finite value, or
+            invalid metadata.
+        OSError
+            ``path`` cannot be opened (:class:`FileNotFoundError` if it does not exist).
         """
         path = os.fspath(path)
-        data = read_versioned(path, FORMAT, FORMAT_VERSION, WeightsError, "detector weights file")
-        for key in ("w1", "b1", "w2", "b2", "input_mean", "input_scale", "fs", "metadata"):
-            if key not in data:
-                raise WeightsError(f"{path!r}: key {key!r} missing")
+        data = read_versioned(path, FORMAT, FORMAT_VERSION, WeightsError, "detector weights file", _MEMBERS)
         fs = data["fs"]
-        if fs.shape != () or fs.dtype.kind != "f":
-            raise WeightsError(f"{path!r}: fs must be a float scalar")
-        try:
-            meta = json.loads(str(data["metadata"]))
-        except ValueError as exc:
-            raise WeightsError(f"{path!r}: metadata is not valid JSON: {exc}") from None
+        meta = parse_json(data["metadata"], "metadata", WeightsError, repr(path))
         params = Params(data["w1"], data["b1"], data["w2"], data["b2"])
         return cls(params, data["input_mean"], data["input_scale"], float(fs), meta)
 

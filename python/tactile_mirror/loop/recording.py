@@ -23,6 +23,13 @@ key                 shape / type        meaning
 ``config``          str (JSON)          the configuration's other fields
 ``metadata``        str (JSON)          free-form (run settings, latency, scene ...)
 ==================  ==================  =============================================
+
+Loading reads only these members (others are ignored, unread) and checks each one's
+dtype and shape against bounds (at most :data:`MAX_TICKS` ticks, :data:`MAX_RIDGES`
+ridges) from its npy header before reading its data; anything wrong with the file's
+content raises :class:`RecordingError`, only a path that cannot be opened raises
+:class:`OSError`. Saving writes a temporary file beside the target and moves it into
+place, so a failed save leaves the previous file intact.
 """
 from __future__ import annotations
 
@@ -33,13 +40,37 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from .._npzfile import check_json, read_versioned
+from .._npzfile import Member, check_json, parse_json, read_versioned, write_versioned
 
-__all__ = ["FORMAT", "FORMAT_VERSION", "Recording", "RecordingError"]
+__all__ = ["FORMAT", "FORMAT_VERSION", "MAX_RIDGES", "MAX_TICKS", "Recording", "RecordingError"]
 
 FORMAT = "tactile-mirror-recording"
 FORMAT_VERSION = 1
 _CFG_ARRAYS = ("sos_v", "sos_u", "sos_diff", "w1", "b1", "w2", "b2", "input_mean", "input_gain")
+
+#: Longest recording a file may hold: 1e8 ticks, 28 h at 1 kHz (a 6-ridge recording
+#: that long is 27 GB of samples and outputs).
+MAX_TICKS = 10**8
+#: Most ridges a recording may have.
+MAX_RIDGES = 64
+_MAX_IN, _MAX_OUT = 4 * MAX_RIDGES, 2 + 3 * MAX_RIDGES
+_MAX_HIDDEN, _MAX_SECTIONS, _MAX_JSON_CHARS = 1024, 64, 1 << 22
+_MEMBERS = {
+    "fs": Member("f", 0), "x0": Member("f", 0),
+    "samples": Member("f", 2, (MAX_TICKS, _MAX_IN)),
+    "outputs": Member("f", 2, (MAX_TICKS, _MAX_OUT)),
+    "accepted": Member("b", 1, (MAX_TICKS,), max_itemsize=1),
+    "stage_position": Member("f", 1, (MAX_TICKS,)),
+    "config": Member("U", 0, max_itemsize=4 * _MAX_JSON_CHARS),
+    "metadata": Member("U", 0, max_itemsize=4 * _MAX_JSON_CHARS),
+    **{"cfg_" + k: Member("f", 2, (_MAX_SECTIONS, 6), required=False) for k in ("sos_v", "sos_u", "sos_diff")},
+    "cfg_w1": Member("f", 2, (_MAX_HIDDEN, _MAX_IN + 1), required=False),
+    "cfg_b1": Member("f", 1, (_MAX_HIDDEN,), required=False),
+    "cfg_w2": Member("f", 2, (16, _MAX_HIDDEN), required=False),
+    "cfg_b2": Member("f", 1, (16,), required=False),
+    "cfg_input_mean": Member("f", 1, (_MAX_IN,), required=False),
+    "cfg_input_gain": Member("f", 1, (_MAX_IN,), required=False),
+}
 
 
 class RecordingError(ValueError):
@@ -96,8 +127,15 @@ class Recording:
         for key in ("n_ridges", "use_u", "fs"):
             if key not in self.config:
                 raise RecordingError(f"config lacks {key!r}")
-        R = int(self.config["n_ridges"])
-        ni = 2 * R * (2 if self.config["use_u"] else 1)
+        R, use_u, cfg_fs = self.config["n_ridges"], self.config["use_u"], self.config["fs"]
+        if isinstance(R, (bool, np.bool_)) or not isinstance(R, (int, np.integer)) or not 1 <= R <= MAX_RIDGES:
+            raise RecordingError(f"config['n_ridges'] must be an integer in [1, {MAX_RIDGES}], got {R!r}")
+        if not isinstance(use_u, (bool, np.bool_)):
+            raise RecordingError(f"config['use_u'] must be a bool, got {use_u!r}")
+        if isinstance(cfg_fs, (bool, np.bool_)) or not isinstance(cfg_fs, (int, float, np.integer, np.floating)):
+            raise RecordingError(f"config['fs'] must be a number, got {cfg_fs!r}")
+        R = int(R)
+        ni = 2 * R * (2 if use_u else 1)
         no = 2 + 3 * R
         arrays = {"samples": self.samples, "outputs": self.outputs, "accepted": self.accepted,
                   "stage_position": self.stage_position}
@@ -111,13 +149,19 @@ class Recording:
                 raise RecordingError(f"{name} must have shape {shape} for {R} ridges, got {arrays[name].shape}")
         if self.accepted.dtype != bool:
             raise RecordingError(f"accepted must be a bool array, got {self.accepted.dtype}")
+        if self.samples.shape[0] > MAX_TICKS:
+            raise RecordingError(f"{self.samples.shape[0]} ticks exceed MAX_TICKS = {MAX_TICKS}")
         if not math.isclose(float(self.config["fs"]), float(self.fs), rel_tol=1e-12):
             raise RecordingError(f"fs={self.fs} differs from the configuration's {self.config['fs']}")
         check_json(self.metadata, "metadata", RecordingError)
 
     # -- files ----------------------------------------------------------------------------
     def save(self, path) -> None:
-        """Write the recording to ``path`` (``.npz``; the suffix is not added)."""
+        """Write the recording to ``path`` (``.npz``; the suffix is not added).
+
+        Atomic: the file is written beside ``path`` and moved into place, so a
+        failed or interrupted save leaves a previous file at ``path`` intact.
+        """
         self.validate()
         cfg = dict(self.config)
         arrays = {}
@@ -125,26 +169,31 @@ class Recording:
             v = cfg.pop(k, None)
             if v is not None:
                 arrays["cfg_" + k] = np.asarray(v, dtype=np.float64)
-        with open(os.fspath(path), "wb") as f:
-            np.savez(f, format=np.array(FORMAT), format_version=np.array(FORMAT_VERSION),
-                     fs=np.array(float(self.fs)), x0=np.array(float(self.x0)), samples=self.samples,
-                     outputs=self.outputs, accepted=self.accepted, stage_position=self.stage_position,
-                     config=np.array(json.dumps(cfg, sort_keys=True)),
-                     metadata=np.array(json.dumps(self.metadata, sort_keys=True)), **arrays)
+        write_versioned(path, FORMAT, FORMAT_VERSION,
+                        fs=np.array(float(self.fs)), x0=np.array(float(self.x0)), samples=self.samples,
+                        outputs=self.outputs, accepted=self.accepted, stage_position=self.stage_position,
+                        config=np.array(json.dumps(cfg, sort_keys=True)),
+                        metadata=np.array(json.dumps(self.metadata, sort_keys=True)), **arrays)
 
     @classmethod
     def load(cls, path) -> Recording:
-        """Read and validate a file written by :meth:`save`."""
+        """Read and validate a file written by :meth:`save`.
+
+        Raises
+        ------
+        RecordingError
+            Anything wrong with the file's content (not a recording, a damaged file,
+            another version, a missing member, a dtype or shape out of bounds,
+            inconsistent shapes, invalid JSON).
+        OSError
+            ``path`` cannot be opened (:class:`FileNotFoundError` if it does not exist).
+        """
         path = os.fspath(path)
-        data = read_versioned(path, FORMAT, FORMAT_VERSION, RecordingError, "tactile-mirror recording")
-        for key in ("fs", "x0", "samples", "outputs", "accepted", "stage_position", "config", "metadata"):
-            if key not in data:
-                raise RecordingError(f"{path!r}: key {key!r} missing")
-        try:
-            cfg = json.loads(str(data["config"]))
-            meta = json.loads(str(data["metadata"]))
-        except ValueError as exc:
-            raise RecordingError(f"{path!r}: config or metadata is not valid JSON: {exc}") from None
+        data = read_versioned(path, FORMAT, FORMAT_VERSION, RecordingError, "tactile-mirror recording", _MEMBERS)
+        cfg = parse_json(data["config"], "config", RecordingError, repr(path))
+        meta = parse_json(data["metadata"], "metadata", RecordingError, repr(path))
+        if not isinstance(cfg, dict):
+            raise RecordingError(f"{path!r}: config must be a JSON object")
         for k in _CFG_ARRAYS:
             cfg[k] = data.get("cfg_" + k)
         return cls(fs=float(data["fs"]), samples=data["samples"], outputs=data["outputs"],
