@@ -62,6 +62,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from . import measure
+from ._io import write_text
 from .measure import extended_sosfilt
 
 __all__ = [
@@ -434,8 +435,8 @@ class BenchReport:
         out = pathlib.Path(out)
         out.mkdir(parents=True, exist_ok=True)
         paths = {"markdown": out / MD_NAME, "figure": out / PNG_NAME, "json": out / JSON_NAME}
-        paths["markdown"].write_text(self.markdown())
-        paths["json"].write_text(json.dumps(self.as_dict(), indent=1, default=_json_default))
+        write_text(paths["markdown"], self.markdown())
+        write_text(paths["json"], json.dumps(self.as_dict(), indent=1, default=_json_default))
         save(self.figure(), paths["figure"])
         return paths
 

@@ -27,7 +27,6 @@ import from here, with a ``DeprecationWarning`` naming their new home.
 from __future__ import annotations
 
 import argparse
-import json
 import math
 import numbers
 import os
@@ -38,6 +37,7 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
+from .._io import write_json
 from ..circuit import PVDFCircuit
 from .controller import PaperController, VelocityController
 from .figures import loop_figure
@@ -413,8 +413,7 @@ def _run_experiment(options: ExperimentOptions, weights, out_dir) -> dict:
               "detector": weights.metadata.get("training", {}) if hasattr(weights, "metadata") else {}}
     if out_dir is not None:
         os.makedirs(out_dir, exist_ok=True)
-        with open(os.path.join(out_dir, "experiment.json"), "w") as f:
-            json.dump(result, f, indent=1)
+        write_json(os.path.join(out_dir, "experiment.json"), result, indent=1)
         if hasattr(weights, "save"):
             weights.save(os.path.join(out_dir, "detector.npz"))
         if "velocity" in keep:
@@ -427,8 +426,7 @@ def _run_experiment(options: ExperimentOptions, weights, out_dir) -> dict:
 
             result["recording"] = {"path": "closed_loop_recording.npz",
                                    "replay_bit_identical": Recording.load(path).verify()}
-            with open(os.path.join(out_dir, "experiment.json"), "w") as f:
-                json.dump(result, f, indent=1)
+            write_json(os.path.join(out_dir, "experiment.json"), result, indent=1)
         if "open" in keep:
             loop_figure(keep["open"], os.path.join(out_dir, "fig12_open_loop.png"), closed=False)
         names = {"velocity": "fig13_closed_loop.png", "paper": "fig13_paper_law.png",

@@ -5,6 +5,8 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
+from .._io import save_figure
+
 if TYPE_CHECKING:
     from .scene import SceneResult
 
@@ -61,5 +63,7 @@ def loop_figure(r: SceneResult, path, closed: bool, ridge: int = 0, law: str | N
     title = f"Fig. 13 (simulated): with feedback, {law}" if closed else "Fig. 12 (simulated): without feedback"
     fig.suptitle(f"{title}; seed {r.scene.seed}; gross slips: {r.gross_slips} (shaded)", fontsize=9)
     fig.tight_layout()
-    fig.savefig(path, dpi=110)
-    plt.close(fig)
+    try:
+        save_figure(fig, path, dpi=110)
+    finally:
+        plt.close(fig)
