@@ -1,0 +1,566 @@
+// Frictional contact of one ridge with a rigid plate on the condensed surface
+// compliance: the primal-dual active-set (semismooth Newton) step of
+// tactile_mirror/contact/solver.py, with its damped-Newton fallback.
+//
+// The algorithm, the stopping rule, the classification and the reported state are
+// those of the Python reference (ContactSolver(backend="python")); see its module
+// docstring for the equations. Here:
+//
+// * sizes are fixed at construction (n contact nodes, 2n unknowns) and every
+//   workspace is allocated there; `solve`, `commit` and `step` allocate nothing,
+//   take no lock, make no system call and throw nothing: they return a
+//   ContactStatus;
+// * a step is two phases: `solve` computes the new state into candidate buffers and
+//   leaves the committed contact history untouched (only the LU cache, which is
+//   keyed by the piece it factors, may change); `commit` accepts it. A failed step
+//   therefore leaves the solver as it was, and a pad commits its ridges only when
+//   all of them converged;
+// * the pieces are separate functions (classification, the piece system and its
+//   factorisation, the triangular solve, the Newton residual and Jacobian) so that
+//   path-following steppers can call them directly.
+//
+// The dense LU is plain partial pivoting (row-major, right-looking). A pivot that is
+// exactly zero is a singular system, as LAPACK getrf reports it. For the few hundred
+// unknowns of a ridge this beats calling a library: no allocation, no dispatch, and
+// most steps reuse the factors anyway (the piece rarely changes between samples).
+#pragma once
+
+#include <cmath>
+#include <cstddef>
+#include <cstdint>
+#include <cstring>
+#include <vector>
+
+namespace tactile {
+
+enum class ContactStatus : int {
+    ok = 0,
+    non_finite_position = 1,  // plate_y or plate_z is NaN or infinite
+    singular_piece = 2,       // the active-set system has a zero pivot (info: its 1-based row)
+    singular_jacobian = 3,    // the damped-Newton Jacobian has a zero pivot (info: Newton iteration)
+    no_convergence = 4,       // max_iter damped-Newton iterations without reaching the tolerance
+};
+
+enum : std::int8_t { kContactOpen = 0, kContactStick = 1, kContactSlip = 2 };
+
+// Solver parameters, read at every step (the caller may change them between steps).
+struct ContactParams {
+    double mu = 0.5;           // static Coulomb coefficient
+    double mu_kinetic = 0.5;   // kinetic coefficient (0 < mu_kinetic <= mu)
+    double tol = 1e-10;        // relative tolerance of the Alart-Curnier residual
+    int max_iter = 60;         // damped-Newton iterations before no_convergence
+    int max_active_set_iter = 25;
+};
+
+// Dense LU with partial pivoting of a row-major m x m matrix `a` (leading dimension
+// lda), in place; piv[k] is the row swapped with row k. Returns 0, or k + 1 when the
+// pivot of column k is exactly zero (the factorisation stops there).
+//
+// Blocked right-looking (as LAPACK getrf): a panel of kLuBlock columns is factored
+// with partial pivoting (rows swapped whole), the block row of U is solved with the
+// panel's unit lower triangle, and the trailing matrix gets one rank-kLuBlock update.
+// The update loads and stores each trailing entry once per panel instead of once per
+// column, with the panel's U rows held in L1: what makes it fast for m of a few
+// hundred.
+constexpr std::size_t kLuBlock = 8;
+
+// ri[j] -= sum_t ri[kb + t] * U[t][j] for j in [ke, m), t < 8: one row of the
+// trailing update with a full panel. Written out in scalars so that the eight
+// multipliers and the partial sums stay in registers (the generic 32-byte vectors
+// spill on the SSE2 baseline here); the two partial sums halve the dependency chain.
+inline void lu_update_row8(double* ri, const double* U, std::size_t lda, std::size_t kb, std::size_t ke,
+                           std::size_t m) noexcept {
+    const double l0 = ri[kb], l1 = ri[kb + 1], l2 = ri[kb + 2], l3 = ri[kb + 3];
+    const double l4 = ri[kb + 4], l5 = ri[kb + 5], l6 = ri[kb + 6], l7 = ri[kb + 7];
+    const double *u0 = U, *u1 = U + lda, *u2 = U + 2 * lda, *u3 = U + 3 * lda;
+    const double *u4 = U + 4 * lda, *u5 = U + 5 * lda, *u6 = U + 6 * lda, *u7 = U + 7 * lda;
+    for (std::size_t j = ke; j < m; ++j) {
+        const double s0 = l0 * u0[j] + l1 * u1[j] + l2 * u2[j] + l3 * u3[j];
+        const double s1 = l4 * u4[j] + l5 * u5[j] + l6 * u6[j] + l7 * u7[j];
+        ri[j] -= s0 + s1;
+    }
+}
+
+inline int lu_factor(double* a, std::size_t m, std::size_t lda, int* piv) noexcept {
+    for (std::size_t kb = 0; kb < m; kb += kLuBlock) {
+        const std::size_t b = m - kb < kLuBlock ? m - kb : kLuBlock;
+        const std::size_t ke = kb + b;
+        // panel: columns kb..ke-1, all rows below
+        for (std::size_t k = kb; k < ke; ++k) {
+            std::size_t p = k;
+            double best = std::fabs(a[k * lda + k]);
+            for (std::size_t i = k + 1; i < m; ++i) {
+                const double v = std::fabs(a[i * lda + k]);
+                if (v > best) { best = v; p = i; }  // first maximum, as idamax
+            }
+            piv[k] = static_cast<int>(p);
+            if (a[p * lda + k] == 0.0) return static_cast<int>(k) + 1;
+            if (p != k) {
+                double* rk = a + k * lda;
+                double* rp = a + p * lda;
+                for (std::size_t j = 0; j < m; ++j) { const double t = rk[j]; rk[j] = rp[j]; rp[j] = t; }
+            }
+            const double* rk = a + k * lda;
+            const double inv = 1.0 / rk[k];
+            for (std::size_t i = k + 1; i < m; ++i) {
+                double* ri = a + i * lda;
+                const double l = ri[k] * inv;
+                ri[k] = l;
+                for (std::size_t j = k + 1; j < ke; ++j) ri[j] -= l * rk[j];
+            }
+        }
+        if (ke >= m) break;
+        // block row of U: L11 U12 = A12 (unit lower triangular)
+        for (std::size_t k = kb; k < ke; ++k) {
+            const double* rk = a + k * lda;
+            for (std::size_t i = k + 1; i < ke; ++i) {
+                double* ri = a + i * lda;
+                const double l = ri[k];
+                for (std::size_t j = ke; j < m; ++j) ri[j] -= l * rk[j];
+            }
+        }
+        // trailing update A22 -= L21 U12
+        if (b == kLuBlock) {
+            for (std::size_t i = ke; i < m; ++i) lu_update_row8(a + i * lda, a + kb * lda, lda, kb, ke, m);
+        } else {
+            for (std::size_t i = ke; i < m; ++i) {
+                double* ri = a + i * lda;
+                for (std::size_t j = ke; j < m; ++j) {
+                    double acc = ri[j];
+                    for (std::size_t t = 0; t < b; ++t) acc -= ri[kb + t] * a[(kb + t) * lda + j];
+                    ri[j] = acc;
+                }
+            }
+        }
+    }
+    return 0;
+}
+
+// Solve with the factors of lu_factor: b (length m) is overwritten by the solution.
+inline void lu_solve(const double* lu, std::size_t m, std::size_t lda, const int* piv, double* b) noexcept {
+    for (std::size_t k = 0; k < m; ++k) {
+        const std::size_t p = static_cast<std::size_t>(piv[k]);
+        if (p != k) { const double t = b[k]; b[k] = b[p]; b[p] = t; }
+    }
+    for (std::size_t i = 1; i < m; ++i) {  // L y = P b, unit diagonal
+        const double* ri = lu + i * lda;
+        double s = b[i];
+        for (std::size_t j = 0; j < i; ++j) s -= ri[j] * b[j];
+        b[i] = s;
+    }
+    for (std::size_t i = m; i-- > 0;) {  // U x = y
+        const double* ri = lu + i * lda;
+        double s = b[i];
+        for (std::size_t j = i + 1; j < m; ++j) s -= ri[j] * b[j];
+        b[i] = s / ri[i];
+    }
+}
+
+// max |x_i|, NaN if any entry is NaN (as numpy's max of abs).
+inline double max_abs(const double* x, std::size_t m) noexcept {
+    double r = 0.0;
+    for (std::size_t i = 0; i < m; ++i) {
+        const double a = std::fabs(x[i]);
+        if (a > r || a != a) r = a;
+        if (r != r) return r;
+    }
+    return r;
+}
+
+class ContactSolverKernel {
+public:
+    // compliance: (2n, 2n) row-major, symmetric (u = C f, f = (f_y, f_z));
+    // node_z, weights: (n,); r: the Alart-Curnier stiffness, 1 / mean(diag C) (N/m
+    // per m; given so both backends use the same rounding of it); w_tol: slip
+    // increment below which a node on the cone counts as not moving (m).
+    ContactSolverKernel(std::size_t n, const double* compliance, const double* node_z, const double* weights,
+                        double r, double w_tol)
+        : n_(n), n2_(2 * n), C_(compliance, compliance + 4 * n * n), z0_(node_z, node_z + n),
+          w_(weights, weights + n), w_tol_(w_tol), r_(r) {
+        z0_max_ = z0_[0];
+        argmax_z0_ = 0;
+        for (std::size_t i = 1; i < n; ++i)
+            if (z0_[i] > z0_max_) { z0_max_ = z0_[i]; argmax_z0_ = i; }
+        auto vec = [](std::size_t k) { return std::vector<double>(k, 0.0); };
+        lam_ = vec(n2_); uy_prev_ = vec(n); sign_ = vec(n);
+        state_.assign(n, kContactOpen); sliding_.assign(n, 0);
+        c_lam_ = vec(n2_); c_u_ = vec(n2_); c_sign_ = vec(n); c_forces_ = vec(n2_);
+        c_state_.assign(n, kContactOpen); c_reported_.assign(n, kContactOpen);
+        mu_node_ = vec(n); F_ = vec(n2_); F2_ = vec(n2_); u2_ = vec(n2_); lam2_ = vec(n2_); d_ = vec(n2_);
+        ws_state_.assign(n, kContactOpen); ws_sign_ = vec(n); ws_state2_.assign(n, kContactOpen); ws_sign2_ = vec(n);
+        rhs_ = vec(n2_); M_ = vec(n2_ * n2_); piv_.assign(n2_, 0); J_ = vec(n2_ * n2_); jpiv_.assign(n2_, 0);
+        idxA_.assign(n, 0); idxT_.assign(n, 0);
+        key_state_.assign(n, kContactOpen); key_coef_ = vec(n);
+        slip_coef_ = vec(n);
+        reset();
+    }
+
+    std::size_t n_nodes() const noexcept { return n_; }
+    double r() const noexcept { return r_; }
+    ContactParams params;
+
+    // Back to the undeformed, unloaded state.
+    void reset() noexcept {
+        fill(lam_, 0.0); fill(uy_prev_, 0.0); fill(sign_, 0.0);
+        fill8(state_, kContactOpen); fill8(sliding_, 0);
+        s_prev_ = 0.0;
+        lu_valid_ = false;
+        has_candidate_ = false;
+    }
+
+    // One step: solve, then commit on success.
+    ContactStatus step(double plate_y, double plate_z) noexcept {
+        const ContactStatus s = solve(plate_y, plate_z);
+        if (s == ContactStatus::ok) commit();
+        return s;
+    }
+
+    // Phase 1: the new contact state for the plate at (plate_y, plate_z) into the
+    // candidate buffers; the committed history is not touched.
+    ContactStatus solve(double plate_y, double plate_z) noexcept {
+        has_candidate_ = false;
+        err_info_ = 0; err_residual_ = 0.0; err_atol_ = 0.0;
+        if (!(std::isfinite(plate_y) && std::isfinite(plate_z))) return ContactStatus::non_finite_position;
+        const std::size_t n = n_;
+        const double ds = plate_y - s_prev_;
+        for (std::size_t i = 0; i < n; ++i) mu_node_[i] = sliding_[i] ? params.mu_kinetic : params.mu;
+        bool any_lam = false;
+        for (std::size_t i = 0; i < n2_; ++i) any_lam |= lam_[i] != 0.0;
+        if (z0_max_ <= plate_z && !any_lam) {  // the plate does not reach the ridge
+            fill(c_lam_, 0.0); fill(c_u_, 0.0); fill(c_sign_, 0.0); fill8(c_state_, kContactOpen);
+            finish(plate_y, 0);
+            return ContactStatus::ok;
+        }
+        double uy_max = 0.0;
+        for (std::size_t i = 0; i < n; ++i) uy_max = std::fmax(uy_max, std::fabs(uy_prev_[i]));
+        double scale_len = z0_max_ - plate_z;
+        if (1e-9 > scale_len) scale_len = 1e-9;
+        if (uy_max > scale_len) scale_len = uy_max;
+        const double atol = params.tol * (r_ * scale_len);
+
+        std::int8_t* st = ws_state_.data();
+        double* sg = ws_sign_.data();
+        bool any_active = false;
+        for (std::size_t i = 0; i < n; ++i) { st[i] = state_[i]; sg[i] = sign_[i]; any_active |= st[i] != kContactOpen; }
+        if (!any_active) {  // first contact: the nodes the plate penetrates, stuck
+            bool any = false;
+            for (std::size_t i = 0; i < n; ++i) { st[i] = z0_[i] > plate_z ? kContactStick : kContactOpen; any |= st[i] != 0; }
+            if (!any) st[argmax_z0_] = kContactStick;
+        }
+        int it = 0;
+        std::int8_t* nst = ws_state2_.data();
+        double* nsg = ws_sign2_.data();
+        for (int k = 1; k <= params.max_active_set_iter; ++k) {
+            it = k;
+            const int info = solve_piece(st, sg, plate_z, ds, c_lam_.data());
+            if (info != 0) { err_info_ = info; return ContactStatus::singular_piece; }
+            displacement(c_lam_.data(), c_u_.data());
+            const double fmax = classify(c_lam_.data(), c_u_.data(), plate_z, ds, F_.data(), nst, nsg);
+            if (fmax <= atol) {
+                copy8(nst, c_state_.data()); copy(nsg, c_sign_.data());
+                finish(plate_y, it);
+                return ContactStatus::ok;
+            }
+            bool same = true;
+            for (std::size_t i = 0; i < n && same; ++i)
+                same = nst[i] == st[i] && (st[i] != kContactSlip || nsg[i] == sg[i]);
+            if (same) break;  // same piece but not converged: round-off trouble, use Newton
+            std::int8_t* ts = st; st = nst; nst = ts;
+            double* tg = sg; sg = nsg; nsg = tg;
+        }
+        int it2 = 0;
+        const ContactStatus s = damped_newton(plate_z, ds, atol, it2);
+        if (s != ContactStatus::ok) return s;
+        classify(c_lam_.data(), c_u_.data(), plate_z, ds, F_.data(), c_state_.data(), c_sign_.data());
+        finish(plate_y, it + it2);
+        return ContactStatus::ok;
+    }
+
+    // Phase 2: accept the candidate of the last successful solve.
+    void commit() noexcept {
+        if (!has_candidate_) return;
+        const std::size_t n = n_;
+        copy(c_lam_.data(), lam_.data(), n2_);
+        copy8(c_state_.data(), state_.data());
+        for (std::size_t i = 0; i < n; ++i) sliding_[i] = c_reported_[i] == kContactSlip;
+        copy(c_sign_.data(), sign_.data());
+        copy(c_u_.data(), uy_prev_.data());
+        s_prev_ = c_plate_y_;
+        has_candidate_ = false;
+    }
+
+    // ---- results of the last solve (valid after it returned ok; kept by commit)
+    const double* forces() const noexcept { return c_forces_.data(); }        // (2n) f = (lt, -ln), N/m
+    const double* displacement() const noexcept { return c_u_.data(); }       // (2n) (u_y, u_z), m
+    const std::int8_t* reported_state() const noexcept { return c_reported_.data(); }  // (n)
+    double slip_fraction() const noexcept { return c_frac_; }
+    int iterations() const noexcept { return c_iterations_; }
+    // Piece factorisations since construction (a step that reuses the factors adds none).
+    long factorizations() const noexcept { return n_factorizations_; }
+    // ---- error details of the last failed solve
+    long error_info() const noexcept { return err_info_; }
+    double error_residual() const noexcept { return err_residual_; }
+    double error_tolerance() const noexcept { return err_atol_; }
+
+    // ---- committed contact history (read / restore)
+    const double* lam() const noexcept { return lam_.data(); }
+    const double* uy_prev() const noexcept { return uy_prev_.data(); }
+    const double* sign() const noexcept { return sign_.data(); }
+    const std::int8_t* state() const noexcept { return state_.data(); }
+    const std::uint8_t* sliding() const noexcept { return sliding_.data(); }
+    double s_prev() const noexcept { return s_prev_; }
+    void set_history(const double* lam, const double* uy_prev, const double* sign, const std::int8_t* state,
+                     const std::uint8_t* sliding, double s_prev) noexcept {
+        copy(lam, lam_.data(), n2_); copy(uy_prev, uy_prev_.data()); copy(sign, sign_.data());
+        copy8(state, state_.data());
+        for (std::size_t i = 0; i < n_; ++i) sliding_[i] = sliding[i] ? 1 : 0;
+        s_prev_ = s_prev;
+        has_candidate_ = false;
+    }
+
+    // ---- the pieces (public for path-following steppers)
+
+    // u = C P lam, P = diag(1, -1): C is symmetric, so column j of C P is row j of C
+    // (sign-flipped for the normal block); only the nonzero forces contribute.
+    void displacement(const double* lam, double* u) const noexcept {
+        const std::size_t n2 = n2_;
+        for (std::size_t i = 0; i < n2; ++i) u[i] = 0.0;
+        for (std::size_t j = 0; j < n2; ++j) {
+            const double a = j < n_ ? lam[j] : -lam[j];
+            if (a == 0.0) continue;
+            const double* cj = C_.data() + j * n2;
+            for (std::size_t i = 0; i < n2; ++i) u[i] += cj[i] * a;
+        }
+    }
+
+    // Alart-Curnier residual F (2n) at (lam, u), the classification open / stick /
+    // slip and the slip signs; returns max |F|. Uses the per-node cone of this step.
+    double classify(const double* lam, const double* u, double plate_z, double ds, double* F, std::int8_t* state,
+                    double* sgn) const noexcept {
+        const std::size_t n = n_;
+        const double r = r_;
+        for (std::size_t i = 0; i < n; ++i) {
+            const double lt = lam[i], ln = lam[n + i];
+            const double g = plate_z - (z0_[i] + u[n + i]);
+            const double w = (u[i] - uy_prev_[i]) - ds;
+            const double an = ln - r * g;
+            const bool act = an > 0;
+            const double b = mu_node_[i] * (act ? an : 0.0);
+            const double tau = lt - r * w;
+            const bool stick = act && std::fabs(tau) <= b;
+            const bool slip = act && !stick;
+            const double s = tau > 0 ? 1.0 : (tau < 0 ? -1.0 : (tau == tau ? 0.0 : tau));
+            F[i] = stick ? r * w : (slip ? lt - b * s : lt);
+            F[n + i] = act ? r * g : ln;
+            state[i] = stick ? kContactStick : (slip ? kContactSlip : kContactOpen);
+            sgn[i] = slip ? s : 0.0;
+        }
+        return max_abs(F, n2_);
+    }
+
+    // Factor the system of the piece (state, sign) unless the cached factors are of
+    // that piece. Returns 0 or the 1-based row of a zero pivot.
+    int factor_piece(const std::int8_t* state, const double* sign) noexcept {
+        const std::size_t n = n_;
+        for (std::size_t i = 0; i < n; ++i)
+            slip_coef_[i] = state[i] == kContactSlip ? mu_node_[i] * sign[i] : 0.0;
+        if (lu_valid_) {
+            bool same = true;
+            for (std::size_t i = 0; i < n && same; ++i)
+                same = key_state_[i] == state[i] && key_coef_[i] == slip_coef_[i];
+            if (same) return 0;
+        }
+        index_piece(state);
+        const std::size_t nA = nA_, m = nA_ + nT_, n2 = n2_;
+        double* M = M_.data();
+        // rows: g on the active nodes, then w on the stuck ones; columns: ln_A, lt_T
+        for (std::size_t k = 0; k < m; ++k) {
+            const std::size_t row = k < nA ? n + idxA_[k] : idxT_[k - nA];
+            const double* c = C_.data() + row * n2;
+            double* mk = M + k * m;
+            for (std::size_t j = 0; j < nA; ++j) {
+                const std::size_t a = idxA_[j];
+                mk[j] = c[a] * slip_coef_[a] - c[n + a];
+            }
+            for (std::size_t j = nA; j < m; ++j) mk[j] = c[idxT_[j - nA]];
+        }
+        lu_valid_ = false;
+        ++n_factorizations_;
+        const int info = lu_factor(M, m, m, piv_.data());
+        if (info != 0) return info;
+        copy8(state, key_state_.data());
+        copy(slip_coef_.data(), key_coef_.data());
+        lu_valid_ = true;
+        return 0;
+    }
+
+    // Forces of the piece (state, sign) for the plate at plate_z, slip increment ds.
+    int solve_piece(const std::int8_t* state, const double* sign, double plate_z, double ds, double* lam) noexcept {
+        const int info = factor_piece(state, sign);
+        if (info != 0) return info;
+        const std::size_t n = n_, nA = nA_, nT = nT_;
+        for (std::size_t k = 0; k < nA; ++k) rhs_[k] = plate_z - z0_[idxA_[k]];
+        for (std::size_t k = 0; k < nT; ++k) rhs_[nA + k] = uy_prev_[idxT_[k]] + ds;
+        lu_solve(M_.data(), nA + nT, nA + nT, piv_.data(), rhs_.data());
+        for (std::size_t i = 0; i < n2_; ++i) lam[i] = 0.0;
+        for (std::size_t k = 0; k < nA; ++k) {
+            const std::size_t a = idxA_[k];
+            lam[n + a] = rhs_[k];
+            lam[a] = slip_coef_[a] * rhs_[k];
+        }
+        for (std::size_t k = 0; k < nT; ++k) lam[idxT_[k]] = rhs_[nA + k];
+        return 0;
+    }
+
+    // Generalised Jacobian of the Alart-Curnier residual for the classification
+    // (state, sign) into J (2n x 2n, row-major).
+    void jacobian(const std::int8_t* state, const double* sign, double* J) const noexcept {
+        const std::size_t n = n_, n2 = n2_;
+        const double r = r_;
+        for (std::size_t i = 0; i < n2 * n2; ++i) J[i] = 0.0;
+        for (std::size_t i = 0; i < n; ++i) {
+            double* jt = J + i * n2;
+            double* jn = J + (n + i) * n2;
+            const double* cy = C_.data() + i * n2;        // row i of C: dw/dlam = CP[i, :]
+            const double* cz = C_.data() + (n + i) * n2;  // row n+i: dg/dlam = -CP[n+i, :]
+            const bool act = state[i] != kContactOpen;
+            if (state[i] == kContactStick) {
+                for (std::size_t j = 0; j < n; ++j) { jt[j] = r * cy[j]; jt[n + j] = r * -cy[n + j]; }
+            } else if (state[i] == kContactSlip) {
+                // e_t - mu s (e_n - r dg) = e_t - mu s (e_n + r CP[n+i, :])
+                const double ms = mu_node_[i] * sign[i];
+                for (std::size_t j = 0; j < n; ++j) {
+                    jt[j] = -ms * (r * cz[j]);
+                    jt[n + j] = -ms * (r * -cz[n + j]);
+                }
+                jt[i] += 1.0;
+                jt[n + i] = -ms * (1.0 + r * -cz[n + i]);
+            } else {
+                jt[i] = 1.0;
+            }
+            if (act) {
+                for (std::size_t j = 0; j < n; ++j) { jn[j] = r * -cz[j]; jn[n + j] = r * cz[n + j]; }
+            } else {
+                jn[n + i] = 1.0;
+            }
+        }
+    }
+
+private:
+    template <typename V, typename T>
+    static void fillv(V& v, T x) noexcept { for (auto& e : v) e = x; }
+    static void fill(std::vector<double>& v, double x) noexcept { fillv(v, x); }
+    static void fill8(std::vector<std::int8_t>& v, std::int8_t x) noexcept { fillv(v, x); }
+    static void fill8(std::vector<std::uint8_t>& v, std::uint8_t x) noexcept { fillv(v, x); }
+    void copy(const double* a, double* b) const noexcept { copy(a, b, n_); }
+    static void copy(const double* a, double* b, std::size_t m) noexcept { for (std::size_t i = 0; i < m; ++i) b[i] = a[i]; }
+    void copy8(const std::int8_t* a, std::int8_t* b) const noexcept { for (std::size_t i = 0; i < n_; ++i) b[i] = a[i]; }
+
+    void index_piece(const std::int8_t* state) noexcept {
+        std::size_t a = 0, t = 0;
+        for (std::size_t i = 0; i < n_; ++i) {
+            if (state[i] != kContactOpen) idxA_[a++] = i;
+            if (state[i] == kContactStick) idxT_[t++] = i;
+        }
+        nA_ = a; nT_ = t;
+    }
+
+    // The damped semismooth Newton method on F from the committed forces, result in
+    // c_lam_ / c_u_ (the classification is redone by the caller).
+    ContactStatus damped_newton(double plate_z, double ds, double atol, int& it) noexcept {
+        const std::size_t n2 = n2_;
+        double* lam = c_lam_.data();
+        double* u = c_u_.data();
+        copy(lam_.data(), lam, n2);
+        displacement(lam, u);
+        double* F = F_.data();
+        std::int8_t* st = ws_state_.data();
+        double* sg = ws_sign_.data();
+        double norm = classify(lam, u, plate_z, ds, F, st, sg);
+        it = 0;
+        while (norm > atol) {
+            if (it >= params.max_iter) {
+                err_residual_ = norm; err_atol_ = atol; err_info_ = params.max_iter;
+                return ContactStatus::no_convergence;
+            }
+            jacobian(st, sg, J_.data());
+            double merit = 0.0;
+            for (std::size_t i = 0; i < n2; ++i) { d_[i] = -F[i]; merit += F[i] * F[i]; }
+            if (lu_factor(J_.data(), n2, n2, jpiv_.data()) != 0) {
+                err_info_ = it;
+                return ContactStatus::singular_jacobian;
+            }
+            lu_solve(J_.data(), n2, n2, jpiv_.data(), d_.data());
+            double t = 1.0;
+            double* F2 = F2_.data();
+            std::int8_t* st2 = ws_state2_.data();
+            double* sg2 = ws_sign2_.data();
+            double norm2 = 0.0;
+            while (true) {
+                for (std::size_t i = 0; i < n2; ++i) lam2_[i] = lam[i] + t * d_[i];
+                displacement(lam2_.data(), u2_.data());
+                norm2 = classify(lam2_.data(), u2_.data(), plate_z, ds, F2, st2, sg2);
+                double m2 = 0.0;
+                for (std::size_t i = 0; i < n2; ++i) m2 += F2[i] * F2[i];
+                if (m2 <= (1 - 1e-4 * t) * merit || t < 1e-6) break;
+                t *= 0.5;
+            }
+            copy(lam2_.data(), lam, n2);
+            copy(u2_.data(), u, n2);
+            copy(F2, F, n2);
+            for (std::size_t i = 0; i < n_; ++i) { st[i] = st2[i]; sg[i] = sg2[i]; }
+            norm = norm2;
+            ++it;
+        }
+        return ContactStatus::ok;
+    }
+
+    // Reported state, slip fraction and forces of the candidate (c_lam_, c_u_, c_state_).
+    void finish(double plate_y, int iterations) noexcept {
+        const std::size_t n = n_;
+        const double ds = plate_y - s_prev_;
+        double total = 0.0, slipping = 0.0;
+        for (std::size_t i = 0; i < n; ++i) {
+            const double w = (c_u_[i] - uy_prev_[i]) - ds;
+            const bool moving = std::fabs(w) > w_tol_;
+            const std::int8_t s = (c_state_[i] == kContactSlip && !moving) ? kContactStick : c_state_[i];
+            c_reported_[i] = s;
+            if (s != kContactOpen) total += w_[i];
+            if (s == kContactSlip) slipping += w_[i];
+            c_forces_[i] = c_lam_[i];
+            c_forces_[n + i] = -c_lam_[n + i];
+        }
+        c_frac_ = total > 0 ? slipping / total : 0.0;
+        c_iterations_ = iterations;
+        c_plate_y_ = plate_y;
+        has_candidate_ = true;
+    }
+
+    std::size_t n_, n2_;
+    std::vector<double> C_, z0_, w_;
+    double w_tol_, r_ = 0.0, z0_max_ = 0.0;
+    std::size_t argmax_z0_ = 0;
+    // committed history
+    std::vector<double> lam_, uy_prev_, sign_;
+    std::vector<std::int8_t> state_;
+    std::vector<std::uint8_t> sliding_;
+    double s_prev_ = 0.0;
+    // candidate
+    std::vector<double> c_lam_, c_u_, c_sign_, c_forces_;
+    std::vector<std::int8_t> c_state_, c_reported_;
+    double c_frac_ = 0.0, c_plate_y_ = 0.0;
+    int c_iterations_ = 0;
+    bool has_candidate_ = false;
+    // workspaces
+    std::vector<double> mu_node_, F_, F2_, u2_, lam2_, d_, ws_sign_, ws_sign2_, rhs_, M_, J_, slip_coef_, key_coef_;
+    std::vector<std::int8_t> ws_state_, ws_state2_, key_state_;
+    std::vector<int> piv_, jpiv_;
+    std::vector<std::size_t> idxA_, idxT_;
+    std::size_t nA_ = 0, nT_ = 0;
+    bool lu_valid_ = false;
+    long err_info_ = 0;
+    long n_factorizations_ = 0;
+    double err_residual_ = 0.0, err_atol_ = 0.0;
+};
+
+}  // namespace tactile
