@@ -31,6 +31,8 @@
 #include <cstring>
 #include <vector>
 
+#include "simd.hpp"
+
 namespace tactile {
 
 enum class ContactStatus : int {
@@ -74,7 +76,21 @@ inline void lu_update_row8(double* ri, const double* U, std::size_t lda, std::si
     const double l4 = ri[kb + 4], l5 = ri[kb + 5], l6 = ri[kb + 6], l7 = ri[kb + 7];
     const double *u0 = U, *u1 = U + lda, *u2 = U + 2 * lda, *u3 = U + 3 * lda;
     const double *u4 = U + 4 * lda, *u5 = U + 5 * lda, *u6 = U + 6 * lda, *u7 = U + 7 * lda;
-    for (std::size_t j = ke; j < m; ++j) {
+    std::size_t j = ke;
+    if (m - ke >= 4) {  // 4-wide (two SSE2 registers on the baseline); no loop-carried value
+        using V = vec<double>;
+        const V v0 = splat(l0), v1 = splat(l1), v2 = splat(l2), v3 = splat(l3);
+        const V v4 = splat(l4), v5 = splat(l5), v6 = splat(l6), v7 = splat(l7);
+        for (; j + 4 <= m; j += 4) {
+            const V s0 = v0 * load_unaligned(u0 + j) + v1 * load_unaligned(u1 + j) + v2 * load_unaligned(u2 + j) +
+                         v3 * load_unaligned(u3 + j);
+            const V s1 = v4 * load_unaligned(u4 + j) + v5 * load_unaligned(u5 + j) + v6 * load_unaligned(u6 + j) +
+                         v7 * load_unaligned(u7 + j);
+            const V r = load_unaligned(ri + j) - (s0 + s1);
+            std::memcpy(ri + j, &r, sizeof(r));
+        }
+    }
+    for (; j < m; ++j) {
         const double s0 = l0 * u0[j] + l1 * u1[j] + l2 * u2[j] + l3 * u3[j];
         const double s1 = l4 * u4[j] + l5 * u5[j] + l6 * u6[j] + l7 * u7[j];
         ri[j] -= s0 + s1;
@@ -329,7 +345,13 @@ public:
             const double a = j < n_ ? lam[j] : -lam[j];
             if (a == 0.0) continue;
             const double* cj = C_.data() + j * n2;
-            for (std::size_t i = 0; i < n2; ++i) u[i] += cj[i] * a;
+            std::size_t i = 0;
+            const vec<double> av = splat(a);
+            for (; i + 4 <= n2; i += 4) {
+                const vec<double> r = load_unaligned(u + i) + load_unaligned(cj + i) * av;
+                std::memcpy(u + i, &r, sizeof(r));
+            }
+            for (; i < n2; ++i) u[i] += cj[i] * a;
         }
     }
 
