@@ -97,6 +97,8 @@ void tm_bind_contact(py::module_& m) {
         .def_property_readonly("r", [](const PyContact& c) { return c.k.r(); })
         .def_property_readonly("factorizations", [](const PyContact& c) { return c.k.factorizations(); },
                                "piece LU factorisations since construction")
+        .def_property_readonly("updates", [](const PyContact& c) { return c.k.updates(); },
+                               "pieces solved by bordering the factored base piece instead of refactoring")
         .def("set_params",
              [](PyContact& c, double mu, double mu_kinetic, double tol, int max_iter, int max_as) {
                  Busy b(c);

@@ -152,6 +152,21 @@ inline int lu_factor(double* a, std::size_t m, std::size_t lda, int* piv) noexce
     return 0;
 }
 
+// sum_j a[j] b[j] with four independent partial sums: a single running sum is bound
+// by the add latency (a chain of m dependent adds), four keep the units busy.
+inline double dot(const double* a, const double* b, std::size_t m) noexcept {
+    double s0 = 0.0, s1 = 0.0, s2 = 0.0, s3 = 0.0;
+    std::size_t j = 0;
+    for (; j + 4 <= m; j += 4) {
+        s0 += a[j] * b[j];
+        s1 += a[j + 1] * b[j + 1];
+        s2 += a[j + 2] * b[j + 2];
+        s3 += a[j + 3] * b[j + 3];
+    }
+    for (; j < m; ++j) s0 += a[j] * b[j];
+    return (s0 + s1) + (s2 + s3);
+}
+
 // Solve with the factors of lu_factor: b (length m) is overwritten by the solution.
 inline void lu_solve(const double* lu, std::size_t m, std::size_t lda, const int* piv, double* b) noexcept {
     for (std::size_t k = 0; k < m; ++k) {
@@ -160,15 +175,11 @@ inline void lu_solve(const double* lu, std::size_t m, std::size_t lda, const int
     }
     for (std::size_t i = 1; i < m; ++i) {  // L y = P b, unit diagonal
         const double* ri = lu + i * lda;
-        double s = b[i];
-        for (std::size_t j = 0; j < i; ++j) s -= ri[j] * b[j];
-        b[i] = s;
+        b[i] -= dot(ri, b, i);
     }
     for (std::size_t i = m; i-- > 0;) {  // U x = y
         const double* ri = lu + i * lda;
-        double s = b[i];
-        for (std::size_t j = i + 1; j < m; ++j) s -= ri[j] * b[j];
-        b[i] = s / ri[i];
+        b[i] = (b[i] - dot(ri + i + 1, b + i + 1, m - i - 1)) / ri[i];
     }
 }
 
@@ -206,6 +217,10 @@ public:
         ws_state_.assign(n, kContactOpen); ws_sign_ = vec(n); ws_state2_.assign(n, kContactOpen); ws_sign2_ = vec(n);
         rhs_ = vec(n2_); M_ = vec(n2_ * n2_); piv_.assign(n2_, 0); J_ = vec(n2_ * n2_); jpiv_.assign(n2_, 0);
         idxA_.assign(n, 0); idxT_.assign(n, 0);
+        pos_ln_.assign(n, -1); pos_lt_.assign(n, -1);
+        base_state_.assign(n, kContactOpen); base_coef_ = vec(n);
+        Vs_ = vec(kMaxBorder * n2_); Wt_ = vec(kMaxBorder * n2_); S_ = vec(kMaxBorder * kMaxBorder);
+        spiv_.assign(kMaxBorder, 0); by_ = vec(kMaxBorder); brow_.resize(kMaxBorder); bcol_.resize(kMaxBorder);
         key_state_.assign(n, kContactOpen); key_coef_ = vec(n);
         slip_coef_ = vec(n);
         reset();
@@ -313,6 +328,8 @@ public:
     int iterations() const noexcept { return c_iterations_; }
     // Piece factorisations since construction (a step that reuses the factors adds none).
     long factorizations() const noexcept { return n_factorizations_; }
+    // Pieces solved by bordering the factored base piece instead of refactoring.
+    long updates() const noexcept { return n_updates_; }
     // ---- error details of the last failed solve
     long error_info() const noexcept { return err_info_; }
     double error_residual() const noexcept { return err_residual_; }
@@ -380,8 +397,10 @@ public:
         return max_abs(F, n2_);
     }
 
-    // Factor the system of the piece (state, sign) unless the cached factors are of
-    // that piece. Returns 0 or the 1-based row of a zero pivot.
+    // Prepare the system of the piece (state, sign): reuse the factors when they are
+    // of this piece; else, when the piece differs from the factored base piece by at
+    // most kMaxBorder unknowns / equations, border the base (update_piece); else
+    // factor it afresh (refactor_piece). Returns 0 or the 1-based row of a zero pivot.
     int factor_piece(const std::int8_t* state, const double* sign) noexcept {
         const std::size_t n = n_;
         for (std::size_t i = 0; i < n; ++i)
@@ -391,46 +410,127 @@ public:
             for (std::size_t i = 0; i < n && same; ++i)
                 same = key_state_[i] == state[i] && key_coef_[i] == slip_coef_[i];
             if (same) return 0;
+            if (update_piece(state)) {
+                copy8(state, key_state_.data());
+                copy(slip_coef_.data(), key_coef_.data());
+                ++n_updates_;
+                return 0;
+            }
         }
-        index_piece(state);
-        const std::size_t nA = nA_, m = nA_ + nT_, n2 = n2_;
+        return refactor_piece(state);
+    }
+
+    // Factor the piece (state, slip_coef_) as the new base, no border.
+    int refactor_piece(const std::int8_t* state) noexcept {
+        const std::size_t n = n_;
+        lu_valid_ = false;
+        nB_ = 0;
+        std::size_t a = 0, t = 0;
+        for (std::size_t i = 0; i < n; ++i) {
+            pos_ln_[i] = pos_lt_[i] = -1;
+            if (state[i] != kContactOpen) idxA_[a++] = i;
+            if (state[i] == kContactStick) idxT_[t++] = i;
+        }
+        nA_ = a; nT_ = t;
+        for (std::size_t k = 0; k < nA_; ++k) pos_ln_[idxA_[k]] = static_cast<long>(k);
+        for (std::size_t k = 0; k < nT_; ++k) pos_lt_[idxT_[k]] = static_cast<long>(nA_ + k);
+        const std::size_t nA = nA_, m = nA_ + nT_;
         double* M = M_.data();
         // rows: g on the active nodes, then w on the stuck ones; columns: ln_A, lt_T
         for (std::size_t k = 0; k < m; ++k) {
-            const std::size_t row = k < nA ? n + idxA_[k] : idxT_[k - nA];
-            const double* c = C_.data() + row * n2;
+            const double* c = C_.data() + eq_row(k) * n2_;
             double* mk = M + k * m;
             for (std::size_t j = 0; j < nA; ++j) {
-                const std::size_t a = idxA_[j];
-                mk[j] = c[a] * slip_coef_[a] - c[n + a];
+                const std::size_t i = idxA_[j];
+                mk[j] = c[i] * slip_coef_[i] - c[n + i];
             }
             for (std::size_t j = nA; j < m; ++j) mk[j] = c[idxT_[j - nA]];
         }
-        lu_valid_ = false;
         ++n_factorizations_;
         const int info = lu_factor(M, m, m, piv_.data());
         if (info != 0) return info;
         copy8(state, key_state_.data());
         copy(slip_coef_.data(), key_coef_.data());
+        copy8(state, base_state_.data());
+        copy(slip_coef_.data(), base_coef_.data());
         lu_valid_ = true;
         return 0;
     }
 
-    // Forces of the piece (state, sign) for the plate at plate_z, slip increment ds.
+    // Forces of the prepared piece for the plate at plate_z, slip increment ds. A
+    // bordered solve gets one step of iterative refinement with the residual of the
+    // piece's own equations (the base may be several pieces old; refinement brings the
+    // forces back to the accuracy of a fresh factorisation).
+    void solve_prepared(double plate_z, double ds, double* lam) noexcept {
+        const std::size_t n = n_, nA = nA_, m = nA_ + nT_, nb = nB_;
+        double* b = rhs_.data();
+        double* c = by_.data();
+        for (std::size_t k = 0; k < m; ++k) {
+            const std::size_t i = k < nA ? idxA_[k] : idxT_[k - nA];
+            b[k] = k < nA ? plate_z - z0_[i] : uy_prev_[i] + ds;
+        }
+        for (std::size_t r = 0; r < nb; ++r) {
+            const BorderRow& br = brow_[r];
+            c[r] = br.kind == kAddG ? plate_z - z0_[br.node] : (br.kind == kAddW ? uy_prev_[br.node] + ds : 0.0);
+        }
+        solve_bordered(b, c, lam);
+        if (nb == 0) return;
+        // residual of the piece's equations: g = 0 on the active nodes, w = 0 on the stuck ones
+        double* u = u2_.data();
+        displacement(lam, u);
+        for (std::size_t k = 0; k < m; ++k) {
+            const std::size_t i = k < nA ? idxA_[k] : idxT_[k - nA];
+            const bool kept = k < nA ? key_state_[i] != kContactOpen : key_state_[i] == kContactStick;
+            b[k] = !kept ? 0.0 : (k < nA ? (plate_z - z0_[i]) - u[n + i] : (uy_prev_[i] + ds) - u[i]);
+        }
+        for (std::size_t r = 0; r < nb; ++r) {
+            const BorderRow& br = brow_[r];
+            c[r] = br.kind == kAddG ? (plate_z - z0_[br.node]) - u[n + br.node]
+                                    : (br.kind == kAddW ? (uy_prev_[br.node] + ds) - u[br.node] : 0.0);
+        }
+        double* d = lam2_.data();
+        solve_bordered(b, c, d);
+        for (std::size_t i = 0; i < n2_; ++i) lam[i] += d[i];
+    }
+
+    // x of the prepared piece for right-hand sides b (base equations, overwritten) and
+    // c (border rows, overwritten), as forces lam (2n).
+    void solve_bordered(double* b, double* c, double* lam) noexcept {
+        const std::size_t n = n_, nA = nA_, m = nA_ + nT_, nb = nB_;
+        double* z = b;
+        lu_solve(M_.data(), m, m, piv_.data(), z);
+        double* y = c;
+        if (nb > 0) {  // Schur complement: S y = c - W^T M0^-1 b, x = M0^-1 b - (M0^-1 V) y
+            for (std::size_t r = 0; r < nb; ++r) {
+                y[r] -= dot(Wt_.data() + r * n2_, z, m);
+            }
+            lu_solve(S_.data(), nb, nb, spiv_.data(), y);
+            for (std::size_t col = 0; col < nb; ++col) {
+                const double* v = Vs_.data() + col * n2_;
+                const double yc = y[col];
+                for (std::size_t k = 0; k < m; ++k) z[k] -= v[k] * yc;
+            }
+        }
+        for (std::size_t i = 0; i < n2_; ++i) lam[i] = 0.0;
+        // base unknowns (those fixed to zero by the border come out as ~zero and are
+        // overwritten below)
+        for (std::size_t k = 0; k < nA; ++k) lam[n + idxA_[k]] = z[k];
+        for (std::size_t k = nA; k < m; ++k) lam[idxT_[k - nA]] = z[k];
+        for (std::size_t col = 0; col < nb; ++col) {
+            const BorderCol& bc = bcol_[col];
+            if (bc.kind == kAddLn) lam[n + bc.node] = y[col];
+            else if (bc.kind == kAddLt) lam[bc.node] = y[col];
+        }
+        for (std::size_t i = 0; i < n; ++i) {
+            if (key_state_[i] == kContactSlip) lam[i] = key_coef_[i] * lam[n + i];  // lt = mu sign ln
+            else if (key_state_[i] == kContactOpen) lam[i] = lam[n + i] = 0.0;     // exactly, not ~0 from the border
+        }
+    }
+
     int solve_piece(const std::int8_t* state, const double* sign, double plate_z, double ds, double* lam) noexcept {
         const int info = factor_piece(state, sign);
         if (info != 0) return info;
-        const std::size_t n = n_, nA = nA_, nT = nT_;
-        for (std::size_t k = 0; k < nA; ++k) rhs_[k] = plate_z - z0_[idxA_[k]];
-        for (std::size_t k = 0; k < nT; ++k) rhs_[nA + k] = uy_prev_[idxT_[k]] + ds;
-        lu_solve(M_.data(), nA + nT, nA + nT, piv_.data(), rhs_.data());
-        for (std::size_t i = 0; i < n2_; ++i) lam[i] = 0.0;
-        for (std::size_t k = 0; k < nA; ++k) {
-            const std::size_t a = idxA_[k];
-            lam[n + a] = rhs_[k];
-            lam[a] = slip_coef_[a] * rhs_[k];
-        }
-        for (std::size_t k = 0; k < nT; ++k) lam[idxT_[k]] = rhs_[nA + k];
+        solve_prepared(plate_z, ds, lam);
         return 0;
     }
 
@@ -478,13 +578,103 @@ private:
     static void copy(const double* a, double* b, std::size_t m) noexcept { for (std::size_t i = 0; i < m; ++i) b[i] = a[i]; }
     void copy8(const std::int8_t* a, std::int8_t* b) const noexcept { for (std::size_t i = 0; i < n_; ++i) b[i] = a[i]; }
 
-    void index_piece(const std::int8_t* state) noexcept {
-        std::size_t a = 0, t = 0;
-        for (std::size_t i = 0; i < n_; ++i) {
-            if (state[i] != kContactOpen) idxA_[a++] = i;
-            if (state[i] == kContactStick) idxT_[t++] = i;
+    // ---- bordered update of the base factorisation
+    //
+    // The base piece P0 (unknowns ln_A0, lt_T0; equations g_A0, w_T0) is factored in
+    // M_. A nearby piece P1 is solved as the bordered system
+    //     [M0  V] [x]   [b]
+    //     [W^T Z] [y] = [c]
+    // with one border row and column per difference: an unknown of P0 that P1 lacks
+    // (or whose slip coefficient changed) is fixed to zero by a row e_j; an equation
+    // of P0 that P1 lacks is voided by a slack column e_i; an unknown / equation of P1
+    // that P0 lacks (or the changed unknown's new version) is a column / row. The
+    // Schur complement S = Z - W^T M0^-1 V (at most kMaxBorder square) is factored;
+    // M0^-1 V is kept, so a solve is one base solve and O(m nb) more.
+    enum : std::uint8_t { kFix = 0, kAddG = 1, kAddW = 2, kAddLn = 3, kAddLt = 4, kSlack = 5 };
+    struct BorderRow { std::uint8_t kind; std::size_t node; std::size_t pos; };
+    struct BorderCol { std::uint8_t kind; std::size_t node; std::size_t pos; };
+    static constexpr std::size_t kMaxBorder = 16;
+
+    std::size_t eq_row(std::size_t k) const noexcept {  // C row of base equation k
+        return k < nA_ ? n_ + idxA_[k] : idxT_[k - nA_];
+    }
+    // coefficient of unknown (ln_i with slip coefficient coef, or lt_i) in C row r
+    double coef_ln(std::size_t r, std::size_t i, double coef) const noexcept {
+        const double* c = C_.data() + r * n2_;
+        return c[i] * coef - c[n_ + i];
+    }
+    double coef_lt(std::size_t r, std::size_t i) const noexcept { return C_[r * n2_ + i]; }
+
+    // Border the base for the piece (state, slip_coef_); false if it needs more than
+    // kMaxBorder borders or its Schur complement is singular (then refactor).
+    bool update_piece(const std::int8_t* state) noexcept {
+        const std::size_t n = n_, m = nA_ + nT_;
+        std::size_t nr = 0, nc = 0;
+        auto add_row = [&](std::uint8_t kind, std::size_t node, std::size_t pos) {
+            if (nr < kMaxBorder) brow_[nr] = {kind, node, pos};
+            ++nr;
+        };
+        auto add_col = [&](std::uint8_t kind, std::size_t node, std::size_t pos) {
+            if (nc < kMaxBorder) bcol_[nc] = {kind, node, pos};
+            ++nc;
+        };
+        for (std::size_t i = 0; i < n; ++i) {
+            const std::int8_t s0 = base_state_[i], s1 = state[i];
+            const bool a0 = s0 != kContactOpen, a1 = s1 != kContactOpen;
+            const bool t0 = s0 == kContactStick, t1 = s1 == kContactStick;
+            const bool same_ln = a0 && a1 && base_coef_[i] == slip_coef_[i];
+            if (a0 && !same_ln) add_row(kFix, i, static_cast<std::size_t>(pos_ln_[i]));
+            if (a1 && !same_ln) add_col(kAddLn, i, 0);
+            if (t0 && !t1) add_row(kFix, i, static_cast<std::size_t>(pos_lt_[i]));
+            if (t1 && !t0) add_col(kAddLt, i, 0);
+            if (a0 && !a1) add_col(kSlack, i, static_cast<std::size_t>(pos_ln_[i]));  // g_i is base equation pos_ln
+            if (a1 && !a0) add_row(kAddG, i, 0);
+            if (t0 && !t1) add_col(kSlack, i, static_cast<std::size_t>(pos_lt_[i]));  // w_i is base equation pos_lt
+            if (t1 && !t0) add_row(kAddW, i, 0);
+            if (nr > kMaxBorder || nc > kMaxBorder) return false;
         }
-        nA_ = a; nT_ = t;
+        if (nr != nc) return false;  // cannot happen (both pieces are square); be safe
+        const std::size_t nb = nr;
+        // V columns in base-equation space, then M0^-1 V in place
+        for (std::size_t c = 0; c < nb; ++c) {
+            const BorderCol& bc = bcol_[c];
+            double* v = Vs_.data() + c * n2_;
+            for (std::size_t k = 0; k < m; ++k) {
+                if (bc.kind == kSlack) v[k] = k == bc.pos ? 1.0 : 0.0;
+                else if (bc.kind == kAddLn) v[k] = coef_ln(eq_row(k), bc.node, slip_coef_[bc.node]);
+                else v[k] = coef_lt(eq_row(k), bc.node);
+            }
+            lu_solve(M_.data(), m, m, piv_.data(), v);
+        }
+        // W^T rows over the base unknowns, and S = Z - W^T (M0^-1 V)
+        for (std::size_t r = 0; r < nb; ++r) {
+            const BorderRow& br = brow_[r];
+            double* w = Wt_.data() + r * n2_;
+            if (br.kind == kFix) {
+                for (std::size_t k = 0; k < m; ++k) w[k] = 0.0;
+                w[br.pos] = 1.0;
+            } else {
+                const std::size_t row = br.kind == kAddG ? n + br.node : br.node;
+                for (std::size_t k = 0; k < nA_; ++k) w[k] = coef_ln(row, idxA_[k], base_coef_[idxA_[k]]);
+                for (std::size_t k = nA_; k < m; ++k) w[k] = coef_lt(row, idxT_[k - nA_]);
+            }
+            double* srow = S_.data() + r * nb;
+            for (std::size_t c = 0; c < nb; ++c) {
+                const BorderCol& bc = bcol_[c];
+                double z = 0.0;
+                if (br.kind != kFix && bc.kind != kSlack) {
+                    const std::size_t row = br.kind == kAddG ? n + br.node : br.node;
+                    z = bc.kind == kAddLn ? coef_ln(row, bc.node, slip_coef_[bc.node]) : coef_lt(row, bc.node);
+                }
+                srow[c] = z - dot(w, Vs_.data() + c * n2_, m);
+            }
+        }
+        nB_ = nb;
+        if (nb > 0 && lu_factor(S_.data(), nb, nb, spiv_.data()) != 0) {
+            nB_ = 0;
+            return false;
+        }
+        return true;
     }
 
     // The damped semismooth Newton method on F from the committed forces, result in
@@ -579,6 +769,15 @@ private:
     std::vector<int> piv_, jpiv_;
     std::vector<std::size_t> idxA_, idxT_;
     std::size_t nA_ = 0, nT_ = 0;
+    // base piece and its border
+    std::vector<long> pos_ln_, pos_lt_;
+    std::vector<std::int8_t> base_state_;
+    std::vector<double> base_coef_, Vs_, Wt_, S_, by_;
+    std::vector<int> spiv_;
+    std::vector<BorderRow> brow_;
+    std::vector<BorderCol> bcol_;
+    std::size_t nB_ = 0;
+    long n_updates_ = 0;
     bool lu_valid_ = false;
     long err_info_ = 0;
     long n_factorizations_ = 0;
