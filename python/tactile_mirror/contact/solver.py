@@ -39,7 +39,8 @@ converge raises :class:`ContactConvergenceError`.
 Two backends run this algorithm: ``"cpp"`` (the default: the compiled kernel
 ``contact_solver.hpp``, a few microseconds per step when the piece is unchanged) and
 ``"python"`` (numpy/LAPACK, the reference). They take the same steps in the same
-order and agree to round-off (forces within 1e-10 relative, identical node states on
+order (the compiled one solves a piece near the last factored one by bordering its LU
+instead of refactoring, with one step of iterative refinement) and agree to round-off (forces within 1e-10 relative, identical node states on
 the paper's scenes and random ones: ``tests/test_contact_cpp.py``). Both leave the
 contact history unchanged when a step fails.
 """
