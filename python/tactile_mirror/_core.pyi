@@ -328,6 +328,9 @@ class _ContactSolver:
     @property
     def factorizations(self) -> int:
         """Piece LU factorisations since construction."""
+    @property
+    def updates(self) -> int:
+        """Pieces solved by bordering the factored base piece instead of refactoring."""
     def set_params(
         self, mu: float, mu_kinetic: float, tol: float, max_iter: int, max_active_set_iter: int
     ) -> None: ...
