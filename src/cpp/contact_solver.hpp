@@ -225,6 +225,7 @@ public:
         base_state_.assign(n, kContactOpen); base_coef_ = vec(n);
         Vs_ = vec(kMaxBorder * n2_); Wt_ = vec(kMaxBorder * n2_); S_ = vec(kMaxBorder * kMaxBorder);
         spiv_.assign(kMaxBorder, 0); by_ = vec(kMaxBorder); brow_.resize(kMaxBorder); bcol_.resize(kMaxBorder);
+        vcache_ = vec(kColCache * n2_); ccol_.resize(kColCache);
         key_state_.assign(n, kContactOpen); key_coef_ = vec(n);
         slip_coef_ = vec(n);
         reset();
@@ -429,6 +430,7 @@ public:
         const std::size_t n = n_;
         lu_valid_ = false;
         nB_ = 0;
+        n_cached_ = 0;  // cached M0^-1 V columns belong to the old base
         std::size_t a = 0, t = 0;
         for (std::size_t i = 0; i < n; ++i) {
             pos_ln_[i] = pos_lt_[i] = -1;
@@ -598,6 +600,8 @@ private:
     struct BorderRow { std::uint8_t kind; std::size_t node; std::size_t pos; };
     struct BorderCol { std::uint8_t kind; std::size_t node; std::size_t pos; };
     static constexpr std::size_t kMaxBorder = 16;
+    static constexpr std::size_t kColCache = 2 * kMaxBorder;
+    struct CachedCol { std::uint8_t kind; std::size_t node; std::size_t pos; double coef; };
 
     std::size_t eq_row(std::size_t k) const noexcept {  // C row of base equation k
         return k < nA_ ? n_ + idxA_[k] : idxT_[k - nA_];
@@ -639,16 +643,30 @@ private:
         }
         if (nr != nc) return false;  // cannot happen (both pieces are square); be safe
         const std::size_t nb = nr;
-        // V columns in base-equation space, then M0^-1 V in place
+        // M0^-1 V: columns already solved for this base (the same border column of an
+        // earlier nearby piece) come from the column cache, the others are solved
         for (std::size_t c = 0; c < nb; ++c) {
             const BorderCol& bc = bcol_[c];
+            const double coef = bc.kind == kAddLn ? slip_coef_[bc.node] : 0.0;
             double* v = Vs_.data() + c * n2_;
+            std::size_t hit = kColCache;
+            for (std::size_t q = 0; q < n_cached_; ++q) {
+                const CachedCol& cc = ccol_[q];
+                if (cc.kind == bc.kind && cc.node == bc.node && cc.pos == bc.pos && cc.coef == coef) { hit = q; break; }
+            }
+            if (hit < kColCache) {
+                copy(vcache_.data() + hit * n2_, v, m);
+                continue;
+            }
             for (std::size_t k = 0; k < m; ++k) {
                 if (bc.kind == kSlack) v[k] = k == bc.pos ? 1.0 : 0.0;
-                else if (bc.kind == kAddLn) v[k] = coef_ln(eq_row(k), bc.node, slip_coef_[bc.node]);
+                else if (bc.kind == kAddLn) v[k] = coef_ln(eq_row(k), bc.node, coef);
                 else v[k] = coef_lt(eq_row(k), bc.node);
             }
             lu_solve(M_.data(), m, m, piv_.data(), v);
+            const std::size_t slot = n_cached_ < kColCache ? n_cached_++ : (next_slot_++ % kColCache);
+            ccol_[slot] = {bc.kind, bc.node, bc.pos, coef};
+            copy(v, vcache_.data() + slot * n2_, m);
         }
         // W^T rows over the base unknowns, and S = Z - W^T (M0^-1 V)
         for (std::size_t r = 0; r < nb; ++r) {
@@ -782,6 +800,9 @@ private:
     std::vector<BorderCol> bcol_;
     std::size_t nB_ = 0;
     long n_updates_ = 0;
+    std::vector<double> vcache_;
+    std::vector<CachedCol> ccol_;
+    std::size_t n_cached_ = 0, next_slot_ = 0;
     bool lu_valid_ = false;
     long err_info_ = 0;
     long n_factorizations_ = 0;
