@@ -329,6 +329,9 @@ class _ContactSolver:
     def factorizations(self) -> int:
         """Piece LU factorisations since construction."""
     @property
+    def affine_steps(self) -> int:
+        """Piece solves served by the affine response of an unchanged piece."""
+    @property
     def updates(self) -> int:
         """Pieces solved by bordering the factored base piece instead of refactoring."""
     def set_params(

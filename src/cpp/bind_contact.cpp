@@ -97,6 +97,8 @@ void tm_bind_contact(py::module_& m) {
         .def_property_readonly("r", [](const PyContact& c) { return c.k.r(); })
         .def_property_readonly("factorizations", [](const PyContact& c) { return c.k.factorizations(); },
                                "piece LU factorisations since construction")
+        .def_property_readonly("affine_steps", [](const PyContact& c) { return c.k.affine_steps(); },
+                               "piece solves served by the affine response of an unchanged piece")
         .def_property_readonly("updates", [](const PyContact& c) { return c.k.updates(); },
                                "pieces solved by bordering the factored base piece instead of refactoring")
         .def("set_params",

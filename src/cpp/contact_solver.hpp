@@ -26,7 +26,9 @@
 // is solved by bordering the factored one (a Schur complement of at most 16 rows and
 // columns, plus one step of iterative refinement), so refactorisations are rare
 // (fig6: 41 factorisations and 611 bordered updates in 2000 steps, against 652
-// factorisations in the Python reference).
+// factorisations in the Python reference). Within one piece the response is affine in
+// the plate position; a piece met a third time is served from its reference solution
+// and its responses to unit plate motions in O(n) (piece_response).
 #pragma once
 
 #include <cmath>
@@ -226,6 +228,8 @@ public:
         Vs_ = vec(kMaxBorder * n2_); Wt_ = vec(kMaxBorder * n2_); S_ = vec(kMaxBorder * kMaxBorder);
         spiv_.assign(kMaxBorder, 0); by_ = vec(kMaxBorder); brow_.resize(kMaxBorder); bcol_.resize(kMaxBorder);
         vcache_ = vec(kColCache * n2_); ccol_.resize(kColCache);
+        aff_lam_ = vec(n2_); aff_u_ = vec(n2_); aff_lz_ = vec(n2_); aff_uz_ = vec(n2_); aff_ly_ = vec(n2_);
+        aff_uy_ = vec(n2_); aff_v_ = vec(n);
         key_state_.assign(n, kContactOpen); key_coef_ = vec(n);
         slip_coef_ = vec(n);
         reset();
@@ -241,6 +245,7 @@ public:
         fill8(state_, kContactOpen); fill8(sliding_, 0);
         s_prev_ = 0.0;
         lu_valid_ = false;
+        aff_stage_ = 0;
         has_candidate_ = false;
     }
 
@@ -288,9 +293,8 @@ public:
         double* nsg = ws_sign2_.data();
         for (int k = 1; k <= params.max_active_set_iter; ++k) {
             it = k;
-            const int info = solve_piece(st, sg, plate_z, ds, c_lam_.data());
+            const int info = piece_response(st, sg, plate_z, plate_y, ds, c_lam_.data(), c_u_.data());
             if (info != 0) { err_info_ = info; return ContactStatus::singular_piece; }
-            displacement(c_lam_.data(), c_u_.data());
             const double fmax = classify(c_lam_.data(), c_u_.data(), plate_z, ds, F_.data(), nst, nsg);
             if (fmax <= atol) {
                 copy8(nst, c_state_.data()); copy(nsg, c_sign_.data());
@@ -335,6 +339,8 @@ public:
     long factorizations() const noexcept { return n_factorizations_; }
     // Pieces solved by bordering the factored base piece instead of refactoring.
     long updates() const noexcept { return n_updates_; }
+    // Piece solves served by the affine response of an unchanged piece (O(n) each).
+    long affine_steps() const noexcept { return n_affine_; }
     // ---- error details of the last failed solve
     long error_info() const noexcept { return err_info_; }
     double error_residual() const noexcept { return err_residual_; }
@@ -353,6 +359,7 @@ public:
         copy8(state, state_.data());
         for (std::size_t i = 0; i < n_; ++i) sliding_[i] = sliding[i] ? 1 : 0;
         s_prev_ = s_prev;
+        aff_stage_ = 0;
         has_candidate_ = false;
     }
 
@@ -419,6 +426,7 @@ public:
                 copy8(state, key_state_.data());
                 copy(slip_coef_.data(), key_coef_.data());
                 ++n_updates_;
+                ++piece_id_;
                 return 0;
             }
         }
@@ -429,6 +437,7 @@ public:
     int refactor_piece(const std::int8_t* state) noexcept {
         const std::size_t n = n_;
         lu_valid_ = false;
+        ++piece_id_;
         nB_ = 0;
         n_cached_ = 0;  // cached M0^-1 V columns belong to the old base
         std::size_t a = 0, t = 0;
@@ -460,6 +469,7 @@ public:
         copy8(state, base_state_.data());
         copy(slip_coef_.data(), base_coef_.data());
         lu_valid_ = true;
+        ++piece_id_;
         return 0;
     }
 
@@ -467,17 +477,23 @@ public:
     // bordered solve gets one step of iterative refinement with the residual of the
     // piece's own equations (the base may be several pieces old; refinement brings the
     // forces back to the accuracy of a fresh factorisation).
-    void solve_prepared(double plate_z, double ds, double* lam) noexcept {
+    void solve_prepared(double plate_z, double ds, double* lam) noexcept { solve_prepared(plate_z, ds, lam, false, 0, 0); }
+
+    // unit: the right-hand side is az on every contact equation and ay on every stick
+    // equation (the response to a unit plate motion), instead of the plate's gaps.
+    void solve_prepared(double plate_z, double ds, double* lam, bool unit, double az, double ay) noexcept {
         const std::size_t n = n_, nA = nA_, m = nA_ + nT_, nb = nB_;
+        auto rhs_g = [&](std::size_t i) { return unit ? az : plate_z - z0_[i]; };
+        auto rhs_w = [&](std::size_t i) { return unit ? ay : uy_prev_[i] + ds; };
         double* b = rhs_.data();
         double* c = by_.data();
         for (std::size_t k = 0; k < m; ++k) {
             const std::size_t i = k < nA ? idxA_[k] : idxT_[k - nA];
-            b[k] = k < nA ? plate_z - z0_[i] : uy_prev_[i] + ds;
+            b[k] = k < nA ? rhs_g(i) : rhs_w(i);
         }
         for (std::size_t r = 0; r < nb; ++r) {
             const BorderRow& br = brow_[r];
-            c[r] = br.kind == kAddG ? plate_z - z0_[br.node] : (br.kind == kAddW ? uy_prev_[br.node] + ds : 0.0);
+            c[r] = br.kind == kAddG ? rhs_g(br.node) : (br.kind == kAddW ? rhs_w(br.node) : 0.0);
         }
         solve_bordered(b, c, lam);
         if (nb == 0) return;
@@ -487,16 +503,63 @@ public:
         for (std::size_t k = 0; k < m; ++k) {
             const std::size_t i = k < nA ? idxA_[k] : idxT_[k - nA];
             const bool kept = k < nA ? key_state_[i] != kContactOpen : key_state_[i] == kContactStick;
-            b[k] = !kept ? 0.0 : (k < nA ? (plate_z - z0_[i]) - u[n + i] : (uy_prev_[i] + ds) - u[i]);
+            b[k] = !kept ? 0.0 : (k < nA ? rhs_g(i) - u[n + i] : rhs_w(i) - u[i]);
         }
         for (std::size_t r = 0; r < nb; ++r) {
             const BorderRow& br = brow_[r];
-            c[r] = br.kind == kAddG ? (plate_z - z0_[br.node]) - u[n + br.node]
-                                    : (br.kind == kAddW ? (uy_prev_[br.node] + ds) - u[br.node] : 0.0);
+            c[r] = br.kind == kAddG ? rhs_g(br.node) - u[n + br.node]
+                                    : (br.kind == kAddW ? rhs_w(br.node) - u[br.node] : 0.0);
         }
         double* d = lam2_.data();
         solve_bordered(b, c, d);
         for (std::size_t i = 0; i < n2_; ++i) lam[i] += d[i];
+    }
+
+    // Forces and displacements of the piece (state, sign) for the plate at (plate_y,
+    // plate_z). Within one piece the response is affine in the plate position (the
+    // stick equations' right-hand side uy_prev + ds = (uy_prev - s_prev) + plate_y
+    // keeps uy_prev - s_prev while the nodes stay stuck), so the second time a piece
+    // is met its responses to unit plate motions are solved, and from then on a step
+    // of the same piece costs O(n): the reference solution plus the plate's moves
+    // times the unit responses. Any change of the piece, or of uy_prev - s_prev on its
+    // stuck nodes beyond round-off, starts over.
+    int piece_response(const std::int8_t* state, const double* sign, double plate_z, double plate_y, double ds,
+                       double* lam, double* u) noexcept {
+        const int info = factor_piece(state, sign);
+        if (info != 0) return info;
+        if (aff_stage_ > 0 && aff_piece_ == piece_id_ && stick_offsets_unchanged()) {
+            const double dz = plate_z - aff_z_, dy = plate_y - aff_y_;
+            if (aff_stage_ == 1 && (dz != 0.0 || dy != 0.0)) {
+                solve_prepared(0.0, 0.0, aff_lz_.data(), true, 1.0, 0.0);
+                displacement(aff_lz_.data(), aff_uz_.data());
+                solve_prepared(0.0, 0.0, aff_ly_.data(), true, 0.0, 1.0);
+                displacement(aff_ly_.data(), aff_uy_.data());
+                aff_stage_ = 2;
+            }
+            if (aff_stage_ == 2) {
+                for (std::size_t i = 0; i < n2_; ++i) {
+                    lam[i] = aff_lam_[i] + dz * aff_lz_[i] + dy * aff_ly_[i];
+                    u[i] = aff_u_[i] + dz * aff_uz_[i] + dy * aff_uy_[i];
+                }
+            } else {
+                copy(aff_lam_.data(), lam, n2_);
+                copy(aff_u_.data(), u, n2_);
+            }
+            for (std::size_t i = 0; i < n_; ++i)  // exact zeros stay exact
+                if (key_state_[i] == kContactOpen) lam[i] = lam[n_ + i] = 0.0;
+            ++n_affine_;
+            return 0;
+        }
+        solve_prepared(plate_z, ds, lam);
+        displacement(lam, u);
+        copy(lam, aff_lam_.data(), n2_);
+        copy(u, aff_u_.data(), n2_);
+        aff_z_ = plate_z;
+        aff_y_ = plate_y;
+        for (std::size_t i = 0; i < n_; ++i) aff_v_[i] = uy_prev_[i] - s_prev_;
+        aff_piece_ = piece_id_;
+        aff_stage_ = 1;
+        return 0;
     }
 
     // x of the prepared piece for right-hand sides b (base equations, overwritten) and
@@ -531,6 +594,15 @@ public:
             if (key_state_[i] == kContactSlip) lam[i] = key_coef_[i] * lam[n + i];  // lt = mu sign ln
             else if (key_state_[i] == kContactOpen) lam[i] = lam[n + i] = 0.0;     // exactly, not ~0 from the border
         }
+    }
+
+    bool stick_offsets_unchanged() const noexcept {
+        for (std::size_t i = 0; i < n_; ++i) {
+            if (key_state_[i] != kContactStick) continue;
+            const double v = uy_prev_[i] - s_prev_, ref = aff_v_[i];
+            if (std::fabs(v - ref) > 1e-12 * (std::fabs(ref) + w_tol_)) return false;
+        }
+        return true;
     }
 
     int solve_piece(const std::int8_t* state, const double* sign, double plate_z, double ds, double* lam) noexcept {
@@ -803,6 +875,11 @@ private:
     std::vector<double> vcache_;
     std::vector<CachedCol> ccol_;
     std::size_t n_cached_ = 0, next_slot_ = 0;
+    // affine response of the current piece (piece_response)
+    std::vector<double> aff_lam_, aff_u_, aff_lz_, aff_uz_, aff_ly_, aff_uy_, aff_v_;
+    double aff_z_ = 0.0, aff_y_ = 0.0;
+    long piece_id_ = 0, aff_piece_ = -1, n_affine_ = 0;
+    int aff_stage_ = 0;
     bool lu_valid_ = false;
     long err_info_ = 0;
     long n_factorizations_ = 0;
