@@ -2,9 +2,12 @@
 
     python bench/bench_contact.py [--quick] [--figures DIR]
 
-Prints markdown tables: the paper's fig6 scene end to end at 1 kHz, reduced against
-unreduced solves of the same steps, cost against the outputs a scene asks for, and mesh
-size against strip-stress error and run time; writes Figs. 6-8 as PNG into DIR.
+Prints markdown tables: the compiled contact solver against the Python reference
+(per step, fig6 end to end, the 6-ridge pad step, the paced loop at 1 kHz against the
+FEM pad), the paper's fig6 scene end to end at 1 kHz, reduced against unreduced solves
+of the same steps, cost against the outputs a scene asks for, and mesh size against
+strip-stress error and run time; writes Figs. 6-8 as PNG into DIR. The CPU model is
+printed first; every ratio is between runs of this one process.
 """
 from __future__ import annotations
 
@@ -19,7 +22,110 @@ os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
 import numpy as np
 import tactile_mirror as tm
 from _common import table, timed
-from tactile_mirror.contact import ContactSolver, RidgeGeometry, ridge_model, simulate
+from tactile_mirror.contact import ContactSolver, Pad, RidgeGeometry, ridge_model, simulate
+
+
+def cpu_model() -> str:
+    try:
+        with open("/proc/cpuinfo") as f:
+            for line in f:
+                if line.startswith("model name"):
+                    return line.split(":", 1)[1].strip()
+    except OSError:
+        pass
+    import platform
+
+    return platform.processor() or "unknown"
+
+
+def bench_backends(quick):
+    """The compiled solver against the Python reference, same steps, same process."""
+    scene = tm.scenes.paper("fig6")
+    model = ridge_model(scene.geometry)
+    y, z = scene.plate_motion()
+    plate_z = model.geometry.height - z
+    mu, mu_k = scene.friction, scene.friction * scene.kinetic_ratio
+
+    def per_step(backend):
+        s = ContactSolver(model, mu, mu_kinetic=mu_k, backend=backend)
+        dt = np.empty(y.size)
+        clock = time.perf_counter
+        for i in range(y.size):
+            t0 = clock()
+            s.step(y[i], plate_z[i])
+            dt[i] = clock() - t0
+        return dt
+
+    runs = {b: min((per_step(b) for _ in range(1 if quick else 2)), key=np.sum) for b in ("python", "cpp")}
+    py, cc = runs["python"], runs["cpp"]
+    k = ContactSolver(model, mu, mu_kinetic=mu_k)
+    for i in range(y.size):
+        k.step(y[i], plate_z[i])
+    kern = k._kernel
+    rows = [["mean per step (fig6, 2000 steps)", f"{py.mean() * 1e6:.0f} us", f"{cc.mean() * 1e6:.1f} us",
+             f"{py.mean() / cc.mean():.1f}x"],
+            ["median per step", f"{np.median(py) * 1e6:.0f} us", f"{np.median(cc) * 1e6:.1f} us",
+             f"{np.median(py) / np.median(cc):.1f}x"],
+            ["p99 per step", f"{np.percentile(py, 99) * 1e6:.0f} us", f"{np.percentile(cc, 99) * 1e6:.0f} us",
+             f"{np.percentile(py, 99) / np.percentile(cc, 99):.1f}x"],
+            ["cpp: piece factorisations / bordered updates / affine (O(n)) piece solves", "",
+             f"{kern.factorizations} / {kern.updates} / {kern.affine_steps}", ""]]
+    t_py, _ = timed(lambda: simulate(scene, backend="python"), repeat=1 if quick else 2)
+    t_cc, _ = timed(lambda: simulate(scene, backend="cpp"), repeat=2 if quick else 3)
+    rows.append(["simulate(fig6) end to end (signals)", f"{t_py:.2f} s", f"{t_cc:.3f} s", f"{t_py / t_cc:.1f}x"])
+    six = dataclasses.replace(scene, n_ridges=6)
+    ys, zs = six.plate_motion()
+
+    def pad_steps(backend, n):
+        pad = Pad.from_scene(six, backend=backend)
+        dt = np.empty(n)
+        for i in range(n):
+            t0 = time.perf_counter()
+            pad.advance(ys[i], zs[i])
+            dt[i] = time.perf_counter() - t0
+        return dt
+
+    n6 = ys.size
+    p6 = pad_steps("cpp", n6)
+    q6 = pad_steps("python", 600 if quick else n6)
+    rows.append([f"6-ridge pad step, mean over fig6 ({n6} steps; python: first {q6.size})",
+                 f"{q6.mean() * 1e3:.2f} ms", f"{p6.mean() * 1e3:.3f} ms", f"{q6.mean() / p6[:q6.size].mean():.1f}x"])
+    spread = f"{np.median(p6) * 1e3:.3f} / {np.percentile(p6, 99) * 1e3:.2f} / {p6.max() * 1e3:.2f} ms"
+    rows.append(["6-ridge pad step, median / p99 / max", "", spread, ""])
+    table("Contact solver: compiled kernel (backend='cpp') against the Python reference (goals: per step >= 20x, "
+          "fig6 end to end >= 8x, 6-ridge pad step <= 0.5 ms)", ["what", "python", "cpp", "speed-up"], rows)
+
+
+def bench_realtime(duration):
+    """The paced loop at 1 kHz against the simulated 6-ridge FEM pad."""
+    from tactile_mirror.circuit import PVDFCircuit
+    from tactile_mirror.loop.controller import NoController
+    from tactile_mirror.loop.experiment import (
+        PLANTS,
+        FemPad,
+        PadSource,
+        Scene,
+        _pipeline,
+        default_weights,
+        scene_finger,
+    )
+    from tactile_mirror.loop.runner import LoopRunner
+    from tactile_mirror.loop.stage import SimulatedStage
+
+    rows = []
+    for n_ridges in (1, 6):
+        sc = Scene(seed=0, duration=duration, press=0.5, plant="fem", trajectory=PLANTS["fem"]["trajectory"])
+        finger = scene_finger(sc)
+        source = PadSource(sc, FemPad(n_ridges, fs=sc.fs), PVDFCircuit(), finger)
+        pipe = _pipeline(default_weights("fem", sc.fs), sc.fs, NoController(), n_ridges)
+        res = LoopRunner(pipe, SimulatedStage(), source, realtime=True).run(n_ticks=finger.size, x0=0.0)
+        tp, lp = res.tick_percentiles(), res.latency_percentiles()
+        rows.append([n_ridges, len(res.t), f"{tp['p50']:.0f} / {tp['p99']:.0f} / {tp['max']:.0f}",
+                     f"{lp['p50']:.0f} / {lp['p99']:.0f}", res.overruns, res.late_starts])
+    table(f"Paced loop (realtime=True) at 1 kHz against the simulated FEM pad, {duration:g} s "
+          "(tick: plant + pipeline + stage; goal: p99 below one tick, 1000 us)",
+          ["ridges", "ticks", "tick p50 / p99 / max [us]", "pipeline latency p50 / p99 [us]", "overruns",
+           "late starts"], rows)
 
 
 def bench_fig6():
@@ -136,6 +242,9 @@ def main(argv=None):
     p.add_argument("--quick", action="store_true", help="fewer mesh sizes and steps")
     p.add_argument("--figures", default=None, help="folder for the Fig. 6-8 PNGs (default: none)")
     args = p.parse_args(argv)
+    print(f"CPU: {cpu_model()} ({os.cpu_count()} logical cores)")
+    bench_backends(args.quick)
+    bench_realtime(1.5 if args.quick else 3.0)
     bench_fig6()
     bench_reduced_vs_full(50 if args.quick else 200)
     bench_outputs()

@@ -6,6 +6,7 @@ Classes that differ only in their arithmetic share a generic base that exists on
 (``@type_check_only``), as do the TypedDicts of the pipeline's dict arguments and results.
 """
 
+from collections.abc import Sequence
 from typing import (
     Any,
     Generic,
@@ -312,3 +313,52 @@ class _MirrorPipelineF32(_MirrorPipeline[np.float32, np.float32]):
 
 class _MirrorPipelineF64F32(_MirrorPipeline[np.float64, np.float32]):
     """Real-time tactile-mirror pipeline, float64 filters and float32 detector (see tactile_mirror.MirrorPipeline)."""
+
+# ---------------------------------------------------------------- contact solver (contact_solver.hpp)
+class _ContactSolver:
+    """Condensed contact solver of one ridge. Use tactile_mirror.contact.ContactSolver."""
+
+    def __init__(
+        self, compliance: npt.ArrayLike, node_z: npt.ArrayLike, weights: npt.ArrayLike, r: float, w_tol: float
+    ) -> None: ...
+    @property
+    def n_nodes(self) -> int: ...
+    @property
+    def r(self) -> float: ...
+    @property
+    def factorizations(self) -> int:
+        """Piece LU factorisations since construction."""
+    @property
+    def affine_steps(self) -> int:
+        """Piece solves served by the affine response of an unchanged piece."""
+    @property
+    def updates(self) -> int:
+        """Pieces solved by bordering the factored base piece instead of refactoring."""
+    def set_params(
+        self, mu: float, mu_kinetic: float, tol: float, max_iter: int, max_active_set_iter: int
+    ) -> None: ...
+    def step(
+        self, plate_y: float, plate_z: float
+    ) -> tuple[int, npt.NDArray[np.float64] | None, npt.NDArray[np.float64] | None, npt.NDArray[np.int8] | None,
+               float, int]:
+        """(status, forces, displacement, state, slip_fraction, iterations); arrays None unless status is 0."""
+    def error(self) -> tuple[int, float, float]:
+        """(info, residual, tolerance) of the last failed step."""
+    def reset(self) -> None: ...
+    def get_history(self) -> dict[str, Any]: ...
+    def set_history(
+        self, lam: npt.ArrayLike, uy_prev: npt.ArrayLike, s_prev: float, state: npt.ArrayLike, sign: npt.ArrayLike,
+        sliding: npt.ArrayLike,
+    ) -> None: ...
+
+class _ContactPad:
+    """Ridges of a pad stepped in one call without the GIL. Use tactile_mirror.contact.Pad."""
+
+    def __init__(self, solvers: Sequence[_ContactSolver]) -> None: ...
+    @property
+    def n_ridges(self) -> int: ...
+    def step(
+        self, plate_y: float, plate_z: npt.ArrayLike
+    ) -> tuple[int, int, int, npt.NDArray[np.float64] | None, npt.NDArray[np.float64] | None,
+               npt.NDArray[np.int8] | None, npt.NDArray[np.float64] | None]:
+        """(status, failing ridge, iterations, forces, displacement, state, slip_fraction); committed only if all converged."""

@@ -7,10 +7,12 @@ namespace py = pybind11;
 void tm_bind_sos(py::module_& m);
 void tm_bind_detector(py::module_& m);
 void tm_bind_pipeline(py::module_& m);
+void tm_bind_contact(py::module_& m);
 
 PYBIND11_MODULE(_core, m) {
     m.doc() = "tactile_mirror C++ core: SOS filters, slip-detector kernel, real-time pipeline";
     tm_bind_sos(m);
     tm_bind_detector(m);
     tm_bind_pipeline(m);
+    tm_bind_contact(m);
 }

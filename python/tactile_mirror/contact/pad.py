@@ -19,7 +19,7 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from .model import RidgeModel
-from .solver import ContactSolver
+from .solver import OPEN, STICK, ContactSolver
 
 if TYPE_CHECKING:
     from ..scenes import Scene
@@ -80,11 +80,15 @@ class Pad:
         Length of the ridges along ``x``, m (forces in N are per this length).
     tol : float
         Contact solver tolerance.
+    backend : {"cpp", "python"}
+        Contact solver implementation (see :class:`ContactSolver`). With ``"cpp"``
+        (default) :meth:`advance` steps every ridge in one compiled call without the
+        GIL, and commits the ridges only if all of them converged.
     """
 
     def __init__(self, model: RidgeModel, mu: float, n_ridges: int = 1, pitch: float | None = None,
                  finger_radius: float = np.inf, ridge_length: float = 10e-3, tol: float = 1e-10,
-                 mu_kinetic: float | None = None) -> None:
+                 mu_kinetic: float | None = None, backend: str = "cpp") -> None:
         if int(n_ridges) != n_ridges or n_ridges < 1:
             raise ValueError(f"n_ridges must be a positive integer, got {n_ridges!r}")
         if not (finger_radius > 0):
@@ -101,16 +105,24 @@ class Pad:
         self.ridge_y = (np.arange(self.n_ridges) - (self.n_ridges - 1) / 2) * self.pitch
         self.indent_offset = (self.ridge_y ** 2 / (2 * self.finger_radius)
                               if np.isfinite(self.finger_radius) else np.zeros(self.n_ridges))
-        self.solvers = [ContactSolver(model, mu, tol=tol, mu_kinetic=mu_kinetic) for _ in range(self.n_ridges)]
+        self.solvers = [ContactSolver(model, mu, tol=tol, mu_kinetic=mu_kinetic, backend=backend)
+                        for _ in range(self.n_ridges)]
+        self.backend = self.solvers[0].backend
+        self._stepper = None
+        if self.backend == "cpp":
+            from .. import _core
+
+            self._stepper = _core._ContactPad([s._kernel for s in self.solvers])
 
     @classmethod
-    def from_scene(cls, scene: Scene) -> Pad:
+    def from_scene(cls, scene: Scene, backend: str = "cpp") -> Pad:
         """The pad a :class:`~tactile_mirror.Scene` describes: its ridge geometry,
         static and kinetic friction, number of ridges and finger radius."""
         from .model import ridge_model
 
         return cls(ridge_model(scene.geometry), scene.friction, n_ridges=scene.n_ridges,
-                   finger_radius=scene.finger_radius, mu_kinetic=scene.friction * scene.kinetic_ratio)
+                   finger_radius=scene.finger_radius, mu_kinetic=scene.friction * scene.kinetic_ratio,
+                   backend=backend)
 
     @property
     def mu(self) -> float:
@@ -136,6 +148,8 @@ class Pad:
         m = self.model
         H = m.geometry.height
         n = m.n_nodes
+        if self._stepper is not None:
+            return self._advance_compiled(plate_y, indent)
         frac = np.empty(self.n_ridges)
         gross = np.empty(self.n_ridges, dtype=bool)
         touch = np.empty(self.n_ridges, dtype=bool)
@@ -156,3 +170,18 @@ class Pad:
         fz = float(-forces[:, n:].sum()) * self.ridge_length
         return PadState(frac, gross, touch, fy, fz, states, forces, disp, its, m)
 
+
+    def _advance_compiled(self, plate_y: float, indent: float) -> PadState:
+        m = self.model
+        n = m.n_nodes
+        plate_z = m.geometry.height - (indent - self.indent_offset)
+        if not (np.isfinite(plate_y) and np.all(np.isfinite(plate_z))):
+            raise ValueError(f"plate position must be finite, got y={plate_y!r}, indent={indent!r}")
+        status, bad, its, forces, disp, states, frac = self._stepper.step(float(plate_y), plate_z)
+        if status:
+            self.solvers[bad]._raise_status(status, plate_y, float(plate_z[bad]))
+        touch = np.any(states != OPEN, axis=1)
+        gross = touch & ~np.any(states == STICK, axis=1)
+        fy = float(forces[:, :n].sum()) * self.ridge_length
+        fz = float(-forces[:, n:].sum()) * self.ridge_length
+        return PadState(frac, gross, touch, fy, fz, states, forces, disp, its, m)

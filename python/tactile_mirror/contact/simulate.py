@@ -68,7 +68,7 @@ class SimulationResult:
         return self.stress[:, 0, 2] - self.stress[:, 1, 2]
 
 
-def simulate(scene: Scene, progress: bool = False) -> SimulationResult:
+def simulate(scene: Scene, progress: bool = False, backend: str = "cpp") -> SimulationResult:
     """Simulate one scene (see :class:`tactile_mirror.Scene`).
 
     Parameters
@@ -76,12 +76,15 @@ def simulate(scene: Scene, progress: bool = False) -> SimulationResult:
     scene : Scene
     progress : bool
         Show a progress bar over the time steps.
+    backend : {"cpp", "python"}
+        Contact solver implementation (:class:`~tactile_mirror.contact.ContactSolver`):
+        the compiled kernel (default) or the Python reference; same results to round-off.
     """
     from ..scenes import Scene
 
     if not isinstance(scene, Scene):
         raise TypeError(f"scene must be a tactile_mirror.Scene, got {type(scene).__name__}")
-    pad = Pad.from_scene(scene)
+    pad = Pad.from_scene(scene, backend=backend)
     model = pad.model
     plate_y, indent = scene.plate_motion()
     n_total = plate_y.size

@@ -9,6 +9,15 @@ percentiles and overrun counts, and can be saved as a :class:`~tactile_mirror.lo
 A source is any object with ``read(stage_position, t) -> ndarray | None``
 (float64, shape ``(pipeline.n_inputs,)``; None ends the run): :class:`ArraySource`
 plays samples from an array, the closed-loop experiment plays the simulated pad.
+
+Hardware in the loop without the hardware: with ``realtime=True`` and a source that
+simulates the finger on the FEM pad (:class:`~tactile_mirror.loop.experiment.PadSource`
+over :class:`~tactile_mirror.loop.experiment.FemPad`, every ridge stepped by one
+compiled call), a real stage driver, or a C program through ``tm.h``
+(:class:`~tactile_mirror.loop.capi.CPipeline`), runs against the simulated pad at the
+pipeline's rate. The whole tick (plant + pipeline + stage) must then fit the period:
+``tick_ns`` and :meth:`LoopResult.tick_percentiles` report it, ``overruns`` counts the
+ticks that ended after their deadline.
 """
 from __future__ import annotations
 
@@ -58,6 +67,9 @@ class LoopResult:
         Stage position read at each tick (before the command), m.
     latency_ns : ndarray of int64
         Sample handed over -> stage command returned, per tick.
+    tick_ns : ndarray of int64
+        Work of the whole tick: source read (the simulated plant, if any) + pipeline
+        step + stage command, per tick. What must fit the period in a paced run.
     overruns : int
         Ticks that ended after their deadline (real-time runs) or whose latency
         exceeded the period (simulated-time runs).
@@ -80,19 +92,28 @@ class LoopResult:
     realtime: bool
     x0: float = 0.0
     status: dict = field(default_factory=dict)
+    tick_ns: np.ndarray = field(default_factory=lambda: np.zeros(0, dtype=np.int64))
+
+    @staticmethod
+    def _percentiles(ns: np.ndarray) -> dict:
+        v = ns.astype(np.float64) / 1e3
+        if v.size == 0:
+            return {"p50": math.nan, "p99": math.nan, "p99.9": math.nan, "max": math.nan}
+        p50, p99, p999 = np.percentile(v, [50, 99, 99.9])
+        return {"p50": float(p50), "p99": float(p99), "p99.9": float(p999), "max": float(v.max())}
 
     def latency_percentiles(self) -> dict:
         """p50, p99, p99.9 and max of the tick latency, microseconds."""
-        lat = self.latency_ns.astype(np.float64) / 1e3
-        if lat.size == 0:
-            return {"p50": math.nan, "p99": math.nan, "p99.9": math.nan, "max": math.nan}
-        p50, p99, p999 = np.percentile(lat, [50, 99, 99.9])
-        return {"p50": float(p50), "p99": float(p99), "p99.9": float(p999), "max": float(lat.max())}
+        return self._percentiles(self.latency_ns)
+
+    def tick_percentiles(self) -> dict:
+        """p50, p99, p99.9 and max of the whole tick's work (:attr:`tick_ns`), microseconds."""
+        return self._percentiles(self.tick_ns)
 
     def to_recording(self, config: dict, metadata: dict | None = None) -> Recording:
         """The run as a :class:`Recording` (``config``: the pipeline's :attr:`config`)."""
         meta = {"realtime": self.realtime, "overruns": int(self.overruns), "late_starts": int(self.late_starts),
-                "latency_us": self.latency_percentiles()}
+                "latency_us": self.latency_percentiles(), "tick_us": self.tick_percentiles()}
         meta.update(metadata or {})
         return Recording(fs=self.fs, samples=self.samples, outputs=self.outputs, accepted=self.accepted,
                          stage_position=self.stage_position, config=config, x0=self.x0, metadata=meta)
@@ -167,6 +188,7 @@ class LoopRunner:
         accepted = np.empty(n, dtype=bool)
         pos = np.empty(n)
         lat = np.empty(n, dtype=np.int64)
+        tick = np.empty(n, dtype=np.int64)
         out = np.zeros(no)
         period = 1.0 / fs
         period_ns = round(1e9 / fs)
@@ -185,6 +207,7 @@ class LoopRunner:
                         break
                 if now > t_next:
                     late += 1
+            t_start = clock()
             p = stage.position()
             x = source.read(p, k * period)
             if x is None:
@@ -197,6 +220,7 @@ class LoopRunner:
             if advance is not None:
                 advance(period)
             lat[k] = t1 - t0
+            tick[k] = t1 - t_start
             if self.realtime:
                 overruns += t1 > t_next
                 t_next += period_ns
@@ -212,4 +236,4 @@ class LoopRunner:
         return LoopResult(t=np.arange(k) * period, samples=samples[:k], outputs=outputs[:k],
                           accepted=accepted[:k], stage_position=pos[:k], latency_ns=lat[:k],
                           overruns=int(overruns), late_starts=int(late), fs=fs, realtime=self.realtime,
-                          x0=x_start, status=status)
+                          x0=x_start, status=status, tick_ns=tick[:k])

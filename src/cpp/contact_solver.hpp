@@ -1,0 +1,889 @@
+// Frictional contact of one ridge with a rigid plate on the condensed surface
+// compliance: the primal-dual active-set (semismooth Newton) step of
+// tactile_mirror/contact/solver.py, with its damped-Newton fallback.
+//
+// The algorithm, the stopping rule, the classification and the reported state are
+// those of the Python reference (ContactSolver(backend="python")); see its module
+// docstring for the equations. Here:
+//
+// * sizes are fixed at construction (n contact nodes, 2n unknowns) and every
+//   workspace is allocated there; `solve`, `commit` and `step` allocate nothing,
+//   take no lock, make no system call and throw nothing: they return a
+//   ContactStatus;
+// * a step is two phases: `solve` computes the new state into candidate buffers and
+//   leaves the committed contact history untouched (only the LU cache, which is
+//   keyed by the piece it factors, may change); `commit` accepts it. A failed step
+//   therefore leaves the solver as it was, and a pad commits its ridges only when
+//   all of them converged;
+// * the pieces are separate functions (classification, the piece system and its
+//   factorisation, the triangular solve, the Newton residual and Jacobian) so that
+//   path-following steppers can call them directly.
+//
+// The dense LU is partial pivoting (row-major, blocked right-looking). A pivot that
+// is exactly zero is a singular system, as LAPACK getrf reports it. Factors are
+// reused while the piece (classification and slip coefficients) is unchanged; a piece
+// that differs from the factored one in a few nodes (the slip front moved by a node)
+// is solved by bordering the factored one (a Schur complement of at most 16 rows and
+// columns, plus one step of iterative refinement), so refactorisations are rare
+// (fig6: 41 factorisations and 611 bordered updates in 2000 steps, against 652
+// factorisations in the Python reference). Within one piece the response is affine in
+// the plate position; a piece met a third time is served from its reference solution
+// and its responses to unit plate motions in O(n) (piece_response).
+#pragma once
+
+#include <cmath>
+#include <cstddef>
+#include <cstdint>
+#include <cstring>
+#include <vector>
+
+#include "simd.hpp"
+
+namespace tactile {
+
+enum class ContactStatus : int {
+    ok = 0,
+    non_finite_position = 1,  // plate_y or plate_z is NaN or infinite
+    singular_piece = 2,       // the active-set system has a zero pivot (info: its 1-based row)
+    singular_jacobian = 3,    // the damped-Newton Jacobian has a zero pivot (info: Newton iteration)
+    no_convergence = 4,       // max_iter damped-Newton iterations without reaching the tolerance
+};
+
+enum : std::int8_t { kContactOpen = 0, kContactStick = 1, kContactSlip = 2 };
+
+// Solver parameters, read at every step (the caller may change them between steps).
+struct ContactParams {
+    double mu = 0.5;           // static Coulomb coefficient
+    double mu_kinetic = 0.5;   // kinetic coefficient (0 < mu_kinetic <= mu)
+    double tol = 1e-10;        // relative tolerance of the Alart-Curnier residual
+    int max_iter = 60;         // damped-Newton iterations before no_convergence
+    int max_active_set_iter = 25;
+};
+
+// Dense LU with partial pivoting of a row-major m x m matrix `a` (leading dimension
+// lda), in place; piv[k] is the row swapped with row k. Returns 0, or k + 1 when the
+// pivot of column k is exactly zero (the factorisation stops there).
+//
+// Blocked right-looking (as LAPACK getrf): a panel of kLuBlock columns is factored
+// with partial pivoting (rows swapped whole), the block row of U is solved with the
+// panel's unit lower triangle, and the trailing matrix gets one rank-kLuBlock update.
+// The update loads and stores each trailing entry once per panel instead of once per
+// column, with the panel's U rows held in L1: what makes it fast for m of a few
+// hundred.
+constexpr std::size_t kLuBlock = 8;
+
+// ri[j] -= sum_t ri[kb + t] * U[t][j] for j in [ke, m), t < 8: one row of the
+// trailing update with a full panel. Written out in scalars so that the eight
+// multipliers and the partial sums stay in registers (the generic 32-byte vectors
+// spill on the SSE2 baseline here); the two partial sums halve the dependency chain.
+inline void lu_update_row8(double* ri, const double* U, std::size_t lda, std::size_t kb, std::size_t ke,
+                           std::size_t m) noexcept {
+    const double l0 = ri[kb], l1 = ri[kb + 1], l2 = ri[kb + 2], l3 = ri[kb + 3];
+    const double l4 = ri[kb + 4], l5 = ri[kb + 5], l6 = ri[kb + 6], l7 = ri[kb + 7];
+    const double *u0 = U, *u1 = U + lda, *u2 = U + 2 * lda, *u3 = U + 3 * lda;
+    const double *u4 = U + 4 * lda, *u5 = U + 5 * lda, *u6 = U + 6 * lda, *u7 = U + 7 * lda;
+    std::size_t j = ke;
+    if (m - ke >= 4) {  // 4-wide (two SSE2 registers on the baseline); no loop-carried value
+        using V = vec<double>;
+        const V v0 = splat(l0), v1 = splat(l1), v2 = splat(l2), v3 = splat(l3);
+        const V v4 = splat(l4), v5 = splat(l5), v6 = splat(l6), v7 = splat(l7);
+        for (; j + 4 <= m; j += 4) {
+            const V s0 = v0 * load_unaligned(u0 + j) + v1 * load_unaligned(u1 + j) + v2 * load_unaligned(u2 + j) +
+                         v3 * load_unaligned(u3 + j);
+            const V s1 = v4 * load_unaligned(u4 + j) + v5 * load_unaligned(u5 + j) + v6 * load_unaligned(u6 + j) +
+                         v7 * load_unaligned(u7 + j);
+            const V r = load_unaligned(ri + j) - (s0 + s1);
+            std::memcpy(ri + j, &r, sizeof(r));
+        }
+    }
+    for (; j < m; ++j) {
+        const double s0 = l0 * u0[j] + l1 * u1[j] + l2 * u2[j] + l3 * u3[j];
+        const double s1 = l4 * u4[j] + l5 * u5[j] + l6 * u6[j] + l7 * u7[j];
+        ri[j] -= s0 + s1;
+    }
+}
+
+inline int lu_factor(double* a, std::size_t m, std::size_t lda, int* piv) noexcept {
+    for (std::size_t kb = 0; kb < m; kb += kLuBlock) {
+        const std::size_t b = m - kb < kLuBlock ? m - kb : kLuBlock;
+        const std::size_t ke = kb + b;
+        // panel: columns kb..ke-1, all rows below
+        for (std::size_t k = kb; k < ke; ++k) {
+            std::size_t p = k;
+            double best = std::fabs(a[k * lda + k]);
+            for (std::size_t i = k + 1; i < m; ++i) {
+                const double v = std::fabs(a[i * lda + k]);
+                if (v > best) { best = v; p = i; }  // first maximum, as idamax
+            }
+            piv[k] = static_cast<int>(p);
+            if (a[p * lda + k] == 0.0) return static_cast<int>(k) + 1;
+            if (p != k) {
+                double* rk = a + k * lda;
+                double* rp = a + p * lda;
+                for (std::size_t j = 0; j < m; ++j) { const double t = rk[j]; rk[j] = rp[j]; rp[j] = t; }
+            }
+            const double* rk = a + k * lda;
+            const double inv = 1.0 / rk[k];
+            for (std::size_t i = k + 1; i < m; ++i) {
+                double* ri = a + i * lda;
+                const double l = ri[k] * inv;
+                ri[k] = l;
+                for (std::size_t j = k + 1; j < ke; ++j) ri[j] -= l * rk[j];
+            }
+        }
+        if (ke >= m) break;
+        // block row of U: L11 U12 = A12 (unit lower triangular)
+        for (std::size_t k = kb; k < ke; ++k) {
+            const double* rk = a + k * lda;
+            for (std::size_t i = k + 1; i < ke; ++i) {
+                double* ri = a + i * lda;
+                const double l = ri[k];
+                for (std::size_t j = ke; j < m; ++j) ri[j] -= l * rk[j];
+            }
+        }
+        // trailing update A22 -= L21 U12
+        if (b == kLuBlock) {
+            for (std::size_t i = ke; i < m; ++i) lu_update_row8(a + i * lda, a + kb * lda, lda, kb, ke, m);
+        } else {
+            for (std::size_t i = ke; i < m; ++i) {
+                double* ri = a + i * lda;
+                for (std::size_t j = ke; j < m; ++j) {
+                    double acc = ri[j];
+                    for (std::size_t t = 0; t < b; ++t) acc -= ri[kb + t] * a[(kb + t) * lda + j];
+                    ri[j] = acc;
+                }
+            }
+        }
+    }
+    return 0;
+}
+
+// sum_j a[j] b[j] with four independent partial sums: a single running sum is bound
+// by the add latency (a chain of m dependent adds), four keep the units busy.
+inline double dot(const double* a, const double* b, std::size_t m) noexcept {
+    double s0 = 0.0, s1 = 0.0, s2 = 0.0, s3 = 0.0;
+    std::size_t j = 0;
+    for (; j + 4 <= m; j += 4) {
+        s0 += a[j] * b[j];
+        s1 += a[j + 1] * b[j + 1];
+        s2 += a[j + 2] * b[j + 2];
+        s3 += a[j + 3] * b[j + 3];
+    }
+    for (; j < m; ++j) s0 += a[j] * b[j];
+    return (s0 + s1) + (s2 + s3);
+}
+
+// Solve with the factors of lu_factor: b (length m) is overwritten by the solution.
+inline void lu_solve(const double* lu, std::size_t m, std::size_t lda, const int* piv, double* b) noexcept {
+    for (std::size_t k = 0; k < m; ++k) {
+        const std::size_t p = static_cast<std::size_t>(piv[k]);
+        if (p != k) { const double t = b[k]; b[k] = b[p]; b[p] = t; }
+    }
+    for (std::size_t i = 1; i < m; ++i) {  // L y = P b, unit diagonal
+        const double* ri = lu + i * lda;
+        b[i] -= dot(ri, b, i);
+    }
+    for (std::size_t i = m; i-- > 0;) {  // U x = y
+        const double* ri = lu + i * lda;
+        b[i] = (b[i] - dot(ri + i + 1, b + i + 1, m - i - 1)) / ri[i];
+    }
+}
+
+// max |x_i|, NaN if any entry is NaN (as numpy's max of abs).
+inline double max_abs(const double* x, std::size_t m) noexcept {
+    double r = 0.0;
+    for (std::size_t i = 0; i < m; ++i) {
+        const double a = std::fabs(x[i]);
+        if (a > r || a != a) r = a;
+        if (r != r) return r;
+    }
+    return r;
+}
+
+class ContactSolverKernel {
+public:
+    // compliance: (2n, 2n) row-major, symmetric (u = C f, f = (f_y, f_z));
+    // node_z, weights: (n,); r: the Alart-Curnier stiffness, 1 / mean(diag C) (N/m
+    // per m; given so both backends use the same rounding of it); w_tol: slip
+    // increment below which a node on the cone counts as not moving (m).
+    ContactSolverKernel(std::size_t n, const double* compliance, const double* node_z, const double* weights,
+                        double r, double w_tol)
+        : n_(n), n2_(2 * n), C_(compliance, compliance + 4 * n * n), z0_(node_z, node_z + n),
+          w_(weights, weights + n), w_tol_(w_tol), r_(r) {
+        z0_max_ = z0_[0];
+        argmax_z0_ = 0;
+        for (std::size_t i = 1; i < n; ++i)
+            if (z0_[i] > z0_max_) { z0_max_ = z0_[i]; argmax_z0_ = i; }
+        auto vec = [](std::size_t k) { return std::vector<double>(k, 0.0); };
+        lam_ = vec(n2_); uy_prev_ = vec(n); sign_ = vec(n);
+        state_.assign(n, kContactOpen); sliding_.assign(n, 0);
+        c_lam_ = vec(n2_); c_u_ = vec(n2_); c_sign_ = vec(n); c_forces_ = vec(n2_);
+        c_state_.assign(n, kContactOpen); c_reported_.assign(n, kContactOpen);
+        mu_node_ = vec(n); F_ = vec(n2_); F2_ = vec(n2_); u2_ = vec(n2_); lam2_ = vec(n2_); d_ = vec(n2_);
+        ws_state_.assign(n, kContactOpen); ws_sign_ = vec(n); ws_state2_.assign(n, kContactOpen); ws_sign2_ = vec(n);
+        rhs_ = vec(n2_); M_ = vec(n2_ * n2_); piv_.assign(n2_, 0); J_ = vec(n2_ * n2_); jpiv_.assign(n2_, 0);
+        idxA_.assign(n, 0); idxT_.assign(n, 0);
+        pos_ln_.assign(n, -1); pos_lt_.assign(n, -1);
+        base_state_.assign(n, kContactOpen); base_coef_ = vec(n);
+        Vs_ = vec(kMaxBorder * n2_); Wt_ = vec(kMaxBorder * n2_); S_ = vec(kMaxBorder * kMaxBorder);
+        spiv_.assign(kMaxBorder, 0); by_ = vec(kMaxBorder); brow_.resize(kMaxBorder); bcol_.resize(kMaxBorder);
+        vcache_ = vec(kColCache * n2_); ccol_.resize(kColCache);
+        aff_lam_ = vec(n2_); aff_u_ = vec(n2_); aff_lz_ = vec(n2_); aff_uz_ = vec(n2_); aff_ly_ = vec(n2_);
+        aff_uy_ = vec(n2_); aff_v_ = vec(n);
+        key_state_.assign(n, kContactOpen); key_coef_ = vec(n);
+        slip_coef_ = vec(n);
+        reset();
+    }
+
+    std::size_t n_nodes() const noexcept { return n_; }
+    double r() const noexcept { return r_; }
+    ContactParams params;
+
+    // Back to the undeformed, unloaded state.
+    void reset() noexcept {
+        fill(lam_, 0.0); fill(uy_prev_, 0.0); fill(sign_, 0.0);
+        fill8(state_, kContactOpen); fill8(sliding_, 0);
+        s_prev_ = 0.0;
+        lu_valid_ = false;
+        aff_stage_ = 0;
+        has_candidate_ = false;
+    }
+
+    // One step: solve, then commit on success.
+    ContactStatus step(double plate_y, double plate_z) noexcept {
+        const ContactStatus s = solve(plate_y, plate_z);
+        if (s == ContactStatus::ok) commit();
+        return s;
+    }
+
+    // Phase 1: the new contact state for the plate at (plate_y, plate_z) into the
+    // candidate buffers; the committed history is not touched.
+    ContactStatus solve(double plate_y, double plate_z) noexcept {
+        has_candidate_ = false;
+        err_info_ = 0; err_residual_ = 0.0; err_atol_ = 0.0;
+        if (!(std::isfinite(plate_y) && std::isfinite(plate_z))) return ContactStatus::non_finite_position;
+        const std::size_t n = n_;
+        const double ds = plate_y - s_prev_;
+        for (std::size_t i = 0; i < n; ++i) mu_node_[i] = sliding_[i] ? params.mu_kinetic : params.mu;
+        bool any_lam = false;
+        for (std::size_t i = 0; i < n2_; ++i) any_lam |= lam_[i] != 0.0;
+        if (z0_max_ <= plate_z && !any_lam) {  // the plate does not reach the ridge
+            fill(c_lam_, 0.0); fill(c_u_, 0.0); fill(c_sign_, 0.0); fill8(c_state_, kContactOpen);
+            finish(plate_y, 0);
+            return ContactStatus::ok;
+        }
+        double uy_max = 0.0;
+        for (std::size_t i = 0; i < n; ++i) uy_max = std::fmax(uy_max, std::fabs(uy_prev_[i]));
+        double scale_len = z0_max_ - plate_z;
+        if (1e-9 > scale_len) scale_len = 1e-9;
+        if (uy_max > scale_len) scale_len = uy_max;
+        const double atol = params.tol * (r_ * scale_len);
+
+        std::int8_t* st = ws_state_.data();
+        double* sg = ws_sign_.data();
+        bool any_active = false;
+        for (std::size_t i = 0; i < n; ++i) { st[i] = state_[i]; sg[i] = sign_[i]; any_active |= st[i] != kContactOpen; }
+        if (!any_active) {  // first contact: the nodes the plate penetrates, stuck
+            bool any = false;
+            for (std::size_t i = 0; i < n; ++i) { st[i] = z0_[i] > plate_z ? kContactStick : kContactOpen; any |= st[i] != 0; }
+            if (!any) st[argmax_z0_] = kContactStick;
+        }
+        int it = 0;
+        std::int8_t* nst = ws_state2_.data();
+        double* nsg = ws_sign2_.data();
+        for (int k = 1; k <= params.max_active_set_iter; ++k) {
+            it = k;
+            const int info = piece_response(st, sg, plate_z, plate_y, ds, c_lam_.data(), c_u_.data());
+            if (info != 0) { err_info_ = info; return ContactStatus::singular_piece; }
+            const double fmax = classify(c_lam_.data(), c_u_.data(), plate_z, ds, F_.data(), nst, nsg);
+            if (fmax <= atol) {
+                copy8(nst, c_state_.data()); copy(nsg, c_sign_.data());
+                finish(plate_y, it);
+                return ContactStatus::ok;
+            }
+            bool same = true;
+            for (std::size_t i = 0; i < n && same; ++i)
+                same = nst[i] == st[i] && (st[i] != kContactSlip || nsg[i] == sg[i]);
+            if (same) break;  // same piece but not converged: round-off trouble, use Newton
+            std::int8_t* ts = st; st = nst; nst = ts;
+            double* tg = sg; sg = nsg; nsg = tg;
+        }
+        int it2 = 0;
+        const ContactStatus s = damped_newton(plate_z, ds, atol, it2);
+        if (s != ContactStatus::ok) return s;
+        classify(c_lam_.data(), c_u_.data(), plate_z, ds, F_.data(), c_state_.data(), c_sign_.data());
+        finish(plate_y, it + it2);
+        return ContactStatus::ok;
+    }
+
+    // Phase 2: accept the candidate of the last successful solve.
+    void commit() noexcept {
+        if (!has_candidate_) return;
+        const std::size_t n = n_;
+        copy(c_lam_.data(), lam_.data(), n2_);
+        copy8(c_state_.data(), state_.data());
+        for (std::size_t i = 0; i < n; ++i) sliding_[i] = c_reported_[i] == kContactSlip;
+        copy(c_sign_.data(), sign_.data());
+        copy(c_u_.data(), uy_prev_.data());
+        s_prev_ = c_plate_y_;
+        has_candidate_ = false;
+    }
+
+    // ---- results of the last solve (valid after it returned ok; kept by commit)
+    const double* forces() const noexcept { return c_forces_.data(); }        // (2n) f = (lt, -ln), N/m
+    const double* displacement() const noexcept { return c_u_.data(); }       // (2n) (u_y, u_z), m
+    const std::int8_t* reported_state() const noexcept { return c_reported_.data(); }  // (n)
+    double slip_fraction() const noexcept { return c_frac_; }
+    int iterations() const noexcept { return c_iterations_; }
+    // Piece factorisations since construction (a step that reuses the factors adds none).
+    long factorizations() const noexcept { return n_factorizations_; }
+    // Pieces solved by bordering the factored base piece instead of refactoring.
+    long updates() const noexcept { return n_updates_; }
+    // Piece solves served by the affine response of an unchanged piece (O(n) each).
+    long affine_steps() const noexcept { return n_affine_; }
+    // ---- error details of the last failed solve
+    long error_info() const noexcept { return err_info_; }
+    double error_residual() const noexcept { return err_residual_; }
+    double error_tolerance() const noexcept { return err_atol_; }
+
+    // ---- committed contact history (read / restore)
+    const double* lam() const noexcept { return lam_.data(); }
+    const double* uy_prev() const noexcept { return uy_prev_.data(); }
+    const double* sign() const noexcept { return sign_.data(); }
+    const std::int8_t* state() const noexcept { return state_.data(); }
+    const std::uint8_t* sliding() const noexcept { return sliding_.data(); }
+    double s_prev() const noexcept { return s_prev_; }
+    void set_history(const double* lam, const double* uy_prev, const double* sign, const std::int8_t* state,
+                     const std::uint8_t* sliding, double s_prev) noexcept {
+        copy(lam, lam_.data(), n2_); copy(uy_prev, uy_prev_.data()); copy(sign, sign_.data());
+        copy8(state, state_.data());
+        for (std::size_t i = 0; i < n_; ++i) sliding_[i] = sliding[i] ? 1 : 0;
+        s_prev_ = s_prev;
+        aff_stage_ = 0;
+        has_candidate_ = false;
+    }
+
+    // ---- the pieces (public for path-following steppers)
+
+    // u = C P lam, P = diag(1, -1): C is symmetric, so column j of C P is row j of C
+    // (sign-flipped for the normal block); only the nonzero forces contribute.
+    void displacement(const double* lam, double* u) const noexcept {
+        const std::size_t n2 = n2_;
+        for (std::size_t i = 0; i < n2; ++i) u[i] = 0.0;
+        for (std::size_t j = 0; j < n2; ++j) {
+            const double a = j < n_ ? lam[j] : -lam[j];
+            if (a == 0.0) continue;
+            const double* cj = C_.data() + j * n2;
+            std::size_t i = 0;
+            const vec<double> av = splat(a);
+            for (; i + 4 <= n2; i += 4) {
+                const vec<double> r = load_unaligned(u + i) + load_unaligned(cj + i) * av;
+                std::memcpy(u + i, &r, sizeof(r));
+            }
+            for (; i < n2; ++i) u[i] += cj[i] * a;
+        }
+    }
+
+    // Alart-Curnier residual F (2n) at (lam, u), the classification open / stick /
+    // slip and the slip signs; returns max |F|. Uses the per-node cone of this step.
+    double classify(const double* lam, const double* u, double plate_z, double ds, double* F, std::int8_t* state,
+                    double* sgn) const noexcept {
+        const std::size_t n = n_;
+        const double r = r_;
+        for (std::size_t i = 0; i < n; ++i) {
+            const double lt = lam[i], ln = lam[n + i];
+            const double g = plate_z - (z0_[i] + u[n + i]);
+            const double w = (u[i] - uy_prev_[i]) - ds;
+            const double an = ln - r * g;
+            const bool act = an > 0;
+            const double b = mu_node_[i] * (act ? an : 0.0);
+            const double tau = lt - r * w;
+            const bool stick = act && std::fabs(tau) <= b;
+            const bool slip = act && !stick;
+            const double s = tau > 0 ? 1.0 : (tau < 0 ? -1.0 : (tau == tau ? 0.0 : tau));
+            F[i] = stick ? r * w : (slip ? lt - b * s : lt);
+            F[n + i] = act ? r * g : ln;
+            state[i] = stick ? kContactStick : (slip ? kContactSlip : kContactOpen);
+            sgn[i] = slip ? s : 0.0;
+        }
+        return max_abs(F, n2_);
+    }
+
+    // Prepare the system of the piece (state, sign): reuse the factors when they are
+    // of this piece; else, when the piece differs from the factored base piece by at
+    // most kMaxBorder unknowns / equations, border the base (update_piece); else
+    // factor it afresh (refactor_piece). Returns 0 or the 1-based row of a zero pivot.
+    int factor_piece(const std::int8_t* state, const double* sign) noexcept {
+        const std::size_t n = n_;
+        for (std::size_t i = 0; i < n; ++i)
+            slip_coef_[i] = state[i] == kContactSlip ? mu_node_[i] * sign[i] : 0.0;
+        if (lu_valid_) {
+            bool same = true;
+            for (std::size_t i = 0; i < n && same; ++i)
+                same = key_state_[i] == state[i] && key_coef_[i] == slip_coef_[i];
+            if (same) return 0;
+            if (update_piece(state)) {
+                copy8(state, key_state_.data());
+                copy(slip_coef_.data(), key_coef_.data());
+                ++n_updates_;
+                ++piece_id_;
+                return 0;
+            }
+        }
+        return refactor_piece(state);
+    }
+
+    // Factor the piece (state, slip_coef_) as the new base, no border.
+    int refactor_piece(const std::int8_t* state) noexcept {
+        const std::size_t n = n_;
+        lu_valid_ = false;
+        ++piece_id_;
+        nB_ = 0;
+        n_cached_ = 0;  // cached M0^-1 V columns belong to the old base
+        std::size_t a = 0, t = 0;
+        for (std::size_t i = 0; i < n; ++i) {
+            pos_ln_[i] = pos_lt_[i] = -1;
+            if (state[i] != kContactOpen) idxA_[a++] = i;
+            if (state[i] == kContactStick) idxT_[t++] = i;
+        }
+        nA_ = a; nT_ = t;
+        for (std::size_t k = 0; k < nA_; ++k) pos_ln_[idxA_[k]] = static_cast<long>(k);
+        for (std::size_t k = 0; k < nT_; ++k) pos_lt_[idxT_[k]] = static_cast<long>(nA_ + k);
+        const std::size_t nA = nA_, m = nA_ + nT_;
+        double* M = M_.data();
+        // rows: g on the active nodes, then w on the stuck ones; columns: ln_A, lt_T
+        for (std::size_t k = 0; k < m; ++k) {
+            const double* c = C_.data() + eq_row(k) * n2_;
+            double* mk = M + k * m;
+            for (std::size_t j = 0; j < nA; ++j) {
+                const std::size_t i = idxA_[j];
+                mk[j] = c[i] * slip_coef_[i] - c[n + i];
+            }
+            for (std::size_t j = nA; j < m; ++j) mk[j] = c[idxT_[j - nA]];
+        }
+        ++n_factorizations_;
+        const int info = lu_factor(M, m, m, piv_.data());
+        if (info != 0) return info;
+        copy8(state, key_state_.data());
+        copy(slip_coef_.data(), key_coef_.data());
+        copy8(state, base_state_.data());
+        copy(slip_coef_.data(), base_coef_.data());
+        lu_valid_ = true;
+        ++piece_id_;
+        return 0;
+    }
+
+    // Forces of the prepared piece for the plate at plate_z, slip increment ds. A
+    // bordered solve gets one step of iterative refinement with the residual of the
+    // piece's own equations (the base may be several pieces old; refinement brings the
+    // forces back to the accuracy of a fresh factorisation).
+    void solve_prepared(double plate_z, double ds, double* lam) noexcept { solve_prepared(plate_z, ds, lam, false, 0, 0); }
+
+    // unit: the right-hand side is az on every contact equation and ay on every stick
+    // equation (the response to a unit plate motion), instead of the plate's gaps.
+    void solve_prepared(double plate_z, double ds, double* lam, bool unit, double az, double ay) noexcept {
+        const std::size_t n = n_, nA = nA_, m = nA_ + nT_, nb = nB_;
+        auto rhs_g = [&](std::size_t i) { return unit ? az : plate_z - z0_[i]; };
+        auto rhs_w = [&](std::size_t i) { return unit ? ay : uy_prev_[i] + ds; };
+        double* b = rhs_.data();
+        double* c = by_.data();
+        for (std::size_t k = 0; k < m; ++k) {
+            const std::size_t i = k < nA ? idxA_[k] : idxT_[k - nA];
+            b[k] = k < nA ? rhs_g(i) : rhs_w(i);
+        }
+        for (std::size_t r = 0; r < nb; ++r) {
+            const BorderRow& br = brow_[r];
+            c[r] = br.kind == kAddG ? rhs_g(br.node) : (br.kind == kAddW ? rhs_w(br.node) : 0.0);
+        }
+        solve_bordered(b, c, lam);
+        if (nb == 0) return;
+        // residual of the piece's equations: g = 0 on the active nodes, w = 0 on the stuck ones
+        double* u = u2_.data();
+        displacement(lam, u);
+        for (std::size_t k = 0; k < m; ++k) {
+            const std::size_t i = k < nA ? idxA_[k] : idxT_[k - nA];
+            const bool kept = k < nA ? key_state_[i] != kContactOpen : key_state_[i] == kContactStick;
+            b[k] = !kept ? 0.0 : (k < nA ? rhs_g(i) - u[n + i] : rhs_w(i) - u[i]);
+        }
+        for (std::size_t r = 0; r < nb; ++r) {
+            const BorderRow& br = brow_[r];
+            c[r] = br.kind == kAddG ? rhs_g(br.node) - u[n + br.node]
+                                    : (br.kind == kAddW ? rhs_w(br.node) - u[br.node] : 0.0);
+        }
+        double* d = lam2_.data();
+        solve_bordered(b, c, d);
+        for (std::size_t i = 0; i < n2_; ++i) lam[i] += d[i];
+    }
+
+    // Forces and displacements of the piece (state, sign) for the plate at (plate_y,
+    // plate_z). Within one piece the response is affine in the plate position (the
+    // stick equations' right-hand side uy_prev + ds = (uy_prev - s_prev) + plate_y
+    // keeps uy_prev - s_prev while the nodes stay stuck), so the second time a piece
+    // is met its responses to unit plate motions are solved, and from then on a step
+    // of the same piece costs O(n): the reference solution plus the plate's moves
+    // times the unit responses. Any change of the piece, or of uy_prev - s_prev on its
+    // stuck nodes beyond round-off, starts over.
+    int piece_response(const std::int8_t* state, const double* sign, double plate_z, double plate_y, double ds,
+                       double* lam, double* u) noexcept {
+        const int info = factor_piece(state, sign);
+        if (info != 0) return info;
+        if (aff_stage_ > 0 && aff_piece_ == piece_id_ && stick_offsets_unchanged()) {
+            const double dz = plate_z - aff_z_, dy = plate_y - aff_y_;
+            if (aff_stage_ == 1 && (dz != 0.0 || dy != 0.0)) {
+                solve_prepared(0.0, 0.0, aff_lz_.data(), true, 1.0, 0.0);
+                displacement(aff_lz_.data(), aff_uz_.data());
+                solve_prepared(0.0, 0.0, aff_ly_.data(), true, 0.0, 1.0);
+                displacement(aff_ly_.data(), aff_uy_.data());
+                aff_stage_ = 2;
+            }
+            if (aff_stage_ == 2) {
+                for (std::size_t i = 0; i < n2_; ++i) {
+                    lam[i] = aff_lam_[i] + dz * aff_lz_[i] + dy * aff_ly_[i];
+                    u[i] = aff_u_[i] + dz * aff_uz_[i] + dy * aff_uy_[i];
+                }
+            } else {
+                copy(aff_lam_.data(), lam, n2_);
+                copy(aff_u_.data(), u, n2_);
+            }
+            for (std::size_t i = 0; i < n_; ++i)  // exact zeros stay exact
+                if (key_state_[i] == kContactOpen) lam[i] = lam[n_ + i] = 0.0;
+            ++n_affine_;
+            return 0;
+        }
+        solve_prepared(plate_z, ds, lam);
+        displacement(lam, u);
+        copy(lam, aff_lam_.data(), n2_);
+        copy(u, aff_u_.data(), n2_);
+        aff_z_ = plate_z;
+        aff_y_ = plate_y;
+        for (std::size_t i = 0; i < n_; ++i) aff_v_[i] = uy_prev_[i] - s_prev_;
+        aff_piece_ = piece_id_;
+        aff_stage_ = 1;
+        return 0;
+    }
+
+    // x of the prepared piece for right-hand sides b (base equations, overwritten) and
+    // c (border rows, overwritten), as forces lam (2n).
+    void solve_bordered(double* b, double* c, double* lam) noexcept {
+        const std::size_t n = n_, nA = nA_, m = nA_ + nT_, nb = nB_;
+        double* z = b;
+        lu_solve(M_.data(), m, m, piv_.data(), z);
+        double* y = c;
+        if (nb > 0) {  // Schur complement: S y = c - W^T M0^-1 b, x = M0^-1 b - (M0^-1 V) y
+            for (std::size_t r = 0; r < nb; ++r) {
+                y[r] -= dot(Wt_.data() + r * n2_, z, m);
+            }
+            lu_solve(S_.data(), nb, nb, spiv_.data(), y);
+            for (std::size_t col = 0; col < nb; ++col) {
+                const double* v = Vs_.data() + col * n2_;
+                const double yc = y[col];
+                for (std::size_t k = 0; k < m; ++k) z[k] -= v[k] * yc;
+            }
+        }
+        for (std::size_t i = 0; i < n2_; ++i) lam[i] = 0.0;
+        // base unknowns (those fixed to zero by the border come out as ~zero and are
+        // overwritten below)
+        for (std::size_t k = 0; k < nA; ++k) lam[n + idxA_[k]] = z[k];
+        for (std::size_t k = nA; k < m; ++k) lam[idxT_[k - nA]] = z[k];
+        for (std::size_t col = 0; col < nb; ++col) {
+            const BorderCol& bc = bcol_[col];
+            if (bc.kind == kAddLn) lam[n + bc.node] = y[col];
+            else if (bc.kind == kAddLt) lam[bc.node] = y[col];
+        }
+        for (std::size_t i = 0; i < n; ++i) {
+            if (key_state_[i] == kContactSlip) lam[i] = key_coef_[i] * lam[n + i];  // lt = mu sign ln
+            else if (key_state_[i] == kContactOpen) lam[i] = lam[n + i] = 0.0;     // exactly, not ~0 from the border
+        }
+    }
+
+    bool stick_offsets_unchanged() const noexcept {
+        for (std::size_t i = 0; i < n_; ++i) {
+            if (key_state_[i] != kContactStick) continue;
+            const double v = uy_prev_[i] - s_prev_, ref = aff_v_[i];
+            if (std::fabs(v - ref) > 1e-12 * (std::fabs(ref) + w_tol_)) return false;
+        }
+        return true;
+    }
+
+    int solve_piece(const std::int8_t* state, const double* sign, double plate_z, double ds, double* lam) noexcept {
+        const int info = factor_piece(state, sign);
+        if (info != 0) return info;
+        solve_prepared(plate_z, ds, lam);
+        return 0;
+    }
+
+    // Generalised Jacobian of the Alart-Curnier residual for the classification
+    // (state, sign) into J (2n x 2n, row-major).
+    void jacobian(const std::int8_t* state, const double* sign, double* J) const noexcept {
+        const std::size_t n = n_, n2 = n2_;
+        const double r = r_;
+        for (std::size_t i = 0; i < n2 * n2; ++i) J[i] = 0.0;
+        for (std::size_t i = 0; i < n; ++i) {
+            double* jt = J + i * n2;
+            double* jn = J + (n + i) * n2;
+            const double* cy = C_.data() + i * n2;        // row i of C: dw/dlam = CP[i, :]
+            const double* cz = C_.data() + (n + i) * n2;  // row n+i: dg/dlam = -CP[n+i, :]
+            const bool act = state[i] != kContactOpen;
+            if (state[i] == kContactStick) {
+                for (std::size_t j = 0; j < n; ++j) { jt[j] = r * cy[j]; jt[n + j] = r * -cy[n + j]; }
+            } else if (state[i] == kContactSlip) {
+                // e_t - mu s (e_n - r dg) = e_t - mu s (e_n + r CP[n+i, :])
+                const double ms = mu_node_[i] * sign[i];
+                for (std::size_t j = 0; j < n; ++j) {
+                    jt[j] = -ms * (r * cz[j]);
+                    jt[n + j] = -ms * (r * -cz[n + j]);
+                }
+                jt[i] += 1.0;
+                jt[n + i] = -ms * (1.0 + r * -cz[n + i]);
+            } else {
+                jt[i] = 1.0;
+            }
+            if (act) {
+                for (std::size_t j = 0; j < n; ++j) { jn[j] = r * -cz[j]; jn[n + j] = r * cz[n + j]; }
+            } else {
+                jn[n + i] = 1.0;
+            }
+        }
+    }
+
+private:
+    template <typename V, typename T>
+    static void fillv(V& v, T x) noexcept { for (auto& e : v) e = x; }
+    static void fill(std::vector<double>& v, double x) noexcept { fillv(v, x); }
+    static void fill8(std::vector<std::int8_t>& v, std::int8_t x) noexcept { fillv(v, x); }
+    static void fill8(std::vector<std::uint8_t>& v, std::uint8_t x) noexcept { fillv(v, x); }
+    void copy(const double* a, double* b) const noexcept { copy(a, b, n_); }
+    static void copy(const double* a, double* b, std::size_t m) noexcept { for (std::size_t i = 0; i < m; ++i) b[i] = a[i]; }
+    void copy8(const std::int8_t* a, std::int8_t* b) const noexcept { for (std::size_t i = 0; i < n_; ++i) b[i] = a[i]; }
+
+    // ---- bordered update of the base factorisation
+    //
+    // The base piece P0 (unknowns ln_A0, lt_T0; equations g_A0, w_T0) is factored in
+    // M_. A nearby piece P1 is solved as the bordered system
+    //     [M0  V] [x]   [b]
+    //     [W^T Z] [y] = [c]
+    // with one border row and column per difference: an unknown of P0 that P1 lacks
+    // (or whose slip coefficient changed) is fixed to zero by a row e_j; an equation
+    // of P0 that P1 lacks is voided by a slack column e_i; an unknown / equation of P1
+    // that P0 lacks (or the changed unknown's new version) is a column / row. The
+    // Schur complement S = Z - W^T M0^-1 V (at most kMaxBorder square) is factored;
+    // M0^-1 V is kept, so a solve is one base solve and O(m nb) more.
+    enum : std::uint8_t { kFix = 0, kAddG = 1, kAddW = 2, kAddLn = 3, kAddLt = 4, kSlack = 5 };
+    struct BorderRow { std::uint8_t kind; std::size_t node; std::size_t pos; };
+    struct BorderCol { std::uint8_t kind; std::size_t node; std::size_t pos; };
+    static constexpr std::size_t kMaxBorder = 16;
+    static constexpr std::size_t kColCache = 2 * kMaxBorder;
+    struct CachedCol { std::uint8_t kind; std::size_t node; std::size_t pos; double coef; };
+
+    std::size_t eq_row(std::size_t k) const noexcept {  // C row of base equation k
+        return k < nA_ ? n_ + idxA_[k] : idxT_[k - nA_];
+    }
+    // coefficient of unknown (ln_i with slip coefficient coef, or lt_i) in C row r
+    double coef_ln(std::size_t r, std::size_t i, double coef) const noexcept {
+        const double* c = C_.data() + r * n2_;
+        return c[i] * coef - c[n_ + i];
+    }
+    double coef_lt(std::size_t r, std::size_t i) const noexcept { return C_[r * n2_ + i]; }
+
+    // Border the base for the piece (state, slip_coef_); false if it needs more than
+    // kMaxBorder borders or its Schur complement is singular (then refactor).
+    bool update_piece(const std::int8_t* state) noexcept {
+        const std::size_t n = n_, m = nA_ + nT_;
+        std::size_t nr = 0, nc = 0;
+        auto add_row = [&](std::uint8_t kind, std::size_t node, std::size_t pos) {
+            if (nr < kMaxBorder) brow_[nr] = {kind, node, pos};
+            ++nr;
+        };
+        auto add_col = [&](std::uint8_t kind, std::size_t node, std::size_t pos) {
+            if (nc < kMaxBorder) bcol_[nc] = {kind, node, pos};
+            ++nc;
+        };
+        for (std::size_t i = 0; i < n; ++i) {
+            const std::int8_t s0 = base_state_[i], s1 = state[i];
+            const bool a0 = s0 != kContactOpen, a1 = s1 != kContactOpen;
+            const bool t0 = s0 == kContactStick, t1 = s1 == kContactStick;
+            const bool same_ln = a0 && a1 && base_coef_[i] == slip_coef_[i];
+            if (a0 && !same_ln) add_row(kFix, i, static_cast<std::size_t>(pos_ln_[i]));
+            if (a1 && !same_ln) add_col(kAddLn, i, 0);
+            if (t0 && !t1) add_row(kFix, i, static_cast<std::size_t>(pos_lt_[i]));
+            if (t1 && !t0) add_col(kAddLt, i, 0);
+            if (a0 && !a1) add_col(kSlack, i, static_cast<std::size_t>(pos_ln_[i]));  // g_i is base equation pos_ln
+            if (a1 && !a0) add_row(kAddG, i, 0);
+            if (t0 && !t1) add_col(kSlack, i, static_cast<std::size_t>(pos_lt_[i]));  // w_i is base equation pos_lt
+            if (t1 && !t0) add_row(kAddW, i, 0);
+            if (nr > kMaxBorder || nc > kMaxBorder) return false;
+        }
+        if (nr != nc) return false;  // cannot happen (both pieces are square); be safe
+        const std::size_t nb = nr;
+        // M0^-1 V: columns already solved for this base (the same border column of an
+        // earlier nearby piece) come from the column cache, the others are solved
+        for (std::size_t c = 0; c < nb; ++c) {
+            const BorderCol& bc = bcol_[c];
+            const double coef = bc.kind == kAddLn ? slip_coef_[bc.node] : 0.0;
+            double* v = Vs_.data() + c * n2_;
+            std::size_t hit = kColCache;
+            for (std::size_t q = 0; q < n_cached_; ++q) {
+                const CachedCol& cc = ccol_[q];
+                if (cc.kind == bc.kind && cc.node == bc.node && cc.pos == bc.pos && cc.coef == coef) { hit = q; break; }
+            }
+            if (hit < kColCache) {
+                copy(vcache_.data() + hit * n2_, v, m);
+                continue;
+            }
+            for (std::size_t k = 0; k < m; ++k) {
+                if (bc.kind == kSlack) v[k] = k == bc.pos ? 1.0 : 0.0;
+                else if (bc.kind == kAddLn) v[k] = coef_ln(eq_row(k), bc.node, coef);
+                else v[k] = coef_lt(eq_row(k), bc.node);
+            }
+            lu_solve(M_.data(), m, m, piv_.data(), v);
+            const std::size_t slot = n_cached_ < kColCache ? n_cached_++ : (next_slot_++ % kColCache);
+            ccol_[slot] = {bc.kind, bc.node, bc.pos, coef};
+            copy(v, vcache_.data() + slot * n2_, m);
+        }
+        // W^T rows over the base unknowns, and S = Z - W^T (M0^-1 V)
+        for (std::size_t r = 0; r < nb; ++r) {
+            const BorderRow& br = brow_[r];
+            double* w = Wt_.data() + r * n2_;
+            if (br.kind == kFix) {
+                for (std::size_t k = 0; k < m; ++k) w[k] = 0.0;
+                w[br.pos] = 1.0;
+            } else {
+                const std::size_t row = br.kind == kAddG ? n + br.node : br.node;
+                for (std::size_t k = 0; k < nA_; ++k) w[k] = coef_ln(row, idxA_[k], base_coef_[idxA_[k]]);
+                for (std::size_t k = nA_; k < m; ++k) w[k] = coef_lt(row, idxT_[k - nA_]);
+            }
+            double* srow = S_.data() + r * nb;
+            for (std::size_t c = 0; c < nb; ++c) {
+                const BorderCol& bc = bcol_[c];
+                double z = 0.0;
+                if (br.kind != kFix && bc.kind != kSlack) {
+                    const std::size_t row = br.kind == kAddG ? n + br.node : br.node;
+                    z = bc.kind == kAddLn ? coef_ln(row, bc.node, slip_coef_[bc.node]) : coef_lt(row, bc.node);
+                }
+                srow[c] = z - dot(w, Vs_.data() + c * n2_, m);
+            }
+        }
+        nB_ = nb;
+        if (nb > 0 && lu_factor(S_.data(), nb, nb, spiv_.data()) != 0) {
+            nB_ = 0;
+            return false;
+        }
+        return true;
+    }
+
+    // The damped semismooth Newton method on F from the committed forces, result in
+    // c_lam_ / c_u_ (the classification is redone by the caller).
+    ContactStatus damped_newton(double plate_z, double ds, double atol, int& it) noexcept {
+        const std::size_t n2 = n2_;
+        double* lam = c_lam_.data();
+        double* u = c_u_.data();
+        copy(lam_.data(), lam, n2);
+        displacement(lam, u);
+        double* F = F_.data();
+        std::int8_t* st = ws_state_.data();
+        double* sg = ws_sign_.data();
+        double norm = classify(lam, u, plate_z, ds, F, st, sg);
+        it = 0;
+        while (norm > atol) {
+            if (it >= params.max_iter) {
+                err_residual_ = norm; err_atol_ = atol; err_info_ = params.max_iter;
+                return ContactStatus::no_convergence;
+            }
+            jacobian(st, sg, J_.data());
+            double merit = 0.0;
+            for (std::size_t i = 0; i < n2; ++i) { d_[i] = -F[i]; merit += F[i] * F[i]; }
+            if (lu_factor(J_.data(), n2, n2, jpiv_.data()) != 0) {
+                err_info_ = it;
+                return ContactStatus::singular_jacobian;
+            }
+            lu_solve(J_.data(), n2, n2, jpiv_.data(), d_.data());
+            double t = 1.0;
+            double* F2 = F2_.data();
+            std::int8_t* st2 = ws_state2_.data();
+            double* sg2 = ws_sign2_.data();
+            double norm2 = 0.0;
+            while (true) {
+                for (std::size_t i = 0; i < n2; ++i) lam2_[i] = lam[i] + t * d_[i];
+                displacement(lam2_.data(), u2_.data());
+                norm2 = classify(lam2_.data(), u2_.data(), plate_z, ds, F2, st2, sg2);
+                double m2 = 0.0;
+                for (std::size_t i = 0; i < n2; ++i) m2 += F2[i] * F2[i];
+                if (m2 <= (1 - 1e-4 * t) * merit || t < 1e-6) break;
+                t *= 0.5;
+            }
+            copy(lam2_.data(), lam, n2);
+            copy(u2_.data(), u, n2);
+            copy(F2, F, n2);
+            for (std::size_t i = 0; i < n_; ++i) { st[i] = st2[i]; sg[i] = sg2[i]; }
+            norm = norm2;
+            ++it;
+        }
+        return ContactStatus::ok;
+    }
+
+    // Reported state, slip fraction and forces of the candidate (c_lam_, c_u_, c_state_).
+    void finish(double plate_y, int iterations) noexcept {
+        const std::size_t n = n_;
+        const double ds = plate_y - s_prev_;
+        double total = 0.0, slipping = 0.0;
+        for (std::size_t i = 0; i < n; ++i) {
+            const double w = (c_u_[i] - uy_prev_[i]) - ds;
+            const bool moving = std::fabs(w) > w_tol_;
+            const std::int8_t s = (c_state_[i] == kContactSlip && !moving) ? static_cast<std::int8_t>(kContactStick) : c_state_[i];
+            c_reported_[i] = s;
+            if (s != kContactOpen) total += w_[i];
+            if (s == kContactSlip) slipping += w_[i];
+            c_forces_[i] = c_lam_[i];
+            c_forces_[n + i] = -c_lam_[n + i];
+        }
+        c_frac_ = total > 0 ? slipping / total : 0.0;
+        c_iterations_ = iterations;
+        c_plate_y_ = plate_y;
+        has_candidate_ = true;
+    }
+
+    std::size_t n_, n2_;
+    std::vector<double> C_, z0_, w_;
+    double w_tol_, r_ = 0.0, z0_max_ = 0.0;
+    std::size_t argmax_z0_ = 0;
+    // committed history
+    std::vector<double> lam_, uy_prev_, sign_;
+    std::vector<std::int8_t> state_;
+    std::vector<std::uint8_t> sliding_;
+    double s_prev_ = 0.0;
+    // candidate
+    std::vector<double> c_lam_, c_u_, c_sign_, c_forces_;
+    std::vector<std::int8_t> c_state_, c_reported_;
+    double c_frac_ = 0.0, c_plate_y_ = 0.0;
+    int c_iterations_ = 0;
+    bool has_candidate_ = false;
+    // workspaces
+    std::vector<double> mu_node_, F_, F2_, u2_, lam2_, d_, ws_sign_, ws_sign2_, rhs_, M_, J_, slip_coef_, key_coef_;
+    std::vector<std::int8_t> ws_state_, ws_state2_, key_state_;
+    std::vector<int> piv_, jpiv_;
+    std::vector<std::size_t> idxA_, idxT_;
+    std::size_t nA_ = 0, nT_ = 0;
+    // base piece and its border
+    std::vector<long> pos_ln_, pos_lt_;
+    std::vector<std::int8_t> base_state_;
+    std::vector<double> base_coef_, Vs_, Wt_, S_, by_;
+    std::vector<int> spiv_;
+    std::vector<BorderRow> brow_;
+    std::vector<BorderCol> bcol_;
+    std::size_t nB_ = 0;
+    long n_updates_ = 0;
+    std::vector<double> vcache_;
+    std::vector<CachedCol> ccol_;
+    std::size_t n_cached_ = 0, next_slot_ = 0;
+    // affine response of the current piece (piece_response)
+    std::vector<double> aff_lam_, aff_u_, aff_lz_, aff_uz_, aff_ly_, aff_uy_, aff_v_;
+    double aff_z_ = 0.0, aff_y_ = 0.0;
+    long piece_id_ = 0, aff_piece_ = -1, n_affine_ = 0;
+    int aff_stage_ = 0;
+    bool lu_valid_ = false;
+    long err_info_ = 0;
+    long n_factorizations_ = 0;
+    double err_residual_ = 0.0, err_atol_ = 0.0;
+};
+
+}  // namespace tactile
