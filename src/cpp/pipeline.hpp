@@ -219,12 +219,13 @@ inline const char* reject_reason_name(int r) noexcept {
 class StatusBoard {
 public:
     void publish(const PipelineStatus& s, double position, double velocity) noexcept {
+        // Release stores throughout (plain stores on x86-64): the odd count is
+        // visible before any word changes, every word before the even count.
         const std::uint64_t q = seq_.load(std::memory_order_relaxed);
         seq_.store(q + 1, std::memory_order_relaxed);
-        std::atomic_thread_fence(std::memory_order_release);
         std::uint64_t w[kWords];
         pack(s, position, velocity, w);
-        for (int i = 0; i < kWords; ++i) words_[i].store(w[i], std::memory_order_relaxed);
+        for (int i = 0; i < kWords; ++i) words_[i].store(w[i], std::memory_order_release);
         seq_.store(q + 2, std::memory_order_release);
     }
     PipelineStatus read(double* position, double* velocity) const noexcept {
@@ -232,9 +233,9 @@ public:
         for (;;) {
             const std::uint64_t q0 = seq_.load(std::memory_order_acquire);
             if (q0 & 1u) continue;  // a publication is under way: a few stores long
-            for (int i = 0; i < kWords; ++i) w[i] = words_[i].load(std::memory_order_relaxed);
-            std::atomic_thread_fence(std::memory_order_acquire);
-            if (seq_.load(std::memory_order_relaxed) == q0) break;
+            // Acquire loads (plain loads on x86-64): the count is re-read after them.
+            for (int i = 0; i < kWords; ++i) w[i] = words_[i].load(std::memory_order_acquire);
+            if (seq_.load(std::memory_order_acquire) == q0) break;
         }
         PipelineStatus s;
         s.ticks = w[0];
