@@ -78,8 +78,10 @@ def run_thread(build_dir: Path | None = None, keep: bool = False) -> int:
         probe = build_dir / "probe.c"
         probe.write_text("int main(void) { return 0; }\n")
         p = subprocess.run([cc, "-fsanitize=thread", str(probe), "-o", str(build_dir / "probe")],
-                           capture_output=True, text=True)
-        if p.returncode != 0 or subprocess.run([str(build_dir / "probe")], capture_output=True).returncode != 0:
+                           check=False, capture_output=True, text=True)
+        runs = p.returncode == 0 and subprocess.run([str(build_dir / "probe")], check=False,
+                                                    capture_output=True).returncode == 0
+        if not runs:
             print("the compiler cannot build or run ThreadSanitizer programs here", file=sys.stderr)
             return SKIP
         src = ROOT / "src" / "cpp"
