@@ -77,7 +77,7 @@ def open_pipe(n_ridges, use_u, limit):
 @given(n_ridges=st.integers(1, 3), use_u=st.booleans(), n=st.integers(1, 80),
        limit=st.sampled_from([1.0, _DBL_MAX]),
        bad=st.lists(st.tuples(st.integers(0, 79), st.integers(0, 11),
-                              st.sampled_from([np.nan, np.inf, -np.inf, 3.0, 1e300, -1e306, _DBL_MAX,
+                              st.sampled_from([np.nan, np.inf, -np.inf, 3.0, 1e99, -1e99, 1e300, -1e306, _DBL_MAX,
                                                -_DBL_MAX])), max_size=8),
        seed=st.integers(0, 2**16))
 def test_rejected_ticks_leave_no_trace(n_ridges, use_u, n, limit, bad, seed):

@@ -523,6 +523,7 @@ public:
         undo_mlp_.resize(std::size_t(R_));
         undo_feat_.resize(feat_.size());
         undo_det_.resize(det_.size());
+        setup_unguarded(c);
         publish();
     }
 
@@ -593,6 +594,7 @@ public:
         mlp_->reset();
         ctrl_.reset(x0);
         st_ = PipelineStatus{};
+        unguarded_left_ = 0;
         for (std::size_t i = 0; i < feat_.size(); ++i) feat_[i] = TD(0);
         for (std::size_t i = 0; i < det_.size(); ++i) det_[i] = TD(0);
         std::fill(out_.begin(), out_.end(), 0.0);
@@ -606,6 +608,7 @@ public:
     // Tell the controller where the stage is (m), e.g. after homing; velocity zero.
     void set_position(double x) noexcept {
         ctrl_.set_position(x);
+        unguarded_left_ = 0;
         out_[0] = ctrl_.position();
         out_[1] = 0.0;
         publish();
@@ -636,6 +639,7 @@ public:
             best = std::min(best, std::chrono::duration<double, std::nano>(t1 - t0).count() / double(n_iter));
         }
         restore(snap);
+        unguarded_left_ = 0;
         publish();
         return best;
     }
@@ -723,6 +727,84 @@ private:
         return ok;
     }
 
+    // ---- ticks that cannot overflow: the guard's undo and check are skipped.
+    //
+    // Per tick, a TDF2 section with input x and state s1, s2 (coefficients over a0)
+    // gives |y|, |s1'|, |s2'| <= f m, m = max(|x|, |s1|, |s2|), with
+    //   f = max(|b0| + 1, |b1| + |a1| (|b0| + 1) + 1, |b2| + |a2| (|b0| + 1)),
+    // so every filter state and feature of the estimator grows per tick by at most
+    // F = prod f (over the sections a value passes) times max(m, |x|). After a
+    // guarded tick has measured the largest magnitude M, the next K ticks whose
+    // samples are at most kUnguardedInput cannot take any value past
+    // F^K (M + K kUnguardedInput) <= limit_, a bound below which the detector's
+    // arithmetic stays finite too (limit_ accounts for its input gains and
+    // weights, and the controller's integrator is bounded alike). Those K ticks skip
+    // the undo and the check; a reset or any guarded tick starts a new count. Float
+    // filters always take the guarded path.
+    static constexpr double kUnguardedInput = 1e100;
+    static double section_growth(const double* s) noexcept {
+        const double a0 = s[3];
+        const double b0 = std::fabs(s[0] / a0), b1 = std::fabs(s[1] / a0), b2 = std::fabs(s[2] / a0);
+        const double a1 = std::fabs(s[4] / a0), a2 = std::fabs(s[5] / a0);
+        return std::max({b0 + 1.0, b1 + a1 * (b0 + 1.0) + 1.0, b2 + a2 * (b0 + 1.0)});
+    }
+    static double cascade_growth(const double* sos, int n) noexcept {
+        double f = 1.0;
+        for (int i = 0; i < n; ++i) f *= section_growth(sos + 6 * i);
+        return f;
+    }
+    void setup_unguarded(const PipelineConfig& c) noexcept {
+        growth_ = 0.0;  // 0: never unguarded
+        if (!std::is_same<T, double>::value) return;
+        const double fv = c.n_sos_v > 0 ? cascade_growth(c.sos_v, c.n_sos_v) : 1.0;
+        const double f2 = c.use_u ? (c.n_sos_u > 0 ? cascade_growth(c.sos_u, c.n_sos_u) : 1.0)
+                                  : fv * cascade_growth(c.sos_diff, c.n_sos_diff);
+        const double g = std::max(fv, f2);
+        // Detector: |xn| <= (m + |mean|) |gain|; a hidden unit sums 4 of them times w1.
+        double gmax = 1.0, mean = 0.0;
+        for (int h = 0; h < c.n_hidden; ++h) {
+            double row = 0.0;
+            for (int i = 0; i < kFeatures; ++i) row += std::fabs(c.w1[5 * h + i] * c.input_gain[i]);
+            gmax = std::max(gmax, row);
+        }
+        for (int i = 0; i < kFeatures; ++i) mean = std::max(mean, std::fabs(c.input_mean[i]));
+        limit_ = double(std::numeric_limits<TD>::max()) * 1e-6 / gmax;
+        if (!(std::isfinite(g) && g >= 1.0 && limit_ > 1e6 * (mean + 1.0) && limit_ > kUnguardedInput * 1e6)) return;
+        growth_ = g;
+        inputs_bounded_ = c.v_limit <= kUnguardedInput && (!c.use_u || c.u_limit <= kUnguardedInput);
+    }
+    // After a guarded, accepted tick: how many ticks may skip the undo.
+    void renew_unguarded() noexcept {
+        unguarded_left_ = 0;
+        if (growth_ == 0.0) return;
+        double m = max_abs(feat_.data(), feat_.size());
+        if (rate_f_) m = std::max(m, max_abs(rate_f_->raw_state(), rate_f_->raw_state_size()));
+        if (rate2_f_) m = std::max(m, max_abs(rate2_f_->raw_state(), rate2_f_->raw_state_size()));
+        // The controller's asymmetry integrator gains at most dt * 2 R * bound per
+        // tick; it stays far below overflow (its products are then clipped).
+        const double per_tick = 2.0 * double(R_) / fs_;
+        double a = std::fabs(ctrl_.asymmetry());
+        std::uint32_t k = 0;
+        for (double bound = m; k < 4096; ++k) {
+            bound = growth_ * (bound + kUnguardedInput);
+            a += per_tick * bound;
+            if (!(bound <= limit_ && a <= 1e300)) break;
+        }
+        unguarded_left_ = k;
+    }
+    template <typename U>
+    static double max_abs(const U* a, std::size_t n) noexcept {
+        double m = 0.0;
+        for (std::size_t i = 0; i < n; ++i) m = std::max(m, double(std::fabs(a[i])));
+        return m;
+    }
+    TM_ALWAYS_INLINE bool inputs_small(const double* x) const noexcept {
+        if (inputs_bounded_) return true;  // the sample limits already bound them
+        bool ok = true;
+        for (std::size_t c = 0, n = n_inputs(); c < n; ++c) ok &= std::fabs(x[c]) <= kUnguardedInput;
+        return ok;
+    }
+
     // The controller on the detector outputs: fresh ones on an accepted tick, the
     // held ones (and no new asymmetry) on a rejected tick.
     TM_ALWAYS_INLINE void drive(bool accepted, bool* slip_now) noexcept {
@@ -750,12 +832,15 @@ private:
         bool slip = false;
         if (!samples_ok(x)) why = classify(x, &channel);
         if (why == RejectReason::none) {
-            save_undo();
+            const bool guarded = unguarded_left_ == 0 || !inputs_small(x);
+            if (guarded) save_undo();
             estimate(x);
             mlp_->step(feat_.data(), det_.data());
-            if (!update_finite()) {
+            if (guarded && !update_finite()) {
                 load_undo();
                 why = RejectReason::overflow;
+            } else if (!guarded) {
+                drive(true, &slip);  // cannot overflow: renew_unguarded bounds its input
             } else {
                 const typename StageController::State before = ctrl_.state();
                 drive(true, &slip);
@@ -764,6 +849,12 @@ private:
                     load_undo();
                     why = RejectReason::overflow;
                 }
+            }
+            if (why == RejectReason::none) {
+                if (guarded)
+                    renew_unguarded();
+                else
+                    --unguarded_left_;
             }
         }
         if (why == RejectReason::none) {
@@ -876,6 +967,9 @@ private:
     std::vector<double> out_;
     PipelineStatus st_;
     StatusBoard board_;
+    double growth_ = 0.0, limit_ = 0.0;  // ticks that cannot overflow (setup_unguarded)
+    bool inputs_bounded_ = false;
+    std::uint32_t unguarded_left_ = 0;
 };
 
 }  // namespace tactile
