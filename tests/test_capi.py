@@ -50,8 +50,9 @@ def test_library_and_header_are_installed():
     lib = library_path()
     assert os.path.isfile(lib) and os.path.isabs(lib)
     assert os.path.isfile(header_path())
-    _ffi, c = load()
-    assert c.tm_abi_version() == 2
+    ffi, c = load()
+    assert c.tm_abi_version() == 3
+    assert ffi.string(c.tm_version_string()).decode().startswith("tactile-mirror C ABI 3 ")
 
 
 @pytest.mark.parametrize("use_u", [True, False])

@@ -55,3 +55,49 @@ def test_chunking_and_bad_samples(n_ridges, use_u, n, cuts, bad, seed):
     for t in bad_rows:
         if t > 0:
             np.testing.assert_array_equal(whole[t, 2:], whole[t - 1, 2:])
+
+
+_DBL_MAX = float(np.finfo(np.float64).max)
+_OPEN = {}
+
+
+def open_pipe(n_ridges, use_u, limit):
+    """Detection only (no controller), so that a rejected tick changes nothing but counters."""
+    key = (n_ridges, use_u, limit)
+    if key not in _OPEN:
+        est = StressRateEstimator(PVDFCircuit(), FS, 2 * n_ridges, use_u=use_u)
+        _OPEN[key] = [MirrorPipeline(_W, FS, n_ridges, estimator=est, v_limit=limit, u_limit=limit,
+                                     max_hold_ticks=5) for _ in range(2)]
+    a, b = _OPEN[key]
+    a.reset()
+    b.reset()
+    return a, b
+
+
+@given(n_ridges=st.integers(1, 3), use_u=st.booleans(), n=st.integers(1, 80),
+       limit=st.sampled_from([1.0, _DBL_MAX]),
+       bad=st.lists(st.tuples(st.integers(0, 79), st.integers(0, 11),
+                              st.sampled_from([np.nan, np.inf, -np.inf, 3.0, 1e99, -1e99, 1e300, -1e306, _DBL_MAX,
+                                               -_DBL_MAX])), max_size=8),
+       seed=st.integers(0, 2**16))
+def test_rejected_ticks_leave_no_trace(n_ridges, use_u, n, limit, bad, seed):
+    """NaN, Inf, out-of-range and huge samples at random places: every output is
+    finite, and the pipeline's state afterwards is that of a run that never saw the
+    rejected ticks (its outputs on the accepted ticks, and on a clean tail, are
+    bit for bit those of a pipeline fed only the accepted ticks)."""
+    a, b = open_pipe(n_ridges, use_u, limit)
+    rng = np.random.default_rng(seed)
+    x = 0.1 * rng.standard_normal((n, a.n_inputs))
+    for t, c, v in bad:
+        if t < n:
+            x[t, c % a.n_inputs] = v
+    out, acc = a.process_block(x, accepted=True)
+    assert np.all(np.isfinite(out))
+    s = a.status
+    assert s["rejected"] == np.count_nonzero(~acc)
+    assert s["nonfinite"] + s["out_of_range"] + s["overflow"] == s["rejected"]
+    ref = b.process_block(x[acc])[0]
+    np.testing.assert_array_equal(out[acc], ref)
+    tail = 0.1 * rng.standard_normal((20, a.n_inputs))
+    np.testing.assert_array_equal(a.process_block(tail)[0], b.process_block(tail)[0])
+    np.testing.assert_array_equal(a.features, b.features)

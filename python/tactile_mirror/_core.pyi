@@ -51,11 +51,14 @@ class _SosCascade(Generic[_F]):
         """Number of step() samples rejected as non-finite."""
     def use_baseline_isa(self) -> None:
         """Run the portable baseline kernels (testing aid)."""
-    def process(self, x: npt.NDArray[_F]) -> tuple[npt.NDArray[_F], int, int] | tuple[None, int, int]:
+    def process(
+        self, x: npt.NDArray[_F], guard_state: bool = False
+    ) -> tuple[npt.NDArray[_F], int, int] | tuple[None, int, int]:
         """Filter a block x (channels, n), any strides.
 
         Returns ``(y, -1, -1)``, or ``(None, t, c)`` at the first non-finite sample
-        (sample t of channel c), leaving the state unchanged.
+        (sample t of channel c), leaving the state unchanged. ``guard_state``: an
+        output or final state that overflows raises ValueError, state unchanged.
         """
     def step(self, sample: npt.ArrayLike) -> npt.NDArray[_F]:
         """Filter one sample (channels,) of any real dtype. A NaN/Inf sample is rejected:
@@ -122,9 +125,10 @@ class _JordanMLP(Generic[_F]):
         """One tick. x: (n_instances, n_inputs) -> (n_instances, 3) [y_slip, y_non, y_pred]."""
     def step_one(self, instance: SupportsIndex, x: npt.NDArray[_F]) -> npt.NDArray[_F]:
         """One tick of one instance (scalar code). x: (n_inputs,) -> (3,) [y_slip, y_non, y_pred]."""
-    def run(self, x: npt.NDArray[_F]) -> npt.NDArray[_F]:
+    def run(self, x: npt.NDArray[_F], reset: bool = False) -> npt.NDArray[_F]:
         """Run the recurrence over a block. x: (n_instances, n_inputs, n) -> (3, n_instances, n)
-        [y_slip, y_non, y_pred]; the state carries over between calls. Releases the GIL."""
+        [y_slip, y_non, y_pred]; the state carries over between calls (reset: from zero).
+        Releases the GIL; NaN/Inf features are a ValueError naming ridge, channel, sample."""
     def time_step_ns(
         self,
         n_iter: SupportsIndex = 1000000,
@@ -204,12 +208,28 @@ class _PipelineStatus(TypedDict):
     rejected: int
     nonfinite: int
     out_of_range: int
+    overflow: int
     last_bad_tick: int
     last_bad_channel: int
     consecutive_rejected: int
     fault: bool
     slip: bool
     at_limit: bool
+    last_reason: str
+
+@type_check_only
+class _PipelineDefaults(TypedDict):
+    v_limit: float
+    u_limit: float
+    slip_threshold: float
+    max_hold_ticks: int
+
+def controller_fields() -> list[tuple[str, tuple[str, ...], str]]:
+    """The controller parameters, in order: (name, laws that read it, meaning)."""
+def controller_defaults(kind: str) -> _ControllerParams:
+    """Default parameters of a law ('none', 'paper' or 'velocity')."""
+def pipeline_defaults() -> _PipelineDefaults:
+    """Defaults shared with the C ABI (v_limit, u_limit: the front end's output swing, V)."""
 
 @type_check_only
 class _MirrorPipeline(Generic[_F, _FD]):

@@ -390,7 +390,7 @@ class SosFilter:
             raise ValueError(f"block must have shape {want}, got {np.shape(block)}")
         if b.dtype != self._dtype:
             b = b.astype(self._dtype)
-        y, bad_t, bad_c = self._core.process(b)
+        y, bad_t, bad_c = self._core.process(b, guard_state=True)  # overflow: ValueError, state kept
         if bad_t >= 0:
             raise ValueError(
                 f"block contains a non-finite sample (NaN or Inf) at channel {bad_c}, sample {bad_t}; "

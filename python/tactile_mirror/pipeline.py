@@ -31,7 +31,9 @@ __all__ = ["MirrorPipeline", "ReferencePipeline", "pipeline_config"]
 
 _CORES = {("float64", "float64"): "_MirrorPipelineF64", ("float32", "float32"): "_MirrorPipelineF32",
           ("float64", "float32"): "_MirrorPipelineF64F32"}
-_DBL_MAX = float(np.finfo(np.float64).max)
+# Defaults shared with the C ABI (pipeline.hpp): v_limit, u_limit are the front
+# end's output swing (V).
+_DEFAULTS = _core.pipeline_defaults()
 
 
 def _weights_of(detector):
@@ -55,6 +57,15 @@ def _positive(value, name: str) -> float:
     v = float(value)
     if not (math.isfinite(v) and v > 0):
         raise ValueError(f"{name} must be a positive finite number, got {value!r}")
+    return v
+
+
+def _position(value, name: str) -> float:
+    if isinstance(value, bool) or not isinstance(value, numbers.Real):
+        raise TypeError(f"{name} must be a real number (m), got {type(value).__name__}")
+    v = float(value)
+    if not math.isfinite(v):
+        raise ValueError(f"{name} must be a finite position in m, got {value!r}")
     return v
 
 
@@ -107,8 +118,8 @@ def pipeline_config(detector, fs, n_ridges: int = 6, *, estimator=None, sos_v=No
         raise ValueError("the detector takes stress-rate features: give the estimator (or sos_v and sos_u)")
     if features == "circuit" and (sos_v is not None or sos_u is not None):
         raise ValueError("the detector takes raw circuit voltages: sos_v and sos_u must be None")
-    v_limit = _DBL_MAX if v_limit is None else _positive(v_limit, "v_limit")
-    u_limit = _DBL_MAX if u_limit is None else _positive(u_limit, "u_limit")
+    v_limit = float(_DEFAULTS["v_limit"]) if v_limit is None else _positive(v_limit, "v_limit")
+    u_limit = float(_DEFAULTS["u_limit"]) if u_limit is None else _positive(u_limit, "u_limit")
     ctrl = controller_from_dict(controller) if not isinstance(controller, Controller) else controller
     dt = np.dtype(dtype)
     if dt not in (np.float32, np.float64):
@@ -161,6 +172,7 @@ class MirrorPipeline:
     v_limit, u_limit : float, optional
         Largest valid ``|v_out|``, ``|u_out|`` (V), e.g. the ADC range; a tick with a
         sample beyond it, or a NaN/Inf sample, is rejected and counted, all state kept.
+        Default 15 V, the output swing of a +-15 V front end; must be finite.
     controller : Controller or dict, optional
         :class:`~tactile_mirror.loop.PaperController`,
         :class:`~tactile_mirror.loop.VelocityController` or None (detection only).
@@ -183,7 +195,17 @@ class MirrorPipeline:
     -----
     :meth:`step` is the C++ method itself (no Python layer in between). A rejected
     tick holds the detector outputs; the controller keeps running on them unless
-    the fault state is reached. :meth:`process_block` is exactly a loop of
+    the fault state is reached. A tick is rejected when a sample is NaN/Inf
+    (``nonfinite``), beyond its limit (``out_of_range``) or when its update would
+    make any filter, detector or controller state non-finite (``overflow``): the
+    state is then exactly what it was before the tick.
+
+    Threads: one thread at a time steps a pipeline. A call of :meth:`step`,
+    :meth:`process_block`, :meth:`reset`, :meth:`set_position`, :attr:`features` or
+    :attr:`controller_state` while another thread is inside one of them raises
+    ``RuntimeError`` at once (an atomic owner flag; nothing waits). :attr:`status`
+    may be read from any thread: it is the status published at the end of the last
+    call, never torn. :attr:`outputs` is a live view for the stepping thread. :meth:`process_block` is exactly a loop of
     :meth:`step`, so a recording replays bit for bit.
 
     Examples
@@ -324,8 +346,9 @@ class MirrorPipeline:
     @property
     def status(self) -> dict:
         """Counters and flags: ``ticks``, ``rejected``, ``nonfinite``, ``out_of_range``,
-        ``last_bad_tick``, ``last_bad_channel``, ``consecutive_rejected``, ``fault``,
-        ``slip``, ``at_limit``."""
+        ``overflow``, ``last_bad_tick``, ``last_bad_channel``, ``consecutive_rejected``,
+        ``fault``, ``slip``, ``at_limit``, ``last_reason`` (``"nonfinite"``,
+        ``"out_of_range"``, ``"overflow"`` or ``""``). Readable from any thread."""
         return self._core.status
 
     @property
@@ -334,12 +357,12 @@ class MirrorPipeline:
         return self._core.controller_state
 
     def reset(self, x0: float = 0.0) -> None:
-        """Back to rest with the command at ``x0`` (m); counters cleared."""
-        self._core.reset(float(x0))
+        """Back to rest with the command at ``x0`` (m, finite); counters cleared."""
+        self._core.reset(_position(x0, "x0"))
 
     def set_position(self, x: float) -> None:
-        """Tell the controller where the stage is (m); the commanded velocity becomes 0."""
-        self._core.set_position(float(x))
+        """Tell the controller where the stage is (m, finite); the commanded velocity becomes 0."""
+        self._core.set_position(_position(x, "x"))
 
     def time_step_ns(self, n_iter: int = 200000, repeats: int = 5) -> float:
         """Mean time of one tick measured inside C++, ns (best of ``repeats``; state restored)."""
@@ -378,13 +401,11 @@ class ReferencePipeline:
         self.p = np.zeros(self.R)
         self.det = np.zeros((self.R, 3))
         self.feat = np.zeros((self.R, 4))
-        self.x = min(max(float(x0), self.ctrl.x_min), self.ctrl.x_max)
-        self.v = 0.0
-        self.a = 0.0
-        self.dir = 0.0
+        self.law = self.ctrl._start(x0)
+        self.x, self.v = self.law.x, 0.0
+        self.slip = False
         self.consecutive = 0
-        self.ticks = 0
-        self.hold_left = 0
+        self.rejected = {"nonfinite": 0, "out_of_range": 0, "overflow": 0}
         self.out = np.zeros(self.n_outputs)
         self.out[3::3] = 1.0
         self.out[0] = self.x
@@ -396,67 +417,74 @@ class ReferencePipeline:
         ok = bool(np.all(np.abs(x[:nch]) <= c["v_limit"]))
         if c["use_u"]:
             ok &= bool(np.all(np.abs(x[nch:]) <= c["u_limit"]))
+        reason = "" if ok else ("nonfinite" if not np.all(np.isfinite(x)) else "out_of_range")
         if ok:
-            self.consecutive = 0
-            v = x[:nch, None]
-            if self.zv is not None:
-                rate, self.zv = scipy.signal.sosfilt(c["sos_v"], v, axis=-1, zi=self.zv)
-            else:
-                rate = v
-            if c["use_u"]:
-                u = x[nch:, None]
-                if self.z2 is not None:
-                    rate2, self.z2 = scipy.signal.sosfilt(c["sos_u"], u, axis=-1, zi=self.z2)
-                else:
-                    rate2 = u
-            else:
-                rate2, self.z2 = scipy.signal.sosfilt(c["sos_diff"], rate, axis=-1, zi=self.z2)
-            rate = rate[:, 0].reshape(self.R, 2)
-            rate2 = rate2[:, 0].reshape(self.R, 2)
-            self.feat = np.concatenate([rate, rate2], axis=1)
-            xn = (self.feat - c["input_mean"]) * c["input_gain"]
-            clamp = 600.0 if np.dtype(c.get("detector_dtype") or c["dtype"]) == np.float64 else 80.0
-            a1 = xn @ c["w1"][:, :4].T + self.p[:, None] * c["w1"][:, 4] + c["b1"]
-            h = 1.0 / (1.0 + np.exp(-np.clip(a1, -clamp, clamp)))
-            o = h @ c["w2"].T + c["b2"]
-            y = 1.0 / (1.0 + np.exp(-np.clip(o, -clamp, clamp)))
-            self.p = y[:, 1].copy()
-            self.det = np.stack([y[:, 0], 1.0 - y[:, 0], y[:, 1]], axis=1)
-            self.out[2:] = self.det.ravel()
-            asym = float(np.sum(self.feat[:, 0] - self.feat[:, 1]))
-        else:
+            with np.errstate(all="ignore"):  # an overflow is detected below
+                new = self._update(x)
+            ok = all(np.all(np.isfinite(a)) for a in new if a is not None)
+            if not ok:
+                reason = "overflow"
+        if ok:
+            zv, z2, feat, p, det = new
+            asym = float(np.sum(feat[:, 0] - feat[:, 1]))
+            slip = float(np.max(det[:, 0])) >= c["slip_threshold"]
+            before = (self.law.x, self.law.v, self.law.a, self.law.dir, self.law.ticks, self.law.hold_left)
+            if self.ctrl.kind != "none":
+                with np.errstate(all="ignore"):
+                    self.ctrl._tick(self.law, float(np.max(det[:, 2])), asym, False, slip, c["fs"])
+            if not (math.isfinite(self.law.x) and math.isfinite(self.law.v) and math.isfinite(self.law.a)):
+                (self.law.x, self.law.v, self.law.a, self.law.dir, self.law.ticks,
+                 self.law.hold_left) = before
+                ok, reason = False, "overflow"
+            else:  # accepted: commit
+                self.zv, self.z2, self.feat, self.p, self.det = zv, z2, feat, p, det
+                self.out[2:] = det.ravel()
+                self.consecutive = 0
+                self.slip = slip
+        if not ok:
             self.consecutive += 1
-            asym = 0.0
-        ypred = float(np.max(self.det[:, 2]))
-        fault = self.consecutive > c["max_hold_ticks"]
-        if fault:
-            ypred = 0.0
-        ctrl = self.ctrl
-        arm = round(ctrl.arm_delay * c["fs"])
-        slip = float(np.max(self.det[:, 0])) >= c["slip_threshold"]
-        if ctrl.kind != "none" and self.ticks < arm:
-            self.ticks += 1
-            if self.ticks == arm:
-                self.a, self.dir = 0.0, 0.0
-            self.v = 0.0
-        elif ctrl.kind != "none":
-            hold = round(ctrl.slip_hold * c["fs"])
-            if hold > 0:  # slip guard (see Controller)
-                if slip:
-                    self.hold_left = hold
-                if self.hold_left > 0:
-                    fault, ypred, asym = True, 0.0, 0.0
-                    self.hold_left -= 1
-                    if self.hold_left == 0:
-                        self.a, self.dir = 0.0, 0.0
-            dt = 1.0 / c["fs"]
-            self.a = math.exp(-dt / ctrl.asym_tau) * self.a + dt * asym
-            if abs(self.a) > ctrl.asym_deadband:
-                self.dir = ctrl.direction_sign if self.a > 0 else -ctrl.direction_sign
-            self.x, self.v = ctrl._move(self.x, self.v, ypred, dt, self.dir, 0.0 if fault else self.a)
+            self.rejected[reason] += 1
+            ypred = float(np.max(self.det[:, 2]))
+            fault = self.consecutive > c["max_hold_ticks"]
+            if fault:
+                ypred = 0.0
+            if self.ctrl.kind != "none":
+                self.ctrl._tick(self.law, ypred, 0.0, fault, self.slip, c["fs"])
+        self.x, self.v = self.law.x, self.law.v
         self.out[0] = self.x
         self.out[1] = self.v
         return self.out.copy()
+
+    def _update(self, x):
+        """The estimator and detector update of an accepted tick, not yet committed:
+        (zv, z2, features, y_pred state, detector outputs)."""
+        c = self.cfg
+        nch = self.nch
+        zv, z2 = self.zv, self.z2
+        v = x[:nch, None]
+        if zv is not None:
+            rate, zv = scipy.signal.sosfilt(c["sos_v"], v, axis=-1, zi=zv)
+        else:
+            rate = v
+        if c["use_u"]:
+            u = x[nch:, None]
+            if z2 is not None:
+                rate2, z2 = scipy.signal.sosfilt(c["sos_u"], u, axis=-1, zi=z2)
+            else:
+                rate2 = u
+        else:
+            rate2, z2 = scipy.signal.sosfilt(c["sos_diff"], rate, axis=-1, zi=z2)
+        rate = rate[:, 0].reshape(self.R, 2)
+        rate2 = rate2[:, 0].reshape(self.R, 2)
+        feat = np.concatenate([rate, rate2], axis=1)
+        xn = (feat - c["input_mean"]) * c["input_gain"]
+        clamp = 600.0 if np.dtype(c.get("detector_dtype") or c["dtype"]) == np.float64 else 80.0
+        a1 = xn @ c["w1"][:, :4].T + self.p[:, None] * c["w1"][:, 4] + c["b1"]
+        h = 1.0 / (1.0 + np.exp(-np.clip(a1, -clamp, clamp)))
+        o = h @ c["w2"].T + c["b2"]
+        y = 1.0 / (1.0 + np.exp(-np.clip(o, -clamp, clamp)))
+        det = np.stack([y[:, 0], 1.0 - y[:, 0], y[:, 1]], axis=1)
+        return zv, z2, feat, y[:, 1].copy(), det
 
     def process_block(self, x) -> np.ndarray:
         x = np.asarray(x, dtype=np.float64)

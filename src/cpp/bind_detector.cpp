@@ -10,13 +10,16 @@
 #include <pybind11/numpy.h>
 #include <pybind11/pybind11.h>
 
+#include <cmath>
 #include <cstring>
+#include <stdexcept>
 #include <memory>
 #include <sstream>
 #include <string>
 
 #include "jordan_bptt.hpp"
 #include "jordan_mlp.hpp"
+#include "owner.hpp"
 #include "simd.hpp"  // DenormalGuard
 
 namespace py = pybind11;
@@ -91,7 +94,43 @@ template <typename T>
 struct PyJordan {
     std::unique_ptr<JordanMLP<T>> k;
     int n_inst, n_in;
+    tactile::OwnerFlag owner;  // one thread at a time (run() releases the GIL)
 };
+
+// Claim a kernel for the duration of a call, or raise.
+class Claim {
+public:
+    explicit Claim(tactile::OwnerFlag& f) : c_(f) {
+        if (!c_.owns()) throw std::runtime_error("this detector is being used by another thread");
+    }
+
+private:
+    tactile::OwnerClaim c_;
+};
+
+// Non-finite features would come out as a confident number (the sigmoid clamps),
+// so they are refused, naming the first one: x[r * sr + i * si + t * st].
+template <typename T>
+void check_features(const T* x, std::ptrdiff_t n_inst, std::ptrdiff_t n_in, std::ptrdiff_t n, std::ptrdiff_t sr,
+                    std::ptrdiff_t si, std::ptrdiff_t st) {
+    bool ok = true;
+    for (std::ptrdiff_t r = 0; r < n_inst; ++r)
+        for (std::ptrdiff_t i = 0; i < n_in; ++i) {
+            const T* row = x + r * sr + i * si;
+            for (std::ptrdiff_t t = 0; t < n; ++t) ok &= std::isfinite(row[t * st]);
+        }
+    if (ok) return;
+    // Earliest by sample, then ridge, then channel.
+    for (std::ptrdiff_t t = 0; t < n; ++t)
+        for (std::ptrdiff_t r = 0; r < n_inst; ++r)
+            for (std::ptrdiff_t i = 0; i < n_in; ++i) {
+                const T v = x[r * sr + i * si + t * st];
+                if (!std::isfinite(v))
+                    throw py::value_error("features must be finite: ridge " + std::to_string(r) + ", channel " +
+                                          std::to_string(i) + ", sample " + std::to_string(t) + " is " +
+                                          std::string(py::str(py::float_(double(v)))));
+            }
+}
 
 template <typename T>
 void bind_one(py::module_& m, const char* cls) {
@@ -133,7 +172,11 @@ void bind_one(py::module_& m, const char* cls) {
         .def_property(
             "activation",
             [](const PJ& p) { return std::string(p.k->activation() == Activation::exact ? "exact" : "fast"); },
-            [](PJ& p, const std::string& a) { p.k->set_activation(parse_activation(a)); })
+            [](PJ& p, const std::string& a) {
+                const Activation act = parse_activation(a);
+                Claim claim(p.owner);
+                p.k->set_activation(act);
+            })
         .def_property_readonly("simd_path",
                                [](const PJ& p) { return std::string(simd_path_name(p.k->simd_path())); })
         .def(
@@ -146,13 +189,15 @@ void bind_one(py::module_& m, const char* cls) {
                     sp = SimdPath::avx2;
                 else
                     throw py::value_error("path must be 'generic' or 'avx2+fma', got '" + name + "'");
+                Claim claim(p.owner);
                 if (!p.k->set_simd_path(sp)) throw py::value_error("path '" + name + "' is not supported by this CPU");
             },
             py::arg("path"))
         .def_property(
             "state",
-            [](const PJ& p) {
+            [](PJ& p) {
                 py::array_t<T> out(p.n_inst);
+                Claim claim(p.owner);
                 p.k->get_state(out.mutable_data());
                 return out;
             },
@@ -161,10 +206,19 @@ void bind_one(py::module_& m, const char* cls) {
                 if (s.ndim() != 1 || s.shape(0) != p.n_inst)
                     throw py::value_error("state must have shape (" + std::to_string(p.n_inst) + ",), got " +
                                           shape_str(s));
+                for (py::ssize_t i = 0; i < s.size(); ++i)
+                    if (!std::isfinite(s.data()[i])) throw py::value_error("state must be finite");
+                Claim claim(p.owner);
                 p.k->set_state(s.data());
             },
             "y_pred(t-1) of every instance (the Jordan feedback state).")
-        .def("reset", [](PJ& p) { p.k->reset(); }, "Set the feedback state to zero.")
+        .def(
+            "reset",
+            [](PJ& p) {
+                Claim claim(p.owner);
+                p.k->reset();
+            },
+            "Set the feedback state to zero.")
         .def(
             "step",
             [](PJ& p, py::handle x) {
@@ -172,7 +226,9 @@ void bind_one(py::module_& m, const char* cls) {
                 if (a.ndim() != 2 || a.shape(0) != p.n_inst || a.shape(1) != p.n_in)
                     throw py::value_error("x must have shape (" + std::to_string(p.n_inst) + ", " +
                                           std::to_string(p.n_in) + "), got " + shape_str(a));
+                check_features(a.data(), p.n_inst, p.n_in, 1, p.n_in, 1, 1);
                 py::array_t<T> out({py::ssize_t(p.n_inst), py::ssize_t(3)});
+                Claim claim(p.owner);
                 p.k->step(a.data(), out.mutable_data());
                 return out;
             },
@@ -187,7 +243,9 @@ void bind_one(py::module_& m, const char* cls) {
                 if (a.ndim() != 1 || a.shape(0) != p.n_in)
                     throw py::value_error("x must have shape (" + std::to_string(p.n_in) + ",), got " +
                                           shape_str(a));
+                check_features(a.data(), 1, p.n_in, 1, p.n_in, 1, 1);
                 py::array_t<T> out(3);
+                Claim claim(p.owner);
                 p.k->step_one(instance, a.data(), out.mutable_data());
                 return out;
             },
@@ -195,7 +253,7 @@ void bind_one(py::module_& m, const char* cls) {
             "One tick of one instance (scalar code). x: (n_inputs,) -> (3,) [y_slip, y_non, y_pred].")
         .def(
             "run",
-            [](PJ& p, py::handle x) {
+            [](PJ& p, py::handle x, bool reset) {
                 auto a = input<T>(x, "x");
                 if (a.ndim() != 3 || a.shape(0) != p.n_inst || a.shape(1) != p.n_in)
                     throw py::value_error("x must have shape (" + std::to_string(p.n_inst) + ", " +
@@ -205,16 +263,21 @@ void bind_one(py::module_& m, const char* cls) {
                 T* o = out.mutable_data();
                 const T* xd = a.data();
                 const std::ptrdiff_t N = p.n_inst, nin = p.n_in;
+                check_features(xd, N, nin, n, nin * n, n, 1);
                 {
+                    Claim claim(p.owner);
                     py::gil_scoped_release release;
+                    if (reset) p.k->reset();
                     tactile::DenormalGuard ftz;  // subnormal inputs cost ~60x otherwise
                     p.k->run(xd, nin * n, n, 1, n, o, o + N * n, o + 2 * N * n, n);
                 }
                 return out;
             },
-            py::arg("x"),
+            py::arg("x"), py::arg("reset") = false,
             "Run the recurrence over a block. x: (n_instances, n_inputs, n) -> (3, n_instances, n) "
-            "[y_slip, y_non, y_pred]; the state carries over between calls.")
+            "[y_slip, y_non, y_pred]; the state carries over between calls (reset=True: starts from zero, "
+            "in the same claim of the kernel). A NaN/Inf feature is a ValueError naming ridge, channel and "
+            "sample, the state unchanged.")
         .def(
             "time_step_ns",
             [](PJ& p, long n_iter, int repeats, const std::string& mode) {
@@ -223,6 +286,7 @@ void bind_one(py::module_& m, const char* cls) {
                 if (mode != "simd" && mode != "scalar")
                     throw py::value_error("mode must be 'simd' or 'scalar', got '" + mode + "'");
                 if (p.n_inst * p.n_in > 64 * 16) throw py::value_error("too many instances for the timing loop");
+                Claim claim(p.owner);
                 py::gil_scoped_release release;
                 return p.k->time_step_ns(n_iter, repeats, mode == "scalar");
             },

@@ -14,11 +14,15 @@
 #include <pybind11/pybind11.h>
 #include <pybind11/stl.h>
 
+#include <atomic>
+#include <cmath>
 #include <limits>
+#include <stdexcept>
 #include <memory>
 #include <string>
 #include <vector>
 
+#include "owner.hpp"
 #include "pipeline.hpp"
 
 namespace py = pybind11;
@@ -65,40 +69,28 @@ F64 sized(const py::handle& obj, const char* name, std::vector<py::ssize_t> shap
     return a;
 }
 
+ControllerKind kind_from(const std::string& v) {
+    if (v == "none") return ControllerKind::none;
+    if (v == "paper") return ControllerKind::paper;
+    if (v == "velocity") return ControllerKind::velocity;
+    throw py::value_error("controller.kind must be 'none', 'paper' or 'velocity', got '" + v + "'");
+}
+
+// The parameters come from the one list in pipeline.hpp (TM_CONTROLLER_FIELDS).
 ControllerParams controller_from(const py::dict& d) {
     ControllerParams p;
+    std::size_t nf = 0;
+    const tactile::ControllerField* fields = tactile::controller_fields(&nf);
     for (auto item : d) {
         const std::string k = py::str(item.first);
         if (k == "kind") {
-            const std::string v = py::str(item.second);
-            if (v == "none")
-                p.kind = ControllerKind::none;
-            else if (v == "paper")
-                p.kind = ControllerKind::paper;
-            else if (v == "velocity")
-                p.kind = ControllerKind::velocity;
-            else
-                throw py::value_error("controller.kind must be 'none', 'paper' or 'velocity', got '" + v + "'");
+            p.kind = kind_from(py::str(item.second));
             continue;
         }
-        double* f = nullptr;
-        if (k == "threshold") f = &p.threshold;
-        else if (k == "gain") f = &p.gain;
-        else if (k == "y_full") f = &p.y_full;
-        else if (k == "v_max") f = &p.v_max;
-        else if (k == "a_max") f = &p.a_max;
-        else if (k == "x_min") f = &p.x_min;
-        else if (k == "x_max") f = &p.x_max;
-        else if (k == "direction_sign") f = &p.direction_sign;
-        else if (k == "asym_tau") f = &p.asym_tau;
-        else if (k == "asym_deadband") f = &p.asym_deadband;
-        else if (k == "shear_gain") f = &p.shear_gain;
-        else if (k == "arm_delay") f = &p.arm_delay;
-        else if (k == "ramp_gain") f = &p.ramp_gain;
-        else if (k == "pred_boost") f = &p.pred_boost;
-        else if (k == "slip_hold") f = &p.slip_hold;
-        else throw py::value_error("controller has no parameter '" + k + "'");
-        *f = py::cast<double>(item.second);
+        std::size_t i = 0;
+        while (i < nf && k != fields[i].name) ++i;
+        if (i == nf) throw py::value_error("controller has no parameter '" + k + "'");
+        p.*(fields[i].member) = py::cast<double>(item.second);
     }
     return p;
 }
@@ -106,21 +98,9 @@ ControllerParams controller_from(const py::dict& d) {
 py::dict controller_dict(const ControllerParams& p) {
     py::dict d;
     d["kind"] = tactile::controller_name(p.kind);
-    d["threshold"] = p.threshold;
-    d["gain"] = p.gain;
-    d["y_full"] = p.y_full;
-    d["v_max"] = p.v_max;
-    d["a_max"] = p.a_max;
-    d["x_min"] = p.x_min;
-    d["x_max"] = p.x_max;
-    d["direction_sign"] = p.direction_sign;
-    d["asym_tau"] = p.asym_tau;
-    d["asym_deadband"] = p.asym_deadband;
-    d["shear_gain"] = p.shear_gain;
-    d["arm_delay"] = p.arm_delay;
-    d["ramp_gain"] = p.ramp_gain;
-    d["pred_boost"] = p.pred_boost;
-    d["slip_hold"] = p.slip_hold;
+    std::size_t nf = 0;
+    const tactile::ControllerField* fields = tactile::controller_fields(&nf);
+    for (std::size_t i = 0; i < nf; ++i) d[fields[i].name] = p.*(fields[i].member);
     return d;
 }
 
@@ -150,20 +130,42 @@ py::dict status_dict(const tactile::PipelineStatus& s) {
     d["rejected"] = s.rejected;
     d["nonfinite"] = s.nonfinite;
     d["out_of_range"] = s.out_of_range;
+    d["overflow"] = s.overflow;
     d["last_bad_tick"] = s.last_bad_tick;
     d["last_bad_channel"] = s.last_bad_channel;
     d["consecutive_rejected"] = s.consecutive_rejected;
     d["fault"] = s.fault;
     d["slip"] = s.slip;
     d["at_limit"] = s.at_limit;
+    d["last_reason"] = tactile::reject_reason_name(s.last_reason);
     return d;
 }
 
 template <typename T, typename TD>
 struct PyPipeline {
     std::unique_ptr<MirrorPipeline<T, TD>> p;
-    bool last_ok = true;
+    std::atomic<bool> last_ok{true};
+    tactile::OwnerFlag owner;  // one thread at a time (process_block runs without the GIL)
 };
+
+// Claim a pipeline for the duration of a call, or raise.
+class Claim {
+public:
+    explicit Claim(tactile::OwnerFlag& f) : c_(f) {
+        if (!c_.owns())
+            throw std::runtime_error("this MirrorPipeline is being used by another thread (one thread at a time "
+                                     "steps a pipeline; status may be read from any thread)");
+    }
+
+private:
+    tactile::OwnerClaim c_;
+};
+
+double finite_position(double x, const char* name) {
+    if (!std::isfinite(x)) throw py::value_error(std::string(name) + " must be a finite position in m, got " +
+                                                 std::string(py::str(py::float_(x))));
+    return x;
+}
 
 template <typename T, typename TD>
 void bind_one(py::module_& m, const char* cls) {
@@ -238,6 +240,7 @@ void bind_one(py::module_& m, const char* cls) {
             [](PP& s, py::handle x, py::handle out) {
                 const double* xp = fast_vector<false>(x, s.p->n_inputs(), "x");
                 double* op = out.is_none() ? nullptr : fast_vector<true>(out, s.p->n_outputs(), "out");
+                Claim claim(s.owner);
                 s.last_ok = s.p->step(xp, op);
                 return s.p->last_output()[0];
             },
@@ -269,10 +272,11 @@ void bind_one(py::module_& m, const char* cls) {
                 const double* xp = a.data();
                 double* op = out.mutable_data();
                 {
+                    Claim claim(s.owner);
                     py::gil_scoped_release release;
                     s.p->process_block(xp, n, ni, op, no, fp, nf, ap);
+                    if (n) s.last_ok = ap ? bool(ap[n - 1]) : s.p->status().consecutive_rejected == 0;
                 }
-                if (n) s.last_ok = ap ? bool(ap[n - 1]) : s.p->status().consecutive_rejected == 0;
                 py::tuple r(1 + int(features) + int(accepted));
                 int k = 0;
                 r[k++] = out;
@@ -293,15 +297,17 @@ void bind_one(py::module_& m, const char* cls) {
                                    return v;
                                })
         .def_property_readonly("features",
-                               [](const PP& s) {
+                               [](PP& s) {
                                    py::array_t<double> f({py::ssize_t(s.p->n_ridges()), py::ssize_t(4)});
+                                   Claim claim(s.owner);
                                    s.p->last_features(f.mutable_data());
                                    return f;
                                })
-        .def_property_readonly("last_accepted", [](const PP& s) { return s.last_ok; })
-        .def_property_readonly("status", [](const PP& s) { return status_dict(s.p->status()); })
+        .def_property_readonly("last_accepted", [](const PP& s) { return s.last_ok.load(); })
+        .def_property_readonly("status", [](const PP& s) { return status_dict(s.p->published_status()); })
         .def_property_readonly("controller_state",
-                               [](const PP& s) {
+                               [](PP& s) {
+                                   Claim claim(s.owner);
                                    const auto& c = s.p->controller();
                                    py::dict d;
                                    d["position"] = c.position();
@@ -310,13 +316,29 @@ void bind_one(py::module_& m, const char* cls) {
                                    d["direction"] = c.direction();
                                    return d;
                                })
-        .def("reset", [](PP& s, double x0) { s.p->reset(x0); s.last_ok = true; }, py::arg("x0") = 0.0)
-        .def("set_position", [](PP& s, double x) { s.p->set_position(x); }, py::arg("x"))
+        .def(
+            "reset",
+            [](PP& s, double x0) {
+                finite_position(x0, "x0");
+                Claim claim(s.owner);
+                s.p->reset(x0);
+                s.last_ok = true;
+            },
+            py::arg("x0") = 0.0)
+        .def(
+            "set_position",
+            [](PP& s, double x) {
+                finite_position(x, "x");
+                Claim claim(s.owner);
+                s.p->set_position(x);
+            },
+            py::arg("x"))
         .def(
             "time_step_ns",
             [](PP& s, long n_iter, int repeats) {
                 if (n_iter < 1) throw py::value_error("n_iter must be >= 1");
                 if (repeats < 1) throw py::value_error("repeats must be >= 1");
+                Claim claim(s.owner);
                 py::gil_scoped_release release;
                 return s.p->time_step_ns(n_iter, repeats);
             },
@@ -327,6 +349,39 @@ void bind_one(py::module_& m, const char* cls) {
 }  // namespace
 
 void tm_bind_pipeline(py::module_& m) {
+    m.def(
+        "controller_fields",
+        []() {
+            py::list out;
+            std::size_t nf = 0;
+            const tactile::ControllerField* fields = tactile::controller_fields(&nf);
+            for (std::size_t i = 0; i < nf; ++i) {
+                py::list laws;
+                if (fields[i].laws & 1) laws.append("paper");
+                if (fields[i].laws & 2) laws.append("velocity");
+                out.append(py::make_tuple(fields[i].name, py::tuple(laws), fields[i].doc));
+            }
+            return out;
+        },
+        "The controller parameters, in order: (name, laws that read it, meaning). The one definition "
+        "(pipeline.hpp) that the C ABI, the pipeline and the Python dataclasses share.");
+    m.def(
+        "controller_defaults",
+        [](const std::string& kind) { return controller_dict(tactile::default_controller(kind_from(kind))); },
+        py::arg("kind"), "Default parameters of a law ('none', 'paper' or 'velocity'), as a dict.");
+    m.def(
+        "pipeline_defaults",
+        []() {
+            const PipelineConfig c;
+            py::dict d;
+            d["v_limit"] = c.v_limit;
+            d["u_limit"] = c.u_limit;
+            d["slip_threshold"] = c.slip_threshold;
+            d["max_hold_ticks"] = c.max_hold_ticks;
+            return d;
+        },
+        "Defaults of the pipeline configuration shared with the C ABI (v_limit, u_limit: the front end's "
+        "output swing, V).");
     bind_one<double, double>(m, "_MirrorPipelineF64");
     bind_one<float, float>(m, "_MirrorPipelineF32");
     bind_one<double, float>(m, "_MirrorPipelineF64F32");

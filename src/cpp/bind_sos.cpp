@@ -5,9 +5,12 @@
 #include <pybind11/pybind11.h>
 
 #include <chrono>
-#include <mutex>
+#include <limits>
+#include <stdexcept>
 #include <string>
+#include <vector>
 
+#include "owner.hpp"
 #include "sos.hpp"
 
 namespace py = pybind11;
@@ -17,22 +20,34 @@ namespace {
 template <typename T>
 struct PyCascade {
     tactile::SosCascade<T> k;
-    std::mutex busy;  // one call at a time: block calls run without the GIL
+    tactile::OwnerFlag owner;  // one call at a time: block calls run without the GIL
+    // step(): samples whose update would have made the state non-finite (rejected
+    // here, on top of the kernel's count of non-finite samples), the state before
+    // a step (its undo) and the last accepted output (held on a rejection).
+    std::uint64_t overflow = 0;
+    std::vector<T> undo, held;
+    bool hold_override = false;  // since the last overflow the kernel's held output is not the last accepted
     PyCascade(const double* sos, std::size_t ns, std::size_t ch, const tactile::SectionForm* f)
-        : k(sos, ns, ch, f) {}
+        : k(sos, ns, ch, f), undo(k.raw_state_size()), held(ch, T(0)) {}
 };
 
 template <typename T>
 class BusyLock {
 public:
-    explicit BusyLock(PyCascade<T>& c) : lock_(c.busy, std::try_to_lock) {
-        if (!lock_.owns_lock())
-            throw std::runtime_error("this filter is being used by another thread");
+    explicit BusyLock(PyCascade<T>& c) : claim_(c.owner) {
+        if (!claim_.owns()) throw std::runtime_error("this filter is being used by another thread");
     }
 
 private:
-    std::unique_lock<std::mutex> lock_;
+    tactile::OwnerClaim claim_;
 };
+
+template <typename T>
+bool all_finite(const T* a, std::size_t n) {
+    bool ok = true;
+    for (std::size_t i = 0; i < n; ++i) ok &= std::fabs(a[i]) <= std::numeric_limits<T>::max();
+    return ok;
+}
 
 std::string shape_str(const py::array& a) {
     std::string s = "(";
@@ -92,13 +107,15 @@ void bind_cascade(py::module_& m, const char* name) {
                 c.k.set_isa(tactile::Isa::baseline);
             },
             "Run the portable baseline kernels (testing aid).")
-        .def_property_readonly("rejected", [](C& c) { return c.k.rejected(); },
-                               "number of step() samples rejected as non-finite")
+        .def_property_readonly("rejected", [](C& c) { return c.k.rejected() + c.overflow; },
+                               "number of step() samples rejected: non-finite, or overflowing the state")
         .def(
             "process",
-            [](C& c, py::array_t<T, 0> x) -> py::tuple {
+            [](C& c, py::array_t<T, 0> x, bool guard_state) -> py::tuple {
                 // x: (channels, n), any strides. Returns (y, bad_t, bad_c) with
                 // bad_t = -1 on success; the state is unchanged when bad_t >= 0.
+                // guard_state: a block whose outputs or final state are not finite
+                // (finite samples that overflow) raises ValueError, state unchanged.
                 if (x.ndim() != 2 || static_cast<std::size_t>(x.shape(0)) != c.k.channels())
                     throw py::value_error("x must have shape (" + std::to_string(c.k.channels()) +
                                           ", n), got " + shape_str(x));
@@ -111,35 +128,73 @@ void bind_cascade(py::module_& m, const char* name) {
                 py::array_t<T> y({static_cast<py::ssize_t>(c.k.channels()), static_cast<py::ssize_t>(n)});
                 std::size_t bt = 0, bc = 0;
                 bool ok;
+                std::ptrdiff_t over_t = -1, over_c = -1;
                 {
                     BusyLock<T> lock(c);
                     const T* xp = x.data();
                     T* yp = y.mutable_data();
                     const std::ptrdiff_t xsc = x.strides(0) / py::ssize_t(sizeof(T));
                     const std::ptrdiff_t xst = x.strides(1) / py::ssize_t(sizeof(T));
+                    const std::size_t ns = c.k.raw_state_size(), ch = c.k.channels();
                     py::gil_scoped_release nogil;
+                    if (guard_state) std::copy(c.k.raw_state(), c.k.raw_state() + ns, c.undo.data());
                     ok = c.k.process(xp, xsc, xst, yp, static_cast<std::ptrdiff_t>(n), 1, n, &bt, &bc);
+                    if (ok && guard_state &&
+                        !(all_finite(yp, ch * n) && all_finite(c.k.raw_state(), ns))) {
+                        c.k.load_raw_state(c.undo.data());
+                        over_t = std::ptrdiff_t(n) - 1;
+                        over_c = 0;
+                        for (std::size_t t = 0; t < n && over_t == std::ptrdiff_t(n) - 1; ++t)
+                            for (std::size_t ci = 0; ci < ch; ++ci)
+                                if (!tactile::is_finite(yp[ci * n + t])) {
+                                    over_t = std::ptrdiff_t(t);
+                                    over_c = std::ptrdiff_t(ci);
+                                    break;
+                                }
+                    }
                 }
+                if (over_t >= 0)
+                    throw py::value_error(
+                        "block overflows the filter (a non-finite output or state from finite samples) at channel " +
+                        std::to_string(over_c) + ", sample " + std::to_string(over_t) +
+                        "; the filter state is unchanged");
                 if (ok) return py::make_tuple(y, py::ssize_t(-1), py::ssize_t(-1));
                 return py::make_tuple(py::none(), static_cast<py::ssize_t>(bt), static_cast<py::ssize_t>(bc));
             },
-            py::arg("x"))
+            py::arg("x"), py::arg("guard_state") = false)
         .def(
             "step",
             [](C& c, py::handle sample) {
                 auto x = as_sample<T>(sample, c.k.channels(), "sample");
-                py::array_t<T> y(static_cast<py::ssize_t>(c.k.channels()));
+                const std::size_t ch = c.k.channels(), ns = c.k.raw_state_size();
+                py::array_t<T> y(static_cast<py::ssize_t>(ch));
+                T* yp = y.mutable_data();
                 BusyLock<T> lock(c);
-                c.k.step(x.data(), y.mutable_data());
+                std::copy(c.k.raw_state(), c.k.raw_state() + ns, c.undo.data());
+                if (c.k.step(x.data(), yp)) {
+                    if (all_finite(yp, ch) && all_finite(c.k.raw_state(), ns)) {
+                        std::copy(yp, yp + ch, c.held.data());
+                        c.hold_override = false;
+                        return y;
+                    }
+                    c.k.load_raw_state(c.undo.data());  // overflow: as a rejected sample
+                    ++c.overflow;
+                    c.hold_override = true;
+                }
+                // Rejected: the kernel returned its held output, unless an overflow
+                // (whose output it took as its last) came after the last accepted sample.
+                if (c.hold_override) std::copy(c.held.begin(), c.held.end(), yp);
                 return y;
             },
             py::arg("sample"),
-            "Filter one sample per channel. A sample with a NaN/Inf value is rejected: the state is "
-            "kept, the rejection counted (``rejected``), and the previous output returned.")
+            "Filter one sample per channel. A sample with a NaN/Inf value, or one whose update would make an "
+            "output or the state non-finite, is rejected: the state is kept, the rejection counted "
+            "(``rejected``), and the previous output returned.")
         .def("get_state",
              [](C& c) {
                  py::array_t<T> zi({static_cast<py::ssize_t>(c.k.sections()),
                                     static_cast<py::ssize_t>(c.k.channels()), py::ssize_t(2)});
+                 BusyLock<T> lock(c);  // a block call on another thread would tear it
                  c.k.get_state(zi.mutable_data());
                  return zi;
              })
@@ -155,12 +210,15 @@ void bind_cascade(py::module_& m, const char* name) {
                     if (!tactile::is_finite(p[i])) throw py::value_error("zi must be finite");
                 BusyLock<T> lock(c);
                 c.k.set_state(p);
+                c.hold_override = false;
             },
             py::arg("zi"))
         .def("reset",
              [](C& c) {
                  BusyLock<T> lock(c);
                  c.k.reset();
+                 c.overflow = 0;
+                 c.hold_override = false;
              })
         .def(
             "time_step",

@@ -21,7 +21,9 @@
 // Real-time contract (RTNeural / iir1 style): every size is fixed at construction,
 // the only place that allocates or throws (std::invalid_argument naming the field).
 // step(), process_block(), reset() and the status readers allocate nothing, throw
-// nothing and never abort. Parts that a configuration does not use are not built
+// nothing, take no lock and never abort. One thread steps a pipeline at a time (the
+// bindings enforce it with an atomic owner flag, owner.hpp); published_status() may
+// be read from any thread. Parts that a configuration does not use are not built
 // and cost nothing: no equaliser (raw features), no u_out (differentiator instead),
 // no controller, ridges not in use (they are simply not channels).
 //
@@ -66,6 +68,8 @@
 #pragma once
 
 #include <algorithm>
+#include <atomic>
+#include <cstring>
 #include <chrono>
 #include <cmath>
 #include <cstddef>
@@ -92,24 +96,67 @@ inline const char* controller_name(ControllerKind k) noexcept {
     }
 }
 
+// The controller parameters: the one definition of their names, defaults and the
+// laws that read them. The C struct tm_controller_params (tm.h), the pybind11
+// dictionaries and the Python dataclasses (loop/controller.py, through
+// _core.controller_fields()) are all built from this list.
+//   X(name, default, laws, meaning)   laws: bit 1 paper, bit 2 velocity (3: both)
+// The velocity law starts its ramp lower than the paper law's threshold: its
+// default threshold is kVelocityThreshold (see default_controller()).
+#define TM_CONTROLLER_FIELDS(X)                                                                           \
+    X(threshold, 0.5, 3, "y_pred threshold (paper) / start of the speed ramp (velocity), [0, 1)")        \
+    X(gain, 0.01, 1, "paper: m/s of target motion per unit y_pred, >= 0")                                 \
+    X(y_full, 0.7, 2, "velocity: y_pred giving full speed, (threshold, 1]")                              \
+    X(v_max, 0.02, 2, "velocity: speed limit, m/s, > 0")                                                  \
+    X(a_max, 1.0, 2, "velocity: acceleration limit, m/s^2, > 0")                                          \
+    X(x_min, -0.05, 3, "lower travel limit, m, <= 0")                                                     \
+    X(x_max, 0.05, 3, "upper travel limit, m, >= 0")                                                      \
+    X(direction_sign, 1.0, 3, "+1 or -1: stage direction for a positive L-R asymmetry")                   \
+    X(asym_tau, 1.0, 3, "s, > 0: time constant of the asymmetry integrator")                               \
+    X(asym_deadband, 0.0, 3, ">= 0: |asymmetry| below this keeps the previous direction (rate units x s)") \
+    X(shear_gain, 0.0, 2, "velocity: m/s per unit of asymmetry (shear feedback), >= 0; 0 = off")          \
+    X(arm_delay, 0.0, 3, "s after a reset during which the stage holds; then the asymmetry is tared")     \
+    X(ramp_gain, 1.0, 2, "velocity: share of v_max commanded by the y_pred ramp, >= 0; 0 = no ramp")      \
+    X(pred_boost, 0.0, 2, "velocity: shear gain x (1 + pred_boost * ramp(y_pred)), >= 0")                 \
+    X(slip_hold, 0.0, 3, "s, >= 0: on detected slip hold the stage, re-tare this long after (0 = off)")
+
 struct ControllerParams {
     ControllerKind kind = ControllerKind::none;
-    double threshold = 0.5;        // y_pred threshold (paper) / start of the ramp (velocity)
-    double gain = 0.01;            // paper: m/s of target motion per unit y_pred
-    double y_full = 0.9;           // velocity: y_pred at which the speed is v_max
-    double v_max = 0.05;           // velocity: m/s
-    double a_max = 2.0;            // velocity: m/s^2
-    double x_min = -0.05;          // travel limits, m
-    double x_max = 0.05;
-    double direction_sign = 1.0;   // +1 or -1: stage direction for a positive L-R asymmetry
-    double asym_tau = 1.0;         // s, time constant of the asymmetry integrator
-    double asym_deadband = 0.0;    // units of rate * s (Pa for stress-rate features)
-    double shear_gain = 0.0;       // velocity: m/s per unit of asymmetry (shear feedback), >= 0
-    double arm_delay = 0.0;        // s after reset during which the stage holds; then the asymmetry is tared
-    double ramp_gain = 1.0;        // velocity: share of v_max the y_pred ramp commands (0: no ramp term), >= 0
-    double pred_boost = 0.0;       // velocity: shear gain x (1 + pred_boost * ramp(y)), >= 0
-    double slip_hold = 0.0;        // s, >= 0: on detected slip, hold and re-tare after this long (0: off)
+#define TM_CONTROLLER_MEMBER(name, def, laws, doc) double name = def;
+    TM_CONTROLLER_FIELDS(TM_CONTROLLER_MEMBER)
+#undef TM_CONTROLLER_MEMBER
 };
+
+constexpr double kVelocityThreshold = 0.3;
+
+// The defaults of a law: what tm_controller_defaults(), the Python dataclasses and
+// the reference pipeline all start from.
+inline ControllerParams default_controller(ControllerKind k) noexcept {
+    ControllerParams p;
+    p.kind = k;
+    if (k == ControllerKind::velocity) p.threshold = kVelocityThreshold;
+    return p;
+}
+
+// Name, member and laws of every parameter, in declaration order.
+struct ControllerField {
+    const char* name;
+    double ControllerParams::*member;
+    int laws;
+    const char* doc;
+};
+inline const ControllerField* controller_fields(std::size_t* n) noexcept {
+#define TM_CONTROLLER_ENTRY(name, def, laws, doc) {#name, &ControllerParams::name, laws, doc},
+    static const ControllerField fields[] = {TM_CONTROLLER_FIELDS(TM_CONTROLLER_ENTRY)};
+#undef TM_CONTROLLER_ENTRY
+    *n = sizeof fields / sizeof fields[0];
+    return fields;
+}
+
+// The front end's output swing: an op-amp on +-15 V rails cannot drive v_out or
+// u_out further, so a larger sample is a wiring, ADC or software fault. The default
+// v_limit and u_limit (V); +inf is refused.
+constexpr double kFrontEndSwing = 15.0;
 
 // Everything a pipeline is built from. Arrays are borrowed for the duration of the
 // constructor only (they are copied).
@@ -123,8 +170,8 @@ struct PipelineConfig {
     int n_sos_u = 0;
     const double* sos_diff = nullptr;  // (n_sos_diff, 6) differentiator rate -> rate2 (use_u = false)
     int n_sos_diff = 0;
-    double v_limit = std::numeric_limits<double>::max();  // |v_out| above this: rejected
-    double u_limit = std::numeric_limits<double>::max();
+    double v_limit = kFrontEndSwing;  // |v_out| above this (V): rejected; finite
+    double u_limit = kFrontEndSwing;
     // detector
     int n_hidden = 0;
     const double* w1 = nullptr;    // (n_hidden, 5)
@@ -145,12 +192,86 @@ struct PipelineStatus {
     std::uint64_t rejected = 0;       // rejected ticks
     std::uint64_t nonfinite = 0;      // rejected ticks with a NaN/Inf sample
     std::uint64_t out_of_range = 0;   // rejected ticks with a finite sample beyond its limit
+    std::uint64_t overflow = 0;       // rejected ticks whose update would make a state non-finite
     std::int64_t last_bad_tick = -1;  // tick index of the last rejected tick
     int last_bad_channel = -1;        // first bad channel of that tick
     std::uint32_t consecutive_rejected = 0;
     bool fault = false;               // more than max_hold_ticks consecutive rejections
     bool slip = false;                // max y_slip >= slip_threshold at the last accepted tick
     bool at_limit = false;            // the command sits on a travel limit
+    int last_reason = 0;              // RejectReason of the last rejected tick (0: none yet)
+};
+
+enum class RejectReason : int { none = 0, nonfinite = 1, out_of_range = 2, overflow = 3 };
+
+inline const char* reject_reason_name(int r) noexcept {
+    switch (r) {
+        case 1: return "nonfinite";
+        case 2: return "out_of_range";
+        case 3: return "overflow";
+        default: return "";
+    }
+}
+
+// The status as last published by the stepping thread, readable from any thread
+// without a lock and without tearing (a sequence lock over atomic words: the
+// writer never waits; a reader retries while a publication is under way).
+class StatusBoard {
+public:
+    void publish(const PipelineStatus& s, double position, double velocity) noexcept {
+        // Release stores throughout (plain stores on x86-64): the odd count is
+        // visible before any word changes, every word before the even count.
+        const std::uint64_t q = seq_.load(std::memory_order_relaxed);
+        seq_.store(q + 1, std::memory_order_relaxed);
+        std::uint64_t w[kWords];
+        pack(s, position, velocity, w);
+        for (int i = 0; i < kWords; ++i) words_[i].store(w[i], std::memory_order_release);
+        seq_.store(q + 2, std::memory_order_release);
+    }
+    PipelineStatus read(double* position, double* velocity) const noexcept {
+        std::uint64_t w[kWords];
+        for (;;) {
+            const std::uint64_t q0 = seq_.load(std::memory_order_acquire);
+            if (q0 & 1u) continue;  // a publication is under way: a few stores long
+            // Acquire loads (plain loads on x86-64): the count is re-read after them.
+            for (int i = 0; i < kWords; ++i) w[i] = words_[i].load(std::memory_order_acquire);
+            if (seq_.load(std::memory_order_acquire) == q0) break;
+        }
+        PipelineStatus s;
+        s.ticks = w[0];
+        s.rejected = w[1];
+        s.nonfinite = w[2];
+        s.out_of_range = w[3];
+        s.overflow = w[4];
+        s.last_bad_tick = std::int64_t(w[5]);
+        s.last_bad_channel = int(std::int32_t(std::uint32_t(w[6])));
+        s.consecutive_rejected = std::uint32_t(w[6] >> 32);
+        s.fault = w[7] & 1u;
+        s.slip = (w[7] >> 1) & 1u;
+        s.at_limit = (w[7] >> 2) & 1u;
+        s.last_reason = int(w[7] >> 8);
+        if (position) std::memcpy(position, &w[8], sizeof(double));
+        if (velocity) std::memcpy(velocity, &w[9], sizeof(double));
+        return s;
+    }
+
+private:
+    static constexpr int kWords = 10;
+    static void pack(const PipelineStatus& s, double position, double velocity, std::uint64_t* w) noexcept {
+        w[0] = s.ticks;
+        w[1] = s.rejected;
+        w[2] = s.nonfinite;
+        w[3] = s.out_of_range;
+        w[4] = s.overflow;
+        w[5] = std::uint64_t(s.last_bad_tick);
+        w[6] = std::uint64_t(std::uint32_t(s.last_bad_channel)) | (std::uint64_t(s.consecutive_rejected) << 32);
+        w[7] = std::uint64_t(s.fault) | (std::uint64_t(s.slip) << 1) | (std::uint64_t(s.at_limit) << 2) |
+               (std::uint64_t(std::uint32_t(s.last_reason)) << 8);
+        std::memcpy(&w[8], &position, sizeof(double));
+        std::memcpy(&w[9], &velocity, sizeof(double));
+    }
+    std::atomic<std::uint64_t> seq_{0};
+    std::atomic<std::uint64_t> words_[kWords] = {};
 };
 
 // ---- validation shared by every binding -------------------------------------------
@@ -166,14 +287,10 @@ inline void validate_controller(const ControllerParams& c) {
     };
     const int k = static_cast<int>(c.kind);
     if (k < 0 || k > 2) bad("kind", "must be 0 (none), 1 (paper) or 2 (velocity)");
-    const double vals[] = {c.threshold, c.gain, c.y_full, c.v_max, c.a_max, c.x_min, c.x_max,
-                           c.direction_sign, c.asym_tau, c.asym_deadband, c.shear_gain, c.arm_delay,
-                           c.ramp_gain, c.pred_boost, c.slip_hold};
-    const char* names[] = {"threshold", "gain", "y_full", "v_max", "a_max", "x_min", "x_max",
-                           "direction_sign", "asym_tau", "asym_deadband", "shear_gain", "arm_delay",
-                           "ramp_gain", "pred_boost", "slip_hold"};
-    for (int i = 0; i < 15; ++i)
-        if (!std::isfinite(vals[i])) bad(names[i], "must be finite");
+    std::size_t nf = 0;
+    const ControllerField* fields = controller_fields(&nf);
+    for (std::size_t i = 0; i < nf; ++i)
+        if (!std::isfinite(c.*(fields[i].member))) bad(fields[i].name, "must be finite");
     if (!(c.threshold >= 0.0 && c.threshold < 1.0)) bad("threshold", "must lie in [0, 1)");
     if (!(c.gain >= 0.0)) bad("gain", "must be >= 0 (m/s per unit y_pred)");
     if (c.kind == ControllerKind::velocity && !(c.y_full > c.threshold && c.y_full <= 1.0))
@@ -215,8 +332,8 @@ inline void validate_config(const PipelineConfig& c) {
         sos_ok(c.sos_diff, c.n_sos_diff, "sos_diff");
         if (c.n_sos_diff < 1) bad("sos_diff must have at least one section without u_out (use_u false)");
     }
-    if (std::isnan(c.v_limit) || !(c.v_limit > 0.0)) bad("v_limit must be > 0");
-    if (std::isnan(c.u_limit) || !(c.u_limit > 0.0)) bad("u_limit must be > 0");
+    if (!std::isfinite(c.v_limit) || !(c.v_limit > 0.0)) bad("v_limit must be a positive finite voltage");
+    if (!std::isfinite(c.u_limit) || !(c.u_limit > 0.0)) bad("u_limit must be a positive finite voltage");
     if (c.n_hidden < 1 || c.n_hidden > 1024) bad("n_hidden must lie in [1, 1024]");
     const std::size_t h = std::size_t(c.n_hidden);
     const double* arrs[] = {c.w1, c.b1, c.w2, c.b2, c.input_mean, c.input_gain};
@@ -331,6 +448,22 @@ public:
     double direction() const noexcept { return dir_; }
     bool at_limit() const noexcept { return x_ <= p_.x_min || x_ >= p_.x_max; }
     const ControllerParams& params() const noexcept { return p_; }
+    bool state_finite() const noexcept { return is_finite(x_) && is_finite(v_) && is_finite(a_); }
+
+    // The mutable state, for a tick's undo.
+    struct State {
+        double x, v, a, dir;
+        std::uint64_t ticks, hold_left;
+    };
+    State state() const noexcept { return {x_, v_, a_, dir_, ticks_, hold_left_}; }
+    void set_state(const State& s) noexcept {
+        x_ = s.x;
+        v_ = s.v;
+        a_ = s.a;
+        dir_ = s.dir;
+        ticks_ = s.ticks;
+        hold_left_ = s.hold_left;
+    }
 
 private:
     double clamp(double x) const noexcept { return x < p_.x_min ? p_.x_min : (x > p_.x_max ? p_.x_max : x); }
@@ -385,6 +518,13 @@ public:
         out_.resize(n_outputs());
         std::fill(out_.begin(), out_.end(), 0.0);
         for (int r = 0; r < R_; ++r) out_[2 + 3 * r + 1] = 1.0;  // y_non of a silent pad
+        if (rate_f_) undo_z1_.resize(rate_f_->raw_state_size());
+        if (rate2_f_) undo_z2_.resize(rate2_f_->raw_state_size());
+        undo_mlp_.resize(std::size_t(R_));
+        undo_feat_.resize(feat_.size());
+        undo_det_.resize(det_.size());
+        setup_unguarded(c);
+        publish();
     }
 
     MirrorPipeline(const MirrorPipeline&) = delete;
@@ -421,6 +561,7 @@ public:
         const bool ok = tick(x);
         if (out)
             for (std::size_t i = 0; i < out_.size(); ++i) out[i] = out_[i];
+        publish();
         return ok;
     }
 
@@ -442,6 +583,7 @@ public:
                 for (std::size_t i = 0; i < nf; ++i) f[t * f_stride + i] = double(feat_[i]);
             if (accepted) accepted[t] = ok ? 1 : 0;
         }
+        publish();
         return bad;
     }
 
@@ -452,6 +594,7 @@ public:
         mlp_->reset();
         ctrl_.reset(x0);
         st_ = PipelineStatus{};
+        unguarded_left_ = 0;
         for (std::size_t i = 0; i < feat_.size(); ++i) feat_[i] = TD(0);
         for (std::size_t i = 0; i < det_.size(); ++i) det_[i] = TD(0);
         std::fill(out_.begin(), out_.end(), 0.0);
@@ -459,13 +602,22 @@ public:
             out_[2 + 3 * r + 1] = 1.0;
         }
         out_[0] = ctrl_.position();
+        publish();
     }
 
     // Tell the controller where the stage is (m), e.g. after homing; velocity zero.
     void set_position(double x) noexcept {
         ctrl_.set_position(x);
+        unguarded_left_ = 0;
         out_[0] = ctrl_.position();
         out_[1] = 0.0;
+        publish();
+    }
+
+    // The status as of the end of the last step(), process_block(), reset() or
+    // set_position(): safe to call from any thread while another one steps.
+    PipelineStatus published_status(double* position = nullptr, double* velocity = nullptr) const noexcept {
+        return board_.read(position, velocity);
     }
 
     // Mean time of one step() in ns, measured inside C++ over n_iter ticks on a
@@ -487,6 +639,8 @@ public:
             best = std::min(best, std::chrono::duration<double, std::nano>(t1 - t0).count() / double(n_iter));
         }
         restore(snap);
+        unguarded_left_ = 0;
+        publish();
         return best;
     }
 
@@ -509,7 +663,8 @@ private:
         return ok;
     }
 
-    void record_rejection(const double* x) noexcept {
+    // Why the samples of a tick are refused and the first bad channel.
+    RejectReason classify(const double* x, int* channel) const noexcept {
         const std::size_t ni = n_inputs();
         bool nonfinite = false;
         int first = -1;
@@ -521,50 +676,204 @@ private:
                 nonfinite |= !fin;
             }
         }
+        *channel = first;
+        return nonfinite ? RejectReason::nonfinite : RejectReason::out_of_range;
+    }
+
+    void record_rejection(RejectReason why, int channel) noexcept {
         ++st_.rejected;
-        if (nonfinite)
+        if (why == RejectReason::nonfinite)
             ++st_.nonfinite;
-        else
+        else if (why == RejectReason::out_of_range)
             ++st_.out_of_range;
+        else
+            ++st_.overflow;
+        st_.last_reason = int(why);
         st_.last_bad_tick = std::int64_t(st_.ticks);
-        st_.last_bad_channel = first;
+        st_.last_bad_channel = channel;
         ++st_.consecutive_rejected;
         if (st_.consecutive_rejected > std::uint64_t(max_hold_)) st_.fault = true;
     }
 
-    TM_ALWAYS_INLINE bool tick(const double* x) noexcept {
-        const bool ok = samples_ok(x);
-        if (!ok) {
-            record_rejection(x);
-        } else {
-            st_.consecutive_rejected = 0;
-            st_.fault = false;
-            estimate(x);
-            mlp_->step(feat_.data(), det_.data());
+    // Undo of the estimator and detector part of a tick: copied before the update,
+    // loaded back when the update left a non-finite value anywhere.
+    TM_ALWAYS_INLINE void save_undo() noexcept {
+        if (rate_f_) std::memcpy(undo_z1_.data(), rate_f_->raw_state(), undo_z1_.size() * sizeof(T));
+        if (rate2_f_) std::memcpy(undo_z2_.data(), rate2_f_->raw_state(), undo_z2_.size() * sizeof(T));
+        mlp_->get_state(undo_mlp_.data());
+        std::memcpy(undo_feat_.data(), feat_.data(), feat_.size() * sizeof(TD));
+        std::memcpy(undo_det_.data(), det_.data(), det_.size() * sizeof(TD));
+    }
+    void load_undo() noexcept {
+        if (rate_f_) rate_f_->load_raw_state(undo_z1_.data());
+        if (rate2_f_) rate2_f_->load_raw_state(undo_z2_.data());
+        mlp_->set_state(undo_mlp_.data());
+        std::memcpy(feat_.data(), undo_feat_.data(), feat_.size() * sizeof(TD));
+        std::memcpy(det_.data(), undo_det_.data(), det_.size() * sizeof(TD));
+    }
+    // Every value an accepted update wrote is finite: features (the filters'
+    // outputs), the filters' states, the detector outputs (y_pred is its state).
+    // |v| <= max is false for NaN and +-Inf: one compare per value, vectorised.
+    template <typename U>
+    static TM_ALWAYS_INLINE bool all_finite(const U* a, std::size_t n) noexcept {
+        bool ok = true;
+        for (std::size_t i = 0; i < n; ++i) ok &= std::fabs(a[i]) <= std::numeric_limits<U>::max();
+        return ok;
+    }
+    TM_ALWAYS_INLINE bool update_finite() const noexcept {
+        bool ok = all_finite(feat_.data(), feat_.size()) && all_finite(det_.data(), det_.size());
+        if (rate_f_) ok &= all_finite(rate_f_->raw_state(), rate_f_->raw_state_size());
+        if (rate2_f_) ok &= all_finite(rate2_f_->raw_state(), rate2_f_->raw_state_size());
+        return ok;
+    }
+
+    // ---- ticks that cannot overflow: the guard's undo and check are skipped.
+    //
+    // Per tick, a TDF2 section with input x and state s1, s2 (coefficients over a0)
+    // gives |y|, |s1'|, |s2'| <= f m, m = max(|x|, |s1|, |s2|), with
+    //   f = max(|b0| + 1, |b1| + |a1| (|b0| + 1) + 1, |b2| + |a2| (|b0| + 1)),
+    // so every filter state and feature of the estimator grows per tick by at most
+    // F = prod f (over the sections a value passes) times max(m, |x|). After a
+    // guarded tick has measured the largest magnitude M, the next K ticks whose
+    // samples are at most kUnguardedInput cannot take any value past
+    // F^K (M + K kUnguardedInput) <= limit_, a bound below which the detector's
+    // arithmetic stays finite too (limit_ accounts for its input gains and
+    // weights, and the controller's integrator is bounded alike). Those K ticks skip
+    // the undo and the check; a reset or any guarded tick starts a new count. Float
+    // filters always take the guarded path.
+    static constexpr double kUnguardedInput = 1e100;
+    static double section_growth(const double* s) noexcept {
+        const double a0 = s[3];
+        const double b0 = std::fabs(s[0] / a0), b1 = std::fabs(s[1] / a0), b2 = std::fabs(s[2] / a0);
+        const double a1 = std::fabs(s[4] / a0), a2 = std::fabs(s[5] / a0);
+        return std::max({b0 + 1.0, b1 + a1 * (b0 + 1.0) + 1.0, b2 + a2 * (b0 + 1.0)});
+    }
+    static double cascade_growth(const double* sos, int n) noexcept {
+        double f = 1.0;
+        for (int i = 0; i < n; ++i) f *= section_growth(sos + 6 * i);
+        return f;
+    }
+    void setup_unguarded(const PipelineConfig& c) noexcept {
+        growth_ = 0.0;  // 0: never unguarded
+        if (!std::is_same<T, double>::value) return;
+        const double fv = c.n_sos_v > 0 ? cascade_growth(c.sos_v, c.n_sos_v) : 1.0;
+        const double f2 = c.use_u ? (c.n_sos_u > 0 ? cascade_growth(c.sos_u, c.n_sos_u) : 1.0)
+                                  : fv * cascade_growth(c.sos_diff, c.n_sos_diff);
+        const double g = std::max(fv, f2);
+        // Detector: |xn| <= (m + |mean|) |gain|; a hidden unit sums 4 of them times w1.
+        double gmax = 1.0, mean = 0.0;
+        for (int h = 0; h < c.n_hidden; ++h) {
+            double row = 0.0;
+            for (int i = 0; i < kFeatures; ++i) row += std::fabs(c.w1[5 * h + i] * c.input_gain[i]);
+            gmax = std::max(gmax, row);
         }
-        // Detector outputs (held on a rejected tick) -> controller.
+        for (int i = 0; i < kFeatures; ++i) mean = std::max(mean, std::fabs(c.input_mean[i]));
+        limit_ = double(std::numeric_limits<TD>::max()) * 1e-6 / gmax;
+        if (!(std::isfinite(g) && g >= 1.0 && limit_ > 1e6 * (mean + 1.0) && limit_ > kUnguardedInput * 1e6)) return;
+        growth_ = g;
+        inputs_bounded_ = c.v_limit <= kUnguardedInput && (!c.use_u || c.u_limit <= kUnguardedInput);
+    }
+    // After a guarded, accepted tick: how many ticks may skip the undo.
+    void renew_unguarded() noexcept {
+        unguarded_left_ = 0;
+        if (growth_ == 0.0) return;
+        double m = max_abs(feat_.data(), feat_.size());
+        if (rate_f_) m = std::max(m, max_abs(rate_f_->raw_state(), rate_f_->raw_state_size()));
+        if (rate2_f_) m = std::max(m, max_abs(rate2_f_->raw_state(), rate2_f_->raw_state_size()));
+        // The controller's asymmetry integrator gains at most dt * 2 R * bound per
+        // tick; it stays far below overflow (its products are then clipped).
+        const double per_tick = 2.0 * double(R_) / fs_;
+        double a = std::fabs(ctrl_.asymmetry());
+        std::uint32_t k = 0;
+        for (double bound = m; k < 4096; ++k) {
+            bound = growth_ * (bound + kUnguardedInput);
+            a += per_tick * bound;
+            if (!(bound <= limit_ && a <= 1e300)) break;
+        }
+        unguarded_left_ = k;
+    }
+    template <typename U>
+    static double max_abs(const U* a, std::size_t n) noexcept {
+        double m = 0.0;
+        for (std::size_t i = 0; i < n; ++i) m = std::max(m, double(std::fabs(a[i])));
+        return m;
+    }
+    TM_ALWAYS_INLINE bool inputs_small(const double* x) const noexcept {
+        if (inputs_bounded_) return true;  // the sample limits already bound them
+        bool ok = true;
+        for (std::size_t c = 0, n = n_inputs(); c < n; ++c) ok &= std::fabs(x[c]) <= kUnguardedInput;
+        return ok;
+    }
+
+    // The controller on the detector outputs: fresh ones on an accepted tick, the
+    // held ones (and no new asymmetry) on a rejected tick.
+    TM_ALWAYS_INLINE void drive(bool accepted, bool* slip_now) noexcept {
         double y = 0.0, ys = 0.0, asym = 0.0;
         for (int r = 0; r < R_; ++r) {
             const TD* d = det_.data() + 3 * r;
             ys = std::max(ys, double(d[0]));
             y = std::max(y, double(d[2]));
-            if (ok) {
-                out_[2 + 3 * r + 0] = double(d[0]);
-                out_[2 + 3 * r + 1] = double(d[1]);
-                out_[2 + 3 * r + 2] = double(d[2]);
-            }
             asym += double(feat_[kFeatures * r + 0]) - double(feat_[kFeatures * r + 1]);
         }
-        if (ok) st_.slip = ys >= slip_threshold_;
-        if (!ok) asym = 0.0;  // no new rate information: the integrator only leaks
-        if (st_.fault) y = 0.0;
-        if (ctrl_kind_ != ControllerKind::none) ctrl_.step(y, asym, st_.fault, st_.slip);
+        const bool slip = accepted ? ys >= slip_threshold_ : st_.slip;
+        const bool fault = accepted ? false : st_.fault;
+        *slip_now = slip;
+        if (!accepted) asym = 0.0;  // no new rate information: the integrator only leaks
+        if (fault) y = 0.0;
+        if (ctrl_kind_ != ControllerKind::none) ctrl_.step(y, asym, fault, slip);
+    }
+
+    // One tick. A tick is accepted only if its samples are valid and every state it
+    // updates (filters, detector, controller) stays finite; otherwise all of them
+    // are what they were before it, and it is counted with its reason.
+    TM_ALWAYS_INLINE bool tick(const double* x) noexcept {
+        RejectReason why = RejectReason::none;
+        int channel = -1;
+        bool slip = false;
+        if (!samples_ok(x)) why = classify(x, &channel);
+        if (why == RejectReason::none) {
+            const bool guarded = unguarded_left_ == 0 || !inputs_small(x);
+            if (guarded) save_undo();
+            estimate(x);
+            mlp_->step(feat_.data(), det_.data());
+            if (guarded && !update_finite()) {
+                load_undo();
+                why = RejectReason::overflow;
+            } else if (!guarded) {
+                drive(true, &slip);  // cannot overflow: renew_unguarded bounds its input
+            } else {
+                const typename StageController::State before = ctrl_.state();
+                drive(true, &slip);
+                if (!ctrl_.state_finite()) {
+                    ctrl_.set_state(before);
+                    load_undo();
+                    why = RejectReason::overflow;
+                }
+            }
+            if (why == RejectReason::none) {
+                if (guarded)
+                    renew_unguarded();
+                else
+                    --unguarded_left_;
+            }
+        }
+        if (why == RejectReason::none) {
+            st_.consecutive_rejected = 0;
+            st_.fault = false;
+            st_.slip = slip;
+            for (std::size_t i = 0; i < det_.size(); ++i) out_[2 + i] = double(det_[i]);
+        } else {
+            record_rejection(why, channel);
+            drive(false, &slip);
+        }
         out_[0] = ctrl_.position();
         out_[1] = ctrl_.velocity();
         st_.at_limit = ctrl_kind_ != ControllerKind::none && ctrl_.at_limit();
         ++st_.ticks;
-        return ok;
+        return why == RejectReason::none;
     }
+
+    void publish() noexcept { board_.publish(st_, ctrl_.position(), ctrl_.velocity()); }
 
     // Samples -> features (n_ridges, 4).
     TM_ALWAYS_INLINE void estimate(const double* x) noexcept {
@@ -653,8 +962,14 @@ private:
     ControllerKind ctrl_kind_ = ControllerKind::none;
     AlignedBuffer<T> xin_, rate_, rate2_;
     AlignedBuffer<TD> feat_, det_;
+    AlignedBuffer<T> undo_z1_, undo_z2_;
+    AlignedBuffer<TD> undo_mlp_, undo_feat_, undo_det_;
     std::vector<double> out_;
     PipelineStatus st_;
+    StatusBoard board_;
+    double growth_ = 0.0, limit_ = 0.0;  // ticks that cannot overflow (setup_unguarded)
+    bool inputs_bounded_ = false;
+    std::uint32_t unguarded_left_ = 0;
 };
 
 }  // namespace tactile

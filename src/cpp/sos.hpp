@@ -111,6 +111,11 @@ public:
         return false;
     }
     std::uint64_t rejected() const noexcept { return rejected_; }
+    // The raw state (internal layout, raw_state_size() values) for a caller's own
+    // undo of a tick: copy it out before step(), load it back to undo the step.
+    std::size_t raw_state_size() const noexcept { return state_.size(); }
+    const T* raw_state() const noexcept { return state_.data(); }
+    void load_raw_state(const T* s) noexcept { std::copy(s, s + state_.size(), state_.data()); }
 
     // Filter n samples. x[c * xs_c + t * xs_t] and y[c * ys_c + t * ys_t] with
     // strides in elements; x and y may be the same memory (in-place). Returns true

@@ -23,11 +23,32 @@
  *   nothing changes and tm_last_error() (per thread) says what was wrong.
  * - Handles are numbers, not pointers: 0, a destroyed handle or any other value
  *   that was not returned by tm_pipeline_create gives TM_ERR_HANDLE.
- * - tm_pipeline_step / tm_pipeline_process_block allocate nothing and take no lock:
- *   call them from the real-time thread. A handle must not be used by two threads at
- *   once; create and destroy take a process-wide lock.
- * - Structures carry their own size (struct_size): a program built against an older
- *   tm.h keeps working with a newer library.
+ * - tm_pipeline_step, tm_pipeline_process_block, tm_pipeline_get_status and
+ *   tm_pipeline_features allocate nothing, take no lock and make no system call
+ *   (their error paths included): call them from the real-time thread.
+ * - Threads: one thread at a time drives a handle. A call of step, process_block,
+ *   features, reset, set_position or time_step_ns that finds another thread inside
+ *   one of them on the same handle returns TM_ERR_BUSY at once (it never waits).
+ *   tm_pipeline_get_status and tm_pipeline_sizes may be called from any thread at
+ *   any time: the status is the one published at the end of the last call that
+ *   changed it, never a torn mix. Different handles are independent.
+ * - tm_pipeline_destroy may be called from any thread, even while another thread is
+ *   inside a call on the same handle: the handle is dead at once (every later call
+ *   gets TM_ERR_HANDLE) and destroy returns after the calls already in flight on it
+ *   have returned; only then is the pipeline freed. create and destroy take a
+ *   process-wide lock (they are not real-time calls).
+ * - A tick is accepted only if its samples are finite and within v_limit / u_limit
+ *   and every state it updates (filters, detector, controller) stays finite;
+ *   otherwise the state is what it was before the tick, the tick is counted in the
+ *   status with its reason (nonfinite, out_of_range, overflow) and TM_REJECTED is
+ *   returned.
+ * - Structures carry their own size (struct_size), and new fields are only ever
+ *   appended. tm_pipeline_get_status fills the first struct_size bytes, so a program
+ *   built against an older tm.h gets the fields it knows. tm_pipeline_create accepts
+ *   a tm_config whose struct_size is at least that of ABI 2 (the first with
+ *   struct_size) and at most this header's; fields beyond a shorter struct_size take
+ *   their tm_config_init defaults. abi_version must be 2 or TM_ABI_VERSION (the
+ *   tm_config layout is the same in both).
  *
  * The library is shipped in the tactile_mirror Python wheel next to this header;
  * tactile_mirror.loop.capi.library_path() gives its path.
@@ -48,8 +69,11 @@
 extern "C" {
 #endif
 
-/* ABI version: incremented on any incompatible change of this header. */
-#define TM_ABI_VERSION 2
+/* ABI version: incremented on any incompatible change of this header or of the
+ * library's behaviour. 3: TM_ERR_BUSY, the overflow rejection and its status fields,
+ * finite default limits (+inf refused), tm_controller_defaults and the controller
+ * defaults shared with the Python library. */
+#define TM_ABI_VERSION 3
 
 typedef enum tm_status_code {
     TM_OK = 0,
@@ -61,7 +85,8 @@ typedef enum tm_status_code {
     TM_ERR_FS = -5,         /* detector weights made for another sample rate */
     TM_ERR_VERSION = -6,    /* struct_size / abi_version not supported */
     TM_ERR_MEMORY = -7,     /* out of memory or out of handles */
-    TM_ERR_INTERNAL = -8    /* unexpected failure (a bug: please report) */
+    TM_ERR_INTERNAL = -8,   /* unexpected failure (a bug: please report) */
+    TM_ERR_BUSY = -9        /* the handle is being driven by another thread right now */
 } tm_status_code;
 
 typedef enum tm_controller_kind {
@@ -103,7 +128,8 @@ typedef struct tm_config {
     int32_t n_sos_u;
     const double* sos_diff;  /* rate -> 2nd-order rate (use_u = 0; at least one section) */
     int32_t n_sos_diff;
-    double v_limit, u_limit; /* |sample| above the limit: the tick is rejected (> 0) */
+    double v_limit, u_limit; /* |sample| above the limit (V): the tick is rejected; finite, > 0;
+                              * default 15 V, the swing of a +-15 V front end */
     /* Detector (Jordan MLP, 4 features + y_pred feedback, H hidden units). */
     int32_t n_hidden;
     const double* w1;        /* (H, 5) row-major */
@@ -133,7 +159,18 @@ typedef struct tm_pipeline_status {
     int32_t at_limit;        /* 1: the command is on a travel limit */
     double position;         /* controller's commanded position, m */
     double velocity;         /* commanded velocity, m/s */
+    /* ABI 3 */
+    uint64_t overflow;       /* rejected ticks whose update would have made a state non-finite */
+    int32_t last_reason;     /* tm_reject_reason of the last rejected tick */
 } tm_pipeline_status;
+
+typedef enum tm_reject_reason {
+    TM_REASON_NONE = 0,         /* no tick rejected yet */
+    TM_REASON_NONFINITE = 1,    /* a NaN or Inf sample (last_bad_channel: the first) */
+    TM_REASON_OUT_OF_RANGE = 2, /* a finite sample beyond v_limit / u_limit */
+    TM_REASON_OVERFLOW = 3      /* valid samples, but a filter, detector or controller state would become
+                                 * non-finite (last_bad_channel -1) */
+} tm_reject_reason;
 
 typedef uint64_t tm_pipeline;  /* 0 is never a valid handle */
 
@@ -143,10 +180,14 @@ TM_API const char* tm_status_name(int32_t code);
 /* The message of the last error on the calling thread ("" if none). */
 TM_API const char* tm_last_error(void);
 
-/* Fill cfg with defaults: 6 ridges, 1 kHz, use_u, no filters, no detector weights
- * (w1 ... must be set), no controller. */
+/* Fill cfg with defaults: 6 ridges, 1 kHz, use_u, no filters, limits 15 V, no detector
+ * weights (w1 ... must be set), no controller. */
 TM_API int32_t tm_config_init(tm_config* cfg);
+/* The defaults of every parameter with kind TM_CONTROLLER_NONE. */
 TM_API int32_t tm_controller_init(tm_controller_params* params);
+/* The defaults of a law (tm_controller_kind): the same numbers as the Python library's
+ * PaperController() / VelocityController(); kind is set to the given law. */
+TM_API int32_t tm_controller_defaults(int32_t kind, tm_controller_params* params);
 
 TM_API int32_t tm_pipeline_create(const tm_config* cfg, tm_pipeline* out);
 TM_API int32_t tm_pipeline_destroy(tm_pipeline h);
@@ -165,6 +206,7 @@ TM_API int32_t tm_pipeline_features(tm_pipeline h, double* f, size_t n_f);
 TM_API int32_t tm_pipeline_reset(tm_pipeline h, double x0);
 /* Tell the controller where the stage is, m. */
 TM_API int32_t tm_pipeline_set_position(tm_pipeline h, double x);
+/* Any thread, any time (see Rules). status->struct_size must be set by the caller. */
 TM_API int32_t tm_pipeline_get_status(tm_pipeline h, tm_pipeline_status* status);
 /* Mean ns per tick measured inside the library (state restored afterwards). */
 TM_API int32_t tm_pipeline_time_step_ns(tm_pipeline h, int64_t n_iter, double* ns);

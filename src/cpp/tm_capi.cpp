@@ -3,10 +3,18 @@
 // Handles index a fixed table of slots; a handle carries the slot and the slot's
 // generation, so 0, stale (destroyed) and made-up handles are recognised without
 // ever dereferencing them. Nothing here lets an exception or an abort escape.
+//
+// Lifetime: every call on a handle counts itself in its slot's in-flight counter
+// before it checks the generation, and destroy bumps the generation before it
+// waits for that counter to drop to zero (both sequentially consistent). So a call
+// either sees the handle dead, or destroy sees the call and frees the pipeline only
+// after it returned. Cross-thread use of a live handle is refused through the
+// instance's atomic owner flag (owner.hpp): no call on the tick path ever waits.
 #include "tm.h"
 
 #include <atomic>
 #include <cstdarg>
+#include <cstddef>
 #include <cstdio>
 #include <cstring>
 #include <exception>
@@ -14,7 +22,9 @@
 #include <mutex>
 #include <new>
 #include <stdexcept>
+#include <thread>
 
+#include "owner.hpp"
 #include "pipeline.hpp"
 
 namespace {
@@ -36,28 +46,52 @@ struct Instance {
     std::unique_ptr<MirrorPipeline<double>> d;
     std::unique_ptr<MirrorPipeline<float>> f;
     std::unique_ptr<MirrorPipeline<double, float>> m;
+    tactile::OwnerFlag owner;
 };
 
 constexpr std::uint32_t kSlots = 4096;
 struct Slot {
     std::atomic<Instance*> inst{nullptr};
     std::atomic<std::uint32_t> gen{1};
+    std::atomic<std::uint32_t> inflight{0};
 };
 Slot g_slots[kSlots];
 std::mutex g_table_lock;
 
-Instance* lookup(tm_pipeline h) noexcept {
-    const std::uint64_t idx = (h & 0xffffffffu);
-    const std::uint32_t gen = std::uint32_t(h >> 32);
-    if (idx == 0 || idx > kSlots) return nullptr;
-    Slot& s = g_slots[idx - 1];
-    if (s.gen.load(std::memory_order_acquire) != gen) return nullptr;
-    return s.inst.load(std::memory_order_acquire);
-}
+// A call in flight on a handle: keeps the pipeline alive until it goes out of scope.
+class Use {
+public:
+    explicit Use(tm_pipeline h) noexcept {
+        const std::uint64_t idx = (h & 0xffffffffu);
+        const std::uint32_t gen = std::uint32_t(h >> 32);
+        if (idx == 0 || idx > kSlots) return;
+        slot_ = &g_slots[idx - 1];
+        slot_->inflight.fetch_add(1, std::memory_order_seq_cst);
+        if (slot_->gen.load(std::memory_order_seq_cst) != gen) return;
+        inst_ = slot_->inst.load(std::memory_order_acquire);
+    }
+    ~Use() {
+        if (slot_) slot_->inflight.fetch_sub(1, std::memory_order_release);
+    }
+    Use(const Use&) = delete;
+    Use& operator=(const Use&) = delete;
+    Instance* get() const noexcept { return inst_; }
+
+private:
+    Slot* slot_ = nullptr;
+    Instance* inst_ = nullptr;
+};
 
 #define TM_GET(h, inst)                                                                   \
-    Instance* inst = lookup(h);                                                          \
+    Use use_(h);                                                                          \
+    Instance* inst = use_.get();                                                          \
     if (!inst) return fail(TM_ERR_HANDLE, "handle %llu is not a live pipeline", (unsigned long long)(h))
+
+// The calls that read or change a pipeline's state claim it: one thread at a time.
+#define TM_CLAIM(h, inst)                                                                 \
+    tactile::OwnerClaim claim_(inst->owner);                                              \
+    if (!claim_.owns())                                                                   \
+    return fail(TM_ERR_BUSY, "handle %llu is being used by another thread", (unsigned long long)(h))
 
 template <typename F>
 auto with(Instance* in, F&& f) noexcept {
@@ -66,25 +100,26 @@ auto with(Instance* in, F&& f) noexcept {
     return f(*in->f);
 }
 
-void controller_defaults(tm_controller_params* p) {
-    const tactile::ControllerParams d;
+// tm_controller_params and ControllerParams hold the same fields, both from
+// TM_CONTROLLER_FIELDS (a field missing in tm.h does not compile).
+void controller_to_c(const tactile::ControllerParams& d, tm_controller_params* p) {
     p->kind = int32_t(d.kind);
-    p->threshold = d.threshold;
-    p->gain = d.gain;
-    p->y_full = d.y_full;
-    p->v_max = d.v_max;
-    p->a_max = d.a_max;
-    p->x_min = d.x_min;
-    p->x_max = d.x_max;
-    p->direction_sign = d.direction_sign;
-    p->asym_tau = d.asym_tau;
-    p->asym_deadband = d.asym_deadband;
-    p->shear_gain = d.shear_gain;
-    p->arm_delay = d.arm_delay;
-    p->ramp_gain = d.ramp_gain;
-    p->pred_boost = d.pred_boost;
-    p->slip_hold = d.slip_hold;
+#define TM_TO_C(name, def, laws, doc) p->name = d.name;
+    TM_CONTROLLER_FIELDS(TM_TO_C)
+#undef TM_TO_C
 }
+
+tactile::ControllerParams controller_from_c(const tm_controller_params& p) {
+    tactile::ControllerParams c;
+    c.kind = tactile::ControllerKind(p.kind);
+#define TM_FROM_C(name, def, laws, doc) c.name = p.name;
+    TM_CONTROLLER_FIELDS(TM_FROM_C)
+#undef TM_FROM_C
+    return c;
+}
+
+#define TM_STR2(x) #x
+#define TM_STR(x) TM_STR2(x)
 
 }  // namespace
 
@@ -92,7 +127,7 @@ extern "C" {
 
 int32_t tm_abi_version(void) { return TM_ABI_VERSION; }
 
-const char* tm_version_string(void) { return "tactile-mirror C ABI 1 (pipeline 0.1.0)"; }
+const char* tm_version_string(void) { return "tactile-mirror C ABI " TM_STR(TM_ABI_VERSION) " (pipeline 0.1.0)"; }
 
 const char* tm_status_name(int32_t code) {
     switch (code) {
@@ -106,6 +141,7 @@ const char* tm_status_name(int32_t code) {
         case TM_ERR_VERSION: return "TM_ERR_VERSION";
         case TM_ERR_MEMORY: return "TM_ERR_MEMORY";
         case TM_ERR_INTERNAL: return "TM_ERR_INTERNAL";
+        case TM_ERR_BUSY: return "TM_ERR_BUSY";
         default: return "unknown status";
     }
 }
@@ -114,7 +150,15 @@ const char* tm_last_error(void) { return g_error; }
 
 int32_t tm_controller_init(tm_controller_params* params) {
     if (!params) return fail(TM_ERR_NULL, "params is NULL");
-    controller_defaults(params);
+    controller_to_c(tactile::default_controller(tactile::ControllerKind::none), params);
+    return TM_OK;
+}
+
+int32_t tm_controller_defaults(int32_t kind, tm_controller_params* params) {
+    if (!params) return fail(TM_ERR_NULL, "params is NULL");
+    if (kind < 0 || kind > 2)
+        return fail(TM_ERR_ARGUMENT, "kind must be 0 (none), 1 (paper) or 2 (velocity), got %d", int(kind));
+    controller_to_c(tactile::default_controller(tactile::ControllerKind(kind)), params);
     return TM_OK;
 }
 
@@ -134,20 +178,31 @@ int32_t tm_config_init(tm_config* cfg) {
     cfg->activation = 0;
     cfg->slip_threshold = d.slip_threshold;
     cfg->max_hold_ticks = d.max_hold_ticks;
-    controller_defaults(&cfg->controller);
+    controller_to_c(tactile::default_controller(tactile::ControllerKind::none), &cfg->controller);
     return TM_OK;
 }
 
-int32_t tm_pipeline_create(const tm_config* cfg, tm_pipeline* out) {
-    if (!cfg) return fail(TM_ERR_NULL, "cfg is NULL");
+// sizeof(tm_config) in ABI 2, the first ABI with struct_size; the layout has not
+// changed since, and fields are only ever appended.
+constexpr std::size_t kConfigSizeAbi2 = offsetof(tm_config, controller) + sizeof(tm_controller_params);
+static_assert(kConfigSizeAbi2 <= sizeof(tm_config), "tm_config only grows");
+
+int32_t tm_pipeline_create(const tm_config* user_cfg, tm_pipeline* out) {
+    if (!user_cfg) return fail(TM_ERR_NULL, "cfg is NULL");
     if (!out) return fail(TM_ERR_NULL, "out is NULL");
     *out = 0;
-    if (cfg->struct_size != sizeof(tm_config))
-        return fail(TM_ERR_VERSION, "cfg->struct_size is %u, this library expects %u (call tm_config_init)",
-                    unsigned(cfg->struct_size), unsigned(sizeof(tm_config)));
-    if (cfg->abi_version != TM_ABI_VERSION)
-        return fail(TM_ERR_VERSION, "cfg->abi_version is %u, this library implements %d", unsigned(cfg->abi_version),
-                    TM_ABI_VERSION);
+    const std::uint32_t size = user_cfg->struct_size;
+    if (size < kConfigSizeAbi2 || size > sizeof(tm_config))
+        return fail(TM_ERR_VERSION, "cfg->struct_size is %u, this library accepts %u to %u (call tm_config_init)",
+                    unsigned(size), unsigned(kConfigSizeAbi2), unsigned(sizeof(tm_config)));
+    if (user_cfg->abi_version != 2 && user_cfg->abi_version != TM_ABI_VERSION)
+        return fail(TM_ERR_VERSION, "cfg->abi_version is %u, this library implements 2 and %d",
+                    unsigned(user_cfg->abi_version), TM_ABI_VERSION);
+    // A shorter (older) struct: the fields it lacks keep their defaults.
+    tm_config full;
+    tm_config_init(&full);
+    std::memcpy(&full, user_cfg, size);
+    const tm_config* cfg = &full;
     if (cfg->precision != 64 && cfg->precision != 32)
         return fail(TM_ERR_ARGUMENT, "cfg->precision must be 64 or 32, got %d", int(cfg->precision));
     const int32_t dp = cfg->detector_precision == 0 ? cfg->precision : cfg->detector_precision;
@@ -180,23 +235,7 @@ int32_t tm_pipeline_create(const tm_config* cfg, tm_pipeline* out) {
     c.activation = cfg->activation;
     c.slip_threshold = cfg->slip_threshold;
     c.max_hold_ticks = long(cfg->max_hold_ticks);
-    const tm_controller_params& p = cfg->controller;
-    c.controller.kind = tactile::ControllerKind(kind);
-    c.controller.threshold = p.threshold;
-    c.controller.gain = p.gain;
-    c.controller.y_full = p.y_full;
-    c.controller.v_max = p.v_max;
-    c.controller.a_max = p.a_max;
-    c.controller.x_min = p.x_min;
-    c.controller.x_max = p.x_max;
-    c.controller.direction_sign = p.direction_sign;
-    c.controller.asym_tau = p.asym_tau;
-    c.controller.asym_deadband = p.asym_deadband;
-    c.controller.shear_gain = p.shear_gain;
-    c.controller.arm_delay = p.arm_delay;
-    c.controller.ramp_gain = p.ramp_gain;
-    c.controller.pred_boost = p.pred_boost;
-    c.controller.slip_hold = p.slip_hold;
+    c.controller = controller_from_c(cfg->controller);
     // The sample-rate check first, with its own code.
     if (std::isfinite(c.fs) && c.fs > 0 && std::isfinite(c.weights_fs) && c.weights_fs > 0 &&
         std::fabs(c.fs - c.weights_fs) > 1e-9 * c.fs)
@@ -234,21 +273,22 @@ int32_t tm_pipeline_create(const tm_config* cfg, tm_pipeline* out) {
 }
 
 int32_t tm_pipeline_destroy(tm_pipeline h) {
-    Instance* victim = nullptr;
-    {
-        std::lock_guard<std::mutex> lock(g_table_lock);
-        const std::uint64_t idx = (h & 0xffffffffu);
-        const std::uint32_t gen = std::uint32_t(h >> 32);
-        if (idx == 0 || idx > kSlots) return fail(TM_ERR_HANDLE, "handle %llu is not a live pipeline",
-                                                  (unsigned long long)h);
-        Slot& s = g_slots[idx - 1];
-        if (s.gen.load(std::memory_order_relaxed) != gen || !s.inst.load(std::memory_order_relaxed))
-            return fail(TM_ERR_HANDLE, "handle %llu is not a live pipeline", (unsigned long long)h);
-        std::uint32_t next = gen + 1;
-        if (next == 0) next = 1;  // generation 0 is never issued
-        s.gen.store(next, std::memory_order_release);
-        victim = s.inst.exchange(nullptr, std::memory_order_acq_rel);
-    }
+    // The table lock is held until the pipeline is freed, so the slot is not reused
+    // while calls that entered before the generation changed are still running.
+    std::lock_guard<std::mutex> lock(g_table_lock);
+    const std::uint64_t idx = (h & 0xffffffffu);
+    const std::uint32_t gen = std::uint32_t(h >> 32);
+    if (idx == 0 || idx > kSlots)
+        return fail(TM_ERR_HANDLE, "handle %llu is not a live pipeline", (unsigned long long)h);
+    Slot& s = g_slots[idx - 1];
+    if (s.gen.load(std::memory_order_seq_cst) != gen || !s.inst.load(std::memory_order_acquire))
+        return fail(TM_ERR_HANDLE, "handle %llu is not a live pipeline", (unsigned long long)h);
+    std::uint32_t next = gen + 1;
+    if (next == 0) next = 1;  // generation 0 is never issued
+    s.gen.store(next, std::memory_order_seq_cst);  // dead from here on: new calls fail
+    Instance* victim = s.inst.exchange(nullptr, std::memory_order_acq_rel);
+    // Calls in flight entered before the generation changed; wait for them.
+    while (s.inflight.load(std::memory_order_seq_cst) != 0) std::this_thread::yield();
     delete victim;
     return TM_OK;
 }
@@ -266,6 +306,7 @@ int32_t tm_pipeline_sizes(tm_pipeline h, size_t* n_inputs, size_t* n_outputs) {
 
 int32_t tm_pipeline_step(tm_pipeline h, const double* x, size_t n_x, double* out, size_t n_out) {
     TM_GET(h, in);
+    TM_CLAIM(h, in);
     if (!x) return fail(TM_ERR_NULL, "x is NULL");
     return with(in, [&](auto& p) -> int32_t {
         if (n_x != p.n_inputs())
@@ -279,6 +320,7 @@ int32_t tm_pipeline_step(tm_pipeline h, const double* x, size_t n_x, double* out
 int32_t tm_pipeline_process_block(tm_pipeline h, const double* x, size_t n_ticks, size_t n_x, double* out,
                                   size_t n_out, uint8_t* accepted, size_t* n_rejected) {
     TM_GET(h, in);
+    TM_CLAIM(h, in);
     if (n_ticks && !x) return fail(TM_ERR_NULL, "x is NULL");
     return with(in, [&](auto& p) -> int32_t {
         if (n_x != p.n_inputs())
@@ -293,6 +335,7 @@ int32_t tm_pipeline_process_block(tm_pipeline h, const double* x, size_t n_ticks
 
 int32_t tm_pipeline_features(tm_pipeline h, double* f, size_t n_f) {
     TM_GET(h, in);
+    TM_CLAIM(h, in);
     if (!f) return fail(TM_ERR_NULL, "f is NULL");
     return with(in, [&](auto& p) -> int32_t {
         if (n_f != p.n_features())
@@ -304,6 +347,7 @@ int32_t tm_pipeline_features(tm_pipeline h, double* f, size_t n_f) {
 
 int32_t tm_pipeline_reset(tm_pipeline h, double x0) {
     TM_GET(h, in);
+    TM_CLAIM(h, in);
     if (!std::isfinite(x0)) return fail(TM_ERR_ARGUMENT, "x0 must be finite");
     with(in, [&](auto& p) {
         p.reset(x0);
@@ -314,6 +358,7 @@ int32_t tm_pipeline_reset(tm_pipeline h, double x0) {
 
 int32_t tm_pipeline_set_position(tm_pipeline h, double x) {
     TM_GET(h, in);
+    TM_CLAIM(h, in);
     if (!std::isfinite(x)) return fail(TM_ERR_ARGUMENT, "x must be finite");
     with(in, [&](auto& p) {
         p.set_position(x);
@@ -332,19 +377,19 @@ int32_t tm_pipeline_get_status(tm_pipeline h, tm_pipeline_status* status) {
     tm_pipeline_status s;
     std::memset(&s, 0, sizeof s);
     with(in, [&](auto& p) {
-        const tactile::PipelineStatus& st = p.status();
+        const tactile::PipelineStatus st = p.published_status(&s.position, &s.velocity);
         s.ticks = st.ticks;
         s.rejected = st.rejected;
         s.nonfinite = st.nonfinite;
         s.out_of_range = st.out_of_range;
+        s.overflow = st.overflow;
         s.last_bad_tick = st.last_bad_tick;
         s.last_bad_channel = st.last_bad_channel;
         s.consecutive_rejected = st.consecutive_rejected;
         s.fault = st.fault;
         s.slip = st.slip;
         s.at_limit = st.at_limit;
-        s.position = p.controller().position();
-        s.velocity = p.controller().velocity();
+        s.last_reason = st.last_reason;
         return 0;
     });
     s.struct_size = size;
@@ -354,6 +399,7 @@ int32_t tm_pipeline_get_status(tm_pipeline h, tm_pipeline_status* status) {
 
 int32_t tm_pipeline_time_step_ns(tm_pipeline h, int64_t n_iter, double* ns) {
     TM_GET(h, in);
+    TM_CLAIM(h, in);
     if (!ns) return fail(TM_ERR_NULL, "ns is NULL");
     if (n_iter < 1) return fail(TM_ERR_ARGUMENT, "n_iter must be >= 1");
     try {

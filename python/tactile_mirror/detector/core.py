@@ -1,7 +1,9 @@
 """The :class:`SlipDetector`: trained weights + the C++ kernel."""
 from __future__ import annotations
 
+import contextlib
 import os
+import threading
 from importlib import resources
 
 import numpy as np
@@ -67,6 +69,9 @@ class SlipDetector:
         self.backend = backend
         self._kernels = {}
         self._state = None  # numpy backend: y_pred(t-1) per ridge
+        # Owner flag: one thread at a time runs the detector (its state carries over);
+        # a second thread gets an error, it never waits.
+        self._owner = threading.Lock()
 
     # -- construction -------------------------------------------------------------------
     @classmethod
@@ -127,6 +132,25 @@ class SlipDetector:
         return k
 
     # -- running ------------------------------------------------------------------------
+    @contextlib.contextmanager
+    def _claim(self):
+        if not self._owner.acquire(blocking=False):
+            raise RuntimeError("this SlipDetector is being used by another thread (its state carries over "
+                               "between calls; give each thread its own detector)")
+        try:
+            yield
+        finally:
+            self._owner.release()
+
+    @staticmethod
+    def _check_finite(x, name="features"):
+        """Refuse NaN/Inf features (the sigmoid would turn them into a confident
+        number), naming the first one by sample, then ridge, then channel."""
+        finite = np.isfinite(x)
+        if not finite.all():
+            r, c, t = np.argwhere(~finite.transpose(2, 0, 1))[0][[1, 2, 0]]
+            raise ValueError(f"{name} must be finite: ridge {r}, channel {c}, sample {t} is {x[r, c, t]}")
+
     def _check_features(self, features, name="features"):
         x = np.asarray(features)
         if x.dtype.kind not in "biuf":
@@ -159,25 +183,34 @@ class SlipDetector:
         -------
         y_slip, y_non, y_pred : ndarray, shape (n_ridges, n) (or (n,) for 2-D input)
             Slip now (slip when >= 0.8), ``1 - y_slip``, and the slip prediction.
+
+        Raises
+        ------
+        ValueError
+            A NaN/Inf feature (both backends; the message names ridge, channel and
+            sample); the state is unchanged.
+        RuntimeError
+            Another thread is running this detector (one thread at a time; nothing
+            waits).
         """
         x, single = self._check_features(features)
         if fs is not None:
             self.weights.check_compatible(fs=fs)
         n_r = x.shape[0]
-        if self.backend == "numpy":
-            xn = (x.astype(np.float64) - self.weights.input_mean[None, :, None]) \
-                * self.weights.input_gain[None, :, None]
-            p0 = None if (reset or self._state is None or self._state.size != n_r) else self._state
-            ys, yp = forward(self.weights.params, xn, p0)
-            self._state = yp[:, -1].copy() if yp.shape[1] else (np.zeros(n_r) if p0 is None else p0)
-            out = (ys, 1.0 - ys, yp)
-        else:
-            k = self._kernel(n_r)
-            xc = np.ascontiguousarray(x, dtype=self.dtype)
-            if reset:
-                k.reset()
-            y = k.run(xc)
-            out = (y[0], y[1], y[2])
+        with self._claim():
+            if self.backend == "numpy":
+                self._check_finite(x)
+                xn = (x.astype(np.float64) - self.weights.input_mean[None, :, None]) \
+                    * self.weights.input_gain[None, :, None]
+                p0 = None if (reset or self._state is None or self._state.size != n_r) else self._state
+                ys, yp = forward(self.weights.params, xn, p0)
+                self._state = yp[:, -1].copy() if yp.shape[1] else (np.zeros(n_r) if p0 is None else p0)
+                out = (ys, 1.0 - ys, yp)
+            else:
+                k = self._kernel(n_r)
+                xc = np.ascontiguousarray(x, dtype=self.dtype)
+                y = k.run(xc, reset=reset)  # refuses NaN/Inf features (ValueError), state unchanged
+                out = (y[0], y[1], y[2])
         if single:
             out = tuple(a[0] for a in out)
         return out
@@ -190,13 +223,15 @@ class SlipDetector:
         if self.backend == "numpy":
             ys, yn, yp = self.run(s[:, :, None], reset=False)
             return np.stack([ys[:, 0], yn[:, 0], yp[:, 0]], axis=1)
-        return self._kernel(s.shape[0]).step(np.ascontiguousarray(s, dtype=self.dtype))
+        with self._claim():
+            return self._kernel(s.shape[0]).step(np.ascontiguousarray(s, dtype=self.dtype))
 
     def reset(self) -> None:
         """Zero the feedback state of every kernel."""
-        for k in self._kernels.values():
-            k.reset()
-        self._state = None
+        with self._claim():
+            for k in self._kernels.values():
+                k.reset()
+            self._state = None
 
     def detect(self, features, fs=None):
         """Boolean slip decision ``y_slip >= 0.8`` per ridge and sample."""

@@ -117,6 +117,24 @@ class CAPIError(RuntimeError):
 
 
 _CTRL_KINDS = {"none": 0, "paper": 1, "velocity": 2}
+_REASONS = {0: "", 1: "nonfinite", 2: "out_of_range", 3: "overflow"}
+
+
+def _tick_vector(a, n: int, name: str, writable: bool) -> np.ndarray:
+    """``a`` itself if it is a float64, 1-D, C-contiguous array of length ``n``
+    (writable for an output); else an error naming the argument. No conversion: a
+    wrong buffer handed to C would be read or written past its end."""
+    if not isinstance(a, np.ndarray):
+        raise TypeError(f"{name} must be a numpy array of float64, got {type(a).__name__}")
+    if a.dtype != np.float64:
+        raise TypeError(f"{name} must have dtype float64, got {a.dtype}")
+    if a.shape != (n,):
+        raise ValueError(f"{name} must have shape ({n},), got {a.shape}")
+    if not a.flags.c_contiguous:
+        raise ValueError(f"{name} must be C-contiguous")
+    if writable and not a.flags.writeable:
+        raise ValueError(f"{name} must be writeable")
+    return a
 
 
 class CPipeline:
@@ -189,15 +207,21 @@ class CPipeline:
         return rc
 
     def step(self, x, out=None) -> float:
-        x = np.ascontiguousarray(x, dtype=np.float64)
-        o = self._out if out is None else out
+        """One tick, as :meth:`tactile_mirror.MirrorPipeline.step`: ``x`` float64
+        (n_inputs,) C-contiguous; ``out`` float64 (n_outputs,) C-contiguous and
+        writeable. No conversion is made (TypeError / ValueError otherwise)."""
+        x = _tick_vector(x, self.n_inputs, "x", False)
+        o = self._out if out is None else _tick_vector(out, self.n_outputs, "out", True)
         rc = self._check(self.lib.tm_pipeline_step(self.handle, self.ffi.from_buffer("double[]", x), x.size,
                                                    self.ffi.from_buffer("double[]", o), o.size))
         self.last_accepted = rc == 0
         return float(o[0])
 
     def process_block(self, x, accepted: bool = False):
-        x = np.ascontiguousarray(x, dtype=np.float64)
+        x = np.asarray(x)
+        if x.dtype.kind not in "biuf":
+            raise TypeError(f"x must hold real numbers, got dtype {x.dtype}")
+        x = np.ascontiguousarray(x, dtype=np.float64)  # a copy in the right layout
         if x.ndim != 2 or x.shape[1] != self.n_inputs:
             raise ValueError(f"x must have shape (n_ticks, {self.n_inputs}), got {x.shape}")
         n = x.shape[0]
@@ -210,9 +234,11 @@ class CPipeline:
         return (out, acc.astype(bool)) if accepted else (out,)
 
     def reset(self, x0: float = 0.0) -> None:
+        """Back to rest at ``x0`` (m); a non-finite ``x0`` is a CAPIError (TM_ERR_ARGUMENT)."""
         self._check(self.lib.tm_pipeline_reset(self.handle, float(x0)))
 
     def set_position(self, x: float) -> None:
+        """Tell the controller where the stage is (m); non-finite: CAPIError (TM_ERR_ARGUMENT)."""
         self._check(self.lib.tm_pipeline_set_position(self.handle, float(x)))
 
     @property
@@ -230,7 +256,8 @@ class CPipeline:
                 "out_of_range": s.out_of_range, "last_bad_tick": s.last_bad_tick,
                 "last_bad_channel": s.last_bad_channel, "consecutive_rejected": s.consecutive_rejected,
                 "fault": bool(s.fault), "slip": bool(s.slip), "at_limit": bool(s.at_limit),
-                "position": s.position, "velocity": s.velocity}
+                "position": s.position, "velocity": s.velocity, "overflow": s.overflow,
+                "last_reason": _REASONS.get(s.last_reason, str(s.last_reason))}
 
     def time_step_ns(self, n_iter: int = 200000) -> float:
         ns = self.ffi.new("double*")
@@ -238,9 +265,12 @@ class CPipeline:
         return float(ns[0])
 
     def close(self) -> None:
-        if getattr(self, "handle", 0):
-            self.lib.tm_pipeline_destroy(self.handle)
+        """Destroy the pipeline. Safe while another thread is inside a call on it:
+        that call finishes first, later calls raise CAPIError (TM_ERR_HANDLE)."""
+        h = getattr(self, "handle", 0)
+        if h:
             self.handle = 0
+            self.lib.tm_pipeline_destroy(h)
 
     def __del__(self):
         with contextlib.suppress(Exception):  # at interpreter shutdown the library may be gone

@@ -46,7 +46,40 @@ from dataclasses import asdict, dataclass
 
 import numpy as np
 
-__all__ = ["Controller", "NoController", "PaperController", "VelocityController", "controller_from_dict"]
+from .. import _core
+
+__all__ = ["Controller", "NoController", "PaperController", "VelocityController", "controller_fields",
+           "controller_from_dict"]
+
+# The parameters, their defaults and the laws that read them are defined once, in
+# C++ (TM_CONTROLLER_FIELDS in pipeline.hpp); the C ABI (tm_controller_defaults),
+# the pipeline and these dataclasses all take them from there.
+_FIELDS = tuple(_core.controller_fields())
+_DEFAULTS = {kind: _core.controller_defaults(kind) for kind in ("none", "paper", "velocity")}
+
+
+def controller_fields(kind: str | None = None) -> tuple[str, ...]:
+    """Names of the controller parameters, in the order of ``tm_controller_params``.
+
+    ``kind=None``: all of them; ``"paper"`` / ``"velocity"``: those the law reads;
+    ``"none"``: those every law reads.
+    """
+    if kind is None:
+        return tuple(f[0] for f in _FIELDS)
+    if kind == "none":
+        return tuple(f[0] for f in _FIELDS if set(f[1]) == {"paper", "velocity"})
+    return tuple(f[0] for f in _FIELDS if kind in f[1])
+
+
+class _LawState:
+    """The mutable state of a law between ticks (the C++ StageController's)."""
+
+    __slots__ = ("a", "dir", "hold_left", "ticks", "v", "x")
+
+    def __init__(self, x: float):
+        self.x, self.v, self.a, self.dir = x, 0.0, 0.0, 0.0
+        self.ticks = 0
+        self.hold_left = 0
 
 
 def _real(value, name: str) -> float:
@@ -89,14 +122,14 @@ class Controller:
     """
 
     kind = "none"
-    threshold: float = 0.5
-    x_min: float = -0.05
-    x_max: float = 0.05
-    direction_sign: float = 1.0
-    asym_tau: float = 1.0
-    asym_deadband: float = 0.0
-    arm_delay: float = 0.0
-    slip_hold: float = 0.0
+    threshold: float = _DEFAULTS["none"]["threshold"]
+    x_min: float = _DEFAULTS["none"]["x_min"]
+    x_max: float = _DEFAULTS["none"]["x_max"]
+    direction_sign: float = _DEFAULTS["none"]["direction_sign"]
+    asym_tau: float = _DEFAULTS["none"]["asym_tau"]
+    asym_deadband: float = _DEFAULTS["none"]["asym_deadband"]
+    arm_delay: float = _DEFAULTS["none"]["arm_delay"]
+    slip_hold: float = _DEFAULTS["none"]["slip_hold"]
 
     def __post_init__(self):
         for name in ("threshold", "x_min", "x_max", "direction_sign", "asym_tau", "asym_deadband", "arm_delay",
@@ -160,40 +193,42 @@ class Controller:
         fs = _real(fs, "fs")
         if fs <= 0:
             raise ValueError(f"fs must be > 0 Hz, got {fs}")
-        dt = 1.0 / fs
-        leak = math.exp(-dt / self.asym_tau)
-        x = min(max(float(x0), self.x_min), self.x_max)
-        v = 0.0
-        a = 0.0
-        dirn = 0.0
+        st = self._start(x0)
         xs = np.empty_like(y)
         vs = np.empty_like(y)
-        arm = round(self.arm_delay * fs)
-        hold = round(self.slip_hold * fs)
-        hold_left = 0
         for k in range(y.size):
-            if k < arm:
-                if k + 1 == arm:
-                    a, dirn = 0.0, 0.0
-                xs[k], vs[k] = x, 0.0
-                v = 0.0
-                continue
-            yk, dk, fault = y[k], d[k], False
-            if hold > 0:
-                if sl[k]:
-                    hold_left = hold
-                if hold_left > 0:
-                    yk, dk, fault = 0.0, 0.0, True
-                    hold_left -= 1
-                    if hold_left == 0:
-                        a, dirn = 0.0, 0.0
-            a = leak * a + dt * dk
-            if abs(a) > self.asym_deadband:
-                dirn = self.direction_sign if a > 0 else -self.direction_sign
-            x, v = self._move(x, v, yk, dt, dirn, 0.0 if fault else a)
-            xs[k] = x
-            vs[k] = v
+            self._tick(st, float(y[k]), float(d[k]), False, bool(sl[k]), fs)
+            xs[k], vs[k] = st.x, st.v
         return xs, vs
+
+    def _start(self, x0: float) -> _LawState:
+        return _LawState(self._clamp(float(x0)))
+
+    def _tick(self, st: _LawState, y: float, asym: float, fault: bool, slip: bool, fs: float) -> None:
+        """One tick of the law on ``st`` (arming, slip guard, direction, motion): the
+        arithmetic of the C++ ``StageController::step``, shared by :meth:`run` and
+        :class:`tactile_mirror.ReferencePipeline`."""
+        dt = 1.0 / fs
+        arm = round(self.arm_delay * fs)
+        if st.ticks < arm:  # arming: hold, then tare the asymmetry
+            st.ticks += 1
+            if st.ticks == arm:
+                st.a, st.dir = 0.0, 0.0
+            st.v = 0.0
+            return
+        hold = round(self.slip_hold * fs)
+        if hold > 0:  # slip guard
+            if slip:
+                st.hold_left = hold
+            if st.hold_left > 0:
+                fault, y, asym = True, 0.0, 0.0
+                st.hold_left -= 1
+                if st.hold_left == 0:
+                    st.a, st.dir = 0.0, 0.0
+        st.a = math.exp(-dt / self.asym_tau) * st.a + dt * asym
+        if abs(st.a) > self.asym_deadband:
+            st.dir = self.direction_sign if st.a > 0 else -self.direction_sign
+        st.x, st.v = self._move(st.x, st.v, y, dt, st.dir, 0.0 if fault else st.a)
 
     def _clamp(self, x):
         return min(max(x, self.x_min), self.x_max)
@@ -223,7 +258,8 @@ class PaperController(Controller):
     """
 
     kind = "paper"
-    gain: float = 0.01
+    threshold: float = _DEFAULTS["paper"]["threshold"]
+    gain: float = _DEFAULTS["paper"]["gain"]
 
     def __post_init__(self):
         super().__post_init__()
@@ -271,13 +307,13 @@ class VelocityController(Controller):
     """
 
     kind = "velocity"
-    threshold: float = 0.3
-    y_full: float = 0.7
-    v_max: float = 0.02
-    a_max: float = 1.0
-    shear_gain: float = 0.0
-    ramp_gain: float = 1.0
-    pred_boost: float = 0.0
+    threshold: float = _DEFAULTS["velocity"]["threshold"]
+    y_full: float = _DEFAULTS["velocity"]["y_full"]
+    v_max: float = _DEFAULTS["velocity"]["v_max"]
+    a_max: float = _DEFAULTS["velocity"]["a_max"]
+    shear_gain: float = _DEFAULTS["velocity"]["shear_gain"]
+    ramp_gain: float = _DEFAULTS["velocity"]["ramp_gain"]
+    pred_boost: float = _DEFAULTS["velocity"]["pred_boost"]
 
     def __post_init__(self):
         super().__post_init__()
@@ -339,7 +375,7 @@ def controller_from_dict(d) -> Controller:
     unknown = sorted(set(d) - names)
     # The C++ side reports every parameter; the ones a law does not use are dropped.
     known = {k: v for k, v in d.items() if k in names}
-    unused = {"gain", "y_full", "v_max", "a_max", "shear_gain", "ramp_gain", "pred_boost"}
+    unused = set(controller_fields())
     bad = [k for k in unknown if k not in unused]
     if bad:
         raise ValueError(f"controller {kind!r} has no parameter {bad[0]!r}")

@@ -1,0 +1,319 @@
+"""Soak and guard cost of the real-time pipeline (run as ``python bench/soak.py``).
+
+Soak: 1e7 ticks of the 6-ridge pipeline (bundled detector, the circuit's
+equaliser, the velocity law) through ``MirrorPipeline.process_block`` in blocks,
+with 1 % bad ticks spread over every kind the pipeline must reject:
+
+    NaN, +Inf, -Inf                   -> nonfinite
+    a finite sample beyond v_limit    -> out_of_range
+    finite samples whose update would overflow a state (L strips at +1e307, R
+    strips at -1e307: within the limit, but the filters' gain takes them past
+    the largest double)               -> overflow
+
+It reports the resident memory growth between the third block (the allocator
+then holds the block-sized numpy buffers) and the end (goal 0), the rejection counts against the number of bad ticks sent (goal: exact, per
+kind), whether any output was not finite (goal: none) and the cost per tick.
+
+Guard cost: the C library of this tree and of ``--base`` (default: the last commit
+before the tick guards) are compiled the same way (-O2, the CMake flags) into a
+temporary directory, with a small timing loop over ``tm_pipeline_step`` linked in,
+and timed alternately in this one process on the same 6-ridge configuration: per
+tick inside C++ (``tm_pipeline_time_step_ns``) and through the C ABI (the handle,
+in-flight and owner checks included). Goal: <= 5 % more per tick.
+
+    python bench/soak.py [--ticks N] [--block B] [--skip-soak] [--skip-guard-cost] [--base REF]
+"""
+from __future__ import annotations
+
+import argparse
+import os
+import platform
+import shutil
+import subprocess
+import sys
+import tempfile
+import time
+from concurrent.futures import ThreadPoolExecutor
+from pathlib import Path
+
+import numpy as np
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+from _common import table
+
+ROOT = Path(__file__).resolve().parents[1]
+FS = 1000.0
+N_RIDGES = 6
+LIMIT = 1e307  # V: finite and huge, so that both out_of_range and overflow can occur
+BASE = "ea6b478"  # the last commit before the tick guards (owner flags, overflow rejection)
+
+
+def cpu_model() -> str:
+    try:
+        for line in Path("/proc/cpuinfo").read_text().splitlines():
+            if line.startswith("model name"):
+                return line.split(":", 1)[1].strip()
+    except OSError:
+        pass
+    return platform.processor() or "unknown CPU"
+
+
+def rss_kib() -> int:
+    """Resident set size of this process now, KiB (Linux), else the peak."""
+    try:
+        pages = int(Path("/proc/self/statm").read_text().split()[1])
+        return pages * os.sysconf("SC_PAGE_SIZE") // 1024
+    except (OSError, ValueError):
+        import resource
+
+        return int(resource.getrusage(resource.RUSAGE_SELF).ru_maxrss)
+
+
+def make_pipeline(v_limit=LIMIT):
+    from tactile_mirror import MirrorPipeline, SlipDetector
+    from tactile_mirror.circuit import PVDFCircuit
+    from tactile_mirror.estimator import StressRateEstimator
+    from tactile_mirror.loop import VelocityController
+
+    det = SlipDetector.default()
+    est = StressRateEstimator(PVDFCircuit(), FS, 2 * N_RIDGES, use_u=True)
+    return MirrorPipeline(det, FS, N_RIDGES, estimator=est, controller=VelocityController(shear_gain=1e-4),
+                          v_limit=v_limit, u_limit=v_limit, activation="fast")
+
+
+KINDS = ("nan", "+inf", "-inf", "out_of_range", "overflow")
+
+
+def bad_block(rng, n, ni, rate):
+    """A block of plausible samples (V) with ``rate`` of its ticks bad, the kinds in
+    turn. Returns the block and the number of bad ticks of each kind."""
+    t = np.arange(n)[:, None]
+    x = 0.02 * np.sin(2 * np.pi * 3.0 * t / FS + np.arange(ni)) + 0.002 * rng.standard_normal((n, ni))
+    bad = np.flatnonzero(rng.random(n) < rate)
+    counts = dict.fromkeys(KINDS, 0)
+    nch = 2 * N_RIDGES
+    for i, row in enumerate(bad):
+        kind = KINDS[i % len(KINDS)]
+        c = rng.integers(ni)
+        if kind == "nan":
+            x[row, c] = np.nan
+        elif kind == "+inf":
+            x[row, c] = np.inf
+        elif kind == "-inf":
+            x[row, c] = -np.inf
+        elif kind == "out_of_range":
+            x[row, c] = 1.7e308
+        else:
+            x[row, :nch:2] = 0.5 * LIMIT
+            x[row, 1:nch:2] = -0.5 * LIMIT
+        counts[kind] += 1
+    return x, counts
+
+
+def soak(n_ticks: int, block: int, rate: float = 0.01) -> bool:
+    p = make_pipeline()
+    rng = np.random.default_rng(2026)
+    sent = dict.fromkeys(KINDS, 0)
+    nonfinite_out = 0
+    rss0 = None
+    busy = 0.0
+    done = 0
+    blocks = 0
+    while done < n_ticks:
+        n = min(block, n_ticks - done)
+        x, counts = bad_block(rng, n, p.n_inputs, rate)
+        t0 = time.perf_counter()
+        out = p.process_block(x)[0]
+        busy += time.perf_counter() - t0
+        nonfinite_out += int(np.count_nonzero(~np.isfinite(out)))
+        for k in KINDS:
+            sent[k] += counts[k]
+        done += n
+        blocks += 1
+        if blocks == 3 or (rss0 is None and done >= n_ticks):
+            rss0 = rss_kib()  # after a warm-up: the allocator holds the block-sized buffers
+    rss1 = rss_kib()
+    s = p.status
+    expect = {"nonfinite": sent["nan"] + sent["+inf"] + sent["-inf"], "out_of_range": sent["out_of_range"],
+              "overflow": sent["overflow"]}
+    rows = [[k, expect[k], s[k], "yes" if s[k] == expect[k] else "NO"] for k in expect]
+    rows.append(["all", sum(expect.values()), s["rejected"], "yes" if s["rejected"] == sum(expect.values()) else "NO"])
+    print(f"\nCPU: {cpu_model()}")
+    table(f"Soak: {n_ticks:.3g} ticks, {N_RIDGES} ridges, {rate:.0%} bad ticks, blocks of {block}",
+          ["rejected as", "bad ticks sent", "counted", "exact"], rows)
+    ns_block = 1e9 * busy / n_ticks
+    ns_inside = p.time_step_ns(200000)
+    table("Soak: memory and cost", ["quantity", "value"], [
+        ["resident memory after 3 blocks (warm-up)", f"{rss0} KiB"],
+        ["resident memory at the end", f"{rss1} KiB"],
+        ["growth", f"{rss1 - rss0} KiB"],
+        ["non-finite outputs", nonfinite_out],
+        ["ticks counted", s["ticks"]],
+        ["fault at the end", s["fault"]],
+        ["cost per tick, process_block (incl. 1 % bad)", f"{ns_block:.0f} ns"],
+        ["cost per tick inside C++ (time_step_ns, clean input)", f"{ns_inside:.0f} ns"],
+    ])
+    ok = all(r[-1] == "yes" for r in rows) and nonfinite_out == 0 and s["ticks"] == n_ticks
+    print(f"\nsoak {'passed' if ok else 'FAILED'}: exact counts, finite outputs; memory growth {rss1 - rss0} KiB")
+    return ok
+
+
+# -- guard cost: this tree against the base commit, same compiler and flags -------------------
+
+LOOP_C = r"""
+#include <time.h>
+#include "tm.h"
+/* ns per tick of n calls of tm_pipeline_step over `period` rows of x. */
+double tm_bench_step_loop(tm_pipeline h, const double* x, size_t period, size_t ni, double* out, size_t no,
+                          long n) {
+    struct timespec t0, t1;
+    clock_gettime(CLOCK_MONOTONIC, &t0);
+    for (long i = 0; i < n; ++i) tm_pipeline_step(h, x + (size_t)(i % (long)period) * ni, ni, out, no);
+    clock_gettime(CLOCK_MONOTONIC, &t1);
+    return ((t1.tv_sec - t0.tv_sec) * 1e9 + (t1.tv_nsec - t0.tv_nsec)) / (double)n;
+}
+"""
+
+
+def build_lib(src: Path, out: Path) -> Path:
+    cxx = shutil.which(os.environ.get("CXX", "c++")) or "g++"
+    cc = shutil.which(os.environ.get("CC", "cc")) or "gcc"
+    flags = ["-O2", "-DNDEBUG", "-fno-math-errno", "-ffp-contract=fast", "-Wno-psabi", "-fPIC"]
+    out.mkdir(parents=True, exist_ok=True)
+    (out / "loop.c").write_text(LOOP_C)
+    subprocess.run([cc, "-std=c99", "-D_POSIX_C_SOURCE=199309L", *flags, "-I", str(src), "-c", str(out / "loop.c"),
+                    "-o", str(out / "loop.o")], check=True)
+    subprocess.run([cxx, "-std=c++17", *flags, "-I", str(src), "-c", str(src / "tm_capi.cpp"), "-o",
+                    str(out / "tm_capi.o")], check=True)
+    lib = out / "libtm_bench.so"
+    subprocess.run([cxx, "-shared", str(out / "tm_capi.o"), str(out / "loop.o"), "-o", str(lib), "-lpthread"],
+                   check=True)
+    return lib
+
+
+class CLib:
+    """One build of the C library, driven with cffi."""
+
+    def __init__(self, lib: Path, header: Path):
+        import cffi
+        from tactile_mirror.loop.capi import _cdef_from_header
+
+        self.ffi = cffi.FFI()
+        self.ffi.cdef(_cdef_from_header(header.read_text()) +
+                      "\ndouble tm_bench_step_loop(tm_pipeline h, const double* x, size_t period, size_t ni,"
+                      " double* out, size_t no, long n);")
+        self.lib = self.ffi.dlopen(str(lib))
+
+    def create(self, config: dict):
+        ffi, lib = self.ffi, self.lib
+        cfg = ffi.new("tm_config*")
+        assert lib.tm_config_init(cfg) == 0
+        keep = []
+
+        def arr(a):
+            if a is None:
+                return ffi.NULL, 0
+            a = np.ascontiguousarray(a, dtype=np.float64)
+            keep.append(a)
+            return ffi.cast("const double*", ffi.from_buffer(a)), (a.shape[0] if a.ndim == 2 else a.size)
+
+        c = config
+        cfg.n_ridges = c["n_ridges"]
+        cfg.fs = c["fs"]
+        cfg.use_u = int(c["use_u"])
+        cfg.sos_v, cfg.n_sos_v = arr(c["sos_v"])
+        cfg.sos_u, cfg.n_sos_u = arr(c["sos_u"])
+        cfg.v_limit = cfg.u_limit = 5.0
+        cfg.n_hidden = c["w1"].shape[0]
+        for k in ("w1", "b1", "w2", "b2", "input_mean", "input_gain"):
+            setattr(cfg, k, arr(c[k])[0])
+        cfg.weights_fs = c["weights_fs"]
+        cfg.activation = 1
+        cfg.controller.kind = 2
+        for k, v in c["controller"].items():
+            if k != "kind":
+                setattr(cfg.controller, k, float(v))
+        h = ffi.new("tm_pipeline*")
+        rc = lib.tm_pipeline_create(cfg, h)
+        if rc != 0:
+            raise RuntimeError(ffi.string(lib.tm_last_error()).decode())
+        return h[0]
+
+    def inside_ns(self, h, n: int) -> float:
+        ns = self.ffi.new("double*")
+        assert self.lib.tm_pipeline_time_step_ns(h, n, ns) == 0
+        return float(ns[0])
+
+    def abi_ns(self, h, x: np.ndarray, n: int) -> float:
+        out = np.zeros(2 + 3 * N_RIDGES)
+        return float(self.lib.tm_bench_step_loop(h, self.ffi.from_buffer("double[]", x), x.shape[0], x.shape[1],
+                                                 self.ffi.from_buffer("double[]", out), out.size, n))
+
+
+def guard_cost(base: str, rounds: int = 7, n_iter: int = 200000) -> bool:
+    git = shutil.which("git")
+    if git is None:
+        print("guard cost: git is needed to check out the base commit", file=sys.stderr)
+        return False
+    tmp = Path(tempfile.mkdtemp(prefix="tm-guard-"))
+    try:
+        base_src = tmp / "base-src"
+        base_src.mkdir()
+        archive = subprocess.run([git, "-C", str(ROOT), "archive", base, "src/cpp"], check=True,
+                                 capture_output=True).stdout
+        subprocess.run(["tar", "-x", "-C", str(base_src)], input=archive, check=True)
+        with ThreadPoolExecutor(2) as pool:
+            f_base = pool.submit(build_lib, base_src / "src" / "cpp", tmp / "base")
+            f_new = pool.submit(build_lib, ROOT / "src" / "cpp", tmp / "new")
+            lib_base, lib_new = f_base.result(), f_new.result()
+        libs = {"before": CLib(lib_base, ROOT / "src" / "cpp" / "tm.h"),
+                "after": CLib(lib_new, ROOT / "src" / "cpp" / "tm.h")}
+        config = make_pipeline(v_limit=5.0).config
+        handles = {k: v.create(config) for k, v in libs.items()}
+        period = 1024
+        t = np.arange(period)[:, None]
+        x = np.ascontiguousarray(0.02 * np.sin(0.01 * t * np.arange(1, 4 * N_RIDGES + 1) + np.arange(4 * N_RIDGES)))
+        res = {k: {"inside": [], "abi": []} for k in libs}
+        for _ in range(rounds):  # alternate, so that load changes hit both alike
+            for k, lib in libs.items():
+                res[k]["inside"].append(lib.inside_ns(handles[k], n_iter))
+                res[k]["abi"].append(lib.abi_ns(handles[k], x, n_iter))
+        rows = []
+        ok = True
+        for what in ("inside", "abi"):
+            b, a = min(res["before"][what]), min(res["after"][what])
+            mb, ma = float(np.median(res["before"][what])), float(np.median(res["after"][what]))
+            ratio = a / b
+            ok &= ratio <= 1.05
+            rows.append([{"inside": "step() inside C++", "abi": "tm_pipeline_step (C ABI)"}[what],
+                         f"{b:.0f} ({mb:.0f})", f"{a:.0f} ({ma:.0f})", f"{100 * (ratio - 1):+.1f} %"])
+        print(f"\nCPU: {cpu_model()}")
+        table(f"Guard cost, 6-ridge tick, ns per tick, best (median) of {rounds} alternating rounds of "
+              f"{n_iter} ticks; before = {base}, same compiler and flags",
+              ["path", "before", "after", "change (best)"], rows)
+        for k, lib in libs.items():
+            lib.lib.tm_pipeline_destroy(handles[k])
+        print(f"\nguard cost {'within' if ok else 'ABOVE'} the 5 % goal")
+        return ok
+    finally:
+        shutil.rmtree(tmp, ignore_errors=True)
+
+
+def main(argv=None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--ticks", type=float, default=1e7)
+    ap.add_argument("--block", type=int, default=100000)
+    ap.add_argument("--base", default=BASE, help="git revision of the 'before' build for the guard cost")
+    ap.add_argument("--skip-soak", action="store_true")
+    ap.add_argument("--skip-guard-cost", action="store_true")
+    args = ap.parse_args(argv)
+    ok = True
+    if not args.skip_soak:
+        ok &= soak(int(args.ticks), args.block)
+    if not args.skip_guard_cost:
+        ok &= guard_cost(args.base)
+    return 0 if ok else 1
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,300 @@
+"""Bad input at the real-time interfaces: overflowing samples, non-finite positions,
+wrong output buffers, non-finite detector features, the controllers' one set of
+defaults and the C header's contract (version, struct sizes)."""
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from tactile_mirror import _core
+from tactile_mirror.circuit import PVDFCircuit
+from tactile_mirror.detector.core import SlipDetector
+from tactile_mirror.detector.network import init_params
+from tactile_mirror.detector.weights import DetectorWeights
+from tactile_mirror.estimator import StressRateEstimator
+from tactile_mirror.filters import SosFilter
+from tactile_mirror.loop import PaperController, VelocityController
+from tactile_mirror.loop.controller import NoController, controller_fields
+from tactile_mirror.pipeline import MirrorPipeline, ReferencePipeline
+
+cffi = pytest.importorskip("cffi")
+from tactile_mirror.loop.capi import CAPIError, CPipeline, load
+
+FS = 1000.0
+DBL_MAX = float(np.finfo(np.float64).max)
+
+
+def weights(h=8, seed=3):
+    rng = np.random.default_rng(seed)
+    return {"w1": rng.normal(size=(h, 5)), "b1": rng.normal(size=h), "w2": 2 * rng.normal(size=(2, h)),
+            "b2": rng.normal(size=2), "input_mean": np.zeros(4),
+            "input_gain": np.array([3e-3, 3e-3, 3e-5, 3e-5]), "fs": FS}
+
+
+def make(controller=None, n_ridges=6, activation="fast", **kw):
+    est = StressRateEstimator(PVDFCircuit(), FS, 2 * n_ridges, use_u=True)
+    return MirrorPipeline(weights(), FS, n_ridges, estimator=est, controller=controller, activation=activation,
+                          **kw)
+
+
+def signals(n, ni, seed=2):
+    rng = np.random.default_rng(seed)
+    return 0.05 * np.sin(np.arange(n)[:, None] * 0.01 * np.arange(1, ni + 1)) + 0.02 * rng.normal(size=(n, ni))
+
+
+# -- one finite huge sample ---------------------------------------------------------
+
+def test_default_limits_are_the_front_end_swing_and_infinite_limits_are_refused():
+    p = make(VelocityController(shear_gain=1e-4))
+    assert p.config["v_limit"] == p.config["u_limit"] == 15.0
+    for bad in (np.inf, np.nan, -1.0):
+        with pytest.raises(ValueError, match="v_limit"):
+            make(v_limit=bad)
+    cfg = make().config
+    cfg["v_limit"] = np.inf
+    with pytest.raises(CAPIError) as e:
+        CPipeline(cfg)
+    assert e.value.code == -3 and "v_limit" in str(e.value)
+
+
+@pytest.mark.parametrize("backend", ["pybind", "capi"])
+@pytest.mark.parametrize("limit", [None, DBL_MAX], ids=["default", "dbl_max"])
+def test_one_huge_sample_does_not_poison_the_loop(backend, limit):
+    """The issue's case: one sample of 1.7e308 V. With the default limits it is out
+    of range; with no limit (DBL_MAX) the update overflows and the tick is rejected
+    as such. Either way every later output is finite and equals the run without it."""
+    kw = {} if limit is None else {"v_limit": limit, "u_limit": limit}
+    p = make(VelocityController(shear_gain=1e-4), **kw)
+    clean = make(VelocityController(shear_gain=1e-4), **kw)
+    if backend == "capi":
+        p = CPipeline(p.config)
+        clean = CPipeline(clean.config)
+    x = signals(600, p.n_inputs)
+    x[100, 0] = 1.7e308
+    x[101, :12:2] = 1.7e308   # L strips up, R strips down: the L-R asymmetry overflows
+    x[101, 1:12:2] = -1.7e308
+    out, acc = p.process_block(x, accepted=True)
+    assert np.all(np.isfinite(out))
+    s = p.status
+    assert s["rejected"] == np.count_nonzero(~acc) >= 1
+    assert s["rejected"] == s["nonfinite"] + s["out_of_range"] + s["overflow"]
+    assert s["last_reason"] == ("out_of_range" if limit is None else "overflow")
+    assert not s["fault"]
+    # the state after a rejected tick is as if the tick never came (controller: the
+    # held outputs drive it for that tick, as for a NaN tick)
+    x2 = x.copy()
+    x2[~acc] = np.nan
+    ref, acc2 = clean.process_block(x2, accepted=True)
+    np.testing.assert_array_equal(acc, acc2)
+    np.testing.assert_array_equal(out, ref)
+
+
+def test_reference_pipeline_rejects_the_same_overflow():
+    p = make(VelocityController(shear_gain=1e-4), activation="exact", v_limit=DBL_MAX, u_limit=DBL_MAX)
+    ref = ReferencePipeline(p.config)
+    x = signals(200, p.n_inputs)
+    x[50, :12:2], x[50, 1:12:2] = DBL_MAX, -DBL_MAX
+    x[51, :12:2], x[51, 1:12:2] = DBL_MAX, -DBL_MAX
+    out = p.process_block(x)[0]
+    r = ref.process_block(x)
+    assert np.all(np.isfinite(r))
+    assert ref.rejected["overflow"] == p.status["overflow"] >= 1
+    np.testing.assert_allclose(r, out, rtol=1e-9, atol=1e-12)
+
+
+def test_sos_filter_rejects_an_overflowing_sample():
+    f = SosFilter([[1.0, 0.0, 0.0, 1.0, -0.5, 0.0]], channels=2)  # y = x + 0.5 y(t-1)
+    f.step([1.0, 2.0])
+    y0 = f.step([DBL_MAX, -DBL_MAX])      # y still finite: accepted
+    assert np.all(np.isfinite(y0)) and f.rejected == 0
+    z0 = f.zi
+    y = f.step([DBL_MAX, -DBL_MAX])       # y = max + max / 2 overflows: rejected
+    np.testing.assert_array_equal(y, y0)  # the previous output is held
+    np.testing.assert_array_equal(f.zi, z0)
+    assert f.rejected == 1
+    y = f.step([np.nan, 0.0])             # a later NaN holds the last accepted output too
+    np.testing.assert_array_equal(y, y0)
+    assert f.rejected == 2
+    g = SosFilter([[1.0, 0.0, 0.0, 1.0, -0.5, 0.0]], channels=1)
+    g.process(np.ones(3))
+    zg = g.zi
+    with pytest.raises(ValueError, match="overflow"):
+        g.process(np.array([1.0, DBL_MAX, DBL_MAX, 1.0]))
+    np.testing.assert_array_equal(g.zi, zg)
+
+
+# -- non-finite positions -------------------------------------------------------------
+
+@pytest.mark.parametrize("value", [np.nan, np.inf, -np.inf])
+def test_non_finite_positions_are_refused_on_both_paths(value):
+    p = make(VelocityController())
+    p.process_block(signals(50, p.n_inputs))
+    before = (p.controller_state, p.status)
+    with pytest.raises(ValueError, match="x0"):
+        p.reset(value)
+    with pytest.raises(ValueError, match="x"):
+        p.set_position(value)
+    with pytest.raises(ValueError, match="x0"):
+        p._core.reset(value)                # the binding itself refuses too
+    with pytest.raises(ValueError, match="x"):
+        p._core.set_position(value)
+    assert (p.controller_state, p.status) == before
+    out = np.zeros(p.n_outputs)
+    p.step(np.zeros(p.n_inputs), out)
+    assert np.all(np.isfinite(out))
+    c = CPipeline(p.config)
+    for call in (c.reset, c.set_position):
+        with pytest.raises(CAPIError) as e:
+            call(value)
+        assert e.value.code == -3
+
+
+# -- wrong output buffers ---------------------------------------------------------------
+
+def test_capi_step_checks_its_buffers():
+    c = CPipeline(make().config)
+    x = np.zeros(c.n_inputs)
+    good = np.zeros(c.n_outputs)
+    c.step(x, good)
+    for out, err in [(np.zeros(c.n_outputs, np.float32), TypeError), (np.zeros(c.n_outputs, np.int64), TypeError),
+                     (np.zeros(c.n_outputs - 1), ValueError), (np.zeros(2 * c.n_outputs)[::2], ValueError),
+                     (np.zeros((1, c.n_outputs)), ValueError), ([0.0] * c.n_outputs, TypeError)]:
+        with pytest.raises(err, match="out"):
+            c.step(x, out)
+    ro = np.zeros(c.n_outputs)
+    ro.flags.writeable = False
+    with pytest.raises(ValueError, match="writeable"):
+        c.step(x, ro)
+    for bad, err in [(np.zeros(c.n_inputs, np.float32), TypeError), (np.zeros(c.n_inputs + 1), ValueError),
+                     (np.zeros(2 * c.n_inputs)[::2], ValueError)]:
+        with pytest.raises(err, match="x"):
+            c.step(bad, good)
+    assert c.status["ticks"] == 1
+
+
+# -- non-finite detector features ------------------------------------------------------------
+
+def _detector(backend, dtype=np.float64):
+    w = DetectorWeights(init_params(4, 6, seed=0), input_mean=np.zeros(4), input_scale=np.ones(4), fs=FS)
+    return SlipDetector(w, dtype=dtype, backend=backend)
+
+
+@pytest.mark.parametrize("backend,dtype", [("cpp", np.float64), ("cpp", np.float32), ("numpy", np.float64)])
+@pytest.mark.parametrize("value", [np.nan, np.inf, -np.inf])
+def test_non_finite_features_are_refused_naming_the_sample(backend, dtype, value):
+    det = _detector(backend, dtype)
+    x = np.random.default_rng(1).normal(size=(3, 4, 20))
+    first = x[:, :, :10].copy()
+    det.run(first)
+    x[1, 2, 5] = value
+    x[2, 0, 7] = value
+    with pytest.raises(ValueError, match=r"ridge 1, channel 2, sample 5"):
+        det.run(x)
+    with pytest.raises(ValueError, match=r"ridge 1, channel 2, sample 5"):
+        det.run(x, reset=False)
+    # the state is what the last good call left
+    ref = _detector(backend, dtype)
+    ref.run(first)
+    good = np.random.default_rng(2).normal(size=(3, 4, 5))
+    np.testing.assert_array_equal(det.run(good, reset=False)[2], ref.run(good, reset=False)[2])
+    if backend == "cpp":
+        with pytest.raises(ValueError, match="ridge 0, channel 3, sample 0"):
+            det.step(np.array([[0, 0, 0, value], [0, 0, 0, 0], [0, 0, 0, 0]], dtype=float))
+
+
+# -- one definition of the controller parameters --------------------------------------------
+
+def test_controller_dataclasses_take_fields_and_defaults_from_cpp():
+    fields = [f[0] for f in _core.controller_fields()]
+    assert list(controller_fields()) == fields
+    for cls, kind in [(NoController, "none"), (PaperController, "paper"), (VelocityController, "velocity")]:
+        d = _core.controller_defaults(kind)
+        obj = cls()
+        for k, v in obj.params().items():
+            assert d[k] == v, (kind, k)
+        law_fields = set(controller_fields(kind))
+        assert law_fields <= set(obj.params()) - {"kind"}
+    p = MirrorPipeline(weights(), FS, 6, estimator=StressRateEstimator(PVDFCircuit(), FS, 12),
+                       controller=VelocityController())
+    assert {k: v for k, v in p._core.controller.items()} == {**_core.controller_defaults("velocity")}
+
+
+def _c_default_velocity_pipeline(w, est):
+    """A pipeline built the way a C program would: tm_config_init, the sections and
+    weights, tm_controller_defaults(TM_CONTROLLER_VELOCITY, ...)."""
+    ffi, lib = load()
+    cfg = ffi.new("tm_config*")
+    assert lib.tm_config_init(cfg) == 0
+    keep = []
+
+    def ptr(a):
+        a = np.ascontiguousarray(a, dtype=np.float64)
+        keep.append(a)
+        return ffi.cast("const double*", ffi.from_buffer(a))
+
+    cfg.n_ridges = 6
+    cfg.sos_v, cfg.n_sos_v = ptr(est.sos_rate), est.sos_rate.shape[0]
+    cfg.sos_u, cfg.n_sos_u = ptr(est.sos_rate2), est.sos_rate2.shape[0]
+    cfg.n_hidden = w["w1"].shape[0]
+    cfg.w1, cfg.b1, cfg.w2, cfg.b2 = ptr(w["w1"]), ptr(w["b1"]), ptr(w["w2"]), ptr(w["b2"])
+    cfg.input_mean, cfg.input_gain = ptr(w["input_mean"]), ptr(w["input_gain"])
+    cfg.weights_fs = FS
+    cfg.activation = 1
+    assert lib.tm_controller_defaults(2, ffi.addressof(cfg.controller)) == 0
+    h = ffi.new("tm_pipeline*")
+    assert lib.tm_pipeline_create(cfg, h) == 0, ffi.string(lib.tm_last_error())
+    return ffi, lib, h[0], cfg
+
+
+def test_default_velocity_law_is_bit_identical_from_c_and_python():
+    w = weights()
+    est = StressRateEstimator(PVDFCircuit(), FS, 12, use_u=True)
+    ffi, lib, h, cfg = _c_default_velocity_pipeline(w, est)
+    py = MirrorPipeline(w, FS, 6, estimator=est, controller=VelocityController(), activation="fast")
+    for name in controller_fields():
+        assert getattr(cfg.controller, name) == py._core.controller[name], name
+    assert cfg.controller.gain == PaperController().gain
+    assert cfg.v_limit == py.config["v_limit"] and cfg.u_limit == py.config["u_limit"]
+    x = 40 * signals(3000, py.n_inputs, seed=5)  # drives y_pred through the ramp
+    x = np.clip(x, -14.0, 14.0)
+    out_c = np.zeros((len(x), py.n_outputs))
+    try:
+        for t in range(len(x)):
+            row = np.ascontiguousarray(x[t])
+            lib.tm_pipeline_step(h, ffi.from_buffer("double[]", row), row.size,
+                                 ffi.from_buffer("double[]", out_c[t]), py.n_outputs)
+    finally:
+        lib.tm_pipeline_destroy(h)
+    out_py = py.process_block(x)[0]
+    assert np.any(out_py[:, 1] != 0.0)          # the law moved the stage
+    np.testing.assert_array_equal(out_c, out_py)  # bit for bit
+    ref = ReferencePipeline(py.config).process_block(x)
+    np.testing.assert_allclose(ref[:, :2], out_py[:, :2], rtol=1e-6, atol=1e-9)  # fast sigmoid: 5e-10
+
+
+# -- the header's contract -----------------------------------------------------------------------
+
+def test_version_string_and_struct_sizes():
+    ffi, lib = load()
+    assert ffi.string(lib.tm_version_string()).decode() == f"tactile-mirror C ABI {lib.tm_abi_version()} " \
+        "(pipeline 0.1.0)"
+    p = CPipeline(make().config)
+    # an older status struct (ABI 2: without overflow / last_reason) gets its prefix only
+    old = ffi.offsetof("tm_pipeline_status", "overflow")
+    buf = ffi.new("char[]", ffi.sizeof("tm_pipeline_status"))
+    for i in range(len(buf)):
+        buf[i] = b"\xab"
+    s = ffi.cast("tm_pipeline_status*", buf)
+    s.struct_size = old
+    assert lib.tm_pipeline_get_status(p.handle, s) == 0
+    assert s.struct_size == old and s.ticks == 0
+    assert bytes(ffi.buffer(buf)[old:]) == b"\xab" * (len(buf) - old)
+    # tm_config: sizes beyond this header's are refused; abi_version 2 is accepted
+    cfg = ffi.new("tm_config*")
+    lib.tm_config_init(cfg)
+    h = ffi.new("tm_pipeline*")
+    cfg.struct_size = ffi.sizeof("tm_config") + 8
+    assert lib.tm_pipeline_create(cfg, h) == -6
+    cfg.struct_size = ffi.sizeof("tm_config") - 8
+    assert lib.tm_pipeline_create(cfg, h) == -6
+    assert b"accepts" in ffi.string(lib.tm_last_error())
+    assert lib.tm_config_init(cfg) == 0 and cfg.abi_version == 3 and cfg.v_limit == 15.0
