@@ -75,8 +75,9 @@ namespace simd {
 enum class Isa : int { baseline = 0, avx2_fma = 1, native = 2 };
 
 // Vector width (bytes) of the base variant's kernels that choose their width:
-// 16 for SSE2/NEON, 32 in a native build for an AVX host.
-#if defined(TM_NATIVE_BUILD) && defined(__AVX__)
+// 16 for SSE2/NEON, 32 in a native build for an AVX2+FMA host (the 32-byte float
+// exp relies on fused multiply-adds, see exp_neg_k).
+#if defined(TM_NATIVE_BUILD) && defined(__AVX2__) && defined(__FMA__)
 constexpr int kBaseBytes = 32;
 #else
 constexpr int kBaseBytes = 16;
@@ -424,7 +425,11 @@ TM_ALWAYS_INLINE Vec<float, 32>::type recip_fast(Vec<float, 32>::type d) {
 // subnormal or infinite. Measured over 2e6 points in [-100, 100] against
 // scipy.special.expit, the sigmoid's |error| is <= 1.7e-16 exact double,
 // <= 4.7e-10 fast double, <= 8.9e-8 exact float, <= 1.9e-7 fast float (1.4e-7 on
-// the AVX2 variant); exp's relative error is bounded in tests/cpp/test_simd.cpp.
+// the AVX2 variant). exp's relative error over the clamp range (measured, 2e5
+// points, against long double; tests/cpp/test_simd.cpp): <= 3.9e-16 exact double,
+// <= 1.9e-9 fast double, <= 1.7e-7 exact float (3.3e-7 on the AVX2 variant),
+// <= 3.9e-6 fast float (growing with |x|: the rounding of x log2(e) to float;
+// <= 1.1e-6 for |x| < 20).
 
 enum class Accuracy : int { exact = 0, fast = 1 };
 
@@ -575,7 +580,8 @@ TM_ALWAYS_INLINE void exp_neg_k(typename Vec<T, B>::type* a, typename Vec<T, B>:
             // |n| > 30, where the sigmoid is below 1e-9 or rounds to 1: there the
             // relative error grows from 2.3e-7 to 3.3e-7 (measured); the absolute
             // error bound of the sigmoid (8.9e-8) does not change. One multiply-add
-            // less is 7% of the detector's float tick.
+            // less is 7% of the detector's float tick. (Needs the multiply-add to
+            // be fused, as in the -O2 build: unfused, exp's error grows to ~5e-6.)
             TM_K y[u] = t[u] * T(0.693147180559945309) + a[u];
         } else {
             TM_K y[u] = t[u] * T(0.693359375) + a[u];
