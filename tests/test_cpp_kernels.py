@@ -13,9 +13,9 @@ CXX = shutil.which("c++") or shutil.which("g++") or shutil.which("clang++")
 pytestmark = pytest.mark.skipif(CXX is None, reason="no C++ compiler on PATH")
 
 
-def build(tmp_path, source, sanitize=True):
+def build(tmp_path, source, sanitize=True, opt="-O1"):
     exe = tmp_path / pathlib.Path(source).stem
-    flags = ["-std=c++17", "-O1", "-g", "-Wall", "-Wextra", "-Wno-psabi", "-ffp-contract=fast", "-pthread"]
+    flags = ["-std=c++17", opt, "-g", "-Wall", "-Wextra", "-Wno-psabi", "-ffp-contract=fast", "-pthread"]
     if sanitize:
         flags += ["-fsanitize=address,undefined", "-fno-sanitize-recover=undefined", "-fno-omit-frame-pointer"]
     cmd = [CXX, *flags, f"-I{ROOT / 'src' / 'cpp'}", str(ROOT / "tests" / "cpp" / source), "-o", str(exe)]
@@ -75,5 +75,17 @@ def test_bptt_kernel_under_sanitizers(tmp_path):
         np.array([loss], dtype=np.float64).tofile(f)
         grad.astype(np.float64).tofile(f)
     out = subprocess.run([str(exe), str(data)], check=False, capture_output=True, text=True, timeout=120)
+    assert out.returncode == 0, out.stdout + out.stderr
+    assert "ok: 0 failures" in out.stdout
+
+
+def test_simd_layer_under_sanitizers(tmp_path):
+    # -O2 as the extension is built: the float exp of the AVX2 variant relies on
+    # the fused multiply-adds that -O2 forms.
+    try:
+        exe = build(tmp_path, "test_simd.cpp", opt="-O2")
+    except subprocess.CalledProcessError as exc:
+        raise AssertionError(f"building tests/cpp/test_simd.cpp with sanitizers failed:\n{exc.stderr}") from exc
+    out = subprocess.run([str(exe)], check=False, capture_output=True, text=True, timeout=120)
     assert out.returncode == 0, out.stdout + out.stderr
     assert "ok: 0 failures" in out.stdout

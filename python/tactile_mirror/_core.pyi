@@ -27,9 +27,9 @@ _F = TypeVar("_F", np.float32, np.float64)
 _FD = TypeVar("_FD", np.float32, np.float64)
 
 _Activation: TypeAlias = Literal["exact", "fast"]
-_DetectorPath: TypeAlias = Literal["generic", "avx2+fma"]
+_DetectorPath: TypeAlias = Literal["avx2+fma", "sse2", "native", "generic"]
 # "avx2" is accepted as a synonym of "avx2+fma" where a path is set.
-_DetectorPathArg: TypeAlias = Literal["generic", "avx2+fma", "avx2"]
+_DetectorPathArg: TypeAlias = Literal["avx2+fma", "avx2", "sse2", "native", "generic", "baseline"]
 _Isa: TypeAlias = Literal["avx2+fma", "sse2", "native", "generic"]
 _ControllerKind: TypeAlias = Literal["none", "paper", "velocity"]
 
@@ -79,7 +79,7 @@ class _SosCascade32(_SosCascade[np.float32]):
     """Multi-channel SOS cascade in float32. Use tactile_mirror.SosFilter instead."""
 
 def simd_path() -> _Isa:
-    """The instruction set the C++ kernels dispatched to on this CPU."""
+    """The code variant of the SIMD layer (simd.hpp) that every C++ kernel runs on this CPU."""
 
 # ---- Jordan MLP slip detector (bind_detector.cpp) ------------------------------------
 
@@ -157,7 +157,7 @@ def detector_sigmoid(
     a: npt.NDArray[np.float64], activation: _Activation = "fast", path: _DetectorPathArg = "avx2+fma"
 ) -> npt.NDArray[np.float64]: ...
 def detector_cpu_has_avx2_fma() -> bool:
-    """True if the AVX2+FMA path of the detector kernel can run on this CPU."""
+    """True if the kernels' AVX2+FMA variant can run on this CPU (and this build has one)."""
 
 def jordan_loss_grad(
     theta: npt.NDArray[np.float64],

@@ -20,12 +20,12 @@
 #include "jordan_bptt.hpp"
 #include "jordan_mlp.hpp"
 #include "owner.hpp"
-#include "simd.hpp"  // DenormalGuard
+#include "simd.hpp"  // DenormalGuard, the code variants
 
 namespace py = pybind11;
-using tm_core::detector::Activation;
-using tm_core::detector::JordanMLP;
-using tm_core::detector::SimdPath;
+using tactile::detector::Activation;
+using tactile::detector::JordanMLP;
+namespace simd = tactile::simd;
 
 namespace {
 
@@ -36,6 +36,16 @@ std::string shape_str(const py::array& a) {
     if (a.ndim() == 1) s << ",";
     s << ")";
     return s.str();
+}
+
+// A code variant by name (simd::parse_isa's names), one this CPU can run.
+simd::Isa parse_path(const std::string& name) {
+    simd::Isa isa;
+    if (!simd::parse_isa(name, &isa))
+        throw py::value_error("path must be '" + std::string(simd::isa_name(simd::Isa::baseline)) +
+                              "' (or 'generic'), 'avx2+fma' or 'native', got '" + name + "'");
+    if (!simd::isa_supported(isa)) throw py::value_error("path '" + name + "' is not supported by this CPU or build");
+    return isa;
 }
 
 Activation parse_activation(const std::string& name) {
@@ -177,20 +187,13 @@ void bind_one(py::module_& m, const char* cls) {
                 Claim claim(p.owner);
                 p.k->set_activation(act);
             })
-        .def_property_readonly("simd_path",
-                               [](const PJ& p) { return std::string(simd_path_name(p.k->simd_path())); })
+        .def_property_readonly("simd_path", [](const PJ& p) { return std::string(simd::isa_name(p.k->isa())); })
         .def(
             "set_simd_path",
             [](PJ& p, const std::string& name) {
-                SimdPath sp;
-                if (name == "generic")
-                    sp = SimdPath::generic;
-                else if (name == "avx2+fma" || name == "avx2")
-                    sp = SimdPath::avx2;
-                else
-                    throw py::value_error("path must be 'generic' or 'avx2+fma', got '" + name + "'");
+                const auto isa = parse_path(name);
                 Claim claim(p.owner);
-                if (!p.k->set_simd_path(sp)) throw py::value_error("path '" + name + "' is not supported by this CPU");
+                p.k->set_isa(isa);
             },
             py::arg("path"))
         .def_property(
@@ -305,28 +308,19 @@ void tm_bind_detector(py::module_& m) {
         "detector_sigmoid",
         [](py::handle a, const std::string& activation, const std::string& path) {
             const Activation act = parse_activation(activation);
-            SimdPath sp;
-            if (path == "generic")
-                sp = SimdPath::generic;
-            else if (path == "avx2+fma" || path == "avx2")
-                sp = SimdPath::avx2;
-            else
-                throw py::value_error("path must be 'generic' or 'avx2+fma', got '" + path + "'");
-            if (sp == SimdPath::avx2 && !tm_core::detector::cpu_has_avx2_fma())
-                throw py::value_error("path 'avx2+fma' is not supported by this CPU");
+            const simd::Isa isa = parse_path(path);
             if (!py::isinstance<py::array>(a)) throw py::type_error("a must be a numpy array");
             py::array arr = py::reinterpret_borrow<py::array>(a);
             if (arr.dtype().is(py::dtype::of<float>())) {
                 auto c = py::array_t<float, py::array::c_style>::ensure(arr);
                 py::array_t<float> out(c.size());
-                tm_core::detector::sigmoid_array<float>(c.data(), out.mutable_data(), std::size_t(c.size()), act, sp);
+                simd::sigmoid_array<float>(c.data(), out.mutable_data(), std::size_t(c.size()), act, isa);
                 return py::array(out);
             }
             if (arr.dtype().is(py::dtype::of<double>())) {
                 auto c = py::array_t<double, py::array::c_style>::ensure(arr);
                 py::array_t<double> out(c.size());
-                tm_core::detector::sigmoid_array<double>(c.data(), out.mutable_data(), std::size_t(c.size()), act,
-                                                         sp);
+                simd::sigmoid_array<double>(c.data(), out.mutable_data(), std::size_t(c.size()), act, isa);
                 return py::array(out);
             }
             throw py::type_error("a must have dtype float32 or float64, got " + std::string(py::str(arr.dtype())));
@@ -370,7 +364,7 @@ void tm_bind_detector(py::module_& m) {
                 if (len.data()[k] < 0 || len.data()[k] > n)
                     throw py::value_error("length must be in [0, " + std::to_string(n) + "], got " +
                                           std::to_string(len.data()[k]) + " at " + std::to_string(k));
-            tm_core::detector::BpttProblem P;
+            tactile::detector::BpttProblem P;
             P.n_inputs = int(nin);
             P.n_hidden = n_hidden;
             P.n_seq = int(S);
@@ -385,7 +379,7 @@ void tm_bind_detector(py::module_& m) {
             double loss;
             {
                 py::gil_scoped_release release;
-                loss = tm_core::detector::jordan_loss_grad(P, th.data(), grad.mutable_data(), n_threads);
+                loss = tactile::detector::jordan_loss_grad(P, th.data(), grad.mutable_data(), n_threads);
             }
             return py::make_tuple(loss, grad);
         },
@@ -393,6 +387,7 @@ void tm_bind_detector(py::module_& m) {
         py::arg("length"), py::arg("n_hidden"), py::arg("n_threads") = 1,
         "Weighted cross-entropy loss of the Jordan net and its exact BPTT gradient (float64, no weight decay): "
         "network.loss_and_grad in C++, each sequence run for its first length[s] samples. Returns (loss, grad).");
-    m.def("detector_cpu_has_avx2_fma", &tm_core::detector::cpu_has_avx2_fma,
-          "True if the AVX2+FMA path of the detector kernel can run on this CPU.");
+    m.def(
+        "detector_cpu_has_avx2_fma", []() { return simd::isa_supported(simd::Isa::avx2_fma); },
+        "True if the kernels' AVX2+FMA variant can run on this CPU (and this build has one).");
 }

@@ -231,7 +231,7 @@ void bind_one(py::module_& m, const char* cls) {
         .def_property_readonly("dtype", [](const PP&) { return py::dtype::of<T>(); })
         .def_property_readonly("detector_dtype", [](const PP&) { return py::dtype::of<TD>(); })
         .def_property_readonly("simd_path", [](const PP& s) {
-            return std::string("filters ") + tactile::isa_name(s.p->filter_isa()) + ", detector " +
+            return std::string("filters ") + tactile::simd::isa_name(s.p->filter_isa()) + ", detector " +
                    s.p->simd_path();
         })
         .def_property_readonly("controller", [](const PP& s) { return controller_dict(s.p->controller().params()); })

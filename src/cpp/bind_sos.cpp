@@ -99,12 +99,12 @@ void bind_cascade(py::module_& m, const char* name) {
              py::arg("sos"), py::arg("channels"), py::arg("forms"))
         .def_property_readonly("channels", [](C& c) { return c.k.channels(); })
         .def_property_readonly("sections", [](C& c) { return c.k.sections(); })
-        .def_property_readonly("isa", [](C& c) { return std::string(tactile::isa_name(c.k.isa())); })
+        .def_property_readonly("isa", [](C& c) { return std::string(tactile::simd::isa_name(c.k.isa())); })
         .def(
             "use_baseline_isa",
             [](C& c) {
                 BusyLock<T> lock(c);
-                c.k.set_isa(tactile::Isa::baseline);
+                c.k.set_isa(tactile::simd::Isa::baseline);
             },
             "Run the portable baseline kernels (testing aid).")
         .def_property_readonly("rejected", [](C& c) { return c.k.rejected() + c.overflow; },
@@ -259,6 +259,7 @@ void bind_cascade(py::module_& m, const char* name) {
 void tm_bind_sos(py::module_& m) {
     bind_cascade<double>(m, "_SosCascade64");
     bind_cascade<float>(m, "_SosCascade32");
-    m.def("simd_path", []() { return std::string(tactile::isa_name(tactile::detect_isa())); },
-          "The instruction set the C++ kernels dispatched to on this CPU.");
+    m.def("simd_path", []() { return std::string(tactile::simd::isa_name(tactile::simd::detect_isa())); },
+          "The code variant of the SIMD layer (simd.hpp) that every C++ kernel runs on this CPU: "
+          "'avx2+fma', 'sse2' (x86-64 baseline), 'native' (-DTM_NATIVE=ON build) or 'generic' (other CPUs).");
 }

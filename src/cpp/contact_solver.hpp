@@ -84,15 +84,15 @@ inline void lu_update_row8(double* ri, const double* U, std::size_t lda, std::si
     const double *u4 = U + 4 * lda, *u5 = U + 5 * lda, *u6 = U + 6 * lda, *u7 = U + 7 * lda;
     std::size_t j = ke;
     if (m - ke >= 4) {  // 4-wide (two SSE2 registers on the baseline); no loop-carried value
-        using V = vec<double>;
-        const V v0 = splat(l0), v1 = splat(l1), v2 = splat(l2), v3 = splat(l3);
-        const V v4 = splat(l4), v5 = splat(l5), v6 = splat(l6), v7 = splat(l7);
+        using V = simd::vec<double>;
+        const V v0 = simd::splat(l0), v1 = simd::splat(l1), v2 = simd::splat(l2), v3 = simd::splat(l3);
+        const V v4 = simd::splat(l4), v5 = simd::splat(l5), v6 = simd::splat(l6), v7 = simd::splat(l7);
         for (; j + 4 <= m; j += 4) {
-            const V s0 = v0 * load_unaligned(u0 + j) + v1 * load_unaligned(u1 + j) + v2 * load_unaligned(u2 + j) +
-                         v3 * load_unaligned(u3 + j);
-            const V s1 = v4 * load_unaligned(u4 + j) + v5 * load_unaligned(u5 + j) + v6 * load_unaligned(u6 + j) +
-                         v7 * load_unaligned(u7 + j);
-            const V r = load_unaligned(ri + j) - (s0 + s1);
+            const V s0 = v0 * simd::load<V>(u0 + j) + v1 * simd::load<V>(u1 + j) +
+                         v2 * simd::load<V>(u2 + j) + v3 * simd::load<V>(u3 + j);
+            const V s1 = v4 * simd::load<V>(u4 + j) + v5 * simd::load<V>(u5 + j) +
+                         v6 * simd::load<V>(u6 + j) + v7 * simd::load<V>(u7 + j);
+            const V r = simd::load<V>(ri + j) - (s0 + s1);
             std::memcpy(ri + j, &r, sizeof(r));
         }
     }
@@ -375,9 +375,10 @@ public:
             if (a == 0.0) continue;
             const double* cj = C_.data() + j * n2;
             std::size_t i = 0;
-            const vec<double> av = splat(a);
+            using V = simd::vec<double>;
+            const V av = simd::splat(a);
             for (; i + 4 <= n2; i += 4) {
-                const vec<double> r = load_unaligned(u + i) + load_unaligned(cj + i) * av;
+                const V r = simd::load<V>(u + i) + simd::load<V>(cj + i) * av;
                 std::memcpy(u + i, &r, sizeof(r));
             }
             for (; i < n2; ++i) u[i] += cj[i] * a;

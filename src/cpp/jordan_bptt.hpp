@@ -26,9 +26,9 @@
 #include <thread>
 #include <vector>
 
-#include "jordan_mlp.hpp"  // sigmoid_array, SimdPath
+#include "simd.hpp"
 
-namespace tm_core {
+namespace tactile {
 namespace detector {
 
 struct BpttProblem {
@@ -65,7 +65,8 @@ struct Work {
 };
 
 // Loss of sequences [s0, s1) added to *loss, gradient to g (packed like theta).
-// B: vector width of the hidden-unit sigmoid (16 generic, 32 in the AVX2 build).
+// B: vector width (bytes) of the hidden-unit sigmoid (simd::kBaseBytes in the base
+// variant, 32 in the AVX2 variant).
 template <int B>
 __attribute__((always_inline)) inline void run_block_impl(const BpttProblem& P, const double* theta, int s0, int s1,
                                                           double* loss, double* g, const Work& W) {
@@ -107,7 +108,7 @@ __attribute__((always_inline)) inline void run_block_impl(const BpttProblem& P, 
         for (std::ptrdiff_t t = 0; t < L; ++t) {
             double* h = A + t * H;
             for (int j = 0; j < H; ++j) h[j] += wfb[j] * p;
-            detail::sigmoid_array_impl<double, B, Activation::exact>(h, h, std::size_t(H));
+            simd::sigmoid_array_impl<double, B, simd::Accuracy::exact>(h, h, std::size_t(H));
             double o0 = b2[0], o1 = b2[1];
             for (int j = 0; j < H; ++j) {
                 o0 += w2[j] * h[j];
@@ -164,26 +165,26 @@ __attribute__((always_inline)) inline void run_block_impl(const BpttProblem& P, 
     }
 }
 
-// The same code compiled twice; the loops over hidden units vectorise (O3) in
-// the AVX2+FMA copy, chosen at run time like the inference kernel's paths.
-__attribute__((optimize("O3"))) inline void run_block_generic(const BpttProblem& P, const double* theta, int s0,
-                                                               int s1, double* loss, double* g, const Work& W) {
-    run_block_impl<16>(P, theta, s0, s1, loss, g, W);
+// The same code compiled per variant of the SIMD layer; the loops over hidden
+// units vectorise (O3) in the AVX2+FMA copy.
+__attribute__((optimize("O3"))) inline void run_block_base(const BpttProblem& P, const double* theta, int s0,
+                                                            int s1, double* loss, double* g, const Work& W) {
+    run_block_impl<simd::kBaseBytes>(P, theta, s0, s1, loss, g, W);
 }
-#ifdef TM_DETECTOR_X86
-__attribute__((target("avx2,fma"), optimize("O3"), noinline)) inline void run_block_avx2(
+#if TM_HAVE_DISPATCH
+TM_TARGET_AVX2 __attribute__((optimize("O3"), noinline)) inline void run_block_avx2(
     const BpttProblem& P, const double* theta, int s0, int s1, double* loss, double* g, const Work& W) {
     run_block_impl<32>(P, theta, s0, s1, loss, g, W);
 }
 #endif
 
 inline void run_block(const BpttProblem& P, const double* theta, int s0, int s1, double* loss, double* g,
-                      const Work& W, SimdPath path) {
-#ifdef TM_DETECTOR_X86
-    if (path == SimdPath::avx2) return run_block_avx2(P, theta, s0, s1, loss, g, W);
+                      const Work& W, simd::Isa isa) {
+#if TM_HAVE_DISPATCH
+    if (isa == simd::Isa::avx2_fma) return run_block_avx2(P, theta, s0, s1, loss, g, W);
 #endif
-    (void)path;
-    run_block_generic(P, theta, s0, s1, loss, g, W);
+    (void)isa;
+    run_block_base(P, theta, s0, s1, loss, g, W);
 }
 
 }  // namespace bptt_detail
@@ -210,7 +211,7 @@ inline double jordan_loss_grad(const BpttProblem& P, const double* theta, double
     // Per thread: see bptt_detail::Work.
     const std::size_t per = std::size_t(max_len) * (H + 2) + std::size_t(2 * m + 1) * H;
     std::vector<double> work_mem(per * nt);
-    const SimdPath path = cpu_has_avx2_fma() ? SimdPath::avx2 : SimdPath::generic;
+    const simd::Isa isa = simd::detect_isa();
     auto work = [&](int k) {
         bptt_detail::Work W;
         W.a = work_mem.data() + per * k;
@@ -220,7 +221,7 @@ inline double jordan_loss_grad(const BpttProblem& P, const double* theta, double
         W.w1t = W.acc + (m + 1) * H;
         for (int b = k; b < n_blocks; b += nt) {
             const int s0 = b * kBpttBlock, s1 = std::min(P.n_seq, s0 + kBpttBlock);
-            bptt_detail::run_block(P, theta, s0, s1, &block_loss[b], &block_grad[std::size_t(b) * n_par], W, path);
+            bptt_detail::run_block(P, theta, s0, s1, &block_loss[b], &block_grad[std::size_t(b) * n_par], W, isa);
         }
     };
     if (nt == 1) {
@@ -250,4 +251,4 @@ inline double jordan_loss_grad(const BpttProblem& P, const double* theta, double
 }
 
 }  // namespace detector
-}  // namespace tm_core
+}  // namespace tactile

@@ -19,11 +19,12 @@
 //
 // Design (RTNeural-like): sizes are fixed at construction, where all buffers are
 // allocated; step() and run() allocate nothing and throw nothing. N instances
-// (one per ridge) share one weight set. The SIMD code is written with GCC vector
-// extensions and compiled twice: for the baseline ISA and for AVX2+FMA; the AVX2
-// path is selected at construction with __builtin_cpu_supports. step() and run()
-// go through the same compiled function, so they agree bit for bit. No pybind11
-// or Python in this header.
+// (one per ridge) share one weight set. The SIMD code is written over the
+// library's SIMD layer (simd.hpp: vector types, broadcasts, transposes, lane
+// reductions, the sigmoid) and compiled per code variant; the variant is the
+// layer's run-time choice (simd::detect_isa) unless set with set_isa(). step()
+// and run() go through the same compiled function, so they agree bit for bit. No
+// pybind11 or Python in this header.
 //
 // Layout: the hidden units sit in the SIMD lanes (W1 columns, b1 and W2 rows are
 // stored as vectors of consecutive hidden units, H padded with zero weights) and
@@ -41,16 +42,9 @@
 // AVX2 machine (Zen 3): about 0.7x the time of the previous instances-in-lanes
 // kernel in float, 0.6x in double.
 //
-// Activations: Activation::exact is accurate to a few ulp (exp with Cody-Waite
-// range reduction, a two-constant split of ln2 except for float on the AVX2 path,
-// see sigmoid_k, and a near-minimax polynomial, degree 11 for double, 6 for
-// float, then a true division; the scalar step_one uses std::exp);
-// Activation::fast uses 2^y = 2^n * P(f), |f| <= 1/2 (degree 6 for double,
-// relative error < 2e-9; degree 5 for float, < 1.1e-7) and, for float on x86, a
-// reciprocal estimate with one Newton step. Both evaluate the polynomials by
-// Estrin's scheme. Measured over 2e6 points in [-100, 100] against
-// scipy.special.expit: |error| <= 1.7e-16 exact double, <= 4.7e-10 fast double,
-// <= 8.9e-8 exact float, <= 1.9e-7 fast float (1.4e-7 on the AVX2 path).
+// Activations: Activation (simd::Accuracy) exact or fast, the layer's sigmoid
+// approximations, with their measured errors in simd.hpp; the scalar step_one
+// uses std::exp for exact.
 #pragma once
 
 #include <chrono>
@@ -66,519 +60,13 @@
 #include <string>
 #include <type_traits>
 
-#if (defined(__x86_64__) || defined(__i386__)) && (defined(__GNUC__) || defined(__clang__))
-#define TM_DETECTOR_X86 1
-#include <immintrin.h>
-#endif
+#include "simd.hpp"
 
-#if defined(__clang__)
-#define TM_DETECTOR_SHUF(V, IV, a, b, ...) __builtin_shufflevector(a, b, __VA_ARGS__)
-#else
-#define TM_DETECTOR_SHUF(V, IV, a, b, ...) __builtin_shuffle(a, b, IV{__VA_ARGS__})
-#endif
-
-// Vector types are passed between always-inline helpers only; the ABI note about
-// 32-byte vector arguments does not apply.
-#pragma GCC diagnostic push
-#pragma GCC diagnostic ignored "-Wpsabi"
-
-namespace tm_core {
+namespace tactile {
 namespace detector {
 
-enum class Activation : int { exact = 0, fast = 1 };
-enum class SimdPath : int { generic = 0, avx2 = 1 };
-
-inline const char* simd_path_name(SimdPath p) { return p == SimdPath::avx2 ? "avx2+fma" : "generic"; }
-
-/// True when this CPU can run the AVX2+FMA path.
-inline bool cpu_has_avx2_fma() {
-#ifdef TM_DETECTOR_X86
-    return __builtin_cpu_supports("avx2") && __builtin_cpu_supports("fma");
-#else
-    return false;
-#endif
-}
-
-namespace detail {
-
-template <typename T>
-struct Scalar;
-
-template <>
-struct Scalar<float> {
-    typedef std::int32_t iscalar;
-    static constexpr float clamp = 80.0f;
-    // 1.5 * 2^23 + 127: y + magic rounds y to an integer n (in the default
-    // rounding mode) and leaves n + 127 in the low mantissa bits, so that those
-    // bits shifted to the exponent field are 2^n.
-    static constexpr float round_magic = 12583039.0f;
-    static constexpr int mant = 23;
-};
-
-template <>
-struct Scalar<double> {
-    typedef std::int64_t iscalar;
-    static constexpr double clamp = 600.0;
-    static constexpr double round_magic = 6755399441056767.0;  // 1.5 * 2^52 + 1023, as above
-    static constexpr int mant = 52;
-};
-
-// SIMD vector of Bytes bytes (16: SSE2/NEON baseline, 32: AVX2).
-template <typename T, int Bytes>
-struct Vec;
-
-#define TM_DETECTOR_VEC(T, IT, BYTES)                                       \
-    template <>                                                             \
-    struct Vec<T, BYTES> : Scalar<T> {                                      \
-        typedef T type __attribute__((vector_size(BYTES)));                 \
-        typedef IT itype __attribute__((vector_size(BYTES)));               \
-        static constexpr int lanes = BYTES / int(sizeof(T));                \
-    };
-TM_DETECTOR_VEC(float, std::uint32_t, 16)
-TM_DETECTOR_VEC(float, std::uint32_t, 32)
-TM_DETECTOR_VEC(double, std::uint64_t, 16)
-TM_DETECTOR_VEC(double, std::uint64_t, 32)
-#undef TM_DETECTOR_VEC
-
-// Polynomial coefficients, lowest degree first.
-// fast: 2^f on [-1/2, 1/2]. Double: degree 6, relative error < 2e-9 (least
-// squares on Chebyshev nodes). Float: degree 5 with c0 = 1, relative error
-// < 1.1e-7 with the coefficients rounded to float (Lawson minimax); one degree
-// less than double because float rounding (6e-8) dominates anyway.
-template <typename T>
-struct FastPoly;
-template <>
-struct FastPoly<double> {
-    static constexpr int degree = 6;
-    static constexpr double c[7] = {1.0000000005920207,    0.69314720560051013,  0.24022646608714027,
-                                    0.055503289975174459,  0.0096185195343476276, 0.001339986036321298,
-                                    0.00015337576834253096};
-};
-template <>
-struct FastPoly<float> {
-    static constexpr int degree = 5;
-    static constexpr double c[6] = {1.0,
-                                    0.6931470036506653,
-                                    0.24022242426872253,
-                                    0.05550733581185341,
-                                    0.009671512991189957,
-                                    0.001326472731307149};
-};
-// exact: exp(r) on [-ln2/2, ln2/2], near-minimax with c0 = c1 = 1. Double: degree
-// 11 (Chebyshev fit, relative error 2e-17 with double coefficients); float:
-// degree 6 (Lawson minimax, 4e-9 with float coefficients).
-template <typename T>
-struct ExpPoly;
-template <>
-struct ExpPoly<double> {
-    static constexpr int degree = 11;
-    static constexpr double c[12] = {1.0,
-                                     1.0,
-                                     0.5000000000000019,
-                                     0.1666666666666668,
-                                     0.0416666666664881,
-                                     0.008333333333319601,
-                                     0.0013888888952314775,
-                                     0.00019841269890047113,
-                                     2.4801485482328494e-05,
-                                     2.755724091857897e-06,
-                                     2.763263963904103e-07,
-                                     2.5110037605963777e-08};
-};
-template <>
-struct ExpPoly<float> {
-    static constexpr int degree = 6;
-    static constexpr double c[7] = {1.0,
-                                    1.0,
-                                    0.4999999403953552,
-                                    0.1666652113199234,
-                                    0.04166838899254799,
-                                    0.008368710055947304,
-                                    0.001381461275741458};
-};
-
-// sum_k s_k c[k] x^k (s_k = -1 for odd k when Neg, that is P(-x)) by Estrin's
-// scheme (degree N <= 15): a dependency chain of about log2(N) + 1 multiply-adds
-// instead of N for Horner's rule, for a few more operations. Measured: as fast
-// as Horner's rule in the AVX2 kernel and clearly faster in the baseline SSE2
-// kernel (no FMA there, so Horner's chain is twice as long).
-template <typename T, int N, bool Neg>
-__attribute__((always_inline)) inline T coef(const double* c, int k) {
-    return T(k > N ? 0.0 : (Neg && (k & 1) ? -c[k] : c[k]));
-}
-
-template <typename T, int N, bool Neg, typename V>
-__attribute__((always_inline)) inline V estrin(const double* c, V x) {
-    const auto cf = [c](int k) __attribute__((always_inline)) { return coef<T, N, Neg>(c, k); };
-    V q[8];
-    constexpr int NQ = (N + 2) / 2;
-    _Pragma("GCC unroll 8") for (int k = 0; k < NQ; ++k) q[k] = (2 * k + 1 <= N) ? cf(2 * k + 1) * x + cf(2 * k)
-                                                                                  : V{} + cf(2 * k);
-    V x2 = x * x;
-    int n = NQ;
-    _Pragma("GCC unroll 4") for (int lvl = 0; lvl < 3 && n > 1; ++lvl) {
-        _Pragma("GCC unroll 8") for (int k = 0; 2 * k < n; ++k) q[k] = (2 * k + 1 < n) ? q[2 * k + 1] * x2 + q[2 * k]
-                                                                                       : q[2 * k];
-        n = (n + 1) / 2;
-        x2 = x2 * x2;
-    }
-    return q[0];
-}
-
-template <typename T>
-__attribute__((always_inline)) inline T clampv(T a, T lo, T hi) {
-    return a < lo ? lo : (a > hi ? hi : a);
-}
-
-// Scalar sigmoids (used by step_one and as the reference inside the kernel).
-template <typename T>
-inline T sigmoid_exact_scalar(T a) {
-    a = clampv<T>(a, -Scalar<T>::clamp, Scalar<T>::clamp);
-    return T(1) / (T(1) + std::exp(-a));
-}
-
-template <typename T>
-inline T sigmoid_fast_scalar(T a) {
-    typedef typename std::make_unsigned<typename Scalar<T>::iscalar>::type I;  // modular shifts
-    a = clampv<T>(a, -Scalar<T>::clamp, Scalar<T>::clamp);
-    const T y = a * T(-1.4426950408889634);
-    const T t = y + Scalar<T>::round_magic;  // round to nearest integer (no -ffast-math)
-    I tb;
-    std::memcpy(&tb, &t, sizeof tb);
-    const T f = y - (t - Scalar<T>::round_magic);
-    const T p = estrin<T, FastPoly<T>::degree, false>(FastPoly<T>::c, f);
-    const I eb = static_cast<I>(tb << Scalar<T>::mant);
-    T scale;
-    std::memcpy(&scale, &eb, sizeof scale);
-    return T(1) / (T(1) + p * scale);
-}
-
-// 1/d for d >= 1. Exact division by default; for float on x86 the hardware
-// reciprocal estimate refined by one Newton step (relative error < 2.5e-7 after
-// rounding), which removes the divider from the fast path.
-template <typename V>
-__attribute__((always_inline)) inline V recip_fast(V d) {
-    return 1 / d;
-}
-#ifdef TM_DETECTOR_X86
-__attribute__((always_inline)) inline Vec<float, 16>::type recip_fast(Vec<float, 16>::type d) {
-    typedef Vec<float, 16>::type V;
-    const V r = (V)_mm_rcp_ps((__m128)d);
-    return r + r * (1.0f - d * r);
-}
-// Only ever inlined into the AVX2 tick: the builtin is expanded there.
-__attribute__((always_inline)) inline Vec<float, 32>::type recip_fast(Vec<float, 32>::type d) {
-    typedef Vec<float, 32>::type V;
-    const V r = (V)__builtin_ia32_rcpps256((__v8sf)d);
-    return r + r * (1.0f - d * r);
-}
-#endif
-
-// Clamp to [-c, c] with min/max instructions (a NaN argument becomes -c).
-template <typename V, typename T>
-__attribute__((always_inline)) inline V clamp_sym(V a, T c) {
-    const V lo = V{} - c, hi = V{} + c;
-    a = a > lo ? a : lo;
-    return a < hi ? a : hi;
-}
-#ifdef TM_DETECTOR_X86
-__attribute__((always_inline)) inline Vec<float, 16>::type clamp_sym(Vec<float, 16>::type a, float c) {
-    typedef Vec<float, 16>::type V;
-    return (V)__builtin_ia32_minps(__builtin_ia32_maxps((__v4sf)a, (__v4sf)(V{} - c)), (__v4sf)(V{} + c));
-}
-__attribute__((always_inline)) inline Vec<double, 16>::type clamp_sym(Vec<double, 16>::type a, double c) {
-    typedef Vec<double, 16>::type V;
-    return (V)__builtin_ia32_minpd(__builtin_ia32_maxpd((__v2df)a, (__v2df)(V{} - c)), (__v2df)(V{} + c));
-}
-// The 32-byte versions are only ever inlined into the AVX2 tick.
-__attribute__((always_inline)) inline Vec<float, 32>::type clamp_sym(Vec<float, 32>::type a, float c) {
-    typedef Vec<float, 32>::type V;
-    return (V)__builtin_ia32_minps256(__builtin_ia32_maxps256((__v8sf)a, (__v8sf)(V{} - c)), (__v8sf)(V{} + c));
-}
-__attribute__((always_inline)) inline Vec<double, 32>::type clamp_sym(Vec<double, 32>::type a, double c) {
-    typedef Vec<double, 32>::type V;
-    return (V)__builtin_ia32_minpd256(__builtin_ia32_maxpd256((__v4df)a, (__v4df)(V{} - c)),
-                                      (__v4df)(V{} + c));
-}
-#endif
-
-// K independent sigmoids in place, computed stage by stage across the K vectors
-// so that their dependency chains interleave in the instruction stream (the
-// sigmoid is a long chain, and the out-of-order window holds only a few of them
-// at a time). Scaled (fast only): the argument is already y = -a log2(e) (the
-// kernel folds the factor into the weights), which saves two multiply-adds.
-#define TM_K _Pragma("GCC unroll 16") for (int u = 0; u < K; ++u)
-template <typename T, int B, Activation A, int K, bool Scaled = false>
-__attribute__((always_inline)) inline void sigmoid_k(typename Vec<T, B>::type* a) {
-    typedef Vec<T, B> VT;
-    typedef typename VT::type V;
-    typedef typename VT::itype IV;
-    static_assert(!Scaled || A == Activation::fast, "scaled arguments are for the fast sigmoid");
-    V y[K], t[K], p[K];
-    IV tb[K];
-    if (Scaled) {
-        TM_K y[u] = clamp_sym(a[u], T(VT::clamp * 1.4426950408889634));
-        TM_K t[u] = y[u] + VT::round_magic;
-    } else {
-        TM_K a[u] = clamp_sym(a[u], T(VT::clamp));
-        TM_K y[u] = a[u] * T(-1.4426950408889634);
-        TM_K t[u] = y[u] + VT::round_magic;
-    }
-    // The low mantissa bits of t hold round(y) + bias.
-    TM_K std::memcpy(&tb[u], &t[u], sizeof(IV));
-    TM_K t[u] = t[u] - VT::round_magic;  // n = round(y)
-    if (A == Activation::exact) {
-        // exp(-a) to about one ulp: -a = n ln2 - s, |s| <= ln2/2 (Cody-Waite split
-        // of ln2, s = a + n ln2), exp(-s) by the polynomial, then 1/(1 + exp(-a))
-        // with a true division.
-        if (sizeof(T) == 8) {
-            TM_K y[u] = t[u] * T(0.693147180369123816490) + a[u];
-            TM_K y[u] = t[u] * T(1.90821492927058770002e-10) + y[u];
-        } else if (B == 32) {
-            // Float on the FMA path: one fused step with ln2 rounded to float. Its
-            // error, |n| * 1.9e-9 relative in exp(-a), exceeds a float ulp only for
-            // |n| > 30, where the sigmoid is below 1e-9 or rounds to 1: there the
-            // relative error grows from 2.3e-7 to 3.3e-7 (measured); the absolute
-            // error bound (8.9e-8) does not change. One multiply-add less is 7%
-            // of the float tick.
-            TM_K y[u] = t[u] * T(0.693147180559945309) + a[u];
-        } else {
-            TM_K y[u] = t[u] * T(0.693359375) + a[u];
-            TM_K y[u] = t[u] * T(-2.12194440e-4) + y[u];
-        }
-        TM_K p[u] = estrin<T, ExpPoly<T>::degree, true>(ExpPoly<T>::c, y[u]);
-    } else {
-        TM_K y[u] = y[u] - t[u];  // f = y - n, |f| <= 1/2 (exact)
-        TM_K p[u] = estrin<T, FastPoly<T>::degree, false>(FastPoly<T>::c, y[u]);
-    }
-    TM_K {
-        const IV eb = tb[u] << VT::mant;
-        V scale;
-        std::memcpy(&scale, &eb, sizeof scale);
-        t[u] = p[u] * scale + T(1);
-    }
-    if (A == Activation::exact) {
-        TM_K a[u] = T(1) / t[u];
-    } else {
-        TM_K a[u] = recip_fast(t[u]);
-    }
-}
-#undef TM_K
-
-// The sigmoid as the kernel's hidden layer computes it (for the fast activation
-// the kernel's pre-activation is already scaled by -log2(e); here one multiply).
-template <typename T, int B, Activation A>
-__attribute__((always_inline)) inline typename Vec<T, B>::type sigmoid_vec(typename Vec<T, B>::type a) {
-    if (A == Activation::fast) {
-        a = a * T(-1.4426950408889634);
-        sigmoid_k<T, B, Activation::fast, 1, true>(&a);
-    } else {
-        sigmoid_k<T, B, A, 1>(&a);
-    }
-    return a;
-}
-
-template <typename T, int B, Activation A>
-__attribute__((always_inline)) inline void sigmoid_array_impl(const T* in, T* out, std::size_t n) noexcept {
-    typedef typename Vec<T, B>::type V;
-    constexpr int NL = Vec<T, B>::lanes;
-    std::size_t i = 0;
-    for (; i + NL <= n; i += NL) {
-        V v;
-        std::memcpy(&v, in + i, sizeof v);
-        v = sigmoid_vec<T, B, A>(v);
-        std::memcpy(out + i, &v, sizeof v);
-    }
-    if (i < n) {
-        V v = V{};
-        for (std::size_t k = i; k < n; ++k) v[k - i] = in[k];
-        v = sigmoid_vec<T, B, A>(v);
-        for (std::size_t k = i; k < n; ++k) out[k] = v[k - i];
-    }
-}
-
-#ifdef TM_DETECTOR_X86
-template <typename T, Activation A>
-__attribute__((target("avx2,fma"), noinline)) void sigmoid_array_avx2(const T* in, T* out, std::size_t n) noexcept {
-    sigmoid_array_impl<T, 32, A>(in, out, n);
-}
-#endif
-
-// One value from memory into every lane (a single broadcast load on x86).
-template <typename T, int B>
-__attribute__((always_inline)) inline typename Vec<T, B>::type bcast(const T* p) {
-    return typename Vec<T, B>::type{} + *p;
-}
-#ifdef TM_DETECTOR_X86
-template <>
-__attribute__((always_inline)) inline Vec<float, 16>::type bcast<float, 16>(const float* p) {
-    return (Vec<float, 16>::type)_mm_load1_ps(p);
-}
-template <>
-__attribute__((always_inline)) inline Vec<double, 16>::type bcast<double, 16>(const double* p) {
-    return (Vec<double, 16>::type)_mm_load1_pd(p);
-}
-// The 32-byte versions are only ever inlined into the AVX2 tick.
-template <>
-__attribute__((always_inline)) inline Vec<float, 32>::type bcast<float, 32>(const float* p) {
-    return (Vec<float, 32>::type)__builtin_ia32_vbroadcastss256(p);
-}
-template <>
-__attribute__((always_inline)) inline Vec<double, 32>::type bcast<double, 32>(const double* p) {
-    return (Vec<double, 32>::type)__builtin_ia32_vbroadcastsd256(p);
-}
-#endif
-
-// Transpose-and-add: s[0..lanes-1] -> one vector whose lane k is the sum of the
-// lanes of s[k]. log2(lanes) levels of two in-lane shuffles and one add per pair.
-template <typename T, int B>
-struct Reduce;
-template <>
-struct Reduce<float, 32> {
-    typedef Vec<float, 32>::type V;
-    typedef Vec<float, 32>::itype IV;
-    static __attribute__((always_inline)) inline V pair(V x, V y, int lvl) {
-        if (lvl < 2)  // [x0+x1, x2+x3, y0+y1, y2+y3 | ...]
-            return TM_DETECTOR_SHUF(V, IV, x, y, 0, 2, 8, 10, 4, 6, 12, 14) +
-                   TM_DETECTOR_SHUF(V, IV, x, y, 1, 3, 9, 11, 5, 7, 13, 15);
-        return TM_DETECTOR_SHUF(V, IV, x, y, 0, 1, 2, 3, 8, 9, 10, 11) +
-               TM_DETECTOR_SHUF(V, IV, x, y, 4, 5, 6, 7, 12, 13, 14, 15);
-    }
-};
-template <>
-struct Reduce<float, 16> {
-    typedef Vec<float, 16>::type V;
-    typedef Vec<float, 16>::itype IV;
-    static __attribute__((always_inline)) inline V pair(V x, V y, int) {
-        return TM_DETECTOR_SHUF(V, IV, x, y, 0, 2, 4, 6) + TM_DETECTOR_SHUF(V, IV, x, y, 1, 3, 5, 7);
-    }
-};
-template <>
-struct Reduce<double, 32> {
-    typedef Vec<double, 32>::type V;
-    typedef Vec<double, 32>::itype IV;
-    static __attribute__((always_inline)) inline V pair(V x, V y, int lvl) {
-        if (lvl == 0) return TM_DETECTOR_SHUF(V, IV, x, y, 0, 4, 2, 6) + TM_DETECTOR_SHUF(V, IV, x, y, 1, 5, 3, 7);
-        return TM_DETECTOR_SHUF(V, IV, x, y, 0, 1, 4, 5) + TM_DETECTOR_SHUF(V, IV, x, y, 2, 3, 6, 7);
-    }
-};
-template <>
-struct Reduce<double, 16> {
-    typedef Vec<double, 16>::type V;
-    typedef Vec<double, 16>::itype IV;
-    static __attribute__((always_inline)) inline V pair(V x, V y, int) {
-        return TM_DETECTOR_SHUF(V, IV, x, y, 0, 2) + TM_DETECTOR_SHUF(V, IV, x, y, 1, 3);
-    }
-};
-
-// One level of the transpose-and-add over the first M entries of s (the others
-// are zero); all bounds are compile-time so that s stays in registers.
-template <typename T, int B, int M, int Lvl>
-__attribute__((always_inline)) inline void reduce_level(typename Vec<T, B>::type* s) {
-    typedef typename Vec<T, B>::type V;
-    _Pragma("GCC unroll 8") for (int k = 0; k < (M + 1) / 2; ++k) s[k] =
-        Reduce<T, B>::pair(s[2 * k], 2 * k + 1 < M ? s[2 * k + 1] : V{}, Lvl);
-}
-
-// s: the first N entries are live; returns lane k = sum of the lanes of s[k].
-template <typename T, int B, int N>
-__attribute__((always_inline)) inline typename Vec<T, B>::type reduce_lanes(typename Vec<T, B>::type* s) {
-    constexpr int NL = Vec<T, B>::lanes;
-    static_assert(N <= NL, "too many sums for one vector");
-    reduce_level<T, B, N, 0>(s);
-    if (NL >= 4) reduce_level<T, B, (N + 1) / 2, 1>(s);
-    if (NL >= 8) reduce_level<T, B, (N + 3) / 4, 2>(s);
-    return s[0];
-}
-
-
-// In-place transpose of lanes x lanes values: afterwards lane k of v[q] is what
-// lane q of v[k] was. Used to write the block outputs tick-contiguous.
-template <typename T, int B>
-struct Transpose;
-template <>
-struct Transpose<double, 16> {
-    typedef Vec<double, 16>::type V;
-    typedef Vec<double, 16>::itype IV;
-    static __attribute__((always_inline)) inline void run(V* v) {
-        const V a = TM_DETECTOR_SHUF(V, IV, v[0], v[1], 0, 2), b = TM_DETECTOR_SHUF(V, IV, v[0], v[1], 1, 3);
-        v[0] = a;
-        v[1] = b;
-    }
-};
-template <>
-struct Transpose<double, 32> {
-    typedef Vec<double, 32>::type V;
-    typedef Vec<double, 32>::itype IV;
-    static __attribute__((always_inline)) inline void run(V* v) {
-        const V t0 = TM_DETECTOR_SHUF(V, IV, v[0], v[1], 0, 4, 2, 6), t1 = TM_DETECTOR_SHUF(V, IV, v[0], v[1], 1, 5, 3, 7);
-        const V t2 = TM_DETECTOR_SHUF(V, IV, v[2], v[3], 0, 4, 2, 6), t3 = TM_DETECTOR_SHUF(V, IV, v[2], v[3], 1, 5, 3, 7);
-        v[0] = TM_DETECTOR_SHUF(V, IV, t0, t2, 0, 1, 4, 5);
-        v[1] = TM_DETECTOR_SHUF(V, IV, t1, t3, 0, 1, 4, 5);
-        v[2] = TM_DETECTOR_SHUF(V, IV, t0, t2, 2, 3, 6, 7);
-        v[3] = TM_DETECTOR_SHUF(V, IV, t1, t3, 2, 3, 6, 7);
-    }
-};
-template <>
-struct Transpose<float, 16> {
-    typedef Vec<float, 16>::type V;
-    typedef Vec<float, 16>::itype IV;
-    static __attribute__((always_inline)) inline void run(V* v) {
-        const V t0 = TM_DETECTOR_SHUF(V, IV, v[0], v[1], 0, 4, 1, 5), t1 = TM_DETECTOR_SHUF(V, IV, v[0], v[1], 2, 6, 3, 7);
-        const V t2 = TM_DETECTOR_SHUF(V, IV, v[2], v[3], 0, 4, 1, 5), t3 = TM_DETECTOR_SHUF(V, IV, v[2], v[3], 2, 6, 3, 7);
-        v[0] = TM_DETECTOR_SHUF(V, IV, t0, t2, 0, 1, 4, 5);
-        v[1] = TM_DETECTOR_SHUF(V, IV, t0, t2, 2, 3, 6, 7);
-        v[2] = TM_DETECTOR_SHUF(V, IV, t1, t3, 0, 1, 4, 5);
-        v[3] = TM_DETECTOR_SHUF(V, IV, t1, t3, 2, 3, 6, 7);
-    }
-};
-template <>
-struct Transpose<float, 32> {
-    typedef Vec<float, 32>::type V;
-    typedef Vec<float, 32>::itype IV;
-    static __attribute__((always_inline)) inline void run(V* v) {
-        // 4 x 4 transposes inside the 128-bit halves, then the off-diagonal 4 x 4
-        // blocks swap halves.
-        V t[8], u[8];
-        _Pragma("GCC unroll 4") for (int p = 0; p < 8; p += 2) {
-            t[p] = TM_DETECTOR_SHUF(V, IV, v[p], v[p + 1], 0, 8, 1, 9, 4, 12, 5, 13);
-            t[p + 1] = TM_DETECTOR_SHUF(V, IV, v[p], v[p + 1], 2, 10, 3, 11, 6, 14, 7, 15);
-        }
-        _Pragma("GCC unroll 2") for (int p = 0; p < 8; p += 4) {
-            u[p] = TM_DETECTOR_SHUF(V, IV, t[p], t[p + 2], 0, 1, 8, 9, 4, 5, 12, 13);
-            u[p + 1] = TM_DETECTOR_SHUF(V, IV, t[p], t[p + 2], 2, 3, 10, 11, 6, 7, 14, 15);
-            u[p + 2] = TM_DETECTOR_SHUF(V, IV, t[p + 1], t[p + 3], 0, 1, 8, 9, 4, 5, 12, 13);
-            u[p + 3] = TM_DETECTOR_SHUF(V, IV, t[p + 1], t[p + 3], 2, 3, 10, 11, 6, 7, 14, 15);
-        }
-        _Pragma("GCC unroll 4") for (int q = 0; q < 4; ++q) {
-            v[q] = TM_DETECTOR_SHUF(V, IV, u[q], u[q + 4], 0, 1, 2, 3, 8, 9, 10, 11);
-            v[q + 4] = TM_DETECTOR_SHUF(V, IV, u[q], u[q + 4], 4, 5, 6, 7, 12, 13, 14, 15);
-        }
-    }
-};
-
-}  // namespace detail
-
-/// The kernel's sigmoid on n values with the given activation and code path (for
-/// measuring the approximation error; the path falls back to generic if absent).
-template <typename T>
-inline void sigmoid_array(const T* in, T* out, std::size_t n, Activation act, SimdPath path) noexcept {
-#ifdef TM_DETECTOR_X86
-    if (path == SimdPath::avx2 && cpu_has_avx2_fma()) {
-        if (act == Activation::exact)
-            detail::sigmoid_array_avx2<T, Activation::exact>(in, out, n);
-        else
-            detail::sigmoid_array_avx2<T, Activation::fast>(in, out, n);
-        return;
-    }
-#else
-    (void)path;
-#endif
-    if (act == Activation::exact)
-        detail::sigmoid_array_impl<T, 16, Activation::exact>(in, out, n);
-    else
-        detail::sigmoid_array_impl<T, 16, Activation::fast>(in, out, n);
-}
+// The sigmoid's accuracy (see simd.hpp): exact (a few ulp) or fast.
+using Activation = simd::Accuracy;
 
 namespace detail {
 
@@ -680,7 +168,7 @@ public:
             b2v[0] = static_cast<T>(f * b2[0]);
             b2v[L] = static_cast<T>(f * b2[1]);
         }
-        path_ = cpu_has_avx2_fma() ? SimdPath::avx2 : SimdPath::generic;
+        isa_ = simd::detect_isa();
     }
 
     JordanMLP(const JordanMLP&) = delete;
@@ -693,11 +181,12 @@ public:
     int n_instances() const noexcept { return n_inst_; }
     Activation activation() const noexcept { return act_; }
     void set_activation(Activation a) noexcept { act_ = a; }
-    SimdPath simd_path() const noexcept { return path_; }
-    /// Select a code path; returns false (and changes nothing) if the CPU lacks it.
-    bool set_simd_path(SimdPath p) noexcept {
-        if (p == SimdPath::avx2 && !cpu_has_avx2_fma()) return false;
-        path_ = p;
+    /// The code variant run() and step() use (simd::detect_isa() unless set).
+    simd::Isa isa() const noexcept { return isa_; }
+    /// Select a code variant; returns false (and changes nothing) if it cannot run here.
+    bool set_isa(simd::Isa isa) noexcept {
+        if (!simd::isa_supported(isa)) return false;
+        isa_ = isa;
         return true;
     }
 
@@ -745,8 +234,8 @@ public:
     void run(const T* x, std::ptrdiff_t sr, std::ptrdiff_t si, std::ptrdiff_t st, std::ptrdiff_t n,
              T* y_slip, T* y_non, T* y_pred, std::ptrdiff_t ld) noexcept {
         const Io io{x, sr, si, st, n, y_slip, y_non, y_pred, ld};
-#ifdef TM_DETECTOR_X86
-        if (path_ == SimdPath::avx2) {
+#if TM_HAVE_DISPATCH
+        if (isa_ == simd::Isa::avx2_fma) {
             if (act_ == Activation::exact)
                 run_avx2_exact(io);
             else
@@ -755,9 +244,9 @@ public:
         }
 #endif
         if (act_ == Activation::exact)
-            run_generic_exact(io);
+            run_base_exact(io);
         else
-            run_generic_fast(io);
+            run_base_fast(io);
     }
 
     /// Mean time of one tick of all instances over n_iter ticks, in ns (best of
@@ -801,26 +290,30 @@ private:
     };
 
     T sig_scalar(T a) const noexcept {
-        return act_ == Activation::exact ? detail::sigmoid_exact_scalar<T>(a) : detail::sigmoid_fast_scalar<T>(a);
+        return act_ == Activation::exact ? simd::sigmoid_exact_scalar<T>(a) : simd::sigmoid_fast_scalar<T>(a);
     }
 
     // One entry point per code path and activation, so that step() and run()
     // execute the same machine code and agree bit for bit.
-#ifdef TM_DETECTOR_X86
-    __attribute__((target("avx2,fma"), noinline)) void run_avx2_exact(const Io& io) noexcept {
+#if TM_HAVE_DISPATCH
+    TM_TARGET_AVX2 __attribute__((noinline)) void run_avx2_exact(const Io& io) noexcept {
         run_dispatch<32, Activation::exact>(io);
     }
-    __attribute__((target("avx2,fma"), noinline)) void run_avx2_fast(const Io& io) noexcept {
+    TM_TARGET_AVX2 __attribute__((noinline)) void run_avx2_fast(const Io& io) noexcept {
         run_dispatch<32, Activation::fast>(io);
     }
 #endif
-    __attribute__((noinline)) void run_generic_exact(const Io& io) noexcept { run_dispatch<16, Activation::exact>(io); }
-    __attribute__((noinline)) void run_generic_fast(const Io& io) noexcept { run_dispatch<16, Activation::fast>(io); }
+    __attribute__((noinline)) void run_base_exact(const Io& io) noexcept {
+        run_dispatch<simd::kBaseBytes, Activation::exact>(io);
+    }
+    __attribute__((noinline)) void run_base_fast(const Io& io) noexcept {
+        run_dispatch<simd::kBaseBytes, Activation::fast>(io);
+    }
 
     // The paper's network (4 inputs, 16 hidden units) is unrolled at compile time.
     template <int B, Activation A>
     __attribute__((always_inline)) inline void run_dispatch(const Io& io) noexcept {
-        constexpr int NL = detail::Vec<T, B>::lanes;
+        constexpr int NL = simd::Vec<T, B>::lanes;
         if (n_in_ == 4 && hp_ == 16)
             run_impl<B, A, 4, 16 / NL>(io);
         else
@@ -837,7 +330,7 @@ private:
             T* __restrict xs = xs_;
             if (NIN == 4) {
                 // One 4-lane vector per instance.
-                typedef typename detail::Vec<T, 4 * sizeof(T)>::type V4;
+                typedef typename simd::Vec<T, 4 * sizeof(T)>::type V4;
                 V4 mu, g;
                 std::memcpy(&mu, mean_, sizeof mu);
                 std::memcpy(&g, gain_, sizeof g);
@@ -875,8 +368,8 @@ private:
         // transpose for the outputs) and prefetch the rows' next chunk; with 6
         // instances they are still about a fifth of the block time (memory traffic
         // of 42 rows), less than when interleaved with the ticks (measured).
-        typedef typename detail::Vec<T, B>::type V;
-        constexpr int NL = detail::Vec<T, B>::lanes;
+        typedef typename simd::Vec<T, B>::type V;
+        constexpr int NL = simd::Vec<T, B>::lanes;
         constexpr int GM = NL / 2 > 0 ? NL / 2 : 1;
         constexpr int CL = 64 / int(sizeof(T));  // values per cache line
         const int ni = n_inst_;
@@ -896,7 +389,7 @@ private:
                         if (more)
                             for (int c = 0; c < kChunk; c += CL) __builtin_prefetch(src + kChunk + c, 0, 3);
                         for (; k + NL <= m; k += NL) {
-                            V v = load<V>(src + k);
+                            V v = simd::load<V>(src + k);
                             v = (v - mu) * g;
                             std::memcpy(dst + k, &v, sizeof v);
                         }
@@ -922,8 +415,8 @@ private:
                     // NL group vectors [y_slip(0), y_pred(0), y_slip(1), ...] of NL
                     // ticks -> one vector per output holding the NL ticks.
                     V v[NL];
-                    _Pragma("GCC unroll 8") for (int q = 0; q < NL; ++q) v[q] = load<V>(u + (k + q) * urec_);
-                    detail::Transpose<T, B>::run(v);
+                    _Pragma("GCC unroll 8") for (int q = 0; q < NL; ++q) v[q] = simd::load<V>(u + (k + q) * urec_);
+                    simd::transpose(v);
                     // (Stored from register copies: stored straight from v[], GCC
                     // reloaded the halves of v[] from the stack, which stalled.)
                     _Pragma("GCC unroll 4") for (int j = 0; j < GM; ++j) {
@@ -954,7 +447,7 @@ private:
     template <int B, Activation A, int NIN, int NV>
     __attribute__((always_inline)) inline void tick_impl(const T* xs, std::ptrdiff_t xr, std::ptrdiff_t xi,
                                                          std::ptrdiff_t xk, int m, T* u) noexcept {
-        constexpr int NL = detail::Vec<T, B>::lanes;
+        constexpr int NL = simd::Vec<T, B>::lanes;
         constexpr int GM = NL / 2 > 0 ? NL / 2 : 1;
         const int ng = (n_inst_ + GM - 1) / GM;
         const int g = (n_inst_ + ng - 1) / ng;
@@ -1008,7 +501,7 @@ private:
     // independent work next to it in program order does.
     template <int B, Activation A, int NIN, int NV, int G>
     __attribute__((always_inline)) inline void tick_pipelined(const Ticks& t) noexcept {
-        typedef typename detail::Vec<T, B>::type V;
+        typedef typename simd::Vec<T, B>::type V;
         constexpr int KH = NV * G;
         V o;              // pending output pre-activations
         T* od = nullptr;  // and where their sigmoids go
@@ -1022,31 +515,31 @@ private:
                 hidden_pre<B, A, NIN, NV, G>(xk + r0 * t.xr, t.xr, t.xi, pk + r0 * ps, ps, a);
                 sigmoid_batch<B, A, KH>(a);
                 if (od) {
-                    detail::sigmoid_k<T, B, A, 1, A == Activation::fast>(&o);
+                    simd::sigmoid_k<T, B, A, 1, A == Activation::fast>(&o);
                     std::memcpy(od, &o, sizeof(V));
                 }
                 o = hidden_post<B, A, NV, G>(a);
                 od = uk + 2 * r0;
             }
         }
-        detail::sigmoid_k<T, B, A, 1, A == Activation::fast>(&o);
+        simd::sigmoid_k<T, B, A, 1, A == Activation::fast>(&o);
         std::memcpy(od, &o, sizeof(V));
     }
 
     // K sigmoids in interleaved passes of at most 4 vectors: measured as fast as
     // passes of 2 to 9 on the reference machine, with fewer spills.
     template <int B, Activation A, int K>
-    static __attribute__((always_inline)) inline void sigmoid_batch(typename detail::Vec<T, B>::type* a) noexcept {
+    static __attribute__((always_inline)) inline void sigmoid_batch(typename simd::Vec<T, B>::type* a) noexcept {
         constexpr int SB = 4;
         constexpr int NP = (K + SB - 1) / SB;           // passes
         constexpr int P0 = K / NP, PX = K % NP;         // balanced sizes: PX passes of P0 + 1
         int off = 0;
         _Pragma("GCC unroll 8") for (int q = 0; q < NP; ++q) {
             if (q < PX) {
-                detail::sigmoid_k<T, B, A, P0 + 1, A == Activation::fast>(a + off);
+                simd::sigmoid_k<T, B, A, P0 + 1, A == Activation::fast>(a + off);
                 off += P0 + 1;
             } else {
-                detail::sigmoid_k<T, B, A, P0, A == Activation::fast>(a + off);
+                simd::sigmoid_k<T, B, A, P0, A == Activation::fast>(a + off);
                 off += P0;
             }
         }
@@ -1056,20 +549,20 @@ private:
     template <int B, Activation A, int NIN, int NV, int G>
     __attribute__((always_inline)) inline void hidden_pre(const T* xg, std::ptrdiff_t xr, std::ptrdiff_t xi,
                                                           const T* pg, std::ptrdiff_t ps,
-                                                          typename detail::Vec<T, B>::type* a) const noexcept {
-        typedef typename detail::Vec<T, B>::type V;
-        constexpr int NL = detail::Vec<T, B>::lanes;
+                                                          typename simd::Vec<T, B>::type* a) const noexcept {
+        typedef typename simd::Vec<T, B>::type V;
+        constexpr int NL = simd::Vec<T, B>::lanes;
         constexpr std::size_t cs = std::size_t(NV * NL);
         const T* __restrict wc = wcol_[A == Activation::fast ? 1 : 0];
         V pb[G];
-        _Pragma("GCC unroll 4") for (int j = 0; j < G; ++j) pb[j] = detail::bcast<T, B>(pg + j * ps);
+        _Pragma("GCC unroll 4") for (int j = 0; j < G; ++j) pb[j] = simd::bcast<T, B>(pg + j * ps);
         _Pragma("GCC unroll 8") for (int v = 0; v < NV; ++v) {
             const T* w = wc + std::size_t(v) * NL;
             _Pragma("GCC unroll 4") for (int j = 0; j < G; ++j) {
-                V acc = load<V>(w);
+                V acc = simd::load<V>(w);
                 _Pragma("GCC unroll 8") for (int i = 0; i < NIN; ++i)
-                    acc += load<V>(w + (1 + i) * cs) * detail::bcast<T, B>(xg + j * xr + i * xi);
-                a[v * G + j] = acc + load<V>(w + (1 + NIN) * cs) * pb[j];
+                    acc += simd::load<V>(w + (1 + i) * cs) * simd::bcast<T, B>(xg + j * xr + i * xi);
+                a[v * G + j] = acc + simd::load<V>(w + (1 + NIN) * cs) * pb[j];
             }
         }
     }
@@ -1077,27 +570,27 @@ private:
     // Output pre-activations of a group from its hidden activations: one vector
     // [o_slip(0), o_pred(0), o_slip(1), ...].
     template <int B, Activation A, int NV, int G>
-    __attribute__((always_inline)) inline typename detail::Vec<T, B>::type hidden_post(
-        const typename detail::Vec<T, B>::type* a) const noexcept {
-        typedef typename detail::Vec<T, B>::type V;
-        constexpr int NL = detail::Vec<T, B>::lanes;
+    __attribute__((always_inline)) inline typename simd::Vec<T, B>::type hidden_post(
+        const typename simd::Vec<T, B>::type* a) const noexcept {
+        typedef typename simd::Vec<T, B>::type V;
+        constexpr int NL = simd::Vec<T, B>::lanes;
         constexpr std::size_t cs = std::size_t(NV * NL);
         const int nin = n_in_;
         const T* __restrict wc = wcol_[A == Activation::fast ? 1 : 0];
         const T* b2v = wc + (nin + 4) * cs;
         V s[NL];
         _Pragma("GCC unroll 4") for (int j = 0; j < G; ++j) {
-            s[2 * j] = load<V>(b2v);
-            s[2 * j + 1] = load<V>(b2v + L);
+            s[2 * j] = simd::load<V>(b2v);
+            s[2 * j + 1] = simd::load<V>(b2v + L);
         }
         _Pragma("GCC unroll 8") for (int v = 0; v < NV; ++v) {
             const T* w = wc + std::size_t(v) * NL;
             _Pragma("GCC unroll 4") for (int j = 0; j < G; ++j) {
-                s[2 * j] += load<V>(w + (2 + nin) * cs) * a[v * G + j];
-                s[2 * j + 1] += load<V>(w + (3 + nin) * cs) * a[v * G + j];
+                s[2 * j] += simd::load<V>(w + (2 + nin) * cs) * a[v * G + j];
+                s[2 * j + 1] += simd::load<V>(w + (3 + nin) * cs) * a[v * G + j];
             }
         }
-        return detail::reduce_lanes<T, B, 2 * G>(s);
+        return simd::reduce_lanes<T, B, 2 * G>(s);
     }
 
     // One tick of G instances: feature i of instance j at xg[j * xr + i * xi],
@@ -1109,8 +602,8 @@ private:
     template <int B, Activation A, int NIN, int NV, int G>
     __attribute__((always_inline)) inline void group(const T* xg, std::ptrdiff_t xr, std::ptrdiff_t xi, const T* pg,
                                                      std::ptrdiff_t ps, T* ug) const noexcept {
-        typedef typename detail::Vec<T, B>::type V;
-        constexpr int NL = detail::Vec<T, B>::lanes;
+        typedef typename simd::Vec<T, B>::type V;
+        constexpr int NL = simd::Vec<T, B>::lanes;
         constexpr int KB = NV > 0 ? NV : 1;  // hidden vectors per sigmoid pass
         constexpr bool S = A == Activation::fast;  // pre-activations scaled by -log2(e)
         const int nin = NIN > 0 ? NIN : n_in_;
@@ -1120,27 +613,27 @@ private:
         const T* b2v = wc + (nin + 4) * cs;
         V pb[G], s0[G], s1[G];
         _Pragma("GCC unroll 4") for (int j = 0; j < G; ++j) {
-            pb[j] = detail::bcast<T, B>(pg + j * ps);
-            s0[j] = load<V>(b2v);
-            s1[j] = load<V>(b2v + L);
+            pb[j] = simd::bcast<T, B>(pg + j * ps);
+            s0[j] = simd::load<V>(b2v);
+            s1[j] = simd::load<V>(b2v + L);
         }
         for (int v0 = 0; v0 < nv; v0 += KB) {
             V a[KB * G];
             _Pragma("GCC unroll 8") for (int v = 0; v < KB; ++v) {
                 const T* w = wc + std::size_t(v0 + v) * NL;
                 _Pragma("GCC unroll 4") for (int j = 0; j < G; ++j) {
-                    V acc = load<V>(w);
+                    V acc = simd::load<V>(w);
                     _Pragma("GCC unroll 8") for (int i = 0; i < nin; ++i)
-                        acc += load<V>(w + (1 + i) * cs) * detail::bcast<T, B>(xg + j * xr + i * xi);
-                    a[v * G + j] = acc + load<V>(w + (1 + nin) * cs) * pb[j];
+                        acc += simd::load<V>(w + (1 + i) * cs) * simd::bcast<T, B>(xg + j * xr + i * xi);
+                    a[v * G + j] = acc + simd::load<V>(w + (1 + nin) * cs) * pb[j];
                 }
             }
             sigmoid_batch<B, A, KB * G>(a);
             _Pragma("GCC unroll 8") for (int v = 0; v < KB; ++v) {
                 const T* w = wc + std::size_t(v0 + v) * NL;
                 _Pragma("GCC unroll 4") for (int j = 0; j < G; ++j) {
-                    s0[j] += load<V>(w + (2 + nin) * cs) * a[v * G + j];
-                    s1[j] += load<V>(w + (3 + nin) * cs) * a[v * G + j];
+                    s0[j] += simd::load<V>(w + (2 + nin) * cs) * a[v * G + j];
+                    s1[j] += simd::load<V>(w + (3 + nin) * cs) * a[v * G + j];
                 }
             }
         }
@@ -1149,22 +642,15 @@ private:
             s[2 * j] = s0[j];
             s[2 * j + 1] = s1[j];
         }
-        V o = detail::reduce_lanes<T, B, 2 * G>(s);
-        detail::sigmoid_k<T, B, A, 1, S>(&o);
+        V o = simd::reduce_lanes<T, B, 2 * G>(s);
+        simd::sigmoid_k<T, B, A, 1, S>(&o);
         std::memcpy(ug, &o, sizeof(V));
-    }
-
-    template <typename V>
-    static __attribute__((always_inline)) inline V load(const T* ptr) noexcept {
-        V v;
-        std::memcpy(&v, ptr, sizeof(V));
-        return v;
     }
 
     int n_in_, n_h_, n_inst_, hp_ = 0;
     std::size_t urec_ = 0;
     Activation act_;
-    SimdPath path_ = SimdPath::generic;
+    simd::Isa isa_ = simd::Isa::baseline;
     std::unique_ptr<void, detail::AlignedFree> buf_;
     static constexpr int kChunk = 64;
     T* wcol_[2] = {nullptr, nullptr};
@@ -1181,7 +667,4 @@ private:
 };
 
 }  // namespace detector
-}  // namespace tm_core
-
-#undef TM_DETECTOR_SHUF
-#pragma GCC diagnostic pop
+}  // namespace tactile

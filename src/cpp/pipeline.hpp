@@ -484,7 +484,7 @@ class MirrorPipeline {
                   "MirrorPipeline supports float and double");
     static_assert(std::is_same<TD, float>::value || std::is_same<TD, double>::value,
                   "MirrorPipeline's detector supports float and double");
-    using Mlp = tm_core::detector::JordanMLP<TD>;
+    using Mlp = detector::JordanMLP<TD>;
 
 public:
     static constexpr int kFeatures = 4;  // rate_L, rate_R, rate2_L, rate2_R
@@ -506,8 +506,8 @@ public:
         if (!use_u_) rate2_f_ = make_cascade(c.sos_diff, c.n_sos_diff);
         mlp_ = std::make_unique<Mlp>(kFeatures, c.n_hidden, R_, c.w1, c.b1, c.w2, c.b2, c.input_mean,
                                      c.input_gain,
-                                     c.activation == 1 ? tm_core::detector::Activation::fast
-                                                       : tm_core::detector::Activation::exact);
+                                     c.activation == 1 ? detector::Activation::fast
+                                                       : detector::Activation::exact);
         ctrl_ = StageController(c.controller, c.fs);
         ctrl_kind_ = c.controller.kind;
         xin_.resize(n_inputs());
@@ -542,10 +542,8 @@ public:
     const StageController& controller() const noexcept { return ctrl_; }
     const PipelineStatus& status() const noexcept { return st_; }
     const double* last_output() const noexcept { return out_.data(); }
-    const char* simd_path() const noexcept {
-        return tm_core::detector::simd_path_name(mlp_->simd_path());
-    }
-    Isa filter_isa() const noexcept { return detect_isa(); }
+    const char* simd_path() const noexcept { return simd::isa_name(mlp_->isa()); }
+    simd::Isa filter_isa() const noexcept { return simd::detect_isa(); }
 
     // Features of the last accepted tick: (n_ridges, 4) [rate_L, rate_R, rate2_L, rate2_R]
     // (in the detector's precision).

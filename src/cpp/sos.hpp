@@ -45,8 +45,8 @@ enum class SectionForm : std::uint8_t { tdf2 = 0, delta = 1 };
 template <typename T>
 class SosCascade {
 public:
-    using V = vec<T>;
-    static constexpr std::size_t W = vec_of<T>::lanes;
+    using V = simd::vec<T>;
+    static constexpr std::size_t W = simd::Vec<T, 32>::lanes;
     // Channels are processed in tiles of at most this many vectors so that a
     // chunk of samples for one tile stays in L1 cache.
     static constexpr std::size_t kTileVecs = 8;
@@ -87,24 +87,24 @@ public:
             }
             for (int j = 0; j < 5; ++j) {
                 if (!std::isfinite(c[j])) throw std::invalid_argument("sos coefficients must be finite");
-                coef_[5 * s + j] = splat<T>(static_cast<T>(c[j]));
+                coef_[5 * s + j] = simd::splat<T>(static_cast<T>(c[j]));
             }
         }
         state_.resize(n_sections * 2 * cpad_);
         snapshot_.resize(n_sections * 2 * cpad_);
         buf_.resize(chunk_ * tile_vecs_ * W);
         last_y_.resize(cpad_);
-        isa_ = detect_isa();
+        isa_ = simd::detect_isa();
     }
 
     std::size_t channels() const noexcept { return channels_; }
     std::size_t sections() const noexcept { return n_sections_; }
     SectionForm form(std::size_t s) const noexcept { return forms_[s]; }
-    Isa isa() const noexcept { return isa_; }
+    simd::Isa isa() const noexcept { return isa_; }
     // Run the portable baseline kernels instead of the dispatched ones (for
     // testing both paths on one machine). Returns false if `isa` cannot run here.
-    bool set_isa(Isa isa) noexcept {
-        if (isa == detect_isa() || isa == Isa::baseline) {
+    bool set_isa(simd::Isa isa) noexcept {
+        if (simd::isa_supported(isa)) {
             isa_ = isa;
             return true;
         }
@@ -129,7 +129,7 @@ public:
         DenormalGuard guard;
         bool ok;
 #if TM_HAVE_DISPATCH
-        if (isa_ == Isa::avx2_fma)
+        if (isa_ == simd::Isa::avx2_fma)
             ok = process_avx2(x, xs_c, xs_t, y, ys_c, ys_t, n, bad_t, bad_c);
         else
 #endif
@@ -155,7 +155,7 @@ public:
         }
         DenormalGuard guard;
 #if TM_HAVE_DISPATCH
-        if (isa_ == Isa::avx2_fma)
+        if (isa_ == simd::Isa::avx2_fma)
             step_avx2(x, y);
         else
 #endif
@@ -360,23 +360,23 @@ private:
         if (xs_t == 1) {
             const std::size_t tv = row / W;
             V* vbuf = reinterpret_cast<V*>(buf);
-            V acc = splat<T>(T(0));
-            const V zero = splat<T>(T(0));
+            V acc = simd::splat<T>(T(0));
+            const V zero = simd::splat<T>(T(0));
             const std::size_t groups = (cn + W - 1) / W;
             for (std::size_t g = 0; g < groups; ++g) {
                 const T* base = x + (c0 + g * W) * xs_c + t0;
                 const std::size_t rows = std::min<std::size_t>(W, cn - g * W);  // a partial group reads zeros
                 std::size_t k = 0;
                 for (; k + W <= K; k += W) {
-                    V r[W], o[W];
+                    V r[W];
 #pragma GCC unroll 8
                     for (std::size_t i = 0; i < W; ++i) {
-                        r[i] = i < rows ? load_unaligned(base + i * xs_c + k) : zero;
+                        r[i] = i < rows ? simd::load<V>(base + i * xs_c + k) : zero;
                         acc = acc + r[i] * zero;  // NaN once any value is NaN or Inf
                     }
-                    transpose(r, o);
+                    simd::transpose(r);
 #pragma GCC unroll 8
-                    for (std::size_t j = 0; j < W; ++j) vbuf[(k + j) * tv + g] = o[j];
+                    for (std::size_t j = 0; j < W; ++j) vbuf[(k + j) * tv + g] = r[j];
                 }
                 for (; k < K; ++k)
                     for (std::size_t i = 0; i < rows; ++i) {
@@ -412,13 +412,13 @@ private:
                 const std::size_t rows = std::min<std::size_t>(W, cn - g * W);
                 std::size_t k = 0;
                 for (; k + W <= K; k += W) {
-                    V r[W], o[W];
+                    V r[W];
 #pragma GCC unroll 8
                     for (std::size_t j = 0; j < W; ++j) r[j] = vbuf[(k + j) * tv + g];
-                    transpose(r, o);
+                    simd::transpose(r);
 #pragma GCC unroll 8
                     for (std::size_t i = 0; i < W; ++i)
-                        if (i < rows) store_unaligned(base + i * ys_c + k, o[i]);
+                        if (i < rows) simd::store(base + i * ys_c + k, r[i]);
                 }
                 for (; k < K; ++k)
                     for (std::size_t i = 0; i < rows; ++i) base[i * ys_c + k] = buf[k * row + g * W + i];
@@ -460,13 +460,13 @@ private:
     // back as a vector would stall on store forwarding.
     TM_ALWAYS_INLINE V load_sample(const T* x, std::size_t v) const noexcept {
         const std::size_t c = v * W;
-        if (c + W <= channels_) return load_unaligned(x + c);
-        return load_partial(x + c, channels_ - c);
+        if (c + W <= channels_) return simd::load<V>(x + c);
+        return simd::load_partial(x + c, channels_ - c);
     }
     TM_ALWAYS_INLINE void store_sample(T* y, std::size_t v, V r) const noexcept {
         const std::size_t c = v * W;
         if (c + W <= channels_) {
-            store_unaligned(y + c, r);
+            simd::store(y + c, r);
         } else {
             for (std::size_t i = 0; c + i < channels_; ++i) y[c + i] = r[i];
         }
@@ -536,7 +536,7 @@ private:
     AlignedBuffer<T> buf_;       // chunk x tile of samples, time-major
     AlignedBuffer<T> last_y_;    // held output for rejected samples
     std::uint64_t rejected_ = 0;
-    Isa isa_ = Isa::baseline;
+    simd::Isa isa_ = simd::Isa::baseline;
 };
 
 }  // namespace tactile

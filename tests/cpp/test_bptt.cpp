@@ -45,7 +45,7 @@ int main(int argc, char** argv) {
     std::fclose(f);
     std::vector<std::ptrdiff_t> length(len64.begin(), len64.end());
 
-    tm_core::detector::BpttProblem P;
+    tactile::detector::BpttProblem P;
     P.n_inputs = nin;
     P.n_hidden = H;
     P.n_seq = S;
@@ -60,13 +60,13 @@ int main(int argc, char** argv) {
     double gmax = 0;
     for (double g : grad_ref) gmax = std::fmax(gmax, std::fabs(g));
     std::vector<double> g1(n_par);
-    const double l1 = tm_core::detector::jordan_loss_grad(P, theta.data(), g1.data(), 1);
+    const double l1 = tactile::detector::jordan_loss_grad(P, theta.data(), g1.data(), 1);
     CHECK(std::fabs(l1 - loss_ref[0]) <= 1e-12 * std::fabs(loss_ref[0]), "loss %.17g vs %.17g", l1, loss_ref[0]);
     for (std::size_t k = 0; k < n_par; ++k)
         CHECK(std::fabs(g1[k] - grad_ref[k]) <= 1e-12 * gmax, "grad[%zu] %.17g vs %.17g", k, g1[k], grad_ref[k]);
     for (int nt = 2; nt <= 4; ++nt) {
         std::vector<double> g(n_par);
-        const double l = tm_core::detector::jordan_loss_grad(P, theta.data(), g.data(), nt);
+        const double l = tactile::detector::jordan_loss_grad(P, theta.data(), g.data(), nt);
         CHECK(l == l1, "loss with %d threads differs", nt);
         for (std::size_t k = 0; k < n_par; ++k) CHECK(g[k] == g1[k], "grad[%zu] with %d threads differs", k, nt);
     }
@@ -77,7 +77,7 @@ int main(int argc, char** argv) {
     std::vector<double> g(n_par, 7.0);
     bool threw = false;
     try {
-        tm_core::detector::jordan_loss_grad(P, theta.data(), g.data(), 2);
+        tactile::detector::jordan_loss_grad(P, theta.data(), g.data(), 2);
     } catch (const std::invalid_argument&) {
         threw = true;
     }

@@ -27,7 +27,7 @@ void run(const std::vector<double>& sos, size_t ns, size_t ch, size_t n, const s
          const std::vector<double>& ref, double tol, bool baseline) {
     std::vector<T> x(x64.begin(), x64.end()), y(ch * n);
     SosCascade<T> k(sos.data(), ns, ch);
-    if (baseline) k.set_isa(tactile::Isa::baseline);
+    if (baseline) k.set_isa(tactile::simd::Isa::baseline);
     size_t bt = 0, bc = 0;
     // in uneven chunks
     size_t t = 0, step = 1;
@@ -45,7 +45,7 @@ void run(const std::vector<double>& sos, size_t ns, size_t ch, size_t n, const s
     for (size_t c = 0; c < ch; ++c)
         for (size_t i = 0; i < n; ++i) xt[i * ch + c] = x[c * n + i];
     SosCascade<T> k2(sos.data(), ns, ch);
-    if (baseline) k2.set_isa(tactile::Isa::baseline);
+    if (baseline) k2.set_isa(tactile::simd::Isa::baseline);
     CHECK(k2.process(xt.data(), 1, std::ptrdiff_t(ch), yt.data(), 1, std::ptrdiff_t(ch), n, &bt, &bc), "strided");
     std::vector<T> back(ch * n);
     for (size_t c = 0; c < ch; ++c)
@@ -54,7 +54,7 @@ void run(const std::vector<double>& sos, size_t ns, size_t ch, size_t n, const s
 
     // step() reproduces process() exactly
     SosCascade<T> k3(sos.data(), ns, ch);
-    if (baseline) k3.set_isa(tactile::Isa::baseline);
+    if (baseline) k3.set_isa(tactile::simd::Isa::baseline);
     std::vector<T> in(ch), out(ch);
     for (size_t i = 0; i < n; ++i) {
         for (size_t c = 0; c < ch; ++c) in[c] = x[c * n + i];

@@ -112,7 +112,9 @@ class SlipDetector:
 
     @property
     def simd_path(self) -> str:
-        """Code path the C++ kernel runs (``"avx2+fma"`` or ``"generic"``)."""
+        """Code variant the C++ kernel runs, named as :func:`tactile_mirror.simd_path`
+        (``"avx2+fma"``, ``"sse2"``, ``"native"`` or ``"generic"``); ``set_simd_path`` of
+        :meth:`kernel` also takes ``"generic"`` for the baseline."""
         if self.backend != "cpp":
             return "numpy"
         return self._kernel(1).simd_path
