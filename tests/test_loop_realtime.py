@@ -6,15 +6,9 @@ import numpy as np
 import pytest
 from tactile_mirror.circuit import PVDFCircuit
 from tactile_mirror.loop.controller import NoController
-from tactile_mirror.loop.experiment import (
-    PLANTS,
-    FemPad,
-    PadSource,
-    Scene,
-    _pipeline,
-    default_weights,
-    scene_finger,
-)
+from tactile_mirror.contact.plants import FemPad
+from tactile_mirror.loop.experiment import PLANTS, default_weights
+from tactile_mirror.loop.scene import LoopScene, PlantSource, loop_pipeline, scene_finger
 from tactile_mirror.loop.runner import LoopRunner
 from tactile_mirror.loop.stage import SimulatedStage
 
@@ -22,10 +16,10 @@ pytest.importorskip("skfem")
 
 
 def run(realtime, n_ridges=2):
-    sc = Scene(seed=1, duration=0.15, press=0.05, plant="fem", trajectory=PLANTS["fem"]["trajectory"])
+    sc = LoopScene(seed=1, duration=0.15, press=0.05, plant="fem", trajectory=PLANTS["fem"]["trajectory"])
     finger = scene_finger(sc)
-    source = PadSource(sc, FemPad(n_ridges, fs=sc.fs), PVDFCircuit(), finger)
-    pipe = _pipeline(default_weights("fem", sc.fs), sc.fs, NoController(), n_ridges)
+    source = PlantSource(sc, FemPad(n_ridges, fs=sc.fs), PVDFCircuit(), finger)
+    pipe = loop_pipeline(default_weights("fem", sc.fs), sc.fs, NoController(), n_ridges)
     res = LoopRunner(pipe, SimulatedStage(), source, realtime=realtime).run(n_ticks=finger.size, x0=0.0)
     res.config = pipe.config
     return res, source
