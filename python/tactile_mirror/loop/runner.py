@@ -11,8 +11,8 @@ A source is any object with ``read(stage_position, t) -> ndarray | None``
 plays samples from an array, the closed-loop experiment plays the simulated pad.
 
 Hardware in the loop without the hardware: with ``realtime=True`` and a source that
-simulates the finger on the FEM pad (:class:`~tactile_mirror.loop.experiment.PadSource`
-over :class:`~tactile_mirror.loop.experiment.FemPad`, every ridge stepped by one
+simulates the finger on the FEM pad (:class:`~tactile_mirror.loop.scene.PlantSource`
+over :class:`~tactile_mirror.contact.plants.FemPad`, every ridge stepped by one
 compiled call), a real stage driver, or a C program through ``tm.h``
 (:class:`~tactile_mirror.loop.capi.CPipeline`), runs against the simulated pad at the
 pipeline's rate. The whole tick (plant + pipeline + stage) must then fit the period:
