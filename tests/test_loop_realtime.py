@@ -5,11 +5,11 @@ bench/bench_contact.py, never asserted here."""
 import numpy as np
 import pytest
 from tactile_mirror.circuit import PVDFCircuit
-from tactile_mirror.loop.controller import NoController
 from tactile_mirror.contact.plants import FemPad
+from tactile_mirror.loop.controller import NoController
 from tactile_mirror.loop.experiment import PLANTS, default_weights
-from tactile_mirror.loop.scene import LoopScene, PlantSource, loop_pipeline, scene_finger
 from tactile_mirror.loop.runner import LoopRunner
+from tactile_mirror.loop.scene import LoopScene, PlantSource, loop_pipeline, scene_finger
 from tactile_mirror.loop.stage import SimulatedStage
 
 pytest.importorskip("skfem")

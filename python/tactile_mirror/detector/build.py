@@ -15,12 +15,12 @@ from __future__ import annotations
 import argparse
 import json
 import time
-import warnings
 from dataclasses import dataclass
 
 import numpy as np
 
 from .._io import save_figure, write_text
+from .._legacy import legacy_arguments
 from .core import SlipDetector
 from .evaluate import ForceRatioDetector, evaluate
 from .training import TrainingSet, augment_gains, augment_noise, make_training_set, train_detector
@@ -353,18 +353,8 @@ def build_default(out_path, options: BuildOptions | None = None, *args, report_p
 
 
 def _legacy_build_options(args: tuple, kwargs: dict, io: dict):
-    if len(args) > len(_LEGACY_BUILD_PARAMS):
-        raise TypeError(f"build_default takes at most {len(_LEGACY_BUILD_PARAMS) + 1} positional arguments")
-    given = dict(zip(_LEGACY_BUILD_PARAMS, args))
-    for k, v in kwargs.items():
-        if k not in _LEGACY_BUILD_PARAMS:
-            raise TypeError(f"build_default got an unexpected keyword argument {k!r}")
-        if k in given:
-            raise TypeError(f"build_default got multiple values for argument {k!r}")
-        given[k] = v
-    warnings.warn("build_default(out_path, n_train, ...) with keyword options is deprecated; pass "
-                  "build_default(out_path, BuildOptions(...), report_path=..., figure_path=...)",
-                  DeprecationWarning, stacklevel=3)
+    given = legacy_arguments("build_default", _LEGACY_BUILD_PARAMS, args, kwargs,
+                             "build_default(out_path, BuildOptions(...), report_path=..., figure_path=...)")
     for k in _BUILD_IO:
         if k in given:
             value = given.pop(k)

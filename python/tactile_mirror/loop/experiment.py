@@ -38,6 +38,7 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 
 from .._io import write_json
+from .._legacy import legacy_arguments
 from ..circuit import PVDFCircuit
 from .controller import PaperController, VelocityController
 from .figures import loop_figure
@@ -307,18 +308,8 @@ _LEGACY_PARAMS = ("seeds", "duration", "fs", "weights", "out_dir", "robustness",
 
 def _legacy_options(args: tuple, kwargs: dict, weights, out_dir):
     """Map the old call ``run_experiment(seeds, duration, fs, weights, out_dir, ...)`` onto options."""
-    if len(args) > len(_LEGACY_PARAMS):
-        raise TypeError(f"run_experiment takes at most {len(_LEGACY_PARAMS)} positional arguments")
-    given = dict(zip(_LEGACY_PARAMS, args))
-    for k, v in kwargs.items():
-        if k not in _LEGACY_PARAMS:
-            raise TypeError(f"run_experiment got an unexpected keyword argument {k!r}")
-        if k in given:
-            raise TypeError(f"run_experiment got multiple values for argument {k!r}")
-        given[k] = v
-    warnings.warn("run_experiment(seeds, duration, ...) with keyword options is deprecated; pass "
-                  "run_experiment(ExperimentOptions(...), weights=..., out_dir=...)", DeprecationWarning,
-                  stacklevel=3)
+    given = legacy_arguments("run_experiment", _LEGACY_PARAMS, args, kwargs,
+                             "run_experiment(ExperimentOptions(...), weights=..., out_dir=...)")
     if "weights" in given:
         weights = given.pop("weights")
     if "out_dir" in given:
