@@ -27,7 +27,6 @@ from __future__ import annotations
 
 import argparse
 import os
-import platform
 import shutil
 import subprocess
 import sys
@@ -40,22 +39,13 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from _common import table
+from tactile_mirror.measure import cpu_model
 
 ROOT = Path(__file__).resolve().parents[1]
 FS = 1000.0
 N_RIDGES = 6
 LIMIT = 1e307  # V: finite and huge, so that both out_of_range and overflow can occur
 BASE = "ea6b478"  # the last commit before the tick guards (owner flags, overflow rejection)
-
-
-def cpu_model() -> str:
-    try:
-        for line in Path("/proc/cpuinfo").read_text().splitlines():
-            if line.startswith("model name"):
-                return line.split(":", 1)[1].strip()
-    except OSError:
-        pass
-    return platform.processor() or "unknown CPU"
 
 
 def rss_kib() -> int:
