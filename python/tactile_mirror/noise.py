@@ -54,11 +54,11 @@ charge amplifier on a 1 GOhm feedback resistor is built with (TL07x-class parts:
 and 1 fA/sqrt(Hz)). Their 1/f noise (corners of some 10-100 Hz) is not modelled: the
 densities are white. Temperature 300 K.
 
-With the default circuit at ``fs = 1 kHz`` the broadband floor is about 43 uV rms at
+With the default circuit at ``fs = 1 kHz`` the broadband floor is about 44 uV rms at
 ``v_out`` (39 uV of it the 1 GOhm feedback resistor, 4.1 uV/sqrt(Hz) below the 72 Hz
 corner; 19 uV the op-amp current noise; 2 uV its voltage noise) and about 0.34 mV rms
-at ``u_out`` (see :meth:`SensorNoise.rms`). 2 mV rms of 50 Hz hum at ``v_out`` is 6.3 mV
-rms at ``u_out``.
+at ``u_out`` (see :meth:`SensorNoise.rms`). A 50 Hz line of 2 mV rms at ``v_out`` is
+6.3 mV rms at ``u_out`` (its 150 Hz harmonic, 0.6 mV, becomes 6.0 mV).
 """
 from __future__ import annotations
 
