@@ -33,7 +33,9 @@ which git ignores).
 
 Run: ``python bench/detector_roc.py [--scenes 80] [--train-scenes 40]`` (needs
 scikit-learn for the bound classifier). Writes ``docs/figures/detector_roc.png``
-and a markdown and a JSON table (``--out``).
+and a markdown and a JSON table (``--out``). The default 80 held-out scenes resolve
+false alarms in steps of 1.25 %; the figure in ``docs/figures`` was made with
+``--scenes 200`` (steps of 0.5 %; about 8 min of simulation on 2 cores, then 2 min).
 """
 from __future__ import annotations
 
