@@ -5,7 +5,6 @@ from types import SimpleNamespace
 
 import numpy as np
 import pytest
-
 from tactile_mirror.detector.evaluate import _metrics, analyse_sequence, roc, sequence_extremes
 
 FS = 1000.0
