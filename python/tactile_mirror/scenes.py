@@ -17,6 +17,7 @@ import numpy as np
 
 from .circuit import PVDFCircuit
 from .contact.geometry import RidgeGeometry
+from .noise import SensorNoise
 
 __all__ = ["DEFAULT_FRICTION", "DEFAULT_KINETIC_RATIO", "MAX_INDENT_STRAIN", "MAX_NOISE", "OUTPUTS", "Scene", "paper",
            "random"]
@@ -99,6 +100,11 @@ class Scene:
     circuit : PVDFCircuit
     field_times : tuple of float
         Times (s) at which full stress fields are kept when "fields" is asked.
+    noise_model : SensorNoise or None
+        Noise derived from the circuit (thermal, op-amp, mains hum;
+        :class:`tactile_mirror.noise.SensorNoise`), added to v_out and u_out on top of
+        the white ``noise``; drawn from seed ``[1, seed]`` (independent of the white
+        noise). Its circuit must be the scene's ``circuit``. Default None: none.
     """
 
     duration: float = 2.0
@@ -119,6 +125,7 @@ class Scene:
     geometry: RidgeGeometry = field(default_factory=RidgeGeometry)
     circuit: PVDFCircuit = field(default_factory=PVDFCircuit)
     field_times: tuple = ()
+    noise_model: SensorNoise | None = None
 
     def __post_init__(self) -> None:
         for name in ("duration", "fs", "indent_duration"):
@@ -165,6 +172,13 @@ class Scene:
             raise ValueError(f"duration x fs must give at least 2 samples, got {self.n_samples} "
                              f"(duration={self.duration!r} s, fs={self.fs!r} Hz)")
         self._check_indent()
+        if self.noise_model is not None:
+            if not isinstance(self.noise_model, SensorNoise):
+                raise TypeError(f"noise_model must be a tactile_mirror.noise.SensorNoise or None, "
+                                f"got {type(self.noise_model).__name__}")
+            if self.noise_model.circuit != self.circuit:
+                raise ValueError("noise_model: its circuit differs from the scene's circuit (the noise gains "
+                                 "come from the circuit); build it as SensorNoise(circuit=scene.circuit, ...)")
 
     def _check_indent(self) -> None:
         """Refuse an indent beyond the contact model's small-strain range (:data:`MAX_INDENT_STRAIN`)."""

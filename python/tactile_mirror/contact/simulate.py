@@ -145,6 +145,8 @@ def simulate(scene: Scene, progress: bool = False, backend: str = "cpp") -> Simu
     if "signals" in outs:
         stream = scene.circuit.stream(scene.fs, res.stress.shape[:-2], noise=scene.noise, seed=scene.seed)
         res.v_out, res.u_out = stream.process(res.stress)
+        if scene.noise_model is not None:
+            res.v_out, res.u_out = scene.noise_model.apply(res.v_out, res.u_out, scene.fs, seed=[1, scene.seed])
     return res
 
 

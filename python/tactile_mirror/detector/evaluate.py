@@ -16,6 +16,14 @@ y_pred lead
 
 Rates are over sequences: detection rate over slipping sequences, false-alarm
 rate over all sequences.
+
+:func:`roc` sweeps the threshold: for any statistic a detector thresholds
+(``y_slip``, a classifier's probability, a force ratio), a sequence is detected at
+threshold ``c`` when the statistic reaches ``c`` within the detection window, and
+raises a false alarm when it reaches ``c`` before ``t_s``; so each sequence needs
+only two numbers (its largest statistic before ``t_s`` and within the window), and
+the curve is exact at every threshold. At ``c = 0.8`` on ``y_slip`` it gives
+:func:`evaluate`'s detection and false-alarm rates.
 """
 from __future__ import annotations
 
@@ -25,8 +33,8 @@ import numpy as np
 
 from .data_prep import features_from_result, targets_from_result
 
-__all__ = ["DetectionMetrics", "EvaluationReport", "ForceRatioDetector", "analyse_sequence", "detection_by_onset",
-           "evaluate", "onset_kinds"]
+__all__ = ["DetectionMetrics", "EvaluationReport", "ForceRatioDetector", "RocCurve", "analyse_sequence",
+           "detection_by_onset", "evaluate", "onset_kinds", "roc", "sequence_extremes"]
 
 
 @dataclass
@@ -318,3 +326,196 @@ def detection_by_onset(detector, results, slip_threshold: float = 0.8, max_laten
         sel = [h for h, k in zip(hits, kinds) if k == kind]
         out[kind] = (len(sel), float(np.mean(sel)) if sel else float("nan"))
     return out
+
+
+# ---------------------------------------------------------------------- threshold sweep
+def _running_min(x: np.ndarray, k: int) -> np.ndarray:
+    """``min(x[i-k+1 .. i])``, ``-inf`` for ``i < k - 1``: the statistic whose threshold
+    crossing means ``k`` samples in a row at or above the threshold."""
+    if k == 1:
+        return x
+    out = x.copy()
+    for j in range(1, k):
+        out[j:] = np.minimum(out[j:], x[:-j])
+    out[: k - 1] = -np.inf
+    return out
+
+
+def sequence_extremes(t, score, gross, max_latency: float = 0.05, consecutive: int = 1) -> tuple[float, float, bool]:
+    """The two numbers a sequence contributes to a threshold sweep.
+
+    Parameters
+    ----------
+    t : (n,) s
+    score : (n,) the statistic a detector thresholds (alarm when ``score >= c``)
+    gross : (n,) gross-slip target (onset: first sample >= 0.5), as :func:`analyse_sequence`
+    max_latency : float
+        Detection window after the onset, s.
+    consecutive : int
+        Samples in a row the statistic must hold at or above the threshold for an alarm.
+
+    Returns
+    -------
+    pre : float
+        Largest (held) statistic before the onset (``-inf`` when there is no sample
+        before it): a false alarm at every threshold ``c <= pre``.
+    window : float
+        Largest (held) statistic in ``[t_s, t_s + max_latency]`` (``-inf`` without slip):
+        detected at every ``c <= window``.
+    slip : bool
+        Whether the sequence has a gross-slip onset.
+    """
+    t = np.asarray(t, dtype=np.float64)
+    x = np.asarray(score, dtype=np.float64)
+    if x.shape != t.shape:
+        raise ValueError(f"score must have the shape of t {t.shape}, got {x.shape}")
+    if np.isnan(x).any():
+        raise ValueError("score must not contain NaN")
+    x = _running_min(x, consecutive)
+    on = np.flatnonzero(np.asarray(gross) >= 0.5)
+    i0 = int(on[0]) if on.size else t.size
+    pre = float(x[:i0].max()) if i0 else -np.inf
+    if not on.size:
+        return pre, -np.inf, False
+    win = (t[i0:] <= t[i0] + max_latency + 1e-12)
+    return pre, float(x[i0:][win].max()), True
+
+
+@dataclass
+class RocCurve:
+    """Detection and false-alarm rates of one detector over thresholds of its statistic.
+
+    Attributes
+    ----------
+    name : str
+    thresholds : (m,) decreasing; point ``j`` alarms where the statistic >= ``thresholds[j]``
+    detection_rate : (m,) over slipping sequences, non-decreasing along the curve
+    false_alarm_rate : (m,) over all sequences, non-decreasing along the curve
+    detection_by_kind : dict kind -> (m,) detection rate over that kind's sequences
+    n_by_kind : dict kind -> number of sequences of that kind
+    n_sequences, n_slip : int
+    """
+
+    name: str
+    thresholds: np.ndarray
+    detection_rate: np.ndarray
+    false_alarm_rate: np.ndarray
+    detection_by_kind: dict
+    n_by_kind: dict
+    n_sequences: int
+    n_slip: int
+
+    def at_false_alarm(self, rate: float) -> dict:
+        """The operating point with the most detections among those with a false-alarm
+        rate <= ``rate`` (the lowest such threshold): ``threshold``, ``detection_rate``,
+        ``false_alarm_rate`` and ``detection_<kind>`` per onset kind."""
+        ok = np.flatnonzero(self.false_alarm_rate <= rate + 1e-12)
+        j = int(ok[-1]) if ok.size else 0
+        out = {"threshold": float(self.thresholds[j]), "detection_rate": float(self.detection_rate[j]),
+               "false_alarm_rate": float(self.false_alarm_rate[j])}
+        for kind, d in self.detection_by_kind.items():
+            out[f"detection_{kind}"] = float(d[j])
+        return out
+
+    def at_threshold(self, threshold: float) -> dict:
+        """Rates at one threshold (alarm where the statistic >= ``threshold``)."""
+        ok = np.flatnonzero(self.thresholds >= threshold)
+        if not ok.size:
+            out = {"threshold": float(threshold), "detection_rate": 0.0, "false_alarm_rate": 0.0}
+            out.update({f"detection_{k}": 0.0 for k in self.detection_by_kind})
+            return out
+        j = int(ok[-1])
+        out = {"threshold": float(threshold), "detection_rate": float(self.detection_rate[j]),
+               "false_alarm_rate": float(self.false_alarm_rate[j])}
+        for kind, d in self.detection_by_kind.items():
+            out[f"detection_{kind}"] = float(d[j])
+        return out
+
+    def as_dict(self) -> dict:
+        return {"name": self.name, "n_sequences": self.n_sequences, "n_slip": self.n_slip,
+                "n_by_kind": dict(self.n_by_kind), "thresholds": self.thresholds.tolist(),
+                "detection_rate": self.detection_rate.tolist(), "false_alarm_rate": self.false_alarm_rate.tolist(),
+                "detection_by_kind": {k: v.tolist() for k, v in self.detection_by_kind.items()}}
+
+
+def roc(scores, results, kinds=None, thresholds=None, max_latency: float = 0.05, consecutive: int = 1,
+        name: str = "") -> RocCurve:
+    """Detection rate against false-alarm rate over the thresholds of a statistic.
+
+    Parameters
+    ----------
+    scores : sequence of arrays, one per result, shape (n_ridges, n) or (n,)
+        The statistic a detector thresholds (``y_slip`` of a :class:`SlipDetector`,
+        a classifier's probability, :meth:`ForceRatioDetector.ratio`), per ridge and
+        sample of each result. A 1-D score serves every ridge of its result.
+    results : sequence of simulation results
+        With ``t`` and the slip targets (:func:`targets_from_result`), in the order of
+        ``scores``.
+    kinds : sequence of str or None, optional
+        Onset kind per sequence in :func:`evaluate`'s order (:func:`onset_kinds`);
+        the curve is then split by kind as well.
+    thresholds : array_like, optional
+        Thresholds to evaluate. Default: every value at which a rate changes (the
+        exact curve), plus one above the largest, where nothing alarms.
+    max_latency : float
+        Detection window after the onset, s (as :func:`evaluate`).
+    consecutive : int
+        Samples in a row at or above the threshold for an alarm (1: :func:`evaluate`'s rule).
+    name : str
+        Label of the curve.
+
+    Returns
+    -------
+    RocCurve
+        Points ordered by decreasing threshold: from no alarm to the most alarms.
+    """
+    results = list(results)
+    scores = list(scores)
+    if len(scores) != len(results):
+        raise ValueError(f"scores must have one entry per result: {len(scores)} scores, {len(results)} results")
+    if not results:
+        raise ValueError("results must not be empty")
+    if isinstance(consecutive, bool) or int(consecutive) != consecutive or consecutive < 1:
+        raise ValueError(f"consecutive must be a positive integer, got {consecutive!r}")
+    if not (np.isfinite(max_latency) and max_latency >= 0):
+        raise ValueError(f"max_latency must be a non-negative number (s), got {max_latency!r}")
+    pre, win, slip = [], [], []
+    for k, (sc, res) in enumerate(zip(scores, results)):
+        gross, _ = targets_from_result(res)
+        x = np.asarray(sc, dtype=np.float64)
+        if x.ndim == 1:
+            x = np.broadcast_to(x, gross.shape)
+        if x.ndim != 2:
+            raise ValueError(f"scores[{k}] must have shape (n_ridges, n) or (n,), got {np.shape(sc)}")
+        for r in range(x.shape[0]):
+            p, w, s = sequence_extremes(res.t, x[r], gross[min(r, gross.shape[0] - 1)], max_latency,
+                                        int(consecutive))
+            pre.append(p)
+            win.append(w)
+            slip.append(s)
+    pre_a, win_a, slip_a = np.array(pre), np.array(win), np.array(slip)
+    if kinds is not None:
+        kinds = list(kinds)
+        if len(kinds) != pre_a.size:
+            raise ValueError(f"kinds must have one entry per sequence ({pre_a.size}), got {len(kinds)}")
+    if thresholds is None:
+        vals = np.concatenate([pre_a, win_a])
+        vals = np.unique(vals[np.isfinite(vals)])[::-1]
+        top = vals[0] + max(1.0, abs(vals[0])) if vals.size else 1.0
+        thr = np.concatenate([[top], vals])
+    else:
+        thr = np.sort(np.asarray(thresholds, dtype=np.float64).ravel())[::-1]
+        if not thr.size or np.isnan(thr).any():
+            raise ValueError("thresholds must be a non-empty array of numbers")
+    alarm = pre_a[None, :] >= thr[:, None]
+    hit = win_a[None, :] >= thr[:, None]
+    n_slip = int(slip_a.sum())
+    det = hit[:, slip_a].mean(axis=1) if n_slip else np.full(thr.size, np.nan)
+    by_kind, n_by_kind = {}, {}
+    if kinds is not None:
+        for kind in ("release", "gradual"):
+            sel = np.array([k == kind for k in kinds])
+            n_by_kind[kind] = int(sel.sum())
+            by_kind[kind] = hit[:, sel].mean(axis=1) if sel.any() else np.full(thr.size, np.nan)
+    return RocCurve(name=name, thresholds=thr, detection_rate=det, false_alarm_rate=alarm.mean(axis=1),
+                    detection_by_kind=by_kind, n_by_kind=n_by_kind, n_sequences=int(pre_a.size), n_slip=n_slip)

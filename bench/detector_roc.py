@@ -1,0 +1,339 @@
+"""Detection against false alarms as curves: a threshold sweep per noise condition.
+
+For each detector the statistic it thresholds is swept (``y_slip`` of the nets, the
+bound classifier's probability, the force ratio ``|F_y| / F_z``) and every
+threshold gives one point (false-alarm rate, detection rate) with
+:func:`tactile_mirror.detector.evaluate.roc`, whose definitions of detection, false
+alarm and onset kind are those of ``detector.evaluate``. Three noise conditions,
+added to the circuit outputs of the same simulated scenes (the contact simulation
+runs once; noise is added to ``v_out``/``u_out`` afterwards):
+
+* noise-free;
+* 1 mV rms white noise on ``v_out`` and ``u_out`` (independent per strip);
+* the circuit's thermal floor (:class:`tactile_mirror.noise.SensorNoise`: feedback
+  resistors, op-amp voltage and current noise) plus 2 mV rms of 50 Hz mains hum with
+  harmonics, with the stress-rate estimator's 50 Hz notch switched on for every
+  detector that reads the estimator.
+
+Detectors: the bundled Jordan net (``SlipDetector.default()``); the no-feedback MLP,
+trained here as the build trains it (same options and augmentation, one initial
+seed, no checkpoint selection: the bundled weights ship without it); the bound
+study's classifier (``bench/detector_bound.py``: boosted trees on 256 ms of lagged
+signals and their integrals, 3 samples in a row), trained per noise condition on the
+training scenes with that condition's noise; the force ratio (noise-free: a force
+sensor is not this circuit, so its curve is the same in every panel).
+
+Scenes: held-out scenes drawn with the build's held-out ranges (``build.TEST_KWARGS``)
+from seed :data:`ROC_SEED`, disjoint from the build's training (``TRAIN_SEED``),
+validation (``VALIDATION_SEED``), held-out (``TEST_SEED``) and the bound study's
+extra training seed (99); training scenes of the MLP and the classifier from the
+build's training seed, and for the classifier also ``--bound-extra`` scenes from the
+held-out ranges with seed 99, as the bound study trains it. Simulated scenes are cached (``--cache``, under ``out/``,
+which git ignores).
+
+Run: ``python bench/detector_roc.py [--scenes 80] [--train-scenes 40]`` (needs
+scikit-learn for the bound classifier). Writes ``docs/figures/detector_roc.png``
+and a markdown and a JSON table (``--out``). The default 80 held-out scenes resolve
+false alarms in steps of 1.25 %; the figure in ``docs/figures`` was made with
+``--scenes 200`` (steps of 0.5 %; about 8 min of simulation on 2 cores, then 2 min).
+"""
+from __future__ import annotations
+
+import argparse
+import dataclasses
+import os
+import pickle
+import sys
+import time
+
+os.environ.setdefault("OMP_NUM_THREADS", "1")
+os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
+
+import numpy as np
+
+#: Seed of the held-out scenes of this study (disjoint from every seed the build uses).
+ROC_SEED = 5150
+BOUND_EXTRA_SEED = 99
+
+
+def scene_sets(n_test: int, n_train: int):
+    from tactile_mirror.detector import build
+
+    clean = {"noise": (0.0, 0.0)}
+    test = build._random_scenes(n_test, ROC_SEED, **{**build.TEST_KWARGS, **clean})
+    train = build._random_scenes(n_train, build.TRAIN_SEED, **{**build.TRAIN_KWARGS, **clean})
+    return test, train
+
+
+def simulated(n_test: int, n_train: int, cache: str | None):
+    """(held-out results, training results), from ``cache`` when it holds these scenes."""
+    from tactile_mirror.detector import build
+
+    key = {"n_test": n_test, "n_train": n_train, "roc_seed": ROC_SEED, "train_seed": build.TRAIN_SEED,
+           "test_kwargs": repr(sorted(build.TEST_KWARGS.items())),
+           "train_kwargs": repr(sorted(build.TRAIN_KWARGS.items()))}
+    if cache and os.path.exists(cache):
+        with open(cache, "rb") as fh:
+            data = pickle.load(fh)
+        if data.get("key") == key:
+            return data["test"], data["train"]
+    test_sc, train_sc = scene_sets(n_test, n_train)
+    t0 = time.perf_counter()
+    res = build.simulate_scenes(test_sc + train_sc, progress=True)
+    print(f"simulated {len(res)} scenes in {time.perf_counter() - t0:.0f} s", flush=True)
+    test, train = res[:n_test], res[n_test:]
+    if cache:
+        os.makedirs(os.path.dirname(os.path.abspath(cache)), exist_ok=True)
+        tmp = cache + ".tmp"
+        with open(tmp, "wb") as fh:
+            pickle.dump({"key": key, "test": test, "train": train}, fh)
+        os.replace(tmp, cache)
+    return test, train
+
+
+#: Noise conditions: name -> (white noise V rms, SensorNoise hum V rms or None, estimator notch Hz or None).
+CONDITIONS = {
+    "noise-free": (0.0, None, None),
+    "1 mV rms white": (1e-3, None, None),
+    "thermal + 2 mV 50 Hz hum, notch": (0.0, 2e-3, (50.0, 100.0, 150.0)),
+}
+FA_POINTS = (0.02, 0.03)
+
+
+def with_noise(results, condition: str, seed: int):
+    """Copies of ``results`` with the condition's noise on ``v_out``/``u_out`` (seeded per scene)."""
+    from tactile_mirror.noise import SensorNoise
+
+    white, hum, _ = CONDITIONS[condition]
+    out = []
+    for k, r in enumerate(results):
+        rng = np.random.default_rng([seed, k])
+        v, u = np.asarray(r.v_out), np.asarray(r.u_out)
+        if white:
+            v = v + rng.normal(0.0, white, v.shape)
+            u = u + rng.normal(0.0, white, u.shape)
+        if hum is not None:
+            v, u = SensorNoise(circuit=r.scene.circuit, hum=hum).apply(v, u, r.fs, seed=rng)
+        out.append(dataclasses.replace(r, v_out=v, u_out=u))
+    return out
+
+
+def estimator_of(detector, condition: str) -> dict:
+    from tactile_mirror.detector.data_prep import DEFAULT_ESTIMATOR
+
+    est = dict(detector.metadata.get("estimator") or DEFAULT_ESTIMATOR)
+    notch = CONDITIONS[condition][2]
+    if notch is not None:
+        est["notch"] = notch
+    return est
+
+
+def net_scores(detector, results, condition: str) -> list:
+    from tactile_mirror.detector.data_prep import features_from_result
+
+    est = estimator_of(detector, condition)
+    return [detector.run(features_from_result(r, detector.features, estimator=est), fs=r.fs)[0] for r in results]
+
+
+def train_mlp(train, progress: bool):
+    """The no-feedback MLP, trained as the build trains it (one seed, no checkpoint selection)."""
+    from tactile_mirror.detector import build
+    from tactile_mirror.detector.training import (
+        augment_gains,
+        augment_noise,
+        make_training_set,
+        train_detector,
+    )
+
+    seqs = augment_noise(train, build.NOISE_COPIES, build.NOISE_RANGE, seed=2)
+    ts = augment_gains(make_training_set(seqs), (0.6, 1.7), seed=1)
+    from tactile_mirror.detector import SlipDetector
+
+    w = train_detector(ts, n_hidden=16, maxiter=MLP_MAXITER, seed=0, feedback=False, progress=progress,
+                       **build.TRAIN_OPTIONS)
+    return SlipDetector(w)
+
+
+#: L-BFGS-B iterations of the no-feedback MLP (the build's checkpoints kept near 100-200).
+MLP_MAXITER = 200
+
+
+def bound_features(results, condition: str):
+    """The bound study's 45 window features per sample (ridge 0), from the condition's signals."""
+    from types import SimpleNamespace
+
+    from detector_bound import window_features
+    from tactile_mirror.detector.data_prep import DEFAULT_ESTIMATOR, features_from_result
+
+    est = dict(DEFAULT_ESTIMATOR)
+    if CONDITIONS[condition][2] is not None:
+        est["notch"] = CONDITIONS[condition][2]
+    out = []
+    for r in results:
+        x = features_from_result(r, "stress_rate", estimator=est)
+        out.append(window_features(SimpleNamespace(features=x, fs=r.fs), True))
+    return out
+
+
+def bound_scores(train, test, condition: str) -> list:
+    """Probabilities of the bound study's classifier, trained on ``train`` with the condition's noise."""
+    from sklearn.ensemble import HistGradientBoostingClassifier
+    from tactile_mirror.detector.data_prep import targets_from_result
+
+    X = np.vstack([f[::2] for f in bound_features(train, condition)])
+    Y = np.concatenate([targets_from_result(r)[0][0][::2] for r in train])
+    w = np.where(Y > 0.5, 0.5 / max(Y.sum(), 1.0), 5.0 / max(Y.size - Y.sum(), 1.0)) * Y.size
+    clf = HistGradientBoostingClassifier(max_iter=300, random_state=0).fit(X, Y, sample_weight=w)
+    return [clf.predict_proba(f)[:, 1] for f in bound_features(test, condition)]
+
+
+def pct(x) -> str:
+    return "-" if not np.isfinite(x) else f"{100 * x:.1f}"
+
+
+def bound_extra(n: int, cache: str | None):
+    """Extra training scenes of the bound classifier, as the bound study draws them: the held-out
+    ranges, seed :data:`BOUND_EXTRA_SEED` (cached in ``cache`` with ``.extra`` before its extension)."""
+    from tactile_mirror.detector import build
+
+    if n <= 0:
+        return []
+    key = {"n": n, "seed": BOUND_EXTRA_SEED, "test_kwargs": repr(sorted(build.TEST_KWARGS.items()))}
+    path = None
+    if cache:
+        root, ext = os.path.splitext(cache)
+        path = root + ".extra" + ext
+        if os.path.exists(path):
+            with open(path, "rb") as fh:
+                data = pickle.load(fh)
+            if data.get("key") == key:
+                return data["results"]
+    scenes = build._random_scenes(n, BOUND_EXTRA_SEED, **{**build.TEST_KWARGS, "noise": (0.0, 0.0)})
+    t0 = time.perf_counter()
+    res = build.simulate_scenes(scenes, progress=True)
+    print(f"simulated {len(res)} extra training scenes in {time.perf_counter() - t0:.0f} s", flush=True)
+    if path:
+        tmp = path + ".tmp"
+        with open(tmp, "wb") as fh:
+            pickle.dump({"key": key, "results": res}, fh)
+        os.replace(tmp, path)
+    return res
+
+
+def main(argv=None):
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--scenes", type=int, default=80, help="held-out scenes (default 80)")
+    ap.add_argument("--train-scenes", type=int, default=40, help="training scenes of the MLP and classifier")
+    ap.add_argument("--bound-extra", type=int, default=80,
+                    help="extra training scenes of the bound classifier from the held-out ranges (seed 99)")
+    ap.add_argument("--cache", default="out/detector_roc_scenes.pkl", help="simulated-scene cache ('' for none)")
+    ap.add_argument("--simulate-only", action="store_true", help="simulate (and cache) the scenes, then stop")
+    ap.add_argument("--figure", default="docs/figures/detector_roc.png", help="figure to write")
+    ap.add_argument("--out", default="out/detector_roc", help="table path without extension (.md and .json)")
+    args = ap.parse_args(argv)
+    test, train = simulated(args.scenes, args.train_scenes, args.cache or None)
+    extra = bound_extra(args.bound_extra, args.cache or None)
+    if args.simulate_only:
+        return
+    sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
+    from _common import header
+    from tactile_mirror._io import save_figure, write_json, write_text
+    from tactile_mirror.detector import SlipDetector
+    from tactile_mirror.detector.evaluate import ForceRatioDetector, onset_kinds, roc
+    from tactile_mirror.measure import environment, markdown_table
+
+    header("slip detection against false alarms, threshold sweeps per noise condition")
+    t0 = time.perf_counter()
+    kinds = onset_kinds(test)
+    print(f"held-out: {len(test)} scenes (seed {ROC_SEED}), {kinds.count('release')} release and "
+          f"{kinds.count('gradual')} gradual onsets, {kinds.count(None)} sequences without gross slip; "
+          f"training: {len(train)} scenes (+ {len(extra)} for the bound classifier)", flush=True)
+    jordan = SlipDetector.default()
+    mlp = train_mlp(train, progress=False)
+    print(f"no-feedback MLP trained in {time.perf_counter() - t0:.0f} s", flush=True)
+    force = ForceRatioDetector(1.0)
+    force_scores = [force.ratio(r) for r in test]
+    curves = {}
+    for ci, cond in enumerate(CONDITIONS):
+        noisy_test = with_noise(test, cond, seed=1000 + ci)
+        noisy_train = with_noise(train + extra, cond, seed=2000 + ci)
+        curves[cond] = {
+            "Jordan net (bundled), y_slip": roc(net_scores(jordan, noisy_test, cond), test, kinds,
+                                                name="Jordan net (bundled)"),
+            "MLP without feedback, y_slip": roc(net_scores(mlp, noisy_test, cond), test, kinds,
+                                                name="MLP without feedback"),
+            "bound classifier, p (3 in a row)": roc(bound_scores(noisy_train, noisy_test, cond), test, kinds,
+                                                    consecutive=3, name="bound classifier"),
+            "force ratio |Fy|/Fz (noise-free)": roc(force_scores, test, kinds, name="force ratio"),
+        }
+        print(f"{cond}: done at {time.perf_counter() - t0:.0f} s", flush=True)
+
+    rows = []
+    for cond, cs in curves.items():
+        for name, c in cs.items():
+            row = [cond, name]
+            for fa in FA_POINTS:
+                p = c.at_false_alarm(fa)
+                row += [pct(p["detection_rate"]), pct(p["detection_release"]), pct(p["detection_gradual"]),
+                        pct(p["false_alarm_rate"]), f"{p['threshold']:.6g}"]
+            if "y_slip" in name:
+                p = c.at_threshold(0.8)
+                row += [f"{pct(p['detection_rate'])} / {pct(p['false_alarm_rate'])}"]
+            else:
+                row += ["-"]
+            rows.append(row)
+    head = ["noise", "detector"]
+    for fa in FA_POINTS:
+        f = f"{100 * fa:.0f} %"
+        head += [f"det @{f} FA", "release", "gradual", "FA", "threshold"]
+    head += ["det / FA at y_slip 0.8"]
+    env = environment()
+    c0 = next(iter(next(iter(curves.values())).values()))
+    md = (f"# Slip detection against false alarms\n\n{len(test)} held-out scenes (seed {ROC_SEED}, build.TEST_KWARGS "
+          f"ranges), {c0.n_sequences} sequences, {c0.n_slip} slips: {c0.n_by_kind.get('release', 0)} release, "
+          f"{c0.n_by_kind.get('gradual', 0)} gradual onsets. Detection in %, at the lowest threshold whose "
+          f"false-alarm rate is at most 2 % and 3 %.\n\nCPU: {env.get('cpu_model', '?')}\n"
+          + markdown_table(None, head, rows) + "\n")
+    print(md)
+    out = args.out
+    write_text(out + ".md", md)
+    write_json(out + ".json", {"settings": {"n_scenes": len(test), "n_train_scenes": len(train), "roc_seed": ROC_SEED,
+                                            "conditions": {k: list(map(str, v)) for k, v in CONDITIONS.items()},
+                                            "mlp_maxiter": MLP_MAXITER, "environment": env},
+                               "curves": {cond: {n: c.as_dict() for n, c in cs.items()}
+                                          for cond, cs in curves.items()}})
+    save_figure(figure(curves, len(test)), args.figure, dpi=110)
+    print(f"wrote {args.figure}, {out}.md, {out}.json in {time.perf_counter() - t0:.0f} s")
+
+
+def figure(curves, n_scenes):
+    import matplotlib.pyplot as plt
+
+    colors = ["C0", "C1", "C2", "C3"]
+    fig, axes = plt.subplots(1, len(curves), figsize=(5.2 * len(curves), 4.6), sharey=True)
+    for ax, (cond, cs) in zip(np.atleast_1d(axes), curves.items()):
+        for col, (name, c) in zip(colors, cs.items()):
+            fa = 100 * np.concatenate([[0.0], c.false_alarm_rate, [1.0]])
+            ax.plot(fa, 100 * np.concatenate([[0.0], c.detection_rate, [1.0]]), color=col,
+                    drawstyle="steps-post", label=f"{name}: all slips")
+            if "gradual" in c.detection_by_kind:
+                ax.plot(fa, 100 * np.concatenate([[0.0], c.detection_by_kind["gradual"], [1.0]]), color=col,
+                        ls="--", lw=1, drawstyle="steps-post", label="  gradual onsets")
+        for x in FA_POINTS:
+            ax.axvline(100 * x, color="0.6", lw=0.7, ls=":")
+        handles, labels = ax.get_legend_handles_labels()
+        ax.set_xlim(0, 20)
+        ax.set_ylim(0, 101)
+        ax.set_xlabel("false alarms, % of sequences")
+        ax.set_title(cond)
+        ax.grid(alpha=0.3)
+    axes[0].set_ylabel("slips detected within 50 ms, %")
+    fig.legend(handles, labels, loc="lower center", ncol=4, fontsize=8, frameon=False)
+    fig.suptitle(f"Threshold sweeps on {n_scenes} held-out scenes (solid: all slips, dashed: gradual onsets; "
+                 f"dotted: 2 % and 3 % false alarms)")
+    fig.tight_layout(rect=(0, 0.12, 1, 1))
+    return fig
+
+
+if __name__ == "__main__":
+    sys.exit(main())
