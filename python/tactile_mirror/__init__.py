@@ -12,11 +12,11 @@ Filtering follows scipy.signal conventions (``sos``, ``zi``, ``axis``); everythi
 from __future__ import annotations
 
 from . import loop, scenes
-from .circuit import SLOPE_BAND, PVDFCircuit, fit_circuit
+from .circuit import SLOPE_BAND, CircuitStream, PVDFCircuit, fit_circuit
 from .contact import Pad, RidgeGeometry, SimulationResult, simulate, simulate_many
 from .detector import DetectorWeights, SlipDetector, WeightsError, evaluate, train_detector
 from .estimator import StressRateEstimator, differentiator_sos, equalizer_sos, estimate_stress_rate
-from .filters import SosFilter, roundoff_bound, simd_path, sosfilt, validate_sos
+from .filters import SosFilter, UnstableFilterWarning, roundoff_bound, simd_path, sosfilt, validate_sos
 from .loop import (
     LoopRunner,
     PaperController,
@@ -27,6 +27,7 @@ from .loop import (
     VelocityController,
     library_path,
 )
+from .noise import SensorNoise
 from .pipeline import MirrorPipeline, ReferencePipeline
 from .scenes import Scene
 
@@ -34,6 +35,7 @@ __version__ = "0.1.0"
 
 __all__ = [
     "SLOPE_BAND",
+    "CircuitStream",
     "DetectorWeights",
     "LoopRunner",
     "MirrorPipeline",
@@ -44,6 +46,7 @@ __all__ = [
     "ReferencePipeline",
     "RidgeGeometry",
     "Scene",
+    "SensorNoise",
     "SimulatedStage",
     "SimulationResult",
     "SlipDetector",
@@ -51,6 +54,7 @@ __all__ = [
     "Stage",
     "StageLimits",
     "StressRateEstimator",
+    "UnstableFilterWarning",
     "VelocityController",
     "WeightsError",
     "__version__",
