@@ -245,13 +245,16 @@ void tm_bind_contact(py::module_& m) {
                                            std::to_string(R) + ")");
                  auto out = [&](py::handle h, const char* name, std::size_t per_step, auto tag) {
                      using A = py::array_t<decltype(tag), py::array::c_style>;
-                     if (!py::isinstance<A>(h)) throw py::type_error(std::string(name) + " has the wrong dtype");
-                     A a = py::reinterpret_borrow<A>(h);
-                     if (!a.writeable() || static_cast<std::size_t>(a.size()) != T * per_step ||
-                         !(a.flags() & py::array::c_style) || a.shape(0) != static_cast<py::ssize_t>(T))
+                     if (!py::isinstance<py::array_t<decltype(tag)>>(h))
+                         throw py::type_error(std::string(name) + " must be a numpy array of dtype " +
+                                              std::string(py::str(py::dtype::of<decltype(tag)>())));
+                     const py::array g = py::reinterpret_borrow<py::array>(h);
+                     if (!g.writeable() || static_cast<std::size_t>(g.size()) != T * per_step ||
+                         !(g.flags() & py::array::c_style) || g.ndim() < 1 ||
+                         g.shape(0) != static_cast<py::ssize_t>(T))
                          throw py::value_error(std::string(name) + " must be a writeable C-contiguous array of " +
                                                std::to_string(T) + " x " + std::to_string(per_step) + " entries");
-                     return a;
+                     return py::reinterpret_borrow<A>(h);
                  };
                  auto fo = out(forces, "forces", R * 2 * n, double{});
                  const bool want_disp = !disp.is_none();
