@@ -80,6 +80,11 @@ def simulate(scene: Scene, progress: bool = False, backend: str = "cpp") -> Simu
     backend : {"cpp", "python"}
         Contact solver implementation (:class:`~tactile_mirror.contact.ContactSolver`):
         the compiled kernel (default) or the Python reference; same results to round-off.
+        With ``"cpp"`` (and no progress bar) the whole plate trajectory is stepped in
+        compiled blocks of samples without the GIL, and the strip stresses, forces and
+        slip times of a block are derived with array operations: no Python runs per
+        time step. ``progress=True`` steps :meth:`Pad.advance` one sample at a time
+        (same results).
     """
     from ..scenes import Scene
 
