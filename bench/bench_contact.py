@@ -118,25 +118,19 @@ def bench_backends(quick):
 def bench_realtime(duration):
     """The paced loop at 1 kHz against the simulated 6-ridge FEM pad."""
     from tactile_mirror.circuit import PVDFCircuit
+    from tactile_mirror.contact.plants import FemPad
     from tactile_mirror.loop.controller import NoController
-    from tactile_mirror.loop.experiment import (
-        PLANTS,
-        FemPad,
-        PadSource,
-        Scene,
-        _pipeline,
-        default_weights,
-        scene_finger,
-    )
+    from tactile_mirror.loop.experiment import PLANTS, default_weights
     from tactile_mirror.loop.runner import LoopRunner
+    from tactile_mirror.loop.scene import LoopScene, PlantSource, loop_pipeline, scene_finger
     from tactile_mirror.loop.stage import SimulatedStage
 
     rows = []
     for n_ridges in (1, 6):
-        sc = Scene(seed=0, duration=duration, press=0.5, plant="fem", trajectory=PLANTS["fem"]["trajectory"])
+        sc = LoopScene(seed=0, duration=duration, press=0.5, plant="fem", trajectory=PLANTS["fem"]["trajectory"])
         finger = scene_finger(sc)
-        source = PadSource(sc, FemPad(n_ridges, fs=sc.fs), PVDFCircuit(), finger)
-        pipe = _pipeline(default_weights("fem", sc.fs), sc.fs, NoController(), n_ridges)
+        source = PlantSource(sc, FemPad(n_ridges, fs=sc.fs), PVDFCircuit(), finger)
+        pipe = loop_pipeline(default_weights("fem", sc.fs), sc.fs, NoController(), n_ridges)
         res = LoopRunner(pipe, SimulatedStage(), source, realtime=True).run(n_ticks=finger.size, x0=0.0)
         tp, lp = res.tick_percentiles(), res.latency_percentiles()
         rows.append([n_ridges, len(res.t), f"{tp['p50']:.0f} / {tp['p99']:.0f} / {tp['max']:.0f}",
