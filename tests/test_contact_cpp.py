@@ -156,3 +156,90 @@ def test_kernel_rejects_malformed_arrays(ridge):
         _core._ContactSolver(ridge.compliance, ridge.node_z, np.ones(n + 1), 1.0, 0.0)
     with pytest.raises(TypeError, match="_ContactSolver"):
         _core._ContactPad([object()])
+
+
+def assert_same_result(a, b, rtol=RTOL):
+    """Two SimulationResults of one scene: same states and slip times, forces and
+    stresses within rtol of their scale."""
+    assert a.t.size == b.t.size
+    assert a.slip_time == b.slip_time
+    np.testing.assert_array_equal(a.ridge_slip_time, b.ridge_slip_time)
+    for k in ("stress", "force_y", "force_z", "slip_fraction", "node_position"):
+        x, y = getattr(a, k), getattr(b, k)
+        if x is None:
+            assert y is None
+            continue
+        np.testing.assert_allclose(y, x, rtol=0, atol=rtol * np.max(np.abs(x)), err_msg=k)
+    if a.node_state is not None:
+        np.testing.assert_array_equal(a.node_state, b.node_state)
+    assert a.fields.keys() == b.fields.keys()
+
+
+def test_compiled_trajectory_equals_python_simulate():
+    # simulate() with the compiled pad steps whole blocks of samples in one call
+    scene = tm.scenes.paper("fig8", outputs={"stress", "forces", "slip", "state"}, stop_after_slip=0.05)
+    a = tm.simulate(scene, backend="python")
+    b = tm.simulate(scene)
+    assert a.slip_time is not None and a.t.size < scene.plate_motion()[0].size  # it did stop after slip
+    assert_same_result(a, b)
+
+
+@pytest.mark.parametrize("block", [7, 1024])
+def test_compiled_blocks_equal_per_step_stepping(monkeypatch, block):
+    # block boundaries anywhere (also inside the steps after gross slip) change nothing;
+    # progress=True steps the compiled pad one sample at a time from Python
+    import importlib
+
+    sim = importlib.import_module("tactile_mirror.contact.simulate")
+
+    monkeypatch.setattr(sim, "_BLOCK", block)
+    scene = tm.scenes.paper("fig6", n_ridges=2, field_times=(0.2, 1.0),
+                           outputs={"stress", "forces", "slip", "state", "fields"}, stop_after_slip=0.013)
+    a = sim.simulate(scene, progress=True)
+    b = sim.simulate(scene)
+    assert a.slip_time is not None
+    assert_same_result(a, b, rtol=0.0)
+    assert a.newton_iterations == b.newton_iterations
+    for tf in a.fields:
+        np.testing.assert_array_equal(a.fields[tf][0], b.fields[tf][0])
+
+
+def test_run_stops_at_a_failing_step_with_the_last_good_history():
+    scene = tm.scenes.paper("fig6", n_ridges=2)
+    pad = Pad.from_scene(scene)
+    ref = Pad.from_scene(scene)
+    y, z = scene.plate_motion()
+    T = 600
+    plate_z = ref.model.geometry.height - (z[:T, None] - pad.indent_offset[None, :])
+    for i in range(520):
+        last = ref.advance(y[i], z[i])
+    n = pad.model.n_nodes
+    f = np.empty((T, 2, 2 * n))
+    st = np.empty((T, 2, n), dtype=np.int8)
+    fr = np.empty((T, 2))
+    its = np.empty(T, dtype=np.int32)
+    plate_z[520, 1] = np.nan
+    status, ridge, done = pad._stepper.run(y[:T], plate_z, f, None, st, fr, its)
+    assert (status, ridge, done) == (1, 1, 520)  # non-finite position of ridge 1 at step 520
+    np.testing.assert_array_equal(f[519], last.forces)  # same kernel, same steps: same bits
+    np.testing.assert_array_equal(st[519], last.node_state)
+    for s, r in zip(pad.solvers, ref.solvers):
+        same_history(r.get_state(), s.get_state())
+    with pytest.raises(ValueError, match="plate_z"):
+        pad._stepper.run(y[:T], plate_z[:, :1], f, None, st, fr, its)
+    with pytest.raises(ValueError, match="forces"):
+        pad._stepper.run(y[:T], plate_z, f[:, :, :n], None, st, fr, its)
+    with pytest.raises(TypeError, match="state"):
+        pad._stepper.run(y[:T], plate_z, f, None, st.astype(np.int32), fr, its)
+
+
+def test_baseline_kernels_equal_python():
+    # the AVX2+FMA and the baseline variants of the dense kernels both stay within
+    # round-off of the reference
+    assert _core._contact_simd_path() in ("avx2_fma", "baseline")
+    _core._contact_set_baseline(True)
+    try:
+        assert _core._contact_simd_path() == "baseline"
+        assert_same_run(tm.scenes.paper("fig6", duration=1.2))
+    finally:
+        _core._contact_set_baseline(False)

@@ -382,3 +382,22 @@ class _ContactPad:
     ) -> tuple[int, int, int, npt.NDArray[np.float64] | None, npt.NDArray[np.float64] | None,
                npt.NDArray[np.int8] | None, npt.NDArray[np.float64] | None]:
         """(status, failing ridge, iterations, forces, displacement, state, slip_fraction); committed only if all converged."""
+    def run(
+        self,
+        plate_y: npt.ArrayLike,
+        plate_z: npt.ArrayLike,
+        forces: npt.NDArray[np.float64],
+        displacement: npt.NDArray[np.float64] | None,
+        state: npt.NDArray[np.int8],
+        slip_fraction: npt.NDArray[np.float64],
+        iterations: npt.NDArray[np.int32],
+    ) -> tuple[int, int, int]:
+        """A trajectory of T samples in one call without the GIL, into preallocated arrays
+        ((T, n_ridges, 2n), (T, n_ridges, 2n) or None, (T, n_ridges, n), (T, n_ridges), (T,));
+        returns (status, failing ridge, steps done)."""
+
+def _contact_simd_path() -> str:
+    """The variant the contact kernels run: 'avx2_fma' or 'baseline'."""
+
+def _contact_set_baseline(on: bool) -> None:
+    """Run the baseline contact kernels even on AVX2 hardware (tests and benchmarks)."""

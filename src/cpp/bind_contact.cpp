@@ -9,6 +9,11 @@
 // _core._ContactPad(solvers)   several ridges stepped in one call, without the GIL
 //   step(plate_y, plate_z[n_ridges]) -> (status, ridge, iterations, forces, displacement,
 //       state, slip_fraction); the ridges are committed only if every one converged.
+//   run(plate_y[T], plate_z[T, n_ridges], forces, displacement, state, slip_fraction,
+//       iterations) -> (status, ridge, steps): a whole open-loop trajectory in one call
+//       without the GIL, written into preallocated arrays (no allocation per step).
+// _contact_simd_path(), _contact_set_baseline(on): the kernel variant (AVX2+FMA or
+//   baseline) and a switch to force the baseline.
 // The Python-facing classes are tactile_mirror.contact.ContactSolver and Pad, which
 // validate arguments and turn a status into the reference implementation's exceptions.
 #include <pybind11/numpy.h>
@@ -225,5 +230,85 @@ void tm_bind_contact(py::module_& m) {
                                            py::none());
                  return py::make_tuple(0, 0, its, forces, disp, state, frac);
              },
-             py::arg("plate_y"), py::arg("plate_z"));
+             py::arg("plate_y"), py::arg("plate_z"))
+        .def("run",
+             [](PyContactPad& p, py::handle plate_y, py::handle plate_z, py::handle forces, py::handle disp,
+                py::handle state, py::handle frac, py::handle iterations) -> py::tuple {
+                 const std::size_t R = p.ridges.size(), n = p.n;
+                 F64 y = F64::ensure(plate_y);
+                 if (!y || y.ndim() != 1) throw py::value_error("plate_y must be a 1-D array");
+                 const std::size_t T = static_cast<std::size_t>(y.shape(0));
+                 F64 z = F64::ensure(plate_z);
+                 if (!z || z.ndim() != 2 || static_cast<std::size_t>(z.shape(0)) != T ||
+                     static_cast<std::size_t>(z.shape(1)) != R)
+                     throw py::value_error("plate_z must have shape (" + std::to_string(T) + ", " +
+                                           std::to_string(R) + ")");
+                 auto out = [&](py::handle h, const char* name, std::size_t per_step, auto tag) {
+                     using A = py::array_t<decltype(tag), py::array::c_style>;
+                     if (!py::isinstance<py::array_t<decltype(tag)>>(h))
+                         throw py::type_error(std::string(name) + " must be a numpy array of dtype " +
+                                              std::string(py::str(py::dtype::of<decltype(tag)>())));
+                     const py::array g = py::reinterpret_borrow<py::array>(h);
+                     if (!g.writeable() || static_cast<std::size_t>(g.size()) != T * per_step ||
+                         !(g.flags() & py::array::c_style) || g.ndim() < 1 ||
+                         g.shape(0) != static_cast<py::ssize_t>(T))
+                         throw py::value_error(std::string(name) + " must be a writeable C-contiguous array of " +
+                                               std::to_string(T) + " x " + std::to_string(per_step) + " entries");
+                     return py::reinterpret_borrow<A>(h);
+                 };
+                 auto fo = out(forces, "forces", R * 2 * n, double{});
+                 const bool want_disp = !disp.is_none();
+                 py::array_t<double, py::array::c_style> dis;
+                 if (want_disp) dis = out(disp, "displacement", R * 2 * n, double{});
+                 auto so = out(state, "state", R * n, std::int8_t{});
+                 auto fr = out(frac, "slip_fraction", R, double{});
+                 auto io = out(iterations, "iterations", 1, std::int32_t{});
+                 std::vector<Busy> locks;
+                 locks.reserve(R);
+                 for (auto& r : p.ridges) locks.emplace_back(*r);
+                 const double* yp = y.data();
+                 const double* zp = z.data();
+                 double* fop = fo.mutable_data();
+                 double* dop = want_disp ? dis.mutable_data() : nullptr;
+                 std::int8_t* sop = so.mutable_data();
+                 double* frp = fr.mutable_data();
+                 std::int32_t* iop = io.mutable_data();
+                 ContactStatus status = ContactStatus::ok;
+                 std::size_t bad = 0, done = 0;
+                 {
+                     py::gil_scoped_release nogil;
+                     for (std::size_t t = 0; t < T; ++t) {
+                         for (std::size_t k = 0; k < R && status == ContactStatus::ok; ++k) {
+                             status = p.ridges[k]->k.solve(yp[t], zp[t * R + k]);
+                             bad = k;
+                         }
+                         if (status != ContactStatus::ok) break;
+                         long its = 0;
+                         for (std::size_t k = 0; k < R; ++k) {
+                             ContactSolverKernel& s = p.ridges[k]->k;
+                             s.commit();
+                             const std::size_t o = t * R + k;
+                             std::memcpy(fop + o * 2 * n, s.forces(), 2 * n * sizeof(double));
+                             if (dop) std::memcpy(dop + o * 2 * n, s.displacement(), 2 * n * sizeof(double));
+                             std::memcpy(sop + o * n, s.reported_state(), n);
+                             frp[o] = s.slip_fraction();
+                             its += s.iterations();
+                         }
+                         iop[t] = static_cast<std::int32_t>(its);
+                         done = t + 1;
+                     }
+                 }
+                 return py::make_tuple(static_cast<int>(status), bad, done);
+             },
+             py::arg("plate_y"), py::arg("plate_z"), py::arg("forces"), py::arg("displacement"), py::arg("state"),
+             py::arg("slip_fraction"), py::arg("iterations"),
+             "Step every ridge through a whole trajectory without the GIL, into preallocated C-contiguous "
+             "arrays: forces and displacement (T, n_ridges, 2n) float64 (displacement may be None), state "
+             "(T, n_ridges, n) int8, slip_fraction (T, n_ridges) float64, iterations (T,) int32. Returns "
+             "(status, ridge, steps): the steps done; on a failure (status != 0) at step `steps`, the ridges "
+             "hold the history after the last good step.");
+    m.def("_contact_simd_path", [] { return std::string(tactile::contact_simd_path()); },
+          "The variant the contact kernels run: 'avx2_fma' or 'baseline'.");
+    m.def("_contact_set_baseline", [](bool on) { tactile::set_contact_baseline(on); }, py::arg("on"),
+          "Run the baseline contact kernels even on AVX2 hardware (for tests and benchmarks).");
 }

@@ -72,21 +72,31 @@ struct ContactParams {
 // hundred.
 constexpr std::size_t kLuBlock = 8;
 
+// The dense kernels below (the LU, its triangular solves, the dot products and the
+// compliance product u = C P lam) are where a step spends its time. Each is written
+// once over B-byte vectors and compiled twice (simd.hpp): the x86-64 baseline and an
+// AVX2+FMA variant chosen at run time; on AVX2 hardware a 4-wide fused
+// multiply-add replaces two 2-wide SSE2 multiplies and adds (measured on fig6: the
+// step's median about halves). The two variants round differently (FMA, summation
+// order); both stay within round-off of the Python reference (tests/test_contact_cpp.py).
+
 // ri[j] -= sum_t ri[kb + t] * U[t][j] for j in [ke, m), t < 8: one row of the
-// trailing update with a full panel. Written out in scalars so that the eight
-// multipliers and the partial sums stay in registers (the generic 32-byte vectors
-// spill on the SSE2 baseline here); the two partial sums halve the dependency chain.
-inline void lu_update_row8(double* ri, const double* U, std::size_t lda, std::size_t kb, std::size_t ke,
-                           std::size_t m) noexcept {
+// trailing update with a full panel. Written out so that the eight multipliers and
+// the partial sums stay in registers; the two partial sums halve the dependency chain.
+template <int B>
+TM_ALWAYS_INLINE void lu_update_row8(double* ri, const double* U, std::size_t lda, std::size_t kb, std::size_t ke,
+                                     std::size_t m) noexcept {
     const double l0 = ri[kb], l1 = ri[kb + 1], l2 = ri[kb + 2], l3 = ri[kb + 3];
     const double l4 = ri[kb + 4], l5 = ri[kb + 5], l6 = ri[kb + 6], l7 = ri[kb + 7];
     const double *u0 = U, *u1 = U + lda, *u2 = U + 2 * lda, *u3 = U + 3 * lda;
     const double *u4 = U + 4 * lda, *u5 = U + 5 * lda, *u6 = U + 6 * lda, *u7 = U + 7 * lda;
     std::size_t j = ke;
-    if (m - ke >= 4) {  // 4-wide (two SSE2 registers on the baseline); no loop-carried value
-        using V = simd::vec<double>;
-        const V v0 = simd::splat(l0), v1 = simd::splat(l1), v2 = simd::splat(l2), v3 = simd::splat(l3);
-        const V v4 = simd::splat(l4), v5 = simd::splat(l5), v6 = simd::splat(l6), v7 = simd::splat(l7);
+    if (m - ke >= 4) {  // 4-wide (two SSE2 registers on the baseline, one AVX register); no loop-carried value
+        using V = typename simd::Vec<double, 32>::type;
+        const V v0 = simd::splat<double, 32>(l0), v1 = simd::splat<double, 32>(l1);
+        const V v2 = simd::splat<double, 32>(l2), v3 = simd::splat<double, 32>(l3);
+        const V v4 = simd::splat<double, 32>(l4), v5 = simd::splat<double, 32>(l5);
+        const V v6 = simd::splat<double, 32>(l6), v7 = simd::splat<double, 32>(l7);
         for (; j + 4 <= m; j += 4) {
             const V s0 = v0 * simd::load<V>(u0 + j) + v1 * simd::load<V>(u1 + j) +
                          v2 * simd::load<V>(u2 + j) + v3 * simd::load<V>(u3 + j);
@@ -103,7 +113,8 @@ inline void lu_update_row8(double* ri, const double* U, std::size_t lda, std::si
     }
 }
 
-inline int lu_factor(double* a, std::size_t m, std::size_t lda, int* piv) noexcept {
+template <int B>
+TM_ALWAYS_INLINE int lu_factor_impl(double* a, std::size_t m, std::size_t lda, int* piv) noexcept {
     for (std::size_t kb = 0; kb < m; kb += kLuBlock) {
         const std::size_t b = m - kb < kLuBlock ? m - kb : kLuBlock;
         const std::size_t ke = kb + b;
@@ -143,7 +154,7 @@ inline int lu_factor(double* a, std::size_t m, std::size_t lda, int* piv) noexce
         }
         // trailing update A22 -= L21 U12
         if (b == kLuBlock) {
-            for (std::size_t i = ke; i < m; ++i) lu_update_row8(a + i * lda, a + kb * lda, lda, kb, ke, m);
+            for (std::size_t i = ke; i < m; ++i) lu_update_row8<B>(a + i * lda, a + kb * lda, lda, kb, ke, m);
         } else {
             for (std::size_t i = ke; i < m; ++i) {
                 double* ri = a + i * lda;
@@ -158,35 +169,161 @@ inline int lu_factor(double* a, std::size_t m, std::size_t lda, int* piv) noexce
     return 0;
 }
 
-// sum_j a[j] b[j] with four independent partial sums: a single running sum is bound
-// by the add latency (a chain of m dependent adds), four keep the units busy.
-inline double dot(const double* a, const double* b, std::size_t m) noexcept {
-    double s0 = 0.0, s1 = 0.0, s2 = 0.0, s3 = 0.0;
+// sum_j a[j] b[j]: two 4-wide partial sums (eight independent lanes) so that the
+// loop is bound by the loads, not by the add latency of one running sum.
+template <int B>
+TM_ALWAYS_INLINE double dot_impl(const double* a, const double* b, std::size_t m) noexcept {
+    using V = typename simd::Vec<double, 32>::type;
     std::size_t j = 0;
-    for (; j + 4 <= m; j += 4) {
-        s0 += a[j] * b[j];
-        s1 += a[j + 1] * b[j + 1];
-        s2 += a[j + 2] * b[j + 2];
-        s3 += a[j + 3] * b[j + 3];
+    double s = 0.0;
+    if (m >= 8) {
+        V s0 = simd::splat<double, 32>(0.0), s1 = s0;
+        for (; j + 8 <= m; j += 8) {
+            s0 += simd::load<V>(a + j) * simd::load<V>(b + j);
+            s1 += simd::load<V>(a + j + 4) * simd::load<V>(b + j + 4);
+        }
+        s0 += s1;
+        s = (s0[0] + s0[1]) + (s0[2] + s0[3]);
     }
-    for (; j < m; ++j) s0 += a[j] * b[j];
-    return (s0 + s1) + (s2 + s3);
+    for (; j < m; ++j) s += a[j] * b[j];
+    return s;
 }
 
 // Solve with the factors of lu_factor: b (length m) is overwritten by the solution.
-inline void lu_solve(const double* lu, std::size_t m, std::size_t lda, const int* piv, double* b) noexcept {
+template <int B>
+TM_ALWAYS_INLINE void lu_solve_impl(const double* lu, std::size_t m, std::size_t lda, const int* piv,
+                                    double* b) noexcept {
     for (std::size_t k = 0; k < m; ++k) {
         const std::size_t p = static_cast<std::size_t>(piv[k]);
         if (p != k) { const double t = b[k]; b[k] = b[p]; b[p] = t; }
     }
     for (std::size_t i = 1; i < m; ++i) {  // L y = P b, unit diagonal
         const double* ri = lu + i * lda;
-        b[i] -= dot(ri, b, i);
+        b[i] -= dot_impl<B>(ri, b, i);
     }
     for (std::size_t i = m; i-- > 0;) {  // U x = y
         const double* ri = lu + i * lda;
-        b[i] = (b[i] - dot(ri + i + 1, b + i + 1, m - i - 1)) / ri[i];
+        b[i] = (b[i] - dot_impl<B>(ri + i + 1, b + i + 1, m - i - 1)) / ri[i];
     }
+}
+
+// u = C P lam for the symmetric (m x m, m = 2n) compliance C, P = diag(1, -1):
+// column j of C P is row j of C (sign-flipped for the normal block); only the
+// nonzero forces contribute (open nodes carry none).
+template <int B>
+TM_ALWAYS_INLINE void compliance_product_impl(const double* C, std::size_t n, const double* lam, double* u) noexcept {
+    const std::size_t n2 = 2 * n;
+    using V = typename simd::Vec<double, 32>::type;
+    for (std::size_t i = 0; i < n2; ++i) u[i] = 0.0;
+    // two columns per pass: half the loads and stores of u
+    std::size_t j = 0, jn = 0;
+    auto next = [&](std::size_t from) {
+        while (from < n2 && lam[from] == 0.0) ++from;
+        return from;
+    };
+    j = next(0);
+    while (j < n2) {
+        jn = next(j + 1);
+        const double a = j < n ? lam[j] : -lam[j];
+        const double* cj = C + j * n2;
+        const V av = simd::splat<double, 32>(a);
+        std::size_t i = 0;
+        if (jn < n2) {
+            const double a2 = jn < n ? lam[jn] : -lam[jn];
+            const double* ck = C + jn * n2;
+            const V bv = simd::splat<double, 32>(a2);
+            for (; i + 4 <= n2; i += 4) {
+                const V r = simd::load<V>(u + i) + simd::load<V>(cj + i) * av + simd::load<V>(ck + i) * bv;
+                std::memcpy(u + i, &r, sizeof(r));
+            }
+            for (; i < n2; ++i) u[i] += cj[i] * a + ck[i] * a2;
+            j = next(jn + 1);
+        } else {
+            for (; i + 4 <= n2; i += 4) {
+                const V r = simd::load<V>(u + i) + simd::load<V>(cj + i) * av;
+                std::memcpy(u + i, &r, sizeof(r));
+            }
+            for (; i < n2; ++i) u[i] += cj[i] * a;
+            j = jn;
+        }
+    }
+}
+
+namespace contact_detail {
+inline int lu_factor_base(double* a, std::size_t m, std::size_t lda, int* piv) noexcept {
+    return lu_factor_impl<simd::kBaseBytes>(a, m, lda, piv);
+}
+inline double dot_base(const double* a, const double* b, std::size_t m) noexcept {
+    return dot_impl<simd::kBaseBytes>(a, b, m);
+}
+inline void lu_solve_base(const double* lu, std::size_t m, std::size_t lda, const int* piv, double* b) noexcept {
+    lu_solve_impl<simd::kBaseBytes>(lu, m, lda, piv, b);
+}
+inline void compliance_product_base(const double* C, std::size_t n, const double* lam, double* u) noexcept {
+    compliance_product_impl<simd::kBaseBytes>(C, n, lam, u);
+}
+#if TM_HAVE_DISPATCH
+TM_TARGET_AVX2 inline int lu_factor_avx2(double* a, std::size_t m, std::size_t lda, int* piv) noexcept {
+    return lu_factor_impl<32>(a, m, lda, piv);
+}
+TM_TARGET_AVX2 inline double dot_avx2(const double* a, const double* b, std::size_t m) noexcept {
+    return dot_impl<32>(a, b, m);
+}
+TM_TARGET_AVX2 inline void lu_solve_avx2(const double* lu, std::size_t m, std::size_t lda, const int* piv,
+                                         double* b) noexcept {
+    lu_solve_impl<32>(lu, m, lda, piv, b);
+}
+TM_TARGET_AVX2 inline void compliance_product_avx2(const double* C, std::size_t n, const double* lam,
+                                                   double* u) noexcept {
+    compliance_product_impl<32>(C, n, lam, u);
+}
+#endif
+// The AVX2+FMA variants run when the CPU has them (decided once), unless
+// set_contact_baseline(true) forces the baseline (for tests and benchmarks).
+inline bool& force_baseline() noexcept {
+    static bool b = false;
+    return b;
+}
+inline bool use_avx2() noexcept {
+#if TM_HAVE_DISPATCH
+    static const bool has = simd::detect_isa() == simd::Isa::avx2_fma;
+    return has && !force_baseline();
+#else
+    return false;
+#endif
+}
+}  // namespace contact_detail
+
+// Run the baseline variants of the contact kernels even on AVX2 hardware (true), or
+// the detected variant again (false). Not thread-safe against running steps.
+inline void set_contact_baseline(bool on) noexcept { contact_detail::force_baseline() = on; }
+// The variant the contact kernels run: "avx2_fma" or "baseline".
+inline const char* contact_simd_path() noexcept { return contact_detail::use_avx2() ? "avx2_fma" : "baseline"; }
+
+// Dense LU with partial pivoting (see lu_factor_impl).
+inline int lu_factor(double* a, std::size_t m, std::size_t lda, int* piv) noexcept {
+#if TM_HAVE_DISPATCH
+    if (contact_detail::use_avx2()) return contact_detail::lu_factor_avx2(a, m, lda, piv);
+#endif
+    return contact_detail::lu_factor_base(a, m, lda, piv);
+}
+inline double dot(const double* a, const double* b, std::size_t m) noexcept {
+#if TM_HAVE_DISPATCH
+    if (contact_detail::use_avx2()) return contact_detail::dot_avx2(a, b, m);
+#endif
+    return contact_detail::dot_base(a, b, m);
+}
+inline void lu_solve(const double* lu, std::size_t m, std::size_t lda, const int* piv, double* b) noexcept {
+#if TM_HAVE_DISPATCH
+    if (contact_detail::use_avx2()) return contact_detail::lu_solve_avx2(lu, m, lda, piv, b);
+#endif
+    contact_detail::lu_solve_base(lu, m, lda, piv, b);
+}
+inline void compliance_product(const double* C, std::size_t n, const double* lam, double* u) noexcept {
+#if TM_HAVE_DISPATCH
+    if (contact_detail::use_avx2()) return contact_detail::compliance_product_avx2(C, n, lam, u);
+#endif
+    contact_detail::compliance_product_base(C, n, lam, u);
 }
 
 // max |x_i|, NaN if any entry is NaN (as numpy's max of abs).
@@ -367,23 +504,7 @@ public:
 
     // u = C P lam, P = diag(1, -1): C is symmetric, so column j of C P is row j of C
     // (sign-flipped for the normal block); only the nonzero forces contribute.
-    void displacement(const double* lam, double* u) const noexcept {
-        const std::size_t n2 = n2_;
-        for (std::size_t i = 0; i < n2; ++i) u[i] = 0.0;
-        for (std::size_t j = 0; j < n2; ++j) {
-            const double a = j < n_ ? lam[j] : -lam[j];
-            if (a == 0.0) continue;
-            const double* cj = C_.data() + j * n2;
-            std::size_t i = 0;
-            using V = simd::vec<double>;
-            const V av = simd::splat(a);
-            for (; i + 4 <= n2; i += 4) {
-                const V r = simd::load<V>(u + i) + simd::load<V>(cj + i) * av;
-                std::memcpy(u + i, &r, sizeof(r));
-            }
-            for (; i < n2; ++i) u[i] += cj[i] * a;
-        }
-    }
+    void displacement(const double* lam, double* u) const noexcept { compliance_product(C_.data(), n_, lam, u); }
 
     // Alart-Curnier residual F (2n) at (lam, u), the classification open / stick /
     // slip and the slip signs; returns max |F|. Uses the per-node cone of this step.

@@ -16,6 +16,7 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from .pad import Pad
+from .solver import OPEN, STICK
 
 if TYPE_CHECKING:  # scenes imports contact.geometry, so import it lazily at run time
     from ..scenes import Scene
@@ -79,6 +80,11 @@ def simulate(scene: Scene, progress: bool = False, backend: str = "cpp") -> Simu
     backend : {"cpp", "python"}
         Contact solver implementation (:class:`~tactile_mirror.contact.ContactSolver`):
         the compiled kernel (default) or the Python reference; same results to round-off.
+        With ``"cpp"`` (and no progress bar) the whole plate trajectory is stepped in
+        compiled blocks of samples without the GIL, and the strip stresses, forces and
+        slip times of a block are derived with array operations: no Python runs per
+        time step. ``progress=True`` steps :meth:`Pad.advance` one sample at a time
+        (same results).
     """
     from ..scenes import Scene
 
@@ -109,6 +115,10 @@ def simulate(scene: Scene, progress: bool = False, backend: str = "cpp") -> Simu
         from tqdm.auto import tqdm
 
         steps = tqdm(steps, desc="contact", unit="step", leave=False)
+    if pad._stepper is not None and not progress:
+        end, slip_time, its = _run_compiled(pad, plate_y, indent, scene, want_stress, want_state, field_idx, stress,
+                                            frac, fy, fz, node_state, node_pos, fields, ridge_slip)
+        steps = range(0)
     for i in steps:
         if i >= end:
             break
@@ -148,6 +158,75 @@ def simulate(scene: Scene, progress: bool = False, backend: str = "cpp") -> Simu
         if scene.noise_model is not None:
             res.v_out, res.u_out = scene.noise_model.apply(res.v_out, res.u_out, scene.fs, seed=[1, scene.seed])
     return res
+
+
+#: Steps per call of the compiled trajectory stepper (bounds the memory of its outputs).
+_BLOCK = 1024
+
+
+def _run_compiled(pad, plate_y, indent, scene, want_stress, want_state, field_idx, stress, frac, fy, fz,
+                  node_state, node_pos, fields, ridge_slip):
+    """The trajectory loop of :func:`simulate` with the compiled pad: blocks of steps
+    run in one call each (no Python per step); the outputs of a block are derived with
+    array operations. Same results as stepping :meth:`Pad.advance` one sample at a time."""
+    model = pad.model
+    R, n = pad.n_ridges, model.n_nodes
+    n_total = plate_y.size
+    H = model.geometry.height
+    plate_y = np.ascontiguousarray(plate_y, dtype=np.float64)
+    plate_z = np.ascontiguousarray(H - (np.asarray(indent, dtype=np.float64)[:, None] - pad.indent_offset[None, :]))
+    if not (np.all(np.isfinite(plate_y)) and np.all(np.isfinite(plate_z))):
+        k = int(np.flatnonzero(~(np.isfinite(plate_y) & np.all(np.isfinite(plate_z), axis=1)))[0])
+        raise ValueError(f"plate position must be finite, got y={plate_y[k]!r}, indent={indent[k]!r}")
+    B = min(_BLOCK, n_total)
+    f_buf = np.empty((B, R, 2 * n))
+    d_buf = np.empty((B, R, 2 * n)) if want_state else None
+    s_buf = np.empty((B, R, n), dtype=np.int8)
+    fr_buf = np.empty((B, R))
+    it_buf = np.empty(B, dtype=np.int32)
+    sensor_t = model.sensor.T
+    slip_time = None
+    its = 0
+    end = n_total
+    start = 0
+    while start < end:
+        m = min(B, end - start)
+        status, bad, done = pad._stepper.run(plate_y[start:start + m], plate_z[start:start + m], f_buf[:m],
+                                             None if d_buf is None else d_buf[:m], s_buf[:m], fr_buf[:m], it_buf[:m])
+        if status:
+            i = start + done
+            pad.solvers[bad]._raise_status(status, float(plate_y[i]), float(plate_z[i, bad]))
+        f, st = f_buf[:m], s_buf[:m]
+        sl = slice(start, start + m)
+        if want_stress:
+            stress[..., sl] = np.moveaxis((f @ sensor_t).reshape(m, R, model.n_strips, 3), 0, -1)
+        frac[:, sl] = fr_buf[:m].T
+        fy[sl] = f[:, :, :n].sum(axis=(1, 2)) * pad.ridge_length
+        fz[sl] = -f[:, :, n:].sum(axis=(1, 2)) * pad.ridge_length
+        if want_state:
+            node_state[..., sl] = np.moveaxis(st, 0, -1)
+            d = d_buf[:m]
+            node_pos[:, 0, :, sl] = np.moveaxis(model.node_y + d[:, :, :n], 0, -1)
+            node_pos[:, 1, :, sl] = np.moveaxis(model.node_z + d[:, :, n:], 0, -1)
+        touch = np.any(st != OPEN, axis=2)
+        gross = touch & ~np.any(st == STICK, axis=2)  # (m, R)
+        if slip_time is None:
+            all_gross = gross.all(axis=1)
+            if all_gross.any():
+                i = start + int(np.argmax(all_gross))
+                slip_time = i / scene.fs
+                if scene.stop_after_slip is not None:
+                    end = min(n_total, i + 1 + round(scene.stop_after_slip * scene.fs))
+        valid = min(m, end - start)  # steps of this block past the end are dropped (the pad is local)
+        its += int(it_buf[:valid].sum())
+        for i, tf in field_idx.items():
+            if start <= i < start + valid:
+                fields[tf] = model.stress_field(f[i - start, 0])
+        for k in range(R):
+            if np.isnan(ridge_slip[k]) and gross[:valid, k].any():
+                ridge_slip[k] = (start + int(np.argmax(gross[:valid, k]))) / scene.fs
+        start += m
+    return end, slip_time, its
 
 
 def _simulate_quiet(scene):

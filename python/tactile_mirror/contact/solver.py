@@ -37,7 +37,9 @@ force scale``, with the force scale ``r * max(|g|, indent)``; a step that does n
 converge raises :class:`ContactConvergenceError`.
 
 Two backends run this algorithm: ``"cpp"`` (the default: the compiled kernel
-``contact_solver.hpp``, a few microseconds per step when the piece is unchanged) and
+``contact_solver.hpp``, a few microseconds per step when the piece is unchanged; its
+dense LU, triangular solves and compliance products run as AVX2+FMA code where the
+CPU has it, else as x86-64 baseline code, chosen at run time) and
 ``"python"`` (numpy/LAPACK, the reference). They take the same steps in the same
 order (the compiled one solves a piece near the last factored one by bordering its LU
 instead of refactoring, with one step of iterative refinement) and agree to round-off (forces within 1e-10 relative, identical node states on
