@@ -25,19 +25,7 @@ import tactile_mirror as tm
 from _common import table, timed
 from tactile_mirror import _core
 from tactile_mirror.contact import ContactSolver, Pad, RidgeGeometry, ridge_model, simulate
-
-
-def cpu_model() -> str:
-    try:
-        with open("/proc/cpuinfo") as f:
-            for line in f:
-                if line.startswith("model name"):
-                    return line.split(":", 1)[1].strip()
-    except OSError:
-        pass
-    import platform
-
-    return platform.processor() or "unknown"
+from tactile_mirror.measure import cpu_model
 
 
 def bench_backends(quick):
