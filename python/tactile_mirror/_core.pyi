@@ -397,7 +397,7 @@ class _ContactPad:
         returns (status, failing ridge, steps done)."""
 
 def _contact_simd_path() -> str:
-    """The variant the contact kernels run: 'avx2_fma' or 'baseline'."""
+    """The variant the contact kernels run, by simd_path()'s names: 'avx2+fma' or the base variant."""
 
 def _contact_set_baseline(on: bool) -> None:
     """Run the baseline contact kernels even on AVX2 hardware (tests and benchmarks)."""

@@ -308,7 +308,7 @@ void tm_bind_contact(py::module_& m) {
              "(status, ridge, steps): the steps done; on a failure (status != 0) at step `steps`, the ridges "
              "hold the history after the last good step.");
     m.def("_contact_simd_path", [] { return std::string(tactile::contact_simd_path()); },
-          "The variant the contact kernels run: 'avx2_fma' or 'baseline'.");
+          "The variant the contact kernels run, by simd_path()'s names: 'avx2+fma' or the base variant.");
     m.def("_contact_set_baseline", [](bool on) { tactile::set_contact_baseline(on); }, py::arg("on"),
           "Run the baseline contact kernels even on AVX2 hardware (for tests and benchmarks).");
 }

@@ -297,8 +297,15 @@ inline bool use_avx2() noexcept {
 // Run the baseline variants of the contact kernels even on AVX2 hardware (true), or
 // the detected variant again (false). Not thread-safe against running steps.
 inline void set_contact_baseline(bool on) noexcept { contact_detail::force_baseline() = on; }
-// The variant the contact kernels run: "avx2_fma" or "baseline".
-inline const char* contact_simd_path() noexcept { return contact_detail::use_avx2() ? "avx2_fma" : "baseline"; }
+// The variant the contact kernels run, by the SIMD layer's names (simd::isa_name):
+// "avx2+fma", or the base variant ("sse2" on x86-64, "native" in a TM_NATIVE build).
+inline const char* contact_simd_path() noexcept {
+#if TM_HAVE_DISPATCH
+    return simd::isa_name(contact_detail::use_avx2() ? simd::Isa::avx2_fma : simd::Isa::baseline);
+#else
+    return simd::isa_name(simd::detect_isa());
+#endif
+}
 
 // Dense LU with partial pivoting (see lu_factor_impl).
 inline int lu_factor(double* a, std::size_t m, std::size_t lda, int* piv) noexcept {
