@@ -166,3 +166,15 @@ def test_sanitizers():
     r = subprocess.run([sys.executable, str(HERE / "run_sanitizers.py")], capture_output=True, text=True,
                        timeout=300, check=False)
     assert r.returncode == 0, r.stdout + r.stderr
+
+
+def test_every_declaration_is_resolved_when_the_library_is_loaded():
+    # cffi resolves a name on first use under a lock that all libraries of one FFI
+    # share. A CPipeline freed by the cycle collector during such a look-up (inside a
+    # new CPipeline's construction) would look up tm_pipeline_destroy on its own
+    # library under the same lock from __del__: a deadlock, seen in a test run.
+    # With every name resolved by load(), calls are plain attribute reads.
+    ffi, lib = load()
+    names = dir(lib)
+    assert "tm_pipeline_destroy" in names and "tm_pipeline_step" in names
+    assert all(n in vars(lib) for n in names)

@@ -105,6 +105,13 @@ def load(path: str | None = None):
         ffi.cdef(_cdef_from_header(Path(header_path()).read_text()))
         _FFI = ffi
     lib = _FFI.dlopen(path or library_path())
+    # Resolve every declaration now. cffi resolves a name on first use under a lock of
+    # the FFI object that all opened libraries share; a garbage collection inside that
+    # look-up can run CPipeline.__del__ -> tm_pipeline_destroy -> a first look-up on
+    # another library -> the same lock: a deadlock. Resolved names are plain
+    # attributes, so later calls (and every __del__) never take that lock.
+    for name in dir(lib):
+        getattr(lib, name)
     return _FFI, lib
 
 
