@@ -174,7 +174,7 @@ def test_every_declaration_is_resolved_when_the_library_is_loaded():
     # new CPipeline's construction) would look up tm_pipeline_destroy on its own
     # library under the same lock from __del__: a deadlock, seen in a test run.
     # With every name resolved by load(), calls are plain attribute reads.
-    ffi, lib = load()
+    lib = load()[1]
     names = dir(lib)
     assert "tm_pipeline_destroy" in names and "tm_pipeline_step" in names
     assert all(n in vars(lib) for n in names)
