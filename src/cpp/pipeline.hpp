@@ -737,14 +737,20 @@ private:
     // F^K (M + K kUnguardedInput) <= limit_, a bound below which the detector's
     // arithmetic stays finite too (limit_ accounts for its input gains and
     // weights, and the controller's integrator is bounded alike). Those K ticks skip
-    // the undo and the check; a reset or any guarded tick starts a new count. Float
-    // filters always take the guarded path.
+    // the undo and the check; a reset or any guarded tick starts a new count.
+    // A delta section (y = b0 x + s1, s1' = s1 + B1 x + s2 - A1 y, s2' = s2 + B2 x - A2 y)
+    // grows by at most max(|b0| + 1, 2 + |B1| + |A1| (|b0| + 1), 1 + |B2| + |A2| (|b0| + 1));
+    // a section's factor is the larger of its two forms' bounds, whichever form runs.
     static constexpr double kUnguardedInput = 1e100;
     static double section_growth(const double* s) noexcept {
         const double a0 = s[3];
         const double b0 = std::fabs(s[0] / a0), b1 = std::fabs(s[1] / a0), b2 = std::fabs(s[2] / a0);
         const double a1 = std::fabs(s[4] / a0), a2 = std::fabs(s[5] / a0);
-        return std::max({b0 + 1.0, b1 + a1 * (b0 + 1.0) + 1.0, b2 + a2 * (b0 + 1.0)});
+        const double tdf2 = std::max({b0 + 1.0, b1 + a1 * (b0 + 1.0) + 1.0, b2 + a2 * (b0 + 1.0)});
+        const double B1 = std::fabs(2.0 * s[0] / a0 + s[1] / a0), B2 = std::fabs((s[0] + s[1] + s[2]) / a0);
+        const double A1 = std::fabs(2.0 + s[4] / a0), A2 = std::fabs(1.0 + (s[4] + s[5]) / a0);
+        const double delta = std::max({b0 + 1.0, 2.0 + B1 + A1 * (b0 + 1.0), 1.0 + B2 + A2 * (b0 + 1.0)});
+        return std::max(tdf2, delta);
     }
     static double cascade_growth(const double* sos, int n) noexcept {
         double f = 1.0;
@@ -753,7 +759,6 @@ private:
     }
     void setup_unguarded(const PipelineConfig& c) noexcept {
         growth_ = 0.0;  // 0: never unguarded
-        if (!std::is_same<T, double>::value) return;
         const double fv = c.n_sos_v > 0 ? cascade_growth(c.sos_v, c.n_sos_v) : 1.0;
         const double f2 = c.use_u ? (c.n_sos_u > 0 ? cascade_growth(c.sos_u, c.n_sos_u) : 1.0)
                                   : fv * cascade_growth(c.sos_diff, c.n_sos_diff);
@@ -766,10 +771,15 @@ private:
             gmax = std::max(gmax, row);
         }
         for (int i = 0; i < kFeatures; ++i) mean = std::max(mean, std::fabs(c.input_mean[i]));
-        limit_ = double(std::numeric_limits<TD>::max()) * 1e-6 / gmax;
-        if (!(std::isfinite(g) && g >= 1.0 && limit_ > 1e6 * (mean + 1.0) && limit_ > kUnguardedInput * 1e6)) return;
+        limit_ = std::min(double(std::numeric_limits<T>::max()), double(std::numeric_limits<TD>::max())) * 1e-6 / gmax;
+        // Samples up to kUnguardedInput where the arithmetic's range allows it (float64
+        // throughout), else only what the sample limits bound (a float32 filter or detector).
+        input_bound_ = limit_ > kUnguardedInput * 1e6 ? kUnguardedInput
+                                                      : std::max(c.v_limit, c.use_u ? c.u_limit : 0.0);
+        if (!(input_bound_ > 0.0 && std::isfinite(input_bound_))) return;
+        if (!(std::isfinite(g) && g >= 1.0 && limit_ > 1e6 * (mean + 1.0) && limit_ > input_bound_ * 1e6)) return;
         growth_ = g;
-        inputs_bounded_ = c.v_limit <= kUnguardedInput && (!c.use_u || c.u_limit <= kUnguardedInput);
+        inputs_bounded_ = c.v_limit <= input_bound_ && (!c.use_u || c.u_limit <= input_bound_);
     }
     // After a guarded, accepted tick: how many ticks may skip the undo.
     void renew_unguarded() noexcept {
@@ -784,7 +794,7 @@ private:
         double a = std::fabs(ctrl_.asymmetry());
         std::uint32_t k = 0;
         for (double bound = m; k < 4096; ++k) {
-            bound = growth_ * (bound + kUnguardedInput);
+            bound = growth_ * (bound + input_bound_);
             a += per_tick * bound;
             if (!(bound <= limit_ && a <= 1e300)) break;
         }
@@ -799,7 +809,7 @@ private:
     TM_ALWAYS_INLINE bool inputs_small(const double* x) const noexcept {
         if (inputs_bounded_) return true;  // the sample limits already bound them
         bool ok = true;
-        for (std::size_t c = 0, n = n_inputs(); c < n; ++c) ok &= std::fabs(x[c]) <= kUnguardedInput;
+        for (std::size_t c = 0, n = n_inputs(); c < n; ++c) ok &= std::fabs(x[c]) <= input_bound_;
         return ok;
     }
 
@@ -965,7 +975,7 @@ private:
     std::vector<double> out_;
     PipelineStatus st_;
     StatusBoard board_;
-    double growth_ = 0.0, limit_ = 0.0;  // ticks that cannot overflow (setup_unguarded)
+    double growth_ = 0.0, limit_ = 0.0, input_bound_ = kUnguardedInput;  // ticks that cannot overflow (setup_unguarded)
     bool inputs_bounded_ = false;
     std::uint32_t unguarded_left_ = 0;
 };
