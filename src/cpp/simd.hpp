@@ -671,70 +671,50 @@ template <typename T, int B, Accuracy A>
 TM_ALWAYS_INLINE void sigmoid_array_impl(const T* in, T* out, std::size_t n) noexcept {
     map_array<T, B, A, false>(in, out, n);
 }
-template <typename T, int B, Accuracy A>
-TM_ALWAYS_INLINE void exp_array_impl(const T* in, T* out, std::size_t n) noexcept {
-    map_array<T, B, A, true>(in, out, n);
-}
 
-template <typename T, Accuracy A>
-__attribute__((noinline)) void sigmoid_array_base(const T* in, T* out, std::size_t n) noexcept {
-    sigmoid_array_impl<T, kBaseBytes, A>(in, out, n);
-}
-template <typename T, Accuracy A>
-__attribute__((noinline)) void exp_array_base(const T* in, T* out, std::size_t n) noexcept {
-    exp_array_impl<T, kBaseBytes, A>(in, out, n);
+template <typename T, Accuracy A, bool Exp>
+__attribute__((noinline)) void map_array_base(const T* in, T* out, std::size_t n) noexcept {
+    map_array<T, kBaseBytes, A, Exp>(in, out, n);
 }
 #if TM_HAVE_DISPATCH
-template <typename T, Accuracy A>
-TM_TARGET_AVX2 __attribute__((noinline)) void sigmoid_array_avx2(const T* in, T* out, std::size_t n) noexcept {
-    sigmoid_array_impl<T, 32, A>(in, out, n);
-}
-template <typename T, Accuracy A>
-TM_TARGET_AVX2 __attribute__((noinline)) void exp_array_avx2(const T* in, T* out, std::size_t n) noexcept {
-    exp_array_impl<T, 32, A>(in, out, n);
+template <typename T, Accuracy A, bool Exp>
+TM_TARGET_AVX2 __attribute__((noinline)) void map_array_avx2(const T* in, T* out, std::size_t n) noexcept {
+    map_array<T, 32, A, Exp>(in, out, n);
 }
 #endif
 
-// The detector kernel's sigmoid on n values with the given accuracy and variant
-// (for measuring the approximation error); a variant this CPU lacks runs the
+// map_array with the given accuracy and variant; a variant this CPU lacks runs the
 // baseline.
-template <typename T>
-inline void sigmoid_array(const T* in, T* out, std::size_t n, Accuracy acc, Isa isa) noexcept {
+template <typename T, bool Exp>
+inline void map_array_dispatch(const T* in, T* out, std::size_t n, Accuracy acc, Isa isa) noexcept {
 #if TM_HAVE_DISPATCH
     if (isa == Isa::avx2_fma && isa_supported(isa)) {
         if (acc == Accuracy::exact)
-            sigmoid_array_avx2<T, Accuracy::exact>(in, out, n);
+            map_array_avx2<T, Accuracy::exact, Exp>(in, out, n);
         else
-            sigmoid_array_avx2<T, Accuracy::fast>(in, out, n);
+            map_array_avx2<T, Accuracy::fast, Exp>(in, out, n);
         return;
     }
 #else
     (void)isa;
 #endif
     if (acc == Accuracy::exact)
-        sigmoid_array_base<T, Accuracy::exact>(in, out, n);
+        map_array_base<T, Accuracy::exact, Exp>(in, out, n);
     else
-        sigmoid_array_base<T, Accuracy::fast>(in, out, n);
+        map_array_base<T, Accuracy::fast, Exp>(in, out, n);
+}
+
+// The detector kernel's sigmoid on n values with the given accuracy and variant
+// (for measuring the approximation error).
+template <typename T>
+inline void sigmoid_array(const T* in, T* out, std::size_t n, Accuracy acc, Isa isa) noexcept {
+    map_array_dispatch<T, false>(in, out, n, acc, isa);
 }
 
 // exp on n values, likewise.
 template <typename T>
 inline void exp_array(const T* in, T* out, std::size_t n, Accuracy acc, Isa isa) noexcept {
-#if TM_HAVE_DISPATCH
-    if (isa == Isa::avx2_fma && isa_supported(isa)) {
-        if (acc == Accuracy::exact)
-            exp_array_avx2<T, Accuracy::exact>(in, out, n);
-        else
-            exp_array_avx2<T, Accuracy::fast>(in, out, n);
-        return;
-    }
-#else
-    (void)isa;
-#endif
-    if (acc == Accuracy::exact)
-        exp_array_base<T, Accuracy::exact>(in, out, n);
-    else
-        exp_array_base<T, Accuracy::fast>(in, out, n);
+    map_array_dispatch<T, true>(in, out, n, acc, isa);
 }
 
 }  // namespace simd
