@@ -10,13 +10,31 @@ which has moved ``s`` along ``y``:
 * slip increment of the ridge surface relative to the plate over the step
   ``w = (u_y - u_y_prev) - (s - s_prev)``; Coulomb: ``|lt| <= mu ln``, stick (``w = 0``)
   inside the cone, ``lt = -mu ln sign(w)`` on it (history-dependent through ``u_y_prev``).
-  Static and kinetic friction: a node that slid in the previous step has the cone
-  ``mu_kinetic``, any other ``mu`` (static, >= kinetic). With ``mu_kinetic < mu`` a node
-  that breaks away sheds load one step later, so gross slip releases the stored shear
-  (a sharp stress drop) where a plate that merely stops does not.
-  A node is reported as slipping when it is on the cone *and* moves relative to the
-  plate (``|w| > 1e-11 * ridge height``); on the cone but still (a stopped plate) it
-  is reported as stuck.
+  Static and kinetic friction, rate-independent: a node that is sliding has the cone
+  ``mu_kinetic``, a node that is stuck (or just touched) the cone ``mu`` (static,
+  >= kinetic). The drop from the static to the kinetic cone happens at the breakaway
+  itself, and the load it sheds is carried at that same load before the path goes on
+  (the *breakaway cascade*), so gross slip releases the stored shear (a sharp stress
+  drop) where a plate that merely stops does not, and the sample rate does not enter
+  the law. A node is reported as slipping when it is on the cone *and* moves relative
+  to the plate (``|w| > 1e-11 * ridge height``); on the cone but still (a stopped
+  plate) it is reported as stuck.
+
+The law, step by step (what both backends implement; ``n`` nodes)::
+
+    1. cones: mu_i = mu_kinetic if node i slid in the previous step (reported SLIP),
+       else mu (static).
+    2. solve the step (previous plate position -> this one) with these cones: the
+       Alart-Curnier equations below, from the previous classification.
+    3. breakaway: B = {i : reported SLIP (on its cone and |w_i| > w_tol) and
+       mu_i == mu > mu_kinetic}. If B is empty, accept the solution.
+    4. cascade: mu_i = mu_kinetic for every i in B (all of one round at once, no
+       ordering among them), solve the same step again (same plate position, same
+       previous surface position ``u_y_prev``, warm start from the classification of
+       step 3) and go back to 3. The set of kinetic cones only grows, so this ends in
+       at most n rounds; with mu_kinetic == mu it never runs.
+    5. accept: the history (u_y_prev, forces, classification) is the last solution's;
+       nodes reported SLIP are the ones that slid, with the kinetic cone next step.
 
 Both are written as the Alart-Curnier equations ``F(lam) = 0``::
 
@@ -249,18 +267,38 @@ class ContactSolver:
             state = np.where(z0 > plate_z, STICK, OPEN).astype(np.int8)
             if not np.any(state):
                 state[np.argmax(z0)] = STICK
+        its = 0
+        mu_k = self.mu_kinetic
+        for _ in range(n + 1):
+            lam, u, state, sign, it = self._solve_load(state, sign, plate_y, plate_z, ds, atol)
+            its += it
+            # Breakaway cascade at this load: a node that slides under its static cone
+            # drops to the kinetic one now, and the load it sheds is redistributed
+            # before the path goes on (all such nodes of a round at once).
+            moving = (state == SLIP) & (np.abs((u[:n] - self._uy_prev) - ds) > self._w_tol)
+            broke = moving & (self._mu_node > mu_k)
+            if not np.any(broke):
+                break
+            self._mu_node = np.where(broke, mu_k, self._mu_node)
+        return self._accept(lam, u, state, plate_y, its, sign)
+
+    def _solve_load(self, state, sign, plate_y, plate_z, ds, atol):
+        """Solve the step to ``(plate_y, plate_z)`` with the cones ``self._mu_node``,
+        starting from the classification ``(state, sign)``: active-set iterations,
+        then the damped Newton method if they cycle. Returns ``(lam, u, state, sign, its)``."""
         it = 0
         for it in range(1, self.max_active_set_iter + 1):
             lam, u = self._solve_piece(state, sign, plate_z, ds)
             F, new_state, new_sign = self._classify(lam, u, plate_z, ds)
             if np.max(np.abs(F)) <= atol:
-                return self._accept(lam, u, new_state, plate_y, it, new_sign)
+                return lam, u, new_state, new_sign, it
             if np.array_equal(new_state, state) and np.array_equal(new_sign[state == SLIP], sign[state == SLIP]):
                 break  # same piece but not converged: round-off trouble, use Newton
             state, sign = new_state, new_sign
-        lam, u, it2 = self._damped_newton(self._lam.copy(), plate_y, plate_z, ds, atol)
+        start = self._lam.copy()
+        lam, u, it2 = self._damped_newton(start, plate_y, plate_z, ds, atol)
         _, new_state, new_sign = self._classify(lam, u, plate_z, ds)
-        return self._accept(lam, u, new_state, plate_y, it + it2, new_sign)
+        return lam, u, new_state, new_sign, it + it2
 
     def _raise_status(self, status: int, plate_y: float, plate_z: float):
         """The exception of the reference implementation for a kernel status."""
