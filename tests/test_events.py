@@ -107,3 +107,18 @@ def test_counts_and_choices_are_reported():
         simulate_many([scene], stepping="sometimes")
     with pytest.raises(ValueError, match="stepping"):
         Pad.from_scene(scene, stepping="never")
+
+
+def test_cli_simulate_takes_the_stepping(tmp_path, capsys):
+    from tactile_mirror.cli import main
+
+    outs = {}
+    for stepping in ("every", "auto"):
+        out = tmp_path / f"{stepping}.npz"
+        assert main(["simulate", "--duration", "0.6", "--stepping", stepping, "--out", str(out)]) == 0
+        assert f"{stepping} stepping" in capsys.readouterr().out
+        outs[stepping] = np.load(out)["stress"]
+    assert outs["auto"].shape == outs["every"].shape == (1, 2, 3, 600)
+    with pytest.raises(SystemExit):
+        main(["simulate", "--stepping", "sometimes"])
+    assert "invalid choice" in capsys.readouterr().err

@@ -38,6 +38,9 @@ For a fixed status set the forces are linear in the load (one linear system, the
        OPEN node: gap g -> STICK (anchored where it touches);
        touching node: ln -> OPEN (its forces set to 0);
        STICK node: mu ln - lt, mu ln + lt -> SLIP with sign +1 / -1 (breakaway).
+       "Decreasing": phi_1 < 0 and phi_c - phi_1 > 1e-16 H (gaps) or 1e-15 r H
+       (forces), H the ridge height, r = 1 / mean(diag C); the crossing is at
+       frac = max(phi_c, 0) / (phi_c - phi_1) of the rest of the segment.
        Every function reaching 0 within 1e-9 samples of the first one changes at the
        same point (ties resolved together). No event before the segment end: done.
     4. move to the event point (forces and displacements interpolated linearly in
@@ -46,13 +49,17 @@ For a fixed status set the forces are linear in the load (one linear system, the
     5. breakaway cascade (only if a breakaway node carries ln > 0 and mu_kinetic <
        mu): solve the load of the event point again with the Alart-Curnier
        equations below (slip measured from the event point, cones: mu_kinetic on
-       SLIP nodes, mu elsewhere), switch every node that slides under the static
+       SLIP nodes, mu elsewhere; active-set iterations go on until the classification
+       settles, not only until the residual is within tol), switch every node that
+       slides under the static
        cone to the kinetic one and solve again, until none does (all of a round at
-       once). New statuses: a node that moved on its cone (|w| > w_tol) is SLIP with
-       the sign of its friction force; a SLIP node that did not move and is still on
-       its kinetic cone stays SLIP; a touching node the solve finds open with its
-       gap still closed keeps its status; every other touching node is STICK,
-       anchored where it is. Back to 1 from the event point.
+       once). New statuses: a node that moved on its cone (|w| > w_tol = 1e-11 H)
+       is SLIP with the sign of its friction force; a SLIP node that did not move
+       and is still on its kinetic cone (|lt| >= mu_kinetic ln - 1e-12 r H) stays
+       SLIP with its sign; a touching node the solve finds open with its gap still
+       closed (gap <= 1e-14 H) keeps its status; every other touching node is
+       STICK, anchored where it is. Back to 1 from the event point. The cascade
+       runs only where a breakaway node sheds a load, (mu - mu_kinetic) ln > 1e-12 r H.
     6. cycle rule: if the statuses at one point come back to a set already met at
        that point (single-node changes cycling, e.g. nodes of zero slip rate on a
        symmetry line), all statuses are decided together by the Alart-Curnier solve
