@@ -63,7 +63,7 @@ For a fixed status set the forces are linear in the load (one linear system, the
     6. cycle rule: if the statuses at one point come back to a set already met at
        that point (single-node changes cycling, e.g. nodes of zero slip rate on a
        symmetry line), all statuses are decided together by the Alart-Curnier solve
-       of the step to 1e-6 of the rest of the segment (cones as in 5): its
+       of the step 1e-6 of a sample ahead along the segment (cones as in 5): its
        classification (OPEN / STICK / SLIP with the sign of the friction force;
        grazing nodes as in 5) becomes the status set, the state stays at the point.
        A second return raises ContactConvergenceError.
@@ -490,6 +490,9 @@ class ContactSolver:
         s0, z0p = self._s_prev, self._z_prev
         th, j, ns = 0.0, 0, thetas.size
         seen: set = set()  # status sets met at the current point (a cycle guard)
+        # 1e-6 of a sample along the segment: the step of the cycle rule (the same in
+        # both steppings, whatever the segment's length)
+        tiny = (1e3 * eps * (s1 - s0), 1e3 * eps * (z1 - z0p))
         if s1 == s0 and z1 == z0p:
             # the load does not move: nothing slides (a sliding node's rate is zero)
             if np.any(self._state == SLIP):
@@ -524,7 +527,7 @@ class ContactSolver:
                 if np.any(bad):
                     self._state = np.where(bad, STICK, state).astype(np.int8)
                     self._sign = np.where(bad, 0.0, sign)
-                    self._changed(seen, s1, z1)
+                    self._changed(seen, tiny)
                     continue
             frac, kinds = self._first_event(lam_c, u_c, lam1, u1, zc, z1, eps / (1.0 - th))
             th_e = np.inf if frac is None else th + frac * (1.0 - th)
@@ -554,13 +557,13 @@ class ContactSolver:
                 seen.clear()
             th = th_e
             self._apply_events(kinds)
-            self._changed(seen, s1, z1)
+            self._changed(seen, tiny)
 
-    def _changed(self, seen, s1, z1):
+    def _changed(self, seen, tiny):
         """Count a status change at the current point. If the statuses return to a set
         already met at this point (single-node changes cycling, e.g. nodes whose slip
         rate is about zero), the statuses of all nodes are decided together: by the
-        Alart-Curnier solve of a short step (1e-6 of the rest of the segment) ahead."""
+        Alart-Curnier solve of a short step (1e-6 of a sample) ahead."""
         self.events += 1
         key = self._state.tobytes() + self._sign.tobytes()
         if key not in seen:
@@ -569,17 +572,17 @@ class ContactSolver:
         if ("resolved", key) in seen:
             raise ContactConvergenceError(
                 f"node statuses cycle at the plate position y={self._s_prev:.6g} m, z={self._z_prev:.6g} m")
-        self._resolve_point(s1, z1)
+        self._resolve_point(tiny)
         seen.add(("resolved", self._state.tobytes() + self._sign.tobytes()))
         seen.add(self._state.tobytes() + self._sign.tobytes())
 
-    def _resolve_point(self, s1, z1):
-        """Statuses at the current point from the Alart-Curnier solve of the step to
-        1e-6 of the way to ``(s1, z1)`` (cones: kinetic on SLIP nodes, static on the
-        others); the state stays at the current point."""
+    def _resolve_point(self, tiny):
+        """Statuses at the current point from the Alart-Curnier solve of the step
+        ``tiny = (dy, dz)`` ahead (cones: kinetic on SLIP nodes, static on the others);
+        the state stays at the current point."""
         n = self._n
         sc, zc = self._s_prev, self._z_prev
-        ds, zp = 1e-6 * (s1 - sc), zc + 1e-6 * (z1 - zc)
+        ds, zp = tiny[0], zc + tiny[1]
         prev, prev_sign = self._state, self._sign
         self._mu_node = np.where(prev == SLIP, self.mu_kinetic, self.mu)
         scale = self._r * max(float(np.max(self.model.node_z) - zp), 1e-9, float(np.max(np.abs(self._uy_prev))))
