@@ -18,9 +18,16 @@ STAGE = StageLimits(-0.02, 0.02, 0.03, 1.0)
 CAL = (1.0, 4.8e7)  # the FEM pad's calibration, rounded (calibrate_shear gives 4.78e7 per m)
 
 
+_DESIGNS: dict = {}
+
+
 def design(**kw) -> LoopDesign:
-    kw = {"stage_delay": 0.001, "stage_lag": 0.002, **kw}
-    return design_loop(kw.pop("limits", STAGE), kw.pop("calibration", CAL), kw.pop("fs", FS), **kw)
+    """design_loop with the nominal stage and calibration (cached: a design takes ~1 s)."""
+    key = tuple(sorted(kw.items()))
+    if key not in _DESIGNS:
+        k = {"stage_delay": 0.001, "stage_lag": 0.002, **kw}
+        _DESIGNS[key] = design_loop(k.pop("limits", STAGE), k.pop("calibration", CAL), k.pop("fs", FS), **k)
+    return _DESIGNS[key]
 
 
 def test_default_law_is_built_without_any_finger_path_information():
@@ -219,3 +226,31 @@ def test_c_abi_carries_the_new_parameters_with_its_version_bumped():
     bad.abi_version = 5
     h = ffi.new("tm_pipeline*")
     assert lib.tm_pipeline_create(bad, h) == lib.TM_ERR_VERSION
+
+
+@pytest.mark.parametrize("argv, match", [
+    (["loop", "envelope", "--speeds", "0,5"], "positive"),
+    (["loop", "envelope", "--conditions", "nominal,rain"], "comma-separated list"),
+    (["loop", "envelope", "--laws", "pid"], "comma-separated list"),
+    (["loop", "design", "--v-max", "-3"], "positive"),
+    (["loop"], "loop_command"),
+])
+def test_loop_command_rejects_bad_options(argv, match, capsys):
+    from tactile_mirror.cli import main
+
+    with pytest.raises(SystemExit) as e:
+        main(argv)
+    assert e.value.code == 2
+    assert match in capsys.readouterr().err
+
+
+def test_envelope_table_sums_per_class():
+    from tactile_mirror.loop.envelope import envelope_table
+
+    rows = [{"paths": "report", "condition": "nominal", "law": "default", "speed": 0.02, "seed": s,
+             "gross_slips": g, "tracking_rms_mm": t, "finger_peak_acceleration": 0.3, "settle_s": 0.0,
+             "second_slip_within_100ms": 0} for s, g, t in ((0, 0, 0.01), (1, 2, 0.03))]
+    (t,) = envelope_table(rows)
+    assert (t["runs"], t["gross_slips"], t["runs_with_slip"]) == (2, 2, 1)
+    assert t["tracking_rms_mm_mean"] == pytest.approx(0.02) and t["tracking_rms_mm_max"] == 0.03
+    assert t["speed_mm_s"] == pytest.approx(20.0)
