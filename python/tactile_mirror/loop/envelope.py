@@ -222,6 +222,7 @@ def envelope_figure(data, path: str, paths: str = "report") -> None:
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
+    import matplotlib.ticker
 
     table = [t for t in envelope_table(data["rows"]) if t["paths"] == paths]
     fig, (ax1, ax2) = plt.subplots(1, 2, figsize=(11, 4.2))
@@ -250,7 +251,13 @@ def envelope_figure(data, path: str, paths: str = "report") -> None:
     ax2.axhline(0.02, color="k", lw=0.6, ls=":")
     ax2.axhline(0.05, color="k", lw=0.6, ls=":")
     ax1.legend(fontsize=6, ncol=1)
-    n = max((t["runs"] for t in table), default=0)
+    speeds = sorted({t["speed_mm_s"] for t in table})
+    for ax in (ax1, ax2):
+        ax.set_xticks(speeds)
+        ax.set_xticklabels([f"{v:g}" for v in speeds])
+        ax.xaxis.set_minor_formatter(matplotlib.ticker.NullFormatter())
+    runs = [t["runs"] for t in table]
+    n = f"{min(runs)}-{max(runs)}" if runs and min(runs) != max(runs) else f"{max(runs, default=0)}"
     setup = data.get("setup", {})
     st = setup.get("stage", {})
     fig.suptitle(f"Loop envelope, {setup.get('plant', '?')} pad, {n} paths per class; stage {st.get('v_max', 0) * 1e3:g} "
