@@ -294,7 +294,9 @@ def test_version_string_and_struct_sizes():
     h = ffi.new("tm_pipeline*")
     cfg.struct_size = ffi.sizeof("tm_config") + 8
     assert lib.tm_pipeline_create(cfg, h) == -6
-    cfg.struct_size = ffi.sizeof("tm_config") - 8
+    # shorter than ABI 2/3's (which ended at the controller's slip_hold) is refused
+    abi3 = ffi.offsetof("tm_config", "controller") + ffi.offsetof("tm_controller_params", "shear_integral")
+    cfg.struct_size = abi3 - 8
     assert lib.tm_pipeline_create(cfg, h) == -6
     assert b"accepts" in ffi.string(lib.tm_last_error())
-    assert lib.tm_config_init(cfg) == 0 and cfg.abi_version == 3 and cfg.v_limit == 15.0
+    assert lib.tm_config_init(cfg) == 0 and cfg.abi_version == 4 and cfg.v_limit == 15.0

@@ -5,6 +5,7 @@
     tactile-mirror figure 6 --out figures/    a paper figure reproduction (6, 7, 8, 10, 12, 13)
     tactile-mirror train / evaluate           slip-detector training and evaluation
     tactile-mirror bench --out report/        run time against error of every kernel (table + plot)
+    tactile-mirror loop design / envelope     the default loop law from a stage's data sheet; its envelope
 
 Every subcommand has ``--help``. Bad options print a message and exit with status 2;
 errors while running print ``error: ...`` and exit with status 1.
@@ -259,6 +260,85 @@ def cmd_bench(args) -> int:
     return 0
 
 
+def _speeds_mm_s(text):
+    try:
+        v = [float(x) for x in text.split(",") if x.strip()]
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected comma-separated mm/s, got {text!r}") from None
+    if not v or any(not x > 0 for x in v):
+        raise argparse.ArgumentTypeError(f"expected positive comma-separated mm/s, got {text!r}")
+    return v
+
+
+def _names(choices):
+    def parse(text):
+        names = [x.strip() for x in text.split(",") if x.strip()]
+        bad = [x for x in names if x not in choices]
+        if bad or not names:
+            raise argparse.ArgumentTypeError(f"expected a comma-separated list of {', '.join(choices)}, got {text!r}")
+        return names
+
+    return parse
+
+
+def _stage_from_args(args):
+    from .loop.stage import StageLimits
+
+    return StageLimits(-args.travel * 1e-3, args.travel * 1e-3, args.v_max * 1e-3, args.a_max)
+
+
+def cmd_loop_design(args) -> int:
+    import json
+
+    from .loop.design import design_loop
+    from .loop.experiment import calibrate_shear, default_weights
+    from .loop.figures import design_figure
+
+    limits = _stage_from_args(args)
+    weights = default_weights("fem", args.fs) if args.weights is None else _load_detector(args.weights).weights
+    w = _weights(weights)
+    cal = calibrate_shear(w, args.fs, 6, plant="fem")
+    d = design_loop(limits, cal, args.fs, stage_delay=args.delay * 1e-3, stage_lag=args.lag * 1e-3)
+    out = pathlib.Path(args.out)
+    out.mkdir(parents=True, exist_ok=True)
+    design_figure(d, str(out / "loop_design.png"))
+    (out / "loop_design.json").write_text(json.dumps(d.summary(), indent=1))
+    print(f"calibration: direction_sign {cal[0]:+g}, asymmetry {cal[1]:.4g} per m")
+    print(f"crossover {d.crossover_hz:.1f} Hz, phase margin {d.phase_margin_deg:.1f} deg, gain margin "
+          f"{d.gain_margin_db:.1f} dB, max |S| {d.max_sensitivity:.2f}; Kp {d.kp:.1f} 1/s, integral {d.z:.1f} 1/s, "
+          f"Kv {d.kv:.2f}; loop delay {d.delays['total'] * 1e3:.2f} ms")
+    print(f"wrote {out / 'loop_design.png'}, {out / 'loop_design.json'}")
+    return 0
+
+
+def _weights(w):
+    from .loop.experiment import _weights_dict
+
+    return _weights_dict(w)
+
+
+def cmd_loop_envelope(args) -> int:
+    from .loop.envelope import REPORT_PATHS, TUNING_PATHS, envelope_figure, run_envelope
+
+    out = pathlib.Path(args.out)
+    out.mkdir(parents=True, exist_ok=True)
+    paths = TUNING_PATHS if args.paths == "tuning" else REPORT_PATHS
+    weights = None if args.weights is None else _load_detector(args.weights).weights
+    data = run_envelope(str(out / "loop_envelope.json"), speeds=[v * 1e-3 for v in args.speeds], n_seeds=args.seeds,
+                        conditions=args.conditions, laws=args.laws, paths=paths, duration=args.duration,
+                        limits=_stage_from_args(args), stage_delay=args.delay * 1e-3, stage_lag=args.lag * 1e-3,
+                        weights=weights, progress=not args.quiet)
+    envelope_figure(data, str(out / "loop_envelope.png"), paths=paths.name)
+    print("| condition | law | peak speed mm/s | paths | gross slips | tracking rms mm (mean / max) |")
+    print("|---|---|---|---|---|---|")
+    for t in data["table"]:
+        if t["paths"] == paths.name:
+            print(f"| {t['condition']} | {t['law']} | {t['speed_mm_s']:g} | {t['runs']} | {t['gross_slips']} | "
+                  f"{t['tracking_rms_mm_mean']:.4f} / {t['tracking_rms_mm_max']:.4f} |")
+    print(f"wrote {out / 'loop_envelope.json'}, {out / 'loop_envelope.png'}")
+    return 0
+
+
 # ---------------------------------------------------------------- parser
 def build_parser() -> argparse.ArgumentParser:
     from .scenes import DEFAULT_FRICTION
@@ -342,6 +422,45 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--kernels", type=_bench_kernels, default="all",
                    help="comma-separated subset of filters,estimator,detector,contact (default: all)")
     p.set_defaults(func=cmd_bench)
+
+    p = sub.add_parser("loop", help="the closed loop: design the default law, measure its envelope",
+                       description="The stage loop on the 6-ridge FEM pad. 'design': the default law from the "
+                                   "stage's data sheet, the pad's shear calibration and the sample rate (Bode "
+                                   "plot, margins). 'envelope': gross slips and tracking error against peak finger "
+                                   "speed for open loop, the paper's law and the default law (JSON + plot; an "
+                                   "interrupted run resumes).")
+    lsub = p.add_subparsers(dest="loop_command", required=True, metavar="loop_command")
+    for name, helptext, func in (("design", "design the default law and plot its loop", cmd_loop_design),
+                                 ("envelope", "run the envelope (seeded paths per speed class)", cmd_loop_envelope)):
+        q = lsub.add_parser(name, help=helptext)
+        q.add_argument("--out", default="loop-output", help="output folder (default: %(default)s)")
+        q.add_argument("--v-max", type=_positive(float), default=30.0, help="stage speed limit, mm/s (default: 30)")
+        q.add_argument("--a-max", type=_positive(float), default=1.0, help="stage acceleration limit, m/s^2 "
+                       "(default: 1)")
+        q.add_argument("--travel", type=_positive(float), default=20.0, help="stage travel each way, mm (default: 20)")
+        q.add_argument("--delay", type=_positive(float, allow_zero=True), default=1.0,
+                       help="stage command dead time, ms (default: 1)")
+        q.add_argument("--lag", type=_positive(float, allow_zero=True), default=2.0,
+                       help="stage servo time constant, ms (default: 2)")
+        q.add_argument("--weights", default=None, help="detector weights file (default: the bundled ones)")
+        q.set_defaults(func=func)
+        if name == "design":
+            q.add_argument("--fs", type=_positive(float), default=1000.0, help="tick rate, Hz (default: 1000)")
+        else:
+            from .loop.envelope import _LAWS, CONDITIONS
+
+            q.add_argument("--speeds", type=_speeds_mm_s, default=[2.0, 5.0, 10.0, 20.0],
+                           help="peak finger speeds of the classes, mm/s (default: 2,5,10,20)")
+            q.add_argument("--seeds", type=_positive(int), default=10, help="paths per class (default: 10)")
+            q.add_argument("--conditions", type=_names(list(CONDITIONS)), default=["nominal"],
+                           help=f"comma-separated subset of: {', '.join(CONDITIONS)} (default: nominal)")
+            q.add_argument("--laws", type=_names(list(_LAWS)), default=list(_LAWS),
+                           help="comma-separated subset of: open loop,paper,default (default: all)")
+            q.add_argument("--paths", choices=["report", "tuning"], default="report",
+                           help="path set: the reported one or the disjoint tuning one (default: %(default)s)")
+            q.add_argument("--duration", type=_positive(float), default=3.0, help="seconds per run, 0.5 s press "
+                           "included (default: 3)")
+            q.add_argument("--quiet", action="store_true", help="no progress bar")
     return parser
 
 

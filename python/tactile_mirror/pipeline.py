@@ -428,13 +428,13 @@ class ReferencePipeline:
             zv, z2, feat, p, det = new
             asym = float(np.sum(feat[:, 0] - feat[:, 1]))
             slip = float(np.max(det[:, 0])) >= c["slip_threshold"]
-            before = (self.law.x, self.law.v, self.law.a, self.law.dir, self.law.ticks, self.law.hold_left)
+            before = self.law.snapshot()
             if self.ctrl.kind != "none":
                 with np.errstate(all="ignore"):
                     self.ctrl._tick(self.law, float(np.max(det[:, 2])), asym, False, slip, c["fs"])
-            if not (math.isfinite(self.law.x) and math.isfinite(self.law.v) and math.isfinite(self.law.a)):
-                (self.law.x, self.law.v, self.law.a, self.law.dir, self.law.ticks,
-                 self.law.hold_left) = before
+            if not (math.isfinite(self.law.x) and math.isfinite(self.law.v) and math.isfinite(self.law.a)
+                    and math.isfinite(self.law.w)):
+                self.law.restore(before)
                 ok, reason = False, "overflow"
             else:  # accepted: commit
                 self.zv, self.z2, self.feat, self.p, self.det = zv, z2, feat, p, det

@@ -118,7 +118,9 @@ inline const char* controller_name(ControllerKind k) noexcept {
     X(arm_delay, 0.0, 3, "s after a reset during which the stage holds; then the asymmetry is tared")     \
     X(ramp_gain, 1.0, 2, "velocity: share of v_max commanded by the y_pred ramp, >= 0; 0 = no ramp")      \
     X(pred_boost, 0.0, 2, "velocity: shear gain x (1 + pred_boost * ramp(y_pred)), >= 0")                 \
-    X(slip_hold, 0.0, 3, "s, >= 0: on detected slip hold the stage, re-tare this long after (0 = off)")
+    X(slip_hold, 0.0, 3, "s, >= 0: on detected slip hold the stage, re-tare this long after (0 = off)")  \
+    X(shear_integral, 0.0, 2, "velocity: 1/s, >= 0: integral of the shear feedback (type-2 loop); 0 = off") \
+    X(rate_gain, 0.0, 2, "velocity: m/s per unit of L-R stress rate (relative-velocity feedback), >= 0")
 
 struct ControllerParams {
     ControllerKind kind = ControllerKind::none;
@@ -307,6 +309,8 @@ inline void validate_controller(const ControllerParams& c) {
     if (!(c.ramp_gain >= 0.0)) bad("ramp_gain", "must be >= 0 (share of v_max)");
     if (!(c.pred_boost >= 0.0)) bad("pred_boost", "must be >= 0");
     if (!(c.slip_hold >= 0.0 && c.slip_hold <= 3600.0)) bad("slip_hold", "must lie in [0, 3600] s");
+    if (!(c.shear_integral >= 0.0)) bad("shear_integral", "must be >= 0 (1/s)");
+    if (!(c.rate_gain >= 0.0)) bad("rate_gain", "must be >= 0 (m/s per unit of stress rate)");
 }
 
 inline void validate_config(const PipelineConfig& c) {
@@ -379,10 +383,15 @@ public:
         // static friction swings it), so acting on it can run the stage away. Hold
         // (as in a fault) until slip_hold after the last detected slip, then tare:
         // the re-stuck contact is the new reference.
+        bool hold = false;
         if (hold_ticks_ > 0) {
-            if (slip) hold_left_ = hold_ticks_;
+            // The integral at the speed limit is a run-away (the shear loop acting on a
+            // sliding contact's inverted asymmetry) or a finger the stage cannot follow:
+            // either way, guard as after a detected slip.
+            const bool runaway = p_.shear_integral > 0.0 && std::fabs(w_) >= p_.v_max;
+            if (slip || runaway) hold_left_ = hold_ticks_;
             if (hold_left_ > 0) {
-                fault = true;
+                hold = true;
                 y = 0.0;
                 asym = 0.0;
                 if (--hold_left_ == 0) {
@@ -391,6 +400,12 @@ public:
                 }
             }
         }
+        // A fault (no valid input) or a slip stops the stage and forgets the velocity
+        // estimate: while the ridges' edges slide the L/R asymmetry answers with the
+        // wrong sign (measured on the FEM pad: the shear loop then drives the stage
+        // away at v_max), and a steady slide leaves the stress rates quiet, so no
+        // speed learnt before or during the slip can be trusted.
+        if (fault || hold) w_ = 0.0;
         a_ = leak_ * a_ + dt_ * asym;
         if (std::fabs(a_) > p_.asym_deadband) dir_ = (a_ > 0.0 ? p_.direction_sign : -p_.direction_sign);
         switch (p_.kind) {
@@ -404,7 +419,21 @@ public:
                 double s = (y - p_.threshold) / (p_.y_full - p_.threshold);
                 s = s < 0.0 ? 0.0 : (s > 1.0 ? 1.0 : s);
                 const double g = p_.shear_gain * (1.0 + p_.pred_boost * s);
-                double vd = dir_ * p_.ramp_gain * p_.v_max * s + (fault ? 0.0 : p_.direction_sign * g * a_);
+                // Type-2 part: w_ integrates the shear (the relative displacement), so it
+                // converges to the finger's speed and a steady motion leaves no error;
+                // clipped to v_max (anti-windup).
+                if (!fault && !hold) {
+                    // at most a_max: w is the stage's speed to be, and the stage cannot
+                    // change its speed faster (a faster integral is wind-up)
+                    double dw = p_.direction_sign * p_.shear_gain * p_.shear_integral * a_;
+                    dw = dw > p_.a_max ? p_.a_max : (dw < -p_.a_max ? -p_.a_max : dw);
+                    w_ += dt_ * dw;
+                    w_ = w_ > p_.v_max ? p_.v_max : (w_ < -p_.v_max ? -p_.v_max : w_);
+                }
+                double vd = 0.0;
+                if (!fault && !hold)
+                    vd = dir_ * p_.ramp_gain * p_.v_max * s + w_ +
+                         p_.direction_sign * (g * a_ + p_.rate_gain * asym);
                 vd = vd > p_.v_max ? p_.v_max : (vd < -p_.v_max ? -p_.v_max : vd);
                 // Largest speed from which decelerating by a_max dt per tick stops
                 // within the distance d left: v^2 / (2 a) + v dt / 2 <= d, i.e.
@@ -435,6 +464,7 @@ public:
         v_ = 0.0;
         a_ = 0.0;
         dir_ = 0.0;
+        w_ = 0.0;
         ticks_ = 0;
         hold_left_ = 0;
     }
@@ -448,15 +478,17 @@ public:
     double direction() const noexcept { return dir_; }
     bool at_limit() const noexcept { return x_ <= p_.x_min || x_ >= p_.x_max; }
     const ControllerParams& params() const noexcept { return p_; }
-    bool state_finite() const noexcept { return is_finite(x_) && is_finite(v_) && is_finite(a_); }
+    double velocity_estimate() const noexcept { return w_; }
+    bool state_finite() const noexcept { return is_finite(x_) && is_finite(v_) && is_finite(a_) && is_finite(w_); }
 
     // The mutable state, for a tick's undo.
     struct State {
-        double x, v, a, dir;
+        double x, v, a, dir, w;
         std::uint64_t ticks, hold_left;
     };
-    State state() const noexcept { return {x_, v_, a_, dir_, ticks_, hold_left_}; }
+    State state() const noexcept { return {x_, v_, a_, dir_, w_, ticks_, hold_left_}; }
     void set_state(const State& s) noexcept {
+        w_ = s.w;
         x_ = s.x;
         v_ = s.v;
         a_ = s.a;
@@ -469,7 +501,7 @@ private:
     double clamp(double x) const noexcept { return x < p_.x_min ? p_.x_min : (x > p_.x_max ? p_.x_max : x); }
     ControllerParams p_{};
     double dt_ = 1e-3, leak_ = 1.0;
-    double x_ = 0.0, v_ = 0.0, a_ = 0.0, dir_ = 0.0;
+    double x_ = 0.0, v_ = 0.0, a_ = 0.0, dir_ = 0.0, w_ = 0.0;
     std::uint64_t ticks_ = 0, arm_ticks_ = 0, hold_ticks_ = 0, hold_left_ = 0;
 };
 

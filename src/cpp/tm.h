@@ -47,8 +47,8 @@
  *   built against an older tm.h gets the fields it knows. tm_pipeline_create accepts
  *   a tm_config whose struct_size is at least that of ABI 2 (the first with
  *   struct_size) and at most this header's; fields beyond a shorter struct_size take
- *   their tm_config_init defaults. abi_version must be 2 or TM_ABI_VERSION (the
- *   tm_config layout is the same in both).
+ *   their tm_config_init defaults. abi_version must be 2, 3 or TM_ABI_VERSION (the
+ *   tm_config layout only grew at its end since 2).
  *
  * The library is shipped in the tactile_mirror Python wheel next to this header;
  * tactile_mirror.loop.capi.library_path() gives its path.
@@ -72,8 +72,9 @@ extern "C" {
 /* ABI version: incremented on any incompatible change of this header or of the
  * library's behaviour. 3: TM_ERR_BUSY, the overflow rejection and its status fields,
  * finite default limits (+inf refused), tm_controller_defaults and the controller
- * defaults shared with the Python library. */
-#define TM_ABI_VERSION 3
+ * defaults shared with the Python library. 4: the velocity law's shear_integral
+ * and rate_gain (appended to tm_controller_params, the last member of tm_config). */
+#define TM_ABI_VERSION 4
 
 typedef enum tm_status_code {
     TM_OK = 0,
@@ -111,6 +112,9 @@ typedef struct tm_controller_params {
     double ramp_gain;        /* velocity: share of v_max commanded by the y_pred ramp, >= 0; 0 = no ramp term */
     double pred_boost;       /* velocity: shear gain x (1 + pred_boost * ramp(y_pred)), >= 0 */
     double slip_hold;        /* s, >= 0: on detected slip hold the stage, re-tare this long after (0 = off) */
+    /* ABI 4 (appended: tm_config grows at its end, a shorter struct_size keeps these at their defaults) */
+    double shear_integral;   /* velocity: 1/s, >= 0: integral of the shear feedback (type-2 loop); 0 = off */
+    double rate_gain;        /* velocity: m/s per unit of L-R stress rate (relative-velocity feedback), >= 0 */
 } tm_controller_params;
 
 typedef struct tm_config {

@@ -182,9 +182,10 @@ int32_t tm_config_init(tm_config* cfg) {
     return TM_OK;
 }
 
-// sizeof(tm_config) in ABI 2, the first ABI with struct_size; the layout has not
-// changed since, and fields are only ever appended.
-constexpr std::size_t kConfigSizeAbi2 = offsetof(tm_config, controller) + sizeof(tm_controller_params);
+// sizeof(tm_config) in ABI 2, the first ABI with struct_size (and in ABI 3): it ended
+// with the controller's slip_hold. Fields are only ever appended since (ABI 4:
+// shear_integral and rate_gain at the end of the controller, the end of tm_config).
+constexpr std::size_t kConfigSizeAbi2 = offsetof(tm_config, controller) + offsetof(tm_controller_params, shear_integral);
 static_assert(kConfigSizeAbi2 <= sizeof(tm_config), "tm_config only grows");
 
 int32_t tm_pipeline_create(const tm_config* user_cfg, tm_pipeline* out) {
@@ -195,8 +196,8 @@ int32_t tm_pipeline_create(const tm_config* user_cfg, tm_pipeline* out) {
     if (size < kConfigSizeAbi2 || size > sizeof(tm_config))
         return fail(TM_ERR_VERSION, "cfg->struct_size is %u, this library accepts %u to %u (call tm_config_init)",
                     unsigned(size), unsigned(kConfigSizeAbi2), unsigned(sizeof(tm_config)));
-    if (user_cfg->abi_version != 2 && user_cfg->abi_version != TM_ABI_VERSION)
-        return fail(TM_ERR_VERSION, "cfg->abi_version is %u, this library implements 2 and %d",
+    if (user_cfg->abi_version < 2 || user_cfg->abi_version > TM_ABI_VERSION)
+        return fail(TM_ERR_VERSION, "cfg->abi_version is %u, this library implements 2 to %d",
                     unsigned(user_cfg->abi_version), TM_ABI_VERSION);
     // A shorter (older) struct: the fields it lacks keep their defaults.
     tm_config full;

@@ -2,6 +2,10 @@
 
 - :mod:`~tactile_mirror.loop.controller`: the paper's stage law and a velocity law
   with limits (both run inside the C++ pipeline; numpy references here);
+- :mod:`~tactile_mirror.loop.design`: the default law designed from a stage's data sheet,
+  the shear calibration and the sample rate (:func:`design_loop`);
+- :mod:`~tactile_mirror.loop.envelope`: gross slips and tracking error against peak finger
+  speed (``tactile-mirror loop envelope``);
 - :mod:`~tactile_mirror.loop.stage`: the :class:`Stage` protocol and :class:`SimulatedStage`;
 - :mod:`~tactile_mirror.loop.runner`: :class:`LoopRunner` (fixed rate, latency percentiles);
 - :mod:`~tactile_mirror.loop.recording`: :class:`Recording` (npz, bit-identical replay);
@@ -17,6 +21,7 @@ from __future__ import annotations
 
 from .capi import header_path, library_path
 from .controller import Controller, NoController, PaperController, VelocityController, controller_from_dict
+from .design import LoopDesign, design_loop
 from .recording import Recording, RecordingError
 from .runner import ArraySource, LoopResult, LoopRunner
 from .scene import LoopScene, SceneResult, run_scene
@@ -25,6 +30,7 @@ from .stage import SimulatedStage, Stage, StageLimits
 __all__ = [
     "ArraySource",
     "Controller",
+    "LoopDesign",
     "LoopResult",
     "LoopRunner",
     "LoopScene",
@@ -38,6 +44,7 @@ __all__ = [
     "StageLimits",
     "VelocityController",
     "controller_from_dict",
+    "design_loop",
     "header_path",
     "library_path",
     "run_scene",

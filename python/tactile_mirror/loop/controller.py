@@ -74,12 +74,19 @@ def controller_fields(kind: str | None = None) -> tuple[str, ...]:
 class _LawState:
     """The mutable state of a law between ticks (the C++ StageController's)."""
 
-    __slots__ = ("a", "dir", "hold_left", "ticks", "v", "x")
+    __slots__ = ("a", "dir", "hold_left", "ticks", "v", "w", "x")
 
     def __init__(self, x: float):
-        self.x, self.v, self.a, self.dir = x, 0.0, 0.0, 0.0
+        self.x, self.v, self.a, self.dir, self.w = x, 0.0, 0.0, 0.0, 0.0
         self.ticks = 0
         self.hold_left = 0
+
+    def snapshot(self) -> tuple:
+        """The whole state, for a tick's undo (:meth:`restore`)."""
+        return (self.x, self.v, self.a, self.dir, self.w, self.ticks, self.hold_left)
+
+    def restore(self, s: tuple) -> None:
+        self.x, self.v, self.a, self.dir, self.w, self.ticks, self.hold_left = s
 
 
 def _real(value, name: str) -> float:
@@ -216,19 +223,26 @@ class Controller:
                 st.a, st.dir = 0.0, 0.0
             st.v = 0.0
             return
-        hold = round(self.slip_hold * fs)
-        if hold > 0:  # slip guard
-            if slip:
-                st.hold_left = hold
+        hold_ticks = round(self.slip_hold * fs)
+        hold = False
+        if hold_ticks > 0:  # slip guard (and the run-away guard of the type-2 law)
+            runaway = getattr(self, "shear_integral", 0.0) > 0 and abs(st.w) >= getattr(self, "v_max", math.inf)
+            if slip or runaway:
+                st.hold_left = hold_ticks
             if st.hold_left > 0:
-                fault, y, asym = True, 0.0, 0.0
+                hold, y, asym = True, 0.0, 0.0
                 st.hold_left -= 1
                 if st.hold_left == 0:
                     st.a, st.dir = 0.0, 0.0
+        if fault or hold:
+            st.w = 0.0
         st.a = math.exp(-dt / self.asym_tau) * st.a + dt * asym
         if abs(st.a) > self.asym_deadband:
             st.dir = self.direction_sign if st.a > 0 else -self.direction_sign
-        st.x, st.v = self._move(st.x, st.v, y, dt, st.dir, 0.0 if fault else st.a)
+        self._law_step(st, y, asym, dt, fault, hold)
+
+    def _law_step(self, st: _LawState, y: float, asym: float, dt: float, fault: bool, hold: bool) -> None:
+        st.x, st.v = self._move(st.x, st.v, y, dt, st.dir, 0.0 if (fault or hold) else st.a)
 
     def _clamp(self, x):
         return min(max(x, self.x_min), self.x_max)
@@ -302,8 +316,30 @@ class VelocityController(Controller):
         the shear gain is ``shear_gain * (1 + pred_boost * s)``, so the stage
         follows the finger more tightly as the contact nears slip while staying
         a proportional (smooth) loop.
+    shear_integral : float
+        Integral action of the shear feedback, 1/s (>= 0; 0 = off): a velocity state
+        ``w`` integrates ``direction_sign * shear_gain * shear_integral * a`` (clipped
+        to ``+-v_max``, its rate to ``+-a_max``: the stage cannot change its speed faster)
+        and is added to the speed. The loop on the relative
+        displacement becomes type 2: ``w`` converges to the finger's speed and a
+        steady finger motion leaves no tracking error (a type-1 loop leaves
+        ``v / K``). A slip (the guard's hold) or a fault sets ``w`` to 0 and the
+        stage decelerates: while the ridges' edges slide the L/R asymmetry answers
+        with the wrong sign and a steady slide leaves the rates quiet, so no speed
+        learnt around a slip can be trusted. With the slip guard on, ``w`` reaching
+        ``v_max`` starts the guard's hold as a detected slip does: it is a run-away
+        (the loop acting on a sliding contact's inverted asymmetry) or a finger the
+        stage cannot follow.
+    rate_gain : float
+        Relative-velocity feedback, m/s per unit of ``sum_r (rate_L - rate_R)``
+        (>= 0; 0 = off). While the contact sticks the stress rate is the shear
+        stiffness times the finger-pad relative velocity: this term is a damping
+        (derivative) action measured directly, with no numerical differentiation.
     x_min, x_max, direction_sign, asym_tau, asym_deadband
         See :class:`Controller`.
+
+    :func:`tactile_mirror.loop.design.design_loop` (or :meth:`design`) chooses every
+    gain from the stage's data sheet, the shear calibration and the sample rate.
     """
 
     kind = "velocity"
@@ -314,10 +350,13 @@ class VelocityController(Controller):
     shear_gain: float = _DEFAULTS["velocity"]["shear_gain"]
     ramp_gain: float = _DEFAULTS["velocity"]["ramp_gain"]
     pred_boost: float = _DEFAULTS["velocity"]["pred_boost"]
+    shear_integral: float = _DEFAULTS["velocity"]["shear_integral"]
+    rate_gain: float = _DEFAULTS["velocity"]["rate_gain"]
 
     def __post_init__(self):
         super().__post_init__()
-        for name in ("y_full", "v_max", "a_max", "shear_gain", "ramp_gain", "pred_boost"):
+        for name in ("y_full", "v_max", "a_max", "shear_gain", "ramp_gain", "pred_boost", "shear_integral",
+                     "rate_gain"):
             object.__setattr__(self, name, _real(getattr(self, name), name))
         if not self.threshold < self.y_full <= 1.0:
             raise ValueError(f"y_full must lie in (threshold, 1] = ({self.threshold}, 1], got {self.y_full}")
@@ -331,11 +370,33 @@ class VelocityController(Controller):
             raise ValueError(f"ramp_gain must be >= 0 (share of v_max), got {self.ramp_gain}")
         if not self.pred_boost >= 0:
             raise ValueError(f"pred_boost must be >= 0, got {self.pred_boost}")
+        if not self.shear_integral >= 0:
+            raise ValueError(f"shear_integral must be >= 0 1/s, got {self.shear_integral}")
+        if not self.rate_gain >= 0:
+            raise ValueError(f"rate_gain must be >= 0 m/s per unit of stress rate, got {self.rate_gain}")
+
+    def _law_step(self, st: _LawState, y: float, asym: float, dt: float, fault: bool, hold: bool) -> None:
+        if not fault and not hold:
+            dw = self.direction_sign * self.shear_gain * self.shear_integral * st.a
+            st.w += dt * min(max(dw, -self.a_max), self.a_max)
+            st.w = min(max(st.w, -self.v_max), self.v_max)
+        if fault or hold:
+            vd = 0.0
+        else:
+            s = min(max((y - self.threshold) / (self.y_full - self.threshold), 0.0), 1.0)
+            g = self.shear_gain * (1.0 + self.pred_boost * s)
+            vd = (st.dir * self.ramp_gain * self.v_max * s + st.w
+                  + self.direction_sign * (g * st.a + self.rate_gain * asym))
+        st.x, st.v = self._limit(st.x, st.v, vd, dt)
 
     def _move(self, x, v, y, dt, dirn, a=0.0):
         s = min(max((y - self.threshold) / (self.y_full - self.threshold), 0.0), 1.0)
         g = self.shear_gain * (1.0 + self.pred_boost * s)
         vd = dirn * self.ramp_gain * self.v_max * s + self.direction_sign * g * a
+        return self._limit(x, v, vd, dt)
+
+    def _limit(self, x, v, vd, dt):
+        """Speed, stopping distance, acceleration and travel limits on a desired speed ``vd``."""
         vd = min(max(vd, -self.v_max), self.v_max)
         h = 0.5 * self.a_max * dt
         if vd > 0:

@@ -10,7 +10,7 @@ from .._io import save_figure
 if TYPE_CHECKING:
     from .scene import SceneResult
 
-__all__ = ["loop_figure"]
+__all__ = ["design_figure", "loop_figure"]
 
 #: What the figures call each law of :func:`tactile_mirror.loop.experiment.make_laws`.
 LAW_TITLES = {"paper": "paper's law", "velocity": "shear loop with y_pred gain scheduling",
@@ -67,3 +67,51 @@ def loop_figure(r: SceneResult, path, closed: bool, ridge: int = 0, law: str | N
         save_figure(fig, path, dpi=110)
     finally:
         plt.close(fig)
+
+
+def design_figure(design, path) -> None:
+    """Bode plot of the designed shear loop (:class:`~tactile_mirror.loop.design.LoopDesign`) with
+    its crossover and margins, and the predicted peak tracking error of sinusoidal finger
+    motions against peak speed, one line per peak acceleration."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    f = np.geomspace(0.1, 0.499 * design.fs, 800)
+    L = design.loop(f)
+    S = 1.0 / (1.0 + L)
+    fig, axs = plt.subplots(1, 3, figsize=(13, 4))
+    ax = axs[0]
+    ax.loglog(f, np.abs(L), label="|L| (open loop)")
+    ax.loglog(f, np.abs(S), label="|S| = |e / x_finger|")
+    ax.axhline(1.0, color="k", lw=0.5)
+    ax.axvline(design.crossover_hz, color="0.5", ls=":", lw=0.8)
+    ax.set_xlabel("frequency (Hz)")
+    ax.set_ylabel("gain")
+    ax.legend(fontsize=8)
+    ax.set_title(f"crossover {design.crossover_hz:.1f} Hz, GM {design.gain_margin_db:.1f} dB, "
+                 f"max|S| {design.max_sensitivity:.2f}", fontsize=9)
+    ax = axs[1]
+    ax.semilogx(f, np.degrees(np.unwrap(np.angle(L))))
+    ax.axhline(-180, color="k", lw=0.5)
+    ax.axvline(design.crossover_hz, color="0.5", ls=":", lw=0.8)
+    ax.set_xlabel("frequency (Hz)")
+    ax.set_ylabel("phase of L (deg)")
+    d = design.delays
+    ax.set_title(f"PM {design.phase_margin_deg:.0f} deg; delays: stage {d['stage_dead_time'] * 1e3:g} + tick "
+                 f"{d['command_tick'] * 1e3:g} + lag {d['stage_lag'] * 1e3:g} + estimator "
+                 f"{d['estimator_group_delay'] * 1e3:.2f} ms", fontsize=8)
+    ax = axs[2]
+    v = np.geomspace(1e-3, 3e-2, 40)
+    for a in (0.05, 0.1, 0.25, 0.5):
+        ax.loglog(v * 1e3, [1e3 * design.sine_error(x, a) for x in v], label=f"{a:g} m/s$^2$")
+    ax.loglog(v * 1e3, 1e3 * v / design.kp, "k--", lw=0.8, label="type-1 loop (v / Kp)")
+    ax.set_xlabel("peak finger speed (mm/s)")
+    ax.set_ylabel("predicted peak tracking error (mm)")
+    ax.set_title(f"Kp {design.kp:.0f}/s, integral {design.z:.0f}/s, Kv {design.kv:.2f}: error = A / "
+                 f"{design.acceleration_constant:.3g} s$^{{-2}}$", fontsize=8)
+    ax.legend(fontsize=7, title="peak acceleration", title_fontsize=7)
+    fig.tight_layout()
+    save_figure(fig, path)
+    plt.close(fig)

@@ -1,0 +1,111 @@
+"""The loop's envelope on the 6-ridge FEM pad, and the tick cost of the default law.
+
+    python bench/loop_envelope.py --out bench-out/loop            # nominal, 10 paths per class, 3 laws
+    python bench/loop_envelope.py --out bench-out/loop --robustness --robustness-laws default
+    python bench/loop_envelope.py --tick                          # the tick cost only
+
+Resumable: rows go to ``OUT/loop_envelope.json`` after every run, and a rerun skips
+the rows already there (run it in the background, interrupt it, run it again). Writes
+``OUT/loop_envelope.png`` and prints the table (markdown) with the CPU model.
+
+Reported paths: :data:`tactile_mirror.loop.envelope.REPORT_PATHS` (seeds 0.., 10 mm rms,
+2 Hz band, scaled to the class's peak speed and <= 0.5 m/s^2). Every choice made while
+developing the law used :data:`~tactile_mirror.loop.envelope.TUNING_PATHS` (seeds 1000..,
+8 mm rms, 1.5 Hz band): disjoint seeds and generator settings (``--paths tuning`` runs them).
+
+``--tick``: ns per tick of the full 6-ridge float64 pipeline inside C++
+(``MirrorPipeline.time_step_ns``, best of 5) with the previous velocity law and with
+the default (designed) law, in the same process.
+"""
+from __future__ import annotations
+
+import argparse
+import os
+import sys
+
+import numpy as np
+
+
+def tick_table(n_iter: int = 200_000) -> dict:
+    from tactile_mirror.circuit import PVDFCircuit
+    from tactile_mirror.estimator import StressRateEstimator
+    from tactile_mirror.loop.design import design_loop
+    from tactile_mirror.loop.experiment import _weights_dict, default_weights
+    from tactile_mirror.loop.stage import StageLimits
+    from tactile_mirror.measure import cpu_model
+    from tactile_mirror.pipeline import MirrorPipeline
+
+    w = _weights_dict(default_weights("fem"))
+    old = VelocityControllerOld()
+    new = design_loop(StageLimits(-0.02, 0.02, 0.03, 1.0), (1.0, 4.78e7), 1000.0, stage_delay=0.001,
+                      stage_lag=0.002).controller
+    res = {"cpu": cpu_model()}
+    for _ in range(2):  # interleaved, best of both rounds
+        for name, c in (("previous velocity law", old), ("default (designed) law", new)):
+            est = StressRateEstimator(PVDFCircuit(), 1000.0, 12, order=2, bandwidth=100.0)
+            p = MirrorPipeline(w, 1000.0, 6, estimator=est, controller=c, activation="fast", max_hold_ticks=50)
+            ns = p.time_step_ns(n_iter, 5)
+            res[name] = min(res.get(name, np.inf), ns)
+    return res
+
+
+def VelocityControllerOld():
+    from tactile_mirror.loop.controller import VelocityController
+
+    return VelocityController(threshold=0.2, y_full=0.7, v_max=0.004, a_max=1.0, ramp_gain=0.0, pred_boost=1.5,
+                              shear_gain=1.25e-6, slip_hold=0.1, direction_sign=1.0, asym_tau=20.0, x_min=-0.02,
+                              x_max=0.02, arm_delay=0.5)
+
+
+def main(argv=None):
+    from tactile_mirror.loop.envelope import (
+        _LAWS,
+        CONDITIONS,
+        REPORT_PATHS,
+        TUNING_PATHS,
+        envelope_figure,
+        run_envelope,
+    )
+    from tactile_mirror.measure import cpu_model
+
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--out", default="bench-out/loop")
+    ap.add_argument("--seeds", type=int, default=10)
+    ap.add_argument("--speeds", default="2,5,10,20", help="mm/s")
+    ap.add_argument("--laws", default=",".join(_LAWS))
+    ap.add_argument("--robustness", action="store_true", help="also the robustness conditions")
+    ap.add_argument("--robustness-laws", default="default")
+    ap.add_argument("--robustness-seeds", type=int, default=None, help="paths per class (default: --seeds)")
+    ap.add_argument("--paths", choices=["report", "tuning"], default="report")
+    ap.add_argument("--tick", action="store_true", help="only the tick cost table")
+    args = ap.parse_args(argv)
+    if args.tick:
+        t = tick_table()
+        print(f"CPU: {t.pop('cpu')}\n\n| law | ns per tick (6 ridges, float64, inside C++) |\n|---|---|")
+        for k, v in t.items():
+            print(f"| {k} | {v:.0f} |")
+        return 0
+    os.makedirs(args.out, exist_ok=True)
+    out = os.path.join(args.out, "loop_envelope.json")
+    paths = TUNING_PATHS if args.paths == "tuning" else REPORT_PATHS
+    speeds = [float(v) * 1e-3 for v in args.speeds.split(",")]
+    data = run_envelope(out, speeds=speeds, n_seeds=args.seeds, conditions=("nominal",),
+                        laws=tuple(args.laws.split(",")), paths=paths)
+    if args.robustness:
+        conds = tuple(c for c in CONDITIONS if c != "nominal")
+        data = run_envelope(out, speeds=speeds, n_seeds=args.robustness_seeds or args.seeds, conditions=conds,
+                            laws=tuple(args.robustness_laws.split(",")), paths=paths)
+    envelope_figure(data, os.path.join(args.out, "loop_envelope.png"), paths=paths.name)
+    print(f"CPU: {cpu_model()}; paths: {paths}")
+    print("\n| condition | law | peak speed mm/s | paths | gross slips | runs with slip | tracking rms mm mean / max "
+          "| max settle after slip s | second slips < 100 ms |\n|---|---|---|---|---|---|---|---|---|")
+    for t in data["table"]:
+        if t["paths"] == paths.name:
+            print(f"| {t['condition']} | {t['law']} | {t['speed_mm_s']:g} | {t['runs']} | {t['gross_slips']} | "
+                  f"{t['runs_with_slip']} | {t['tracking_rms_mm_mean']:.4f} / {t['tracking_rms_mm_max']:.4f} | "
+                  f"{t['settle_s_max']:.3f} | {t['second_slips']} |")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,268 @@
+"""The loop's envelope: gross slips and tracking error against peak finger speed.
+
+:func:`run_envelope` runs seeded finger paths per speed class (on the FEM pad by
+default), open loop, with the paper's law and with the default law
+(:func:`tactile_mirror.loop.design.design_loop`), under the nominal condition and the
+robustness conditions (sensor noise, dropped samples, a compliant mount, sweat),
+appending one JSON row per run to a results file so that an interrupted run resumes
+where it stopped. :func:`envelope_table` sums the rows per (condition, law, speed);
+:func:`envelope_figure` plots them. ``tactile-mirror loop envelope`` is the command.
+
+Finger paths are :func:`~tactile_mirror.loop.finger.finger_trajectory` with
+``v_max`` = the class's peak speed and ``a_max`` = 0.5 m/s^2 (band-limited noise
+scaled down until both hold, so the peak speed is the class's). Two disjoint path
+sets: :data:`TUNING_PATHS` (seeds 1000.., 8 mm rms, 1.5 Hz) for any choice made while
+developing the law, :data:`REPORT_PATHS` (seeds 0.., 10 mm rms, 2 Hz) for the reported
+envelope.
+"""
+from __future__ import annotations
+
+import json
+import math
+import os
+import sys
+import time
+from collections.abc import Sequence
+from dataclasses import dataclass
+
+import numpy as np
+
+from .stage import StageLimits
+
+__all__ = ["CONDITIONS", "REPORT_PATHS", "TUNING_PATHS", "PathSet", "envelope_figure", "envelope_table",
+           "run_envelope"]
+
+
+@dataclass(frozen=True)
+class PathSet:
+    """Generator settings of a set of finger paths (see :func:`~tactile_mirror.loop.finger.finger_trajectory`)."""
+
+    name: str
+    first_seed: int
+    amplitude: float   # m rms before the speed/acceleration scaling
+    bandwidth: float   # Hz
+    a_max: float = 0.5  # m/s^2
+
+    def trajectory(self, speed: float) -> dict:
+        return {"amplitude": self.amplitude, "bandwidth": self.bandwidth, "v_max": float(speed), "a_max": self.a_max}
+
+    def seeds(self, n: int) -> list[int]:
+        return [self.first_seed + i for i in range(n)]
+
+
+#: Paths for choosing anything about the law (never reported).
+TUNING_PATHS = PathSet("tuning", 1000, 8e-3, 1.5)
+#: Paths of the reported envelope (never used to choose anything).
+REPORT_PATHS = PathSet("report", 0, 10e-3, 2.0)
+
+#: Robustness conditions: name -> LoopScene fields.
+CONDITIONS: dict[str, dict] = {
+    "nominal": {},
+    "noise 1 mV": {"noise": 1e-3},
+    "drop 5 %": {"drop_rate": 0.05},
+    "mount 500 kN/m": {"mount_stiffness": 5e5},
+    "sweat mu 0.45": {"mu_change": (1.75, 0.45)},
+    "sweat mu 0.40": {"mu_change": (1.75, 0.40)},
+}
+
+_LAWS = ("open loop", "paper", "default")
+
+
+def _key(row) -> tuple:
+    return (row["condition"], row["law"], round(row["speed"] * 1e6), int(row["seed"]), row["paths"])
+
+
+def _laws(weights, fs, limits, delay, lag, n_ridges, plant):
+    from .design import design_loop
+    from .experiment import calibrate_shear, make_laws
+
+    cal = calibrate_shear(weights, fs, n_ridges, plant=plant)
+    design = design_loop(limits, cal, fs, stage_delay=delay, stage_lag=lag,
+                         arm_delay=0.5 if plant == "fem" else 0.0)
+    paper = make_laws(weights, fs, plant, n_ridges)[0]["paper"]
+    return {"open loop": None, "paper": paper, "default": design.controller}, design
+
+
+def _settle_after_slips(res, fs, window: float = 0.1) -> dict:
+    """Settling after each gross slip: time from its end until the relative displacement's
+    speed stays below 1 mm/s, and whether another gross slip starts within ``window`` s."""
+    sf = res.log["slip_fraction"][:, : res.t.size]
+    g = np.all(sf >= 0.999, axis=0)
+    ends = np.flatnonzero(g[:-1] & ~g[1:]) + 1
+    starts = np.flatnonzero(g[1:] & ~g[:-1]) + 1
+    rel = res.finger - res.log["pad"][: res.t.size]
+    vrel = np.abs(np.gradient(rel, 1.0 / fs))
+    worst, second = 0.0, 0
+    for e in ends:
+        after = vrel[e:]
+        moving = np.flatnonzero(after > 1e-3)
+        # settled: the last tick within the window where the relative speed exceeds 1 mm/s
+        inwin = moving[moving < round(window * fs)]
+        worst = max(worst, (inwin[-1] + 1) / fs if inwin.size else 0.0)
+        second += int(np.any((starts > e) & (starts < e + round(window * fs))))
+    return {"settle_s": worst, "second_slip_within_100ms": second}
+
+
+def run_envelope(out: str, speeds: Sequence[float] = (0.002, 0.005, 0.01, 0.02), n_seeds: int = 10,
+                 conditions: Sequence[str] = ("nominal",), laws: Sequence[str] = _LAWS, paths: PathSet = REPORT_PATHS,
+                 plant: str = "fem", duration: float = 3.0, fs: float = 1000.0,
+                 limits: StageLimits | None = None, stage_delay: float = 0.001, stage_lag: float = 0.002,
+                 n_ridges: int = 6, weights=None, progress: bool = True) -> dict:
+    """Run (or resume) the envelope; rows are appended to the JSON file ``out``.
+
+    Parameters
+    ----------
+    out : path
+        Results file (JSON with ``rows`` and ``design``); existing rows are kept and not rerun.
+    speeds : sequence of float
+        Peak finger speeds of the classes, m/s.
+    n_seeds : int
+        Paths per class.
+    conditions : sequence of str
+        Keys of :data:`CONDITIONS`.
+    laws : sequence of str
+        Among ``"open loop"``, ``"paper"``, ``"default"``.
+    paths : PathSet
+        :data:`REPORT_PATHS` (default) or :data:`TUNING_PATHS`.
+    limits : StageLimits
+        The stage (default +-20 mm, 30 mm/s, 1 m/s^2); ``stage_delay``, ``stage_lag`` in s.
+
+    Returns the results dict (as written).
+    """
+    from .experiment import _weights_dict, default_weights
+    from .scene import LoopScene, run_scene
+
+    for c in conditions:
+        if c not in CONDITIONS:
+            raise ValueError(f"conditions: unknown condition {c!r}; known: {sorted(CONDITIONS)}")
+    for name in laws:
+        if name not in _LAWS:
+            raise ValueError(f"laws: unknown law {name!r}; known: {list(_LAWS)}")
+    if not isinstance(n_seeds, int) or n_seeds < 1:
+        raise ValueError(f"n_seeds must be a positive int, got {n_seeds!r}")
+    speeds = [float(v) for v in speeds]
+    if not speeds or any(not (math.isfinite(v) and v > 0) for v in speeds):
+        raise ValueError(f"speeds must be positive finite m/s, got {speeds!r}")
+    limits = limits or StageLimits(-0.02, 0.02, 0.03, 1.0)
+    weights = default_weights(plant, fs) if weights is None else weights
+    w = _weights_dict(weights) if not isinstance(weights, dict) else weights
+    law_objs, design = _laws(w, fs, limits, stage_delay, stage_lag, n_ridges, plant)
+    data: dict = {"rows": []}
+    if os.path.exists(out):
+        with open(out) as fh:
+            data = json.load(fh)
+    done = {_key(r) for r in data["rows"]}
+    data["design"] = design.summary()
+    data["setup"] = {"plant": plant, "duration_s": duration, "fs": fs, "n_ridges": n_ridges,
+                     "stage": {"x_min": limits.x_min, "x_max": limits.x_max, "v_max": limits.v_max,
+                               "a_max": limits.a_max, "delay_s": stage_delay, "lag_s": stage_lag}}
+    data.setdefault("path_sets", {})[paths.name] = {"first_seed": paths.first_seed, "amplitude_m": paths.amplitude,
+                                                   "bandwidth_hz": paths.bandwidth, "a_max": paths.a_max}
+    jobs = [(c, v, s, name) for c in conditions for v in speeds for s in paths.seeds(n_seeds) for name in laws]
+    todo = [j for j in jobs if (j[0], j[3], round(j[1] * 1e6), j[2], paths.name) not in done]
+    t0 = time.monotonic()
+    for i, (c, v, s, name) in enumerate(todo):
+        sc = LoopScene(seed=s, duration=duration, fs=fs, plant=plant, trajectory=paths.trajectory(v),
+                       label=c, **CONDITIONS[c])
+        res = run_scene(sc, w, law_objs[name], limits=limits, n_ridges=n_ridges)
+        sm = res.summary()
+        fv = np.gradient(res.finger, 1.0 / fs)
+        row = {"condition": c, "law": name, "speed": v, "seed": s, "paths": paths.name,
+               "gross_slips": sm["gross_slips"], "gross_slip_time_s": sm["gross_slip_time_s"],
+               "tracking_rms_mm": sm["tracking_rms_mm"], "tracking_max_mm": sm["tracking_max_mm"],
+               "finger_peak_speed": float(np.abs(fv).max()),
+               "finger_peak_acceleration": float(np.abs(np.gradient(fv, 1.0 / fs)).max()),
+               "force_y_max": float(np.abs(res.log["force_y"]).max()),
+               "force_z_mean": float(np.mean(res.log["force_z"][round(0.5 * fs):])),
+               **_settle_after_slips(res, fs)}
+        data["rows"].append(row)
+        tmp = out + ".tmp"
+        with open(tmp, "w") as fh:
+            json.dump(data, fh, indent=1)
+        os.replace(tmp, out)
+        if progress:
+            k = i + 1
+            el = time.monotonic() - t0
+            bar = "#" * round(30 * k / len(todo))
+            sys.stderr.write(f"\r[{bar:<30}] {k}/{len(todo)} {el:.0f}s elapsed, ~{el / k * (len(todo) - k):.0f}s "
+                             f"left | {c}, {name}, {v * 1e3:g} mm/s, seed {s}: {row['gross_slips']} slips, "
+                             f"{row['tracking_rms_mm']:.3f} mm   ")
+            sys.stderr.flush()
+    if progress and todo:
+        sys.stderr.write("\n")
+    data["table"] = envelope_table(data["rows"])
+    with open(out + ".tmp", "w") as fh:
+        json.dump(data, fh, indent=1)
+    os.replace(out + ".tmp", out)
+    return data
+
+
+def envelope_table(rows) -> list[dict]:
+    """Sum the rows per (path set, condition, law, speed): runs, gross slips, runs with a slip,
+    tracking rms (mean and max over the paths, mm), worst settling after a slip (s)."""
+    groups: dict[tuple, list] = {}
+    for r in rows:
+        groups.setdefault((r["paths"], r["condition"], r["law"], r["speed"]), []).append(r)
+    table = []
+    for (p, c, law, v), rs in sorted(groups.items(), key=lambda kv: (kv[0][0], kv[0][1], kv[0][2], kv[0][3])):
+        table.append({"paths": p, "condition": c, "law": law, "speed_mm_s": v * 1e3, "runs": len(rs),
+                      "gross_slips": sum(r["gross_slips"] for r in rs),
+                      "runs_with_slip": sum(r["gross_slips"] > 0 for r in rs),
+                      "tracking_rms_mm_mean": float(np.mean([r["tracking_rms_mm"] for r in rs])),
+                      "tracking_rms_mm_max": float(np.max([r["tracking_rms_mm"] for r in rs])),
+                      "peak_acceleration_max": float(np.max([r["finger_peak_acceleration"] for r in rs])),
+                      "settle_s_max": float(np.max([r.get("settle_s", 0.0) for r in rs])),
+                      "second_slips": int(sum(r.get("second_slip_within_100ms", 0) for r in rs))})
+    return table
+
+
+def envelope_figure(data, path: str, paths: str = "report") -> None:
+    """Gross slips and tracking rms against peak finger speed, one line per law and condition."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+    import matplotlib.ticker
+
+    table = [t for t in envelope_table(data["rows"]) if t["paths"] == paths]
+    fig, (ax1, ax2) = plt.subplots(1, 2, figsize=(11, 4.2))
+    styles = {"open loop": ("0.5", "o"), "paper": ("tab:orange", "s"), "default": ("tab:blue", "^")}
+    conds = sorted({t["condition"] for t in table}, key=lambda c: list(CONDITIONS).index(c))
+    for ci, c in enumerate(conds):
+        for law in _LAWS:
+            ts = sorted((t for t in table if t["condition"] == c and t["law"] == law), key=lambda t: t["speed_mm_s"])
+            if not ts:
+                continue
+            color, marker = styles[law]
+            ls = "-" if c == "nominal" else (0, (1 + ci, 1 + ci))
+            lab = law if c == "nominal" else f"{law}, {c}"
+            v = [t["speed_mm_s"] for t in ts]
+            ax1.plot(v, [t["gross_slips"] / t["runs"] for t in ts], color=color, marker=marker, ls=ls, label=lab,
+                     alpha=1.0 if c == "nominal" else 0.6)
+            ax2.plot(v, [t["tracking_rms_mm_mean"] for t in ts], color=color, marker=marker, ls=ls, label=lab,
+                     alpha=1.0 if c == "nominal" else 0.6)
+    ax1.set_xlabel("peak finger speed (mm/s)")
+    ax1.set_ylabel("gross slips per 2.5 s path")
+    ax1.set_xscale("log")
+    ax2.set_xlabel("peak finger speed (mm/s)")
+    ax2.set_ylabel("tracking rms (mm), mean over paths")
+    ax2.set_xscale("log")
+    ax2.set_yscale("log")
+    ax2.axhline(0.02, color="k", lw=0.6, ls=":")
+    ax2.axhline(0.05, color="k", lw=0.6, ls=":")
+    ax1.legend(fontsize=6, ncol=1)
+    speeds = sorted({t["speed_mm_s"] for t in table})
+    for ax in (ax1, ax2):
+        ax.set_xticks(speeds)
+        ax.set_xticklabels([f"{v:g}" for v in speeds])
+        ax.xaxis.set_minor_formatter(matplotlib.ticker.NullFormatter())
+    runs = [t["runs"] for t in table]
+    n = f"{min(runs)}-{max(runs)}" if runs and min(runs) != max(runs) else f"{max(runs, default=0)}"
+    setup = data.get("setup", {})
+    st = setup.get("stage", {})
+    fig.suptitle(f"Loop envelope, {setup.get('plant', '?')} pad, {n} paths per class; stage {st.get('v_max', 0) * 1e3:g} "
+                 f"mm/s, {st.get('a_max', 0):g} m/s^2, {st.get('delay_s', 0) * 1e3:g} ms delay, "
+                 f"{st.get('lag_s', 0) * 1e3:g} ms lag", fontsize=9)
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
