@@ -244,6 +244,80 @@ def test_random_interleavings_of_threads(plan, shared):
             assert pipes[k].status["ticks"] == taken[k]
 
 
+# -- the published status and the unguarded windows ---------------------------------------
+
+def _expected_status(seq, max_hold):
+    """Counters after each tick of ``seq`` (kinds 'ok', 'nan', 'big'), as the status must publish them."""
+    st = {"ticks": 0, "rejected": 0, "nonfinite": 0, "out_of_range": 0, "consecutive_rejected": 0,
+          "last_bad_tick": -1, "fault": False}
+    for kind in seq:
+        if kind == "ok":
+            st["consecutive_rejected"] = 0
+            st["fault"] = False
+        else:
+            st["rejected"] += 1
+            st["nonfinite" if kind == "nan" else "out_of_range"] += 1
+            st["last_bad_tick"] = st["ticks"]
+            st["consecutive_rejected"] += 1
+            st["fault"] = st["consecutive_rejected"] > max_hold
+        st["ticks"] += 1
+        yield dict(st)
+
+
+@pytest.mark.parametrize("backend", ["pybind", "capi"])
+def test_published_status_follows_every_rejection_and_recovery(backend):
+    # The counters are published only when a tick changed them: a rejection, and the
+    # first accepted tick after rejections (consecutive_rejected back to 0, fault off).
+    # After every single step the status another thread reads must be the exact one.
+    p = MirrorPipeline(weights(), FS, 2, estimator=StressRateEstimator(PVDFCircuit(), FS, 4, use_u=True),
+                       controller=VelocityController(shear_gain=1e-4), v_limit=5.0, u_limit=5.0, max_hold_ticks=2)
+    if backend == "capi":
+        p = CPipeline(p.config)
+    rng = np.random.default_rng(11)
+    seq = ["ok"] * 5 + ["nan", "ok", "ok", "big", "big", "big", "ok", "nan", "nan", "nan", "nan", "ok"] + ["ok"] * 3
+    seq += list(rng.choice(["ok", "ok", "ok", "nan", "big"], size=200))
+    row = np.zeros(p.n_inputs)
+    for i, (kind, want) in enumerate(zip(seq, _expected_status(seq, 2))):
+        row[:] = 0.01 * np.sin(0.1 * i + np.arange(p.n_inputs))
+        if kind == "nan":
+            row[i % p.n_inputs] = np.nan
+        elif kind == "big":
+            row[i % p.n_inputs] = 7.0
+        p.step(row)
+        got = p.status
+        assert {k: got[k] for k in want} == want, (i, kind)
+    if backend == "capi":
+        p.close()
+
+
+def test_float32_windows_without_undo_never_let_an_overflow_through():
+    # float32 with huge finite limits: samples of random magnitude up to the limit
+    # and random sign. Ticks inside a window skip the undo and the finiteness check,
+    # so a window longer than the bound allows would show up as a non-finite output
+    # or feature; every overflowing tick must instead be rejected as 'overflow'.
+    est = StressRateEstimator(PVDFCircuit(), FS, 4, use_u=True, dtype=np.float32)
+    p = MirrorPipeline(weights(), FS, 2, estimator=est, controller=VelocityController(shear_gain=1e-4),
+                       v_limit=1e30, u_limit=1e30, dtype=np.float32)
+    rng = np.random.default_rng(4)
+    n = 20000
+    x = 0.01 * rng.standard_normal((n, p.n_inputs))
+    burst = rng.random(n) < 0.05
+    x[burst] = np.sign(rng.standard_normal((burst.sum(), p.n_inputs))) * 10.0 ** rng.uniform(
+        0, 30, (burst.sum(), p.n_inputs))
+    ramp = slice(5000, 5600)  # a slow climb: the states grow while windows are open
+    x[ramp] = 10.0 ** np.linspace(0, 30, 600)[:, None] * np.sign(np.sin(np.arange(600)))[:, None]
+    out, feat, ok = p.process_block(x, features=True, accepted=True)
+    assert np.all(np.isfinite(out)) and np.all(np.isfinite(feat))
+    s = p.status
+    assert s["rejected"] == s["overflow"] == int(np.count_nonzero(~ok)) > 0
+    # stepping tick by tick gives the same (the windows are the same in both calls)
+    q = MirrorPipeline.from_config(p.config)
+    for i, row in enumerate(x):
+        q.step(row)
+        assert q.last_accepted == ok[i], i
+    np.testing.assert_array_equal(q.outputs, out[-1])
+
+
 # -- the C ABI -------------------------------------------------------------------------
 
 CLOSE_WHILE_STEPPING = textwrap.dedent("""
@@ -322,6 +396,39 @@ def test_capi_handle_used_by_two_threads_is_busy():
     with pytest.raises(CAPIError) as e:
         c.step(row)
     assert e.value.code == HANDLE
+
+
+def test_stale_handle_never_claims_the_pipeline_that_reuses_its_slot():
+    # A destroyed handle's slot is reused by the next pipeline with a new generation:
+    # the stale handle gets TM_ERR_HANDLE (never TM_ERR_BUSY, never the new pipeline),
+    # while a thread drives the new handle, and the new handle is never refused
+    # because of the stale one.
+    a = CPipeline(make().config)
+    stale = a.handle
+    a.close()
+    b = CPipeline(make().config)
+    assert (b.handle & 0xFFFFFFFF) == (stale & 0xFFFFFFFF) and b.handle != stale  # same slot, next generation
+    lib, ffi = b.lib, b.ffi
+    x = np.zeros(b.n_inputs)
+    xp = ffi.cast("const double*", ffi.from_buffer(x))
+    stop = threading.Event()
+    codes = []
+
+    def stale_caller():
+        while not stop.is_set():
+            codes.append(lib.tm_pipeline_step(stale, xp, b.n_inputs, ffi.NULL, 0))
+
+    t = threading.Thread(target=stale_caller)
+    t.start()
+    try:
+        for _ in range(3000):
+            b.step(x)  # raises on TM_ERR_BUSY
+    finally:
+        stop.set()
+        t.join()
+    assert codes and set(codes) == {HANDLE}
+    assert b.status["ticks"] == 3000
+    b.close()
 
 
 def _cc():

@@ -216,19 +216,40 @@ inline const char* reject_reason_name(int r) noexcept {
 }
 
 // The status as last published by the stepping thread, readable from any thread
-// without a lock and without tearing (a sequence lock over atomic words: the
-// writer never waits; a reader retries while a publication is under way).
+// without a lock and without tearing: a sequence lock over atomic words. There is
+// one writer (the owner of the pipeline), so the count is kept in a plain member
+// as well and the writer never reads an atomic or performs a read-modify-write:
+// an odd count, the words (release stores: each one after the odd count), the
+// even count (release store: after every word). On x86-64 that is plain moves and
+// no fence instruction (and no fence for ThreadSanitizer to miss). A reader
+// retries while a publication is under way.
+//
+// Per tick only the words a tick always changes are stored (ticks, the flags, the
+// command); the rejection counters and the last bad tick are stored only when the
+// caller says they changed (`counters`), i.e. after a rejected tick, a recovery
+// from rejections, a reset. Words not stored keep their last published value, so
+// a reader always sees one consistent status.
 class StatusBoard {
 public:
-    void publish(const PipelineStatus& s, double position, double velocity) noexcept {
-        // Release stores throughout (plain stores on x86-64): the odd count is
-        // visible before any word changes, every word before the even count.
-        const std::uint64_t q = seq_.load(std::memory_order_relaxed);
+    void publish(const PipelineStatus& s, double position, double velocity, bool counters = true) noexcept {
+        const std::uint64_t q = seq_w_;
+        constexpr auto rel = std::memory_order_release;
         seq_.store(q + 1, std::memory_order_relaxed);
-        std::uint64_t w[kWords];
-        pack(s, position, velocity, w);
-        for (int i = 0; i < kWords; ++i) words_[i].store(w[i], std::memory_order_release);
-        seq_.store(q + 2, std::memory_order_release);
+        words_[0].store(s.ticks, rel);
+        words_[7].store(flags_word(s), rel);
+        words_[8].store(bits(position), rel);
+        words_[9].store(bits(velocity), rel);
+        if (counters) {
+            words_[1].store(s.rejected, rel);
+            words_[2].store(s.nonfinite, rel);
+            words_[3].store(s.out_of_range, rel);
+            words_[4].store(s.overflow, rel);
+            words_[5].store(std::uint64_t(s.last_bad_tick), rel);
+            words_[6].store(std::uint64_t(std::uint32_t(s.last_bad_channel)) |
+                                (std::uint64_t(s.consecutive_rejected) << 32), rel);
+        }
+        seq_w_ = q + 2;
+        seq_.store(q + 2, std::memory_order_release);  // every word before the even count
     }
     PipelineStatus read(double* position, double* velocity) const noexcept {
         std::uint64_t w[kWords];
@@ -237,7 +258,7 @@ public:
             if (q0 & 1u) continue;  // a publication is under way: a few stores long
             // Acquire loads (plain loads on x86-64): the count is re-read after them.
             for (int i = 0; i < kWords; ++i) w[i] = words_[i].load(std::memory_order_acquire);
-            if (seq_.load(std::memory_order_acquire) == q0) break;
+            if (seq_.load(std::memory_order_relaxed) == q0) break;
         }
         PipelineStatus s;
         s.ticks = w[0];
@@ -259,21 +280,18 @@ public:
 
 private:
     static constexpr int kWords = 10;
-    static void pack(const PipelineStatus& s, double position, double velocity, std::uint64_t* w) noexcept {
-        w[0] = s.ticks;
-        w[1] = s.rejected;
-        w[2] = s.nonfinite;
-        w[3] = s.out_of_range;
-        w[4] = s.overflow;
-        w[5] = std::uint64_t(s.last_bad_tick);
-        w[6] = std::uint64_t(std::uint32_t(s.last_bad_channel)) | (std::uint64_t(s.consecutive_rejected) << 32);
-        w[7] = std::uint64_t(s.fault) | (std::uint64_t(s.slip) << 1) | (std::uint64_t(s.at_limit) << 2) |
+    static std::uint64_t flags_word(const PipelineStatus& s) noexcept {
+        return std::uint64_t(s.fault) | (std::uint64_t(s.slip) << 1) | (std::uint64_t(s.at_limit) << 2) |
                (std::uint64_t(std::uint32_t(s.last_reason)) << 8);
-        std::memcpy(&w[8], &position, sizeof(double));
-        std::memcpy(&w[9], &velocity, sizeof(double));
+    }
+    static std::uint64_t bits(double v) noexcept {
+        std::uint64_t w;
+        std::memcpy(&w, &v, sizeof w);
+        return w;
     }
     std::atomic<std::uint64_t> seq_{0};
     std::atomic<std::uint64_t> words_[kWords] = {};
+    std::uint64_t seq_w_ = 0;  // the writer's copy of seq_
 };
 
 // ---- validation shared by every binding -------------------------------------------
@@ -556,7 +574,7 @@ public:
         undo_feat_.resize(feat_.size());
         undo_det_.resize(det_.size());
         setup_unguarded(c);
-        publish();
+        publish_all();
     }
 
     MirrorPipeline(const MirrorPipeline&) = delete;
@@ -613,7 +631,7 @@ public:
                 for (std::size_t i = 0; i < nf; ++i) f[t * f_stride + i] = double(feat_[i]);
             if (accepted) accepted[t] = ok ? 1 : 0;
         }
-        publish();
+        publish_all();
         return bad;
     }
 
@@ -632,7 +650,7 @@ public:
             out_[2 + 3 * r + 1] = 1.0;
         }
         out_[0] = ctrl_.position();
-        publish();
+        publish_all();
     }
 
     // Tell the controller where the stage is (m), e.g. after homing; velocity zero.
@@ -670,7 +688,7 @@ public:
         }
         restore(snap);
         unguarded_left_ = 0;
-        publish();
+        publish_all();
         return best;
     }
 
@@ -711,6 +729,7 @@ private:
     }
 
     void record_rejection(RejectReason why, int channel) noexcept {
+        counters_changed_ = true;
         ++st_.rejected;
         if (why == RejectReason::nonfinite)
             ++st_.nonfinite;
@@ -759,42 +778,48 @@ private:
 
     // ---- ticks that cannot overflow: the guard's undo and check are skipped.
     //
-    // Per tick, a TDF2 section with input x and state s1, s2 (coefficients over a0)
-    // gives |y|, |s1'|, |s2'| <= f m, m = max(|x|, |s1|, |s2|), with
-    //   f = max(|b0| + 1, |b1| + |a1| (|b0| + 1) + 1, |b2| + |a2| (|b0| + 1)),
-    // so every filter state and feature of the estimator grows per tick by at most
-    // F = prod f (over the sections a value passes) times max(m, |x|). After a
-    // guarded tick has measured the largest magnitude M, the next K ticks whose
-    // samples are at most kUnguardedInput cannot take any value past
-    // F^K (M + K kUnguardedInput) <= limit_, a bound below which the detector's
-    // arithmetic stays finite too (limit_ accounts for its input gains and
-    // weights, and the controller's integrator is bounded alike). Those K ticks skip
-    // the undo and the check; a reset or any guarded tick starts a new count.
-    // A delta section (y = b0 x + s1, s1' = s1 + B1 x + s2 - A1 y, s2' = s2 + B2 x - A2 y)
-    // grows by at most max(|b0| + 1, 2 + |B1| + |A1| (|b0| + 1), 1 + |B2| + |A2| (|b0| + 1));
-    // a section's factor is the larger of its two forms' bounds, whichever form runs.
+    // Per tick, a section with input bounded by u and states bounded by m (both
+    // forms, coefficients over a0) gives |y| <= |b0| u + m and new states bounded by
+    // alpha m + beta u:
+    //   tdf2   y = b0 x + s1, s1' = b1 x - a1 y + s2, s2' = b2 x - a2 y:
+    //          alpha = max(1 + |a1|, |a2|), beta = max(|b1| + |a1||b0|, |b2| + |a2||b0|)
+    //   delta  y = b0 x + s1, s1' = s1 + B1 x + s2 - A1 y, s2' = s2 + B2 x - A2 y:
+    //          alpha = max(2 + |A1|, 1 + |A2|), beta = max(|B1| + |A1||b0|, |B2| + |A2||b0|)
+    // (the larger of the two forms is used, whichever runs). The input gain beta
+    // (the equaliser's, ~1e8 Pa/s per V) adds to the state bound once per tick
+    // instead of multiplying it, so the bounds grow by about alpha <= 3 per tick.
+    // Chained through the cascades (a section's input bound is the previous one's
+    // output bound; the differentiator's input is the rate) and the controller's
+    // asymmetry integrator (|a'| <= |a| + dt 2R |rate|), the bounds after one tick
+    // are an affine, non-negative map v' <= M v of v = (section state bounds, |a|, 1)
+    // whose input term is the largest accepted sample (input_bound_). The map and
+    // its powers M^(2^j) are built at construction; after a guarded, accepted tick
+    // the measured bounds are pushed through the powers (binary lifting) to find the
+    // largest K <= kMaxUnguarded for which every state, feature and the asymmetry
+    // stay below their limits (limit_ keeps the detector's arithmetic finite too).
+    // The bounds only grow with K (alpha >= 1), so the next K ticks whose samples
+    // are at most input_bound_ cannot overflow and skip the undo and the check; a
+    // reset or any guarded tick starts a new count.
     static constexpr double kUnguardedInput = 1e100;
-    static double section_growth(const double* s) noexcept {
+    static constexpr int kLiftLevels = 12;  // K <= 2^12 - 1
+    static constexpr double kAsymLimit = 1e300;
+    static constexpr double kRoundingMargin = 1.0 + 1e-4;  // T arithmetic and T-rounded coefficients
+    static constexpr double kRefSlack = 16.0;  // a reused window costs log_alpha(16), 2-3 ticks
+    static void section_bound(const double* s, double* alpha, double* beta, double* b0_abs) noexcept {
         const double a0 = s[3];
-        const double b0 = std::fabs(s[0] / a0), b1 = std::fabs(s[1] / a0), b2 = std::fabs(s[2] / a0);
-        const double a1 = std::fabs(s[4] / a0), a2 = std::fabs(s[5] / a0);
-        const double tdf2 = std::max({b0 + 1.0, b1 + a1 * (b0 + 1.0) + 1.0, b2 + a2 * (b0 + 1.0)});
-        const double B1 = std::fabs(2.0 * s[0] / a0 + s[1] / a0), B2 = std::fabs((s[0] + s[1] + s[2]) / a0);
-        const double A1 = std::fabs(2.0 + s[4] / a0), A2 = std::fabs(1.0 + (s[4] + s[5]) / a0);
-        const double delta = std::max({b0 + 1.0, 2.0 + B1 + A1 * (b0 + 1.0), 1.0 + B2 + A2 * (b0 + 1.0)});
-        return std::max(tdf2, delta);
+        const double b0 = s[0] / a0, b1 = s[1] / a0, b2 = s[2] / a0, a1 = s[4] / a0, a2 = s[5] / a0;
+        const double B1 = 2.0 * b0 + b1, B2 = (b0 + b1) + b2, A1 = 2.0 + a1, A2 = (1.0 + a1) + a2;
+        const double ab0 = std::fabs(b0);
+        const double al_t = std::max(1.0 + std::fabs(a1), std::fabs(a2));
+        const double be_t = std::max(std::fabs(b1) + std::fabs(a1) * ab0, std::fabs(b2) + std::fabs(a2) * ab0);
+        const double al_d = std::max(2.0 + std::fabs(A1), 1.0 + std::fabs(A2));
+        const double be_d = std::max(std::fabs(B1) + std::fabs(A1) * ab0, std::fabs(B2) + std::fabs(A2) * ab0);
+        *alpha = std::max(al_t, al_d) * kRoundingMargin;
+        *beta = std::max(be_t, be_d) * kRoundingMargin;
+        *b0_abs = ab0 * kRoundingMargin;
     }
-    static double cascade_growth(const double* sos, int n) noexcept {
-        double f = 1.0;
-        for (int i = 0; i < n; ++i) f *= section_growth(sos + 6 * i);
-        return f;
-    }
-    void setup_unguarded(const PipelineConfig& c) noexcept {
-        growth_ = 0.0;  // 0: never unguarded
-        const double fv = c.n_sos_v > 0 ? cascade_growth(c.sos_v, c.n_sos_v) : 1.0;
-        const double f2 = c.use_u ? (c.n_sos_u > 0 ? cascade_growth(c.sos_u, c.n_sos_u) : 1.0)
-                                  : fv * cascade_growth(c.sos_diff, c.n_sos_diff);
-        const double g = std::max(fv, f2);
+    void setup_unguarded(const PipelineConfig& c) {
+        lift_dim_ = 0;  // 0: never unguarded
         // Detector: |xn| <= (m + |mean|) |gain|; a hidden unit sums 4 of them times w1.
         double gmax = 1.0, mean = 0.0;
         for (int h = 0; h < c.n_hidden; ++h) {
@@ -804,33 +829,144 @@ private:
         }
         for (int i = 0; i < kFeatures; ++i) mean = std::max(mean, std::fabs(c.input_mean[i]));
         limit_ = std::min(double(std::numeric_limits<T>::max()), double(std::numeric_limits<TD>::max())) * 1e-6 / gmax;
-        // Samples up to kUnguardedInput where the arithmetic's range allows it (float64
-        // throughout), else only what the sample limits bound (a float32 filter or detector).
-        input_bound_ = limit_ > kUnguardedInput * 1e6 ? kUnguardedInput
-                                                      : std::max(c.v_limit, c.use_u ? c.u_limit : 0.0);
-        if (!(input_bound_ > 0.0 && std::isfinite(input_bound_))) return;
-        if (!(std::isfinite(g) && g >= 1.0 && limit_ > 1e6 * (mean + 1.0) && limit_ > input_bound_ * 1e6)) return;
-        growth_ = g;
+        // The accepted samples' bound: the sample limits, or where the arithmetic's range
+        // allows larger limits (float64 throughout), kUnguardedInput checked per tick.
+        const double lim = std::max(c.v_limit, c.use_u ? c.u_limit : 0.0);
+        input_bound_ = limit_ > kUnguardedInput * 1e6 ? std::min(lim, kUnguardedInput) : lim;
         inputs_bounded_ = c.v_limit <= input_bound_ && (!c.use_u || c.u_limit <= input_bound_);
-    }
-    // After a guarded, accepted tick: how many ticks may skip the undo.
-    void renew_unguarded() noexcept {
-        unguarded_left_ = 0;
-        if (growth_ == 0.0) return;
-        double m = max_abs(feat_.data(), feat_.size());
-        if (rate_f_) m = std::max(m, max_abs(rate_f_->raw_state(), rate_f_->raw_state_size()));
-        if (rate2_f_) m = std::max(m, max_abs(rate2_f_->raw_state(), rate2_f_->raw_state_size()));
-        // The controller's asymmetry integrator gains at most dt * 2 R * bound per
-        // tick; it stays far below overflow (its products are then clipped).
-        const double per_tick = 2.0 * double(R_) / fs_;
-        double a = std::fabs(ctrl_.asymmetry());
-        std::uint32_t k = 0;
-        for (double bound = m; k < 4096; ++k) {
-            bound = growth_ * (bound + input_bound_);
-            a += per_tick * bound;
-            if (!(bound <= limit_ && a <= 1e300)) break;
+        if (!(input_bound_ > 0.0 && std::isfinite(input_bound_))) return;
+        if (!(limit_ > 1e6 * (mean + 1.0) && limit_ > input_bound_ * 1e6)) return;
+
+        const int n1 = c.n_sos_v, n2 = c.use_u ? c.n_sos_u : c.n_sos_diff;
+        const std::size_t d = std::size_t(n1 + n2 + 2), ia = d - 2, ic = d - 1;
+        using Row = std::vector<double>;
+        auto unit = [&](std::size_t j, double v = 1.0) {
+            Row r(d, 0.0);
+            r[j] = v;
+            return r;
+        };
+        auto axpy = [](double a, const Row& x, Row y) {
+            for (std::size_t j = 0; j < y.size(); ++j) y[j] += a * x[j];
+            return y;
+        };
+        std::vector<double> m(d * d, 0.0);
+        // One cascade: rows of its sections' state bounds; returns its output's bound.
+        auto cascade = [&](const double* sos, int n, std::size_t first, Row u) {
+            for (int i = 0; i < n; ++i) {
+                double alpha, beta, b0;
+                section_bound(sos + 6 * i, &alpha, &beta, &b0);
+                const std::size_t j = first + std::size_t(i);
+                const Row next = axpy(beta, u, unit(j, alpha));
+                std::copy(next.begin(), next.end(), m.begin() + std::ptrdiff_t(j * d));
+                Row y = unit(j);
+                u = axpy(b0, u, y);
+            }
+            return u;
+        };
+        const Row x = unit(ic, input_bound_ * kRoundingMargin);
+        const Row f1 = n1 > 0 ? cascade(c.sos_v, n1, 0, x) : x;
+        const Row f2 = c.use_u ? (n2 > 0 ? cascade(c.sos_u, n2, std::size_t(n1), x) : x)
+                               : cascade(c.sos_diff, n2, std::size_t(n1), f1);
+        const Row arow = axpy(2.0 * double(R_) / fs_ * kRoundingMargin, f1, unit(ia));
+        std::copy(arow.begin(), arow.end(), m.begin() + std::ptrdiff_t(ia * d));
+        m[ic * d + ic] = 1.0;
+        for (double v : m)
+            if (!std::isfinite(v)) return;
+        // Limits: every state bound, both features and the asymmetry.
+        lift_check_.assign(m.size() + 2 * d, 0.0);
+        lift_limit_.assign(d + 1, limit_);
+        for (std::size_t j = 0; j + 2 < d; ++j) lift_check_[j * d + j] = 1.0;
+        std::copy(f1.begin(), f1.end(), lift_check_.begin() + std::ptrdiff_t(ia * d));
+        lift_check_[ic * d + ia] = 1.0;
+        lift_limit_[ia] = limit_;
+        lift_limit_[ic] = kAsymLimit;
+        std::copy(f2.begin(), f2.end(), lift_check_.begin() + std::ptrdiff_t(d * d));
+        lift_limit_[d] = limit_;
+        // M^(2^j) by squaring.
+        lift_pow_.assign(std::size_t(kLiftLevels) * d * d, 0.0);
+        std::copy(m.begin(), m.end(), lift_pow_.begin());
+        for (int l = 1; l < kLiftLevels; ++l) {
+            const double* p = lift_pow_.data() + std::size_t(l - 1) * d * d;
+            double* q = lift_pow_.data() + std::size_t(l) * d * d;
+            for (std::size_t i = 0; i < d; ++i)
+                for (std::size_t k = 0; k < d; ++k) {
+                    const double pik = p[i * d + k];
+                    if (pik != 0.0)
+                        for (std::size_t j = 0; j < d; ++j) q[i * d + j] += pik * p[k * d + j];
+                }
         }
-        unguarded_left_ = k;
+        lift_v_.assign(d, 0.0);
+        lift_w_.assign(d, 0.0);
+        lift_u_.assign(d, 0.0);
+        lift_ref_.assign(d, 0.0);
+        lift_ref_k_ = 0;
+        lift_sections_[0] = std::size_t(n1);
+        lift_sections_[1] = std::size_t(n2);
+        lift_dim_ = d;
+    }
+    // Largest |value| of each section's two states (the raw layout is section-major).
+    void section_bounds(const SosCascade<T>* f, double* out) const noexcept {
+        const std::size_t n = f->sections(), per = f->raw_state_size() / n;
+        const T* z = f->raw_state();
+        for (std::size_t s = 0; s < n; ++s) out[s] = max_abs(z + s * per, per);
+    }
+    bool lift_within(const double* v) const noexcept {
+        const std::size_t d = lift_dim_;
+        bool ok = true;
+        for (std::size_t r = 0; r <= d; ++r) {
+            double acc = 0.0;
+            for (std::size_t j = 0; j < d; ++j) acc += lift_check_[r * d + j] * v[j];
+            ok &= acc <= lift_limit_[r];  // false for NaN
+        }
+        return ok;
+    }
+    // After an accepted tick (a guarded one, or the last of a window): how many
+    // ticks may skip the undo. The window found for bounds lift_ref_ holds for any
+    // smaller bounds (the map is monotone), so it is reused while the measured
+    // bounds stay below them; otherwise a new window is lifted for the measured
+    // bounds times kRefSlack.
+    __attribute__((noinline)) void renew_unguarded() noexcept {
+        unguarded_left_ = 0;
+        const std::size_t d = lift_dim_;
+        if (d == 0) return;
+        double* v = lift_v_.data();
+        if (rate_f_) section_bounds(rate_f_.get(), v);
+        if (rate2_f_) section_bounds(rate2_f_.get(), v + lift_sections_[0]);
+        v[d - 2] = std::fabs(ctrl_.asymmetry());
+        v[d - 1] = 1.0;
+        bool below = lift_ref_k_ != 0;
+        for (std::size_t i = 0; i < d; ++i) below &= v[i] <= lift_ref_[i];
+        if (below) {
+            unguarded_left_ = lift_ref_k_;
+            return;
+        }
+        for (std::size_t i = 0; i + 1 < d; ++i) lift_ref_[i] = v[i] * kRefSlack;
+        lift_ref_[d - 1] = 1.0;
+        lift_ref_k_ = lift(lift_ref_.data());
+        unguarded_left_ = lift_ref_k_ != 0 ? lift_ref_k_ : lift(v);  // near the limits: no slack
+    }
+    // The largest K < 2^kLiftLevels for which K ticks from the bounds v0 keep every
+    // bound below its limit; 0 if v0 itself is not.
+    std::uint32_t lift(const double* v0) noexcept {
+        const std::size_t d = lift_dim_;
+        double* v = lift_u_.data();
+        double* w = lift_w_.data();
+        std::copy(v0, v0 + d, v);
+        if (!lift_within(v)) return 0;
+        std::uint32_t k = 0;
+        for (int l = kLiftLevels - 1; l >= 0; --l) {
+            const double* p = lift_pow_.data() + std::size_t(l) * d * d;
+            for (std::size_t i = 0; i < d; ++i) {
+                double acc = 0.0;
+                for (std::size_t j = 0; j < d; ++j) acc += p[i * d + j] * v[j];
+                w[i] = acc;
+            }
+            if (lift_within(w)) {
+                std::copy(w, w + d, v);
+                k += std::uint32_t(1) << l;
+            }
+        }
+        return k;
     }
     template <typename U>
     static double max_abs(const U* a, std::size_t n) noexcept {
@@ -866,7 +1002,26 @@ private:
     // One tick. A tick is accepted only if its samples are valid and every state it
     // updates (filters, detector, controller) stays finite; otherwise all of them
     // are what they were before it, and it is counted with its reason.
+    //
+    // The common tick, valid samples inside a window that cannot overflow
+    // (renew_unguarded), runs inline with no undo and no check; every other tick
+    // (the first after a window, a reset, bad or large samples) takes the guarded
+    // path, out of line so that it does not crowd the common one.
     TM_ALWAYS_INLINE bool tick(const double* x) noexcept {
+        if (unguarded_left_ != 0 && samples_ok(x) && inputs_small(x)) {
+            estimate(x);
+            mlp_->step(feat_.data(), det_.data());
+            bool slip = false;
+            drive(true, &slip);  // cannot overflow: renew_unguarded bounds its input
+            accept(slip);
+            finish_tick();
+            // The window's last tick: a new window from the states it left (all finite).
+            if (--unguarded_left_ == 0) renew_unguarded();
+            return true;
+        }
+        return tick_guarded(x);
+    }
+    __attribute__((noinline)) bool tick_guarded(const double* x) noexcept {
         RejectReason why = RejectReason::none;
         int channel = -1;
         bool slip = false;
@@ -890,30 +1045,41 @@ private:
                     why = RejectReason::overflow;
                 }
             }
-            if (why == RejectReason::none) {
-                if (guarded)
-                    renew_unguarded();
-                else
-                    --unguarded_left_;
-            }
+            if (why == RejectReason::none && (guarded || --unguarded_left_ == 0)) renew_unguarded();
         }
         if (why == RejectReason::none) {
-            st_.consecutive_rejected = 0;
-            st_.fault = false;
-            st_.slip = slip;
-            for (std::size_t i = 0; i < det_.size(); ++i) out_[2 + i] = double(det_[i]);
+            accept(slip);
         } else {
             record_rejection(why, channel);
             drive(false, &slip);
         }
+        finish_tick();
+        return why == RejectReason::none;
+    }
+    TM_ALWAYS_INLINE void accept(bool slip) noexcept {
+        counters_changed_ |= st_.consecutive_rejected != 0;
+        st_.consecutive_rejected = 0;
+        st_.fault = false;
+        st_.slip = slip;
+        for (std::size_t i = 0; i < det_.size(); ++i) out_[2 + i] = double(det_[i]);
+    }
+    TM_ALWAYS_INLINE void finish_tick() noexcept {
         out_[0] = ctrl_.position();
         out_[1] = ctrl_.velocity();
         st_.at_limit = ctrl_kind_ != ControllerKind::none && ctrl_.at_limit();
         ++st_.ticks;
-        return why == RejectReason::none;
     }
 
-    void publish() noexcept { board_.publish(st_, ctrl_.position(), ctrl_.velocity()); }
+    // The status for other threads. Per tick only the words a tick always changes,
+    // plus the counters when a rejection or a recovery changed them.
+    void publish() noexcept {
+        board_.publish(st_, ctrl_.position(), ctrl_.velocity(), counters_changed_);
+        counters_changed_ = false;
+    }
+    void publish_all() noexcept {
+        counters_changed_ = true;
+        publish();
+    }
 
     // Samples -> features (n_ridges, 4).
     TM_ALWAYS_INLINE void estimate(const double* x) noexcept {
@@ -1007,9 +1173,19 @@ private:
     std::vector<double> out_;
     PipelineStatus st_;
     StatusBoard board_;
-    double growth_ = 0.0, limit_ = 0.0, input_bound_ = kUnguardedInput;  // ticks that cannot overflow (setup_unguarded)
+    bool counters_changed_ = true;  // a counter of st_ changed since the last publication
+    // Ticks that cannot overflow (setup_unguarded, renew_unguarded).
+    double limit_ = 0.0, input_bound_ = kUnguardedInput;
     bool inputs_bounded_ = false;
     std::uint32_t unguarded_left_ = 0;
+    std::size_t lift_dim_ = 0;      // d: section bounds, |asymmetry|, 1; 0: always guarded
+    std::size_t lift_sections_[2] = {0, 0};
+    std::vector<double> lift_pow_;    // kLiftLevels matrices M^(2^l), d x d
+    std::vector<double> lift_check_;  // (d + 1) x d rows bounded by lift_limit_
+    std::vector<double> lift_limit_;
+    std::vector<double> lift_v_, lift_w_, lift_u_;
+    std::vector<double> lift_ref_;  // bounds whose window lift_ref_k_ is known
+    std::uint32_t lift_ref_k_ = 0;
 };
 
 }  // namespace tactile

@@ -4,12 +4,19 @@
 // generation, so 0, stale (destroyed) and made-up handles are recognised without
 // ever dereferencing them. Nothing here lets an exception or an abort escape.
 //
-// Lifetime: every call on a handle counts itself in its slot's in-flight counter
-// before it checks the generation, and destroy bumps the generation before it
-// waits for that counter to drop to zero (both sequentially consistent). So a call
-// either sees the handle dead, or destroy sees the call and frees the pipeline only
-// after it returned. Cross-thread use of a live handle is refused through the
-// instance's atomic owner flag (owner.hpp): no call on the tick path ever waits.
+// Lifetime and threads. A call that drives a pipeline (step, process_block,
+// features, reset, set_position, time_step_ns) claims its slot's owner word, which
+// holds the slot's generation and a busy bit, with one compare-exchange from
+// (generation of the handle, free) to (same, busy): it fails for a stale handle
+// (another generation) and for a handle another thread is driving (busy), so
+// cross-thread use is refused and nothing ever waits. Releasing is one store. The
+// readers (get_status, sizes) count themselves in the slot's reader counter
+// instead. Every claim or count happens before the call checks the generation, and
+// destroy bumps the generation before it waits for the owner word to be free (it
+// then moves it to the new generation) and for the readers to leave (all
+// sequentially consistent). So a call either sees the handle dead, or destroy sees
+// the call and frees the pipeline only after it returned. The tick path makes one
+// atomic read-modify-write per call.
 #include "tm.h"
 
 #include <atomic>
@@ -24,7 +31,6 @@
 #include <stdexcept>
 #include <thread>
 
-#include "owner.hpp"
 #include "pipeline.hpp"
 
 namespace {
@@ -46,19 +52,20 @@ struct Instance {
     std::unique_ptr<MirrorPipeline<double>> d;
     std::unique_ptr<MirrorPipeline<float>> f;
     std::unique_ptr<MirrorPipeline<double, float>> m;
-    tactile::OwnerFlag owner;
 };
 
 constexpr std::uint32_t kSlots = 4096;
 struct Slot {
     std::atomic<Instance*> inst{nullptr};
     std::atomic<std::uint32_t> gen{1};
-    std::atomic<std::uint32_t> inflight{0};
+    std::atomic<std::uint64_t> owner{std::uint64_t(1) << 1};  // generation << 1 | busy
+    std::atomic<std::uint32_t> readers{0};                    // get_status, sizes in flight
 };
 Slot g_slots[kSlots];
 std::mutex g_table_lock;
 
-// A call in flight on a handle: keeps the pipeline alive until it goes out of scope.
+// A reading call in flight on a handle: keeps the pipeline alive until it goes out
+// of scope.
 class Use {
 public:
     explicit Use(tm_pipeline h) noexcept {
@@ -66,12 +73,12 @@ public:
         const std::uint32_t gen = std::uint32_t(h >> 32);
         if (idx == 0 || idx > kSlots) return;
         slot_ = &g_slots[idx - 1];
-        slot_->inflight.fetch_add(1, std::memory_order_seq_cst);
+        slot_->readers.fetch_add(1, std::memory_order_seq_cst);
         if (slot_->gen.load(std::memory_order_seq_cst) != gen) return;
         inst_ = slot_->inst.load(std::memory_order_acquire);
     }
     ~Use() {
-        if (slot_) slot_->inflight.fetch_sub(1, std::memory_order_release);
+        if (slot_) slot_->readers.fetch_sub(1, std::memory_order_release);
     }
     Use(const Use&) = delete;
     Use& operator=(const Use&) = delete;
@@ -82,16 +89,56 @@ private:
     Instance* inst_ = nullptr;
 };
 
+// A driving call in flight: owns the handle (one thread at a time) and keeps the
+// pipeline alive until it goes out of scope. status() is TM_OK, TM_ERR_HANDLE or
+// TM_ERR_BUSY.
+class Drive {
+public:
+    explicit Drive(tm_pipeline h) noexcept {
+        const std::uint64_t idx = (h & 0xffffffffu);
+        const std::uint32_t gen = std::uint32_t(h >> 32);
+        if (idx == 0 || idx > kSlots) return;
+        Slot* slot = &g_slots[idx - 1];
+        std::uint64_t word = std::uint64_t(gen) << 1;
+        if (!slot->owner.compare_exchange_strong(word, word | 1u, std::memory_order_seq_cst,
+                                                 std::memory_order_relaxed)) {
+            if ((word >> 1) == gen) status_ = TM_ERR_BUSY;  // else another generation: stale
+            return;
+        }
+        slot_ = slot;
+        free_word_ = std::uint64_t(gen) << 1;
+        // Destroy may have begun (it bumps gen first, then waits for the owner word).
+        if (slot->gen.load(std::memory_order_seq_cst) != gen) return;
+        inst_ = slot->inst.load(std::memory_order_acquire);
+        if (inst_) status_ = TM_OK;
+    }
+    ~Drive() {
+        if (slot_) slot_->owner.store(free_word_, std::memory_order_release);
+    }
+    Drive(const Drive&) = delete;
+    Drive& operator=(const Drive&) = delete;
+    Instance* get() const noexcept { return inst_; }
+    int32_t status() const noexcept { return status_; }
+
+private:
+    Slot* slot_ = nullptr;
+    Instance* inst_ = nullptr;
+    std::uint64_t free_word_ = 0;
+    int32_t status_ = TM_ERR_HANDLE;
+};
+
 #define TM_GET(h, inst)                                                                   \
     Use use_(h);                                                                          \
     Instance* inst = use_.get();                                                          \
     if (!inst) return fail(TM_ERR_HANDLE, "handle %llu is not a live pipeline", (unsigned long long)(h))
 
-// The calls that read or change a pipeline's state claim it: one thread at a time.
-#define TM_CLAIM(h, inst)                                                                 \
-    tactile::OwnerClaim claim_(inst->owner);                                              \
-    if (!claim_.owns())                                                                   \
-    return fail(TM_ERR_BUSY, "handle %llu is being used by another thread", (unsigned long long)(h))
+// The calls that read or change a pipeline's state own it: one thread at a time.
+#define TM_DRIVE(h, inst)                                                                           \
+    Drive drive_(h);                                                                                \
+    Instance* inst = drive_.get();                                                                  \
+    if (drive_.status() == TM_ERR_BUSY)                                                             \
+        return fail(TM_ERR_BUSY, "handle %llu is being used by another thread", (unsigned long long)(h)); \
+    if (!inst) return fail(TM_ERR_HANDLE, "handle %llu is not a live pipeline", (unsigned long long)(h))
 
 template <typename F>
 auto with(Instance* in, F&& f) noexcept {
@@ -288,8 +335,17 @@ int32_t tm_pipeline_destroy(tm_pipeline h) {
     if (next == 0) next = 1;  // generation 0 is never issued
     s.gen.store(next, std::memory_order_seq_cst);  // dead from here on: new calls fail
     Instance* victim = s.inst.exchange(nullptr, std::memory_order_acq_rel);
-    // Calls in flight entered before the generation changed; wait for them.
-    while (s.inflight.load(std::memory_order_seq_cst) != 0) std::this_thread::yield();
+    // Calls in flight entered before the generation changed; wait for them. The
+    // owner word moves to the new generation once it is free, so a stale handle can
+    // never claim it again.
+    for (;;) {
+        std::uint64_t free_word = std::uint64_t(gen) << 1;
+        if (s.owner.compare_exchange_weak(free_word, std::uint64_t(next) << 1, std::memory_order_seq_cst,
+                                          std::memory_order_relaxed))
+            break;
+        std::this_thread::yield();
+    }
+    while (s.readers.load(std::memory_order_seq_cst) != 0) std::this_thread::yield();
     delete victim;
     return TM_OK;
 }
@@ -306,8 +362,7 @@ int32_t tm_pipeline_sizes(tm_pipeline h, size_t* n_inputs, size_t* n_outputs) {
 }
 
 int32_t tm_pipeline_step(tm_pipeline h, const double* x, size_t n_x, double* out, size_t n_out) {
-    TM_GET(h, in);
-    TM_CLAIM(h, in);
+    TM_DRIVE(h, in);
     if (!x) return fail(TM_ERR_NULL, "x is NULL");
     return with(in, [&](auto& p) -> int32_t {
         if (n_x != p.n_inputs())
@@ -320,8 +375,7 @@ int32_t tm_pipeline_step(tm_pipeline h, const double* x, size_t n_x, double* out
 
 int32_t tm_pipeline_process_block(tm_pipeline h, const double* x, size_t n_ticks, size_t n_x, double* out,
                                   size_t n_out, uint8_t* accepted, size_t* n_rejected) {
-    TM_GET(h, in);
-    TM_CLAIM(h, in);
+    TM_DRIVE(h, in);
     if (n_ticks && !x) return fail(TM_ERR_NULL, "x is NULL");
     return with(in, [&](auto& p) -> int32_t {
         if (n_x != p.n_inputs())
@@ -335,8 +389,7 @@ int32_t tm_pipeline_process_block(tm_pipeline h, const double* x, size_t n_ticks
 }
 
 int32_t tm_pipeline_features(tm_pipeline h, double* f, size_t n_f) {
-    TM_GET(h, in);
-    TM_CLAIM(h, in);
+    TM_DRIVE(h, in);
     if (!f) return fail(TM_ERR_NULL, "f is NULL");
     return with(in, [&](auto& p) -> int32_t {
         if (n_f != p.n_features())
@@ -347,8 +400,7 @@ int32_t tm_pipeline_features(tm_pipeline h, double* f, size_t n_f) {
 }
 
 int32_t tm_pipeline_reset(tm_pipeline h, double x0) {
-    TM_GET(h, in);
-    TM_CLAIM(h, in);
+    TM_DRIVE(h, in);
     if (!std::isfinite(x0)) return fail(TM_ERR_ARGUMENT, "x0 must be finite");
     with(in, [&](auto& p) {
         p.reset(x0);
@@ -358,8 +410,7 @@ int32_t tm_pipeline_reset(tm_pipeline h, double x0) {
 }
 
 int32_t tm_pipeline_set_position(tm_pipeline h, double x) {
-    TM_GET(h, in);
-    TM_CLAIM(h, in);
+    TM_DRIVE(h, in);
     if (!std::isfinite(x)) return fail(TM_ERR_ARGUMENT, "x must be finite");
     with(in, [&](auto& p) {
         p.set_position(x);
@@ -399,8 +450,7 @@ int32_t tm_pipeline_get_status(tm_pipeline h, tm_pipeline_status* status) {
 }
 
 int32_t tm_pipeline_time_step_ns(tm_pipeline h, int64_t n_iter, double* ns) {
-    TM_GET(h, in);
-    TM_CLAIM(h, in);
+    TM_DRIVE(h, in);
     if (!ns) return fail(TM_ERR_NULL, "ns is NULL");
     if (n_iter < 1) return fail(TM_ERR_ARGUMENT, "n_iter must be >= 1");
     try {
