@@ -422,6 +422,7 @@ public:
         if (1e-9 > scale_len) scale_len = 1e-9;
         if (uy_max > scale_len) scale_len = uy_max;
         const double atol = params.tol * (r_ * scale_len);
+        scale_len_ = scale_len;
 
         std::int8_t* st = ws_state_.data();
         double* sg = ws_sign_.data();
@@ -725,11 +726,19 @@ public:
         }
     }
 
+    // The stuck nodes' offsets uy_prev - s_prev are those of the affine reference.
+    // Within one piece they are unchanged in exact arithmetic (w = 0 on a stuck node);
+    // what changes is the round-off of u_y, about 1e-19 m. The test is relative to the
+    // step's length scale (the indent, or the largest tangential displacement): a
+    // difference of 1e-13 of it moves the forces by about 1e-13 relative, far below
+    // the solver tolerance, while a history that really differs (set_history, a
+    // stuck node that slid meanwhile) is caught.
     bool stick_offsets_unchanged() const noexcept {
+        const double tol = 1e-13 * scale_len_;
         for (std::size_t i = 0; i < n_; ++i) {
             if (key_state_[i] != kContactStick) continue;
             const double v = uy_prev_[i] - s_prev_, ref = aff_v_[i];
-            if (std::fabs(v - ref) > 1e-12 * (std::fabs(ref) + w_tol_)) return false;
+            if (std::fabs(v - ref) > tol) return false;
         }
         return true;
     }
@@ -974,6 +983,7 @@ private:
     std::size_t n_, n2_;
     std::vector<double> C_, z0_, w_;
     double w_tol_, r_ = 0.0, z0_max_ = 0.0;
+    double scale_len_ = 1e-9;  // the length scale of the current step (m), see stick_offsets_unchanged
     std::size_t argmax_z0_ = 0;
     // committed history
     std::vector<double> lam_, uy_prev_, sign_;
