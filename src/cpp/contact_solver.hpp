@@ -15,6 +15,10 @@
 //   keyed by the piece it factors, may change); `commit` accepts it. A failed step
 //   therefore leaves the solver as it was, and a pad commits its ridges only when
 //   all of them converged;
+// * the friction law is the rate-independent one of the reference: a node that
+//   breaks away (slides under its static cone) drops to the kinetic cone within the
+//   step, and the step is solved again at the same plate position until no node
+//   breaks away (the breakaway cascade, `solve`);
 // * the pieces are separate functions (classification, the piece system and its
 //   factorisation, the triangular solve, the Newton residual and Jacobian) so that
 //   path-following steppers can call them directly.
@@ -433,7 +437,40 @@ public:
             for (std::size_t i = 0; i < n; ++i) { st[i] = z0_[i] > plate_z ? kContactStick : kContactOpen; any |= st[i] != 0; }
             if (!any) st[argmax_z0_] = kContactStick;
         }
-        int it = 0;
+        // Breakaway cascade at this load (the law of the reference, steps 2-4): a node
+        // that slides under its static cone drops to the kinetic one now, and the step
+        // is solved again at the same plate position, until no node breaks away. The
+        // kinetic set only grows: at most n + 1 rounds.
+        int its = 0;
+        const double mu_k = params.mu_kinetic;
+        for (std::size_t round = 0; round <= n; ++round) {
+            int it = 0;
+            const ContactStatus s = solve_load(st, sg, plate_z, plate_y, ds, atol, it);
+            its += it;
+            if (s != ContactStatus::ok) return s;
+            bool broke = false;
+            for (std::size_t i = 0; i < n; ++i) {
+                const bool moving = c_state_[i] == kContactSlip && std::fabs((c_u_[i] - uy_prev_[i]) - ds) > w_tol_;
+                if (moving && mu_node_[i] > mu_k) { mu_node_[i] = mu_k; broke = true; }
+            }
+            if (!broke) break;
+            st = ws_state_.data();
+            sg = ws_sign_.data();
+            copy8(c_state_.data(), st);
+            copy(c_sign_.data(), sg);
+        }
+        finish(plate_y, its);
+        return ContactStatus::ok;
+    }
+
+    // Solve the step to (plate_y, plate_z) with the cones mu_node_, from the
+    // classification (st, sg) (which must be ws_state_ / ws_sign_: they are used as
+    // workspace): active-set iterations, then the damped Newton method if they cycle.
+    // The result is in c_lam_, c_u_, c_state_, c_sign_; `it` counts the iterations.
+    ContactStatus solve_load(std::int8_t* st, double* sg, double plate_z, double plate_y, double ds, double atol,
+                             int& it) noexcept {
+        const std::size_t n = n_;
+        it = 0;
         std::int8_t* nst = ws_state2_.data();
         double* nsg = ws_sign2_.data();
         for (int k = 1; k <= params.max_active_set_iter; ++k) {
@@ -443,7 +480,6 @@ public:
             const double fmax = classify(c_lam_.data(), c_u_.data(), plate_z, ds, F_.data(), nst, nsg);
             if (fmax <= atol) {
                 copy8(nst, c_state_.data()); copy(nsg, c_sign_.data());
-                finish(plate_y, it);
                 return ContactStatus::ok;
             }
             bool same = true;
@@ -455,9 +491,9 @@ public:
         }
         int it2 = 0;
         const ContactStatus s = damped_newton(plate_z, ds, atol, it2);
+        it += it2;
         if (s != ContactStatus::ok) return s;
         classify(c_lam_.data(), c_u_.data(), plate_z, ds, F_.data(), c_state_.data(), c_sign_.data());
-        finish(plate_y, it + it2);
         return ContactStatus::ok;
     }
 
