@@ -19,7 +19,7 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from .model import RidgeModel
-from .solver import OPEN, STICK, ContactSolver
+from .solver import OPEN, SLIP, STEPPINGS, STICK, ContactSolver
 
 if TYPE_CHECKING:
     from ..scenes import Scene
@@ -84,17 +84,31 @@ class Pad:
         Contact solver implementation (see :class:`ContactSolver`). With ``"cpp"``
         (default) :meth:`advance` steps every ridge in one compiled call without the
         GIL, and commits the ridges only if all of them converged.
+    stepping : {"auto", "every"}
+        How :meth:`advance` and :meth:`follow` step (see
+        :mod:`~tactile_mirror.contact.solver`). With the Python backend both follow the
+        load exactly from one call's plate position to the next, events resolved at
+        their own points; ``"every"`` solves at every call, ``"auto"`` (default) only
+        where a node's status changes (otherwise the state comes from the piece's
+        response to a unit load, a few vector operations), and a position that does
+        not move costs nothing. The compiled backend steps the per-sample law of its
+        kernel; with ``"auto"`` it skips the repeats of a position that does not move
+        (the first one is stepped: it stops the sliding nodes).
     """
 
     def __init__(self, model: RidgeModel, mu: float, n_ridges: int = 1, pitch: float | None = None,
                  finger_radius: float = np.inf, ridge_length: float = 10e-3, tol: float = 1e-10,
-                 mu_kinetic: float | None = None, backend: str = "cpp") -> None:
+                 mu_kinetic: float | None = None, backend: str = "cpp", stepping: str = "auto") -> None:
         if int(n_ridges) != n_ridges or n_ridges < 1:
             raise ValueError(f"n_ridges must be a positive integer, got {n_ridges!r}")
         if not (finger_radius > 0):
             raise ValueError(f"finger_radius must be positive, got {finger_radius!r}")
         if not (ridge_length > 0):
             raise ValueError(f"ridge_length must be positive, got {ridge_length!r}")
+        if stepping not in STEPPINGS:
+            raise ValueError(f"stepping must be one of {STEPPINGS}, got {stepping!r}")
+        self.stepping = stepping
+        self._last = None  # (plate_y, indent, PadState) of the last advance, for "auto"
         self.model = model
         self.n_ridges = int(n_ridges)
         self.pitch = float(model.geometry.width + 1e-3 if pitch is None else pitch)
@@ -115,14 +129,14 @@ class Pad:
             self._stepper = _core._ContactPad([s._kernel for s in self.solvers])
 
     @classmethod
-    def from_scene(cls, scene: Scene, backend: str = "cpp") -> Pad:
+    def from_scene(cls, scene: Scene, backend: str = "cpp", stepping: str = "auto") -> Pad:
         """The pad a :class:`~tactile_mirror.Scene` describes: its ridge geometry,
         static and kinetic friction, number of ridges and finger radius."""
         from .model import ridge_model
 
         return cls(ridge_model(scene.geometry), scene.friction, n_ridges=scene.n_ridges,
                    finger_radius=scene.finger_radius, mu_kinetic=scene.friction * scene.kinetic_ratio,
-                   backend=backend)
+                   backend=backend, stepping=stepping)
 
     @property
     def mu(self) -> float:
@@ -140,36 +154,76 @@ class Pad:
     def reset(self) -> None:
         for s in self.solvers:
             s.reset()
+        self._last = None
+
+    @property
+    def solves(self) -> int:
+        """Linear solves of the Python backend's event stepping so far (all ridges)."""
+        return sum(getattr(s, "solves", 0) for s in self.solvers)
+
+    @property
+    def events(self) -> int:
+        """Points where node statuses changed so far (Python backend, all ridges)."""
+        return sum(getattr(s, "events", 0) for s in self.solvers)
+
+    def follow(self, plate_y: np.ndarray, indent: np.ndarray, stepping: str | None = None,
+               want_displacement: bool = False):
+        """Follow a whole trajectory (Python backend): ``plate_y`` and ``indent`` (m)
+        per sample. Returns ``(lam, displacement, state)``: arrays ``(N, n_ridges, 2n)``
+        of contact forces ``(lt, ln)`` (N/m), of surface displacements (m, or None) and
+        ``(N, n_ridges, n)`` node states. ``stepping`` defaults to the pad's."""
+        stepping = self.stepping if stepping is None else stepping
+        if self.backend != "python":
+            raise NotImplementedError("Pad.follow runs the Python backend's event stepping (backend='python')")
+        m = self.model
+        n, R = m.n_nodes, self.n_ridges
+        y = np.asarray(plate_y, dtype=np.float64)
+        z = m.geometry.height - (np.asarray(indent, dtype=np.float64)[:, None] - self.indent_offset[None, :])
+        N = y.size
+        lam = np.empty((R, N, 2 * n))
+        disp = np.empty((R, N, 2 * n)) if want_displacement else None
+        state = np.empty((R, N, n), dtype=np.int8)
+        snaps = [s._snapshot() for s in self.solvers]
+        try:
+            for k, s in enumerate(self.solvers):
+                s.follow(y, z[:, k], stepping, lam[k], None if disp is None else disp[k], state[k])
+        except BaseException:
+            for s, snap in zip(self.solvers, snaps):
+                s._restore(snap)
+            raise
+        self._last = None
+        return (np.moveaxis(lam, 0, 1), None if disp is None else np.moveaxis(disp, 0, 1),
+                np.moveaxis(state, 0, 1))
 
     def advance(self, plate_y: float, indent: float) -> PadState:
         """Move the finger to ``plate_y`` (m, along the sliding direction) and ``indent``
         (m, depth of its face below the undeformed crowns at the pad centre) and solve
         the contact of every ridge; returns the new :class:`PadState`."""
         m = self.model
-        H = m.geometry.height
         n = m.n_nodes
+        key = (float(plate_y), float(indent))
+        if self.stepping == "auto" and self._last is not None and self._last[0] == key and self._last[2]:
+            # the plate stands still (and its first repeat has stopped the sliding
+            # nodes): the quasi-static state does not change
+            return self._last[1]
         if self._stepper is not None:
-            return self._advance_compiled(plate_y, indent)
-        frac = np.empty(self.n_ridges)
-        gross = np.empty(self.n_ridges, dtype=bool)
-        touch = np.empty(self.n_ridges, dtype=bool)
-        states = np.empty((self.n_ridges, n), dtype=np.int8)
-        disp = np.empty((self.n_ridges, 2 * n))
-        forces = np.empty((self.n_ridges, 2 * n))
-        its = 0
-        for k, solver in enumerate(self.solvers):
-            st = solver.step(plate_y, H - (indent - self.indent_offset[k]))
-            frac[k] = st.slip_fraction
-            gross[k] = st.gross_slip
-            touch[k] = st.in_contact
-            states[k] = st.state
-            disp[k] = st.displacement
-            forces[k] = st.forces
-            its += st.iterations
-        fy = float(forces[:, :n].sum()) * self.ridge_length
-        fz = float(-forces[:, n:].sum()) * self.ridge_length
-        return PadState(frac, gross, touch, fy, fz, states, forces, disp, its, m)
-
+            st = self._advance_compiled(plate_y, indent)
+        else:
+            lam, disp, states = self.follow(np.array([plate_y], dtype=np.float64),
+                                            np.array([indent], dtype=np.float64), want_displacement=True)
+            lam, disp, states = lam[0], disp[0], states[0]
+            forces = np.concatenate([lam[:, :n], -lam[:, n:]], axis=1)
+            w = m.weights
+            touch = np.any(states != OPEN, axis=1)
+            gross = touch & ~np.any(states == STICK, axis=1)
+            total = (w * (states != OPEN)).sum(axis=1)
+            frac = np.divide((w * (states == SLIP)).sum(axis=1), total, out=np.zeros(self.n_ridges),
+                             where=total > 0)
+            fy = float(forces[:, :n].sum()) * self.ridge_length
+            fz = float(-forces[:, n:].sum()) * self.ridge_length
+            st = PadState(frac, gross, touch, fy, fz, states, forces, disp, 0, m)
+        self._last = (key, st, self._last is not None and self._last[0] == key)
+        return st
 
     def _advance_compiled(self, plate_y: float, indent: float) -> PadState:
         m = self.model

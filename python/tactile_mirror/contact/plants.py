@@ -95,12 +95,21 @@ class FemPad:
         Radius of the finger's curvature over the ridges, m.
     circuit : PVDFCircuit, optional
         Circuit whose load the strip stresses are expressed in (default ``PVDFCircuit()``).
+    stepping : {"auto", "every"}
+        Contact stepping of the pad (:class:`~tactile_mirror.contact.Pad`). The load comes
+        tick by tick from the controller, so no tick knows the next: the path between
+        two ticks is taken as straight, followed exactly with its events where the
+        backend follows events (the Python one), and with ``"auto"`` a tick whose load
+        does not move costs nothing (after the first such tick, which stops the
+        sliding nodes). The compiled kernel (used here) steps its per-sample law at
+        the other ticks.
     """
 
     pad: Pad
 
     def __init__(self, n_ridges: int = 6, mu: float | None = None, fs: float = 1000.0, indent: float = 30e-6,
-                 press_speed: float = 0.06e-3, finger_radius: float = 2.0, circuit: PVDFCircuit | None = None):
+                 press_speed: float = 0.06e-3, finger_radius: float = 2.0, circuit: PVDFCircuit | None = None,
+                 stepping: str = "auto"):
         from ..scenes import DEFAULT_FRICTION, DEFAULT_KINETIC_RATIO
         from .model import ridge_model
         from .pad import Pad
@@ -109,7 +118,7 @@ class FemPad:
         mu = DEFAULT_FRICTION if mu is None else float(mu)
         # static above kinetic friction, as in the scenes of tactile_mirror.scenes
         self.pad = Pad(ridge_model(), mu, n_ridges=self.n_ridges, finger_radius=finger_radius,
-                       mu_kinetic=mu * DEFAULT_KINETIC_RATIO)
+                       mu_kinetic=mu * DEFAULT_KINETIC_RATIO, stepping=stepping)
         self.fs, self.indent, self.press_speed = float(fs), float(indent), float(press_speed)
         self.circuit = circuit or PVDFCircuit()
         self.reset()

@@ -16,7 +16,7 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from .pad import Pad
-from .solver import OPEN, STICK
+from .solver import BACKENDS, OPEN, SLIP, STEPPINGS, STICK
 
 if TYPE_CHECKING:  # scenes imports contact.geometry, so import it lazily at run time
     from ..scenes import Scene
@@ -43,6 +43,11 @@ class SimulationResult:
     node_state : (n_ridges, n_nodes, n) int8, 0 open / 1 stick / 2 slip ("state" only)
     node_position : (n_ridges, 2, n_nodes, n) m, deformed surface ("state" only)
     fields : dict time -> (stress (4, n_elements) Pa, centroids (2, n_elements) m), per ridge 0
+    stepping, backend : how the contact was stepped and by which implementation
+    solves : linear solves of the contact pieces (event stepping; with the compiled
+        per-sample kernel: one per sample and ridge, its Newton iterations are in
+        ``newton_iterations``)
+    events : points where node statuses changed (event stepping; 0 for the compiled kernel)
     """
 
     scene: Scene
@@ -62,6 +67,10 @@ class SimulationResult:
     node_position: np.ndarray | None = None
     fields: dict = field(default_factory=dict)
     newton_iterations: int = 0
+    stepping: str = "auto"
+    backend: str = "cpp"
+    solves: int = 0
+    events: int = 0
 
     @property
     def sigma_diff(self) -> np.ndarray:
@@ -69,7 +78,7 @@ class SimulationResult:
         return self.stress[:, 0, 2] - self.stress[:, 1, 2]
 
 
-def simulate(scene: Scene, progress: bool = False, backend: str = "cpp") -> SimulationResult:
+def simulate(scene: Scene, progress: bool = False, backend: str = "cpp", stepping: str = "auto") -> SimulationResult:
     """Simulate one scene (see :class:`tactile_mirror.Scene`).
 
     Parameters
@@ -85,12 +94,27 @@ def simulate(scene: Scene, progress: bool = False, backend: str = "cpp") -> Simu
         slip times of a block are derived with array operations: no Python runs per
         time step. ``progress=True`` steps :meth:`Pad.advance` one sample at a time
         (same results).
+    stepping : {"auto", "every"}
+        ``"auto"`` (default): event-driven, the contact is solved only where a node
+        changes its status (touches, lifts off, breaks away, stops sliding) and the
+        samples between come from the linear response; a stop costs nothing.
+        ``"every"``: solved at every sample (the reference). Both resolve each event
+        at its own point (:mod:`~tactile_mirror.contact.solver`) and agree to
+        round-off. The compiled kernel steps per sample only: ``backend="cpp"`` with
+        ``"auto"`` runs the event stepping of the Python backend (the result's
+        ``backend`` says which ran); with ``"every"`` it runs the kernel's per-sample law.
     """
     from ..scenes import Scene
 
     if not isinstance(scene, Scene):
         raise TypeError(f"scene must be a tactile_mirror.Scene, got {type(scene).__name__}")
-    pad = Pad.from_scene(scene, backend=backend)
+    if stepping not in STEPPINGS:
+        raise ValueError(f"stepping must be one of {STEPPINGS}, got {stepping!r}")
+    if backend not in BACKENDS:
+        raise ValueError(f"backend must be one of {BACKENDS}, got {backend!r}")
+    if stepping not in CPP_STEPPINGS:
+        backend = "python"  # the compiled kernel does not follow events yet
+    pad = Pad.from_scene(scene, backend=backend, stepping=stepping)
     model = pad.model
     plate_y, indent = scene.plate_motion()
     n_total = plate_y.size
@@ -110,15 +134,19 @@ def simulate(scene: Scene, progress: bool = False, backend: str = "cpp") -> Simu
     slip_time = None
     end = n_total
     its = 0
-    steps = range(n_total)
-    if progress:
-        from tqdm.auto import tqdm
-
-        steps = tqdm(steps, desc="contact", unit="step", leave=False)
-    if pad._stepper is not None and not progress:
+    steps = range(0)
+    solves = events = 0
+    if pad._stepper is None:
+        end, slip_time = _run_events(pad, plate_y, indent, scene, want_stress, want_state, field_idx, stress,
+                                     frac, fy, fz, node_state, node_pos, fields, ridge_slip, progress)
+        solves, events = pad.solves, pad.events
+    elif not progress:
         end, slip_time, its = _run_compiled(pad, plate_y, indent, scene, want_stress, want_state, field_idx, stress,
                                             frac, fy, fz, node_state, node_pos, fields, ridge_slip)
-        steps = range(0)
+    else:
+        from tqdm.auto import tqdm
+
+        steps = tqdm(range(n_total), desc="contact", unit="step", leave=False)
     for i in steps:
         if i >= end:
             break
@@ -140,10 +168,13 @@ def simulate(scene: Scene, progress: bool = False, backend: str = "cpp") -> Simu
             if scene.stop_after_slip is not None:
                 end = min(n_total, i + 1 + round(scene.stop_after_slip * scene.fs))
     n = min(end, n_total)
+    if pad._stepper is not None:
+        solves = R * n  # the compiled kernel solves every sample of every ridge
     t = np.arange(n) / scene.fs
     res = SimulationResult(scene=scene, t=t, fs=scene.fs, plate_y=np.asarray(plate_y[:n]),
                            indent=np.asarray(indent[:n]), slip_time=slip_time, ridge_slip_time=ridge_slip,
-                           newton_iterations=its, fields=fields)
+                           newton_iterations=its, fields=fields, stepping=stepping, backend=pad.backend,
+                           solves=solves, events=events)
     if "stress" in outs or "signals" in outs:
         res.stress = stress[..., :n]
     if "slip" in outs:
@@ -162,6 +193,70 @@ def simulate(scene: Scene, progress: bool = False, backend: str = "cpp") -> Simu
 
 #: Steps per call of the compiled trajectory stepper (bounds the memory of its outputs).
 _BLOCK = 1024
+
+#: Samples per call of the event stepping (bounds the memory of its outputs).
+_EVENT_BLOCK = 8192
+
+#: Steppings the compiled kernel runs itself; the others run in the Python backend.
+CPP_STEPPINGS = ("every",)
+
+
+def _run_events(pad, plate_y, indent, scene, want_stress, want_state, field_idx, stress, frac, fy, fz,
+                node_state, node_pos, fields, ridge_slip, progress):
+    """The trajectory loop of :func:`simulate` with the event stepping of the Python
+    backend: blocks of samples followed by :meth:`Pad.follow`, outputs derived with
+    array operations."""
+    model = pad.model
+    R, n = pad.n_ridges, model.n_nodes
+    n_total = plate_y.size
+    w = model.weights
+    sensor_t = model.sensor.T
+    slip_time = None
+    end = n_total
+    start = 0
+    bar = None
+    if progress:
+        from tqdm.auto import tqdm
+
+        bar = tqdm(total=n_total, desc="contact", unit="step", leave=False)
+    while start < end:
+        m = min(_EVENT_BLOCK, end - start)
+        sl = slice(start, start + m)
+        lam, d, st = pad.follow(plate_y[sl], indent[sl], want_displacement=want_state)
+        f = np.concatenate([lam[:, :, :n], -lam[:, :, n:]], axis=2)  # (m, R, 2n)
+        if want_stress:
+            stress[..., sl] = np.moveaxis((f @ sensor_t).reshape(m, R, model.n_strips, 3), 0, -1)
+        touching = st != OPEN
+        total = touching @ w
+        slipping = (st == SLIP) @ w
+        frac[:, sl] = np.divide(slipping, total, out=np.zeros_like(total), where=total > 0).T
+        fy[sl] = f[:, :, :n].sum(axis=(1, 2)) * pad.ridge_length
+        fz[sl] = -f[:, :, n:].sum(axis=(1, 2)) * pad.ridge_length
+        if want_state:
+            node_state[..., sl] = np.moveaxis(st, 0, -1)
+            node_pos[:, 0, :, sl] = np.moveaxis(model.node_y + d[:, :, :n], 0, -1)
+            node_pos[:, 1, :, sl] = np.moveaxis(model.node_z + d[:, :, n:], 0, -1)
+        gross = touching.any(axis=2) & ~np.any(st == STICK, axis=2)  # (m, R)
+        if slip_time is None:
+            all_gross = gross.all(axis=1)
+            if all_gross.any():
+                i = start + int(np.argmax(all_gross))
+                slip_time = i / scene.fs
+                if scene.stop_after_slip is not None:
+                    end = min(n_total, i + 1 + round(scene.stop_after_slip * scene.fs))
+        valid = min(m, end - start)
+        for i, tf in field_idx.items():
+            if start <= i < start + valid:
+                fields[tf] = model.stress_field(f[i - start, 0])
+        for k in range(R):
+            if np.isnan(ridge_slip[k]) and gross[:valid, k].any():
+                ridge_slip[k] = (start + int(np.argmax(gross[:valid, k]))) / scene.fs
+        if bar is not None:
+            bar.update(m)
+        start += m
+    if bar is not None:
+        bar.close()
+    return end, slip_time
 
 
 def _run_compiled(pad, plate_y, indent, scene, want_stress, want_state, field_idx, stress, frac, fy, fz,
@@ -229,8 +324,8 @@ def _run_compiled(pad, plate_y, indent, scene, want_stress, want_state, field_id
     return end, slip_time, its
 
 
-def _simulate_quiet(scene):
-    return simulate(scene, progress=False)
+def _simulate_quiet(scene, stepping="auto", backend="cpp"):
+    return simulate(scene, progress=False, stepping=stepping, backend=backend)
 
 
 #: Thread-count variables set to 1 for the worker processes of simulate_many's own pool
@@ -251,14 +346,21 @@ def _worker_env(names):
 
 
 def simulate_many(scenes: Iterable[Scene], executor: concurrent.futures.Executor | None = None, progress: bool = True,
-                  max_workers: int | None = None) -> list[SimulationResult]:
+                  max_workers: int | None = None, stepping: str = "auto",
+                  backend: str = "cpp") -> list[SimulationResult]:
     """Simulate many scenes, in order, on ``executor`` (default: a local process pool).
+
+    ``stepping`` and ``backend`` are passed to :func:`simulate` for every scene.
 
     Any :class:`concurrent.futures.Executor` works, e.g. ``dask.distributed.Client(...)
     .get_executor()`` to spread a sweep over a cluster. Shows a progress bar.
     """
     from ..scenes import Scene
 
+    if stepping not in STEPPINGS:
+        raise ValueError(f"stepping must be one of {STEPPINGS}, got {stepping!r}")
+    if backend not in BACKENDS:
+        raise ValueError(f"backend must be one of {BACKENDS}, got {backend!r}")
     scenes = list(scenes)
     for k, s in enumerate(scenes):
         if not isinstance(s, Scene):
@@ -277,7 +379,7 @@ def simulate_many(scenes: Iterable[Scene], executor: concurrent.futures.Executor
         # the cores, and threaded BLAS on these small solves measured 3-10x slower. The
         # spawned workers read the variables when they start, i.e. during submit().
         with _worker_env(WORKER_THREAD_VARS) if own else contextlib.nullcontext():
-            futures = [executor.submit(_simulate_quiet, s) for s in scenes]
+            futures = [executor.submit(_simulate_quiet, s, stepping, backend) for s in scenes]
         index = {f: k for k, f in enumerate(futures)}
         results: list = [None] * len(scenes)
         done = concurrent.futures.as_completed(futures)

@@ -20,7 +20,57 @@ which has moved ``s`` along ``y``:
   to the plate (``|w| > 1e-11 * ridge height``); on the cone but still (a stopped
   plate) it is reported as stuck.
 
-The law, step by step (what both backends implement; ``n`` nodes)::
+Event-driven path following (the Python backend; the law both stepping modes
+implement). Between two samples the plate moves linearly, ``L(theta) = L0 + theta
+(L1 - L0)`` with ``L = (plate_y, plate_z)``. Every node has a status: OPEN, STICK
+(``g = 0``, ``u_y - s`` fixed at its anchor, cone ``mu``), SLIP with a sign
+(``g = 0``, ``lt = sign * mu_kinetic * ln``: the friction force opposes the slip).
+For a fixed status set the forces are linear in the load (one linear system, the
+"piece"), so the path is followed from event to event::
+
+    1. piece: solve the piece at the end of the segment (from the current state).
+    2. rates: a SLIP node whose slip over the rest of the segment does not oppose its
+       friction force (sign * d(u_y - s) >= -1e-9 * |dL|; a load that does not move
+       gives zero rates) becomes STICK here, anchored where it is; back to 1.
+    3. events: along the piece (forces and displacements linear in theta between
+       the current point and the piece's end), the first theta where one of these functions, >= 0
+       at the start and decreasing (by more than a round-off tolerance), reaches 0:
+       OPEN node: gap g -> STICK (anchored where it touches);
+       touching node: ln -> OPEN (its forces set to 0);
+       STICK node: mu ln - lt, mu ln + lt -> SLIP with sign +1 / -1 (breakaway).
+       Every function reaching 0 within 1e-9 samples of the first one changes at the
+       same point (ties resolved together). No event before the segment end: done.
+    4. move to the event point (forces and displacements interpolated linearly in
+       theta), change the statuses; samples before the event (more than 1e-9 samples
+       before it) take the linear interpolation of the piece.
+    5. breakaway cascade (only if a breakaway node carries ln > 0 and mu_kinetic <
+       mu): solve the load of the event point again with the Alart-Curnier
+       equations below (slip measured from the event point, cones: mu_kinetic on
+       SLIP nodes, mu elsewhere), switch every node that slides under the static
+       cone to the kinetic one and solve again, until none does (all of a round at
+       once). New statuses: a node that moved on its cone (|w| > w_tol) is SLIP with
+       the sign of its friction force; a SLIP node that did not move and is still on
+       its kinetic cone stays SLIP; a touching node the solve finds open with its
+       gap still closed keeps its status; every other touching node is STICK,
+       anchored where it is. Back to 1 from the event point.
+    6. cycle rule: if the statuses at one point come back to a set already met at
+       that point (single-node changes cycling, e.g. nodes of zero slip rate on a
+       symmetry line), all statuses are decided together by the Alart-Curnier solve
+       of the step to 1e-6 of the rest of the segment (cones as in 5): its
+       classification (OPEN / STICK / SLIP with the sign of the friction force;
+       grazing nodes as in 5) becomes the status set, the state stays at the point.
+       A second return raises ContactConvergenceError.
+
+``stepping="every"`` follows each sample interval as its own segment and solves the
+piece at every sample (the reference); ``stepping="auto"`` takes the longest run of
+samples with equal load increments as one segment, so only events (and changes of
+the load's direction) cost a solve, and a load that does not move costs nothing.
+Both meet the same events at the same points: the results agree to round-off.
+A node is reported SLIP while its status is SLIP; the slip fraction is the weight
+of SLIP nodes over the weight of touching nodes.
+
+The per-sample law of the compiled backend (until it follows the events as well;
+``n`` nodes)::
 
     1. cones: mu_i = mu_kinetic if node i slid in the previous step (reported SLIP),
        else mu (static).
@@ -54,15 +104,17 @@ stiffness, so both terms have the units of force). Convergence: ``max |F| <= tol
 force scale``, with the force scale ``r * max(|g|, indent)``; a step that does not
 converge raises :class:`ContactConvergenceError`.
 
-Two backends run this algorithm: ``"cpp"`` (the default: the compiled kernel
-``contact_solver.hpp``, a few microseconds per step when the piece is unchanged; its
-dense LU, triangular solves and compliance products run as AVX2+FMA code where the
-CPU has it, else as x86-64 baseline code, chosen at run time) and
-``"python"`` (numpy/LAPACK, the reference). They take the same steps in the same
-order (the compiled one solves a piece near the last factored one by bordering its LU
-instead of refactoring, with one step of iterative refinement) and agree to round-off (forces within 1e-10 relative, identical node states on
-the paper's scenes and random ones: ``tests/test_contact_cpp.py``). Both leave the
-contact history unchanged when a step fails.
+Two backends: ``"cpp"`` (the default: the compiled kernel ``contact_solver.hpp``, a
+few microseconds per step when the piece is unchanged; its dense LU, triangular
+solves and compliance products run as AVX2+FMA code where the CPU has it, else as
+x86-64 baseline code, chosen at run time) steps the per-sample law above, one
+Alart-Curnier solve per sample (bordering the LU of the last piece instead of
+refactoring, with one step of iterative refinement); ``"python"`` (numpy/LAPACK, the
+reference) follows the events, ``step`` being one sample interval of
+:meth:`ContactSolver.follow`. There the Alart-Curnier solve serves the breakaway
+cascades (step 5) and the cycle rule (step 6). ``tests/test_contact_cpp.py`` compares the two;
+it holds where the compiled kernel implements the same law. Both leave the contact
+history unchanged when a step fails.
 """
 from __future__ import annotations
 
@@ -78,10 +130,13 @@ try:
 except ImportError:  # pragma: no cover - the compiled core is part of every install
     _core = None
 
-__all__ = ["BACKENDS", "OPEN", "SLIP", "STICK", "ContactConvergenceError", "ContactSolver", "ContactStep"]
+__all__ = ["BACKENDS", "OPEN", "SLIP", "STEPPINGS", "STICK", "ContactConvergenceError", "ContactSolver", "ContactStep"]
 
 #: Implementations of the condensed solver: the compiled kernel and the Python reference.
 BACKENDS = ("cpp", "python")
+
+#: Stepping modes: "auto" solves at events only, "every" at every sample (the reference).
+STEPPINGS = ("auto", "every")
 
 OPEN, STICK, SLIP = 0, 1, 2
 
@@ -157,6 +212,9 @@ class ContactSolver:
         self._r = 1.0 / float(np.mean(np.diag(C)))
         # slip increments below this count as no motion (round-off is ~1e-19 m)
         self._w_tol = 1e-11 * model.geometry.height
+        # event tolerances: gaps (m) and forces (N/m) this close to zero are zero
+        self._g_tol = 1e-14 * model.geometry.height
+        self._f_tol = 1e-12 * self._r * model.geometry.height
         self._params = {"mu": float(mu), "mu_kinetic": float(mu_k), "tol": float(tol), "max_iter": int(max_iter),
                         "max_active_set_iter": 25}
         self.backend = backend if self.reduced else "python"
@@ -195,7 +253,8 @@ class ContactSolver:
         if self._kernel is not None:
             return self._kernel.get_history()
         return {"lam": self._lam.copy(), "uy_prev": self._uy_prev.copy(), "s_prev": self._s_prev,
-                "state": self._state.copy(), "sign": self._sign.copy(), "sliding": self._sliding.copy()}
+                "state": self._state.copy(), "sign": self._sign.copy(), "sliding": self._state == SLIP,
+                "z_prev": self._z_prev}
 
     def set_state(self, state: dict) -> None:
         """Restore a history from :meth:`get_state` (of either backend)."""
@@ -213,9 +272,18 @@ class ContactSolver:
         if self._kernel is not None:
             self._kernel.set_history(lam, uy, s_prev, cls, sign, sliding)
             return
-        self._lam, self._uy_prev, self._s_prev = lam, uy, s_prev
+        self._lam, self._s_prev = lam, s_prev
         self._state, self._sign, self._sliding = cls, sign, sliding
+        self._u = self._displacement(lam)
+        self._uy_prev = self._u[:n].copy()
+        z_prev = state.get("z_prev")
+        if z_prev is None and np.any(cls != OPEN):
+            # the plate face is where the touching nodes are
+            k = int(np.argmax(lam[n:]))
+            z_prev = float(self.model.node_z[k] + self._u[n + k])
+        self._z_prev = None if z_prev is None else float(z_prev)
         self._lu_key = None
+        self._unit_key = None
 
     def reset(self) -> None:
         """Back to the undeformed, unloaded state."""
@@ -228,9 +296,15 @@ class ContactSolver:
         self._s_prev = 0.0
         self._state = np.zeros(n, dtype=np.int8)
         self._sign = np.zeros(n)
-        self._sliding = np.zeros(n, dtype=bool)  # slid in the previous step: kinetic cone
+        self._sliding = np.zeros(n, dtype=bool)
+        self._u = np.zeros(2 * n)
+        self._z_prev = None  # plate height of the current state (None: not placed yet)
         self._lu_key = None
         self._lu = None
+        self._unit_key = None
+        self.solves = 0
+        self.events = 0
+        self.factorizations = 0
 
     def _displacement(self, lam: np.ndarray) -> np.ndarray:
         if self.reduced:
@@ -253,34 +327,13 @@ class ContactSolver:
             if status:
                 self._raise_status(status, plate_y, plate_z)
             return ContactStep(forces=f, displacement=u, state=state, slip_fraction=frac, iterations=it)
-        n = self._n
-        z0 = self.model.node_z
-        ds = float(plate_y) - self._s_prev
-        self._mu_node = np.where(self._sliding, self.mu_kinetic, self.mu)
-        if np.max(z0) <= plate_z and not np.any(self._lam):
-            # the plate does not reach the ridge: nothing to solve
-            return self._accept(np.zeros(2 * n), np.zeros(2 * n), np.zeros(n, dtype=np.int8), plate_y, 0)
-        scale = self._r * max(float(np.max(z0) - plate_z), 1e-9, float(np.max(np.abs(self._uy_prev))))
-        atol = self.tol * scale
-        state, sign = self._state.copy(), self._sign.copy()
-        if not np.any(state != OPEN):  # first contact: the nodes the plate penetrates, stuck
-            state = np.where(z0 > plate_z, STICK, OPEN).astype(np.int8)
-            if not np.any(state):
-                state[np.argmax(z0)] = STICK
-        its = 0
-        mu_k = self.mu_kinetic
-        for _ in range(n + 1):
-            lam, u, state, sign, it = self._solve_load(state, sign, plate_y, plate_z, ds, atol)
-            its += it
-            # Breakaway cascade at this load: a node that slides under its static cone
-            # drops to the kinetic one now, and the load it sheds is redistributed
-            # before the path goes on (all such nodes of a round at once).
-            moving = (state == SLIP) & (np.abs((u[:n] - self._uy_prev) - ds) > self._w_tol)
-            broke = moving & (self._mu_node > mu_k)
-            if not np.any(broke):
-                break
-            self._mu_node = np.where(broke, mu_k, self._mu_node)
-        return self._accept(lam, u, state, plate_y, its, sign)
+        lam = np.empty((1, 2 * self._n))
+        u = np.empty((1, 2 * self._n))
+        state = np.empty((1, self._n), dtype=np.int8)
+        solves0 = self.solves
+        self.follow(np.array([plate_y], dtype=np.float64), np.array([plate_z], dtype=np.float64), "every",
+                    lam, u, state)
+        return self._report(lam[0], u[0], state[0], self.solves - solves0)
 
     def _solve_load(self, state, sign, plate_y, plate_z, ds, atol):
         """Solve the step to ``(plate_y, plate_z)`` with the cones ``self._mu_node``,
@@ -300,6 +353,332 @@ class ContactSolver:
         _, new_state, new_sign = self._classify(lam, u, plate_z, ds)
         return lam, u, new_state, new_sign, it + it2
 
+    # ------------------------------------------------------------ path following
+    def follow(self, plate_y: np.ndarray, plate_z: np.ndarray, stepping: str = "auto",
+               lam_out: np.ndarray | None = None, u_out: np.ndarray | None = None,
+               state_out: np.ndarray | None = None) -> tuple[int, int]:
+        """Follow the plate through the samples ``(plate_y[k], plate_z[k])`` (m), the
+        load moving linearly from each sample to the next, starting from the current
+        state (Python backend only; see "Event-driven stepping" in the module docstring).
+
+        ``stepping="every"`` solves the piece at every sample; ``"auto"`` solves only
+        where the status of a node changes (and where the direction of the load
+        changes) and fills the samples between from the linear response. Both resolve
+        every event at its own point. The contact forces ``lam = (lt, ln)`` (N/m),
+        surface displacements (m) and node states of each sample go to the rows of
+        ``lam_out``, ``u_out`` and ``state_out`` (each optional, ``(len(plate_y), 2n)``
+        / ``(len(plate_y), n)``). Returns ``(solves, events)`` of this call (also
+        accumulated in :attr:`solves` and :attr:`events`). On an error the history is
+        what it was before the call.
+        """
+        if self._kernel is not None:
+            raise NotImplementedError("event-driven stepping runs in the Python backend (backend='python')")
+        if stepping not in STEPPINGS:
+            raise ValueError(f"stepping must be one of {STEPPINGS}, got {stepping!r}")
+        ys = np.asarray(plate_y, dtype=np.float64).ravel()
+        zs = np.asarray(plate_z, dtype=np.float64).ravel()
+        if ys.shape != zs.shape:
+            raise ValueError(f"plate_y and plate_z must have the same length, got {ys.size} and {zs.size}")
+        if not (np.all(np.isfinite(ys)) and np.all(np.isfinite(zs))):
+            k = int(np.flatnonzero(~(np.isfinite(ys) & np.isfinite(zs)))[0])
+            raise ValueError(f"plate position must be finite, got y={ys[k]!r}, z={zs[k]!r}")
+        N, n = ys.size, self._n
+        lam_out = np.empty((N, 2 * n)) if lam_out is None else lam_out
+        snapshot = self._snapshot()
+        solves0, events0 = self.solves, self.events
+        try:
+            if N and self._z_prev is None:
+                # first placement: the plate arrives from above, at the first sample's
+                # y, no lower than the crown (nothing touches before)
+                self._s_prev = float(ys[0])
+                self._z_prev = max(float(zs[0]), float(np.max(self.model.node_z)))
+            k = 0
+            while k < N:
+                if stepping == "every":
+                    end = k + 1
+                else:
+                    end = self._segment_end(ys, zs, k)
+                L = end - k
+                thetas = np.arange(1, L + 1) / L
+                self._follow_segment(float(ys[end - 1]), float(zs[end - 1]), thetas, 1e-9 / L,
+                                     stepping == "every" or L > 1, lam_out[k:end],
+                                     None if u_out is None else u_out[k:end],
+                                     None if state_out is None else state_out[k:end])
+                k = end
+        except BaseException:
+            self._restore(snapshot)
+            raise
+        return self.solves - solves0, self.events - events0
+
+    def _segment_end(self, ys, zs, k):
+        """End (exclusive) of the longest run of samples from ``k`` whose load
+        increments equal the first one (to 1e-9 of its size): one straight segment."""
+        N = ys.size
+        y0, z0 = (self._s_prev, self._z_prev) if k == 0 else (ys[k - 1], zs[k - 1])
+        dy, dz = ys[k] - y0, zs[k] - z0
+        tol = 1e-9 * max(abs(dy), abs(dz))
+        end, chunk = k + 1, 64
+        while end < N:
+            hi = min(N, end + chunk)
+            ok = ((np.abs(np.diff(ys[end - 1:hi]) - dy) <= tol)
+                  & (np.abs(np.diff(zs[end - 1:hi]) - dz) <= tol))
+            if not ok.all():
+                return end + int(np.argmin(ok))
+            end, chunk = hi, 2 * chunk
+        return N
+
+    def _snapshot(self):
+        return (self._lam.copy(), self._u.copy(), self._uy_prev.copy(), self._s_prev, self._z_prev,
+                self._state.copy(), self._sign.copy(), self.solves, self.events)
+
+    def _restore(self, snap):
+        (self._lam, self._u, self._uy_prev, self._s_prev, self._z_prev, self._state, self._sign,
+         self.solves, self.events) = snap
+        self._sliding = self._state == SLIP
+        self._lu_key = None
+
+    def _unit_response(self):
+        """Response of ``(lam, u)`` to a unit plate displacement along y and a unit rise
+        of the plate, for the current node statuses (cached with the factorisation)."""
+        key = (self._state.tobytes(), self._sign.tobytes(), self.mu, self.mu_kinetic)
+        if self._unit_key != key:
+            self._mu_node = np.where(self._state == SLIP, self.mu_kinetic, self.mu)
+            A = np.count_nonzero(self._state != OPEN)
+            T = np.count_nonzero(self._state == STICK)
+            rs = self._solve_rhs(self._state, self._sign, np.concatenate([np.zeros(A), np.ones(T)]))
+            rz = self._solve_rhs(self._state, self._sign, np.concatenate([np.ones(A), np.zeros(T)]))
+            self._unit = (rs, rz, self._displacement(rs), self._displacement(rz))
+            self._unit_key = key
+            self.solves += 1
+        return self._unit
+
+    def _follow_segment(self, s1, z1, thetas, eps, direct, lam_out, u_out, state_out):
+        """Move the load linearly from the current ``(s, z)`` to ``(s1, z1)``, resolving
+        every event at its point; fill the samples at ``thetas`` (in (0, 1]).
+
+        ``direct``: the end of each piece by a solve with the piece's factors (the
+        per-sample reference) instead of from the unit responses."""
+        n = self._n
+        s0, z0p = self._s_prev, self._z_prev
+        th, j, ns = 0.0, 0, thetas.size
+        seen: set = set()  # status sets met at the current point (a cycle guard)
+        if s1 == s0 and z1 == z0p:
+            # the load does not move: nothing slides (a sliding node's rate is zero)
+            if np.any(self._state == SLIP):
+                self._state = np.where(self._state == SLIP, STICK, self._state).astype(np.int8)
+                self._sign = np.where(self._state == SLIP, self._sign, 0.0)
+                self.events += 1
+            self._fill(lam_out, u_out, state_out, slice(0, ns), self._lam, self._u, None, None, 0.0)
+            return
+        while True:
+            if th >= 1.0:
+                self._fill(lam_out, u_out, state_out, slice(j, ns), self._lam, self._u, None, None, 0.0)
+                return
+            sc, zc = self._s_prev, self._z_prev
+            lam_c, u_c = self._lam, self._u
+            state, sign = self._state, self._sign
+            if not np.any(state != OPEN) and not np.any(lam_c):
+                lam1, u1 = lam_c, u_c  # nothing touches: the ridge stays at rest
+            elif direct:
+                self._mu_node = np.where(state == SLIP, self.mu_kinetic, self.mu)
+                lam1, u1 = self._solve_piece(state, sign, z1, s1 - sc)
+                self.solves += 1
+            else:
+                rs, rz, us, uz = self._unit_response()
+                lam1 = lam_c + (s1 - sc) * rs + (z1 - zc) * rz
+                u1 = u_c + (s1 - sc) * us + (z1 - zc) * uz
+            # a sliding node's slip rate over the rest of the segment must oppose its
+            # friction force; where it does not (it stops or would reverse), it sticks here
+            slide = state == SLIP
+            if np.any(slide):
+                rate = (u1[:n] - u_c[:n]) - (s1 - sc)
+                bad = slide & (sign * rate >= -1e-9 * (abs(s1 - sc) + abs(z1 - zc)))
+                if np.any(bad):
+                    self._state = np.where(bad, STICK, state).astype(np.int8)
+                    self._sign = np.where(bad, 0.0, sign)
+                    self._changed(seen, s1, z1)
+                    continue
+            frac, kinds = self._first_event(lam_c, u_c, lam1, u1, zc, z1, eps / (1.0 - th))
+            th_e = np.inf if frac is None else th + frac * (1.0 - th)
+            # samples before the event come from this piece (an event within eps of a
+            # sample is resolved before that sample)
+            j2 = j + int(np.searchsorted(thetas[j:], th_e - eps, side="left"))
+            if j2 > j:
+                self._fill(lam_out, u_out, state_out, slice(j, j2), lam_c, u_c, lam1, u1,
+                           (thetas[j:j2] - th) / (1.0 - th))
+            j = j2
+            if frac is None:
+                self._lam, self._u = lam1, u1
+                self._uy_prev = u1[:n].copy()
+                self._s_prev, self._z_prev = s1, z1
+                if j < ns:  # pragma: no cover - every sample is at or before theta = 1
+                    self._fill(lam_out, u_out, state_out, slice(j, ns), lam1, u1, None, None, 0.0)
+                return
+            # move to the event point (not past the end of the segment)
+            th_e = min(th_e, 1.0)
+            f = (th_e - th) / (1.0 - th)
+            self._lam = lam_c + f * (lam1 - lam_c)
+            self._u = u_c + f * (u1 - u_c)
+            self._uy_prev = self._u[:n].copy()
+            self._s_prev = s0 + th_e * (s1 - s0) if th_e < 1.0 else s1
+            self._z_prev = z0p + th_e * (z1 - z0p) if th_e < 1.0 else z1
+            if th_e > th:
+                seen.clear()
+            th = th_e
+            self._apply_events(kinds)
+            self._changed(seen, s1, z1)
+
+    def _changed(self, seen, s1, z1):
+        """Count a status change at the current point. If the statuses return to a set
+        already met at this point (single-node changes cycling, e.g. nodes whose slip
+        rate is about zero), the statuses of all nodes are decided together: by the
+        Alart-Curnier solve of a short step (1e-6 of the rest of the segment) ahead."""
+        self.events += 1
+        key = self._state.tobytes() + self._sign.tobytes()
+        if key not in seen:
+            seen.add(key)
+            return
+        if ("resolved", key) in seen:
+            raise ContactConvergenceError(
+                f"node statuses cycle at the plate position y={self._s_prev:.6g} m, z={self._z_prev:.6g} m")
+        self._resolve_point(s1, z1)
+        seen.add(("resolved", self._state.tobytes() + self._sign.tobytes()))
+        seen.add(self._state.tobytes() + self._sign.tobytes())
+
+    def _resolve_point(self, s1, z1):
+        """Statuses at the current point from the Alart-Curnier solve of the step to
+        1e-6 of the way to ``(s1, z1)`` (cones: kinetic on SLIP nodes, static on the
+        others); the state stays at the current point."""
+        n = self._n
+        sc, zc = self._s_prev, self._z_prev
+        ds, zp = 1e-6 * (s1 - sc), zc + 1e-6 * (z1 - zc)
+        prev, prev_sign = self._state, self._sign
+        self._mu_node = np.where(prev == SLIP, self.mu_kinetic, self.mu)
+        scale = self._r * max(float(np.max(self.model.node_z) - zp), 1e-9, float(np.max(np.abs(self._uy_prev))))
+        _lam, u, state, sign, _it = self._solve_load(prev.copy(), prev_sign.copy(), sc + ds, zp, ds,
+                                                    self.tol * scale)
+        self.solves += 1
+        gap = zp - (self.model.node_z + u[n:])
+        grazing = (state == OPEN) & (prev != OPEN) & (gap <= self._g_tol)
+        new = np.where(grazing, prev, state).astype(np.int8)
+        self._state = new
+        self._sign = np.where(new == SLIP, np.where(state == SLIP, sign, prev_sign), 0.0)
+
+    def _fill(self, lam_out, u_out, state_out, rows, lam_c, u_c, lam1, u1, frac):
+        if lam1 is None:
+            lam_out[rows] = lam_c
+            if u_out is not None:
+                u_out[rows] = u_c
+        else:
+            frac = np.asarray(frac)[:, None]
+            lam_out[rows] = lam_c + frac * (lam1 - lam_c)
+            if u_out is not None:
+                u_out[rows] = u_c + frac * (u1 - u_c)
+        if state_out is not None:
+            state_out[rows] = self._state
+
+    def _first_event(self, lam_c, u_c, lam1, u1, zc, z1, eps):
+        """First point ``frac`` in [0, 1 + eps] of the piece from ``(lam_c, u_c)`` to
+        ``(lam1, u1)`` where a node's status must change, and the events there:
+        ``(node indices, kind)`` with kind 0 contact, 1 separation, 2 / 3 breakaway
+        with the friction force along +y / -y. ``(None, None)`` if there is none."""
+        n, mu = self._n, self.mu
+        z0 = self.model.node_z
+        state = self._state
+        # feasibility functions that must stay >= 0, one row per event kind
+        phi_c = np.stack([zc - z0 - u_c[n:], lam_c[n:], mu * lam_c[n:] - lam_c[:n], mu * lam_c[n:] + lam_c[:n]])
+        phi_1 = np.stack([z1 - z0 - u1[n:], lam1[n:], mu * lam1[n:] - lam1[:n], mu * lam1[n:] + lam1[:n]])
+        mask = np.stack([state == OPEN, state != OPEN, state == STICK, state == STICK])
+        tol = np.array([self._g_tol, self._f_tol, self._f_tol, self._f_tol])[:, None]
+        drop = phi_c - phi_1
+        cand = mask & (drop > tol) & (phi_1 < 0)
+        if not np.any(cand):
+            return None, None
+        with np.errstate(divide="ignore", invalid="ignore"):
+            frac = np.where(cand, np.clip(phi_c, 0.0, None) / np.where(cand, drop, 1.0), np.inf)
+        first = float(frac.min())
+        if first > 1.0 + eps:
+            return None, None
+        kinds, nodes = np.nonzero(frac <= first + eps)
+        return first, (nodes, kinds)
+
+    def _apply_events(self, events) -> int:
+        """Change the status of the event nodes at the current point; a breakaway drops
+        to the kinetic cone and sets off the cascade at this load. Returns the number
+        of status changes."""
+        nodes, kinds = events
+        n = self._n
+        state, sign, lam = self._state.copy(), self._sign.copy(), self._lam.copy()
+        for i, kind in zip(nodes.tolist(), kinds.tolist()):
+            if kind == 0:  # gap closes: the node touches and sticks where it is
+                state[i], sign[i] = STICK, 0.0
+            elif kind == 1:  # pressure reaches zero: the node lifts off
+                state[i], sign[i] = OPEN, 0.0
+                lam[i] = lam[n + i] = 0.0
+            else:  # traction reaches the static cone: the node breaks away
+                state[i], sign[i] = SLIP, (1.0 if kind == 2 else -1.0)
+        self._state, self._sign, self._lam = state, sign, lam
+        self._u = self._displacement(lam)
+        self._uy_prev = self._u[:n].copy()
+        changes = len(nodes)
+        broke = nodes[kinds >= 2]
+        # a breakaway sheds (mu - mu_kinetic) * ln: a cascade only where that is a load
+        if broke.size and (self.mu - self.mu_kinetic) * float(np.max(lam[n + broke])) > self._f_tol:
+            changes += self._cascade()
+        return changes
+
+    def _cascade(self) -> int:
+        """The breakaway cascade at the current load (the module docstring, step 4):
+        sliding nodes carry the kinetic cone, the others the static one; solve the
+        load again from the current surface position, and drop every node that slides
+        under its static cone to the kinetic one, until none does. Returns the number
+        of status changes."""
+        n, mu_k = self._n, self.mu_kinetic
+        prev, prev_sign = self._state, self._sign
+        z0 = self.model.node_z
+        zp, sp = self._z_prev, self._s_prev
+        self._mu_node = np.where(prev == SLIP, mu_k, self.mu)
+        scale = self._r * max(float(np.max(z0) - zp), 1e-9, float(np.max(np.abs(self._uy_prev))))
+        atol = self.tol * scale
+        state, sign = prev.copy(), prev_sign.copy()
+        for _ in range(n + 1):
+            lam, u, state, sign, _it = self._solve_load(state, sign, sp, zp, 0.0, atol)
+            self.solves += 1
+            moving = np.abs(u[:n] - self._uy_prev) > self._w_tol
+            broke = (state == SLIP) & moving & (self._mu_node > mu_k)
+            if not np.any(broke):
+                break
+            self._mu_node = np.where(broke, mu_k, self._mu_node)
+        # statuses after the jump: a node that moved on its cone slides; a sliding node
+        # still on its kinetic cone keeps sliding (its rate decides in the next piece);
+        # any other touching node sticks where it is
+        on_kinetic = np.abs(lam[:n]) >= mu_k * lam[n:] - self._f_tol
+        slide_moved = (state == SLIP) & moving
+        slide_kept = (prev == SLIP) & (state != OPEN) & ~moving & on_kinetic
+        # a touching node at zero pressure whose gap stays closed keeps its status (the
+        # next piece decides whether it lifts off)
+        gap = zp - (z0 + u[n:])
+        grazing = (state == OPEN) & (prev != OPEN) & (gap <= self._g_tol)
+        new = np.where(state == OPEN, OPEN, np.where(slide_moved | slide_kept, SLIP, STICK)).astype(np.int8)
+        new_sign = np.where(slide_moved, sign, np.where(slide_kept, prev_sign, 0.0))
+        new = np.where(grazing, prev, new).astype(np.int8)
+        new_sign = np.where(grazing, prev_sign, new_sign)
+        changes = int(np.sum(new != prev))
+        self._state, self._sign = new, new_sign
+        self._lam, self._u = lam, u
+        self._uy_prev = u[:n].copy()
+        return changes
+
+    def _report(self, lam, u, state, iterations) -> ContactStep:
+        n = self._n
+        w = self.model.weights
+        touching = state != OPEN
+        total = float(w[touching].sum())
+        frac = float(w[state == SLIP].sum()) / total if total > 0 else 0.0
+        f = np.concatenate([lam[:n], -lam[n:]])
+        return ContactStep(forces=f, displacement=u, state=state.astype(np.int8), slip_fraction=frac,
+                           iterations=int(iterations))
+
     def _raise_status(self, status: int, plate_y: float, plate_z: float):
         """The exception of the reference implementation for a kernel status."""
         info, residual, atol = self._kernel.error()
@@ -318,11 +697,22 @@ class ContactSolver:
 
     # -- one piece of the piecewise-linear system
     def _solve_piece(self, state, sign, plate_z, ds):
+        """Forces and displacements of the piece ``(state, sign)`` at the plate height
+        ``plate_z`` with the stuck nodes moved by ``ds`` from ``self._uy_prev``."""
+        A = np.flatnonzero(state != OPEN)
+        T = np.flatnonzero(state == STICK)
+        rhs = np.concatenate([plate_z - self.model.node_z[A], self._uy_prev[T] + ds])
+        lam = self._solve_rhs(state, sign, rhs)
+        return lam, self._displacement(lam)
+
+    def _solve_rhs(self, state, sign, rhs):
+        """Solve the piece ``(state, sign)`` (cones ``self._mu_node``) for the right-hand
+        side ``rhs = (u_z of the touching nodes, u_y of the stuck nodes)``; the LU
+        factors are kept while the piece does not change."""
         n, mu = self._n, self._mu_node
         T = np.flatnonzero(state == STICK)
         A = np.flatnonzero(state != OPEN)
         slip_coef = np.where(state == SLIP, mu * sign, 0.0)  # lt = slip_coef * ln on slip nodes
-        rhs = np.concatenate([plate_z - self.model.node_z[A], self._uy_prev[T] + ds])
         key = (state.tobytes(), slip_coef.tobytes())
         if self.reduced:
             if key != self._lu_key:
@@ -337,6 +727,7 @@ class ContactSolver:
                     raise ContactConvergenceError(f"singular contact system (LAPACK getrf info={info})")
                 self._lu = (lu, piv)
                 self._lu_key = key
+                self.factorizations += 1
             x, info = dgetrs(*self._lu, rhs)
         else:
             x = self.model.solve_piece_full(A, T, slip_coef[A], rhs)
@@ -344,7 +735,7 @@ class ContactSolver:
         lam[n + A] = x[:A.size]
         lam[A] += slip_coef[A] * x[:A.size]
         lam[T] = x[A.size:]
-        return lam, self._displacement(lam)
+        return lam
 
     def _classify(self, lam, u, plate_z, ds):
         n, r, mu = self._n, self._r, self._mu_node
@@ -405,25 +796,3 @@ class ContactSolver:
         dslip = et - (mu * sign)[:, None] * (en - r * dg)
         Jt = np.where(stick[:, None], r * dw, np.where(slip[:, None], dslip, et))
         return F, np.concatenate([Jt, Jn]), u
-
-    def _accept(self, lam, u, state, plate_y, it, sign=None) -> ContactStep:
-        n = self._n
-        # Reported state: a node on the friction cone that does not move relative to
-        # the plate (a stopped plate) is stuck, not slipping; the solver keeps the
-        # cone classification as its warm start.
-        slip_increment = (u[:n] - self._uy_prev) - (float(plate_y) - self._s_prev)
-        moving = np.abs(slip_increment) > self._w_tol
-        reported = np.where((state == SLIP) & ~moving, STICK, state).astype(np.int8)
-        self._lam = lam
-        self._state = state
-        self._sliding = reported == SLIP
-        self._sign = np.zeros(n) if sign is None else sign
-        self._uy_prev = u[:n].copy()
-        self._s_prev = float(plate_y)
-        w = self.model.weights
-        touching = reported != OPEN
-        total = float(w[touching].sum())
-        frac = float(w[reported == SLIP].sum()) / total if total > 0 else 0.0
-        state = reported
-        f = np.concatenate([lam[:n], -lam[n:]])
-        return ContactStep(forces=f, displacement=u, state=state, slip_fraction=frac, iterations=it)
