@@ -1,13 +1,15 @@
 """Benchmarks of the contact simulation.
 
-    python bench/bench_contact.py [--quick] [--solver-only] [--figures DIR]
+    python bench/bench_contact.py [--quick] [--solver-only] [--stepping-only] [--figures DIR]
 
 Prints markdown tables: the compiled contact solver against the Python reference
 (per step, also with the dense kernels compiled for the x86-64 baseline instead of
 AVX2+FMA; fig6 end to end, wall and CPU time; the 6-ridge pad step; the paced loop at
 1 kHz against the FEM pad), the paper's fig6 scene end to end at 1 kHz, reduced against unreduced solves
-of the same steps, cost against the outputs a scene asks for, and mesh size against
-strip-stress error and run time; writes Figs. 6-8 as PNG into DIR. The CPU model is
+of the same steps, cost against the outputs a scene asks for, mesh size against
+strip-stress error and run time, and the event-driven stepping ("auto") against the
+per-sample one ("every"): time against error on the paper's scenes, the 6-ridge pad and
+random scenes, with solves and events, and the stepping's goals; writes Figs. 6-8 as PNG into DIR. The CPU model is
 printed first; every ratio is between runs of this one process.
 """
 from __future__ import annotations
@@ -52,7 +54,7 @@ def bench_backends(quick):
     _core._contact_set_baseline(True)  # the same kernel compiled for the x86-64 baseline (SSE2)
     try:
         cb = min((per_step("cpp") for _ in range(1 if quick else 2)), key=np.sum)
-        t_cb, _ = timed(lambda: simulate(scene, backend="cpp"), repeat=2 if quick else 3)
+        t_cb, _ = timed(lambda: simulate(scene, backend="cpp", stepping="every"), repeat=2 if quick else 3)
     finally:
         _core._contact_set_baseline(False)
     k = ContactSolver(model, mu, mu_kinetic=mu_k)
@@ -70,13 +72,14 @@ def bench_backends(quick):
             ["cpp kernels compiled for the baseline (SSE2): mean / median per step", "",
              f"{cb.mean() * 1e6:.1f} / {np.median(cb) * 1e6:.1f} us",
              f"{py.mean() / cb.mean():.1f}x / {np.median(py) / np.median(cb):.1f}x"]]
-    t_py, _ = timed(lambda: simulate(scene, backend="python"), repeat=1 if quick else 2)
-    t_cc, _ = timed(lambda: simulate(scene, backend="cpp"), repeat=2 if quick else 3)
+    t_py, _ = timed(lambda: simulate(scene, backend="python", stepping="every"), repeat=1 if quick else 2)
+    t_cc, _ = timed(lambda: simulate(scene, backend="cpp", stepping="every"), repeat=2 if quick else 3)
     rows.append([f"simulate(fig6) end to end (signals; cpp kernels: {simd_path})", f"{t_py:.2f} s", f"{t_cc:.3f} s",
                  f"{t_py / t_cc:.1f}x"])
     rows.append(["simulate(fig6), cpp kernels compiled for the baseline", "", f"{t_cb:.3f} s", f"{t_py / t_cb:.1f}x"])
-    c_py, _ = timed(lambda: simulate(scene, backend="python"), repeat=1, clock=time.process_time)
-    c_cc, _ = timed(lambda: simulate(scene, backend="cpp"), repeat=2 if quick else 3, clock=time.process_time)
+    c_py, _ = timed(lambda: simulate(scene, backend="python", stepping="every"), repeat=1, clock=time.process_time)
+    c_cc, _ = timed(lambda: simulate(scene, backend="cpp", stepping="every"), repeat=2 if quick else 3,
+                    clock=time.process_time)
     rows.append(["simulate(fig6), CPU time of this process", f"{c_py:.2f} s", f"{c_cc:.3f} s", f"{c_py / c_cc:.1f}x"])
     six = dataclasses.replace(scene, n_ridges=6)
     ys, zs = six.plate_motion()
@@ -226,6 +229,94 @@ def bench_mesh(quick):
            "rms error", "max error (slip-front timing)"], rows)
 
 
+def _both(scene, repeat):
+    """``every`` and ``auto`` on one scene, the Python backend, this process."""
+    te, e = timed(lambda: simulate(scene, backend="python", stepping="every"), repeat=1)
+    ta, a = timed(lambda: simulate(scene, backend="python", stepping="auto"), repeat=repeat)
+    err = float(np.max(np.abs(e.stress - a.stress)) / np.max(np.abs(e.stress)))
+    same_states = e.node_state is None or bool(np.array_equal(e.node_state, a.node_state))
+    return te, ta, e, a, err, e.slip_time == a.slip_time, same_states
+
+
+def _slip(t):
+    return "none" if t is None else f"{t:.3f} s"
+
+
+def bench_stepping(quick):
+    """Time against error of the event-driven stepping ("auto") and the per-sample
+    reference ("every"), both in the Python backend, in this process."""
+    out = frozenset({"stress", "slip", "state", "forces"})
+    rep = 1 if quick else 2
+    rows = []
+    named = [("fig6", tm.scenes.paper("fig6", outputs=out)), ("fig7", tm.scenes.paper("fig7", outputs=out)),
+             ("fig8", tm.scenes.paper("fig8", outputs=out)),
+             ("fig6, 6-ridge pad", tm.scenes.paper("fig6", outputs=out, n_ridges=6))]
+    ratios = {}
+    for name, sc in named:
+        te, ta, e, a, err, same_slip, same_states = _both(sc, rep)
+        ratios[name] = te / ta
+        rows.append([name, f"{te:.2f} s", f"{ta:.3f} s", f"{te / ta:.1f}x", f"{e.solves} / {a.solves}",
+                     f"{a.events}", f"{err:.1e}", f"{_slip(e.slip_time)} / {_slip(a.slip_time)}",
+                     "yes" if same_states else "NO"])
+    n_random = 8 if quick else 40
+    randoms = tm.scenes.random(n_random, seed=17, friction=(0.3, 1.2), indent=(15e-6, 40e-6),
+                               slide_speed=(0.1e-3, 0.6e-3), stop_probability=0.6, stop_length=(0.02, 0.5),
+                               duration=2.5, outputs=out)
+    tot_e = tot_a = 0.0
+    worst = 0.0
+    all_slip = all_states = True
+    per_scene = []
+    for k, sc in enumerate(randoms):
+        te, ta, e, a, err, same_slip, same_states = _both(sc, 1)
+        tot_e += te
+        tot_a += ta
+        worst = max(worst, err)
+        all_slip &= same_slip
+        all_states &= same_states
+        stop = f"{sc.stops[0][1] - sc.stops[0][0]:.2f} s" if sc.stops else "-"
+        per_scene.append([k, f"{sc.friction:.2f}", f"{sc.indent_speed * 0.5 * 1e6:.0f} um",
+                          f"{sc.slide_speed * 1e3:.2f} mm/s", stop, f"{te:.2f} s", f"{ta:.3f} s",
+                          f"{e.solves} / {a.solves}", a.events, f"{err:.1e}",
+                          f"{_slip(e.slip_time)} / {_slip(a.slip_time)}", "yes" if same_states else "NO"])
+    rows.append([f"{n_random} random scenes (total)", f"{tot_e:.2f} s", f"{tot_a:.2f} s", f"{tot_e / tot_a:.1f}x",
+                 "", "", f"{worst:.1e} (worst)", "all equal" if all_slip else "DIFFER",
+                 "yes" if all_states else "NO"])
+    header = ["scene", "every", "auto", "speed-up", "solves every / auto", "events", "stress error / peak",
+              "slip time every / auto", "node states equal"]
+    table("Contact stepping, time against error: 'every' (solve at every sample, the reference) and 'auto' "
+          "(solve at events only), Python backend, same process (error: max strip-stress difference of auto "
+          "against every over all strips and samples, relative to the peak)", header, rows)
+    table("Random scenes (seed 17; friction 0.3-1.2, indent 15-40 um, slide 0.1-0.6 mm/s, stops of "
+          "0.02-0.5 s in 60 % of them; 2.5 s at 1 kHz)",
+          ["#", "friction", "indent", "slide", "stop", "every", "auto", "solves every / auto", "events",
+           "error / peak", "slip time every / auto", "states equal"], per_scene)
+
+    # the issue's goals
+    goals = []
+    for name in ("fig6", "fig6, 6-ridge pad"):
+        goals.append([f"{name}: auto against every end to end", f"{ratios[name]:.1f}x", ">= 10x"])
+    slip = frozenset({"slip"})
+    plain = tm.scenes.paper("fig6", outputs=slip, duration=2.0)
+    stopped = tm.scenes.paper("fig6", outputs=slip, duration=2.5, stops=((1.0, 1.5),))
+    t_plain, r_plain = timed(lambda: simulate(plain, backend="python"), repeat=rep + 1)
+    t_stop, r_stop = timed(lambda: simulate(stopped, backend="python"), repeat=rep + 1)
+    goals.append(["fig6 with a 0.5 s stop (1.0-1.5 s) against without, auto",
+                  (f"{t_stop / t_plain:.2f}x ({t_stop:.3f} / {t_plain:.3f} s; solves {r_stop.solves} / "
+                  f"{r_plain.solves})"), "same cost"])
+    hi = dataclasses.replace(plain, fs=10_000.0)
+    t_hi, r_hi = timed(lambda: simulate(hi, backend="python"), repeat=rep)
+    goals.append(["fig6 at 10 kHz against 1 kHz, auto", (f"{t_hi / t_plain:.2f}x ({t_hi:.3f} / {t_plain:.3f} s; "
+                  f"solves {r_hi.solves} / {r_plain.solves}; slip {_slip(r_hi.slip_time)} / "
+                  f"{_slip(r_plain.slip_time)})"), "<= 1.5x"])
+    if not quick:
+        te1, _ = timed(lambda: simulate(plain, backend="python", stepping="every"), repeat=1)
+        te10, _ = timed(lambda: simulate(hi, backend="python", stepping="every"), repeat=1)
+        goals.append(["fig6 at 10 kHz against 1 kHz, every", f"{te10 / te1:.2f}x ({te10:.2f} / {te1:.2f} s)",
+                      "(about 10x)"])
+    table("Goals of the event-driven stepping (Python backend; the compiled kernel steps every sample)",
+          ["what", "measured", "goal"], goals)
+
+
 def figures(folder):
     from tactile_mirror.plots import contact_scene_figure, save
 
@@ -326,8 +417,13 @@ def main(argv=None):
     p.add_argument("--figures", default=None, help="folder for the Fig. 6-8 PNGs (default: none)")
     p.add_argument("--solver-only", action="store_true",
                    help="only the compiled-against-Python solver table and the paced loop")
+    p.add_argument("--stepping-only", action="store_true",
+                   help="only the 'every' against 'auto' stepping tables")
     args = p.parse_args(argv)
     print(f"CPU: {cpu_model()} ({os.cpu_count()} logical cores)")
+    if args.stepping_only:
+        bench_stepping(args.quick)
+        return
     bench_backends(args.quick)
     bench_realtime(1.5 if args.quick else 3.0)
     bench_cpp_events(args.quick)
@@ -337,6 +433,7 @@ def main(argv=None):
     bench_reduced_vs_full(50 if args.quick else 200)
     bench_outputs()
     bench_mesh(args.quick)
+    bench_stepping(args.quick)
     if args.figures:
         figures(args.figures)
 

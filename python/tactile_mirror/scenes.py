@@ -23,8 +23,9 @@ __all__ = ["DEFAULT_FRICTION", "DEFAULT_KINETIC_RATIO", "MAX_INDENT_STRAIN", "MA
            "random"]
 
 #: Coulomb friction between finger and ridge. Chosen so that the paper's fig6 scene
-#: (default ridge, kinetic ratio 0.85) reaches gross slip at t = 1.448 s, inside the 1.4-1.5 s the paper
-#: shows; measured with tactile_mirror.contact.calibrate_friction.
+#: (default ridge, kinetic ratio 0.85) reaches gross slip inside the 1.4-1.5 s the paper
+#: shows; measured with tactile_mirror.contact.calibrate_friction: 1.448 s with the
+#: per-sample friction law, 1.471 s with the rate-independent event-driven one.
 DEFAULT_FRICTION = 0.76
 
 #: Kinetic / static friction of the finger on the silicone ridges (static friction of

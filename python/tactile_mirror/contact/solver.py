@@ -38,6 +38,9 @@ For a fixed status set the forces are linear in the load (one linear system, the
        OPEN node: gap g -> STICK (anchored where it touches);
        touching node: ln -> OPEN (its forces set to 0);
        STICK node: mu ln - lt, mu ln + lt -> SLIP with sign +1 / -1 (breakaway).
+       "Decreasing": phi_1 < 0 and phi_c - phi_1 > 1e-16 H (gaps) or 1e-15 r H
+       (forces), H the ridge height, r = 1 / mean(diag C); the crossing is at
+       frac = max(phi_c, 0) / (phi_c - phi_1) of the rest of the segment.
        Every function reaching 0 within 1e-9 samples of the first one changes at the
        same point (ties resolved together). No event before the segment end: done.
     4. move to the event point (forces and displacements interpolated linearly in
@@ -46,17 +49,21 @@ For a fixed status set the forces are linear in the load (one linear system, the
     5. breakaway cascade (only if a breakaway node carries ln > 0 and mu_kinetic <
        mu): solve the load of the event point again with the Alart-Curnier
        equations below (slip measured from the event point, cones: mu_kinetic on
-       SLIP nodes, mu elsewhere), switch every node that slides under the static
+       SLIP nodes, mu elsewhere; active-set iterations go on until the classification
+       settles, not only until the residual is within tol), switch every node that
+       slides under the static
        cone to the kinetic one and solve again, until none does (all of a round at
-       once). New statuses: a node that moved on its cone (|w| > w_tol) is SLIP with
-       the sign of its friction force; a SLIP node that did not move and is still on
-       its kinetic cone stays SLIP; a touching node the solve finds open with its
-       gap still closed keeps its status; every other touching node is STICK,
-       anchored where it is. Back to 1 from the event point.
+       once). New statuses: a node that moved on its cone (|w| > w_tol = 1e-11 H)
+       is SLIP with the sign of its friction force; a SLIP node that did not move
+       and is still on its kinetic cone (|lt| >= mu_kinetic ln - 1e-12 r H) stays
+       SLIP with its sign; a touching node the solve finds open with its gap still
+       closed (gap <= 1e-14 H) keeps its status; every other touching node is
+       STICK, anchored where it is. Back to 1 from the event point. The cascade
+       runs only where a breakaway node sheds a load, (mu - mu_kinetic) ln > 1e-12 r H.
     6. cycle rule: if the statuses at one point come back to a set already met at
        that point (single-node changes cycling, e.g. nodes of zero slip rate on a
        symmetry line), all statuses are decided together by the Alart-Curnier solve
-       of the step to 1e-6 of the rest of the segment (cones as in 5): its
+       of the step 1e-6 of a sample ahead along the segment (cones as in 5): its
        classification (OPEN / STICK / SLIP with the sign of the friction force;
        grazing nodes as in 5) becomes the status set, the state stays at the point.
        A second return raises ContactConvergenceError.
@@ -196,6 +203,11 @@ class ContactSolver:
         # event tolerances: gaps (m) and forces (N/m) this close to zero are zero
         self._g_tol = 1e-14 * model.geometry.height
         self._f_tol = 1e-12 * self._r * model.geometry.height
+        # an event function must fall by more than this over a piece (round-off of a
+        # constant one is ~1e-16 of the forces; a coarser bound would delay slow
+        # crossings by a sample in the per-sample stepping only)
+        self._evt_tol = np.array([1e-16, 1e-15 * self._r, 1e-15 * self._r, 1e-15 * self._r])[:, None] \
+            * model.geometry.height
         self._params = {"mu": float(mu), "mu_kinetic": float(mu_k), "tol": float(tol), "max_iter": int(max_iter),
                         "max_active_set_iter": 25}
         self.backend = backend if self.reduced else "python"
@@ -286,9 +298,13 @@ class ContactSolver:
         self._lu_key = None
         self._lu = None
         self._unit_key = None
+        self._G = None
+        self._base = None
+        self._cap_rows = None
         self.solves = 0
         self.events = 0
         self.factorizations = 0
+        self.updates = 0
 
     def _displacement(self, lam: np.ndarray) -> np.ndarray:
         if self.reduced:
@@ -320,19 +336,31 @@ class ContactSolver:
                     lam, u, state)
         return self._report(lam[0], u[0], state[0], self.solves - solves0)
 
-    def _solve_load(self, state, sign, plate_y, plate_z, ds, atol):
+    def _solve_load(self, state, sign, plate_y, plate_z, ds, atol, exact=False):
         """Solve the step to ``(plate_y, plate_z)`` with the cones ``self._mu_node``,
         starting from the classification ``(state, sign)``: active-set iterations,
-        then the damped Newton method if they cycle. Returns ``(lam, u, state, sign, its)``."""
+        then the damped Newton method if they cycle. Returns ``(lam, u, state, sign, its)``.
+
+        ``exact``: go on while the classification still changes, even once the residual
+        is within ``atol``, so the answer is the exact solution of its piece (not one of
+        the pieces within the tolerance: the event stepping's two modes must agree to
+        round-off); if the pieces cycle, the first answer within the tolerance."""
         it = 0
+        first = None
         for it in range(1, self.max_active_set_iter + 1):
             lam, u = self._solve_piece(state, sign, plate_z, ds)
             F, new_state, new_sign = self._classify(lam, u, plate_z, ds)
+            same = np.array_equal(new_state, state) and np.array_equal(new_sign[state == SLIP], sign[state == SLIP])
             if np.max(np.abs(F)) <= atol:
-                return lam, u, new_state, new_sign, it
-            if np.array_equal(new_state, state) and np.array_equal(new_sign[state == SLIP], sign[state == SLIP]):
+                if not exact or same:
+                    return lam, u, new_state, new_sign, it
+                if first is None:
+                    first = (lam, u, new_state, new_sign)
+            elif same:
                 break  # same piece but not converged: round-off trouble, use Newton
             state, sign = new_state, new_sign
+        if first is not None:
+            return (*first, it)
         start = self._lam.copy()
         lam, u, it2 = self._damped_newton(start, plate_y, plate_z, ds, atol)
         _, new_state, new_sign = self._classify(lam, u, plate_z, ds)
@@ -452,6 +480,9 @@ class ContactSolver:
         s0, z0p = self._s_prev, self._z_prev
         th, j, ns = 0.0, 0, thetas.size
         seen: set = set()  # status sets met at the current point (a cycle guard)
+        # 1e-6 of a sample along the segment: the step of the cycle rule (the same in
+        # both steppings, whatever the segment's length)
+        tiny = (1e3 * eps * (s1 - s0), 1e3 * eps * (z1 - z0p))
         if s1 == s0 and z1 == z0p:
             # the load does not move: nothing slides (a sliding node's rate is zero)
             if np.any(self._state == SLIP):
@@ -486,7 +517,7 @@ class ContactSolver:
                 if np.any(bad):
                     self._state = np.where(bad, STICK, state).astype(np.int8)
                     self._sign = np.where(bad, 0.0, sign)
-                    self._changed(seen, s1, z1)
+                    self._changed(seen, tiny)
                     continue
             frac, kinds = self._first_event(lam_c, u_c, lam1, u1, zc, z1, eps / (1.0 - th))
             th_e = np.inf if frac is None else th + frac * (1.0 - th)
@@ -516,13 +547,13 @@ class ContactSolver:
                 seen.clear()
             th = th_e
             self._apply_events(kinds)
-            self._changed(seen, s1, z1)
+            self._changed(seen, tiny)
 
-    def _changed(self, seen, s1, z1):
+    def _changed(self, seen, tiny):
         """Count a status change at the current point. If the statuses return to a set
         already met at this point (single-node changes cycling, e.g. nodes whose slip
         rate is about zero), the statuses of all nodes are decided together: by the
-        Alart-Curnier solve of a short step (1e-6 of the rest of the segment) ahead."""
+        Alart-Curnier solve of a short step (1e-6 of a sample) ahead."""
         self.events += 1
         key = self._state.tobytes() + self._sign.tobytes()
         if key not in seen:
@@ -531,22 +562,22 @@ class ContactSolver:
         if ("resolved", key) in seen:
             raise ContactConvergenceError(
                 f"node statuses cycle at the plate position y={self._s_prev:.6g} m, z={self._z_prev:.6g} m")
-        self._resolve_point(s1, z1)
+        self._resolve_point(tiny)
         seen.add(("resolved", self._state.tobytes() + self._sign.tobytes()))
         seen.add(self._state.tobytes() + self._sign.tobytes())
 
-    def _resolve_point(self, s1, z1):
-        """Statuses at the current point from the Alart-Curnier solve of the step to
-        1e-6 of the way to ``(s1, z1)`` (cones: kinetic on SLIP nodes, static on the
-        others); the state stays at the current point."""
+    def _resolve_point(self, tiny):
+        """Statuses at the current point from the Alart-Curnier solve of the step
+        ``tiny = (dy, dz)`` ahead (cones: kinetic on SLIP nodes, static on the others);
+        the state stays at the current point."""
         n = self._n
         sc, zc = self._s_prev, self._z_prev
-        ds, zp = 1e-6 * (s1 - sc), zc + 1e-6 * (z1 - zc)
+        ds, zp = tiny[0], zc + tiny[1]
         prev, prev_sign = self._state, self._sign
         self._mu_node = np.where(prev == SLIP, self.mu_kinetic, self.mu)
         scale = self._r * max(float(np.max(self.model.node_z) - zp), 1e-9, float(np.max(np.abs(self._uy_prev))))
         _lam, u, state, sign, _it = self._solve_load(prev.copy(), prev_sign.copy(), sc + ds, zp, ds,
-                                                    self.tol * scale)
+                                                     self.tol * scale, exact=True)
         self.solves += 1
         gap = zp - (self.model.node_z + u[n:])
         grazing = (state == OPEN) & (prev != OPEN) & (gap <= self._g_tol)
@@ -579,7 +610,7 @@ class ContactSolver:
         phi_c = np.stack([zc - z0 - u_c[n:], lam_c[n:], mu * lam_c[n:] - lam_c[:n], mu * lam_c[n:] + lam_c[:n]])
         phi_1 = np.stack([z1 - z0 - u1[n:], lam1[n:], mu * lam1[n:] - lam1[:n], mu * lam1[n:] + lam1[:n]])
         mask = np.stack([state == OPEN, state != OPEN, state == STICK, state == STICK])
-        tol = np.array([self._g_tol, self._f_tol, self._f_tol, self._f_tol])[:, None]
+        tol = self._evt_tol
         drop = phi_c - phi_1
         cand = mask & (drop > tol) & (phi_1 < 0)
         if not np.any(cand):
@@ -632,7 +663,7 @@ class ContactSolver:
         atol = self.tol * scale
         state, sign = prev.copy(), prev_sign.copy()
         for _ in range(n + 1):
-            lam, u, state, sign, _it = self._solve_load(state, sign, sp, zp, 0.0, atol)
+            lam, u, state, sign, _it = self._solve_load(state, sign, sp, zp, 0.0, atol, exact=True)
             self.solves += 1
             moving = np.abs(u[:n] - self._uy_prev) > self._w_tol
             broke = (state == SLIP) & moving & (self._mu_node > mu_k)
@@ -704,35 +735,105 @@ class ContactSolver:
 
     def _solve_rhs(self, state, sign, rhs):
         """Solve the piece ``(state, sign)`` (cones ``self._mu_node``) for the right-hand
-        side ``rhs = (u_z of the touching nodes, u_y of the stuck nodes)``; the LU
-        factors are kept while the piece does not change."""
+        side ``rhs = (u_z of the touching nodes, u_y of the stuck nodes)``.
+
+        The reduced solver writes the piece as all ``2n`` equations, two per node
+        (open: ``lt = 0, ln = 0``; stuck: ``u_y, u_z`` given; sliding: ``lt = coef ln``,
+        ``u_z`` given; displacement rows scaled by ``r``), so a change of a few nodes'
+        statuses changes a few rows. It keeps the LU factors of a base piece and solves
+        a nearby piece through the capacitance matrix of the changed rows (Woodbury:
+        ``O(n^2)`` per changed node and per solve instead of a new ``O(n^3)``
+        factorisation); the base is refactored when more than ``n / 16`` nodes differ
+        from it."""
         n, mu = self._n, self._mu_node
         T = np.flatnonzero(state == STICK)
         A = np.flatnonzero(state != OPEN)
         slip_coef = np.where(state == SLIP, mu * sign, 0.0)  # lt = slip_coef * ln on slip nodes
-        key = (state.tobytes(), slip_coef.tobytes())
-        if self.reduced:
-            if key != self._lu_key:
-                C = self.model.compliance
-                # u = C[:, y_T] lt_T + (C[:, y_A] diag(slip_coef_A) - C[:, z_A]) ln_A, rows g_A and w_T
-                rows = np.concatenate([n + A, T])[:, None]
-                M = np.empty((rows.size, rows.size))
-                M[:, :A.size] = C[rows, A] * slip_coef[A] - C[rows, n + A]
-                M[:, A.size:] = C[rows, T]
-                lu, piv, info = dgetrf(M, overwrite_a=True)
-                if info != 0:
-                    raise ContactConvergenceError(f"singular contact system (LAPACK getrf info={info})")
-                self._lu = (lu, piv)
-                self._lu_key = key
-                self.factorizations += 1
-            x, info = dgetrs(*self._lu, rhs)
-        else:
+        if not self.reduced:
             x = self.model.solve_piece_full(A, T, slip_coef[A], rhs)
-        lam = np.zeros(2 * n)
-        lam[n + A] = x[:A.size]
-        lam[A] += slip_coef[A] * x[:A.size]
-        lam[T] = x[A.size:]
-        return lam
+            lam = np.zeros(2 * n)
+            lam[n + A] = x[:A.size]
+            lam[A] += slip_coef[A] * x[:A.size]
+            lam[T] = x[A.size:]
+            return lam
+        key = (state.tobytes(), slip_coef.tobytes())
+        if key != self._lu_key:
+            self._update_piece(state, slip_coef)
+            self._lu_key = key
+        b = np.zeros(2 * n)
+        b[n + A] = self._r * rhs[:A.size]
+        b[T] = self._r * rhs[A.size:]
+        x, _ = dgetrs(*self._lu, b)
+        rows = self._cap_rows
+        if rows is not None:
+            x = x - self._cap_W @ dgetrs(*self._cap_lu, self._cap_V @ x)[0]
+        return x
+
+    def _piece_rows(self, state, slip_coef, nodes):
+        """Rows ``nodes`` then ``n + nodes`` of the piece matrix (displacement rows scaled
+        by ``r``: ``r u = G lam``, ``G = r C P``)."""
+        n = self._n
+        G = self._G
+        m = nodes.size
+        rows = np.zeros((2 * m, 2 * n))
+        k = np.arange(m)
+        st = state[nodes]
+        stick, slip, opn = st == STICK, st == SLIP, st == OPEN
+        rows[k[stick]] = G[nodes[stick]]
+        rows[k[~stick], nodes[~stick]] = 1.0
+        rows[k[slip], n + nodes[slip]] = -slip_coef[nodes[slip]]
+        rows[m + k[~opn]] = G[n + nodes[~opn]]
+        rows[m + k[opn], n + nodes[opn]] = 1.0
+        return rows
+
+    def _update_piece(self, state, slip_coef):
+        """Make ``(state, slip_coef)`` the current piece: capacitance of the rows that
+        differ from the base piece, or a new base."""
+        n = self._n
+        if self._G is None:
+            self._G = self._r * self._CP
+        nodes = None
+        if self._base is not None:
+            nodes = np.flatnonzero((self._base[0] != state) | (self._base[1] != slip_coef))
+            if nodes.size > max(4, n // 16):
+                nodes = None
+        if nodes is None:
+            K = np.empty((2 * n, 2 * n))
+            idx = np.arange(n)
+            K[np.concatenate([idx, n + idx])] = self._piece_rows(state, slip_coef, idx)
+            lu, piv, info = dgetrf(K, overwrite_a=True)
+            if info != 0:
+                raise ContactConvergenceError(f"singular contact system (LAPACK getrf info={info})")
+            self._lu = (lu, piv)
+            self._base = (state.copy(), slip_coef.copy())
+            self._base_cols = {}
+            self._cap_rows = None
+            self.factorizations += 1
+            return
+        if nodes.size == 0:
+            self._cap_rows = None
+            return
+        rows = np.concatenate([nodes, n + nodes])
+        V = self._piece_rows(state, slip_coef, nodes)
+        cols = self._base_cols  # per base row: (its row of the base matrix, column of K0^-1)
+        new = [r for r in rows.tolist() if r not in cols]
+        if new:
+            E = np.zeros((2 * n, len(new)))
+            E[new, np.arange(len(new))] = 1.0
+            Wn, _ = dgetrs(*self._lu, E)
+            new_nodes = np.unique(np.array(new) % n)
+            base_rows = self._piece_rows(self._base[0], self._base[1], new_nodes)
+            where = {r: j for j, r in enumerate(np.concatenate([new_nodes, n + new_nodes]).tolist())}
+            for j, r in enumerate(new):
+                cols[r] = (base_rows[where[r]], Wn[:, j])
+        V -= np.stack([cols[r][0] for r in rows.tolist()])
+        W = np.stack([cols[r][1] for r in rows.tolist()], axis=1)
+        cap = np.eye(rows.size) + V @ W
+        lu, piv, info = dgetrf(cap)
+        if info != 0:
+            raise ContactConvergenceError(f"singular contact system (capacitance getrf info={info})")
+        self._cap_rows, self._cap_W, self._cap_V, self._cap_lu = rows, W, V, (lu, piv)
+        self.updates += 1
 
     def _classify(self, lam, u, plate_z, ds):
         n, r, mu = self._n, self._r, self._mu_node
