@@ -2,7 +2,7 @@
 //
 // _core._ContactSolver(compliance, node_z, weights, r, w_tol)   one ridge
 //   set_params(mu, mu_kinetic, tol, max_iter, max_active_set_iter)
-//   set_event_tolerances(g_tol, f_tol)
+//   set_event_tolerances(g_tol, f_tol, evt_g_tol, evt_f_tol)
 //   step(plate_y, plate_z, every=True) -> (status, forces, displacement, state, slip_fraction, iterations)
 //       status 0: the arrays are new copies of the result; else they are None and
 //       error() gives (info, residual, tolerance), error_point() the load point (y, z)
@@ -161,12 +161,13 @@ void tm_bind_contact(py::module_& m) {
         .def_property_readonly("events", [](const PyContact& c) { return c.k.events(); },
                                "points where node statuses changed since the last reset")
         .def("set_event_tolerances",
-             [](PyContact& c, double g_tol, double f_tol) {
-                 if (!(g_tol >= 0) || !(f_tol >= 0)) throw py::value_error("g_tol and f_tol must be >= 0");
+             [](PyContact& c, double g_tol, double f_tol, double evt_g_tol, double evt_f_tol) {
+                 if (!(g_tol >= 0) || !(f_tol >= 0) || !(evt_g_tol >= 0) || !(evt_f_tol >= 0))
+                     throw py::value_error("event tolerances must be >= 0");
                  Busy b(c);
-                 c.k.set_event_tolerances(g_tol, f_tol);
+                 c.k.set_event_tolerances(g_tol, f_tol, evt_g_tol, evt_f_tol);
              },
-             py::arg("g_tol"), py::arg("f_tol"))
+             py::arg("g_tol"), py::arg("f_tol"), py::arg("evt_g_tol"), py::arg("evt_f_tol"))
         .def("follow",
              [](PyContact& c, py::handle plate_y, py::handle plate_z, bool every, py::handle lam_out,
                 py::handle u_out, py::handle state_out) -> py::tuple {

@@ -384,6 +384,7 @@ public:
         pu_ = vec(n2_); pl1_ = vec(n2_); pu1_ = vec(n2_); rs_ = vec(n2_); rz_ = vec(n2_); us_ = vec(n2_);
         uz_ = vec(n2_); ukey_sign_ = vec(n); ev_frac_ = vec(4 * n); prev_sign_ = vec(n);
         sv_lam_ = vec(n2_); sv_u_ = vec(n2_); sv_sign_ = vec(n); o_lam_ = vec(n2_); o_u_ = vec(n2_); zunit_ = vec(2 * n2_);
+        fl_lam_ = vec(n2_); fl_u_ = vec(n2_); fl_sign_ = vec(n); fl_state_.assign(n, kContactOpen);
         ukey_state_.assign(n, kContactOpen); ev_kind_.assign(4 * n, 0); prev_state_.assign(n, kContactOpen);
         sv_state_.assign(n, kContactOpen); ev_node_.assign(4 * n, 0);
         seen_.assign(kSeenCap * n, 0); key_.assign(n, 0); seen_resolved_.assign(kSeenCap, false);
@@ -391,6 +392,8 @@ public:
         // forces 1e-12 r H (N/m); set_event_tolerances sets them exactly
         g_tol_ = 1e-3 * w_tol;
         f_tol_ = 0.1 * r * w_tol;
+        evt_g_tol_ = 1e-5 * w_tol;
+        evt_f_tol_ = 1e-4 * r * w_tol;
         reset();
     }
 
@@ -399,7 +402,11 @@ public:
     ContactParams params;
 
     // Gaps (m) and forces (N/m) this close to zero count as zero in the event search.
-    void set_event_tolerances(double g_tol, double f_tol) noexcept { g_tol_ = g_tol; f_tol_ = f_tol; }
+    // evt_g_tol / evt_f_tol: the "decreasing" thresholds of the event search (gaps,
+    // forces); g_tol / f_tol: the cascade's and the cycle rule's zero tests.
+    void set_event_tolerances(double g_tol, double f_tol, double evt_g_tol, double evt_f_tol) noexcept {
+        g_tol_ = g_tol; f_tol_ = f_tol; evt_g_tol_ = evt_g_tol; evt_f_tol_ = evt_f_tol;
+    }
 
     // Back to the undeformed, unloaded state.
     void reset() noexcept {
@@ -449,27 +456,44 @@ public:
     // classification (st, sg) (which must be ws_state_ / ws_sign_: they are used as
     // workspace): active-set iterations, then the damped Newton method if they cycle.
     // The result is in c_lam_, c_u_, c_state_, c_sign_; `it` counts the iterations.
+    // exact: go on while the classification still changes, even once the residual is
+    // within atol (the exact solution of its piece); if the pieces cycle, the first
+    // answer within the tolerance.
     ContactStatus solve_load(std::int8_t* st, double* sg, double plate_z, double plate_y, double ds, double atol,
-                             int& it) noexcept {
+                             int& it, bool exact = false) noexcept {
         const std::size_t n = n_;
         it = 0;
         std::int8_t* nst = ws_state2_.data();
         double* nsg = ws_sign2_.data();
+        bool have_first = false;
         for (int k = 1; k <= params.max_active_set_iter; ++k) {
             it = k;
             const int info = piece_response(st, sg, plate_z, plate_y, ds, c_lam_.data(), c_u_.data());
             if (info != 0) { err_info_ = info; return ContactStatus::singular_piece; }
             const double fmax = classify(c_lam_.data(), c_u_.data(), plate_z, ds, F_.data(), nst, nsg);
-            if (fmax <= atol) {
-                copy8(nst, c_state_.data()); copy(nsg, c_sign_.data());
-                return ContactStatus::ok;
-            }
             bool same = true;
             for (std::size_t i = 0; i < n && same; ++i)
                 same = nst[i] == st[i] && (st[i] != kContactSlip || nsg[i] == sg[i]);
-            if (same) break;  // same piece but not converged: round-off trouble, use Newton
+            if (fmax <= atol) {
+                if (!exact || same) {
+                    copy8(nst, c_state_.data()); copy(nsg, c_sign_.data());
+                    return ContactStatus::ok;
+                }
+                if (!have_first) {
+                    copy(c_lam_.data(), fl_lam_.data(), n2_); copy(c_u_.data(), fl_u_.data(), n2_);
+                    copy8(nst, fl_state_.data()); copy(nsg, fl_sign_.data());
+                    have_first = true;
+                }
+            } else if (same) {
+                break;  // same piece but not converged: round-off trouble, use Newton
+            }
             std::int8_t* ts = st; st = nst; nst = ts;
             double* tg = sg; sg = nsg; nsg = tg;
+        }
+        if (have_first) {
+            copy(fl_lam_.data(), c_lam_.data(), n2_); copy(fl_u_.data(), c_u_.data(), n2_);
+            copy8(fl_state_.data(), c_state_.data()); copy(fl_sign_.data(), c_sign_.data());
+            return ContactStatus::ok;
         }
         int it2 = 0;
         const ContactStatus s = damped_newton(plate_z, ds, atol, it2);
@@ -713,7 +737,7 @@ private:
     // A status change at the current point (the reference's _changed): counted; if
     // the statuses return to a set already met at this point, all of them are decided
     // together by resolve_point; a second return is a cycle (status_cycle).
-    ContactStatus changed(double s1, double z1) noexcept {
+    ContactStatus changed(double tiny_y, double tiny_z) noexcept {
         ++events_;
         std::int8_t* key = key_.data();
         encode_statuses(key);
@@ -722,7 +746,7 @@ private:
             return ContactStatus::ok;
         }
         if (seen_has(key, true)) return cycle_error();
-        const ContactStatus s = resolve_point(s1, z1);
+        const ContactStatus s = resolve_point(tiny_y, tiny_z);
         if (s != ContactStatus::ok) return s;
         encode_statuses(key);
         if (!seen_add(key, true) || !seen_add(key, false)) return cycle_error();
@@ -735,13 +759,13 @@ private:
         return ContactStatus::status_cycle;
     }
 
-    // Statuses at the current point from the Alart-Curnier solve of the step to 1e-6
-    // of the way to (s1, z1) (cones: kinetic on SLIP nodes, static on the others); the
-    // state stays at the current point (the reference's _resolve_point).
-    ContactStatus resolve_point(double s1, double z1) noexcept {
+    // Statuses at the current point from the Alart-Curnier solve of the step (tiny_y,
+    // tiny_z) ahead, 1e-6 of a sample (cones: kinetic on SLIP nodes, static on the
+    // others); the state stays at the current point (the reference's _resolve_point).
+    ContactStatus resolve_point(double tiny_y, double tiny_z) noexcept {
         const std::size_t n = n_;
         const double sc = s_prev_, zc = z_prev_;
-        const double ds = 1e-6 * (s1 - sc), zp = zc + 1e-6 * (z1 - zc);
+        const double ds = tiny_y, zp = zc + tiny_z;
         copy8(state_.data(), prev_state_.data());
         copy(sign_.data(), prev_sign_.data());
         set_path_cones();
@@ -756,7 +780,7 @@ private:
         double* sg = ws_sign_.data();
         copy8(state_.data(), st); copy(sign_.data(), sg);
         int it = 0;
-        const ContactStatus s = solve_load(st, sg, zp, sc + ds, ds, atol, it);
+        const ContactStatus s = solve_load(st, sg, zp, sc + ds, ds, atol, it, true);
         if (s != ContactStatus::ok) { err_y_ = sc + ds; err_z_ = zp; return s; }
         ++solves_;
         const double* u = c_u_.data();
@@ -779,6 +803,7 @@ private:
         std::size_t j = 0;
         const std::size_t ns = L;
         n_seen_ = 0;  // status sets met at the current point
+        const double tiny_y = 1e3 * eps * (s1 - s0), tiny_z = 1e3 * eps * (z1 - z0p);  // 1e-6 of a sample
         if (s1 == s0 && z1 == z0p) {  // the load does not move: nothing slides
             bool any = false;
             for (std::size_t i = 0; i < n; ++i) any |= state_[i] == kContactSlip;
@@ -838,7 +863,7 @@ private:
                     }
                 }
                 if (bad) {
-                    const ContactStatus s = changed(s1, z1);
+                    const ContactStatus s = changed(tiny_y, tiny_z);
                     if (s != ContactStatus::ok) return s;
                     continue;
                 }
@@ -872,7 +897,7 @@ private:
             std::size_t count = 0;
             ContactStatus s = apply_events(n_ev, count);
             if (s != ContactStatus::ok) return s;
-            s = changed(s1, z1);
+            s = changed(tiny_y, tiny_z);
             if (s != ContactStatus::ok) return s;
         }
     }
@@ -887,7 +912,7 @@ private:
         const double mu = params.mu;
         double first = INFINITY;
         for (int kind = 0; kind < 4; ++kind) {
-            const double tol = kind == 0 ? g_tol_ : f_tol_;
+            const double tol = kind == 0 ? evt_g_tol_ : evt_f_tol_;
             for (std::size_t i = 0; i < n; ++i) {
                 const std::int8_t s = state_[i];
                 const bool mask = kind == 0 ? s == kContactOpen : (kind == 1 ? s != kContactOpen : s == kContactStick);
@@ -968,7 +993,7 @@ private:
         copy8(state_.data(), st); copy(sign_.data(), sg);
         for (std::size_t round = 0; round <= n; ++round) {
             int it = 0;
-            const ContactStatus s = solve_load(st, sg, zp, sp, 0.0, atol, it);
+            const ContactStatus s = solve_load(st, sg, zp, sp, 0.0, atol, it, true);
             if (s != ContactStatus::ok) { err_y_ = sp; err_z_ = zp; return s; }
             ++solves_;
             bool broke = false;
@@ -1514,7 +1539,9 @@ private:
     std::vector<bool> seen_resolved_;
     std::size_t n_seen_ = 0;
     double z_prev_ = 0.0, sv_s_ = 0.0, sv_z_ = 0.0, ukey_mu_ = 0.0, ukey_muk_ = 0.0;
-    double g_tol_ = 0.0, f_tol_ = 0.0, err_y_ = 0.0, err_z_ = 0.0;
+    double g_tol_ = 0.0, f_tol_ = 0.0, evt_g_tol_ = 0.0, evt_f_tol_ = 0.0, err_y_ = 0.0, err_z_ = 0.0;
+    std::vector<double> fl_lam_, fl_u_, fl_sign_;  // solve_load(exact): the first answer within tolerance
+    std::vector<std::int8_t> fl_state_;
     bool has_z_ = false, sv_has_z_ = false, unit_valid_ = false;
     long solves_ = 0, events_ = 0, sv_solves_ = 0, sv_events_ = 0;
     double* out_lam_ = nullptr;
