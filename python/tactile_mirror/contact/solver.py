@@ -217,7 +217,8 @@ class ContactSolver:
             self._kernel = _core._ContactSolver(np.ascontiguousarray(C, dtype=np.float64), model.node_z,
                                                 model.weights, self._r, self._w_tol)
             self._kernel.set_params(**self._params)
-            self._kernel.set_event_tolerances(self._g_tol, self._f_tol)
+            self._kernel.set_event_tolerances(self._g_tol, self._f_tol, float(self._evt_tol[0, 0]),
+                                              float(self._evt_tol[1, 0]))
         self.reset()
 
     # Parameters: plain attributes for the user, pushed to the kernel when set.
