@@ -358,17 +358,36 @@ class _ContactSolver:
         self, mu: float, mu_kinetic: float, tol: float, max_iter: int, max_active_set_iter: int
     ) -> None: ...
     def step(
-        self, plate_y: float, plate_z: float
+        self, plate_y: float, plate_z: float, every: bool = True
     ) -> tuple[int, npt.NDArray[np.float64] | None, npt.NDArray[np.float64] | None, npt.NDArray[np.int8] | None,
                float, int]:
-        """(status, forces, displacement, state, slip_fraction, iterations); arrays None unless status is 0."""
+        """(status, forces, displacement, state, slip_fraction, solves); arrays None unless status is 0."""
     def error(self) -> tuple[int, float, float]:
         """(info, residual, tolerance) of the last failed step."""
+    def error_point(self) -> tuple[float, float]:
+        """Load point (plate_y, plate_z) of the last failure inside follow."""
+    @property
+    def solves(self) -> int:
+        """Linear solves of the path following since the last reset."""
+    @property
+    def events(self) -> int:
+        """Points where node statuses changed since the last reset."""
+    def set_event_tolerances(self, g_tol: float, f_tol: float, evt_g_tol: float, evt_f_tol: float) -> None: ...
+    def follow(
+        self,
+        plate_y: npt.ArrayLike,
+        plate_z: npt.ArrayLike,
+        every: bool,
+        lam_out: npt.NDArray[np.float64] | None,
+        u_out: npt.NDArray[np.float64] | None,
+        state_out: npt.NDArray[np.int8] | None,
+    ) -> tuple[int, int, int]:
+        """Event-driven path following over N samples without the GIL; (status, solves, events)."""
     def reset(self) -> None: ...
     def get_history(self) -> dict[str, Any]: ...
     def set_history(
         self, lam: npt.ArrayLike, uy_prev: npt.ArrayLike, s_prev: float, state: npt.ArrayLike, sign: npt.ArrayLike,
-        sliding: npt.ArrayLike,
+        sliding: npt.ArrayLike, z_prev: float | None = None,
     ) -> None: ...
 
 class _ContactPad:
@@ -378,7 +397,7 @@ class _ContactPad:
     @property
     def n_ridges(self) -> int: ...
     def step(
-        self, plate_y: float, plate_z: npt.ArrayLike
+        self, plate_y: float, plate_z: npt.ArrayLike, every: bool = True
     ) -> tuple[int, int, int, npt.NDArray[np.float64] | None, npt.NDArray[np.float64] | None,
                npt.NDArray[np.int8] | None, npt.NDArray[np.float64] | None]:
         """(status, failing ridge, iterations, forces, displacement, state, slip_fraction); committed only if all converged."""
@@ -395,6 +414,19 @@ class _ContactPad:
         """A trajectory of T samples in one call without the GIL, into preallocated arrays
         ((T, n_ridges, 2n), (T, n_ridges, 2n) or None, (T, n_ridges, n), (T, n_ridges), (T,));
         returns (status, failing ridge, steps done)."""
+    def follow(
+        self,
+        plate_y: npt.ArrayLike,
+        plate_z: npt.ArrayLike,
+        every: bool,
+        forces: npt.NDArray[np.float64],
+        displacement: npt.NDArray[np.float64] | None,
+        state: npt.NDArray[np.int8],
+        slip_fraction: npt.NDArray[np.float64] | None,
+        threads: int = 1,
+    ) -> tuple[int, int, int, int]:
+        """Every ridge follows the whole trajectory (on 1 or 2 threads) into preallocated arrays;
+        returns (status, failing ridge, solves, events)."""
 
 def _contact_simd_path() -> str:
     """The variant the contact kernels run, by simd_path()'s names: 'avx2+fma' or the base variant."""

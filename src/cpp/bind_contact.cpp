@@ -2,16 +2,24 @@
 //
 // _core._ContactSolver(compliance, node_z, weights, r, w_tol)   one ridge
 //   set_params(mu, mu_kinetic, tol, max_iter, max_active_set_iter)
-//   step(plate_y, plate_z) -> (status, forces, displacement, state, slip_fraction, iterations)
+//   set_event_tolerances(g_tol, f_tol, evt_g_tol, evt_f_tol)
+//   step(plate_y, plate_z, every=True) -> (status, forces, displacement, state, slip_fraction, iterations)
 //       status 0: the arrays are new copies of the result; else they are None and
-//       error() gives (info, residual, tolerance)
-//   error(), reset(), get_history(), set_history(...)
+//       error() gives (info, residual, tolerance), error_point() the load point (y, z)
+//   follow(plate_y[N], plate_z[N], every, lam_out, u_out, state_out) -> (status, solves, events)
+//       the event-driven path following over a trajectory, without the GIL, into
+//       preallocated arrays (each may be None)
+//   error(), reset(), get_history(), set_history(...), solves, events
 // _core._ContactPad(solvers)   several ridges stepped in one call, without the GIL
-//   step(plate_y, plate_z[n_ridges]) -> (status, ridge, iterations, forces, displacement,
-//       state, slip_fraction); the ridges are committed only if every one converged.
+//   step(plate_y, plate_z[n_ridges], every=True) -> (status, ridge, solves, forces, displacement,
+//       state, slip_fraction); the ridges keep the step only if every one succeeded.
 //   run(plate_y[T], plate_z[T, n_ridges], forces, displacement, state, slip_fraction,
-//       iterations) -> (status, ridge, steps): a whole open-loop trajectory in one call
-//       without the GIL, written into preallocated arrays (no allocation per step).
+//       iterations) -> (status, ridge, steps): the trajectory sample by sample
+//       ("every"), written into preallocated arrays.
+//   follow(plate_y[T], plate_z[T, n_ridges], every, forces, displacement, state,
+//       slip_fraction, threads) -> (status, ridge, solves, events): each ridge follows
+//       the whole trajectory ("auto" or "every"); the ridges are independent, so with
+//       threads = 2 they are split over two threads (same results as one).
 // _contact_simd_path(), _contact_set_baseline(on): the kernel variant (AVX2+FMA or
 //   baseline) and a switch to force the baseline.
 // The Python-facing classes are tactile_mirror.contact.ContactSolver and Pad, which
@@ -24,6 +32,7 @@
 #include <memory>
 #include <stdexcept>
 #include <string>
+#include <thread>
 #include <vector>
 
 #include "contact_solver.hpp"
@@ -79,6 +88,22 @@ py::array_t<std::int8_t> copy_out8(const std::int8_t* p, std::size_t m) {
     return a;
 }
 
+// A preallocated output: None (nullptr) or a writeable C-contiguous array of dtype T
+// with rows * per_row entries and rows on its first axis.
+template <typename T>
+T* out_rows(py::handle h, const char* name, std::size_t rows, std::size_t per_row) {
+    if (h.is_none()) return nullptr;
+    if (!py::isinstance<py::array_t<T>>(h))
+        throw py::type_error(std::string(name) + " must be a numpy array of dtype " +
+                             std::string(py::str(py::dtype::of<T>())));
+    py::array g = py::reinterpret_borrow<py::array>(h);
+    if (!g.writeable() || static_cast<std::size_t>(g.size()) != rows * per_row || !(g.flags() & py::array::c_style) ||
+        g.ndim() < 1 || g.shape(0) != static_cast<py::ssize_t>(rows))
+        throw py::value_error(std::string(name) + " must be a writeable C-contiguous array of " + std::to_string(rows) +
+                              " x " + std::to_string(per_row) + " entries");
+    return static_cast<T*>(g.mutable_data());
+}
+
 }  // namespace
 
 void tm_bind_contact(py::module_& m) {
@@ -114,21 +139,63 @@ void tm_bind_contact(py::module_& m) {
              py::arg("mu"), py::arg("mu_kinetic"), py::arg("tol"), py::arg("max_iter"),
              py::arg("max_active_set_iter"))
         .def("step",
-             [](PyContact& c, double plate_y, double plate_z) -> py::tuple {
+             [](PyContact& c, double plate_y, double plate_z, bool every) -> py::tuple {
                  Busy b(c);
-                 const ContactStatus s = c.k.step(plate_y, plate_z);
+                 const ContactStatus s = c.k.step(plate_y, plate_z, every);
                  if (s != ContactStatus::ok)
                      return py::make_tuple(static_cast<int>(s), py::none(), py::none(), py::none(), 0.0, 0);
                  const std::size_t n = c.k.n_nodes();
                  return py::make_tuple(0, copy_out(c.k.forces(), 2 * n), copy_out(c.k.displacement(), 2 * n),
                                        copy_out8(c.k.reported_state(), n), c.k.slip_fraction(), c.k.iterations());
              },
-             py::arg("plate_y"), py::arg("plate_z"))
+             py::arg("plate_y"), py::arg("plate_z"), py::arg("every") = true)
         .def("error",
              [](const PyContact& c) {
                  return py::make_tuple(c.k.error_info(), c.k.error_residual(), c.k.error_tolerance());
              },
              "(info, residual, tolerance) of the last failed step")
+        .def("error_point", [](const PyContact& c) { return py::make_tuple(c.k.error_y(), c.k.error_z()); },
+             "load point (plate_y, plate_z) of the last failure inside follow (cascade or status cycle)")
+        .def_property_readonly("solves", [](const PyContact& c) { return c.k.solves(); },
+                               "linear solves of the path following since the last reset")
+        .def_property_readonly("events", [](const PyContact& c) { return c.k.events(); },
+                               "points where node statuses changed since the last reset")
+        .def("set_event_tolerances",
+             [](PyContact& c, double g_tol, double f_tol, double evt_g_tol, double evt_f_tol) {
+                 if (!(g_tol >= 0) || !(f_tol >= 0) || !(evt_g_tol >= 0) || !(evt_f_tol >= 0))
+                     throw py::value_error("event tolerances must be >= 0");
+                 Busy b(c);
+                 c.k.set_event_tolerances(g_tol, f_tol, evt_g_tol, evt_f_tol);
+             },
+             py::arg("g_tol"), py::arg("f_tol"), py::arg("evt_g_tol"), py::arg("evt_f_tol"))
+        .def("follow",
+             [](PyContact& c, py::handle plate_y, py::handle plate_z, bool every, py::handle lam_out,
+                py::handle u_out, py::handle state_out) -> py::tuple {
+                 const std::size_t n = c.k.n_nodes();
+                 F64 y = F64::ensure(plate_y), z = F64::ensure(plate_z);
+                 if (!y || y.ndim() != 1) throw py::value_error("plate_y must be a 1-D array");
+                 const std::size_t N = static_cast<std::size_t>(y.shape(0));
+                 if (!z || z.ndim() != 1 || static_cast<std::size_t>(z.shape(0)) != N)
+                     throw py::value_error("plate_z must have the shape of plate_y");
+                 double* lo = out_rows<double>(lam_out, "lam_out", N, 2 * n);
+                 double* uo = out_rows<double>(u_out, "u_out", N, 2 * n);
+                 std::int8_t* so = out_rows<std::int8_t>(state_out, "state_out", N, n);
+                 Busy b(c);
+                 const long s0 = c.k.solves(), e0 = c.k.events();
+                 ContactStatus st;
+                 {
+                     py::gil_scoped_release nogil;
+                     st = c.k.follow(y.data(), z.data(), N, every, lo, uo, so, 2 * n, n);
+                 }
+                 return py::make_tuple(static_cast<int>(st), c.k.solves() - s0, c.k.events() - e0);
+             },
+             py::arg("plate_y"), py::arg("plate_z"), py::arg("every"), py::arg("lam_out"), py::arg("u_out"),
+             py::arg("state_out"),
+             "Follow the samples (plate_y[k], plate_z[k]) from the current state: every=True solves at every "
+             "sample, False only at events. Rows k of lam_out, u_out ((N, 2n) float64) and state_out ((N, n) "
+             "int8), each None or a writeable C-contiguous array, get the forces (lt, ln), displacements and "
+             "statuses of sample k. Returns (status, solves, events); on status != 0 the history is unchanged "
+             "(error() and error_point() give the details; for status 1 error()[0] is the sample).")
         .def("reset",
              [](PyContact& c) {
                  Busy b(c);
@@ -138,19 +205,20 @@ void tm_bind_contact(py::module_& m) {
              [](const PyContact& c) {
                  const std::size_t n = c.k.n_nodes();
                  py::array_t<bool> sliding(static_cast<py::ssize_t>(n));
-                 for (std::size_t i = 0; i < n; ++i) sliding.mutable_data()[i] = c.k.sliding()[i] != 0;
+                 for (std::size_t i = 0; i < n; ++i) sliding.mutable_data()[i] = c.k.state()[i] == tactile::kContactSlip;
                  py::dict d;
                  d["lam"] = copy_out(c.k.lam(), 2 * n);
-                 d["uy_prev"] = copy_out(c.k.uy_prev(), n);
+                 d["uy_prev"] = copy_out(c.k.path_displacement(), n);
                  d["s_prev"] = c.k.s_prev();
                  d["state"] = copy_out8(c.k.state(), n);
                  d["sign"] = copy_out(c.k.sign(), n);
                  d["sliding"] = sliding;
+                 d["z_prev"] = c.k.placed() ? py::object(py::float_(c.k.z_prev())) : py::object(py::none());
                  return d;
              })
         .def("set_history",
              [](PyContact& c, py::handle lam, py::handle uy_prev, double s_prev, py::handle state, py::handle sign,
-                py::handle sliding) {
+                py::handle sliding, py::object z_prev) {
                  const std::size_t n = c.k.n_nodes();
                  F64 l = vector_arg(lam, 2 * n, "lam"), u = vector_arg(uy_prev, n, "uy_prev"),
                      sg = vector_arg(sign, n, "sign");
@@ -162,11 +230,15 @@ void tm_bind_contact(py::module_& m) {
                      throw py::value_error("sliding must have shape (" + std::to_string(n) + ",)");
                  for (std::size_t i = 0; i < n; ++i)
                      if (st.data()[i] < 0 || st.data()[i] > 2) throw py::value_error("state entries must be 0, 1 or 2");
+                 const bool has_z = !z_prev.is_none();
+                 const double zp = has_z ? z_prev.cast<double>() : 0.0;
                  Busy b(c);
-                 c.k.set_history(l.data(), u.data(), sg.data(), st.data(), sl.data(), s_prev);
+                 // uy_prev and sliding are checked but derived: the displacements are C P lam,
+                 // the sliding nodes those with the status SLIP
+                 c.k.set_path_history(l.data(), sg.data(), st.data(), s_prev, has_z, zp);
              },
              py::arg("lam"), py::arg("uy_prev"), py::arg("s_prev"), py::arg("state"), py::arg("sign"),
-             py::arg("sliding"));
+             py::arg("sliding"), py::arg("z_prev") = py::none());
 
     struct PyContactPad {
         std::vector<std::shared_ptr<PyContact>> ridges;
@@ -189,7 +261,7 @@ void tm_bind_contact(py::module_& m) {
              py::arg("solvers"))
         .def_property_readonly("n_ridges", [](const PyContactPad& p) { return p.ridges.size(); })
         .def("step",
-             [](PyContactPad& p, double plate_y, py::handle plate_z) -> py::tuple {
+             [](PyContactPad& p, double plate_y, py::handle plate_z, bool every) -> py::tuple {
                  const std::size_t R = p.ridges.size(), n = p.n;
                  F64 z = vector_arg(plate_z, R, "plate_z");
                  std::vector<Busy> locks;
@@ -209,28 +281,28 @@ void tm_bind_contact(py::module_& m) {
                  long its = 0;
                  {
                      py::gil_scoped_release nogil;
-                     for (std::size_t k = 0; k < R && status == ContactStatus::ok; ++k) {
-                         status = p.ridges[k]->k.solve(plate_y, zp[k]);
-                         bad = k;
+                     std::size_t k = 0;
+                     for (; k < R; ++k) {
+                         ContactSolverKernel& s = p.ridges[k]->k;
+                         const long s0 = s.solves();
+                         status = s.follow(&plate_y, zp + k, 1, every, fo + k * 2 * n, dout + k * 2 * n, so + k * n,
+                                           0, 0);
+                         if (status != ContactStatus::ok) break;
+                         its += s.solves() - s0;
+                         s.report(fo + k * 2 * n, so + k * n, fo + k * 2 * n, fr[k]);
                      }
-                     if (status == ContactStatus::ok) {
-                         for (std::size_t k = 0; k < R; ++k) {
-                             ContactSolverKernel& s = p.ridges[k]->k;
-                             s.commit();
-                             std::memcpy(fo + k * 2 * n, s.forces(), 2 * n * sizeof(double));
-                             std::memcpy(dout + k * 2 * n, s.displacement(), 2 * n * sizeof(double));
-                             std::memcpy(so + k * n, s.reported_state(), n);
-                             fr[k] = s.slip_fraction();
-                             its += s.iterations();
-                         }
-                     }
+                     bad = k;
+                     if (status != ContactStatus::ok)  // the ridges before the failing one step back
+                         for (std::size_t q = 0; q < k; ++q) p.ridges[q]->k.restore();
                  }
                  if (status != ContactStatus::ok)
                      return py::make_tuple(static_cast<int>(status), bad, 0, py::none(), py::none(), py::none(),
                                            py::none());
                  return py::make_tuple(0, 0, its, forces, disp, state, frac);
              },
-             py::arg("plate_y"), py::arg("plate_z"))
+             py::arg("plate_y"), py::arg("plate_z"), py::arg("every") = true,
+             "One sample for every ridge (every=False: from the unit responses while no status changes); "
+             "the ridges keep it only if every one succeeded.")
         .def("run",
              [](PyContactPad& p, py::handle plate_y, py::handle plate_z, py::handle forces, py::handle disp,
                 py::handle state, py::handle frac, py::handle iterations) -> py::tuple {
@@ -243,56 +315,41 @@ void tm_bind_contact(py::module_& m) {
                      static_cast<std::size_t>(z.shape(1)) != R)
                      throw py::value_error("plate_z must have shape (" + std::to_string(T) + ", " +
                                            std::to_string(R) + ")");
-                 auto out = [&](py::handle h, const char* name, std::size_t per_step, auto tag) {
-                     using A = py::array_t<decltype(tag), py::array::c_style>;
-                     if (!py::isinstance<py::array_t<decltype(tag)>>(h))
-                         throw py::type_error(std::string(name) + " must be a numpy array of dtype " +
-                                              std::string(py::str(py::dtype::of<decltype(tag)>())));
-                     const py::array g = py::reinterpret_borrow<py::array>(h);
-                     if (!g.writeable() || static_cast<std::size_t>(g.size()) != T * per_step ||
-                         !(g.flags() & py::array::c_style) || g.ndim() < 1 ||
-                         g.shape(0) != static_cast<py::ssize_t>(T))
-                         throw py::value_error(std::string(name) + " must be a writeable C-contiguous array of " +
-                                               std::to_string(T) + " x " + std::to_string(per_step) + " entries");
-                     return py::reinterpret_borrow<A>(h);
-                 };
-                 auto fo = out(forces, "forces", R * 2 * n, double{});
-                 const bool want_disp = !disp.is_none();
-                 py::array_t<double, py::array::c_style> dis;
-                 if (want_disp) dis = out(disp, "displacement", R * 2 * n, double{});
-                 auto so = out(state, "state", R * n, std::int8_t{});
-                 auto fr = out(frac, "slip_fraction", R, double{});
-                 auto io = out(iterations, "iterations", 1, std::int32_t{});
+                 if (forces.is_none()) throw py::type_error("forces must be a numpy array of dtype float64");
+                 double* fop = out_rows<double>(forces, "forces", T, R * 2 * n);
+                 double* dop = out_rows<double>(disp, "displacement", T, R * 2 * n);
+                 if (state.is_none()) throw py::type_error("state must be a numpy array of dtype int8");
+                 std::int8_t* sop = out_rows<std::int8_t>(state, "state", T, R * n);
+                 if (frac.is_none()) throw py::type_error("slip_fraction must be a numpy array of dtype float64");
+                 double* frp = out_rows<double>(frac, "slip_fraction", T, R);
+                 if (iterations.is_none()) throw py::type_error("iterations must be a numpy array of dtype int32");
+                 std::int32_t* iop = out_rows<std::int32_t>(iterations, "iterations", T, 1);
                  std::vector<Busy> locks;
                  locks.reserve(R);
                  for (auto& r : p.ridges) locks.emplace_back(*r);
                  const double* yp = y.data();
                  const double* zp = z.data();
-                 double* fop = fo.mutable_data();
-                 double* dop = want_disp ? dis.mutable_data() : nullptr;
-                 std::int8_t* sop = so.mutable_data();
-                 double* frp = fr.mutable_data();
-                 std::int32_t* iop = io.mutable_data();
                  ContactStatus status = ContactStatus::ok;
                  std::size_t bad = 0, done = 0;
                  {
                      py::gil_scoped_release nogil;
-                     for (std::size_t t = 0; t < T; ++t) {
-                         for (std::size_t k = 0; k < R && status == ContactStatus::ok; ++k) {
-                             status = p.ridges[k]->k.solve(yp[t], zp[t * R + k]);
-                             bad = k;
-                         }
-                         if (status != ContactStatus::ok) break;
+                     for (std::size_t t = 0; t < T && status == ContactStatus::ok; ++t) {
                          long its = 0;
-                         for (std::size_t k = 0; k < R; ++k) {
+                         std::size_t k = 0;
+                         for (; k < R; ++k) {
                              ContactSolverKernel& s = p.ridges[k]->k;
-                             s.commit();
                              const std::size_t o = t * R + k;
-                             std::memcpy(fop + o * 2 * n, s.forces(), 2 * n * sizeof(double));
-                             if (dop) std::memcpy(dop + o * 2 * n, s.displacement(), 2 * n * sizeof(double));
-                             std::memcpy(sop + o * n, s.reported_state(), n);
-                             frp[o] = s.slip_fraction();
-                             its += s.iterations();
+                             const long s0 = s.solves();
+                             status = s.follow(yp + t, zp + t * R + k, 1, true, fop + o * 2 * n,
+                                               dop ? dop + o * 2 * n : nullptr, sop + o * n, 0, 0);
+                             if (status != ContactStatus::ok) break;
+                             its += s.solves() - s0;
+                             s.report(fop + o * 2 * n, sop + o * n, fop + o * 2 * n, frp[o]);
+                         }
+                         if (status != ContactStatus::ok) {
+                             bad = k;
+                             for (std::size_t q = 0; q < k; ++q) p.ridges[q]->k.restore();
+                             break;
                          }
                          iop[t] = static_cast<std::int32_t>(its);
                          done = t + 1;
@@ -302,11 +359,84 @@ void tm_bind_contact(py::module_& m) {
              },
              py::arg("plate_y"), py::arg("plate_z"), py::arg("forces"), py::arg("displacement"), py::arg("state"),
              py::arg("slip_fraction"), py::arg("iterations"),
-             "Step every ridge through a whole trajectory without the GIL, into preallocated C-contiguous "
-             "arrays: forces and displacement (T, n_ridges, 2n) float64 (displacement may be None), state "
-             "(T, n_ridges, n) int8, slip_fraction (T, n_ridges) float64, iterations (T,) int32. Returns "
-             "(status, ridge, steps): the steps done; on a failure (status != 0) at step `steps`, the ridges "
-             "hold the history after the last good step.");
+             "Step every ridge through a whole trajectory sample by sample (stepping 'every') without the GIL, "
+             "into preallocated C-contiguous arrays: forces and displacement (T, n_ridges, 2n) float64 "
+             "(displacement may be None), state (T, n_ridges, n) int8, slip_fraction (T, n_ridges) float64, "
+             "iterations (T,) int32 (the solves of each sample). Returns (status, ridge, steps): the steps done; "
+             "on a failure (status != 0) at step `steps`, the ridges hold the history after the last good step.")
+        .def("follow",
+             [](PyContactPad& p, py::handle plate_y, py::handle plate_z, bool every, py::handle forces,
+                py::handle disp, py::handle state, py::handle frac, int threads) -> py::tuple {
+                 const std::size_t R = p.ridges.size(), n = p.n;
+                 F64 y = F64::ensure(plate_y);
+                 if (!y || y.ndim() != 1) throw py::value_error("plate_y must be a 1-D array");
+                 const std::size_t T = static_cast<std::size_t>(y.shape(0));
+                 F64 z = F64::ensure(plate_z);
+                 if (!z || z.ndim() != 2 || static_cast<std::size_t>(z.shape(0)) != T ||
+                     static_cast<std::size_t>(z.shape(1)) != R)
+                     throw py::value_error("plate_z must have shape (" + std::to_string(T) + ", " +
+                                           std::to_string(R) + ")");
+                 if (threads < 1) throw py::value_error("threads must be >= 1");
+                 double* fop = out_rows<double>(forces, "forces", T, R * 2 * n);
+                 double* dop = out_rows<double>(disp, "displacement", T, R * 2 * n);
+                 std::int8_t* sop = out_rows<std::int8_t>(state, "state", T, R * n);
+                 double* frp = out_rows<double>(frac, "slip_fraction", T, R);
+                 if (!fop || !sop) throw py::type_error("forces and state must be numpy arrays");
+                 // the ridge's plate heights, contiguous
+                 std::vector<double> zr(T * R);
+                 for (std::size_t t = 0; t < T; ++t)
+                     for (std::size_t k = 0; k < R; ++k) zr[k * T + t] = z.data()[t * R + k];
+                 std::vector<Busy> locks;
+                 locks.reserve(R);
+                 for (auto& r : p.ridges) locks.emplace_back(*r);
+                 std::vector<ContactStatus> st(R, ContactStatus::ok);
+                 long s0 = 0, e0 = 0;
+                 for (auto& r : p.ridges) { s0 += r->k.solves(); e0 += r->k.events(); }
+                 const double* yp = y.data();
+                 auto ridge = [&](std::size_t k) {
+                     ContactSolverKernel& s = p.ridges[k]->k;
+                     st[k] = s.follow(yp, zr.data() + k * T, T, every, fop + k * 2 * n, dop ? dop + k * 2 * n : nullptr,
+                                      sop + k * n, R * 2 * n, R * n);
+                     if (st[k] != ContactStatus::ok) return;
+                     for (std::size_t t = 0; t < T; ++t) {
+                         const std::size_t o = t * R + k;
+                         double fr = 0.0;
+                         s.report(fop + o * 2 * n, sop + o * n, fop + o * 2 * n, fr);
+                         if (frp) frp[o] = fr;
+                     }
+                 };
+                 {
+                     py::gil_scoped_release nogil;
+                     if (threads >= 2 && R >= 2) {
+                         // ridges are independent: the upper half on a second thread
+                         const std::size_t half = (R + 1) / 2;
+                         std::thread other([&] { for (std::size_t k = half; k < R; ++k) ridge(k); });
+                         for (std::size_t k = 0; k < half; ++k) ridge(k);
+                         other.join();
+                     } else {
+                         for (std::size_t k = 0; k < R; ++k) ridge(k);
+                     }
+                 }
+                 std::size_t bad = R;
+                 for (std::size_t k = 0; k < R && bad == R; ++k)
+                     if (st[k] != ContactStatus::ok) bad = k;
+                 if (bad < R) {  // all ridges back to where they were
+                     for (std::size_t k = 0; k < R; ++k)
+                         if (st[k] == ContactStatus::ok) p.ridges[k]->k.restore();
+                     return py::make_tuple(static_cast<int>(st[bad]), bad, 0, 0);
+                 }
+                 long s1 = 0, e1 = 0;
+                 for (auto& r : p.ridges) { s1 += r->k.solves(); e1 += r->k.events(); }
+                 return py::make_tuple(0, 0, s1 - s0, e1 - e0);
+             },
+             py::arg("plate_y"), py::arg("plate_z"), py::arg("every"), py::arg("forces"), py::arg("displacement"),
+             py::arg("state"), py::arg("slip_fraction"), py::arg("threads") = 1,
+             "Every ridge follows the whole trajectory (every=True: a solve at every sample; False: at events "
+             "only) without the GIL, into preallocated C-contiguous arrays: forces and displacement (T, n_ridges, "
+             "2n) float64 (forces f = (lt, -ln); displacement and slip_fraction may be None), state (T, n_ridges, "
+             "n) int8, slip_fraction (T, n_ridges). threads=2 splits the ridges over two threads (the ridges are "
+             "independent: same results). Returns (status, ridge, solves, events); on a failure (status != 0, of "
+             "the first failing ridge) every ridge keeps the history it had before the call.");
     m.def("_contact_simd_path", [] { return std::string(tactile::contact_simd_path()); },
           "The variant the contact kernels run, by simd_path()'s names: 'avx2+fma' or the base variant.");
     m.def("_contact_set_baseline", [](bool on) { tactile::set_contact_baseline(on); }, py::arg("on"),

@@ -1,34 +1,38 @@
 // Frictional contact of one ridge with a rigid plate on the condensed surface
-// compliance: the primal-dual active-set (semismooth Newton) step of
-// tactile_mirror/contact/solver.py, with its damped-Newton fallback.
+// compliance: the event-driven path following of tactile_mirror/contact/solver.py
+// (ContactSolver.follow / step), with its breakaway cascade solved by the
+// primal-dual active-set (semismooth Newton) iteration and its damped-Newton fallback.
 //
-// The algorithm, the stopping rule, the classification and the reported state are
+// The algorithm, its tolerances, the classification and the reported state are
 // those of the Python reference (ContactSolver(backend="python")); see its module
-// docstring for the equations. Here:
+// docstring ("Event-driven path following") for the equations. Here:
 //
 // * sizes are fixed at construction (n contact nodes, 2n unknowns) and every
-//   workspace is allocated there; `solve`, `commit` and `step` allocate nothing,
-//   take no lock, make no system call and throw nothing: they return a
-//   ContactStatus;
-// * a step is two phases: `solve` computes the new state into candidate buffers and
-//   leaves the committed contact history untouched (only the LU cache, which is
-//   keyed by the piece it factors, may change); `commit` accepts it. A failed step
-//   therefore leaves the solver as it was, and a pad commits its ridges only when
-//   all of them converged;
+//   workspace is allocated there; `follow` and `step` allocate nothing, take no lock,
+//   make no system call and throw nothing: they return a ContactStatus;
+// * `follow` saves the history at its start and restores it on an error, so a failed
+//   call leaves the solver as it was; a pad undoes the ridges that succeeded with
+//   `restore`;
+// * the friction law is the rate-independent one of the reference: a node that
+//   breaks away drops to the kinetic cone at the breakaway point, and the load it
+//   sheds is carried at that same load (the breakaway cascade, `cascade`);
 // * the pieces are separate functions (classification, the piece system and its
-//   factorisation, the triangular solve, the Newton residual and Jacobian) so that
-//   path-following steppers can call them directly.
+//   factorisation, the triangular solve, the Newton residual and Jacobian).
 //
 // The dense LU is partial pivoting (row-major, blocked right-looking). A pivot that
 // is exactly zero is a singular system, as LAPACK getrf reports it. Factors are
 // reused while the piece (classification and slip coefficients) is unchanged; a piece
 // that differs from the factored one in a few nodes (the slip front moved by a node)
 // is solved by bordering the factored one (a Schur complement of at most 16 rows and
-// columns, plus one step of iterative refinement), so refactorisations are rare
-// (fig6: 41 factorisations and 611 bordered updates in 2000 steps, against 652
-// factorisations in the Python reference). Within one piece the response is affine in
-// the plate position; a piece met a third time is served from its reference solution
-// and its responses to unit plate motions in O(n) (piece_response).
+// columns), so refactorisations are rare. The base solves of the unit right-hand
+// sides (the responses to a unit plate motion) are kept with the base, so the unit
+// responses of a bordered piece cost O(m nb) besides their compliance products. No
+// iterative refinement: the bordered solves agree with the reference's fresh LAPACK
+// factorisations as closely as the reference's two stepping modes agree with each
+// other (tests/test_contact_cpp.py). Within one piece the response is affine in the
+// plate position; the active-set iteration of the breakaway cascade serves a piece met
+// a third time from its reference solution and unit responses in O(n)
+// (piece_response).
 #pragma once
 
 #include <cmath>
@@ -47,6 +51,7 @@ enum class ContactStatus : int {
     singular_piece = 2,       // the active-set system has a zero pivot (info: its 1-based row)
     singular_jacobian = 3,    // the damped-Newton Jacobian has a zero pivot (info: Newton iteration)
     no_convergence = 4,       // max_iter damped-Newton iterations without reaching the tolerance
+    status_cycle = 5,         // path following: the statuses at one load point cycle (info: sets met)
 };
 
 enum : std::int8_t { kContactOpen = 0, kContactStick = 1, kContactSlip = 2 };
@@ -376,6 +381,19 @@ public:
         aff_uy_ = vec(n2_); aff_v_ = vec(n);
         key_state_.assign(n, kContactOpen); key_coef_ = vec(n);
         slip_coef_ = vec(n);
+        pu_ = vec(n2_); pl1_ = vec(n2_); pu1_ = vec(n2_); rs_ = vec(n2_); rz_ = vec(n2_); us_ = vec(n2_);
+        uz_ = vec(n2_); ukey_sign_ = vec(n); ev_frac_ = vec(4 * n); prev_sign_ = vec(n);
+        sv_lam_ = vec(n2_); sv_u_ = vec(n2_); sv_sign_ = vec(n); o_lam_ = vec(n2_); o_u_ = vec(n2_); zunit_ = vec(2 * n2_);
+        fl_lam_ = vec(n2_); fl_u_ = vec(n2_); fl_sign_ = vec(n); fl_state_.assign(n, kContactOpen);
+        ukey_state_.assign(n, kContactOpen); ev_kind_.assign(4 * n, 0); prev_state_.assign(n, kContactOpen);
+        sv_state_.assign(n, kContactOpen); ev_node_.assign(4 * n, 0);
+        seen_.assign(kSeenCap * n, 0); key_.assign(n, 0); seen_resolved_.assign(kSeenCap, false);
+        // event tolerances of the reference for w_tol = 1e-11 H: gaps 1e-14 H (m),
+        // forces 1e-12 r H (N/m); set_event_tolerances sets them exactly
+        g_tol_ = 1e-3 * w_tol;
+        f_tol_ = 0.1 * r * w_tol;
+        evt_g_tol_ = 1e-5 * w_tol;
+        evt_f_tol_ = 1e-4 * r * w_tol;
         reset();
     }
 
@@ -383,8 +401,18 @@ public:
     double r() const noexcept { return r_; }
     ContactParams params;
 
+    // Gaps (m) and forces (N/m) this close to zero count as zero in the event search.
+    // evt_g_tol / evt_f_tol: the "decreasing" thresholds of the event search (gaps,
+    // forces); g_tol / f_tol: the cascade's and the cycle rule's zero tests.
+    void set_event_tolerances(double g_tol, double f_tol, double evt_g_tol, double evt_f_tol) noexcept {
+        g_tol_ = g_tol; f_tol_ = f_tol; evt_g_tol_ = evt_g_tol; evt_f_tol_ = evt_f_tol;
+    }
+
     // Back to the undeformed, unloaded state.
     void reset() noexcept {
+        fill(pu_, 0.0);
+        z_prev_ = 0.0; has_z_ = false; unit_valid_ = false;
+        solves_ = 0; events_ = 0;
         fill(lam_, 0.0); fill(uy_prev_, 0.0); fill(sign_, 0.0);
         fill8(state_, kContactOpen); fill8(sliding_, 0);
         s_prev_ = 0.0;
@@ -393,89 +421,91 @@ public:
         has_candidate_ = false;
     }
 
-    // One step: solve, then commit on success.
-    ContactStatus step(double plate_y, double plate_z) noexcept {
-        const ContactStatus s = solve(plate_y, plate_z);
-        if (s == ContactStatus::ok) commit();
+    // One step of the path following to the plate position (plate_y, plate_z), the
+    // load moving linearly from the last one, every event resolved at its point (the
+    // reference's ContactSolver.step, every = true; every = false takes the end of the
+    // step from the piece's unit responses, O(n) while no status changes); the
+    // results are read with forces(), displacement(), reported_state(),
+    // slip_fraction() and iterations() (the solves it took). On an error the history
+    // is unchanged.
+    ContactStatus step(double plate_y, double plate_z, bool every = true) noexcept {
+        const long s0 = solves_;
+        const ContactStatus s = follow(&plate_y, &plate_z, 1, every, o_lam_.data(), o_u_.data(), c_reported_.data(),
+                                       0, 0);
+        if (s != ContactStatus::ok) return s;
+        report(o_lam_.data(), c_reported_.data(), c_forces_.data(), c_frac_);
+        c_iterations_ = static_cast<int>(solves_ - s0);
         return s;
     }
 
-    // Phase 1: the new contact state for the plate at (plate_y, plate_z) into the
-    // candidate buffers; the committed history is not touched.
-    ContactStatus solve(double plate_y, double plate_z) noexcept {
-        has_candidate_ = false;
-        err_info_ = 0; err_residual_ = 0.0; err_atol_ = 0.0;
-        if (!(std::isfinite(plate_y) && std::isfinite(plate_z))) return ContactStatus::non_finite_position;
+    // forces f = (lt, -ln) and the slip fraction (weight of SLIP nodes over the weight
+    // of touching nodes) of the forces lam and statuses st of one sample
+    void report(const double* lam, const std::int8_t* st, double* forces, double& frac) const noexcept {
         const std::size_t n = n_;
-        const double ds = plate_y - s_prev_;
-        for (std::size_t i = 0; i < n; ++i) mu_node_[i] = sliding_[i] ? params.mu_kinetic : params.mu;
-        bool any_lam = false;
-        for (std::size_t i = 0; i < n2_; ++i) any_lam |= lam_[i] != 0.0;
-        if (z0_max_ <= plate_z && !any_lam) {  // the plate does not reach the ridge
-            fill(c_lam_, 0.0); fill(c_u_, 0.0); fill(c_sign_, 0.0); fill8(c_state_, kContactOpen);
-            finish(plate_y, 0);
-            return ContactStatus::ok;
+        double total = 0.0, slipping = 0.0;
+        for (std::size_t i = 0; i < n; ++i) {
+            forces[i] = lam[i];
+            forces[n + i] = -lam[n + i];
+            if (st[i] != kContactOpen) total += w_[i];
+            if (st[i] == kContactSlip) slipping += w_[i];
         }
-        double uy_max = 0.0;
-        for (std::size_t i = 0; i < n; ++i) uy_max = std::fmax(uy_max, std::fabs(uy_prev_[i]));
-        double scale_len = z0_max_ - plate_z;
-        if (1e-9 > scale_len) scale_len = 1e-9;
-        if (uy_max > scale_len) scale_len = uy_max;
-        const double atol = params.tol * (r_ * scale_len);
+        frac = total > 0 ? slipping / total : 0.0;
+    }
 
-        std::int8_t* st = ws_state_.data();
-        double* sg = ws_sign_.data();
-        bool any_active = false;
-        for (std::size_t i = 0; i < n; ++i) { st[i] = state_[i]; sg[i] = sign_[i]; any_active |= st[i] != kContactOpen; }
-        if (!any_active) {  // first contact: the nodes the plate penetrates, stuck
-            bool any = false;
-            for (std::size_t i = 0; i < n; ++i) { st[i] = z0_[i] > plate_z ? kContactStick : kContactOpen; any |= st[i] != 0; }
-            if (!any) st[argmax_z0_] = kContactStick;
-        }
-        int it = 0;
+    // Solve the step to (plate_y, plate_z) with the cones mu_node_, from the
+    // classification (st, sg) (which must be ws_state_ / ws_sign_: they are used as
+    // workspace): active-set iterations, then the damped Newton method if they cycle.
+    // The result is in c_lam_, c_u_, c_state_, c_sign_; `it` counts the iterations.
+    // exact: go on while the classification still changes, even once the residual is
+    // within atol (the exact solution of its piece); if the pieces cycle, the first
+    // answer within the tolerance.
+    ContactStatus solve_load(std::int8_t* st, double* sg, double plate_z, double plate_y, double ds, double atol,
+                             int& it, bool exact = false) noexcept {
+        const std::size_t n = n_;
+        it = 0;
         std::int8_t* nst = ws_state2_.data();
         double* nsg = ws_sign2_.data();
+        bool have_first = false;
         for (int k = 1; k <= params.max_active_set_iter; ++k) {
             it = k;
             const int info = piece_response(st, sg, plate_z, plate_y, ds, c_lam_.data(), c_u_.data());
             if (info != 0) { err_info_ = info; return ContactStatus::singular_piece; }
             const double fmax = classify(c_lam_.data(), c_u_.data(), plate_z, ds, F_.data(), nst, nsg);
-            if (fmax <= atol) {
-                copy8(nst, c_state_.data()); copy(nsg, c_sign_.data());
-                finish(plate_y, it);
-                return ContactStatus::ok;
-            }
             bool same = true;
             for (std::size_t i = 0; i < n && same; ++i)
                 same = nst[i] == st[i] && (st[i] != kContactSlip || nsg[i] == sg[i]);
-            if (same) break;  // same piece but not converged: round-off trouble, use Newton
+            if (fmax <= atol) {
+                if (!exact || same) {
+                    copy8(nst, c_state_.data()); copy(nsg, c_sign_.data());
+                    return ContactStatus::ok;
+                }
+                if (!have_first) {
+                    copy(c_lam_.data(), fl_lam_.data(), n2_); copy(c_u_.data(), fl_u_.data(), n2_);
+                    copy8(nst, fl_state_.data()); copy(nsg, fl_sign_.data());
+                    have_first = true;
+                }
+            } else if (same) {
+                break;  // same piece but not converged: round-off trouble, use Newton
+            }
             std::int8_t* ts = st; st = nst; nst = ts;
             double* tg = sg; sg = nsg; nsg = tg;
         }
+        if (have_first) {
+            copy(fl_lam_.data(), c_lam_.data(), n2_); copy(fl_u_.data(), c_u_.data(), n2_);
+            copy8(fl_state_.data(), c_state_.data()); copy(fl_sign_.data(), c_sign_.data());
+            return ContactStatus::ok;
+        }
         int it2 = 0;
         const ContactStatus s = damped_newton(plate_z, ds, atol, it2);
+        it += it2;
         if (s != ContactStatus::ok) return s;
         classify(c_lam_.data(), c_u_.data(), plate_z, ds, F_.data(), c_state_.data(), c_sign_.data());
-        finish(plate_y, it + it2);
         return ContactStatus::ok;
-    }
-
-    // Phase 2: accept the candidate of the last successful solve.
-    void commit() noexcept {
-        if (!has_candidate_) return;
-        const std::size_t n = n_;
-        copy(c_lam_.data(), lam_.data(), n2_);
-        copy8(c_state_.data(), state_.data());
-        for (std::size_t i = 0; i < n; ++i) sliding_[i] = c_reported_[i] == kContactSlip;
-        copy(c_sign_.data(), sign_.data());
-        copy(c_u_.data(), uy_prev_.data());
-        s_prev_ = c_plate_y_;
-        has_candidate_ = false;
     }
 
     // ---- results of the last solve (valid after it returned ok; kept by commit)
     const double* forces() const noexcept { return c_forces_.data(); }        // (2n) f = (lt, -ln), N/m
-    const double* displacement() const noexcept { return c_u_.data(); }       // (2n) (u_y, u_z), m
+    const double* displacement() const noexcept { return o_u_.data(); }       // (2n) (u_y, u_z), m
     const std::int8_t* reported_state() const noexcept { return c_reported_.data(); }  // (n)
     double slip_fraction() const noexcept { return c_frac_; }
     int iterations() const noexcept { return c_iterations_; }
@@ -506,6 +536,503 @@ public:
         aff_stage_ = 0;
         has_candidate_ = false;
     }
+
+    // ---- event-driven path following (the Python reference's ContactSolver.follow)
+    //
+    // Between two samples the plate moves linearly, L(theta) = L0 + theta (L1 - L0),
+    // L = (plate_y, plate_z). Every node has a status (OPEN; STICK, anchored; SLIP with
+    // a sign, on the kinetic cone); for fixed statuses the forces are linear in the load
+    // (a piece), so the path is followed from event to event: a gap closing, a pressure
+    // reaching zero, a stuck node's traction reaching the static cone (breakaway, with
+    // the breakaway cascade solved at that load), a sliding node's slip rate stopping.
+    // every = true follows each sample interval as its own segment and solves the piece
+    // at every sample (the reference); every = false takes the longest run of samples
+    // with equal load increments as one segment and fills the samples from the piece's
+    // responses to unit loads, so only events cost a solve and a load that does not
+    // move costs nothing. The steps, tests and tolerances are those of the reference
+    // (tactile_mirror/contact/solver.py, "Event-driven path following"), in the same
+    // order.
+    //
+    // Outputs (each may be null): row k of lam_out / u_out (2n doubles at
+    // lam_out + k * out_stride2) and of state_out (n int8 at state_out + k *
+    // out_stride1) get the forces (lt, ln), displacements and statuses of sample k. On
+    // an error the path history is what it was before the call (and the outputs of
+    // the samples before the failing one are written).
+    ContactStatus follow(const double* ys, const double* zs, std::size_t N, bool every, double* lam_out,
+                         double* u_out, std::int8_t* state_out, std::size_t out_stride2,
+                         std::size_t out_stride1) noexcept {
+        err_info_ = 0; err_residual_ = 0.0; err_atol_ = 0.0;
+        for (std::size_t k = 0; k < N; ++k) {
+            if (!(std::isfinite(ys[k]) && std::isfinite(zs[k]))) {
+                err_info_ = static_cast<long>(k);
+                return ContactStatus::non_finite_position;
+            }
+        }
+        save();
+        out_lam_ = lam_out; out_u_ = u_out; out_state_ = state_out;
+        out_s2_ = out_stride2; out_s1_ = out_stride1;
+        if (N && !has_z_) {  // first placement: from above, no lower than the crown
+            s_prev_ = ys[0];
+            z_prev_ = zs[0] > z0_max_ ? zs[0] : z0_max_;
+            has_z_ = true;
+        }
+        std::size_t k = 0;
+        while (k < N) {
+            const std::size_t end = every ? k + 1 : segment_end(ys, zs, N, k);
+            const std::size_t L = end - k;
+            out_row0_ = k;
+            // a segment of several samples: the end of each piece by a direct solve (its
+            // own accuracy, not the unit responses' extrapolated over the segment)
+            const ContactStatus s =
+                follow_segment(ys[end - 1], zs[end - 1], L, 1e-9 / static_cast<double>(L), every || L > 1);
+            if (s != ContactStatus::ok) {
+                restore();
+                return s;
+            }
+            k = end;
+        }
+        return ContactStatus::ok;
+    }
+
+    // Solves and events of the path following since the last reset.
+    long solves() const noexcept { return solves_; }
+    long events() const noexcept { return events_; }
+    // Plate height of the current state (valid when placed()).
+    double z_prev() const noexcept { return z_prev_; }
+    bool placed() const noexcept { return has_z_; }
+    const double* path_displacement() const noexcept { return pu_.data(); }
+    // Load point of the last failure of follow (for the error message).
+    double error_y() const noexcept { return err_y_; }
+    double error_z() const noexcept { return err_z_; }
+
+    // The history in one slot (save) and back (restore): follow saves at its start, so
+    // a caller stepping several ridges can undo the ones that succeeded.
+    void save() noexcept {
+        copy(lam_.data(), sv_lam_.data(), n2_); copy(pu_.data(), sv_u_.data(), n2_);
+        copy8(state_.data(), sv_state_.data()); copy(sign_.data(), sv_sign_.data());
+        sv_s_ = s_prev_; sv_z_ = z_prev_; sv_has_z_ = has_z_; sv_solves_ = solves_; sv_events_ = events_;
+    }
+    void restore() noexcept {
+        copy(sv_lam_.data(), lam_.data(), n2_); copy(sv_u_.data(), pu_.data(), n2_);
+        copy(pu_.data(), uy_prev_.data());
+        copy8(sv_state_.data(), state_.data()); copy(sv_sign_.data(), sign_.data());
+        for (std::size_t i = 0; i < n_; ++i) sliding_[i] = state_[i] == kContactSlip;
+        s_prev_ = sv_s_; z_prev_ = sv_z_; has_z_ = sv_has_z_; solves_ = sv_solves_; events_ = sv_events_;
+        unit_valid_ = false;
+        aff_stage_ = 0;
+    }
+
+    // History as the path follower keeps it: lam, the statuses and signs, s_prev and
+    // the plate height (has_z false: not placed; then it is derived from the
+    // touching nodes as the reference does). The displacements are C P lam.
+    void set_path_history(const double* lam, const double* sign, const std::int8_t* state, double s_prev,
+                          bool has_z, double z_prev) noexcept {
+        const std::size_t n = n_;
+        copy(lam, lam_.data(), n2_); copy(sign, sign_.data()); copy8(state, state_.data());
+        displacement(lam_.data(), pu_.data());
+        copy(pu_.data(), uy_prev_.data());
+        for (std::size_t i = 0; i < n; ++i) sliding_[i] = state_[i] == kContactSlip;
+        s_prev_ = s_prev;
+        bool any = false;
+        for (std::size_t i = 0; i < n; ++i) any |= state_[i] != kContactOpen;
+        if (has_z) {
+            z_prev_ = z_prev; has_z_ = true;
+        } else if (any) {  // the plate face is where the touching nodes are
+            std::size_t k = 0;
+            for (std::size_t i = 1; i < n; ++i) if (lam_[n + i] > lam_[n + k]) k = i;
+            z_prev_ = z0_[k] + pu_[n + k]; has_z_ = true;
+        } else {
+            z_prev_ = 0.0; has_z_ = false;
+        }
+        unit_valid_ = false;
+        aff_stage_ = 0;
+        has_candidate_ = false;
+    }
+
+private:
+    std::size_t segment_end(const double* ys, const double* zs, std::size_t N, std::size_t k) const noexcept {
+        const double y0 = k == 0 ? s_prev_ : ys[k - 1], z0 = k == 0 ? z_prev_ : zs[k - 1];
+        const double dy = ys[k] - y0, dz = zs[k] - z0;
+        const double tol = 1e-9 * std::fmax(std::fabs(dy), std::fabs(dz));
+        std::size_t end = k + 1;
+        while (end < N) {
+            if (!(std::fabs((ys[end] - ys[end - 1]) - dy) <= tol && std::fabs((zs[end] - zs[end - 1]) - dz) <= tol))
+                return end;
+            ++end;
+        }
+        return N;
+    }
+
+    // rows [a, b) of the current segment's outputs: the state (lam_c, u_c) (f == null)
+    // or lam_c + f (lam1 - lam_c) with f = (theta_k - th) / (1 - th)
+    void fill_rows(std::size_t a, std::size_t b, const double* lc, const double* uc, const double* l1, const double* u1,
+              double th, std::size_t L) noexcept {
+        const std::size_t n2 = n2_;
+        for (std::size_t k = a; k < b; ++k) {
+            const std::size_t row = out_row0_ + k;
+            double f = 0.0;
+            if (l1) f = (static_cast<double>(k + 1) / static_cast<double>(L) - th) / (1.0 - th);
+            if (out_lam_) {
+                double* o = out_lam_ + row * out_s2_;
+                if (l1) for (std::size_t i = 0; i < n2; ++i) o[i] = lc[i] + f * (l1[i] - lc[i]);
+                else copy(lc, o, n2);
+            }
+            if (out_u_) {
+                double* o = out_u_ + row * out_s2_;
+                if (l1) for (std::size_t i = 0; i < n2; ++i) o[i] = uc[i] + f * (u1[i] - uc[i]);
+                else copy(uc, o, n2);
+            }
+            if (out_state_) copy8(state_.data(), out_state_ + row * out_s1_);
+        }
+    }
+
+    void set_path_cones() noexcept {
+        for (std::size_t i = 0; i < n_; ++i) mu_node_[i] = state_[i] == kContactSlip ? params.mu_kinetic : params.mu;
+    }
+
+    // Responses (rs, us) to a unit plate displacement along y and (rz, uz) to a unit
+    // rise of the plate for the current statuses, kept while they and mu do not change.
+    int unit_response() noexcept {
+        const std::size_t n = n_;
+        if (unit_valid_ && ukey_mu_ == params.mu && ukey_muk_ == params.mu_kinetic) {
+            bool same = true;
+            for (std::size_t i = 0; i < n && same; ++i) same = ukey_state_[i] == state_[i] && ukey_sign_[i] == sign_[i];
+            if (same) return 0;
+        }
+        unit_valid_ = false;
+        set_path_cones();
+        const int info = factor_piece(state_.data(), sign_.data());
+        if (info != 0) return info;
+        solve_prepared(0.0, 0.0, rs_.data(), true, 0.0, 1.0);
+        solve_prepared(0.0, 0.0, rz_.data(), true, 1.0, 0.0);
+        displacement(rs_.data(), us_.data());
+        displacement(rz_.data(), uz_.data());
+        copy8(state_.data(), ukey_state_.data()); copy(sign_.data(), ukey_sign_.data());
+        ukey_mu_ = params.mu; ukey_muk_ = params.mu_kinetic;
+        unit_valid_ = true;
+        ++solves_;
+        return 0;
+    }
+
+    // The status sets met at the current point (a cycle guard, the reference's
+    // `seen`): one byte per node (3 state + sign + 1), plain or "resolved" entries.
+    void encode_statuses(std::int8_t* key) const noexcept {
+        for (std::size_t i = 0; i < n_; ++i)
+            key[i] = static_cast<std::int8_t>(3 * state_[i] + (sign_[i] > 0 ? 2 : (sign_[i] < 0 ? 0 : 1)));
+    }
+    bool seen_has(const std::int8_t* key, bool resolved) const noexcept {
+        for (std::size_t q = 0; q < n_seen_; ++q) {
+            if (seen_resolved_[q] != resolved) continue;
+            if (std::memcmp(seen_.data() + q * n_, key, n_) == 0) return true;
+        }
+        return false;
+    }
+    bool seen_add(const std::int8_t* key, bool resolved) noexcept {
+        if (n_seen_ >= kSeenCap) return false;
+        std::memcpy(seen_.data() + n_seen_ * n_, key, n_);
+        seen_resolved_[n_seen_++] = resolved;
+        return true;
+    }
+
+    // A status change at the current point (the reference's _changed): counted; if
+    // the statuses return to a set already met at this point, all of them are decided
+    // together by resolve_point; a second return is a cycle (status_cycle).
+    ContactStatus changed(double tiny_y, double tiny_z) noexcept {
+        ++events_;
+        std::int8_t* key = key_.data();
+        encode_statuses(key);
+        if (!seen_has(key, false)) {
+            if (!seen_add(key, false)) return cycle_error();
+            return ContactStatus::ok;
+        }
+        if (seen_has(key, true)) return cycle_error();
+        const ContactStatus s = resolve_point(tiny_y, tiny_z);
+        if (s != ContactStatus::ok) return s;
+        encode_statuses(key);
+        if (!seen_add(key, true) || !seen_add(key, false)) return cycle_error();
+        return ContactStatus::ok;
+    }
+
+    ContactStatus cycle_error() noexcept {
+        err_info_ = static_cast<long>(n_seen_);
+        err_y_ = s_prev_; err_z_ = z_prev_;
+        return ContactStatus::status_cycle;
+    }
+
+    // Statuses at the current point from the Alart-Curnier solve of the step (tiny_y,
+    // tiny_z) ahead, 1e-6 of a sample (cones: kinetic on SLIP nodes, static on the
+    // others); the state stays at the current point (the reference's _resolve_point).
+    ContactStatus resolve_point(double tiny_y, double tiny_z) noexcept {
+        const std::size_t n = n_;
+        const double sc = s_prev_, zc = z_prev_;
+        const double ds = tiny_y, zp = zc + tiny_z;
+        copy8(state_.data(), prev_state_.data());
+        copy(sign_.data(), prev_sign_.data());
+        set_path_cones();
+        double uy_max = 0.0;
+        for (std::size_t i = 0; i < n; ++i) uy_max = std::fmax(uy_max, std::fabs(uy_prev_[i]));
+        double scale_len = z0_max_ - zp;
+        if (1e-9 > scale_len) scale_len = 1e-9;
+        if (uy_max > scale_len) scale_len = uy_max;
+        scale_len_ = scale_len;
+        const double atol = params.tol * (r_ * scale_len);
+        std::int8_t* st = ws_state_.data();
+        double* sg = ws_sign_.data();
+        copy8(state_.data(), st); copy(sign_.data(), sg);
+        int it = 0;
+        const ContactStatus s = solve_load(st, sg, zp, sc + ds, ds, atol, it, true);
+        if (s != ContactStatus::ok) { err_y_ = sc + ds; err_z_ = zp; return s; }
+        ++solves_;
+        const double* u = c_u_.data();
+        for (std::size_t i = 0; i < n; ++i) {
+            const std::int8_t cs = c_state_[i], p = prev_state_[i];
+            const double gap = zp - (z0_[i] + u[n + i]);
+            const bool grazing = cs == kContactOpen && p != kContactOpen && gap <= g_tol_;
+            const std::int8_t ns = grazing ? p : cs;
+            state_[i] = ns;
+            sign_[i] = ns == kContactSlip ? (cs == kContactSlip ? c_sign_[i] : prev_sign_[i]) : 0.0;
+            sliding_[i] = ns == kContactSlip;
+        }
+        return ContactStatus::ok;
+    }
+
+    ContactStatus follow_segment(double s1, double z1, std::size_t L, double eps, bool direct) noexcept {
+        const std::size_t n = n_, n2 = n2_;
+        const double s0 = s_prev_, z0p = z_prev_;
+        double th = 0.0;
+        std::size_t j = 0;
+        const std::size_t ns = L;
+        n_seen_ = 0;  // status sets met at the current point
+        const double tiny_y = 1e3 * eps * (s1 - s0), tiny_z = 1e3 * eps * (z1 - z0p);  // 1e-6 of a sample
+        if (s1 == s0 && z1 == z0p) {  // the load does not move: nothing slides
+            bool any = false;
+            for (std::size_t i = 0; i < n; ++i) any |= state_[i] == kContactSlip;
+            if (any) {
+                for (std::size_t i = 0; i < n; ++i) {
+                    if (state_[i] == kContactSlip) state_[i] = kContactStick;
+                    sign_[i] = 0.0;
+                    sliding_[i] = 0;
+                }
+                ++events_;
+            }
+            fill_rows(0, ns, lam_.data(), pu_.data(), nullptr, nullptr, 0.0, L);
+            return ContactStatus::ok;
+        }
+        double* l1 = pl1_.data();
+        double* u1 = pu1_.data();
+        while (true) {
+            if (th >= 1.0) {
+                fill_rows(j, ns, lam_.data(), pu_.data(), nullptr, nullptr, 0.0, L);
+                return ContactStatus::ok;
+            }
+            const double sc = s_prev_, zc = z_prev_;
+            const double* lc = lam_.data();
+            const double* uc = pu_.data();
+            bool any_active = false, any_lam = false;
+            for (std::size_t i = 0; i < n; ++i) any_active |= state_[i] != kContactOpen;
+            for (std::size_t i = 0; i < n2; ++i) any_lam |= lc[i] != 0.0;
+            if (!any_active && !any_lam) {  // nothing touches: the ridge stays at rest
+                copy(lc, l1, n2); copy(uc, u1, n2);
+            } else if (direct) {
+                set_path_cones();
+                const int info = factor_piece(state_.data(), sign_.data());
+                if (info != 0) { err_info_ = info; return ContactStatus::singular_piece; }
+                solve_prepared(z1, s1 - sc, l1);
+                displacement(l1, u1);
+                ++solves_;
+            } else {
+                const int info = unit_response();
+                if (info != 0) { err_info_ = info; return ContactStatus::singular_piece; }
+                const double ds = s1 - sc, dz = z1 - zc;
+                for (std::size_t i = 0; i < n2; ++i) {
+                    l1[i] = lc[i] + ds * rs_[i] + dz * rz_[i];
+                    u1[i] = uc[i] + ds * us_[i] + dz * uz_[i];
+                }
+            }
+            // a sliding node whose slip over the rest of the segment does not oppose its
+            // friction force sticks here
+            {
+                const double lim = -1e-9 * (std::fabs(s1 - sc) + std::fabs(z1 - zc));
+                std::size_t bad = 0;
+                for (std::size_t i = 0; i < n; ++i) {
+                    if (state_[i] != kContactSlip) continue;
+                    const double rate = (u1[i] - uc[i]) - (s1 - sc);
+                    if (sign_[i] * rate >= lim) {
+                        state_[i] = kContactStick; sign_[i] = 0.0; sliding_[i] = 0;
+                        ++bad;
+                    }
+                }
+                if (bad) {
+                    const ContactStatus s = changed(tiny_y, tiny_z);
+                    if (s != ContactStatus::ok) return s;
+                    continue;
+                }
+            }
+            std::size_t n_ev = 0;
+            const double frac = first_event(lc, uc, l1, u1, zc, z1, eps / (1.0 - th), n_ev);
+            const bool none = n_ev == 0;
+            const double th_e = none ? INFINITY : th + frac * (1.0 - th);
+            // samples before the event come from this piece
+            std::size_t j2 = j;
+            while (j2 < ns && static_cast<double>(j2 + 1) / static_cast<double>(L) < th_e - eps) ++j2;
+            if (j2 > j) fill_rows(j, j2, lc, uc, l1, u1, th, L);
+            j = j2;
+            if (none) {
+                copy(l1, lam_.data(), n2); copy(u1, pu_.data(), n2); copy(u1, uy_prev_.data());
+                s_prev_ = s1; z_prev_ = z1;
+                if (j < ns) fill_rows(j, ns, lam_.data(), pu_.data(), nullptr, nullptr, 0.0, L);
+                return ContactStatus::ok;
+            }
+            const double te = th_e < 1.0 ? th_e : 1.0;
+            const double f = (te - th) / (1.0 - th);
+            for (std::size_t i = 0; i < n2; ++i) {
+                lam_[i] = lc[i] + f * (l1[i] - lc[i]);
+                pu_[i] = uc[i] + f * (u1[i] - uc[i]);
+            }
+            copy(pu_.data(), uy_prev_.data());
+            s_prev_ = te < 1.0 ? s0 + te * (s1 - s0) : s1;
+            z_prev_ = te < 1.0 ? z0p + te * (z1 - z0p) : z1;
+            if (te > th) n_seen_ = 0;
+            th = te;
+            std::size_t count = 0;
+            ContactStatus s = apply_events(n_ev, count);
+            if (s != ContactStatus::ok) return s;
+            s = changed(tiny_y, tiny_z);
+            if (s != ContactStatus::ok) return s;
+        }
+    }
+
+    // First point frac in [0, 1 + eps] of the piece (lc, uc) -> (l1, u1) where a node's
+    // status must change; the events there go to ev_node_ / ev_kind_ (kind 0 contact, 1
+    // separation, 2 / 3 breakaway with the friction force along +y / -y), kind-major as
+    // the reference orders them. n_ev = 0: none.
+    double first_event(const double* lc, const double* uc, const double* l1, const double* u1, double zc, double z1,
+                       double eps, std::size_t& n_ev) noexcept {
+        const std::size_t n = n_;
+        const double mu = params.mu;
+        double first = INFINITY;
+        for (int kind = 0; kind < 4; ++kind) {
+            const double tol = kind == 0 ? evt_g_tol_ : evt_f_tol_;
+            for (std::size_t i = 0; i < n; ++i) {
+                const std::int8_t s = state_[i];
+                const bool mask = kind == 0 ? s == kContactOpen : (kind == 1 ? s != kContactOpen : s == kContactStick);
+                double fr = INFINITY;
+                if (mask) {
+                    double pc, p1;
+                    if (kind == 0) { pc = zc - z0_[i] - uc[n + i]; p1 = z1 - z0_[i] - u1[n + i]; }
+                    else if (kind == 1) { pc = lc[n + i]; p1 = l1[n + i]; }
+                    else if (kind == 2) { pc = mu * lc[n + i] - lc[i]; p1 = mu * l1[n + i] - l1[i]; }
+                    else { pc = mu * lc[n + i] + lc[i]; p1 = mu * l1[n + i] + l1[i]; }
+                    const double drop = pc - p1;
+                    if (drop > tol && p1 < 0) fr = (pc > 0.0 ? pc : 0.0) / drop;
+                }
+                ev_frac_[static_cast<std::size_t>(kind) * n + i] = fr;
+                if (fr < first) first = fr;
+            }
+        }
+        n_ev = 0;
+        if (!(first <= 1.0 + eps)) return first;
+        for (std::size_t q = 0; q < 4 * n; ++q) {
+            if (ev_frac_[q] <= first + eps) {
+                ev_kind_[n_ev] = static_cast<std::int8_t>(q / n);
+                ev_node_[n_ev] = q % n;
+                ++n_ev;
+            }
+        }
+        return first;
+    }
+
+    ContactStatus apply_events(std::size_t n_ev, std::size_t& changes) noexcept {
+        const std::size_t n = n_;
+        double broke_ln = -INFINITY;
+        bool any_broke = false;
+        for (std::size_t e = 0; e < n_ev; ++e) {
+            const std::size_t i = ev_node_[e];
+            const int kind = ev_kind_[e];
+            if (kind == 0) { state_[i] = kContactStick; sign_[i] = 0.0; }
+            else if (kind == 1) { state_[i] = kContactOpen; sign_[i] = 0.0; lam_[i] = lam_[n + i] = 0.0; }
+            else { state_[i] = kContactSlip; sign_[i] = kind == 2 ? 1.0 : -1.0; }
+        }
+        for (std::size_t e = 0; e < n_ev; ++e) {  // pressures after all of this point's changes
+            if (ev_kind_[e] >= 2) {
+                any_broke = true;
+                const double ln = lam_[n + ev_node_[e]];
+                if (ln > broke_ln) broke_ln = ln;
+            }
+        }
+        for (std::size_t i = 0; i < n; ++i) sliding_[i] = state_[i] == kContactSlip;
+        displacement(lam_.data(), pu_.data());
+        copy(pu_.data(), uy_prev_.data());
+        changes = n_ev;
+        if (any_broke && (params.mu - params.mu_kinetic) * broke_ln > f_tol_) {
+            std::size_t more = 0;
+            const ContactStatus s = cascade(more);
+            if (s != ContactStatus::ok) return s;
+            changes += more;
+        }
+        return ContactStatus::ok;
+    }
+
+    // The breakaway cascade at the current load (the reference's _cascade).
+    ContactStatus cascade(std::size_t& changes) noexcept {
+        const std::size_t n = n_;
+        const double mu_k = params.mu_kinetic;
+        copy8(state_.data(), prev_state_.data());
+        copy(sign_.data(), prev_sign_.data());
+        const double zp = z_prev_, sp = s_prev_;
+        set_path_cones();
+        double uy_max = 0.0;
+        for (std::size_t i = 0; i < n; ++i) uy_max = std::fmax(uy_max, std::fabs(uy_prev_[i]));
+        double scale_len = z0_max_ - zp;
+        if (1e-9 > scale_len) scale_len = 1e-9;
+        if (uy_max > scale_len) scale_len = uy_max;
+        scale_len_ = scale_len;
+        const double atol = params.tol * (r_ * scale_len);
+        std::int8_t* st = ws_state_.data();
+        double* sg = ws_sign_.data();
+        copy8(state_.data(), st); copy(sign_.data(), sg);
+        for (std::size_t round = 0; round <= n; ++round) {
+            int it = 0;
+            const ContactStatus s = solve_load(st, sg, zp, sp, 0.0, atol, it, true);
+            if (s != ContactStatus::ok) { err_y_ = sp; err_z_ = zp; return s; }
+            ++solves_;
+            bool broke = false;
+            for (std::size_t i = 0; i < n; ++i) {
+                const bool moving = std::fabs(c_u_[i] - uy_prev_[i]) > w_tol_;
+                if (c_state_[i] == kContactSlip && moving && mu_node_[i] > mu_k) { mu_node_[i] = mu_k; broke = true; }
+            }
+            if (!broke) break;
+            st = ws_state_.data(); sg = ws_sign_.data();
+            copy8(c_state_.data(), st); copy(c_sign_.data(), sg);
+        }
+        const double* lam = c_lam_.data();
+        const double* u = c_u_.data();
+        changes = 0;
+        for (std::size_t i = 0; i < n; ++i) {
+            const bool moving = std::fabs(u[i] - uy_prev_[i]) > w_tol_;
+            const bool on_kinetic = std::fabs(lam[i]) >= mu_k * lam[n + i] - f_tol_;
+            const std::int8_t s = c_state_[i], p = prev_state_[i];
+            const bool slide_moved = s == kContactSlip && moving;
+            const bool slide_kept = p == kContactSlip && s != kContactOpen && !moving && on_kinetic;
+            const double gap = zp - (z0_[i] + u[n + i]);
+            const bool grazing = s == kContactOpen && p != kContactOpen && gap <= g_tol_;
+            std::int8_t ns = s == kContactOpen ? static_cast<std::int8_t>(kContactOpen)
+                                               : (slide_moved || slide_kept ? static_cast<std::int8_t>(kContactSlip)
+                                                                            : static_cast<std::int8_t>(kContactStick));
+            double nsg = slide_moved ? c_sign_[i] : (slide_kept ? prev_sign_[i] : 0.0);
+            if (grazing) { ns = p; nsg = prev_sign_[i]; }
+            changes += ns != p;
+            state_[i] = ns;
+            sign_[i] = nsg;
+            sliding_[i] = ns == kContactSlip;
+        }
+        copy(lam, lam_.data(), n2_);
+        copy(u, pu_.data(), n2_);
+        copy(u, uy_prev_.data());
+        return ContactStatus::ok;
+    }
+
+public:
 
     // ---- the pieces (public for path-following steppers)
 
@@ -569,6 +1096,7 @@ public:
         ++piece_id_;
         nB_ = 0;
         n_cached_ = 0;  // cached M0^-1 V columns belong to the old base
+        zunit_valid_[0] = zunit_valid_[1] = false;
         std::size_t a = 0, t = 0;
         for (std::size_t i = 0; i < n; ++i) {
             pos_ln_[i] = pos_lt_[i] = -1;
@@ -602,10 +1130,7 @@ public:
         return 0;
     }
 
-    // Forces of the prepared piece for the plate at plate_z, slip increment ds. A
-    // bordered solve gets one step of iterative refinement with the residual of the
-    // piece's own equations (the base may be several pieces old; refinement brings the
-    // forces back to the accuracy of a fresh factorisation).
+    // Forces of the prepared piece for the plate at plate_z, slip increment ds.
     void solve_prepared(double plate_z, double ds, double* lam) noexcept { solve_prepared(plate_z, ds, lam, false, 0, 0); }
 
     // unit: the right-hand side is az on every contact equation and ay on every stick
@@ -624,24 +1149,24 @@ public:
             const BorderRow& br = brow_[r];
             c[r] = br.kind == kAddG ? rhs_g(br.node) : (br.kind == kAddW ? rhs_w(br.node) : 0.0);
         }
-        solve_bordered(b, c, lam);
-        if (nb == 0) return;
-        // residual of the piece's equations: g = 0 on the active nodes, w = 0 on the stuck ones
-        double* u = u2_.data();
-        displacement(lam, u);
-        for (std::size_t k = 0; k < m; ++k) {
-            const std::size_t i = k < nA ? idxA_[k] : idxT_[k - nA];
-            const bool kept = k < nA ? key_state_[i] != kContactOpen : key_state_[i] == kContactStick;
-            b[k] = !kept ? 0.0 : (k < nA ? rhs_g(i) - u[n + i] : rhs_w(i) - u[i]);
+        // the base solve of a unit right-hand side depends on the base only: kept
+        // until the next refactorisation, so a unit response of a bordered piece costs
+        // O(m nb) besides its compliance product
+        const int which = !unit ? -1 : (az == 1.0 && ay == 0.0 ? 0 : (az == 0.0 && ay == 1.0 ? 1 : -1));
+        if (which >= 0) {
+            double* zc = zunit_.data() + static_cast<std::size_t>(which) * n2_;
+            if (!zunit_valid_[which]) {
+                lu_solve(M_.data(), m, m, piv_.data(), b);
+                copy(b, zc, m);
+                zunit_valid_[which] = true;
+            } else {
+                copy(zc, b, m);
+            }
+            solve_bordered(b, c, lam, true);
+        } else {
+            solve_bordered(b, c, lam, false);
         }
-        for (std::size_t r = 0; r < nb; ++r) {
-            const BorderRow& br = brow_[r];
-            c[r] = br.kind == kAddG ? rhs_g(br.node) - u[n + br.node]
-                                    : (br.kind == kAddW ? rhs_w(br.node) - u[br.node] : 0.0);
-        }
-        double* d = lam2_.data();
-        solve_bordered(b, c, d);
-        for (std::size_t i = 0; i < n2_; ++i) lam[i] += d[i];
+        (void)n;
     }
 
     // Forces and displacements of the piece (state, sign) for the plate at (plate_y,
@@ -693,10 +1218,10 @@ public:
 
     // x of the prepared piece for right-hand sides b (base equations, overwritten) and
     // c (border rows, overwritten), as forces lam (2n).
-    void solve_bordered(double* b, double* c, double* lam) noexcept {
+    void solve_bordered(double* b, double* c, double* lam, bool base_solved = false) noexcept {
         const std::size_t n = n_, nA = nA_, m = nA_ + nT_, nb = nB_;
         double* z = b;
-        lu_solve(M_.data(), m, m, piv_.data(), z);
+        if (!base_solved) lu_solve(M_.data(), m, m, piv_.data(), z);
         double* y = c;
         if (nb > 0) {  // Schur complement: S y = c - W^T M0^-1 b, x = M0^-1 b - (M0^-1 V) y
             for (std::size_t r = 0; r < nb; ++r) {
@@ -725,11 +1250,19 @@ public:
         }
     }
 
+    // The stuck nodes' offsets uy_prev - s_prev are those of the affine reference.
+    // Within one piece they are unchanged in exact arithmetic (w = 0 on a stuck node);
+    // what changes is the round-off of u_y, about 1e-19 m. The test is relative to the
+    // step's length scale (the indent, or the largest tangential displacement): a
+    // difference of 1e-13 of it moves the forces by about 1e-13 relative, far below
+    // the solver tolerance, while a history that really differs (set_history, a
+    // stuck node that slid meanwhile) is caught.
     bool stick_offsets_unchanged() const noexcept {
+        const double tol = 1e-13 * scale_len_;
         for (std::size_t i = 0; i < n_; ++i) {
             if (key_state_[i] != kContactStick) continue;
             const double v = uy_prev_[i] - s_prev_, ref = aff_v_[i];
-            if (std::fabs(v - ref) > 1e-12 * (std::fabs(ref) + w_tol_)) return false;
+            if (std::fabs(v - ref) > tol) return false;
         }
         return true;
     }
@@ -950,30 +1483,10 @@ private:
         return ContactStatus::ok;
     }
 
-    // Reported state, slip fraction and forces of the candidate (c_lam_, c_u_, c_state_).
-    void finish(double plate_y, int iterations) noexcept {
-        const std::size_t n = n_;
-        const double ds = plate_y - s_prev_;
-        double total = 0.0, slipping = 0.0;
-        for (std::size_t i = 0; i < n; ++i) {
-            const double w = (c_u_[i] - uy_prev_[i]) - ds;
-            const bool moving = std::fabs(w) > w_tol_;
-            const std::int8_t s = (c_state_[i] == kContactSlip && !moving) ? static_cast<std::int8_t>(kContactStick) : c_state_[i];
-            c_reported_[i] = s;
-            if (s != kContactOpen) total += w_[i];
-            if (s == kContactSlip) slipping += w_[i];
-            c_forces_[i] = c_lam_[i];
-            c_forces_[n + i] = -c_lam_[n + i];
-        }
-        c_frac_ = total > 0 ? slipping / total : 0.0;
-        c_iterations_ = iterations;
-        c_plate_y_ = plate_y;
-        has_candidate_ = true;
-    }
-
     std::size_t n_, n2_;
     std::vector<double> C_, z0_, w_;
     double w_tol_, r_ = 0.0, z0_max_ = 0.0;
+    double scale_len_ = 1e-9;  // the length scale of the current step (m), see stick_offsets_unchanged
     std::size_t argmax_z0_ = 0;
     // committed history
     std::vector<double> lam_, uy_prev_, sign_;
@@ -1013,6 +1526,28 @@ private:
     long err_info_ = 0;
     long n_factorizations_ = 0;
     double err_residual_ = 0.0, err_atol_ = 0.0;
+    // path following (follow): displacements of the current state, the plate height,
+    // the end of the current piece, the unit responses and their key, the events of a
+    // point, the cascade's previous statuses, the saved history and the outputs
+    std::vector<double> pu_, pl1_, pu1_, rs_, rz_, us_, uz_, ukey_sign_, ev_frac_, prev_sign_;
+    std::vector<double> sv_lam_, sv_u_, sv_sign_, o_lam_, o_u_, zunit_;
+    bool zunit_valid_[2] = {false, false};  // base solves of the unit right-hand sides (solve_prepared)
+    std::vector<std::int8_t> ukey_state_, ev_kind_, prev_state_, sv_state_;
+    std::vector<std::size_t> ev_node_;
+    static constexpr std::size_t kSeenCap = 256;  // status sets kept per point (more: status_cycle)
+    std::vector<std::int8_t> seen_, key_;
+    std::vector<bool> seen_resolved_;
+    std::size_t n_seen_ = 0;
+    double z_prev_ = 0.0, sv_s_ = 0.0, sv_z_ = 0.0, ukey_mu_ = 0.0, ukey_muk_ = 0.0;
+    double g_tol_ = 0.0, f_tol_ = 0.0, evt_g_tol_ = 0.0, evt_f_tol_ = 0.0, err_y_ = 0.0, err_z_ = 0.0;
+    std::vector<double> fl_lam_, fl_u_, fl_sign_;  // solve_load(exact): the first answer within tolerance
+    std::vector<std::int8_t> fl_state_;
+    bool has_z_ = false, sv_has_z_ = false, unit_valid_ = false;
+    long solves_ = 0, events_ = 0, sv_solves_ = 0, sv_events_ = 0;
+    double* out_lam_ = nullptr;
+    double* out_u_ = nullptr;
+    std::int8_t* out_state_ = nullptr;
+    std::size_t out_s2_ = 0, out_s1_ = 0, out_row0_ = 0;
 };
 
 }  // namespace tactile

@@ -82,23 +82,26 @@ class Pad:
         Contact solver tolerance.
     backend : {"cpp", "python"}
         Contact solver implementation (see :class:`ContactSolver`). With ``"cpp"``
-        (default) :meth:`advance` steps every ridge in one compiled call without the
-        GIL, and commits the ridges only if all of them converged.
+        (default) :meth:`advance` and :meth:`follow` step every ridge in one compiled
+        call without the GIL, and keep the new state only if all ridges succeeded.
     stepping : {"auto", "every"}
         How :meth:`advance` and :meth:`follow` step (see
-        :mod:`~tactile_mirror.contact.solver`). With the Python backend both follow the
-        load exactly from one call's plate position to the next, events resolved at
-        their own points; ``"every"`` solves at every call, ``"auto"`` (default) only
-        where a node's status changes (otherwise the state comes from the piece's
-        response to a unit load, a few vector operations), and a position that does
-        not move costs nothing. The compiled backend steps the per-sample law of its
-        kernel; with ``"auto"`` it skips the repeats of a position that does not move
-        (the first one is stepped: it stops the sliding nodes).
+        :mod:`~tactile_mirror.contact.solver`). Both follow the load exactly from one
+        call's plate position to the next, events resolved at their own points;
+        ``"every"`` solves at every call, ``"auto"`` (default) only where a node's
+        status changes (otherwise the state comes from the piece's response to a unit
+        load, a few vector operations), and a position that does not move costs
+        nothing.
+    threads : int
+        Threads of the compiled :meth:`follow` (1 or 2): the ridges are independent, so
+        with 2 half of them run on a second thread (same results, bit for bit). A plain
+        attribute; the Python backend ignores it.
     """
 
     def __init__(self, model: RidgeModel, mu: float, n_ridges: int = 1, pitch: float | None = None,
                  finger_radius: float = np.inf, ridge_length: float = 10e-3, tol: float = 1e-10,
-                 mu_kinetic: float | None = None, backend: str = "cpp", stepping: str = "auto") -> None:
+                 mu_kinetic: float | None = None, backend: str = "cpp", stepping: str = "auto",
+                 threads: int = 1) -> None:
         if int(n_ridges) != n_ridges or n_ridges < 1:
             raise ValueError(f"n_ridges must be a positive integer, got {n_ridges!r}")
         if not (finger_radius > 0):
@@ -108,6 +111,9 @@ class Pad:
         if stepping not in STEPPINGS:
             raise ValueError(f"stepping must be one of {STEPPINGS}, got {stepping!r}")
         self.stepping = stepping
+        if int(threads) != threads or threads < 1:
+            raise ValueError(f"threads must be a positive integer, got {threads!r}")
+        self.threads = int(threads)
         self._last = None  # (plate_y, indent, PadState) of the last advance, for "auto"
         self.model = model
         self.n_ridges = int(n_ridges)
@@ -158,23 +164,25 @@ class Pad:
 
     @property
     def solves(self) -> int:
-        """Linear solves of the Python backend's event stepping so far (all ridges)."""
+        """Linear solves of the event stepping so far (all ridges)."""
         return sum(getattr(s, "solves", 0) for s in self.solvers)
 
     @property
     def events(self) -> int:
-        """Points where node statuses changed so far (Python backend, all ridges)."""
+        """Points where node statuses changed so far (all ridges)."""
         return sum(getattr(s, "events", 0) for s in self.solvers)
 
     def follow(self, plate_y: np.ndarray, indent: np.ndarray, stepping: str | None = None,
                want_displacement: bool = False):
-        """Follow a whole trajectory (Python backend): ``plate_y`` and ``indent`` (m)
-        per sample. Returns ``(lam, displacement, state)``: arrays ``(N, n_ridges, 2n)``
+        """Follow a whole trajectory: ``plate_y`` and ``indent`` (m) per sample (with the
+        compiled backend in one call without the GIL, on :attr:`threads` threads). Returns ``(lam, displacement, state)``: arrays ``(N, n_ridges, 2n)``
         of contact forces ``(lt, ln)`` (N/m), of surface displacements (m, or None) and
         ``(N, n_ridges, n)`` node states. ``stepping`` defaults to the pad's."""
         stepping = self.stepping if stepping is None else stepping
-        if self.backend != "python":
-            raise NotImplementedError("Pad.follow runs the Python backend's event stepping (backend='python')")
+        if stepping not in STEPPINGS:
+            raise ValueError(f"stepping must be one of {STEPPINGS}, got {stepping!r}")
+        if self._stepper is not None:
+            return self._follow_compiled(plate_y, indent, stepping, want_displacement)
         m = self.model
         n, R = m.n_nodes, self.n_ridges
         y = np.asarray(plate_y, dtype=np.float64)
@@ -194,6 +202,32 @@ class Pad:
         self._last = None
         return (np.moveaxis(lam, 0, 1), None if disp is None else np.moveaxis(disp, 0, 1),
                 np.moveaxis(state, 0, 1))
+
+    def _follow_compiled(self, plate_y, indent, stepping, want_displacement):
+        m = self.model
+        n, R = m.n_nodes, self.n_ridges
+        y = np.ascontiguousarray(plate_y, dtype=np.float64).ravel()
+        ind = np.asarray(indent, dtype=np.float64).ravel()
+        if ind.shape != y.shape:
+            raise ValueError(f"plate_y and indent must have the same length, got {y.size} and {ind.size}")
+        z = np.ascontiguousarray(m.geometry.height - (ind[:, None] - self.indent_offset[None, :]))
+        if not (np.all(np.isfinite(y)) and np.all(np.isfinite(z))):
+            k = int(np.flatnonzero(~(np.isfinite(y) & np.all(np.isfinite(z), axis=1)))[0])
+            raise ValueError(f"plate position must be finite, got y={y[k]!r}, indent={ind[k]!r}")
+        N = y.size
+        lam = np.empty((N, R, 2 * n))
+        disp = np.empty((N, R, 2 * n)) if want_displacement else None
+        state = np.empty((N, R, n), dtype=np.int8)
+        status, bad, _, _ = self._stepper.follow(y, z, stepping == "every", lam, disp, state, None,
+                                                 min(self.threads, 2))
+        for s in self.solvers:
+            s._sync_counts()
+        if status:
+            s = self.solvers[bad]
+            s._raise_status(status, *s._kernel.error_point())
+        lam[:, :, n:] *= -1.0  # the kernel writes the forces (lt, -ln)
+        self._last = None
+        return lam, disp, state
 
     def advance(self, plate_y: float, indent: float) -> PadState:
         """Move the finger to ``plate_y`` (m, along the sliding direction) and ``indent``
@@ -231,9 +265,12 @@ class Pad:
         plate_z = m.geometry.height - (indent - self.indent_offset)
         if not (np.isfinite(plate_y) and np.all(np.isfinite(plate_z))):
             raise ValueError(f"plate position must be finite, got y={plate_y!r}, indent={indent!r}")
-        status, bad, its, forces, disp, states, frac = self._stepper.step(float(plate_y), plate_z)
+        status, bad, its, forces, disp, states, frac = self._stepper.step(float(plate_y), plate_z,
+                                                                          self.stepping == "every")
+        for s in self.solvers:
+            s._sync_counts()
         if status:
-            self.solvers[bad]._raise_status(status, plate_y, float(plate_z[bad]))
+            self.solvers[bad]._raise_status(status, *self.solvers[bad]._kernel.error_point())
         touch = np.any(states != OPEN, axis=1)
         gross = touch & ~np.any(states == STICK, axis=1)
         fy = float(forces[:, :n].sum()) * self.ridge_length

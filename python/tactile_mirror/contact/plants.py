@@ -98,11 +98,10 @@ class FemPad:
     stepping : {"auto", "every"}
         Contact stepping of the pad (:class:`~tactile_mirror.contact.Pad`). The load comes
         tick by tick from the controller, so no tick knows the next: the path between
-        two ticks is taken as straight, followed exactly with its events where the
-        backend follows events (the Python one), and with ``"auto"`` a tick whose load
-        does not move costs nothing (after the first such tick, which stops the
-        sliding nodes). The compiled kernel (used here) steps its per-sample law at
-        the other ticks.
+        two ticks is taken as straight and followed exactly with its events, and with
+        ``"auto"`` a tick whose load does not move costs nothing (after the first such
+        tick, which stops the sliding nodes) and a tick without a status change costs a
+        few vector operations (the piece's unit responses).
     """
 
     pad: Pad

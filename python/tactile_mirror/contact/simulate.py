@@ -44,10 +44,8 @@ class SimulationResult:
     node_position : (n_ridges, 2, n_nodes, n) m, deformed surface ("state" only)
     fields : dict time -> (stress (4, n_elements) Pa, centroids (2, n_elements) m), per ridge 0
     stepping, backend : how the contact was stepped and by which implementation
-    solves : linear solves of the contact pieces (event stepping; with the compiled
-        per-sample kernel: one per sample and ridge, its Newton iterations are in
-        ``newton_iterations``)
-    events : points where node statuses changed (event stepping; 0 for the compiled kernel)
+    solves : linear solves of the contact pieces (all ridges)
+    events : points where node statuses changed (all ridges)
     """
 
     scene: Scene
@@ -89,20 +87,17 @@ def simulate(scene: Scene, progress: bool = False, backend: str = "cpp", steppin
     backend : {"cpp", "python"}
         Contact solver implementation (:class:`~tactile_mirror.contact.ContactSolver`):
         the compiled kernel (default) or the Python reference; same results to round-off.
-        With ``"cpp"`` (and no progress bar) the whole plate trajectory is stepped in
-        compiled blocks of samples without the GIL, and the strip stresses, forces and
-        slip times of a block are derived with array operations: no Python runs per
-        time step. ``progress=True`` steps :meth:`Pad.advance` one sample at a time
-        (same results).
+        The plate trajectory is followed in blocks of samples (:meth:`Pad.follow`; with
+        ``"cpp"`` one compiled call per block without the GIL), and the strip stresses,
+        forces and slip times of a block are derived with array operations: no Python
+        runs per time step.
     stepping : {"auto", "every"}
         ``"auto"`` (default): event-driven, the contact is solved only where a node
         changes its status (touches, lifts off, breaks away, stops sliding) and the
         samples between come from the linear response; a stop costs nothing.
         ``"every"``: solved at every sample (the reference). Both resolve each event
         at its own point (:mod:`~tactile_mirror.contact.solver`) and agree to
-        round-off. The compiled kernel steps per sample only: ``backend="cpp"`` with
-        ``"auto"`` runs the event stepping of the Python backend (the result's
-        ``backend`` says which ran); with ``"every"`` it runs the kernel's per-sample law.
+        round-off, with either backend.
     """
     from ..scenes import Scene
 
@@ -112,8 +107,6 @@ def simulate(scene: Scene, progress: bool = False, backend: str = "cpp", steppin
         raise ValueError(f"stepping must be one of {STEPPINGS}, got {stepping!r}")
     if backend not in BACKENDS:
         raise ValueError(f"backend must be one of {BACKENDS}, got {backend!r}")
-    if stepping not in CPP_STEPPINGS:
-        backend = "python"  # the compiled kernel does not follow events yet
     pad = Pad.from_scene(scene, backend=backend, stepping=stepping)
     model = pad.model
     plate_y, indent = scene.plate_motion()
@@ -134,42 +127,10 @@ def simulate(scene: Scene, progress: bool = False, backend: str = "cpp", steppin
     slip_time = None
     end = n_total
     its = 0
-    steps = range(0)
-    solves = events = 0
-    if pad._stepper is None:
-        end, slip_time = _run_events(pad, plate_y, indent, scene, want_stress, want_state, field_idx, stress,
-                                     frac, fy, fz, node_state, node_pos, fields, ridge_slip, progress)
-        solves, events = pad.solves, pad.events
-    elif not progress:
-        end, slip_time, its = _run_compiled(pad, plate_y, indent, scene, want_stress, want_state, field_idx, stress,
-                                            frac, fy, fz, node_state, node_pos, fields, ridge_slip)
-    else:
-        from tqdm.auto import tqdm
-
-        steps = tqdm(range(n_total), desc="contact", unit="step", leave=False)
-    for i in steps:
-        if i >= end:
-            break
-        st = pad.advance(plate_y[i], indent[i])
-        its += st.iterations
-        if want_stress:
-            stress[..., i] = st.strip_stress
-        frac[:, i] = st.slip_fraction
-        fy[i], fz[i] = st.force_y, st.force_z
-        if want_state:
-            node_state[..., i] = st.node_state
-            node_pos[..., i] = st.node_position
-        if i in field_idx:
-            fields[field_idx[i]] = model.stress_field(st.forces[0])
-        new = st.gross_slip & np.isnan(ridge_slip)
-        ridge_slip[new] = i / scene.fs
-        if slip_time is None and np.all(st.gross_slip):
-            slip_time = i / scene.fs
-            if scene.stop_after_slip is not None:
-                end = min(n_total, i + 1 + round(scene.stop_after_slip * scene.fs))
+    end, slip_time = _run_events(pad, plate_y, indent, scene, want_stress, want_state, field_idx, stress,
+                                 frac, fy, fz, node_state, node_pos, fields, ridge_slip, progress)
+    solves, events = pad.solves, pad.events
     n = min(end, n_total)
-    if pad._stepper is not None:
-        solves = R * n  # the compiled kernel solves every sample of every ridge
     t = np.arange(n) / scene.fs
     res = SimulationResult(scene=scene, t=t, fs=scene.fs, plate_y=np.asarray(plate_y[:n]),
                            indent=np.asarray(indent[:n]), slip_time=slip_time, ridge_slip_time=ridge_slip,
@@ -191,21 +152,14 @@ def simulate(scene: Scene, progress: bool = False, backend: str = "cpp", steppin
     return res
 
 
-#: Steps per call of the compiled trajectory stepper (bounds the memory of its outputs).
-_BLOCK = 1024
-
 #: Samples per call of the event stepping (bounds the memory of its outputs).
 _EVENT_BLOCK = 8192
-
-#: Steppings the compiled kernel runs itself; the others run in the Python backend.
-CPP_STEPPINGS = ("every",)
 
 
 def _run_events(pad, plate_y, indent, scene, want_stress, want_state, field_idx, stress, frac, fy, fz,
                 node_state, node_pos, fields, ridge_slip, progress):
-    """The trajectory loop of :func:`simulate` with the event stepping of the Python
-    backend: blocks of samples followed by :meth:`Pad.follow`, outputs derived with
-    array operations."""
+    """The trajectory loop of :func:`simulate`: blocks of samples followed by
+    :meth:`Pad.follow` (either backend), outputs derived with array operations."""
     model = pad.model
     R, n = pad.n_ridges, model.n_nodes
     n_total = plate_y.size
@@ -257,71 +211,6 @@ def _run_events(pad, plate_y, indent, scene, want_stress, want_state, field_idx,
     if bar is not None:
         bar.close()
     return end, slip_time
-
-
-def _run_compiled(pad, plate_y, indent, scene, want_stress, want_state, field_idx, stress, frac, fy, fz,
-                  node_state, node_pos, fields, ridge_slip):
-    """The trajectory loop of :func:`simulate` with the compiled pad: blocks of steps
-    run in one call each (no Python per step); the outputs of a block are derived with
-    array operations. Same results as stepping :meth:`Pad.advance` one sample at a time."""
-    model = pad.model
-    R, n = pad.n_ridges, model.n_nodes
-    n_total = plate_y.size
-    H = model.geometry.height
-    plate_y = np.ascontiguousarray(plate_y, dtype=np.float64)
-    plate_z = np.ascontiguousarray(H - (np.asarray(indent, dtype=np.float64)[:, None] - pad.indent_offset[None, :]))
-    if not (np.all(np.isfinite(plate_y)) and np.all(np.isfinite(plate_z))):
-        k = int(np.flatnonzero(~(np.isfinite(plate_y) & np.all(np.isfinite(plate_z), axis=1)))[0])
-        raise ValueError(f"plate position must be finite, got y={plate_y[k]!r}, indent={indent[k]!r}")
-    B = min(_BLOCK, n_total)
-    f_buf = np.empty((B, R, 2 * n))
-    d_buf = np.empty((B, R, 2 * n)) if want_state else None
-    s_buf = np.empty((B, R, n), dtype=np.int8)
-    fr_buf = np.empty((B, R))
-    it_buf = np.empty(B, dtype=np.int32)
-    sensor_t = model.sensor.T
-    slip_time = None
-    its = 0
-    end = n_total
-    start = 0
-    while start < end:
-        m = min(B, end - start)
-        status, bad, done = pad._stepper.run(plate_y[start:start + m], plate_z[start:start + m], f_buf[:m],
-                                             None if d_buf is None else d_buf[:m], s_buf[:m], fr_buf[:m], it_buf[:m])
-        if status:
-            i = start + done
-            pad.solvers[bad]._raise_status(status, float(plate_y[i]), float(plate_z[i, bad]))
-        f, st = f_buf[:m], s_buf[:m]
-        sl = slice(start, start + m)
-        if want_stress:
-            stress[..., sl] = np.moveaxis((f @ sensor_t).reshape(m, R, model.n_strips, 3), 0, -1)
-        frac[:, sl] = fr_buf[:m].T
-        fy[sl] = f[:, :, :n].sum(axis=(1, 2)) * pad.ridge_length
-        fz[sl] = -f[:, :, n:].sum(axis=(1, 2)) * pad.ridge_length
-        if want_state:
-            node_state[..., sl] = np.moveaxis(st, 0, -1)
-            d = d_buf[:m]
-            node_pos[:, 0, :, sl] = np.moveaxis(model.node_y + d[:, :, :n], 0, -1)
-            node_pos[:, 1, :, sl] = np.moveaxis(model.node_z + d[:, :, n:], 0, -1)
-        touch = np.any(st != OPEN, axis=2)
-        gross = touch & ~np.any(st == STICK, axis=2)  # (m, R)
-        if slip_time is None:
-            all_gross = gross.all(axis=1)
-            if all_gross.any():
-                i = start + int(np.argmax(all_gross))
-                slip_time = i / scene.fs
-                if scene.stop_after_slip is not None:
-                    end = min(n_total, i + 1 + round(scene.stop_after_slip * scene.fs))
-        valid = min(m, end - start)  # steps of this block past the end are dropped (the pad is local)
-        its += int(it_buf[:valid].sum())
-        for i, tf in field_idx.items():
-            if start <= i < start + valid:
-                fields[tf] = model.stress_field(f[i - start, 0])
-        for k in range(R):
-            if np.isnan(ridge_slip[k]) and gross[:valid, k].any():
-                ridge_slip[k] = (start + int(np.argmax(gross[:valid, k]))) / scene.fs
-        start += m
-    return end, slip_time, its
 
 
 def _simulate_quiet(scene, stepping="auto", backend="cpp"):

@@ -20,7 +20,7 @@ which has moved ``s`` along ``y``:
   to the plate (``|w| > 1e-11 * ridge height``); on the cone but still (a stopped
   plate) it is reported as stuck.
 
-Event-driven path following (the Python backend; the law both stepping modes
+Event-driven path following (the law both stepping modes and both backends
 implement). Between two samples the plate moves linearly, ``L(theta) = L0 + theta
 (L1 - L0)`` with ``L = (plate_y, plate_z)``. Every node has a status: OPEN, STICK
 (``g = 0``, ``u_y - s`` fixed at its anchor, cone ``mu``), SLIP with a sign
@@ -76,23 +76,6 @@ Both meet the same events at the same points: the results agree to round-off.
 A node is reported SLIP while its status is SLIP; the slip fraction is the weight
 of SLIP nodes over the weight of touching nodes.
 
-The per-sample law of the compiled backend (until it follows the events as well;
-``n`` nodes)::
-
-    1. cones: mu_i = mu_kinetic if node i slid in the previous step (reported SLIP),
-       else mu (static).
-    2. solve the step (previous plate position -> this one) with these cones: the
-       Alart-Curnier equations below, from the previous classification.
-    3. breakaway: B = {i : reported SLIP (on its cone and |w_i| > w_tol) and
-       mu_i == mu > mu_kinetic}. If B is empty, accept the solution.
-    4. cascade: mu_i = mu_kinetic for every i in B (all of one round at once, no
-       ordering among them), solve the same step again (same plate position, same
-       previous surface position ``u_y_prev``, warm start from the classification of
-       step 3) and go back to 3. The set of kinetic cones only grows, so this ends in
-       at most n rounds; with mu_kinetic == mu it never runs.
-    5. accept: the history (u_y_prev, forces, classification) is the last solution's;
-       nodes reported SLIP are the ones that slid, with the kinetic cone next step.
-
 Both are written as the Alart-Curnier equations ``F(lam) = 0``::
 
     F_n = ln - max(0, ln - r g)
@@ -111,17 +94,15 @@ stiffness, so both terms have the units of force). Convergence: ``max |F| <= tol
 force scale``, with the force scale ``r * max(|g|, indent)``; a step that does not
 converge raises :class:`ContactConvergenceError`.
 
-Two backends: ``"cpp"`` (the default: the compiled kernel ``contact_solver.hpp``, a
-few microseconds per step when the piece is unchanged; its dense LU, triangular
-solves and compliance products run as AVX2+FMA code where the CPU has it, else as
-x86-64 baseline code, chosen at run time) steps the per-sample law above, one
-Alart-Curnier solve per sample (bordering the LU of the last piece instead of
-refactoring, with one step of iterative refinement); ``"python"`` (numpy/LAPACK, the
-reference) follows the events, ``step`` being one sample interval of
-:meth:`ContactSolver.follow`. There the Alart-Curnier solve serves the breakaway
-cascades (step 5) and the cycle rule (step 6). ``tests/test_contact_cpp.py`` compares the two;
-it holds where the compiled kernel implements the same law. Both leave the contact
-history unchanged when a step fails.
+Two backends follow the events, step for step: ``"cpp"`` (the default: the compiled
+kernel ``contact_solver.hpp``, whose dense LU, triangular solves and compliance
+products run as AVX2+FMA code where the CPU has it, else as x86-64 baseline code,
+chosen at run time; it borders the LU of a nearby factored piece instead of
+refactoring) and ``"python"`` (numpy/LAPACK, the reference). The Alart-Curnier solve
+serves the breakaway cascades (step 5) and the cycle rule (step 6). They meet the
+same events at the same points with the same solves; ``tests/test_contact_cpp.py``
+checks identical node states and forces within 1e-10 of their peak. Both leave the
+contact history unchanged when a step fails.
 """
 from __future__ import annotations
 
@@ -236,6 +217,8 @@ class ContactSolver:
             self._kernel = _core._ContactSolver(np.ascontiguousarray(C, dtype=np.float64), model.node_z,
                                                 model.weights, self._r, self._w_tol)
             self._kernel.set_params(**self._params)
+            self._kernel.set_event_tolerances(self._g_tol, self._f_tol, float(self._evt_tol[0, 0]),
+                                              float(self._evt_tol[1, 0]))
         self.reset()
 
     # Parameters: plain attributes for the user, pushed to the kernel when set.
@@ -282,7 +265,7 @@ class ContactSolver:
                 raise ValueError(f"state[{name!r}] must have shape ({size},), got {a.shape}")
         s_prev = float(state["s_prev"])
         if self._kernel is not None:
-            self._kernel.set_history(lam, uy, s_prev, cls, sign, sliding)
+            self._kernel.set_history(lam, uy, s_prev, cls, sign, sliding, state.get("z_prev"))
             return
         self._lam, self._s_prev = lam, s_prev
         self._state, self._sign, self._sliding = cls, sign, sliding
@@ -299,6 +282,8 @@ class ContactSolver:
 
     def reset(self) -> None:
         """Back to the undeformed, unloaded state."""
+        self.solves = 0
+        self.events = 0
         if self._kernel is not None:
             self._kernel.reset()
             return
@@ -342,6 +327,7 @@ class ContactSolver:
             status, f, u, state, frac, it = self._kernel.step(float(plate_y), float(plate_z))
             if status:
                 self._raise_status(status, plate_y, plate_z)
+            self._sync_counts()
             return ContactStep(forces=f, displacement=u, state=state, slip_fraction=frac, iterations=it)
         lam = np.empty((1, 2 * self._n))
         u = np.empty((1, 2 * self._n))
@@ -387,7 +373,8 @@ class ContactSolver:
                state_out: np.ndarray | None = None) -> tuple[int, int]:
         """Follow the plate through the samples ``(plate_y[k], plate_z[k])`` (m), the
         load moving linearly from each sample to the next, starting from the current
-        state (Python backend only; see "Event-driven stepping" in the module docstring).
+        state (see "Event-driven path following" in the module docstring; the compiled
+        backend runs the same steps in one call without the GIL).
 
         ``stepping="every"`` solves the piece at every sample; ``"auto"`` solves only
         where the status of a node changes (and where the direction of the load
@@ -399,8 +386,6 @@ class ContactSolver:
         accumulated in :attr:`solves` and :attr:`events`). On an error the history is
         what it was before the call.
         """
-        if self._kernel is not None:
-            raise NotImplementedError("event-driven stepping runs in the Python backend (backend='python')")
         if stepping not in STEPPINGS:
             raise ValueError(f"stepping must be one of {STEPPINGS}, got {stepping!r}")
         ys = np.asarray(plate_y, dtype=np.float64).ravel()
@@ -412,6 +397,12 @@ class ContactSolver:
             raise ValueError(f"plate position must be finite, got y={ys[k]!r}, z={zs[k]!r}")
         N, n = ys.size, self._n
         lam_out = np.empty((N, 2 * n)) if lam_out is None else lam_out
+        if self._kernel is not None:
+            status, solves, events = self._kernel.follow(ys, zs, stepping == "every", lam_out, u_out, state_out)
+            if status:
+                self._raise_status(status, *self._kernel.error_point())
+            self._sync_counts()
+            return solves, events
         snapshot = self._snapshot()
         solves0, events0 = self.solves, self.events
         try:
@@ -710,6 +701,10 @@ class ContactSolver:
         return ContactStep(forces=f, displacement=u, state=state.astype(np.int8), slip_fraction=frac,
                            iterations=int(iterations))
 
+    def _sync_counts(self) -> None:
+        """The compiled kernel's solves and events as this solver's attributes."""
+        self.solves, self.events = self._kernel.solves, self._kernel.events
+
     def _raise_status(self, status: int, plate_y: float, plate_z: float):
         """The exception of the reference implementation for a kernel status."""
         info, residual, atol = self._kernel.error()
@@ -724,6 +719,9 @@ class ContactSolver:
                 f"contact did not converge in {self.max_iter} iterations (residual {residual:.3e} N/m, "
                 f"tolerance {atol:.3e}); plate at y={plate_y:.6g} m, z={plate_z:.6g} m, mu={self.mu}"
             )
+        if status == 5:
+            raise ContactConvergenceError(
+                f"node statuses cycle at the plate position y={plate_y:.6g} m, z={plate_z:.6g} m")
         raise RuntimeError(f"contact kernel returned unknown status {status}")  # pragma: no cover
 
     # -- one piece of the piecewise-linear system
