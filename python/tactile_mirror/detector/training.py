@@ -55,8 +55,9 @@ class TrainingSet:
         self.estimator = dict(DEFAULT_ESTIMATOR if estimator is None else estimator)
         self.targets = dict(targets or {})
         self.load_tau = load_tau_of(features, load_tau)
-        if self.x.ndim != 3 or self.x.shape[1] < 1:
-            raise ValueError(f"x must have shape (n_seq, n_inputs, n), got {self.x.shape}")
+        n_ch = len(FEATURE_KINDS.get(features, ())) or 4
+        if self.x.ndim != 3 or self.x.shape[1] != n_ch:
+            raise ValueError(f"x must have shape (n_seq, {n_ch}, n) for {features!r} features, got {self.x.shape}")
         for name in ("y_slip", "y_pred", "mask"):
             if getattr(self, name).shape != (self.x.shape[0], self.x.shape[2]):
                 raise ValueError(f"{name} must have shape {(self.x.shape[0], self.x.shape[2])}, "
