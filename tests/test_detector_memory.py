@@ -221,3 +221,33 @@ def test_memory_kernel_refuses_wrong_shapes():
 def test_memory_metadata_json():
     w = _memory_weights()
     json.dumps(w.metadata)
+
+
+def test_build_options_kind_and_load_tau():
+    from tactile_mirror.detector.build import BuildOptions
+
+    assert BuildOptions(kind="jordan_memory").kind == "jordan_memory"
+    with pytest.raises(ValueError, match="kind"):
+        BuildOptions(kind="elman")
+    with pytest.raises(ValueError, match="load_tau"):
+        BuildOptions(kind="jordan_memory", load_tau=0.0)
+
+
+def test_training_memory_kind_from_results_records_tau():
+    from types import SimpleNamespace
+
+    from tactile_mirror.detector.training import make_training_set, train_detector
+
+    x = _signals(n_r=2, n=300)
+    t = np.arange(300) / FS
+    frac = np.zeros((2, 300))
+    frac[:, 200:] = 1.0
+    res = SimpleNamespace(features=x, fs=FS, t=t, slip_fraction=frac, v_out=np.zeros((2, 2, 300)))
+    ts = make_training_set([res], features="stress_rate_memory", load_tau=0.2)
+    assert ts.x.shape == (2, 8, 300) and ts.load_tau == 0.2
+    w = train_detector(ts, n_hidden=3, maxiter=3, progress=False)
+    assert w.kind == "jordan_memory" and w.load_tau == 0.2
+    assert w.metadata["channels"] == list(MEMORY_CHANNELS)
+    # The trained weights run in the C++ kernel like the numpy reference.
+    ys, _, _ = SlipDetector(w).run(x)
+    np.testing.assert_allclose(ys, reference_run(w, x)[0], atol=1e-11)

@@ -28,6 +28,7 @@ from .training import TrainingSet, augment_gains, augment_noise, make_training_s
 from .weights import KINDS
 
 __all__ = [
+    "EXTRA_TRAIN_SEED",
     "NOISE_COPIES",
     "NOISE_RANGE",
     "TEST_KWARGS",
@@ -41,12 +42,16 @@ __all__ = [
     "build_default",
     "hidden_size_study",
     "select_candidate",
+    "simulate_cached",
     "simulate_scenes",
     "train_selected",
 ]
 
 #: Seeds of the training, validation and held-out scene sets (different on purpose).
 TRAIN_SEED = 20261121
+#: Seed of the extra training scenes drawn from the held-out ranges (``BuildOptions.n_extra_train``;
+#: the bound study's extra training seed).
+EXTRA_TRAIN_SEED = 99
 TEST_SEED = 777
 VALIDATION_SEED = 4242
 
@@ -293,6 +298,9 @@ class BuildOptions:
         (:mod:`~tactile_mirror.detector.memory`; ``memory_detector.npz``).
     load_tau : float
         Leak time constant of the load integrals of ``"jordan_memory"``, s.
+    n_extra_train : int
+        Extra training scenes drawn from the held-out ranges (``test_kwargs``) with seed
+        :data:`EXTRA_TRAIN_SEED`: lower friction and stops, where slips creep in. Default 0.
     """
 
     n_train: int = 64
@@ -314,6 +322,7 @@ class BuildOptions:
     progress: bool = True
     kind: str = "jordan"
     load_tau: float = DEFAULT_LOAD_TAU
+    n_extra_train: int = 0
 
     def __post_init__(self) -> None:
         def put(name, value):
@@ -327,7 +336,7 @@ class BuildOptions:
         put("load_tau", float(self.load_tau))
         for name in ("n_train", "n_test", "n_hidden", "maxiter", "ridges_per_scene", "candidates"):
             put(name, _positive_int(name, getattr(self, name)))
-        for name in ("noise_copies", "checkpoint_every"):
+        for name in ("noise_copies", "checkpoint_every", "n_extra_train"):
             put(name, _positive_int(name, getattr(self, name), minimum=0))
         if isinstance(self.seed, bool) or int(self.seed) != self.seed:
             raise ValueError(f"seed must be an integer, got {self.seed!r}")
@@ -433,6 +442,8 @@ def _build(out_path, options: BuildOptions, report_path, figure_path, results, c
     if selecting:
         val_res = list(results[2]) if len(results) > 2 else simulate_cached(
             n_validation, VALIDATION_SEED, test_kwargs, cache_dir, progress)
+    if o.n_extra_train:
+        train_res = train_res + simulate_cached(o.n_extra_train, EXTRA_TRAIN_SEED, test_kwargs, cache_dir, progress)
     t_sim = time.perf_counter() - t0
     n_ridges = np.asarray(train_res[0].v_out).shape[0]
     seqs = augment_noise(train_res, noise_copies, noise_range, seed=2) if noise_copies else train_res
@@ -454,6 +465,8 @@ def _build(out_path, options: BuildOptions, report_path, figure_path, results, c
                                                         checkpoint_every, progress, **opts)
     meta = {"scenes": f"scenes.random({n_train}, seed={TRAIN_SEED}, **{train_kwargs})",
             "ridges_per_scene": ridges_per_scene, "kind": o.kind}
+    if o.n_extra_train:
+        meta["extra_scenes"] = f"scenes.random({o.n_extra_train}, seed={EXTRA_TRAIN_SEED}, **{test_kwargs})"
 
     def train(feedback):
         return train_selected(ts, n_hidden, maxiter, seed, candidates, checkpoint_every, scorer, feedback,
@@ -518,9 +531,13 @@ def main(argv=None):
                     help="jordan: the paper's net; jordan_memory: the load-memory net")
     ap.add_argument("--candidates", type=int, default=4, help="initial seeds trained (the best kept)")
     ap.add_argument("--cache", help="directory keeping the simulated scenes between builds")
+    ap.add_argument("--extra-train", type=int, default=0,
+                    help=f"extra training scenes from the held-out ranges (seed {EXTRA_TRAIN_SEED})")
+    ap.add_argument("--checkpoint-every", type=int, default=25)
     args = ap.parse_args(argv)
     options = BuildOptions(n_train=args.n_train, n_test=args.n_test, n_hidden=args.hidden, maxiter=args.maxiter,
                            study_sizes=args.study or None, kind=args.kind, candidates=args.candidates,
+                           n_extra_train=args.extra_train, checkpoint_every=args.checkpoint_every,
                            train_options={"negative_weight": args.negative_weight, "pred_weight": args.pred_weight,
                                           "normalisation": args.normalisation})
     _w, report = build_default(args.out, options, report_path=args.report, figure_path=args.figure,
