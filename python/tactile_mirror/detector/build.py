@@ -406,7 +406,8 @@ def build_default(out_path, options: BuildOptions | None = None, *args, report_p
             report_path, figure_path, results = io["report_path"], io["figure_path"], io["results"]
     elif args or kwargs:
         raise TypeError("build_default takes BuildOptions or the old keyword options, not both")
-    return _build(out_path, options, report_path, figure_path, results, cache_dir)
+    extra = {} if cache_dir is None else {"cache_dir": cache_dir}
+    return _build(out_path, options, report_path, figure_path, results, **extra)
 
 
 def _legacy_build_options(args: tuple, kwargs: dict, io: dict):
@@ -540,8 +541,8 @@ def main(argv=None):
                            n_extra_train=args.extra_train, checkpoint_every=args.checkpoint_every,
                            train_options={"negative_weight": args.negative_weight, "pred_weight": args.pred_weight,
                                           "normalisation": args.normalisation})
-    _w, report = build_default(args.out, options, report_path=args.report, figure_path=args.figure,
-                               cache_dir=args.cache)
+    extra = {} if args.cache is None else {"cache_dir": args.cache}
+    _w, report = build_default(args.out, options, report_path=args.report, figure_path=args.figure, **extra)
     print(report["evaluation_table"])
     if "hidden_size_study" in report:
         for row in report["hidden_size_study"]:
