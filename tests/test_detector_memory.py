@@ -251,3 +251,17 @@ def test_training_memory_kind_from_results_records_tau():
     # The trained weights run in the C++ kernel like the numpy reference.
     ys, _, _ = SlipDetector(w).run(x)
     np.testing.assert_allclose(ys, reference_run(w, x)[0], atol=1e-11)
+
+
+def test_pipeline_refuses_memory_weights_by_name():
+    import tactile_mirror as tm
+
+    with pytest.raises(ValueError, match="jordan_memory"):
+        tm.MirrorPipeline(SlipDetector(_memory_weights()), FS, n_ridges=6)
+
+
+def test_bundled_memory_net_loads_and_runs_like_numpy():
+    det = SlipDetector.memory()
+    assert det.kind == "jordan_memory" and det.features == "stress_rate" and det.n_channels == 4
+    x = _signals(n_r=1, n=400)
+    np.testing.assert_allclose(det.run(x)[0], reference_run(det.weights, x)[0], atol=1e-11)
