@@ -382,7 +382,7 @@ def _rewrite(path, out, **changes):
 
 
 @pytest.mark.parametrize("changes, message", [
-    ({"format_version": np.array(2)}, "format_version 2 is not supported"),
+    ({"format_version": np.array(3)}, "format_version 3 is not supported"),
     ({"format_version": None}, "format_version missing"),
     ({"format": np.array("something-else")}, "not a detector weights file"),
     ({"w2": np.zeros((3, 6))}, r"w2 must have shape \(2, 6\)"),

@@ -115,9 +115,10 @@ def _read_member(zf: zipfile.ZipFile, info: zipfile.ZipInfo, spec: Member, name:
     return out
 
 
-def read_versioned(path, fmt: str, version: int, error: type[Exception], what: str,
+def read_versioned(path, fmt: str, version: int | tuple[int, ...], error: type[Exception], what: str,
                    members: dict[str, Member]) -> dict:
-    """The ``members`` of an npz archive whose ``format`` is ``fmt`` and ``format_version`` is ``version``.
+    """The ``members`` of an npz archive whose ``format`` is ``fmt`` and ``format_version`` is ``version``
+    (or one of the versions, if a tuple).
 
     Only ``format``, ``format_version`` and the names in ``members`` are read (other
     members are ignored, unread); each is checked against its :class:`Member` bound
@@ -158,8 +159,10 @@ def read_versioned(path, fmt: str, version: int, error: type[Exception], what: s
         except _MALFORMED as exc:
             raise error(f"{path!r} is not a readable {what}: {type(exc).__name__}: {exc}") from None
     v = int(data["format_version"])
-    if v != version:
-        raise error(f"{path!r}: format_version {v} is not supported (this library reads version {version})")
+    versions = version if isinstance(version, tuple) else (version,)
+    if v not in versions:
+        which = f"version {versions[0]}" if len(versions) == 1 else f"versions {', '.join(map(str, versions))}"
+        raise error(f"{path!r}: format_version {v} is not supported (this library reads {which})")
     return data
 
 

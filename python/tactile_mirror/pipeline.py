@@ -45,6 +45,9 @@ def _weights_of(detector):
     if not all(hasattr(w, k) for k in needed):
         raise TypeError("detector must be a SlipDetector, a DetectorWeights or a dict of weight arrays, "
                         f"got {type(detector).__name__}")
+    if getattr(w, "kind", "jordan") != "jordan":
+        raise ValueError(f"the pipeline runs the paper's Jordan net (weights kind 'jordan'); weights of kind "
+                         f"{w.kind!r} run through SlipDetector, not yet in the pipeline")
     p = w.params
     return {"w1": p.w1, "b1": p.b1, "w2": p.w2, "b2": p.b2, "input_mean": w.input_mean,
             "input_gain": 1.0 / np.asarray(w.input_scale, dtype=np.float64), "fs": float(w.fs),

@@ -1,4 +1,6 @@
-"""Slip detection: the Jordan recurrent MLP of the paper (section 3.2, Figs 9-10).
+"""Slip detection: the Jordan recurrent MLP of the paper (section 3.2, Figs 9-10), and the
+same net with load-memory inputs (:mod:`.memory`: the ridge's load integrals and the pad's
+shear rate and load), which sees slips that creep in.
 
 Inputs per ridge: ``[v_L, v_R, u_L, u_R]`` (stress rates from the estimator,
 or raw circuit voltages; the kind is stored with the weights) plus the net's own
@@ -8,18 +10,23 @@ L-BFGS-B; running is the allocation-free C++ kernel ``jordan_mlp.hpp``.
 """
 from __future__ import annotations
 
-from .core import DEFAULT_WEIGHTS, SlipDetector, reference_run
+from .core import DEFAULT_WEIGHTS, MEMORY_WEIGHTS, PAPER_WEIGHTS, SlipDetector, reference_run
 from .data_prep import features_from_result, targets_from_result
 from .evaluate import DetectionMetrics, EvaluationReport, ForceRatioDetector, evaluate
 from .figures import figure10, figure10_data
+from .memory import MEMORY_CHANNELS, memory_features
 from .network import Params, forward, init_params, loss_and_grad
 from .training import TrainingSet, augment_noise, fit_normalisation, make_training_set, train_detector
-from .weights import FEATURE_KINDS, FORMAT_VERSION, DetectorWeights, WeightsError
+from .weights import FEATURE_KINDS, FORMAT_VERSION, KINDS, DetectorWeights, WeightsError
 
 __all__ = [
     "DEFAULT_WEIGHTS",
     "FEATURE_KINDS",
     "FORMAT_VERSION",
+    "KINDS",
+    "MEMORY_CHANNELS",
+    "MEMORY_WEIGHTS",
+    "PAPER_WEIGHTS",
     "DetectionMetrics",
     "DetectorWeights",
     "EvaluationReport",
@@ -38,6 +45,7 @@ __all__ = [
     "init_params",
     "loss_and_grad",
     "make_training_set",
+    "memory_features",
     "reference_run",
     "targets_from_result",
     "train_detector",

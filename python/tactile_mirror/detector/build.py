@@ -23,9 +23,12 @@ from .._io import save_figure, write_text
 from .._legacy import legacy_arguments
 from .core import SlipDetector
 from .evaluate import ForceRatioDetector, evaluate
+from .memory import DEFAULT_LOAD_TAU
 from .training import TrainingSet, augment_gains, augment_noise, make_training_set, train_detector
+from .weights import KINDS
 
 __all__ = [
+    "EXTRA_TRAIN_SEED",
     "NOISE_COPIES",
     "NOISE_RANGE",
     "TEST_KWARGS",
@@ -39,12 +42,16 @@ __all__ = [
     "build_default",
     "hidden_size_study",
     "select_candidate",
+    "simulate_cached",
     "simulate_scenes",
     "train_selected",
 ]
 
 #: Seeds of the training, validation and held-out scene sets (different on purpose).
 TRAIN_SEED = 20261121
+#: Seed of the extra training scenes drawn from the held-out ranges (``BuildOptions.n_extra_train``;
+#: the bound study's extra training seed).
+EXTRA_TRAIN_SEED = 99
 TEST_SEED = 777
 VALIDATION_SEED = 4242
 
@@ -74,11 +81,41 @@ def simulate_scenes(scenes, progress: bool = True, executor=None) -> list:
     return [tactile_mirror.simulate(s) for s in tqdm(scenes, desc="simulate", disable=not progress, leave=False)]
 
 
+def simulate_cached(n: int, seed: int, kwargs: dict, cache_dir=None, progress: bool = True) -> list:
+    """``simulate_scenes(scenes.random(n, seed=seed, **kwargs))``, kept in ``cache_dir`` (pickle) if given.
+
+    The cache file is named by ``n``, ``seed`` and a hash of ``kwargs`` and of the
+    library version, so changed scene options never read stale results; delete the
+    directory after a change of the contact solver. Only for files this process or
+    one like it wrote: pickle runs code from the file.
+    """
+    if cache_dir is None:
+        return simulate_scenes(_random_scenes(n, seed, **kwargs), progress)
+    import hashlib
+    import os
+    import pickle
+
+    from .. import __version__
+
+    key = hashlib.sha256(repr((n, seed, sorted(kwargs.items()), __version__)).encode()).hexdigest()[:16]
+    path = os.path.join(os.fspath(cache_dir), f"scenes_{seed}_{n}_{key}.pkl")
+    if os.path.exists(path):
+        with open(path, "rb") as fh:
+            return pickle.load(fh)
+    res = simulate_scenes(_random_scenes(n, seed, **kwargs), progress)
+    os.makedirs(os.fspath(cache_dir), exist_ok=True)
+    tmp = path + ".tmp"
+    with open(tmp, "wb") as fh:
+        pickle.dump(res, fh, protocol=pickle.HIGHEST_PROTOCOL)
+    os.replace(tmp, path)
+    return res
+
+
 def subset(ts: TrainingSet, ridges_per_scene: int, n_ridges: int) -> TrainingSet:
     """Keep the first ``ridges_per_scene`` of every ``n_ridges`` sequences (scene-major order)."""
     keep = (np.arange(ts.n_seq) % n_ridges) < ridges_per_scene
     return TrainingSet(ts.x[keep], ts.y_slip[keep], ts.y_pred[keep], ts.mask[keep], ts.fs, ts.features,
-                       ts.estimator, ts.targets)
+                       ts.estimator, ts.targets, ts.load_tau)
 
 
 def hidden_size_study(train, validation, sizes=(4, 8, 12, 16, 24), maxiter: int = 800, seed: int = 0,
@@ -255,6 +292,15 @@ class BuildOptions:
         ranges) is kept (:func:`select_candidate`). Defaults 120, 4, 25.
     progress : bool
         Progress bars. Default True.
+    kind : {"jordan", "jordan_memory"}
+        ``"jordan"``: the paper's net on the four stress rates (``paper_detector.npz``);
+        ``"jordan_memory"``: the same net on the load-memory channels
+        (:mod:`~tactile_mirror.detector.memory`; ``memory_detector.npz``).
+    load_tau : float
+        Leak time constant of the load integrals of ``"jordan_memory"``, s.
+    n_extra_train : int
+        Extra training scenes drawn from the held-out ranges (``test_kwargs``) with seed
+        :data:`EXTRA_TRAIN_SEED`: lower friction and stops, where slips creep in. Default 0.
     """
 
     n_train: int = 64
@@ -274,14 +320,23 @@ class BuildOptions:
     candidates: int = 4
     checkpoint_every: int = 25
     progress: bool = True
+    kind: str = "jordan"
+    load_tau: float = DEFAULT_LOAD_TAU
+    n_extra_train: int = 0
 
     def __post_init__(self) -> None:
         def put(name, value):
             object.__setattr__(self, name, value)
 
+        if self.kind not in KINDS:
+            raise ValueError(f"kind must be one of {sorted(KINDS)}, got {self.kind!r}")
+        if isinstance(self.load_tau, bool) or not isinstance(self.load_tau, (int, float)) \
+                or not (np.isfinite(self.load_tau) and self.load_tau > 0):
+            raise ValueError(f"load_tau must be a positive number of seconds, got {self.load_tau!r}")
+        put("load_tau", float(self.load_tau))
         for name in ("n_train", "n_test", "n_hidden", "maxiter", "ridges_per_scene", "candidates"):
             put(name, _positive_int(name, getattr(self, name)))
-        for name in ("noise_copies", "checkpoint_every"):
+        for name in ("noise_copies", "checkpoint_every", "n_extra_train"):
             put(name, _positive_int(name, getattr(self, name), minimum=0))
         if isinstance(self.seed, bool) or int(self.seed) != self.seed:
             raise ValueError(f"seed must be an integer, got {self.seed!r}")
@@ -316,7 +371,7 @@ _BUILD_IO = ("report_path", "figure_path", "results")
 
 
 def build_default(out_path, options: BuildOptions | None = None, *args, report_path=None, figure_path=None,
-                  results=None, **kwargs):
+                  results=None, cache_dir=None, **kwargs):
     """Simulate, train and evaluate the default detector; save its weights.
 
     Parameters
@@ -329,6 +384,8 @@ def build_default(out_path, options: BuildOptions | None = None, *args, report_p
         Text report (evaluation table, study) and Figure 10 image.
     results : (list, list) or (list, list, list), optional
         Already simulated (training, held-out[, validation]) results of exactly these scenes.
+    cache_dir : path, optional
+        Keep the simulated scene sets there between builds (:func:`simulate_cached`).
 
     The old form ``build_default(out_path, n_train, n_test, n_hidden, maxiter, ...)``
     with the options as positional or keyword arguments still works and warns with a
@@ -349,7 +406,8 @@ def build_default(out_path, options: BuildOptions | None = None, *args, report_p
             report_path, figure_path, results = io["report_path"], io["figure_path"], io["results"]
     elif args or kwargs:
         raise TypeError("build_default takes BuildOptions or the old keyword options, not both")
-    return _build(out_path, options, report_path, figure_path, results)
+    extra = {} if cache_dir is None else {"cache_dir": cache_dir}
+    return _build(out_path, options, report_path, figure_path, results, **extra)
 
 
 def _legacy_build_options(args: tuple, kwargs: dict, io: dict):
@@ -364,7 +422,7 @@ def _legacy_build_options(args: tuple, kwargs: dict, io: dict):
     return BuildOptions(**given), io
 
 
-def _build(out_path, options: BuildOptions, report_path, figure_path, results):
+def _build(out_path, options: BuildOptions, report_path, figure_path, results, cache_dir=None):
     o = options
     n_train, n_test, n_hidden, maxiter = o.n_train, o.n_test, o.n_hidden, o.maxiter
     ridges_per_scene, seed, study_sizes, progress = o.ridges_per_scene, o.seed, o.study_sizes, o.progress
@@ -377,18 +435,22 @@ def _build(out_path, options: BuildOptions, report_path, figure_path, results):
     opts = dict(o.train_options or {})
     t0 = time.perf_counter()
     results = list(results) if results is not None else []
-    train_res = list(results[0]) if len(results) > 0 else simulate_scenes(
-        _random_scenes(n_train, TRAIN_SEED, **train_kwargs), progress)
-    test_res = list(results[1]) if len(results) > 1 else simulate_scenes(
-        _random_scenes(n_test, TEST_SEED, **test_kwargs), progress)
+    train_res = list(results[0]) if len(results) > 0 else simulate_cached(
+        n_train, TRAIN_SEED, train_kwargs, cache_dir, progress)
+    test_res = list(results[1]) if len(results) > 1 else simulate_cached(
+        n_test, TEST_SEED, test_kwargs, cache_dir, progress)
     val_res = []
     if selecting:
-        val_res = list(results[2]) if len(results) > 2 else simulate_scenes(
-            _random_scenes(n_validation, VALIDATION_SEED, **test_kwargs), progress)
+        val_res = list(results[2]) if len(results) > 2 else simulate_cached(
+            n_validation, VALIDATION_SEED, test_kwargs, cache_dir, progress)
+    if o.n_extra_train:
+        train_res = train_res + simulate_cached(o.n_extra_train, EXTRA_TRAIN_SEED, test_kwargs, cache_dir, progress)
     t_sim = time.perf_counter() - t0
     n_ridges = np.asarray(train_res[0].v_out).shape[0]
     seqs = augment_noise(train_res, noise_copies, noise_range, seed=2) if noise_copies else train_res
-    ts = subset(make_training_set(seqs), ridges_per_scene, n_ridges)
+    memory = o.kind == "jordan_memory"
+    ts = subset(make_training_set(seqs, "stress_rate_memory" if memory else "stress_rate",
+                                  load_tau=o.load_tau if memory else None), ridges_per_scene, n_ridges)
     if gain_range is not None:
         ts = augment_gains(ts, gain_range, seed=1)
     report = {"n_train_scenes": n_train, "n_test_scenes": n_test, "train_seed": TRAIN_SEED,
@@ -403,7 +465,9 @@ def _build(out_path, options: BuildOptions, report_path, figure_path, results):
         report["hidden_size_study"] = hidden_size_study(ts, scorer, study_sizes, maxiter, seed, candidates,
                                                         checkpoint_every, progress, **opts)
     meta = {"scenes": f"scenes.random({n_train}, seed={TRAIN_SEED}, **{train_kwargs})",
-            "ridges_per_scene": ridges_per_scene}
+            "ridges_per_scene": ridges_per_scene, "kind": o.kind}
+    if o.n_extra_train:
+        meta["extra_scenes"] = f"scenes.random({o.n_extra_train}, seed={EXTRA_TRAIN_SEED}, **{test_kwargs})"
 
     def train(feedback):
         return train_selected(ts, n_hidden, maxiter, seed, candidates, checkpoint_every, scorer, feedback,
@@ -420,16 +484,21 @@ def _build(out_path, options: BuildOptions, report_path, figure_path, results):
             "chosen_seed": int(tr_meta["seed"]), "chosen_iteration": int(tr_meta["iterations"]),
             "chosen_score": scores[k_best]}
         tr_meta["selection"] = dict(report["candidates"], seeds=int(candidates), fa_cost=10.0)
-    w_nf, _, _ = train(False)
     force = ForceRatioDetector.fit(train_res)
     det = SlipDetector(w)
-    rep = evaluate(det, test_res, {"MLP without feedback": SlipDetector(w_nf), "force ratio |Fy|/Fz": force})
+    if memory:
+        # The baseline of the load-memory net is the paper's net, on the same scenes.
+        second = ("paper Jordan net", "paper", SlipDetector.paper())
+    else:
+        w_nf, _, _ = train(False)
+        second = ("MLP without feedback", "no_feedback", SlipDetector(w_nf))
+    rep = evaluate(det, test_res, {second[0]: second[2], "force ratio |Fy|/Fz": force})
     report["evaluation"] = [r.as_dict() for r in rep.rows]
     report["evaluation_table"] = rep.table()
     report["force_ratio_threshold"] = force.threshold
     w.metadata["evaluation"] = {"scenes": f"scenes.random({n_test}, seed={TEST_SEED}, **{test_kwargs})",
                                 "detector": rep["detector"].as_dict(),
-                                "no_feedback": rep["MLP without feedback"].as_dict(),
+                                second[1]: rep[second[0]].as_dict(),
                                 "force_ratio": rep["force ratio |Fy|/Fz"].as_dict()}
     w.save(out_path)
     report["total_seconds"] = round(time.perf_counter() - t_all, 1)
@@ -459,12 +528,21 @@ def main(argv=None):
     ap.add_argument("--negative-weight", type=float, default=TRAIN_OPTIONS["negative_weight"])
     ap.add_argument("--pred-weight", type=float, default=TRAIN_OPTIONS["pred_weight"])
     ap.add_argument("--normalisation", default="rms", choices=["rms", "median"])
+    ap.add_argument("--kind", default="jordan", choices=sorted(KINDS),
+                    help="jordan: the paper's net; jordan_memory: the load-memory net")
+    ap.add_argument("--candidates", type=int, default=4, help="initial seeds trained (the best kept)")
+    ap.add_argument("--cache", help="directory keeping the simulated scenes between builds")
+    ap.add_argument("--extra-train", type=int, default=0,
+                    help=f"extra training scenes from the held-out ranges (seed {EXTRA_TRAIN_SEED})")
+    ap.add_argument("--checkpoint-every", type=int, default=25)
     args = ap.parse_args(argv)
     options = BuildOptions(n_train=args.n_train, n_test=args.n_test, n_hidden=args.hidden, maxiter=args.maxiter,
-                           study_sizes=args.study or None,
+                           study_sizes=args.study or None, kind=args.kind, candidates=args.candidates,
+                           n_extra_train=args.extra_train, checkpoint_every=args.checkpoint_every,
                            train_options={"negative_weight": args.negative_weight, "pred_weight": args.pred_weight,
                                           "normalisation": args.normalisation})
-    _w, report = build_default(args.out, options, report_path=args.report, figure_path=args.figure)
+    extra = {} if args.cache is None else {"cache_dir": args.cache}
+    _w, report = build_default(args.out, options, report_path=args.report, figure_path=args.figure, **extra)
     print(report["evaluation_table"])
     if "hidden_size_study" in report:
         for row in report["hidden_size_study"]:

@@ -8,15 +8,21 @@ from importlib import resources
 
 import numpy as np
 
+from .memory import memory_features
 from .network import forward
 from .weights import DetectorWeights
 
-__all__ = ["DEFAULT_WEIGHTS", "SlipDetector"]
+__all__ = ["DEFAULT_WEIGHTS", "MEMORY_WEIGHTS", "PAPER_WEIGHTS", "SlipDetector"]
 
 #: File name of the bundled default weights inside ``tactile_mirror.detector.data``.
 DEFAULT_WEIGHTS = "default_detector.npz"
+#: File name of the paper's Jordan net (4 stress-rate inputs, one fed-back value), bundled too.
+PAPER_WEIGHTS = "paper_detector.npz"
+#: File name of the bundled load-memory net (kind ``"jordan_memory"``).
+MEMORY_WEIGHTS = "memory_detector.npz"
 
 _DTYPES = {np.dtype(np.float32): "JordanMLPf32", np.dtype(np.float64): "JordanMLPf64"}
+_MEMORY_DTYPES = {np.dtype(np.float32): "MemoryJordanf32", np.dtype(np.float64): "MemoryJordanf64"}
 
 
 def _core():
@@ -26,7 +32,15 @@ def _core():
 
 
 class SlipDetector:
-    """Jordan recurrent MLP slip detector (one instance per ridge).
+    """Recurrent MLP slip detector (one instance per ridge).
+
+    Two kinds of weights (:attr:`kind`): ``"jordan"``, the paper's Jordan net on the
+    four stress rates of each ridge (:meth:`paper`), and ``"jordan_memory"``, the same
+    net on the stress rates plus the load-memory channels of
+    :mod:`tactile_mirror.detector.memory` (the ridge's shear and normal load and the
+    pad's shear rate and load), which the kernel computes itself from the same four
+    inputs (C++ ``detector_memory.hpp``). Both take ``[v_L, v_R, u_L, u_R]`` per ridge;
+    a ``"jordan_memory"`` detector must be given all ridges of one pad at once.
 
     Parameters
     ----------
@@ -68,7 +82,7 @@ class SlipDetector:
         self.activation = activation
         self.backend = backend
         self._kernels = {}
-        self._state = None  # numpy backend: y_pred(t-1) per ridge
+        self._state = None  # numpy backend: y_pred(t-1) per ridge (and the load state)
         # Owner flag: one thread at a time runs the detector (its state carries over);
         # a second thread gets an error, it never waits.
         self._owner = threading.Lock()
@@ -76,11 +90,25 @@ class SlipDetector:
     # -- construction -------------------------------------------------------------------
     @classmethod
     def default(cls, **kwargs) -> SlipDetector:
-        """The detector with the weights bundled with the library (see ``metadata``)."""
-        ref = resources.files("tactile_mirror.detector").joinpath("data", DEFAULT_WEIGHTS)
+        """The detector with the default weights bundled with the library (see ``metadata``)."""
+        return cls._bundled(DEFAULT_WEIGHTS, **kwargs)
+
+    @classmethod
+    def paper(cls, **kwargs) -> SlipDetector:
+        """The paper's Jordan net (4 stress-rate inputs, ``y_pred`` fed back), bundled weights."""
+        return cls._bundled(PAPER_WEIGHTS, **kwargs)
+
+    @classmethod
+    def memory(cls, **kwargs) -> SlipDetector:
+        """The load-memory net (kind ``"jordan_memory"``), bundled weights."""
+        return cls._bundled(MEMORY_WEIGHTS, **kwargs)
+
+    @classmethod
+    def _bundled(cls, name, **kwargs) -> SlipDetector:
+        ref = resources.files("tactile_mirror.detector").joinpath("data", name)
         with resources.as_file(ref) as path:
             if not os.path.exists(path):
-                raise FileNotFoundError(f"bundled detector weights {DEFAULT_WEIGHTS} are missing")
+                raise FileNotFoundError(f"bundled detector weights {name} are missing")
             return cls(DetectorWeights.load(path), **kwargs)
 
     @classmethod
@@ -99,8 +127,19 @@ class SlipDetector:
 
     @property
     def features(self) -> str:
-        """Feature kind of the inputs (``"stress_rate"`` or ``"circuit"``)."""
-        return self.weights.features
+        """Feature kind of the inputs (``"stress_rate"`` or ``"circuit"``): what :meth:`run` takes.
+        A ``"jordan_memory"`` net takes ``"stress_rate"`` and derives its other channels."""
+        return "stress_rate" if self.weights.kind == "jordan_memory" else self.weights.features
+
+    @property
+    def kind(self) -> str:
+        """``"jordan"`` (the paper's net) or ``"jordan_memory"`` (load-memory inputs)."""
+        return self.weights.kind
+
+    @property
+    def n_channels(self) -> int:
+        """Input channels per ridge that :meth:`run` and :meth:`step` take (4)."""
+        return 4 if self.weights.kind == "jordan_memory" else self.weights.n_inputs
 
     @property
     def n_hidden(self) -> int:
@@ -128,8 +167,13 @@ class SlipDetector:
         if k is None:
             w = self.weights
             p = w.params
-            cls = getattr(_core(), _DTYPES[self.dtype])
-            k = cls(p.w1, p.b1, p.w2, p.b2, w.input_mean, w.input_gain, n_ridges, self.activation)
+            if w.kind == "jordan_memory":
+                cls = getattr(_core(), _MEMORY_DTYPES[self.dtype])
+                k = cls(p.w1, p.b1, p.w2, p.b2, w.input_mean, w.input_gain, n_ridges, w.fs, w.load_tau,
+                        self.activation)
+            else:
+                cls = getattr(_core(), _DTYPES[self.dtype])
+                k = cls(p.w1, p.b1, p.w2, p.b2, w.input_mean, w.input_gain, n_ridges, self.activation)
             self._kernels[n_ridges] = k
         return k
 
@@ -160,9 +204,9 @@ class SlipDetector:
         single = x.ndim == 2
         if single:
             x = x[None]
-        if x.ndim != 3 or x.shape[1] != self.weights.n_inputs:
-            raise ValueError(f"{name} must have shape (n_ridges, {self.weights.n_inputs}, n) or "
-                             f"({self.weights.n_inputs}, n), got {np.shape(features)}")
+        nc = self.n_channels
+        if x.ndim != 3 or x.shape[1] != nc:
+            raise ValueError(f"{name} must have shape (n_ridges, {nc}, n) or ({nc}, n), got {np.shape(features)}")
         if x.shape[0] < 1:
             raise ValueError(f"{name} must hold at least one ridge")
         return x, single
@@ -202,11 +246,17 @@ class SlipDetector:
         with self._claim():
             if self.backend == "numpy":
                 self._check_finite(x)
-                xn = (x.astype(np.float64) - self.weights.input_mean[None, :, None]) \
-                    * self.weights.input_gain[None, :, None]
-                p0 = None if (reset or self._state is None or self._state.size != n_r) else self._state
-                ys, yp = forward(self.weights.params, xn, p0)
-                self._state = yp[:, -1].copy() if yp.shape[1] else (np.zeros(n_r) if p0 is None else p0)
+                w = self.weights
+                fresh = reset or self._state is None or self._state[0].size != n_r
+                p0, l0 = (None, None) if fresh else self._state
+                xf = x.astype(np.float64)
+                l1 = None
+                if w.kind == "jordan_memory":
+                    xf, l1 = memory_features(xf, w.fs, w.load_tau, state=l0, return_state=True)
+                xn = (xf - w.input_mean[None, :, None]) * w.input_gain[None, :, None]
+                ys, yp = forward(w.params, xn, p0)
+                p1 = yp[:, -1].copy() if yp.shape[1] else (np.zeros(n_r) if p0 is None else p0)
+                self._state = (p1, l1)
                 out = (ys, 1.0 - ys, yp)
             else:
                 k = self._kernel(n_r)
@@ -220,8 +270,8 @@ class SlipDetector:
     def step(self, sample):
         """One tick: ``sample`` (n_ridges, 4) -> array (n_ridges, 3) [y_slip, y_non, y_pred]."""
         s = np.asarray(sample)
-        if s.ndim != 2 or s.shape[1] != self.weights.n_inputs:
-            raise ValueError(f"sample must have shape (n_ridges, {self.weights.n_inputs}), got {s.shape}")
+        if s.ndim != 2 or s.shape[1] != self.n_channels:
+            raise ValueError(f"sample must have shape (n_ridges, {self.n_channels}), got {s.shape}")
         if self.backend == "numpy":
             ys, yn, yp = self.run(s[:, :, None], reset=False)
             return np.stack([ys[:, 0], yn[:, 0], yp[:, 0]], axis=1)
@@ -240,13 +290,15 @@ class SlipDetector:
         return self.run(features, fs=fs)[0] >= self.slip_threshold
 
     def __repr__(self) -> str:
-        return (f"SlipDetector(H={self.n_hidden}, features={self.features!r}, fs={self.fs:g} Hz, "
+        return (f"SlipDetector(kind={self.kind!r}, H={self.n_hidden}, features={self.features!r}, fs={self.fs:g} Hz, "
                 f"dtype={self.dtype.name}, activation={self.activation!r}, backend={self.backend!r})")
 
 
 def reference_run(weights: DetectorWeights, features, dtype=np.float64):
     """Numpy reference of :meth:`SlipDetector.run` (float64 math, or float32 with its clamp)."""
     x = np.asarray(features, dtype=np.float64)
+    if weights.kind == "jordan_memory":
+        x = memory_features(x if x.ndim == 3 else x[None], weights.fs, weights.load_tau)
     xn = (x - weights.input_mean[None, :, None]) * weights.input_gain[None, :, None]
     ys, yp = forward(weights.params, xn)
     return ys, 1.0 - ys, yp

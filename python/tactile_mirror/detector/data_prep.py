@@ -40,7 +40,8 @@ def _circuit_of(result, circuit):
     return PVDFCircuit()
 
 
-def features_from_result(result, features: str = "stress_rate", circuit=None, estimator=None) -> np.ndarray:
+def features_from_result(result, features: str = "stress_rate", circuit=None, estimator=None,
+                         load_tau: float | None = None) -> np.ndarray:
     """Detector features of one simulation result.
 
     Parameters
@@ -49,38 +50,52 @@ def features_from_result(result, features: str = "stress_rate", circuit=None, es
         A simulation result with ``fs`` and ``v_out``, ``u_out`` of shape
         (n_ridges, 2, n) [L, R strips]; or a record that carries ready
         ``features`` of shape (n_ridges, 4, n) (used as they are).
-    features : {"stress_rate", "circuit"}
-        Feature kind (see the module docstring).
+    features : {"stress_rate", "circuit", "stress_rate_memory"}
+        Feature kind (see the module docstring). ``"stress_rate_memory"``: the
+        stress rates and the load-memory channels of
+        :func:`~tactile_mirror.detector.memory.memory_features` (8 channels).
     circuit : PVDFCircuit, optional
         Circuit for the estimator; default ``result.circuit``, ``result.scene.circuit``
         or ``PVDFCircuit()``.
     estimator : dict, optional
         Estimator settings; default :data:`DEFAULT_ESTIMATOR`.
+    load_tau : float, optional
+        Leak time constant of the load integrals (``"stress_rate_memory"``), s;
+        default :data:`~tactile_mirror.detector.memory.DEFAULT_LOAD_TAU`.
 
     Returns
     -------
-    ndarray, shape (n_ridges, 4, n), float64
+    ndarray, shape (n_ridges, 4, n) (8 channels for ``"stress_rate_memory"``), float64
     """
+    if features not in ("stress_rate", "circuit", "stress_rate_memory"):
+        raise ValueError(f"features must be 'stress_rate', 'circuit' or 'stress_rate_memory', got {features!r}")
     ready = getattr(result, "features", None)
     if ready is not None:
         x = np.asarray(ready, dtype=np.float64)
         if x.ndim != 3 or x.shape[1] != 4:
             raise ValueError(f"result.features must have shape (n_ridges, 4, n), got {x.shape}")
+        if features == "stress_rate_memory":
+            from .memory import DEFAULT_LOAD_TAU, memory_features
+
+            return memory_features(x, float(result.fs), DEFAULT_LOAD_TAU if load_tau is None else load_tau)
         return x
-    if features not in ("stress_rate", "circuit"):
-        raise ValueError(f"features must be 'stress_rate' or 'circuit', got {features!r}")
     v = np.asarray(result.v_out, dtype=np.float64)
     u = np.asarray(result.u_out, dtype=np.float64)
     if v.ndim != 3 or v.shape[1] != 2:
         raise ValueError(f"result.v_out must have shape (n_ridges, 2, n), got {v.shape}")
     if u.shape != v.shape:
         raise ValueError(f"result.u_out must have the shape of v_out {v.shape}, got {u.shape}")
-    if features == "stress_rate":
+    if features != "circuit":
         from ..estimator import estimate_stress_rate
 
         est = dict(DEFAULT_ESTIMATOR if estimator is None else estimator)
         v, u = estimate_stress_rate(v, u, _circuit_of(result, circuit), float(result.fs), **est)
-    return np.concatenate([v, u], axis=1)
+    x = np.concatenate([v, u], axis=1)
+    if features == "stress_rate_memory":
+        from .memory import DEFAULT_LOAD_TAU, memory_features
+
+        x = memory_features(x, float(result.fs), DEFAULT_LOAD_TAU if load_tau is None else load_tau)
+    return x
 
 
 def targets_from_result(result, gross_level: float = 0.999, pred_scale: float = 0.8,

@@ -8,10 +8,18 @@ import numpy as np
 import scipy.optimize
 
 from .data_prep import DEFAULT_ESTIMATOR, features_from_result, targets_from_result
+from .memory import DEFAULT_LOAD_TAU
 from .network import Params, init_params, loss_and_grad
-from .weights import FEATURE_KINDS, DetectorWeights
+from .weights import FEATURE_CHANNELS, FEATURE_KINDS, DetectorWeights
 
 __all__ = ["TrainingSet", "augment_noise", "fit_normalisation", "make_training_set", "train_detector"]
+
+
+def load_tau_of(features: str, load_tau: float | None) -> float | None:
+    """The leak time constant of ``"stress_rate_memory"`` features (None for other kinds)."""
+    if features != "stress_rate_memory":
+        return None
+    return DEFAULT_LOAD_TAU if load_tau is None else float(load_tau)
 
 
 class TrainingSet:
@@ -32,9 +40,12 @@ class TrainingSet:
         Estimator settings of ``"stress_rate"`` features.
     targets : dict
         How the targets were made (``gross_level``, ``pred_scale``).
+    load_tau : float or None
+        Leak time constant (s) of ``"stress_rate_memory"`` features.
     """
 
-    def __init__(self, x, y_slip, y_pred, mask, fs, features="stress_rate", estimator=None, targets=None):
+    def __init__(self, x, y_slip, y_pred, mask, fs, features="stress_rate", estimator=None, targets=None,
+                 load_tau=None):
         self.x = np.asarray(x, dtype=np.float64)
         self.y_slip = np.asarray(y_slip, dtype=np.float64)
         self.y_pred = np.asarray(y_pred, dtype=np.float64)
@@ -43,8 +54,10 @@ class TrainingSet:
         self.features = features
         self.estimator = dict(DEFAULT_ESTIMATOR if estimator is None else estimator)
         self.targets = dict(targets or {})
-        if self.x.ndim != 3 or self.x.shape[1] != 4:
-            raise ValueError(f"x must have shape (n_seq, 4, n), got {self.x.shape}")
+        self.load_tau = load_tau_of(features, load_tau)
+        n_ch = len(FEATURE_KINDS.get(features, ())) or 4
+        if self.x.ndim != 3 or self.x.shape[1] != n_ch:
+            raise ValueError(f"x must have shape (n_seq, {n_ch}, n) for {features!r} features, got {self.x.shape}")
         for name in ("y_slip", "y_pred", "mask"):
             if getattr(self, name).shape != (self.x.shape[0], self.x.shape[2]):
                 raise ValueError(f"{name} must have shape {(self.x.shape[0], self.x.shape[2])}, "
@@ -56,10 +69,14 @@ class TrainingSet:
     def n_seq(self) -> int:
         return self.x.shape[0]
 
+    @property
+    def n_inputs(self) -> int:
+        return self.x.shape[1]
+
 
 def make_training_set(results, features: str = "stress_rate", circuit=None, estimator=None,
                       gross_level: float = 0.999, pred_scale: float = 0.8,
-                      pred_target: str = "load_ratio") -> TrainingSet:
+                      pred_target: str = "load_ratio", load_tau: float | None = None) -> TrainingSet:
     """Stack simulation results (all at one rate) into a :class:`TrainingSet`.
 
     Targets as :func:`~tactile_mirror.detector.data_prep.targets_from_result`
@@ -73,7 +90,7 @@ def make_training_set(results, features: str = "stress_rate", circuit=None, esti
     for k, r in enumerate(results):
         if not np.isclose(float(r.fs), fs):
             raise ValueError(f"results[{k}].fs={r.fs} differs from results[0].fs={fs}")
-        x = features_from_result(r, features, circuit, estimator)
+        x = features_from_result(r, features, circuit, estimator, load_tau=load_tau)
         ys, yp = targets_from_result(r, gross_level, pred_scale, pred_target)
         if ys.shape[0] != x.shape[0]:
             ys = np.broadcast_to(ys[:1], (x.shape[0], ys.shape[1]))
@@ -83,7 +100,7 @@ def make_training_set(results, features: str = "stress_rate", circuit=None, esti
         ps.append(yp)
     n = max(x.shape[2] for x in xs)
     n_seq = sum(x.shape[0] for x in xs)
-    X = np.zeros((n_seq, 4, n))
+    X = np.zeros((n_seq, xs[0].shape[1], n))
     S = np.zeros((n_seq, n))
     Pp = np.zeros((n_seq, n))
     M = np.zeros((n_seq, n), dtype=bool)
@@ -97,7 +114,7 @@ def make_training_set(results, features: str = "stress_rate", circuit=None, esti
         i += m
     return TrainingSet(X, S, Pp, M, fs, features, estimator,
                        {"gross_level": float(gross_level), "pred_scale": float(pred_scale),
-                        "pred_target": pred_target})
+                        "pred_target": pred_target}, load_tau)
 
 
 def augment_noise(results, copies: int = 2, noise=(0.0, 5e-3), seed=0) -> list:
@@ -151,15 +168,17 @@ def augment_gains(ts: TrainingSet, gain_range=(0.6, 1.7), seed=0) -> TrainingSet
     rng = np.random.default_rng(seed)
     g = np.exp(rng.uniform(np.log(lo), np.log(hi), ts.n_seq))
     return TrainingSet(ts.x * g[:, None, None], ts.y_slip, ts.y_pred, ts.mask, ts.fs, ts.features, ts.estimator,
-                       {**ts.targets, "gain_range": [lo, hi], "gain_seed": int(seed)})
+                       {**ts.targets, "gain_range": [lo, hi], "gain_seed": int(seed)}, ts.load_tau)
 
 
 def fit_normalisation(x, mask=None, method: str = "rms"):
     """Zero mean and one shared scale per signal pair.
 
     The L and R strips share a scale (and so do u_L, u_R), which keeps the
-    mirror symmetry of the pad in the normalised inputs. The mean is zero: the
-    features are signed rates whose sign carries the slide direction.
+    mirror symmetry of the pad in the normalised inputs; channels after the
+    first four (the load-memory inputs) get a scale each. The mean is zero: the
+    features are signed rates (and their integrals) whose sign carries the slide
+    direction.
 
     Parameters
     ----------
@@ -170,22 +189,21 @@ def fit_normalisation(x, mask=None, method: str = "rms"):
 
     Returns
     -------
-    input_mean, input_scale : ndarray, shape (4,)
+    input_mean, input_scale : ndarray, shape (n_inputs,)
     """
     x = np.asarray(x, dtype=np.float64)
     if mask is None:
         mask = np.ones((x.shape[0], x.shape[2]), dtype=bool)
-    sel = np.moveaxis(x, 1, 0)[:, mask]  # (4, n_samples)
-    pairs = np.concatenate([sel[0:2].reshape(1, -1), sel[2:4].reshape(1, -1)])
-    if method == "median":
-        ps = np.median(np.abs(pairs), axis=1)
-    elif method == "rms":
-        ps = np.sqrt(np.mean(pairs ** 2, axis=1))
-    else:
+    if method not in ("median", "rms"):
         raise ValueError(f"method must be 'median' or 'rms', got {method!r}")
-    scale = np.repeat(ps, 2)
+    sel = np.moveaxis(x, 1, 0)[:, mask]  # (n_inputs, n_samples)
+    groups = [[0, 1], [2, 3]] + [[k] for k in range(4, x.shape[1])]
+    scale = np.ones(x.shape[1])
+    for g in groups:
+        v = sel[g].reshape(-1)
+        scale[g] = np.median(np.abs(v)) if method == "median" else np.sqrt(np.mean(v ** 2))
     scale = np.where(scale > 0, scale, 1.0)
-    return np.zeros(4), scale
+    return np.zeros(x.shape[1]), scale
 
 
 _PRED_TARGET_TEXT = {
@@ -206,6 +224,7 @@ def _loss_weights(ts: TrainingSet, pred_weight: float, negative_weight: float = 
 
 
 def _cpp_loss(xn, data, w_slip, w_pred, n_hidden, l2, feedback, n_threads):
+    n_in = xn.shape[1]
     """``loss_and_grad`` for L-BFGS-B through the compiled kernel (same function, same packing)."""
     from .._core import jordan_loss_grad
 
@@ -214,10 +233,10 @@ def _cpp_loss(xn, data, w_slip, w_pred, n_hidden, l2, feedback, n_threads):
     length = np.where(m.any(axis=1), m.shape[1] - np.argmax(m[:, ::-1], axis=1), 0).astype(np.intp)
     xn = np.ascontiguousarray(xn)
     args = [np.ascontiguousarray(a, dtype=np.float64) for a in (data.y_slip, data.y_pred, w_slip, w_pred)]
-    fb = np.arange(n_hidden) * 5 + 4  # feedback column of w1 in the packed vector
+    fb = np.arange(n_hidden) * (n_in + 1) + n_in  # feedback column of w1 in the packed vector
 
     # Weight decay on w1 and w2 (not the biases), as in network.loss_and_grad.
-    decay = Params.unpack(np.ones(n_hidden * 5 + 3 * n_hidden + 2), 4, n_hidden)
+    decay = Params.unpack(np.ones(n_hidden * (n_in + 1) + 3 * n_hidden + 2), n_in, n_hidden)
     decay.b1[:] = 0.0
     decay.b2[:] = 0.0
     decay = l2 * decay.pack()
@@ -316,7 +335,11 @@ def train_detector(data, n_hidden: int = 16, feedback: bool = True, seed=0, maxi
     xn = (data.x - mean[None, :, None]) * (1.0 / scale)[None, :, None]
     xn *= data.mask[:, None, :]
     w_slip, w_pred = _loss_weights(data, pred_weight, negative_weight)
-    p0 = init_params(4, int(n_hidden), seed)
+    n_in = data.n_inputs
+    if len(FEATURE_KINDS.get(data.features, ())) != n_in:
+        raise ValueError(f"data.features {data.features!r} have {len(FEATURE_KINDS[data.features])} channels, "
+                         f"data.x has {n_in}")
+    p0 = init_params(n_in, int(n_hidden), seed)
     if not feedback:
         p0.w1[:, -1] = 0.0
     theta0 = p0.pack()
@@ -324,11 +347,11 @@ def train_detector(data, n_hidden: int = 16, feedback: bool = True, seed=0, maxi
     if not feedback:
         bounds = [(None, None)] * theta0.size
         for j in range(int(n_hidden)):
-            bounds[j * 5 + 4] = (0.0, 0.0)
+            bounds[j * (n_in + 1) + n_in] = (0.0, 0.0)
 
     if backend == "numpy":
         def fun(theta):
-            return loss_and_grad(theta, xn, data.y_slip, data.y_pred, w_slip, w_pred, 4, int(n_hidden),
+            return loss_and_grad(theta, xn, data.y_slip, data.y_pred, w_slip, w_pred, n_in, int(n_hidden),
                                  l2=l2, feedback=feedback)
     else:
         fun = _cpp_loss(xn, data, w_slip, w_pred, int(n_hidden), l2, feedback, int(n_threads))
@@ -340,14 +363,15 @@ def train_detector(data, n_hidden: int = 16, feedback: bool = True, seed=0, maxi
     t0 = time.perf_counter()
 
     def make_weights(theta, extra):
-        params = Params.unpack(theta, 4, int(n_hidden))
+        params = Params.unpack(theta, n_in, int(n_hidden))
         if not feedback:
             params.w1[:, -1] = 0.0
         meta = {
             "features": data.features,
             "units": list(FEATURE_KINDS[data.features]),
-            "channels": ["v_L", "v_R", "u_L", "u_R"],
-            "estimator": data.estimator if data.features == "stress_rate" else None,
+            "channels": list(FEATURE_CHANNELS[data.features]),
+            "estimator": data.estimator if data.features != "circuit" else None,
+            **({"load_tau": float(data.load_tau)} if data.features == "stress_rate_memory" else {}),
             "targets": {"y_slip": "1 while the ridge slips grossly (slip fraction >= gross_level)",
                         "y_pred": _PRED_TARGET_TEXT.get(data.targets.get("pred_target", "slip_zone"),
                                                         "see pred_target"),

@@ -6,7 +6,11 @@ File format (``.npz``, numpy's zip of arrays, loaded with ``allow_pickle=False``
 key                 shape / type           meaning
 ==================  =====================  ==========================================
 ``format``          str                    ``"tactile-mirror-detector"``
-``format_version``  int                    :data:`FORMAT_VERSION`
+``format_version``  int                    :data:`FORMAT_VERSION` (version 1 files, which
+                                           have no ``kind``, still load as ``"jordan"``)
+``kind``            str                    :data:`KINDS`: ``"jordan"`` (the paper's net,
+                                           4 inputs) or ``"jordan_memory"`` (the same
+                                           net on the 8 load-memory channels)
 ``w1``              (H, n_inputs + 1)      input-to-hidden weights, last column y_pred(t-1)
 ``b1``              (H,)
 ``w2``              (2, H)                 hidden-to-output, rows y_slip, y_pred
@@ -14,7 +18,8 @@ key                 shape / type           meaning
 ``input_mean``      (n_inputs,)            normalisation: xn = (x - mean) / scale
 ``input_scale``     (n_inputs,)            positive, in the units of the features
 ``fs``              float                  sample rate the net was trained for (Hz)
-``metadata``        str (JSON)             features kind and units, targets, training
+``metadata``        str (JSON)             features kind and units, targets, training;
+                                           ``load_tau`` (s) for ``"jordan_memory"``
 ==================  =====================  ==========================================
 
 The loader reads only these members (others are ignored, unread), checks each
@@ -35,12 +40,18 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from .._npzfile import Member, check_json, parse_json, read_versioned, write_versioned
+from .memory import MEMORY_CHANNELS, MEMORY_UNITS
 from .network import Params
 
-__all__ = ["FEATURE_KINDS", "FORMAT", "FORMAT_VERSION", "MAX_HIDDEN", "DetectorWeights", "WeightsError"]
+__all__ = ["FEATURE_CHANNELS", "FEATURE_KINDS", "FORMAT", "FORMAT_VERSION", "KINDS", "MAX_HIDDEN",
+           "DetectorWeights", "WeightsError"]
 
 FORMAT = "tactile-mirror-detector"
-FORMAT_VERSION = 1
+#: Version written. 2 added ``kind``; version 1 files load as kind ``"jordan"``.
+FORMAT_VERSION = 2
+_READ_VERSIONS = (1, 2)
+#: Network kinds -> the feature kinds they read.
+KINDS = {"jordan": ("stress_rate", "circuit"), "jordan_memory": ("stress_rate_memory",)}
 
 #: Largest hidden size a weights object or file may have: the C++ detector kernel's limit.
 MAX_HIDDEN = 1024
@@ -55,12 +66,21 @@ _MEMBERS = {
     "input_scale": Member("f", 1, (_MAX_INPUTS,)),
     "fs": Member("f", 0),
     "metadata": Member("U", 0, max_itemsize=4 * _MAX_METADATA_CHARS),
+    "kind": Member("U", 0, max_itemsize=4 * 32, required=False),
 }
 
-#: Kinds of input features and their channel units ([v_L, v_R, u_L, u_R] order).
+#: Kinds of input features and their channel units ([v_L, v_R, u_L, u_R] order, then
+#: the load-memory channels of :mod:`tactile_mirror.detector.memory`).
 FEATURE_KINDS = {
     "stress_rate": ("Pa/s", "Pa/s", "Pa/s^2", "Pa/s^2"),
     "circuit": ("V", "V", "V", "V"),
+    "stress_rate_memory": MEMORY_UNITS,
+}
+#: Channel names per feature kind.
+FEATURE_CHANNELS = {
+    "stress_rate": MEMORY_CHANNELS[:4],
+    "circuit": MEMORY_CHANNELS[:4],
+    "stress_rate_memory": MEMORY_CHANNELS,
 }
 
 
@@ -108,6 +128,16 @@ class DetectorWeights:
         return self.metadata.get("features", "stress_rate")
 
     @property
+    def kind(self) -> str:
+        """``"jordan"`` (the paper's 4-input net) or ``"jordan_memory"`` (load-memory inputs)."""
+        return "jordan_memory" if self.features == "stress_rate_memory" else "jordan"
+
+    @property
+    def load_tau(self) -> float | None:
+        """Leak time constant (s) of the load integrals of a ``"jordan_memory"`` net, else None."""
+        return float(self.metadata["load_tau"]) if self.kind == "jordan_memory" else None
+
+    @property
     def input_gain(self) -> np.ndarray:
         """``1 / input_scale``: what the kernel multiplies by."""
         return 1.0 / self.input_scale
@@ -146,6 +176,11 @@ class DetectorWeights:
         if m - 1 != len(FEATURE_KINDS[kind]):
             raise WeightsError(f"features {kind!r} have {len(FEATURE_KINDS[kind])} channels, "
                                f"the weights take {m - 1}")
+        if kind == "stress_rate_memory":
+            tau = self.metadata.get("load_tau")
+            if isinstance(tau, bool) or not isinstance(tau, (int, float)) or not math.isfinite(tau) or tau <= 0:
+                raise WeightsError(f"metadata['load_tau'] must be a positive number of seconds for "
+                                   f"'stress_rate_memory' features, got {tau!r}")
         check_json(self.metadata, "metadata", WeightsError)
 
     def save(self, path) -> None:
@@ -156,7 +191,7 @@ class DetectorWeights:
         """
         self.validate()
         p = self.params
-        write_versioned(path, FORMAT, FORMAT_VERSION,
+        write_versioned(path, FORMAT, FORMAT_VERSION, kind=np.array(self.kind),
                         w1=p.w1, b1=p.b1, w2=p.w2, b2=p.b2, input_mean=self.input_mean,
                         input_scale=self.input_scale, fs=np.array(float(self.fs)),
                         metadata=np.array(json.dumps(self.metadata, sort_keys=True)))
@@ -175,11 +210,19 @@ class DetectorWeights:
             ``path`` cannot be opened (:class:`FileNotFoundError` if it does not exist).
         """
         path = os.fspath(path)
-        data = read_versioned(path, FORMAT, FORMAT_VERSION, WeightsError, "detector weights file", _MEMBERS)
+        data = read_versioned(path, FORMAT, _READ_VERSIONS, WeightsError, "detector weights file", _MEMBERS)
         fs = data["fs"]
         meta = parse_json(data["metadata"], "metadata", WeightsError, repr(path))
         params = Params(data["w1"], data["b1"], data["w2"], data["b2"])
-        return cls(params, data["input_mean"], data["input_scale"], float(fs), meta)
+        w = cls(params, data["input_mean"], data["input_scale"], float(fs), meta)
+        kind = str(data["kind"]) if "kind" in data else "jordan"
+        if int(data["format_version"]) >= 2 and "kind" not in data:
+            raise WeightsError(f"{path!r}: key 'kind' missing (format_version 2)")
+        if kind not in KINDS:
+            raise WeightsError(f"{path!r}: kind must be one of {sorted(KINDS)}, got {kind[:64]!r}")
+        if kind != w.kind:
+            raise WeightsError(f"{path!r}: kind {kind!r} does not match features {w.features!r}")
+        return w
 
     def check_compatible(self, fs=None, features=None) -> None:
         """Raise :class:`WeightsError` if the weights were made for another rate or feature kind."""

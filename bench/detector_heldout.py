@@ -1,0 +1,148 @@
+"""The load-memory net against the paper's Jordan net on the build's held-out scenes.
+
+Both nets (and, with ``--bound``, the bound study's causal classifier, trained on the
+build's training scenes plus the bound study's extra scenes) are scored on the same
+held-out scenes (``build.TEST_SEED``, ``build.TEST_KWARGS`` ranges, disjoint from the
+training and validation seeds) with the definitions of ``detector.evaluate``: per
+noise condition (noise-free, 1 mV rms white noise on ``v_out``/``u_out``) the
+detection and false-alarm rates at ``y_slip >= 0.8``, split by onset kind, the mean
+latency per onset kind, the share of slips whose ``y_pred`` at the onset lies in
+0.8 +- 0.1, and the ``y_pred`` lead. Then the kernels' tick time for 6 ridges
+(measured inside C++, float32 and float64, both nets in the same run).
+
+Run: ``python bench/detector_heldout.py [--cache out/scenes] [--bound]``.
+"""
+from __future__ import annotations
+
+import argparse
+import os
+import sys
+import time
+
+os.environ.setdefault("OMP_NUM_THREADS", "1")
+os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
+
+import numpy as np
+
+CONDITIONS = ("noise-free", "1 mV rms white")
+
+
+def table_rows(name, scores_pred, results, kinds, cond):
+    """One row per detector: the held-out metrics from (y_slip, y_pred) per result."""
+    from tactile_mirror.detector.data_prep import targets_from_result
+    from tactile_mirror.detector.evaluate import analyse_sequence
+
+    seqs, at_onset = [], []
+    for (ys, yp), r in zip(scores_pred, results):
+        gross, _ = targets_from_result(r)
+        for k in range(ys.shape[0]):
+            g = gross[min(k, gross.shape[0] - 1)]
+            seqs.append(analyse_sequence(r.t, ys[k], yp[k], g))
+            on = np.flatnonzero(g >= 0.5)
+            at_onset.append(float(yp[k][on[0]]) if on.size else np.nan)
+    slips = [i for i, s in enumerate(seqs) if s["slip"]]
+    det = np.array([seqs[i]["detected"] for i in slips])
+    out = {"detector": name, "noise": cond, "n_seq": len(seqs), "n_slip": len(slips),
+           "detection": float(det.mean()), "false_alarm": float(np.mean([s["false_alarm"] for s in seqs]))}
+    for kind in ("release", "gradual"):
+        sel = [i for i in slips if kinds[i] == kind]
+        out[f"n_{kind}"] = len(sel)
+        out[f"det_{kind}"] = float(np.mean([seqs[i]["detected"] for i in sel])) if sel else np.nan
+        lat = [seqs[i]["latency"] for i in sel if seqs[i]["detected"]]
+        out[f"lat_{kind}_ms"] = 1e3 * float(np.mean(lat)) if lat else np.nan
+    yp0 = np.array([at_onset[i] for i in slips])
+    out["pred_in_band"] = float(np.mean(np.abs(yp0 - 0.8) <= 0.1))
+    out["pred_at_onset_median"] = float(np.median(yp0))
+    out["lead_ms"] = 1e3 * float(np.mean([seqs[i]["lead"] for i in slips]))
+    return out
+
+
+def clean(results):
+    """Copies of ``results`` with noise-free circuit outputs (their strip stresses through their circuit)."""
+    import dataclasses
+
+    out = []
+    for r in results:
+        v, u = r.scene.circuit.simulate(r.stress, r.fs)
+        out.append(dataclasses.replace(r, v_out=v, u_out=u))
+    return out
+
+
+def main(argv=None):
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--cache", default="out/scenes", help="directory of cached simulated scenes ('' for none)")
+    ap.add_argument("--n-test", type=int, default=200)
+    ap.add_argument("--memory-weights", default=None, help="load-memory weights (default: bundled)")
+    ap.add_argument("--bound", action="store_true", help="also the bound study's classifier (scikit-learn)")
+    ap.add_argument("--bound-extra", type=int, default=0, help="extra bound training scenes (seed 99)")
+    args = ap.parse_args(argv)
+    sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
+    from _common import header
+    from detector_roc import bound_scores, with_noise
+    from tactile_mirror.detector import SlipDetector, build
+    from tactile_mirror.detector.data_prep import features_from_result
+    from tactile_mirror.detector.evaluate import onset_kinds
+    from tactile_mirror.measure import cpu_model
+
+    header("load-memory net vs the paper's Jordan net on the build's held-out scenes")
+    cache = args.cache or None
+    t0 = time.perf_counter()
+    test = build.simulate_cached(args.n_test, build.TEST_SEED, build.TEST_KWARGS, cache)
+    kinds = onset_kinds(test)
+    print(f"{len(test)} held-out scenes (seed {build.TEST_SEED}): {kinds.count('release')} release, "
+          f"{kinds.count('gradual')} gradual onsets, {kinds.count(None)} sequences without gross slip "
+          f"({time.perf_counter() - t0:.0f} s)", flush=True)
+    memory = SlipDetector.load(args.memory_weights) if args.memory_weights else SlipDetector.memory()
+    paper = SlipDetector.paper()
+    train = []
+    if args.bound:
+        train = build.simulate_cached(64, build.TRAIN_SEED, build.TRAIN_KWARGS, cache)
+        if args.bound_extra:
+            train = train + build.simulate_cached(args.bound_extra, 99, build.TEST_KWARGS, cache)
+    rows = []
+    for ci, cond in enumerate(CONDITIONS):
+        white = 0.0 if cond == "noise-free" else 1e-3
+        noisy = clean(test)  # the scenes' own noise removed: the circuit outputs of their stresses
+        if white:
+            noisy = with_noise(noisy, "1 mV rms white", seed=1000 + ci)
+        for name, det in (("load-memory net", memory), ("paper Jordan net", paper)):
+            outs = []
+            for r in noisy:
+                ys, _, yp = det.run(features_from_result(r, det.features, estimator=det.metadata.get("estimator")),
+                                    fs=r.fs)
+                outs.append((ys, yp))
+            rows.append(table_rows(name, outs, test, kinds, cond))
+        if args.bound:
+            from detector_roc import CONDITIONS as RC
+
+            cond_key = "noise-free" if not white else "1 mV rms white"
+            assert cond_key in RC
+            noisy_train = with_noise(clean(train), cond_key, seed=2000 + ci)
+            probs = bound_scores(noisy_train, noisy, cond_key)
+            from detector_bound import debounce
+
+            outs = []
+            for p in probs:
+                a = debounce(p >= 0.8).astype(float)
+                outs.append((a[None], np.zeros_like(a)[None]))
+            rows.append(table_rows("bound classifier (p>=0.8, 3 in a row)", outs, test, kinds, cond))
+        print(f"{cond} done ({time.perf_counter() - t0:.0f} s)", flush=True)
+    head = (f"{'noise':<15} {'detector':<38} {'detect %':>8} {'FA %':>6} {'release':>9} {'gradual':>9} "
+            f"{'lat rel ms':>10} {'lat grad ms':>11} {'yp in .8+-.1':>12} {'yp med':>7} {'lead ms':>8}")
+    print("\n" + head + "\n" + "-" * len(head))
+    for r in rows:
+        print(f"{r['noise']:<15} {r['detector']:<38} {100 * r['detection']:>8.1f} {100 * r['false_alarm']:>6.1f} "
+              f"{100 * r['det_release']:>9.1f} {100 * r['det_gradual']:>9.1f} {r['lat_release_ms']:>10.1f} "
+              f"{r['lat_gradual_ms']:>11.1f} {100 * r['pred_in_band']:>12.1f} {r['pred_at_onset_median']:>7.2f} "
+              f"{r['lead_ms']:>8.1f}")
+    n0 = rows[0]
+    print(f"\n{n0['n_seq']} sequences, {n0['n_slip']} slips ({n0['n_release']} release, {n0['n_gradual']} gradual)")
+    print(f"\nkernel tick, 6 ridges, measured in C++ (ns, best of 5 x 200000 ticks); CPU: {cpu_model()}")
+    for dt in (np.float32, np.float64):
+        for name, det in (("load-memory net", memory), ("paper Jordan net", paper)):
+            k = SlipDetector(det.weights, dtype=dt).kernel(6)
+            print(f"  {np.dtype(dt).name:<8} {name:<18} {k.time_step_ns(200000, 5):8.1f} ns  ({k.simd_path})")
+
+
+if __name__ == "__main__":
+    sys.exit(main())
