@@ -188,8 +188,9 @@ def test_load_ratio_target_follows_the_tangential_load(paper_results):
     ys, yp = targets_from_result(r)  # load_ratio, pred_scale 0.8
     i_slip = np.flatnonzero(ys[0] >= 1)[0]
     press = t < 0.5
-    # the press alone: the edges slide (slip fraction > 0) but there is no tangential load
-    assert np.asarray(r.slip_fraction)[0][press].max() > 0.1
+    # the press alone: the edges slide (slip fraction > 0 through most of it; a small zone
+    # with a nearly incompressible ridge) but there is no tangential load
+    assert np.mean(np.asarray(r.slip_fraction)[0][press] > 0) > 0.5
     assert yp[0][press].max() < 0.02
     # grows with the pull, reaches ~pred_scale at gross slip, 1 while sliding
     pre = yp[0][(t >= 0.6) & (t < t[i_slip])]
@@ -198,7 +199,7 @@ def test_load_ratio_target_follows_the_tangential_load(paper_results):
     assert np.all(yp[0][ys[0] >= 1] == 1.0)
     # the old target: the slip zone of the press already counts as "slip coming"
     _, yz = targets_from_result(r, pred_target="slip_zone")
-    assert yz[0][np.searchsorted(t, 0.49)] > 0.1
+    assert yz[0][np.searchsorted(t, 0.49)] > 5 * yp[0][press].max()
     with pytest.raises(ValueError, match="pred_target"):
         targets_from_result(r, pred_target="zone")
 
