@@ -94,20 +94,19 @@ def simulate_cached(n: int, seed: int, kwargs: dict, cache_dir=None, progress: b
     import hashlib
     import os
     import pickle
+    from pathlib import Path
 
     from .. import __version__
+    from .._io import atomic_write
 
     key = hashlib.sha256(repr((n, seed, sorted(kwargs.items()), __version__)).encode()).hexdigest()[:16]
     path = os.path.join(os.fspath(cache_dir), f"scenes_{seed}_{n}_{key}.pkl")
     if os.path.exists(path):
-        with open(path, "rb") as fh:
-            return pickle.load(fh)
+        return pickle.loads(Path(path).read_bytes())
     res = simulate_scenes(_random_scenes(n, seed, **kwargs), progress)
     os.makedirs(os.fspath(cache_dir), exist_ok=True)
-    tmp = path + ".tmp"
-    with open(tmp, "wb") as fh:
+    with atomic_write(path, "wb") as fh:
         pickle.dump(res, fh, protocol=pickle.HIGHEST_PROTOCOL)
-    os.replace(tmp, path)
     return res
 
 
