@@ -90,6 +90,19 @@ py::array_t<std::int8_t> copy_out8(const std::int8_t* p, std::size_t m) {
 
 // A preallocated output: None (nullptr) or a writeable C-contiguous array of dtype T
 // with rows * per_row entries and rows on its first axis.
+// The plate path of a whole-trajectory pad call: plate_y (T,) and plate_z (T, n_ridges),
+// float64 C-contiguous (converted if needed). Returns T.
+std::size_t pad_plate_path(py::handle plate_y, py::handle plate_z, std::size_t R, F64& y, F64& z) {
+    y = F64::ensure(plate_y);
+    if (!y || y.ndim() != 1) throw py::value_error("plate_y must be a 1-D array");
+    const std::size_t T = static_cast<std::size_t>(y.shape(0));
+    z = F64::ensure(plate_z);
+    if (!z || z.ndim() != 2 || static_cast<std::size_t>(z.shape(0)) != T ||
+        static_cast<std::size_t>(z.shape(1)) != R)
+        throw py::value_error("plate_z must have shape (" + std::to_string(T) + ", " + std::to_string(R) + ")");
+    return T;
+}
+
 template <typename T>
 T* out_rows(py::handle h, const char* name, std::size_t rows, std::size_t per_row) {
     if (h.is_none()) return nullptr;
@@ -307,14 +320,8 @@ void tm_bind_contact(py::module_& m) {
              [](PyContactPad& p, py::handle plate_y, py::handle plate_z, py::handle forces, py::handle disp,
                 py::handle state, py::handle frac, py::handle iterations) -> py::tuple {
                  const std::size_t R = p.ridges.size(), n = p.n;
-                 F64 y = F64::ensure(plate_y);
-                 if (!y || y.ndim() != 1) throw py::value_error("plate_y must be a 1-D array");
-                 const std::size_t T = static_cast<std::size_t>(y.shape(0));
-                 F64 z = F64::ensure(plate_z);
-                 if (!z || z.ndim() != 2 || static_cast<std::size_t>(z.shape(0)) != T ||
-                     static_cast<std::size_t>(z.shape(1)) != R)
-                     throw py::value_error("plate_z must have shape (" + std::to_string(T) + ", " +
-                                           std::to_string(R) + ")");
+                 F64 y, z;
+                 const std::size_t T = pad_plate_path(plate_y, plate_z, R, y, z);
                  if (forces.is_none()) throw py::type_error("forces must be a numpy array of dtype float64");
                  double* fop = out_rows<double>(forces, "forces", T, R * 2 * n);
                  double* dop = out_rows<double>(disp, "displacement", T, R * 2 * n);
@@ -368,14 +375,8 @@ void tm_bind_contact(py::module_& m) {
              [](PyContactPad& p, py::handle plate_y, py::handle plate_z, bool every, py::handle forces,
                 py::handle disp, py::handle state, py::handle frac, int threads) -> py::tuple {
                  const std::size_t R = p.ridges.size(), n = p.n;
-                 F64 y = F64::ensure(plate_y);
-                 if (!y || y.ndim() != 1) throw py::value_error("plate_y must be a 1-D array");
-                 const std::size_t T = static_cast<std::size_t>(y.shape(0));
-                 F64 z = F64::ensure(plate_z);
-                 if (!z || z.ndim() != 2 || static_cast<std::size_t>(z.shape(0)) != T ||
-                     static_cast<std::size_t>(z.shape(1)) != R)
-                     throw py::value_error("plate_z must have shape (" + std::to_string(T) + ", " +
-                                           std::to_string(R) + ")");
+                 F64 y, z;
+                 const std::size_t T = pad_plate_path(plate_y, plate_z, R, y, z);
                  if (threads < 1) throw py::value_error("threads must be >= 1");
                  double* fop = out_rows<double>(forces, "forces", T, R * 2 * n);
                  double* dop = out_rows<double>(disp, "displacement", T, R * 2 * n);

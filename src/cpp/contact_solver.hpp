@@ -759,13 +759,12 @@ private:
         return ContactStatus::status_cycle;
     }
 
-    // Statuses at the current point from the Alart-Curnier solve of the step (tiny_y,
-    // tiny_z) ahead, 1e-6 of a sample (cones: kinetic on SLIP nodes, static on the
-    // others); the state stays at the current point (the reference's _resolve_point).
-    ContactStatus resolve_point(double tiny_y, double tiny_z) noexcept {
+    // The start of a solve at the current point with the plate face at zp: statuses and
+    // signs back to the accepted ones, the path's cones, the length scale of the
+    // tolerance, and the working classification copied from the accepted one. Returns
+    // the absolute tolerance of the Alart-Curnier residual.
+    double begin_point_solve(double zp) noexcept {
         const std::size_t n = n_;
-        const double sc = s_prev_, zc = z_prev_;
-        const double ds = tiny_y, zp = zc + tiny_z;
         copy8(state_.data(), prev_state_.data());
         copy(sign_.data(), prev_sign_.data());
         set_path_cones();
@@ -775,10 +774,21 @@ private:
         if (1e-9 > scale_len) scale_len = 1e-9;
         if (uy_max > scale_len) scale_len = uy_max;
         scale_len_ = scale_len;
-        const double atol = params.tol * (r_ * scale_len);
+        copy8(state_.data(), ws_state_.data());
+        copy(sign_.data(), ws_sign_.data());
+        return params.tol * (r_ * scale_len);
+    }
+
+    // Statuses at the current point from the Alart-Curnier solve of the step (tiny_y,
+    // tiny_z) ahead, 1e-6 of a sample (cones: kinetic on SLIP nodes, static on the
+    // others); the state stays at the current point (the reference's _resolve_point).
+    ContactStatus resolve_point(double tiny_y, double tiny_z) noexcept {
+        const std::size_t n = n_;
+        const double sc = s_prev_, zc = z_prev_;
+        const double ds = tiny_y, zp = zc + tiny_z;
+        const double atol = begin_point_solve(zp);
         std::int8_t* st = ws_state_.data();
         double* sg = ws_sign_.data();
-        copy8(state_.data(), st); copy(sign_.data(), sg);
         int it = 0;
         const ContactStatus s = solve_load(st, sg, zp, sc + ds, ds, atol, it, true);
         if (s != ContactStatus::ok) { err_y_ = sc + ds; err_z_ = zp; return s; }
@@ -977,20 +987,10 @@ private:
     ContactStatus cascade(std::size_t& changes) noexcept {
         const std::size_t n = n_;
         const double mu_k = params.mu_kinetic;
-        copy8(state_.data(), prev_state_.data());
-        copy(sign_.data(), prev_sign_.data());
         const double zp = z_prev_, sp = s_prev_;
-        set_path_cones();
-        double uy_max = 0.0;
-        for (std::size_t i = 0; i < n; ++i) uy_max = std::fmax(uy_max, std::fabs(uy_prev_[i]));
-        double scale_len = z0_max_ - zp;
-        if (1e-9 > scale_len) scale_len = 1e-9;
-        if (uy_max > scale_len) scale_len = uy_max;
-        scale_len_ = scale_len;
-        const double atol = params.tol * (r_ * scale_len);
+        const double atol = begin_point_solve(zp);
         std::int8_t* st = ws_state_.data();
         double* sg = ws_sign_.data();
-        copy8(state_.data(), st); copy(sign_.data(), sg);
         for (std::size_t round = 0; round <= n; ++round) {
             int it = 0;
             const ContactStatus s = solve_load(st, sg, zp, sp, 0.0, atol, it, true);
