@@ -181,12 +181,18 @@ class Pad:
         stepping = self.stepping if stepping is None else stepping
         if stepping not in STEPPINGS:
             raise ValueError(f"stepping must be one of {STEPPINGS}, got {stepping!r}")
-        if self._stepper is not None:
-            return self._follow_compiled(plate_y, indent, stepping, want_displacement)
         m = self.model
+        y = np.ascontiguousarray(plate_y, dtype=np.float64).ravel()
+        ind = np.asarray(indent, dtype=np.float64).ravel()
+        if ind.shape != y.shape:
+            raise ValueError(f"plate_y and indent must have the same length, got {y.size} and {ind.size}")
+        z = np.ascontiguousarray(m.geometry.height - (ind[:, None] - self.indent_offset[None, :]))
+        if not (np.all(np.isfinite(y)) and np.all(np.isfinite(z))):
+            k = int(np.flatnonzero(~(np.isfinite(y) & np.all(np.isfinite(z), axis=1)))[0])
+            raise ValueError(f"plate position must be finite, got y={y[k]!r}, indent={ind[k]!r}")
+        if self._stepper is not None:
+            return self._follow_compiled(y, z, stepping, want_displacement)
         n, R = m.n_nodes, self.n_ridges
-        y = np.asarray(plate_y, dtype=np.float64)
-        z = m.geometry.height - (np.asarray(indent, dtype=np.float64)[:, None] - self.indent_offset[None, :])
         N = y.size
         lam = np.empty((R, N, 2 * n))
         disp = np.empty((R, N, 2 * n)) if want_displacement else None
@@ -203,17 +209,10 @@ class Pad:
         return (np.moveaxis(lam, 0, 1), None if disp is None else np.moveaxis(disp, 0, 1),
                 np.moveaxis(state, 0, 1))
 
-    def _follow_compiled(self, plate_y, indent, stepping, want_displacement):
-        m = self.model
-        n, R = m.n_nodes, self.n_ridges
-        y = np.ascontiguousarray(plate_y, dtype=np.float64).ravel()
-        ind = np.asarray(indent, dtype=np.float64).ravel()
-        if ind.shape != y.shape:
-            raise ValueError(f"plate_y and indent must have the same length, got {y.size} and {ind.size}")
-        z = np.ascontiguousarray(m.geometry.height - (ind[:, None] - self.indent_offset[None, :]))
-        if not (np.all(np.isfinite(y)) and np.all(np.isfinite(z))):
-            k = int(np.flatnonzero(~(np.isfinite(y) & np.all(np.isfinite(z), axis=1)))[0])
-            raise ValueError(f"plate position must be finite, got y={y[k]!r}, indent={ind[k]!r}")
+    def _follow_compiled(self, y, z, stepping, want_displacement):
+        """:meth:`follow` on the compiled pad: ``y`` (N,) and the ridges' plate heights
+        ``z`` (N, n_ridges), checked and C-contiguous."""
+        n, R = self.model.n_nodes, self.n_ridges
         N = y.size
         lam = np.empty((N, R, 2 * n))
         disp = np.empty((N, R, 2 * n)) if want_displacement else None
