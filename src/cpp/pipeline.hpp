@@ -609,7 +609,9 @@ public:
         const bool ok = tick(x);
         if (out)
             for (std::size_t i = 0; i < out_.size(); ++i) out[i] = out_[i];
+#ifndef TM_BENCH_NO_GUARDS
         publish();
+#endif
         return ok;
     }
 
@@ -1007,7 +1009,22 @@ private:
     // (renew_unguarded), runs inline with no undo and no check; every other tick
     // (the first after a window, a reset, bad or large samples) takes the guarded
     // path, out of line so that it does not crowd the common one.
+    //
+    // TM_BENCH_NO_GUARDS (never in a shipped build) compiles the common tick without
+    // the overflow guard's window and step() without publishing the status, so that
+    // bench/soak.py can time what the guards cost on today's kernels.
     TM_ALWAYS_INLINE bool tick(const double* x) noexcept {
+#ifdef TM_BENCH_NO_GUARDS
+        if (samples_ok(x)) {
+            estimate(x);
+            mlp_->step(feat_.data(), det_.data());
+            bool slip = false;
+            drive(true, &slip);
+            accept(slip);
+            finish_tick();
+            return true;
+        }
+#endif
         if (unguarded_left_ != 0 && samples_ok(x) && inputs_small(x)) {
             estimate(x);
             mlp_->step(feat_.data(), det_.data());
