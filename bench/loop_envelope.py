@@ -11,7 +11,10 @@ the rows already there (run it in the background, interrupt it, run it again). W
 Reported paths: :data:`tactile_mirror.loop.envelope.REPORT_PATHS` (seeds 0.., 10 mm rms,
 2 Hz band, scaled to the class's peak speed and <= 0.5 m/s^2). Every choice made while
 developing the law used :data:`~tactile_mirror.loop.envelope.TUNING_PATHS` (seeds 1000..,
-8 mm rms, 1.5 Hz band): disjoint seeds and generator settings (``--paths tuning`` runs them).
+8 mm rms, 1.5 Hz band) or :data:`~tactile_mirror.loop.envelope.TUNING_FAST_PATHS` (seeds
+3000.., 8 mm rms, 4 Hz): disjoint seeds and generator settings (``--paths tuning`` runs them).
+``--paths report-fast`` (seeds 100.., 12 mm rms, 5 Hz band) reports paths whose acceleration
+limit binds (up to 0.5 m/s^2 at 20 mm/s).
 
 ``--tick``: ns per tick of the full 6-ridge float64 pipeline inside C++
 (``MirrorPipeline.time_step_ns``, best of 5) with the previous velocity law and with
@@ -61,8 +64,7 @@ def main(argv=None):
     from tactile_mirror.loop.envelope import (
         _LAWS,
         CONDITIONS,
-        REPORT_PATHS,
-        TUNING_PATHS,
+        PATH_SETS,
         envelope_figure,
         run_envelope,
     )
@@ -76,7 +78,7 @@ def main(argv=None):
     ap.add_argument("--robustness", action="store_true", help="also the robustness conditions")
     ap.add_argument("--robustness-laws", default="default")
     ap.add_argument("--robustness-seeds", type=int, default=None, help="paths per class (default: --seeds)")
-    ap.add_argument("--paths", choices=["report", "tuning"], default="report")
+    ap.add_argument("--paths", choices=sorted(PATH_SETS), default="report")
     ap.add_argument("--tick", action="store_true", help="only the tick cost table")
     args = ap.parse_args(argv)
     if args.tick:
@@ -87,7 +89,7 @@ def main(argv=None):
         return 0
     os.makedirs(args.out, exist_ok=True)
     out = os.path.join(args.out, "loop_envelope.json")
-    paths = TUNING_PATHS if args.paths == "tuning" else REPORT_PATHS
+    paths = PATH_SETS[args.paths]
     speeds = [float(v) * 1e-3 for v in args.speeds.split(",")]
     data = run_envelope(out, speeds=speeds, n_seeds=args.seeds, conditions=("nominal",),
                         laws=tuple(args.laws.split(",")), paths=paths)

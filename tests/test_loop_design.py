@@ -91,7 +91,7 @@ def test_design_rejects_bad_input(kwargs, match):
         design_loop((0, 1), CAL, FS, stage_delay=0.0, stage_lag=0.0)
 
 
-def _pipe(controller, n_ridges=2, slip_threshold=0.8):
+def _pipe(controller, n_ridges=2, slip_threshold=0.8, shear_weights=None):
     rng = np.random.default_rng(5)
     h = 6
     w = {"w1": rng.normal(size=(h, 5)), "b1": rng.normal(size=h), "w2": 3 * rng.normal(size=(2, h)),
@@ -99,7 +99,7 @@ def _pipe(controller, n_ridges=2, slip_threshold=0.8):
          "fs": FS}
     est = StressRateEstimator(PVDFCircuit(), FS, 2 * n_ridges, bandwidth=100.0)
     return MirrorPipeline(w, FS, n_ridges, estimator=est, controller=controller, v_limit=5.0, u_limit=5.0,
-                          slip_threshold=slip_threshold)
+                          slip_threshold=slip_threshold, shear_weights=shear_weights)
 
 
 def _signals(n, ni, seed=0):
@@ -194,10 +194,11 @@ def test_predicted_tracking_error_matches_the_simulated_one(fem_fast_run):
 
 
 def test_c_abi_carries_the_new_parameters_with_its_version_bumped():
+    # ABI 4: shear_integral, rate_gain; ABI 5: shear_weights (test_shear_weights_...)
     from tactile_mirror.loop.capi import CPipeline, load
 
     ffi, lib = load()
-    assert lib.tm_abi_version() == 4
+    assert lib.tm_abi_version() >= 4
     p = ffi.new("tm_controller_params*")
     assert lib.tm_controller_defaults(2, p) == lib.TM_OK
     assert (p.shear_integral, p.rate_gain) == (0.0, 0.0)
@@ -225,7 +226,7 @@ def test_c_abi_carries_the_new_parameters_with_its_version_bumped():
     assert lib.tm_pipeline_create(cfg, h) == lib.TM_ERR_VERSION
     bad = ffi.new("tm_config*")
     lib.tm_config_init(bad)
-    bad.abi_version = 5
+    bad.abi_version = lib.tm_abi_version() + 1
     h = ffi.new("tm_pipeline*")
     assert lib.tm_pipeline_create(bad, h) == lib.TM_ERR_VERSION
 
@@ -256,3 +257,76 @@ def test_envelope_table_sums_per_class():
     assert (t["runs"], t["gross_slips"], t["runs_with_slip"]) == (2, 2, 1)
     assert t["tracking_rms_mm_mean"] == pytest.approx(0.02) and t["tracking_rms_mm_max"] == 0.03
     assert t["speed_mm_s"] == pytest.approx(20.0)
+
+
+def test_shear_weights_in_cpp_equal_the_reference_and_the_c_abi():
+    from tactile_mirror.loop.capi import CPipeline, load
+
+    c = dataclasses.replace(design(calibration=(1.0, 2e3)).controller, arm_delay=0.05, slip_hold=0.0,
+                            v_max=0.004, a_max=0.2)
+    sw = np.array([[0.3, -0.3], [1.0, -0.2]])
+    pipe = _pipe(c, shear_weights=sw)
+    x = _signals(1200, pipe.n_inputs, seed=3)
+    out = pipe.process_block(x)[0]
+    ref = ReferencePipeline(pipe.config).process_block(x)
+    np.testing.assert_allclose(out[:, :2], ref[:, :2], rtol=1e-9, atol=1e-12)
+    # the weights change the command (the default is +1, -1 per ridge)
+    plain = _pipe(c).process_block(x)[0]
+    assert np.abs(out[:, 0] - plain[:, 0]).max() > 1e-2 * np.abs(plain[:, 0]).max()
+    # (+1, -1) given explicitly is the default, bit for bit
+    same = _pipe(c, shear_weights=np.tile([1.0, -1.0], (2, 1))).process_block(x)[0]
+    assert np.array_equal(same.view(np.uint64), plain.view(np.uint64))
+    # the C ABI (5) carries them: bit-identical to the pybind11 pipeline
+    ffi, lib = load()
+    assert lib.tm_abi_version() == 5
+    with CPipeline(pipe.config) as cp:
+        assert np.array_equal(cp.process_block(x)[0].view(np.uint64), out.view(np.uint64))
+    # a program built against ABI 4 (tm_config ending at the controller) gets L - R
+    cfg = ffi.new("tm_config*")
+    lib.tm_config_init(cfg)
+    assert cfg.shear_weights == ffi.NULL
+    abi4 = ffi.offsetof("tm_config", "shear_weights")
+    cfg.struct_size = abi4
+    cfg.abi_version = 4
+    h = ffi.new("tm_pipeline*")
+    assert lib.tm_pipeline_create(cfg, h) == lib.TM_ERR_ARGUMENT  # accepted; fails on the missing weights
+
+
+@pytest.mark.parametrize("bad, match", [(np.ones((3, 2)), "shape"), (np.ones(4), "shape"),
+                                        (np.array([[1.0, np.nan], [1.0, -1.0]]), "finite")])
+def test_shear_weights_are_checked(bad, match):
+    c = design(calibration=(1.0, 2e3)).controller
+    with pytest.raises(ValueError, match=f"shear_weights.*{match}|{match}.*shear_weights"):
+        _pipe(c, shear_weights=bad)
+
+
+def test_calibrated_shear_signal_stays_monotonic_beyond_the_plain_difference():
+    # The pad alone (no finger path): the calibrated weights, then a slow push of the finger
+    # each way; the shear signal's range of monotonic growth against L - R's.
+    from tactile_mirror.loop.experiment import _weights_dict, calibrate_shear_weights, default_weights
+    from tactile_mirror.loop.scene import LoopScene, PlantSource, loop_pipeline, make_plant
+    from tactile_mirror.loop.controller import NoController
+
+    w = _weights_dict(default_weights("fem", FS))
+    sw = calibrate_shear_weights(w, FS)
+    assert sw.shape == (6, 2) and np.array_equal(sw[:, 1], -sw[:, 0])
+    # mostly the inner (most loaded) ridges
+    assert np.argmax(np.abs(sw[:, 0])) in (2, 3)
+
+    def monotonic_to(sign, weights):
+        n0 = 500
+        finger = np.concatenate([np.zeros(n0), sign * np.arange(1, 241) * 0.5e-6])  # to 0.12 mm
+        sc = LoopScene(duration=finger.size / FS, fs=FS, plant="fem")
+        src = PlantSource(sc, make_plant(sc, 6), PVDFCircuit(), finger)
+        x = np.stack([src.read(0.0, k / FS) for k in range(finger.size)])
+        f = loop_pipeline(w, FS, NoController(), 6).process_block(x, features=True)[1].reshape(-1, 6, 4)
+        s = np.cumsum(f[:, :, 0] * weights[:, 0] + f[:, :, 1] * weights[:, 1], axis=0).sum(axis=1)
+        s = sign * (s[n0:] - s[n0])
+        turn = np.flatnonzero(np.diff(s) < 0)
+        return abs(finger[n0 + (turn[0] if turn.size else s.size - 1)])
+
+    plain = np.tile([1.0, -1.0], (6, 1))
+    for sign in (1.0, -1.0):
+        d_plain, d_cal = monotonic_to(sign, plain), monotonic_to(sign, sw)
+        assert d_plain < 0.045e-3          # L - R turns back early (about 0.03 mm)
+        assert d_cal > 1.5 * d_plain and d_cal > 0.06e-3

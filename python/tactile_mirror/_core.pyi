@@ -304,9 +304,11 @@ class _MirrorPipeline(Generic[_F, _FD]):
         slip_threshold: SupportsFloat,
         max_hold_ticks: SupportsIndex,
         controller: _ControllerParams,
+        shear_weights: npt.ArrayLike | None = None,
     ) -> None:
         """Build the pipeline; see tactile_mirror.pipeline.pipeline_config for the arguments.
-        Filters (sos_*) are None or (n_sections, 6); w1 is (n_hidden, 5)."""
+        Filters (sos_*) are None or (n_sections, 6); w1 is (n_hidden, 5); shear_weights
+        None or (n_ridges, 2)."""
     @property
     def n_ridges(self) -> int: ...
     @property

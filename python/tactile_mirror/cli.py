@@ -290,20 +290,24 @@ def _stage_from_args(args):
 def cmd_loop_design(args) -> int:
     import json
 
+    import numpy as np
+
     from .loop.design import design_loop
-    from .loop.experiment import calibrate_shear, default_weights
+    from .loop.experiment import calibrate_shear, calibrate_shear_weights, default_weights
     from .loop.figures import design_figure
 
     limits = _stage_from_args(args)
     weights = default_weights("fem", args.fs) if args.weights is None else _load_detector(args.weights).weights
     w = _weights(weights)
-    cal = calibrate_shear(w, args.fs, 6, plant="fem")
-    d = design_loop(limits, cal, args.fs, stage_delay=args.delay * 1e-3, stage_lag=args.lag * 1e-3)
+    sw = calibrate_shear_weights(w, args.fs, 6, plant="fem")
+    cal = calibrate_shear(w, args.fs, 6, plant="fem", shear_weights=sw)
+    d = design_loop(limits, cal, args.fs, stage_delay=args.delay * 1e-3, stage_lag=args.lag * 1e-3, shear_weights=sw)
     out = pathlib.Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
     design_figure(d, str(out / "loop_design.png"))
     (out / "loop_design.json").write_text(json.dumps(d.summary(), indent=1))
-    print(f"calibration: direction_sign {cal[0]:+g}, asymmetry {cal[1]:.4g} per m")
+    print(f"calibration: shear weights (L, R per ridge) {np.round(sw, 3).tolist()}, direction_sign {cal[0]:+g}, "
+          f"shear signal {cal[1]:.4g} per m")
     print(f"crossover {d.crossover_hz:.1f} Hz, phase margin {d.phase_margin_deg:.1f} deg, gain margin "
           f"{d.gain_margin_db:.1f} dB, max |S| {d.max_sensitivity:.2f}; Kp {d.kp:.1f} 1/s, integral {d.z:.1f} 1/s, "
           f"Kv {d.kv:.2f}; loop delay {d.delays['total'] * 1e3:.2f} ms")
@@ -318,11 +322,11 @@ def _weights(w):
 
 
 def cmd_loop_envelope(args) -> int:
-    from .loop.envelope import REPORT_PATHS, TUNING_PATHS, envelope_figure, run_envelope
+    from .loop.envelope import PATH_SETS, envelope_figure, run_envelope
 
     out = pathlib.Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
-    paths = TUNING_PATHS if args.paths == "tuning" else REPORT_PATHS
+    paths = PATH_SETS[args.paths]
     weights = None if args.weights is None else _load_detector(args.weights).weights
     data = run_envelope(str(out / "loop_envelope.json"), speeds=[v * 1e-3 for v in args.speeds], n_seeds=args.seeds,
                         conditions=args.conditions, laws=args.laws, paths=paths, duration=args.duration,
@@ -456,8 +460,9 @@ def build_parser() -> argparse.ArgumentParser:
                            help=f"comma-separated subset of: {', '.join(CONDITIONS)} (default: nominal)")
             q.add_argument("--laws", type=_names(list(_LAWS)), default=list(_LAWS),
                            help="comma-separated subset of: open loop,paper,default (default: all)")
-            q.add_argument("--paths", choices=["report", "tuning"], default="report",
-                           help="path set: the reported one or the disjoint tuning one (default: %(default)s)")
+            q.add_argument("--paths", choices=["report", "tuning", "report-fast", "tuning-fast"], default="report",
+                           help="path set: a reported one or a disjoint tuning one; the -fast sets reach 0.5 m/s^2 "
+                                "(default: %(default)s)")
             q.add_argument("--duration", type=_positive(float), default=3.0, help="seconds per run, 0.5 s press "
                            "included (default: 3)")
             q.add_argument("--quiet", action="store_true", help="no progress bar")

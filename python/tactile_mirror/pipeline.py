@@ -75,7 +75,7 @@ def _position(value, name: str) -> float:
 def pipeline_config(detector, fs, n_ridges: int = 6, *, estimator=None, sos_v=None, sos_u=None, sos_diff=None,
                     use_u: bool | None = None, v_limit=None, u_limit=None, controller=None,
                     dtype=np.float64, detector_dtype=None, activation: str = "fast", slip_threshold: float = 0.8,
-                    max_hold_ticks: int = 100, ridges=None) -> dict:
+                    max_hold_ticks: int = 100, ridges=None, shear_weights=None) -> dict:
     """Validate and assemble a pipeline configuration (see :class:`MirrorPipeline`)."""
     fs = _positive(fs, "fs")
     if isinstance(n_ridges, bool) or not isinstance(n_ridges, numbers.Integral) or not 1 <= n_ridges <= 64:
@@ -137,6 +137,13 @@ def pipeline_config(detector, fs, n_ridges: int = 6, *, estimator=None, sos_v=No
         raise ValueError(f"slip_threshold must lie in (0, 1), got {slip_threshold}")
     if isinstance(max_hold_ticks, bool) or not isinstance(max_hold_ticks, numbers.Integral) or max_hold_ticks < 0:
         raise ValueError(f"max_hold_ticks must be a non-negative integer, got {max_hold_ticks!r}")
+    if shear_weights is not None:
+        sw = np.asarray(shear_weights, dtype=np.float64)
+        if sw.shape != (n_ridges, 2):
+            raise ValueError(f"shear_weights must have shape (n_ridges, 2) = ({n_ridges}, 2), got {sw.shape}")
+        if not np.all(np.isfinite(sw)):
+            raise ValueError("shear_weights must be finite")
+        shear_weights = sw.copy()
     arrays = {}
     for k in ("w1", "b1", "w2", "b2", "input_mean", "input_gain"):
         a = np.asarray(w[k], dtype=np.float64)
@@ -149,7 +156,7 @@ def pipeline_config(detector, fs, n_ridges: int = 6, *, estimator=None, sos_v=No
         "v_limit": v_limit, "u_limit": u_limit, **arrays, "weights_fs": weights_fs,
         "features": features, "activation": activation, "slip_threshold": slip_threshold,
         "max_hold_ticks": int(max_hold_ticks), "controller": ctrl.params(), "dtype": dt.name,
-        "detector_dtype": ddt.name,
+        "detector_dtype": ddt.name, "shear_weights": shear_weights,
     }
 
 
@@ -193,6 +200,11 @@ class MirrorPipeline:
         controller stops the stage.
     ridges : sequence of int, optional
         Which pad ridges the inputs belong to (metadata, kept in :attr:`config`).
+    shear_weights : array_like, shape (n_ridges, 2), optional
+        The controller's shear signal is ``sum_r w[r, 0] rate_L + w[r, 1] rate_R``;
+        default ``(+1, -1)`` per ridge (the L-R stress-rate difference). A calibrated
+        set (:func:`tactile_mirror.loop.experiment.calibrate_shear_weights`) stays monotonic in the
+        shear where the L-R difference turns back as the ridge edges start to slide.
 
     Notes
     -----
@@ -232,7 +244,7 @@ class MirrorPipeline:
         weights["features"] = cfg.get("features", "stress_rate")
         kw = {k: cfg.get(k) for k in ("sos_v", "sos_u", "sos_diff", "use_u", "v_limit", "u_limit",
                                        "controller", "dtype", "detector_dtype", "activation", "slip_threshold",
-                                       "max_hold_ticks", "ridges")}
+                                       "max_hold_ticks", "ridges", "shear_weights")}
         self = cls.__new__(cls)
         self._init_from_config(pipeline_config(weights, cfg["fs"], int(cfg["n_ridges"]), **kw))
         return self
@@ -244,7 +256,7 @@ class MirrorPipeline:
                               cfg["sos_diff"], cfg["v_limit"], cfg["u_limit"], cfg["w1"], cfg["b1"],
                               cfg["w2"], cfg["b2"], cfg["input_mean"], cfg["input_gain"], cfg["weights_fs"],
                               cfg["activation"], cfg["slip_threshold"], cfg["max_hold_ticks"],
-                              dict(cfg["controller"]))
+                              dict(cfg["controller"]), cfg.get("shear_weights"))
         self._controller = controller_from_dict(cfg["controller"])
         # Bound C++ methods: calling them costs no Python frame.
         self.step = self._core.step
@@ -429,7 +441,8 @@ class ReferencePipeline:
                 reason = "overflow"
         if ok:
             zv, z2, feat, p, det = new
-            asym = float(np.sum(feat[:, 0] - feat[:, 1]))
+            sw = c.get("shear_weights")
+            asym = float(np.sum(feat[:, 0] - feat[:, 1]) if sw is None else np.sum(sw * feat[:, :2]))
             slip = float(np.max(det[:, 0])) >= c["slip_threshold"]
             before = self.law.snapshot()
             if self.ctrl.kind != "none":

@@ -175,7 +175,7 @@ void bind_one(py::module_& m, const char* cls) {
                          py::handle sos_diff, double v_limit, double u_limit, py::handle w1, py::handle b1,
                          py::handle w2, py::handle b2, py::handle input_mean, py::handle input_gain,
                          double weights_fs, const std::string& activation, double slip_threshold,
-                         long max_hold_ticks, py::dict controller) {
+                         long max_hold_ticks, py::dict controller, py::handle shear_weights) {
                  PipelineConfig c;
                  c.n_ridges = n_ridges;
                  c.fs = fs;
@@ -210,6 +210,11 @@ void bind_one(py::module_& m, const char* cls) {
                      throw py::value_error("activation must be 'exact' or 'fast', got '" + activation + "'");
                  c.slip_threshold = slip_threshold;
                  c.max_hold_ticks = max_hold_ticks;
+                 F64 asw;
+                 if (!shear_weights.is_none()) {
+                     asw = sized(shear_weights, "shear_weights", {py::ssize_t(n_ridges), 2});
+                     c.shear_weights = asw.data();
+                 }
                  c.controller = controller_from(controller);
                  auto pp = std::make_unique<PP>();
                  try {
@@ -222,7 +227,8 @@ void bind_one(py::module_& m, const char* cls) {
              py::arg("n_ridges"), py::arg("fs"), py::arg("use_u"), py::arg("sos_v"), py::arg("sos_u"),
              py::arg("sos_diff"), py::arg("v_limit"), py::arg("u_limit"), py::arg("w1"), py::arg("b1"),
              py::arg("w2"), py::arg("b2"), py::arg("input_mean"), py::arg("input_gain"), py::arg("weights_fs"),
-             py::arg("activation"), py::arg("slip_threshold"), py::arg("max_hold_ticks"), py::arg("controller"))
+             py::arg("activation"), py::arg("slip_threshold"), py::arg("max_hold_ticks"), py::arg("controller"),
+             py::arg("shear_weights") = py::none())
         .def_property_readonly("n_ridges", [](const PP& s) { return s.p->n_ridges(); })
         .def_property_readonly("n_inputs", [](const PP& s) { return s.p->n_inputs(); })
         .def_property_readonly("n_outputs", [](const PP& s) { return s.p->n_outputs(); })

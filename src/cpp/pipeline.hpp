@@ -31,7 +31,10 @@
 //
 //   direction  a <- exp(-dt/asym_tau) a + dt * sum_r (rate_L,r - rate_R,r): a leaky
 //              integral of the stress-rate asymmetry, i.e. the L/R stress difference
-//              (shear load) high-passed at 1/(2 pi asym_tau). dir = direction_sign *
+//              (shear load) high-passed at 1/(2 pi asym_tau). With shear_weights w the
+//              sum is sum_r (w_2r rate_L,r + w_2r+1 rate_R,r): a calibrated combination of
+//              the strips that stays monotonic in the shear where the plain L-R
+//              difference turns back (loop.calibrate_shear_weights). dir = direction_sign *
 //              sign(a) while |a| > asym_deadband, else the previous dir (0 at start).
 //   paper      (the paper's law, section 4.2.2) every tick with y >= threshold the
 //              stage target moves by dir * gain * y * dt (gain in m/s per unit
@@ -186,6 +189,9 @@ struct PipelineConfig {
     int activation = 0;            // 0 exact, 1 fast
     double slip_threshold = 0.8;
     long max_hold_ticks = 100;
+    // The controller's shear signal: sum over ridges of w[2r] rate_L + w[2r+1] rate_R.
+    // nullptr: +1, -1 (the L-R stress-rate difference). (n_ridges, 2), finite.
+    const double* shear_weights = nullptr;
     ControllerParams controller;
 };
 
@@ -368,6 +374,7 @@ inline void validate_config(const PipelineConfig& c) {
     if (c.activation != 0 && c.activation != 1) bad("activation must be 0 (exact) or 1 (fast)");
     if (!(c.slip_threshold > 0.0 && c.slip_threshold < 1.0)) bad("slip_threshold must lie in (0, 1)");
     if (c.max_hold_ticks < 0) bad("max_hold_ticks must be >= 0");
+    if (c.shear_weights) check_finite_array(c.shear_weights, std::size_t(2 * c.n_ridges), "shear_weights");
     validate_controller(c.controller);
 }
 
@@ -560,6 +567,8 @@ public:
                                                        : detector::Activation::exact);
         ctrl_ = StageController(c.controller, c.fs);
         ctrl_kind_ = c.controller.kind;
+        shear_w_.resize(nch_);
+        for (std::size_t i = 0; i < nch_; ++i) shear_w_[i] = c.shear_weights ? c.shear_weights[i] : (i % 2 ? -1.0 : 1.0);
         xin_.resize(n_inputs());
         rate_.resize(nch_);
         rate2_.resize(nch_);
@@ -792,7 +801,7 @@ private:
     // instead of multiplying it, so the bounds grow by about alpha <= 3 per tick.
     // Chained through the cascades (a section's input bound is the previous one's
     // output bound; the differentiator's input is the rate) and the controller's
-    // asymmetry integrator (|a'| <= |a| + dt 2R |rate|), the bounds after one tick
+    // asymmetry integrator (|a'| <= |a| + dt sum|w| |rate|, w the shear weights), the bounds after one tick
     // are an affine, non-negative map v' <= M v of v = (section state bounds, |a|, 1)
     // whose input term is the largest accepted sample (input_bound_). The map and
     // its powers M^(2^j) are built at construction; after a guarded, accepted tick
@@ -869,7 +878,9 @@ private:
         const Row f1 = n1 > 0 ? cascade(c.sos_v, n1, 0, x) : x;
         const Row f2 = c.use_u ? (n2 > 0 ? cascade(c.sos_u, n2, std::size_t(n1), x) : x)
                                : cascade(c.sos_diff, n2, std::size_t(n1), f1);
-        const Row arow = axpy(2.0 * double(R_) / fs_ * kRoundingMargin, f1, unit(ia));
+        double wsum = 0.0;  // |shear signal| <= sum |w| * (the rates' bound)
+        for (int i = 0; i < 2 * c.n_ridges; ++i) wsum += c.shear_weights ? std::fabs(c.shear_weights[i]) : 1.0;
+        const Row arow = axpy(wsum / fs_ * kRoundingMargin, f1, unit(ia));
         std::copy(arow.begin(), arow.end(), m.begin() + std::ptrdiff_t(ia * d));
         m[ic * d + ic] = 1.0;
         for (double v : m)
@@ -991,7 +1002,8 @@ private:
             const TD* d = det_.data() + 3 * r;
             ys = std::max(ys, double(d[0]));
             y = std::max(y, double(d[2]));
-            asym += double(feat_[kFeatures * r + 0]) - double(feat_[kFeatures * r + 1]);
+            asym += shear_w_[2 * r] * double(feat_[kFeatures * r + 0]) +
+                    shear_w_[2 * r + 1] * double(feat_[kFeatures * r + 1]);
         }
         const bool slip = accepted ? ys >= slip_threshold_ : st_.slip;
         const bool fault = accepted ? false : st_.fault;
@@ -1188,6 +1200,7 @@ private:
     AlignedBuffer<T> undo_z1_, undo_z2_;
     AlignedBuffer<TD> undo_mlp_, undo_feat_, undo_det_;
     std::vector<double> out_;
+    std::vector<double> shear_w_;  // (n_ridges, 2): weights of rate_L, rate_R in the shear signal
     PipelineStatus st_;
     StatusBoard board_;
     bool counters_changed_ = true;  // a counter of st_ changed since the last publication

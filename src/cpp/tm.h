@@ -47,7 +47,7 @@
  *   built against an older tm.h gets the fields it knows. tm_pipeline_create accepts
  *   a tm_config whose struct_size is at least that of ABI 2 (the first with
  *   struct_size) and at most this header's; fields beyond a shorter struct_size take
- *   their tm_config_init defaults. abi_version must be 2, 3 or TM_ABI_VERSION (the
+ *   their tm_config_init defaults. abi_version must lie in 2..TM_ABI_VERSION (the
  *   tm_config layout only grew at its end since 2).
  *
  * The library is shipped in the tactile_mirror Python wheel next to this header;
@@ -74,7 +74,7 @@ extern "C" {
  * finite default limits (+inf refused), tm_controller_defaults and the controller
  * defaults shared with the Python library. 4: the velocity law's shear_integral
  * and rate_gain (appended to tm_controller_params, the last member of tm_config). */
-#define TM_ABI_VERSION 4
+#define TM_ABI_VERSION 5
 
 typedef enum tm_status_code {
     TM_OK = 0,
@@ -147,6 +147,9 @@ typedef struct tm_config {
     double slip_threshold;   /* y_slip >= this counts as slip in the status, (0, 1) */
     int64_t max_hold_ticks;  /* consecutive rejected ticks before the fault state, >= 0 */
     tm_controller_params controller;
+    /* ABI 5 (appended) */
+    const double* shear_weights;  /* (n_ridges, 2) row-major or NULL: the controller's shear signal is
+                                   * sum_r w[r][0] rate_L + w[r][1] rate_R; NULL: +1, -1 (L - R) */
 } tm_config;
 
 typedef struct tm_pipeline_status {

@@ -237,7 +237,8 @@ int32_t tm_config_init(tm_config* cfg) {
 
 // sizeof(tm_config) in ABI 2, the first ABI with struct_size (and in ABI 3): it ended
 // with the controller's slip_hold. Fields are only ever appended since (ABI 4:
-// shear_integral and rate_gain at the end of the controller, the end of tm_config).
+// shear_integral and rate_gain at the end of the controller, the end of tm_config;
+// ABI 5: shear_weights after the controller).
 constexpr std::size_t kConfigSizeAbi2 = offsetof(tm_config, controller) + offsetof(tm_controller_params, shear_integral);
 static_assert(kConfigSizeAbi2 <= sizeof(tm_config), "tm_config only grows");
 
@@ -290,6 +291,7 @@ int32_t tm_pipeline_create(const tm_config* user_cfg, tm_pipeline* out) {
     c.slip_threshold = cfg->slip_threshold;
     c.max_hold_ticks = long(cfg->max_hold_ticks);
     c.controller = controller_from_c(cfg->controller);
+    c.shear_weights = cfg->shear_weights;
     // The sample-rate check first, with its own code.
     if (std::isfinite(c.fs) && c.fs > 0 && std::isfinite(c.weights_fs) && c.weights_fs > 0 &&
         std::fabs(c.fs - c.weights_fs) > 1e-9 * c.fs)

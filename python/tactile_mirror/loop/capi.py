@@ -189,6 +189,7 @@ class CPipeline:
         cfg.activation = 1 if c["activation"] == "fast" else 0
         cfg.slip_threshold = float(c["slip_threshold"])
         cfg.max_hold_ticks = int(c["max_hold_ticks"])
+        cfg.shear_weights = arr(c.get("shear_weights"))[0]
         ctrl = c["controller"]
         cfg.controller.kind = _CTRL_KINDS[ctrl["kind"]]
         for k, v in ctrl.items():

@@ -182,6 +182,12 @@ class LoopDesign:
     estimator_bandwidth: float
     asym_per_m: float
     limits: StageLimits = field(repr=False, default=StageLimits(-0.02, 0.02, 0.03, 1.0))
+    shear_weights: np.ndarray | None = field(repr=False, compare=False, default=None)
+
+    def pipeline_kwargs(self) -> dict:
+        """What :class:`~tactile_mirror.MirrorPipeline` takes from the design:
+        ``controller`` and ``shear_weights`` (the signal the gains were designed on)."""
+        return {"controller": self.controller, "shear_weights": self.shear_weights}
 
     @property
     def acceleration_constant(self) -> float:
@@ -241,6 +247,7 @@ class LoopDesign:
                 "shear_gain": self.controller.shear_gain, "shear_integral": self.controller.shear_integral,
                 "rate_gain": self.controller.rate_gain, "slip_hold_s": self.controller.slip_hold,
                 "v_max": self.controller.v_max, "a_max": self.controller.a_max,
+                "shear_weights": None if self.shear_weights is None else self.shear_weights.tolist(),
                 "error_mm_peak_sine": {f"{v * 1e3:g} mm/s, {a:g} m/s^2": e for (v, a), e in self.error_table().items()}}
 
 
@@ -256,7 +263,7 @@ def _estimator_group_delay(fs, order, bandwidth, f0=1.0):
 def design_loop(limits: StageLimits, calibration, fs: float, *, stage_delay: float, stage_lag: float,
                 estimator_order: int = 2, estimator_bandwidth: float = 100.0, arm_delay: float = 0.5,
                 phase_margin: float = 45.0, gain_margin: float = 6.0, max_sensitivity: float = 2.0,
-                asym_tau: float = 1.0) -> LoopDesign:
+                asym_tau: float = 1.0, shear_weights=None) -> LoopDesign:
     """Design the default shear loop from the stage's data sheet, the calibration and the rate.
 
     Parameters
@@ -283,6 +290,11 @@ def design_loop(limits: StageLimits, calibration, fs: float, *, stage_delay: flo
         (sensor noise, and the stress the ridge edges keep when they slide and re-stick);
         the leak bounds that drift. Chosen on the tuning paths (sensor noise: 20 s let the
         drift reach a gross slip, 1 s and 0.3 s did not).
+
+    shear_weights : array_like (n_ridges, 2), optional
+        The pipeline's shear signal the calibration was taken with
+        (:func:`tactile_mirror.loop.experiment.calibrate_shear_weights`); kept in the
+        design for :meth:`LoopDesign.pipeline_kwargs`. None: the plain L - R difference.
 
     Returns
     -------
@@ -352,4 +364,5 @@ def design_loop(limits: StageLimits, calibration, fs: float, *, stage_delay: flo
     return LoopDesign(controller=ctrl, kp=kp, z=z, kv=kv, crossover_hz=fc, phase_margin_deg=pm,
                       gain_margin_db=gm, max_sensitivity=ms, delays=delays, fs=fs, stage_delay=stage_delay,
                       stage_lag=stage_lag, estimator_order=int(estimator_order),
-                      estimator_bandwidth=float(estimator_bandwidth), asym_per_m=a_per_m, limits=limits)
+                      estimator_bandwidth=float(estimator_bandwidth), asym_per_m=a_per_m, limits=limits,
+                      shear_weights=None if shear_weights is None else np.array(shear_weights, dtype=np.float64))

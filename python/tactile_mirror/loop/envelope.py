@@ -29,7 +29,7 @@ import numpy as np
 
 from .stage import StageLimits
 
-__all__ = ["CONDITIONS", "REPORT_PATHS", "TUNING_PATHS", "PathSet", "envelope_figure", "envelope_table",
+__all__ = ["CONDITIONS", "PATH_SETS", "REPORT_FAST_PATHS", "REPORT_PATHS", "TUNING_FAST_PATHS", "TUNING_PATHS", "PathSet", "envelope_figure", "envelope_table",
            "run_envelope"]
 
 
@@ -54,6 +54,11 @@ class PathSet:
 TUNING_PATHS = PathSet("tuning", 1000, 8e-3, 1.5)
 #: Paths of the reported envelope (never used to choose anything).
 REPORT_PATHS = PathSet("report", 0, 10e-3, 2.0)
+#: Faster-changing paths (4-5 Hz band: the acceleration limit binds, up to 0.5 m/s^2 at 20 mm/s):
+#: one set for choices (the calibrated shear signal was chosen on it), one to report.
+TUNING_FAST_PATHS = PathSet("tuning-fast", 3000, 8e-3, 4.0)
+REPORT_FAST_PATHS = PathSet("report-fast", 100, 12e-3, 5.0)
+PATH_SETS = {p.name: p for p in (TUNING_PATHS, REPORT_PATHS, TUNING_FAST_PATHS, REPORT_FAST_PATHS)}
 
 #: Robustness conditions: name -> LoopScene fields.
 CONDITIONS: dict[str, dict] = {
@@ -74,11 +79,14 @@ def _key(row) -> tuple:
 
 def _laws(weights, fs, limits, delay, lag, n_ridges, plant):
     from .design import design_loop
-    from .experiment import calibrate_shear, make_laws
+    from .experiment import calibrate_shear, calibrate_shear_weights, make_laws
 
-    cal = calibrate_shear(weights, fs, n_ridges, plant=plant)
+    # The default law acts on the calibrated shear signal (the FEM pad's ridges differ in load;
+    # the brush model's do not, and its plain L - R difference stays monotonic).
+    sw = calibrate_shear_weights(weights, fs, n_ridges, plant=plant) if plant == "fem" else None
+    cal = calibrate_shear(weights, fs, n_ridges, plant=plant, shear_weights=sw)
     design = design_loop(limits, cal, fs, stage_delay=delay, stage_lag=lag,
-                         arm_delay=0.5 if plant == "fem" else 0.0)
+                         arm_delay=0.5 if plant == "fem" else 0.0, shear_weights=sw)
     paper = make_laws(weights, fs, plant, n_ridges)[0]["paper"]
     return {"open loop": None, "paper": paper, "default": design.controller}, design
 
@@ -164,7 +172,8 @@ def run_envelope(out: str, speeds: Sequence[float] = (0.002, 0.005, 0.01, 0.02),
     for i, (c, v, s, name) in enumerate(todo):
         sc = LoopScene(seed=s, duration=duration, fs=fs, plant=plant, trajectory=paths.trajectory(v),
                        label=c, **CONDITIONS[c])
-        res = run_scene(sc, w, law_objs[name], limits=limits, n_ridges=n_ridges)
+        res = run_scene(sc, w, law_objs[name], limits=limits, n_ridges=n_ridges,
+                        shear_weights=design.shear_weights if name == "default" else None)
         sm = res.summary()
         fv = np.gradient(res.finger, 1.0 / fs)
         row = {"condition": c, "law": name, "speed": v, "seed": s, "paths": paths.name,

@@ -40,7 +40,7 @@ import numpy as np
 from .._io import write_json
 from .._legacy import legacy_arguments
 from ..circuit import PVDFCircuit
-from .controller import PaperController, VelocityController
+from .controller import NoController, PaperController, VelocityController
 from .figures import loop_figure
 from .runner import LoopRunner
 from .scene import LoopScene, PlantSource, loop_pipeline
@@ -56,6 +56,7 @@ __all__ = [
     "ExperimentOptions",
     "calibrate_direction",
     "calibrate_shear",
+    "calibrate_shear_weights",
     "default_weights",
     "make_laws",
     "open_and_closed",
@@ -99,11 +100,12 @@ PLANTS: dict[str, dict[str, Any]] = {
 }
 
 
-def calibrate_shear(weights, fs: float = 1000.0, n_ridges: int = 6, plant: str = "brush"):
+def calibrate_shear(weights, fs: float = 1000.0, n_ridges: int = 6, plant: str = "brush", shear_weights=None):
     """Push the finger slowly to +y (after the press for the FEM pad) and read the
     pipeline's L/R asymmetry: returns ``(direction_sign, asymmetry per metre)``, the sign
     that makes the stage move to +y and the size of the shear signal per metre of
-    relative displacement (to scale ``shear_gain``)."""
+    relative displacement (to scale ``shear_gain``). With ``shear_weights`` the shear
+    signal is that weighted sum (:func:`calibrate_shear_weights`)."""
     push = 20e-6 if plant == "fem" else 2e-4
     n = int(0.2 * fs)
     scene = LoopScene(duration=0.7 if plant == "fem" else 0.2, fs=fs, label="calibration", plant=plant)
@@ -111,7 +113,7 @@ def calibrate_shear(weights, fs: float = 1000.0, n_ridges: int = 6, plant: str =
     finger = np.concatenate([np.zeros(n0), np.linspace(0, push, n)])
     source = PlantSource(scene, _make_plant(scene, n_ridges), PVDFCircuit(), finger)
     ctrl = PaperController(threshold=0.99, gain=0.0, asym_tau=100.0)
-    pipe = loop_pipeline(weights, fs, ctrl, n_ridges)
+    pipe = loop_pipeline(weights, fs, ctrl, n_ridges, shear_weights)
     runner = LoopRunner(pipe, SimulatedStage(), source, command=False)
     if n0:
         runner.run(n_ticks=n0)
@@ -122,6 +124,49 @@ def calibrate_shear(weights, fs: float = 1000.0, n_ridges: int = 6, plant: str =
         runner.run(n_ticks=n)
     a = pipe.controller_state["asymmetry"] - a0
     return (1.0 if a > 0 else -1.0), abs(a) / push
+
+
+def _triangle_path(amplitudes, step: float) -> np.ndarray:
+    """0, then one cycle +a, -a per amplitude, back to 0; ``step`` m per tick."""
+    path, x = [np.zeros(1)], 0.0
+    for target in [s * a for a in amplitudes for s in (1.0, -1.0)] + [0.0]:
+        n = max(1, round(abs(target - x) / step))
+        path.append(np.linspace(x, target, n + 1)[1:])
+        x = target
+    return np.concatenate(path)
+
+
+def calibrate_shear_weights(weights, fs: float = 1000.0, n_ridges: int = 6, plant: str = "fem",
+                            amplitudes=(20e-6, 40e-6, 60e-6, 80e-6), speed: float = 0.5e-3) -> np.ndarray:
+    """Weights of the strips' stress rates in the controller's shear signal, from a calibration
+    of the pad alone (no finger path): after the press, the pad is moved under the resting
+    finger in slow triangle cycles of growing ``amplitudes`` (m) at ``speed`` (m/s), and the
+    per-ridge L-R differences of the integrated stress-rate estimates are fitted, by least
+    squares, to the relative displacement.
+
+    Returns ``(n_ridges, 2)`` weights ``(c_r, -c_r)`` for :class:`~tactile_mirror.MirrorPipeline`
+    (``shear_weights``): each ridge enters with its own L-R difference, so a change of the
+    normal load (common to L and R) stays out of the shear signal.
+
+    Why: the plain sum of the L-R differences turns back once the edges of the least loaded
+    (outer) ridges start to slide, at about 0.03 mm of relative displacement on the FEM pad
+    (a third of the way to gross slip at about 0.15 mm), and the loop then acts on a shear
+    signal of the wrong sign. The most loaded ridges stay monotonic longest; the fitted
+    combination (mostly the inner ridges, minus a share of the middle ones) is monotonic to
+    about 0.07 mm both ways (``tests/test_loop_design.py`` checks that it outlasts L - R).
+    """
+    n0 = round(0.5 * fs) if plant == "fem" else 0
+    finger = np.concatenate([np.zeros(n0), _triangle_path(amplitudes, speed / fs)])
+    scene = LoopScene(duration=finger.size / fs, fs=fs, label="calibration", plant=plant)
+    source = PlantSource(scene, _make_plant(scene, n_ridges), PVDFCircuit(), finger)
+    x = np.stack([source.read(0.0, k / fs) for k in range(finger.size)])
+    pipe = loop_pipeline(weights, fs, NoController(), n_ridges)
+    feats = pipe.process_block(x, features=True)[1].reshape(finger.size, n_ridges, 4)
+    diff = np.cumsum(feats[:, :, 0] - feats[:, :, 1], axis=0) / fs  # integrated L-R rate per ridge
+    diff = diff[n0:] - diff[n0]
+    c = np.linalg.lstsq(diff, finger[n0:], rcond=None)[0]
+    c = c / np.max(np.abs(c))
+    return np.stack([c, -c], axis=1)
 
 
 def calibrate_direction(weights, fs: float = 1000.0, n_ridges: int = 6, plant: str = "brush") -> float:

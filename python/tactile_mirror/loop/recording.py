@@ -46,7 +46,7 @@ __all__ = ["FORMAT", "FORMAT_VERSION", "MAX_RIDGES", "MAX_TICKS", "Recording", "
 
 FORMAT = "tactile-mirror-recording"
 FORMAT_VERSION = 1
-_CFG_ARRAYS = ("sos_v", "sos_u", "sos_diff", "w1", "b1", "w2", "b2", "input_mean", "input_gain")
+_CFG_ARRAYS = ("sos_v", "sos_u", "sos_diff", "w1", "b1", "w2", "b2", "input_mean", "input_gain", "shear_weights")
 
 #: Longest recording a file may hold: 1e8 ticks, 28 h at 1 kHz (a 6-ridge recording
 #: that long is 27 GB of samples and outputs).
@@ -70,6 +70,7 @@ _MEMBERS = {
     "cfg_b2": Member("f", 1, (16,), required=False),
     "cfg_input_mean": Member("f", 1, (_MAX_IN,), required=False),
     "cfg_input_gain": Member("f", 1, (_MAX_IN,), required=False),
+    "cfg_shear_weights": Member("f", 2, (MAX_RIDGES, 2), required=False),
 }
 
 

@@ -192,25 +192,27 @@ class SceneResult:
                 "rejected": int(self.status.get("rejected", 0))}
 
 
-def loop_pipeline(weights, fs: float, controller: Controller, n_ridges: int):
-    """The pipeline of the experiment: 2nd-order 100 Hz estimator, fast activation, 50-tick hold."""
+def loop_pipeline(weights, fs: float, controller: Controller, n_ridges: int, shear_weights=None):
+    """The pipeline of the experiment: 2nd-order 100 Hz estimator, fast activation, 50-tick hold;
+    ``shear_weights`` (n_ridges, 2) for the controller's shear signal (default: L - R)."""
     from ..pipeline import MirrorPipeline
 
     est = StressRateEstimator(PVDFCircuit(), fs, 2 * n_ridges, order=2, bandwidth=100.0)
     return MirrorPipeline(weights, fs, n_ridges, estimator=est, controller=controller, activation="fast",
-                          max_hold_ticks=50)
+                          max_hold_ticks=50, shear_weights=shear_weights)
 
 
 def run_scene(scene: LoopScene, weights, controller: Controller | None, limits: StageLimits | None = None,
-              n_ridges: int = 6) -> SceneResult:
-    """Run one scene, open loop (``controller`` None or :class:`NoController`) or closed loop."""
+              n_ridges: int = 6, shear_weights=None) -> SceneResult:
+    """Run one scene, open loop (``controller`` None or :class:`NoController`) or closed loop;
+    ``shear_weights`` go to the pipeline (:func:`loop_pipeline`)."""
     controller = controller or NoController()
     limits = limits or StageLimits(-0.02, 0.02, 0.03, 1.0)
     finger = scene_finger(scene)
     plant = make_plant(scene, n_ridges)
     source = PlantSource(scene, plant, PVDFCircuit(), finger)
     stage = SimulatedStage(limits, delay=scene.stage_delay, lag=scene.stage_lag)
-    pipe = loop_pipeline(weights, scene.fs, controller, n_ridges)
+    pipe = loop_pipeline(weights, scene.fs, controller, n_ridges, shear_weights)
     closed = controller.kind != "none"
     res = LoopRunner(pipe, stage, source, command=closed).run(n_ticks=finger.size, x0=0.0)
     log = source.log
