@@ -259,7 +259,7 @@ def test_envelope_table_sums_per_class():
     assert t["speed_mm_s"] == pytest.approx(20.0)
 
 
-def test_shear_weights_in_cpp_equal_the_reference_and_the_c_abi():
+def test_shear_weights_in_cpp_equal_the_reference_recordings_and_the_c_abi(tmp_path):
     from tactile_mirror.loop.capi import CPipeline, load
 
     c = dataclasses.replace(design(calibration=(1.0, 2e3)).controller, arm_delay=0.05, slip_hold=0.0,
@@ -276,6 +276,15 @@ def test_shear_weights_in_cpp_equal_the_reference_and_the_c_abi():
     # (+1, -1) given explicitly is the default, bit for bit
     same = _pipe(c, shear_weights=np.tile([1.0, -1.0], (2, 1))).process_block(x)[0]
     assert np.array_equal(same.view(np.uint64), plain.view(np.uint64))
+    # a recording keeps them: its replay is bit for bit
+    from tactile_mirror.loop import Recording
+
+    out_acc = _pipe(c, shear_weights=sw).process_block(x, accepted=True)
+    rec = Recording(FS, x, out_acc[0], out_acc[1], np.zeros(len(x)), pipe.config)
+    rec.save(tmp_path / "r.npz")
+    back = Recording.load(tmp_path / "r.npz")
+    np.testing.assert_array_equal(back.config["shear_weights"], sw)
+    assert back.verify()
     # the C ABI (5) carries them: bit-identical to the pybind11 pipeline
     ffi, lib = load()
     assert lib.tm_abi_version() == 5
