@@ -235,3 +235,25 @@ def test_slip_guard_holds_then_retares():
     assert np.all(v_free[20:] > 0.4)
     with pytest.raises(ValueError, match="slip"):
         c.run(np.zeros(n), asym, FS, slip=np.zeros(n + 1, dtype=bool))
+
+
+def test_slip_guard_waits_for_a_confirmed_slip():
+    # slip_confirm: a slip shorter than it leaves the law alone; a longer one starts the
+    # guard on its (confirm + 1)-th tick; C++ (pipeline controller) and reference agree.
+    c = VelocityController(threshold=0.2, y_full=0.6, v_max=5.0, a_max=1e6, shear_gain=0.5, ramp_gain=0.0,
+                           asym_tau=1e6, x_min=-100.0, x_max=100.0, slip_hold=0.01, slip_confirm=0.003)
+    n = 80
+    asym = np.zeros(n)
+    asym[0] = FS
+    _, v_free = c.run(np.zeros(n), asym, FS)
+    short = np.zeros(n, dtype=bool)
+    short[20:23] = True                      # 3 ticks = slip_confirm: not yet a slip
+    _, v = c.run(np.zeros(n), asym, FS, slip=short)
+    np.testing.assert_array_equal(v, v_free)
+    long = np.zeros(n, dtype=bool)
+    long[20:26] = True                       # 6 ticks: the guard starts on the 4th
+    _, v = c.run(np.zeros(n), asym, FS, slip=long)
+    np.testing.assert_array_equal(v[:23], v_free[:23])
+    assert np.all(v[23:] == 0.0)             # held, then tared
+    with pytest.raises(ValueError, match="slip_confirm"):
+        VelocityController(slip_confirm=-1.0)

@@ -111,7 +111,7 @@ def _signals(n, ni, seed=0):
 def test_cpp_default_law_equals_its_numpy_reference(slip_hold):
     # gains scaled to the test pipeline's signal so that the law moves, saturates and holds
     c = dataclasses.replace(design(calibration=(1.0, 2e3)).controller, arm_delay=0.05, slip_hold=slip_hold,
-                            v_max=0.004, a_max=0.2)
+                            slip_confirm=0.002, v_max=0.004, a_max=0.2)
     x = _signals(1500, _pipe(c).n_inputs)
     x[400, 1] = np.nan        # a rejected tick: the integrator only leaks
     ys = _pipe(c).process_block(x)[0][:, 2::3].max(axis=1)
@@ -127,6 +127,10 @@ def test_cpp_default_law_equals_its_numpy_reference(slip_hold):
     if slip_hold:
         slip = out[:, 2::3].max(axis=1) >= pipe.config["slip_threshold"]
         assert 0 < slip.sum() < slip.size
+        # runs of slip both shorter and longer than slip_confirm (2 ticks) occur
+        edges = np.flatnonzero(np.diff(np.r_[0, slip.astype(int), 0]))
+        runs = edges[1::2] - edges[::2]
+        assert runs.min() <= 2 < runs.max()
     np.testing.assert_allclose(out[:, :2], ref[:, :2], rtol=1e-9, atol=1e-12)
     v = out[:, 1]
     assert np.abs(v).max() == pytest.approx(0.004)  # reached the speed limit
@@ -294,7 +298,7 @@ def test_shear_weights_in_cpp_equal_the_reference_recordings_and_the_c_abi(tmp_p
     cfg = ffi.new("tm_config*")
     lib.tm_config_init(cfg)
     assert cfg.shear_weights == ffi.NULL
-    abi4 = ffi.offsetof("tm_config", "shear_weights")
+    abi4 = ffi.offsetof("tm_config", "controller") + ffi.offsetof("tm_controller_params", "slip_confirm")
     cfg.struct_size = abi4
     cfg.abi_version = 4
     h = ffi.new("tm_pipeline*")

@@ -123,7 +123,8 @@ inline const char* controller_name(ControllerKind k) noexcept {
     X(pred_boost, 0.0, 2, "velocity: shear gain x (1 + pred_boost * ramp(y_pred)), >= 0")                 \
     X(slip_hold, 0.0, 3, "s, >= 0: on detected slip hold the stage, re-tare this long after (0 = off)")  \
     X(shear_integral, 0.0, 2, "velocity: 1/s, >= 0: integral of the shear feedback (type-2 loop); 0 = off") \
-    X(rate_gain, 0.0, 2, "velocity: m/s per unit of L-R stress rate (relative-velocity feedback), >= 0")
+    X(rate_gain, 0.0, 2, "velocity: m/s per unit of L-R stress rate (relative-velocity feedback), >= 0")  \
+    X(slip_confirm, 0.0, 3, "s, >= 0: a detected slip starts the slip guard once it lasted this long (0 = at once)")
 
 struct ControllerParams {
     ControllerKind kind = ControllerKind::none;
@@ -335,6 +336,7 @@ inline void validate_controller(const ControllerParams& c) {
     if (!(c.slip_hold >= 0.0 && c.slip_hold <= 3600.0)) bad("slip_hold", "must lie in [0, 3600] s");
     if (!(c.shear_integral >= 0.0)) bad("shear_integral", "must be >= 0 (1/s)");
     if (!(c.rate_gain >= 0.0)) bad("rate_gain", "must be >= 0 (m/s per unit of stress rate)");
+    if (!(c.slip_confirm >= 0.0 && c.slip_confirm <= 3600.0)) bad("slip_confirm", "must lie in [0, 3600] s");
 }
 
 inline void validate_config(const PipelineConfig& c) {
@@ -389,6 +391,7 @@ public:
         leak_ = std::exp(-dt_ / p.asym_tau);
         arm_ticks_ = static_cast<std::uint64_t>(std::llround(p.arm_delay * fs));
         hold_ticks_ = static_cast<std::uint64_t>(std::llround(p.slip_hold * fs));
+        confirm_ticks_ = static_cast<std::uint64_t>(std::llround(p.slip_confirm * fs));
     }
 
     // y: max y_pred of the ridges; asym: sum over ridges of (rate_L - rate_R);
@@ -414,7 +417,12 @@ public:
             // sliding contact's inverted asymmetry) or a finger the stage cannot follow:
             // either way, guard as after a detected slip.
             const bool runaway = p_.shear_integral > 0.0 && std::fabs(w_) >= p_.v_max;
-            if (slip || runaway) hold_left_ = hold_ticks_;
+            // A slip counts once the detector reported it on confirm_ticks_ + 1 ticks in a
+            // row: a single tick of y_slip over its threshold while the contact still sticks
+            // (a fast change of the shear) would otherwise stop a stage that follows a
+            // moving finger, and the stop itself makes the slip.
+            slip_run_ = slip ? slip_run_ + 1 : 0;
+            if ((slip && slip_run_ > confirm_ticks_) || runaway) hold_left_ = hold_ticks_;
             if (hold_left_ > 0) {
                 hold = true;
                 y = 0.0;
@@ -492,6 +500,7 @@ public:
         w_ = 0.0;
         ticks_ = 0;
         hold_left_ = 0;
+        slip_run_ = 0;
     }
     void set_position(double x) noexcept {
         x_ = clamp(x);
@@ -509,9 +518,9 @@ public:
     // The mutable state, for a tick's undo.
     struct State {
         double x, v, a, dir, w;
-        std::uint64_t ticks, hold_left;
+        std::uint64_t ticks, hold_left, slip_run;
     };
-    State state() const noexcept { return {x_, v_, a_, dir_, w_, ticks_, hold_left_}; }
+    State state() const noexcept { return {x_, v_, a_, dir_, w_, ticks_, hold_left_, slip_run_}; }
     void set_state(const State& s) noexcept {
         w_ = s.w;
         x_ = s.x;
@@ -520,6 +529,7 @@ public:
         dir_ = s.dir;
         ticks_ = s.ticks;
         hold_left_ = s.hold_left;
+        slip_run_ = s.slip_run;
     }
 
 private:
@@ -528,6 +538,7 @@ private:
     double dt_ = 1e-3, leak_ = 1.0;
     double x_ = 0.0, v_ = 0.0, a_ = 0.0, dir_ = 0.0, w_ = 0.0;
     std::uint64_t ticks_ = 0, arm_ticks_ = 0, hold_ticks_ = 0, hold_left_ = 0;
+    std::uint64_t confirm_ticks_ = 0, slip_run_ = 0;  // slip_confirm in ticks; ticks of slip in a row
 };
 
 // ---- the pipeline -------------------------------------------------------------------

@@ -115,6 +115,8 @@ typedef struct tm_controller_params {
     /* ABI 4 (appended: tm_config grows at its end, a shorter struct_size keeps these at their defaults) */
     double shear_integral;   /* velocity: 1/s, >= 0: integral of the shear feedback (type-2 loop); 0 = off */
     double rate_gain;        /* velocity: m/s per unit of L-R stress rate (relative-velocity feedback), >= 0 */
+    /* ABI 5 (appended) */
+    double slip_confirm;     /* s, >= 0: a detected slip starts the slip guard once it lasted this long (0 = at once) */
 } tm_controller_params;
 
 typedef struct tm_config {

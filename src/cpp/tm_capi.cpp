@@ -238,7 +238,8 @@ int32_t tm_config_init(tm_config* cfg) {
 // sizeof(tm_config) in ABI 2, the first ABI with struct_size (and in ABI 3): it ended
 // with the controller's slip_hold. Fields are only ever appended since (ABI 4:
 // shear_integral and rate_gain at the end of the controller, the end of tm_config;
-// ABI 5: shear_weights after the controller).
+// ABI 5: slip_confirm at the end of the controller, shear_weights after it). A struct
+// of ABI 4 ends where slip_confirm begins.
 constexpr std::size_t kConfigSizeAbi2 = offsetof(tm_config, controller) + offsetof(tm_controller_params, shear_integral);
 static_assert(kConfigSizeAbi2 <= sizeof(tm_config), "tm_config only grows");
 

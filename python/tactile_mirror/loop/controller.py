@@ -74,19 +74,20 @@ def controller_fields(kind: str | None = None) -> tuple[str, ...]:
 class _LawState:
     """The mutable state of a law between ticks (the C++ StageController's)."""
 
-    __slots__ = ("a", "dir", "hold_left", "ticks", "v", "w", "x")
+    __slots__ = ("a", "dir", "hold_left", "slip_run", "ticks", "v", "w", "x")
 
     def __init__(self, x: float):
         self.x, self.v, self.a, self.dir, self.w = x, 0.0, 0.0, 0.0, 0.0
         self.ticks = 0
         self.hold_left = 0
+        self.slip_run = 0
 
     def snapshot(self) -> tuple:
         """The whole state, for a tick's undo (:meth:`restore`)."""
-        return (self.x, self.v, self.a, self.dir, self.w, self.ticks, self.hold_left)
+        return (self.x, self.v, self.a, self.dir, self.w, self.ticks, self.hold_left, self.slip_run)
 
     def restore(self, s: tuple) -> None:
-        self.x, self.v, self.a, self.dir, self.w, self.ticks, self.hold_left = s
+        self.x, self.v, self.a, self.dir, self.w, self.ticks, self.hold_left, self.slip_run = s
 
 
 def _real(value, name: str) -> float:
@@ -126,6 +127,10 @@ class Controller:
         slides the strips' asymmetry no longer measures the relative displacement
         (sliding friction holds it and the release of static friction swings it), so
         a law acting on it can run the stage away.
+    slip_confirm : float
+        s (>= 0): the guard starts once the detector reported slip on every tick
+        for this long (0: at once). A one-tick ``y_slip`` peak while the contact
+        still sticks would otherwise stop a stage that follows a moving finger.
     """
 
     kind = "none"
@@ -137,10 +142,11 @@ class Controller:
     asym_deadband: float = _DEFAULTS["none"]["asym_deadband"]
     arm_delay: float = _DEFAULTS["none"]["arm_delay"]
     slip_hold: float = _DEFAULTS["none"]["slip_hold"]
+    slip_confirm: float = _DEFAULTS["none"]["slip_confirm"]
 
     def __post_init__(self):
         for name in ("threshold", "x_min", "x_max", "direction_sign", "asym_tau", "asym_deadband", "arm_delay",
-                     "slip_hold"):
+                     "slip_hold", "slip_confirm"):
             object.__setattr__(self, name, _real(getattr(self, name), name))
         if not 0.0 <= self.threshold < 1.0:
             raise ValueError(f"threshold must lie in [0, 1), got {self.threshold}")
@@ -158,6 +164,8 @@ class Controller:
             raise ValueError(f"arm_delay must lie in [0, 3600] s, got {self.arm_delay}")
         if not 0 <= self.slip_hold <= 3600:
             raise ValueError(f"slip_hold must lie in [0, 3600] s, got {self.slip_hold}")
+        if not 0 <= self.slip_confirm <= 3600:
+            raise ValueError(f"slip_confirm must lie in [0, 3600] s, got {self.slip_confirm}")
 
     def params(self) -> dict:
         """The parameters as the C++ pipeline takes them (``kind`` included)."""
@@ -227,7 +235,8 @@ class Controller:
         hold = False
         if hold_ticks > 0:  # slip guard (and the run-away guard of the type-2 law)
             runaway = getattr(self, "shear_integral", 0.0) > 0 and abs(st.w) >= getattr(self, "v_max", math.inf)
-            if slip or runaway:
+            st.slip_run = st.slip_run + 1 if slip else 0
+            if (slip and st.slip_run > round(self.slip_confirm * fs)) or runaway:
                 st.hold_left = hold_ticks
             if st.hold_left > 0:
                 hold, y, asym = True, 0.0, 0.0
