@@ -158,7 +158,9 @@ class Pad:
             s.mu = float(value)
 
     def reset(self) -> None:
-        for s in self.solvers:
+        # last ridge first: a compiled ridge shadowing an earlier one (its mirror image,
+        # see _core._ContactPad) then drops the link without copying the earlier one's state
+        for s in reversed(self.solvers):
             s.reset()
         self._last = None
 
@@ -172,12 +174,9 @@ class Pad:
         """Points where node statuses changed so far (all ridges)."""
         return sum(getattr(s, "events", 0) for s in self.solvers)
 
-    def follow(self, plate_y: np.ndarray, indent: np.ndarray, stepping: str | None = None,
-               want_displacement: bool = False):
-        """Follow a whole trajectory: ``plate_y`` and ``indent`` (m) per sample (with the
-        compiled backend in one call without the GIL, on :attr:`threads` threads). Returns ``(lam, displacement, state)``: arrays ``(N, n_ridges, 2n)``
-        of contact forces ``(lt, ln)`` (N/m), of surface displacements (m, or None) and
-        ``(N, n_ridges, n)`` node states. ``stepping`` defaults to the pad's."""
+    def _plate_path(self, plate_y, indent, stepping):
+        """The checked stepping, plate path ``y`` (N,) and the ridges' plate heights
+        ``z`` (N, n_ridges), C-contiguous float64."""
         stepping = self.stepping if stepping is None else stepping
         if stepping not in STEPPINGS:
             raise ValueError(f"stepping must be one of {STEPPINGS}, got {stepping!r}")
@@ -190,9 +189,18 @@ class Pad:
         if not (np.all(np.isfinite(y)) and np.all(np.isfinite(z))):
             k = int(np.flatnonzero(~(np.isfinite(y) & np.all(np.isfinite(z), axis=1)))[0])
             raise ValueError(f"plate position must be finite, got y={y[k]!r}, indent={ind[k]!r}")
+        return stepping, y, z
+
+    def follow(self, plate_y: np.ndarray, indent: np.ndarray, stepping: str | None = None,
+               want_displacement: bool = False):
+        """Follow a whole trajectory: ``plate_y`` and ``indent`` (m) per sample (with the
+        compiled backend in one call without the GIL, on :attr:`threads` threads). Returns ``(lam, displacement, state)``: arrays ``(N, n_ridges, 2n)``
+        of contact forces ``(lt, ln)`` (N/m), of surface displacements (m, or None) and
+        ``(N, n_ridges, n)`` node states. ``stepping`` defaults to the pad's."""
+        stepping, y, z = self._plate_path(plate_y, indent, stepping)
         if self._stepper is not None:
             return self._follow_compiled(y, z, stepping, want_displacement)
-        n, R = m.n_nodes, self.n_ridges
+        n, R = self.model.n_nodes, self.n_ridges
         N = y.size
         lam = np.empty((R, N, 2 * n))
         disp = np.empty((R, N, 2 * n)) if want_displacement else None
@@ -209,6 +217,48 @@ class Pad:
         return (np.moveaxis(lam, 0, 1), None if disp is None else np.moveaxis(disp, 0, 1),
                 np.moveaxis(state, 0, 1))
 
+    def follow_projected(self, plate_y: np.ndarray, indent: np.ndarray, proj: np.ndarray,
+                         stepping: str | None = None):
+        """:meth:`follow` reduced to what a scene reads: ``proj`` (q, 2n) linear functionals
+        of the forces ``lam = (lt, ln)`` (strip stresses, force sums). Returns ``(out,
+        slip_fraction, flags)``: ``out`` (N, n_ridges, q) = ``proj @ lam`` per sample and
+        ridge, the slip fraction (N, n_ridges) and flags (N, n_ridges) int8 (bit 0: some
+        node touches; bit 1: gross slip, touching and no node stuck). The compiled backend
+        computes ``proj @ lam`` once per piece (it is affine along a piece), so a sample
+        between events costs O(q), not O(n)."""
+        stepping, y, z = self._plate_path(plate_y, indent, stepping)
+        n, R = self.model.n_nodes, self.n_ridges
+        proj = np.ascontiguousarray(proj, dtype=np.float64)
+        if proj.ndim != 2 or proj.shape[1] != 2 * n or proj.shape[0] < 1:
+            raise ValueError(f"proj must have shape (q, {2 * n}), got {proj.shape}")
+        N = y.size
+        if self._stepper is None:
+            lam, _, st = self.follow(plate_y, indent, stepping)
+            out = lam @ proj.T
+            touching = st != OPEN
+            w = self.model.weights
+            total = touching @ w
+            frac = np.divide((st == SLIP) @ w, total, out=np.zeros_like(total), where=total > 0)
+            touch = touching.any(axis=2)
+            gross = touch & ~np.any(st == STICK, axis=2)
+            flags = (touch.astype(np.int8) | (gross.astype(np.int8) << 1)).astype(np.int8)
+            return out, frac, flags
+        out = np.empty((N, R, proj.shape[0]))
+        frac = np.empty((N, R))
+        flags = np.empty((N, R), dtype=np.int8)
+        status, bad, _, _ = self._stepper.follow(y, z, stepping == "every", None, None, None, frac,
+                                                 min(self.threads, 2), proj, out, flags)
+        self._after_compiled(status, bad)
+        return out, frac, flags
+
+    def _after_compiled(self, status, bad):
+        for s in self.solvers:
+            s._sync_counts()
+        if status:
+            s = self.solvers[bad]
+            s._raise_status(status, *s._kernel.error_point())
+        self._last = None
+
     def _follow_compiled(self, y, z, stepping, want_displacement):
         """:meth:`follow` on the compiled pad: ``y`` (N,) and the ridges' plate heights
         ``z`` (N, n_ridges), checked and C-contiguous."""
@@ -219,13 +269,7 @@ class Pad:
         state = np.empty((N, R, n), dtype=np.int8)
         status, bad, _, _ = self._stepper.follow(y, z, stepping == "every", lam, disp, state, None,
                                                  min(self.threads, 2))
-        for s in self.solvers:
-            s._sync_counts()
-        if status:
-            s = self.solvers[bad]
-            s._raise_status(status, *s._kernel.error_point())
-        lam[:, :, n:] *= -1.0  # the kernel writes the forces (lt, -ln)
-        self._last = None
+        self._after_compiled(status, bad)
         return lam, disp, state
 
     def advance(self, plate_y: float, indent: float) -> PadState:
