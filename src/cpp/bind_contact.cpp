@@ -390,9 +390,9 @@ void tm_bind_contact(py::module_& m) {
                  ContactStatus status = ContactStatus::ok;
                  std::size_t bad = 0;
                  long its = 0;
+                 p.link(zp, 1, 0, 1);  // with the GIL: the links are read by the solvers' accessors
                  {
                      py::gil_scoped_release nogil;
-                     p.link(zp, 1, 0, 1);
                      std::size_t k = 0;
                      for (; k < R; ++k) {
                          const std::size_t j = p.src[k];
