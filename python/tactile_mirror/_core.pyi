@@ -449,8 +449,10 @@ class _ContactPad:
     def step(
         self, plate_y: float, plate_z: npt.ArrayLike, every: bool = True
     ) -> tuple[int, int, int, npt.NDArray[np.float64] | None, npt.NDArray[np.float64] | None,
-               npt.NDArray[np.int8] | None, npt.NDArray[np.float64] | None]:
-        """(status, failing ridge, iterations, forces, displacement, state, slip_fraction); committed only if all converged."""
+               npt.NDArray[np.int8] | None, npt.NDArray[np.float64] | None, npt.NDArray[np.bool_] | None,
+               npt.NDArray[np.bool_] | None, float, float]:
+        """(status, failing ridge, iterations, forces, displacement, state, slip_fraction, touching,
+        gross_slip, sum of f_t, sum of f_n); committed only if all converged."""
     @property
     def sources(self) -> tuple[int, ...]:
         """Of the last call, per ridge: the ridge whose results it got (itself, or the earlier

@@ -12,7 +12,8 @@
 //   error(), reset(), get_history(), set_history(...), solves, events
 // _core._ContactPad(solvers)   several ridges stepped in one call, without the GIL
 //   step(plate_y, plate_z[n_ridges], every=True) -> (status, ridge, solves, forces, displacement,
-//       state, slip_fraction); the ridges keep the step only if every one succeeded.
+//       state, slip_fraction, touching, gross_slip, sum f_t, sum f_n); the ridges keep the step
+//       only if every one succeeded.
 //   follow(plate_y[T], plate_z[T, n_ridges], every, lam, displacement, state,
 //       slip_fraction, threads, proj, proj_out, flags) -> (status, ridge, solves, events):
 //       each ridge follows
@@ -382,6 +383,10 @@ void tm_bind_contact(py::module_& m) {
                  py::array_t<double> disp({static_cast<py::ssize_t>(R), static_cast<py::ssize_t>(2 * n)});
                  py::array_t<std::int8_t> state({static_cast<py::ssize_t>(R), static_cast<py::ssize_t>(n)});
                  py::array_t<double> frac(static_cast<py::ssize_t>(R));
+                 py::array_t<bool> touch(static_cast<py::ssize_t>(R)), gross(static_cast<py::ssize_t>(R));
+                 bool* to = touch.mutable_data();
+                 bool* go = gross.mutable_data();
+                 double sum_t = 0.0, sum_n = 0.0;
                  double* fo = forces.mutable_data();
                  double* dout = disp.mutable_data();
                  std::int8_t* so = state.mutable_data();
@@ -413,6 +418,20 @@ void tm_bind_contact(py::module_& m) {
                          its += p.solved[k];
                          s.report(fo + k * 2 * n, so + k * n, fo + k * 2 * n, fr[k]);
                      }
+                     if (status == ContactStatus::ok) {  // what a pad state reads: touch, gross slip, force sums
+                         for (std::size_t q = 0; q < R; ++q) {
+                             const std::int8_t* sq = so + q * n;
+                             bool any = false, stick = false;
+                             for (std::size_t i = 0; i < n; ++i) {
+                                 any |= sq[i] != tactile::kContactOpen;
+                                 stick |= sq[i] == tactile::kContactStick;
+                             }
+                             to[q] = any;
+                             go[q] = any && !stick;
+                             const double* fq = fo + q * 2 * n;
+                             for (std::size_t i = 0; i < n; ++i) { sum_t += fq[i]; sum_n += fq[n + i]; }
+                         }
+                     }
                      bad = k;
                      if (status != ContactStatus::ok)  // the ridges before the failing one step back
                          for (std::size_t q = 0; q < k; ++q)
@@ -420,12 +439,14 @@ void tm_bind_contact(py::module_& m) {
                  }
                  if (status != ContactStatus::ok)
                      return py::make_tuple(static_cast<int>(status), bad, 0, py::none(), py::none(), py::none(),
-                                           py::none());
-                 return py::make_tuple(0, 0, its, forces, disp, state, frac);
+                                           py::none(), py::none(), py::none(), 0.0, 0.0);
+                 return py::make_tuple(0, 0, its, forces, disp, state, frac, touch, gross, sum_t, sum_n);
              },
              py::arg("plate_y"), py::arg("plate_z"), py::arg("every") = true,
              "One sample for every ridge (every=False: from the unit responses while no status changes); "
-             "the ridges keep it only if every one succeeded. A ridge with the configuration, history and "
+             "the ridges keep it only if every one succeeded. Returns (status, ridge, solves, forces f = (lt, -ln), "
+             "displacement, state, slip_fraction, touching, gross_slip, sum of f_t, sum of f_n) (the sums over all "
+             "ridges and nodes, N/m). A ridge with the configuration, history and "
              "plate height of an earlier one gets that ridge's results (the same bits) without computing them.")
         .def("follow",
              [](PyContactPad& p, py::handle plate_y, py::handle plate_z, bool every, py::handle lam,

@@ -13,6 +13,7 @@ default): the plane-strain model gives N/m.
 from __future__ import annotations
 
 import functools
+import math
 from dataclasses import dataclass, field
 from typing import TYPE_CHECKING
 
@@ -304,18 +305,15 @@ class Pad:
 
     def _advance_compiled(self, plate_y: float, indent: float) -> PadState:
         m = self.model
-        n = m.n_nodes
-        plate_z = m.geometry.height - (indent - self.indent_offset)
-        if not (np.isfinite(plate_y) and np.all(np.isfinite(plate_z))):
+        plate_y, indent = float(plate_y), float(indent)
+        if not (math.isfinite(plate_y) and math.isfinite(indent)):  # the ridges' offsets are finite
             raise ValueError(f"plate position must be finite, got y={plate_y!r}, indent={indent!r}")
-        status, bad, its, forces, disp, states, frac = self._stepper.step(float(plate_y), plate_z,
-                                                                          self.stepping == "every")
+        plate_z = m.geometry.height - (indent - self.indent_offset)
+        (status, bad, its, forces, disp, states, frac, touch, gross, sum_t,
+         sum_n) = self._stepper.step(plate_y, plate_z, self.stepping == "every")
         for s in self.solvers:
             s._sync_counts()
         if status:
             self.solvers[bad]._raise_status(status, *self.solvers[bad]._kernel.error_point())
-        touch = np.any(states != OPEN, axis=1)
-        gross = touch & ~np.any(states == STICK, axis=1)
-        fy = float(forces[:, :n].sum()) * self.ridge_length
-        fz = float(-forces[:, n:].sum()) * self.ridge_length
-        return PadState(frac, gross, touch, fy, fz, states, forces, disp, its, m)
+        L = self.ridge_length
+        return PadState(frac, gross, touch, sum_t * L, -sum_n * L, states, forces, disp, its, m)
