@@ -144,11 +144,15 @@ def test_singular_system_is_reported(ridge, backend):
 
 
 @pytest.mark.parametrize("stepping", ["auto", "every"])
-def test_pad_commits_all_ridges_or_none(stepping):
+@pytest.mark.parametrize("threads", [1, 2])
+def test_pad_commits_all_ridges_or_none(stepping, threads):
     # ridge 4 cannot solve a breakaway cascade (no iterations allowed): the step where
     # its first cascade comes fails, and every ridge keeps the history it had before
+    # (with two threads ridge 4 is stepped on the worker with ridge 2, ridges 0 and 1
+    # on the calling thread)
     scene = tm.scenes.paper("fig6", n_ridges=6)
     pad = Pad.from_scene(scene, stepping=stepping)
+    pad.threads = threads
     y, z = scene.plate_motion()
     pad.solvers[4].max_iter, pad.solvers[4].max_active_set_iter = 0, 0
     for i in range(y.size):
@@ -514,3 +518,30 @@ def test_projected_follow_equals_the_full_rows(backend):
     assert (part.solves, part.events) == (full.solves, full.events)
     with pytest.raises(ValueError, match="proj"):
         part.follow_projected(y, ind, proj[:, :n])
+
+
+@pytest.mark.parametrize("stepping", ["auto", "every"])
+def test_advance_on_two_threads_equals_one(stepping):
+    # the pad's worker thread steps half of the computing ridges: the same bits, the
+    # same solves and events
+    scene = tm.scenes.paper("fig8", n_ridges=6, duration=1.6)
+    y, ind = scene.plate_motion()
+    pads = [Pad.from_scene(scene, stepping=stepping) for _ in range(2)]
+    pads[1].threads = 2
+    for i in range(y.size):
+        a, b = (p.advance(y[i], ind[i]) for p in pads)
+        np.testing.assert_array_equal(a.forces, b.forces)
+        np.testing.assert_array_equal(a.node_state, b.node_state)
+        assert (a.force_y, a.force_z, a.iterations) == (b.force_y, b.force_z, b.iterations)
+    assert (pads[0].solves, pads[0].events) == (pads[1].solves, pads[1].events)
+    # a non-finite height of one ridge on the worker's side: nothing is kept
+    H = pads[1].model.geometry.height
+    z = H - (ind[-1] - pads[1].indent_offset)
+    z[4] = np.nan
+    before = [s.get_state() for s in pads[1].solvers]
+    status, ridge = pads[1]._stepper.step(float(y[-1]) + 1e-6, z, stepping == "every", 2)[:2]
+    assert (status, ridge) == (1, 4)
+    for s, h in zip(pads[1].solvers, before):
+        same_history(h, s.get_state())
+    with pytest.raises(ValueError, match="threads"):
+        pads[1]._stepper.step(float(y[-1]), z, True, 0)

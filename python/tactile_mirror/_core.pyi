@@ -447,7 +447,7 @@ class _ContactPad:
     @property
     def n_ridges(self) -> int: ...
     def step(
-        self, plate_y: float, plate_z: npt.ArrayLike, every: bool = True
+        self, plate_y: float, plate_z: npt.ArrayLike, every: bool = True, threads: int = 1
     ) -> tuple[int, int, int, npt.NDArray[np.float64] | None, npt.NDArray[np.float64] | None,
                npt.NDArray[np.int8] | None, npt.NDArray[np.float64] | None, npt.NDArray[np.bool_] | None,
                npt.NDArray[np.bool_] | None, float, float]:

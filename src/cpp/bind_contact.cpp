@@ -30,6 +30,8 @@
 #include <pybind11/pybind11.h>
 
 #include <atomic>
+#include <condition_variable>
+#include <mutex>
 #include <cstring>
 #include <memory>
 #include <stdexcept>
@@ -308,7 +310,58 @@ void tm_bind_contact(py::module_& m) {
         std::size_t n = 0;
         std::vector<std::size_t> src;  // src[k]: the ridge whose results ridge k gets (k itself if it computes)
         std::vector<long> solved;      // step: the solves of each ridge in this call
+        std::vector<ContactStatus> status;  // step: the status of each computing ridge
+        // step with threads = 2: a worker thread started at the first such call and kept
+        // (a tick hands it a range of ridges and waits for it; nothing is allocated per tick)
+        struct Worker {
+            std::thread th;
+            std::mutex mu;
+            std::condition_variable cv;
+            bool job = false, quit = false;
+            void (*fn)(void*) = nullptr;
+            void* arg = nullptr;
+        };
+        std::unique_ptr<Worker> worker;
+        void start_worker() {
+            if (worker) return;
+            worker = std::make_unique<Worker>();
+            Worker* w = worker.get();
+            w->th = std::thread([w] {
+                std::unique_lock<std::mutex> lk(w->mu);
+                for (;;) {
+                    w->cv.wait(lk, [w] { return w->job || w->quit; });
+                    if (w->quit) return;
+                    lk.unlock();
+                    w->fn(w->arg);
+                    lk.lock();
+                    w->job = false;
+                    w->cv.notify_all();
+                }
+            });
+        }
+        // run fn(arg) on the worker while the caller runs its own part; join() waits for it
+        void post(void (*fn)(void*), void* arg) {
+            std::lock_guard<std::mutex> lk(worker->mu);
+            worker->fn = fn;
+            worker->arg = arg;
+            worker->job = true;
+            worker->cv.notify_all();
+        }
+        void join() {
+            std::unique_lock<std::mutex> lk(worker->mu);
+            worker->cv.wait(lk, [this] { return !worker->job; });
+        }
+        PyContactPad() = default;
+        PyContactPad(PyContactPad&&) = default;
         ~PyContactPad() {
+            if (worker) {
+                {
+                    std::lock_guard<std::mutex> lk(worker->mu);
+                    worker->quit = true;
+                    worker->cv.notify_all();
+                }
+                worker->th.join();
+            }
             for (auto& r : ridges) r->detach();  // a shadow is only valid inside its pad
         }
         // plate heights of ridge k: zk[t * stride]
@@ -321,6 +374,7 @@ void tm_bind_contact(py::module_& m) {
             };
             src.resize(R);
             solved.resize(R);
+            status.resize(R);
             for (std::size_t k = 0; k < R; ++k) {
                 PyContact& c = *ridges[k];
                 src[k] = k;
@@ -373,9 +427,10 @@ void tm_bind_contact(py::module_& m) {
                                "of the last call, per ridge: the ridge whose results it got (itself, or the earlier "
                                "ridge with the same configuration, history and plate path it shadows)")
         .def("step",
-             [](PyContactPad& p, double plate_y, py::handle plate_z, bool every) -> py::tuple {
+             [](PyContactPad& p, double plate_y, py::handle plate_z, bool every, int threads) -> py::tuple {
                  const std::size_t R = p.ridges.size(), n = p.n;
                  F64 z = vector_arg(plate_z, R, "plate_z");
+                 if (threads < 1) throw py::value_error("threads must be >= 1");
                  std::vector<Busy> locks;
                  locks.reserve(R);
                  for (auto& r : p.ridges) locks.emplace_back(*r);
@@ -393,32 +448,82 @@ void tm_bind_contact(py::module_& m) {
                  double* fr = frac.mutable_data();
                  const double* zp = z.data();
                  ContactStatus status = ContactStatus::ok;
-                 std::size_t bad = 0;
+                 std::size_t bad = R;
                  long its = 0;
                  p.link(zp, 1, 0, 1);  // with the GIL: the links are read by the solvers' accessors
+                 std::size_t n_own = 0;
+                 for (std::size_t k = 0; k < R; ++k) n_own += p.src[k] == k;
+                 const bool two = threads >= 2 && n_own >= 2;
+                 if (two) p.start_worker();
+                 // the computing ridges [a, b) of the pad (shadows skipped)
+                 struct Part {
+                     PyContactPad* p;
+                     std::size_t a, b;
+                     double y;
+                     const double* z;
+                     bool every;
+                     double *fo, *dout, *fr;
+                     std::int8_t* so;
+                 };
+                 auto run = [](void* v) {
+                     const Part& t = *static_cast<Part*>(v);
+                     const std::size_t n = t.p->n;
+                     for (std::size_t k = t.a; k < t.b; ++k) {
+                         if (t.p->src[k] != k) continue;
+                         ContactSolverKernel& s = t.p->ridges[k]->k;
+                         const long s0 = s.solves();
+                         double y = t.y;
+                         ContactStatus st = s.follow(&y, t.z + k, 1, t.every, t.fo + k * 2 * n, t.dout + k * 2 * n,
+                                                     t.so + k * n, 0, 0);
+                         t.p->status[k] = st;
+                         if (st != ContactStatus::ok) return;  // the rest of this part is not stepped
+                         t.p->solved[k] = s.solves() - s0;
+                         s.report(t.fo + k * 2 * n, t.so + k * n, t.fo + k * 2 * n, t.fr[k]);
+                     }
+                 };
                  {
                      py::gil_scoped_release nogil;
-                     std::size_t k = 0;
-                     for (; k < R; ++k) {
-                         const std::size_t j = p.src[k];
-                         if (j != k) {  // a shadow: its master's results
+                     for (std::size_t k = 0; k < R; ++k) p.status[k] = ContactStatus::ok;
+                     // with two threads the computing ridges are split in two halves by count
+                     std::size_t split = R;
+                     if (two) {
+                         std::size_t c = 0;
+                         for (split = 0; split < R; ++split)
+                             if (p.src[split] == split && c++ == (n_own + 1) / 2) break;
+                     }
+                     Part lo{&p, 0, split, plate_y, zp, every, fo, dout, fr, so};
+                     Part hi{&p, split, R, plate_y, zp, every, fo, dout, fr, so};
+                     if (two) p.post(+run, &hi);
+                     run(&lo);
+                     if (two) p.join();
+                     // the first failing ridge; the ridges before it that stepped step back, and
+                     // so do those after it (with two threads they may have stepped): the pad
+                     // keeps the tick only if every ridge succeeded
+                     const std::size_t lo_end = two ? split : R;
+                     for (std::size_t k = 0; k < R && bad == R; ++k)
+                         if (p.src[k] == k && p.status[k] != ContactStatus::ok) bad = k;
+                     if (bad < R) {
+                         status = p.status[bad];
+                         for (std::size_t k = 0; k < R; ++k) {
+                             if (p.src[k] != k || k == bad) continue;
+                             // ridges past a failure in their own part were not stepped
+                             const std::size_t a = k < lo_end ? 0 : lo_end;
+                             bool stepped = p.status[k] == ContactStatus::ok;
+                             for (std::size_t q = a; q < k && stepped; ++q)
+                                 stepped = !(p.src[q] == q && p.status[q] != ContactStatus::ok);
+                             if (stepped) p.ridges[k]->k.restore();
+                         }
+                     } else {
+                         for (std::size_t k = 0; k < R; ++k) {
+                             const std::size_t j = p.src[k];
+                             its += p.solved[j];
+                             if (j == k) continue;  // a shadow: its master's results
                              std::memcpy(fo + k * 2 * n, fo + j * 2 * n, 2 * n * sizeof(double));
                              std::memcpy(dout + k * 2 * n, dout + j * 2 * n, 2 * n * sizeof(double));
                              std::memcpy(so + k * n, so + j * n, n);
                              fr[k] = fr[j];
-                             its += p.solved[j];
-                             continue;
                          }
-                         ContactSolverKernel& s = p.ridges[k]->k;
-                         const long s0 = s.solves();
-                         status = s.follow(&plate_y, zp + k, 1, every, fo + k * 2 * n, dout + k * 2 * n, so + k * n,
-                                           0, 0);
-                         if (status != ContactStatus::ok) break;
-                         p.solved[k] = s.solves() - s0;
-                         its += p.solved[k];
-                         s.report(fo + k * 2 * n, so + k * n, fo + k * 2 * n, fr[k]);
-                     }
-                     if (status == ContactStatus::ok) {  // what a pad state reads: touch, gross slip, force sums
+                         // what a pad state reads: touch, gross slip, force sums
                          for (std::size_t q = 0; q < R; ++q) {
                              const std::int8_t* sq = so + q * n;
                              bool any = false, stick = false;
@@ -432,18 +537,15 @@ void tm_bind_contact(py::module_& m) {
                              for (std::size_t i = 0; i < n; ++i) { sum_t += fq[i]; sum_n += fq[n + i]; }
                          }
                      }
-                     bad = k;
-                     if (status != ContactStatus::ok)  // the ridges before the failing one step back
-                         for (std::size_t q = 0; q < k; ++q)
-                             if (p.src[q] == q) p.ridges[q]->k.restore();
                  }
                  if (status != ContactStatus::ok)
                      return py::make_tuple(static_cast<int>(status), bad, 0, py::none(), py::none(), py::none(),
                                            py::none(), py::none(), py::none(), 0.0, 0.0);
                  return py::make_tuple(0, 0, its, forces, disp, state, frac, touch, gross, sum_t, sum_n);
              },
-             py::arg("plate_y"), py::arg("plate_z"), py::arg("every") = true,
-             "One sample for every ridge (every=False: from the unit responses while no status changes); "
+             py::arg("plate_y"), py::arg("plate_z"), py::arg("every") = true, py::arg("threads") = 1,
+             "One sample for every ridge (every=False: from the unit responses while no status changes; "
+             "threads=2: half of the computing ridges on a worker thread kept by the pad, the same bits); "
              "the ridges keep it only if every one succeeded. Returns (status, ridge, solves, forces f = (lt, -ln), "
              "displacement, state, slip_fraction, touching, gross_slip, sum of f_t, sum of f_n) (the sums over all "
              "ridges and nodes, N/m). A ridge with the configuration, history and "

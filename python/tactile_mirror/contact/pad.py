@@ -94,8 +94,9 @@ class Pad:
         load, a few vector operations), and a position that does not move costs
         nothing.
     threads : int
-        Threads of the compiled :meth:`follow` (1 or 2): the ridges are independent, so
-        with 2 half of them run on a second thread (same results, bit for bit). A plain
+        Threads of the compiled :meth:`follow` and :meth:`advance` (1 or 2): the ridges are
+        independent, so with 2 half of them run on a second thread (same results, bit for
+        bit; :meth:`advance` hands them to a worker thread the pad keeps). A plain
         attribute; the Python backend ignores it.
     """
 
@@ -310,7 +311,7 @@ class Pad:
             raise ValueError(f"plate position must be finite, got y={plate_y!r}, indent={indent!r}")
         plate_z = m.geometry.height - (indent - self.indent_offset)
         (status, bad, its, forces, disp, states, frac, touch, gross, sum_t,
-         sum_n) = self._stepper.step(plate_y, plate_z, self.stepping == "every")
+         sum_n) = self._stepper.step(plate_y, plate_z, self.stepping == "every", min(self.threads, 2))
         for s in self.solvers:
             s._sync_counts()
         if status:
