@@ -90,6 +90,30 @@ struct PyContact {
     }
 };
 
+// Every ridge of a pad busy for one call (nothing allocated): throws, with the ridges
+// taken so far released, if one of them is being used by another thread.
+class BusyAll {
+public:
+    explicit BusyAll(const std::vector<std::shared_ptr<PyContact>>& r) : r_(r) {
+        for (; n_ < r_.size(); ++n_)
+            if (r_[n_]->busy.exchange(true)) {
+                release();
+                throw std::runtime_error("this contact solver is being used by another thread");
+            }
+    }
+    BusyAll(const BusyAll&) = delete;
+    BusyAll& operator=(const BusyAll&) = delete;
+    ~BusyAll() { release(); }
+
+private:
+    void release() noexcept {
+        for (std::size_t k = 0; k < n_; ++k) r_[k]->busy.store(false);
+        n_ = 0;
+    }
+    const std::vector<std::shared_ptr<PyContact>>& r_;
+    std::size_t n_ = 0;
+};
+
 class Busy {
 public:
     explicit Busy(PyContact& c) : c_(&c) {
@@ -431,9 +455,7 @@ void tm_bind_contact(py::module_& m) {
                  const std::size_t R = p.ridges.size(), n = p.n;
                  F64 z = vector_arg(plate_z, R, "plate_z");
                  if (threads < 1) throw py::value_error("threads must be >= 1");
-                 std::vector<Busy> locks;
-                 locks.reserve(R);
-                 for (auto& r : p.ridges) locks.emplace_back(*r);
+                 BusyAll locks(p.ridges);
                  py::array_t<double> forces({static_cast<py::ssize_t>(R), static_cast<py::ssize_t>(2 * n)});
                  py::array_t<double> disp({static_cast<py::ssize_t>(R), static_cast<py::ssize_t>(2 * n)});
                  py::array_t<std::int8_t> state({static_cast<py::ssize_t>(R), static_cast<py::ssize_t>(n)});
@@ -573,9 +595,7 @@ void tm_bind_contact(py::module_& m) {
                  }
                  double* pop = out_rows<double>(proj_out, "proj_out", T, R * q);
                  if ((q == 0) != (pop == nullptr)) throw py::value_error("proj and proj_out go together");
-                 std::vector<Busy> locks;
-                 locks.reserve(R);
-                 for (auto& r : p.ridges) locks.emplace_back(*r);
+                 BusyAll locks(p.ridges);
                  p.link(z.data(), T, R, 1);
                  std::vector<std::size_t> own;  // the ridges that compute
                  for (std::size_t k = 0; k < R; ++k)
