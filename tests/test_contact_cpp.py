@@ -71,7 +71,11 @@ def random_scenes_50hz():
 
 
 @pytest.mark.xfail(strict=True, reason="known: stepped one 50 Hz sample at a time (Pad.advance, 'every'), one of "
-                   "the 50 scenes parts in the statuses of mirror-image nodes at its first contact steps; to be traced")
+                   "the 50 scenes (index 1) parts in the statuses of the ridge's two edges at step 6: the forces "
+                   "already part by 2e-5 of peak at step 5 with equal statuses; from one history a single press "
+                   "step parts by ~1e-8 between the backends and by 4-6e-9 between the reference's own two "
+                   "steppings, whatever the solver tolerance (1e-10 or 1e-13), and the reference's result moves "
+                   "with the OpenBLAS kernel (with OPENBLAS_CORETYPE=SkylakeX this test passes)")
 def test_cpp_equals_python_on_random_scenes():
     slipped = 0
     for s in random_scenes_50hz():
@@ -144,11 +148,15 @@ def test_singular_system_is_reported(ridge, backend):
 
 
 @pytest.mark.parametrize("stepping", ["auto", "every"])
-def test_pad_commits_all_ridges_or_none(stepping):
+@pytest.mark.parametrize("threads", [1, 2])
+def test_pad_commits_all_ridges_or_none(stepping, threads):
     # ridge 4 cannot solve a breakaway cascade (no iterations allowed): the step where
     # its first cascade comes fails, and every ridge keeps the history it had before
+    # (with two threads ridge 4 is stepped on the worker with ridge 2, ridges 0 and 1
+    # on the calling thread)
     scene = tm.scenes.paper("fig6", n_ridges=6)
     pad = Pad.from_scene(scene, stepping=stepping)
+    pad.threads = threads
     y, z = scene.plate_motion()
     pad.solvers[4].max_iter, pad.solvers[4].max_active_set_iter = 0, 0
     for i in range(y.size):
@@ -236,33 +244,44 @@ def test_compiled_blocks_equal_per_step_stepping(monkeypatch, stepping):
         assert np.max(np.abs(st.strip_stress - a.stress[..., i])) <= RTOL_PATH * np.max(np.abs(a.stress))
 
 
-def test_run_stops_at_a_failing_step_with_the_last_good_history():
+def test_compiled_follow_fails_with_every_ridge_unchanged():
+    # a non-finite position of ridge 1 in the middle of a whole-trajectory call: that
+    # ridge and status are reported and every ridge keeps the history it had before the
+    # call, bit for bit (the same kernel stepped to the same point by Pad.advance)
     scene = tm.scenes.paper("fig6", n_ridges=2)
-    pad = Pad.from_scene(scene)
+    pad = Pad.from_scene(scene, stepping="every")
     ref = Pad.from_scene(scene, stepping="every")
     y, z = scene.plate_motion()
     T = 600
     plate_z = ref.model.geometry.height - (z[:T, None] - pad.indent_offset[None, :])
-    for i in range(520):
+    pad.follow(y[:300], z[:300])
+    for i in range(300):
         last = ref.advance(y[i], z[i])
+    before = [s.get_state() for s in pad.solvers]
     n = pad.model.n_nodes
-    f = np.empty((T, 2, 2 * n))
-    st = np.empty((T, 2, n), dtype=np.int8)
-    fr = np.empty((T, 2))
-    its = np.empty(T, dtype=np.int32)
-    plate_z[520, 1] = np.nan
-    status, ridge, done = pad._stepper.run(y[:T], plate_z, f, None, st, fr, its)
-    assert (status, ridge, done) == (1, 1, 520)  # non-finite position of ridge 1 at step 520
-    np.testing.assert_array_equal(f[519], last.forces)  # same kernel, same steps: same bits
-    np.testing.assert_array_equal(st[519], last.node_state)
-    for s, r in zip(pad.solvers, ref.solvers):
+    lam = np.empty((T - 300, 2, 2 * n))
+    st = np.empty((T - 300, 2, n), dtype=np.int8)
+    fr = np.empty((T - 300, 2))
+    bad = plate_z[300:].copy()
+    bad[220, 1] = np.nan
+    status, ridge, solves, events = pad._stepper.follow(y[300:T], bad, True, lam, None, st, fr)
+    assert (status, ridge, solves, events) == (1, 1, 0, 0)  # non-finite position of ridge 1
+    for s, r, b in zip(pad.solvers, ref.solvers, before):
+        same_history(b, s.get_state())
         same_history(r.get_state(), s.get_state())
+    status, ridge, _, _ = pad._stepper.follow(y[300:T], plate_z[300:], True, lam, None, st, fr)
+    assert status == 0
+    np.testing.assert_array_equal(st[0], ref.advance(y[300], z[300]).node_state)
+    assert last.node_state.shape == st[0].shape
     with pytest.raises(ValueError, match="plate_z"):
-        pad._stepper.run(y[:T], plate_z[:, :1], f, None, st, fr, its)
-    with pytest.raises(ValueError, match="forces"):
-        pad._stepper.run(y[:T], plate_z, f[:, :, :n], None, st, fr, its)
+        pad._stepper.follow(y[:T], plate_z[:, :1], True, lam, None, st, fr)
+    with pytest.raises(ValueError, match="lam"):
+        pad._stepper.follow(y[300:T], plate_z[300:], True, lam[:, :, :n], None, st, fr)
     with pytest.raises(TypeError, match="state"):
-        pad._stepper.run(y[:T], plate_z, f, None, st.astype(np.int32), fr, its)
+        pad._stepper.follow(y[300:T], plate_z[300:], True, lam, None, st.astype(np.int32), fr)
+    with pytest.raises(ValueError, match="proj"):
+        pad._stepper.follow(y[300:T], plate_z[300:], True, None, None, None, fr, 1, np.ones((2, n)),
+                            np.empty((T - 300, 2, 2)))
 
 
 def test_baseline_kernels_equal_python():
@@ -394,3 +413,139 @@ def test_follow_errors_leave_the_history_unchanged(backend):
     # factor a piece afresh that the uninterrupted run solved by bordering)
     np.testing.assert_array_equal(a[2], b[2])
     assert np.max(np.abs(a[0] - b[0])) <= RTOL * np.max(np.abs(b[0]))
+
+
+# ---- mirror-image ridges and projected outputs of the compiled pad
+
+
+def unlinked_steps(pad, y, ind):
+    """The compiled pad's ridges stepped one at a time through their own solvers (no
+    pad call, so no ridge shadows another): node states and forces per sample."""
+    H = pad.model.geometry.height
+    states, forces = [], []
+    for i in range(y.size):
+        z = H - (ind[i] - pad.indent_offset)
+        out = [s._kernel.step(float(y[i]), float(z[k]), pad.stepping == "every") for k, s in enumerate(pad.solvers)]
+        assert all(o[0] == 0 for o in out)
+        states.append(np.array([o[3] for o in out]))
+        forces.append(np.array([o[1] for o in out]))
+    return np.array(states), np.array(forces)
+
+
+@pytest.mark.parametrize("stepping", ["auto", "every"])
+def test_mirror_ridges_shadow_and_detach_with_the_same_bits(stepping):
+    # under the curved finger ridges k and 5 - k have the same plate path: the pad
+    # computes one of each pair and gives the other its results. They must be the bits
+    # the ridge computes on its own, also after the pair is split (another path for one
+    # ridge, a change of friction, a history set from outside).
+    scene = tm.scenes.paper("fig6", n_ridges=6, duration=1.6)
+    y, ind = scene.plate_motion()
+    pad = Pad.from_scene(scene, stepping=stepping)
+    ref = Pad.from_scene(scene, stepping=stepping)
+    st_ref, f_ref = unlinked_steps(ref, y[:900], ind[:900])
+    for i in range(900):
+        st = pad.advance(y[i], ind[i])
+        np.testing.assert_array_equal(st.node_state, st_ref[i])
+        np.testing.assert_array_equal(st.forces, f_ref[i])
+    assert pad._stepper.sources == (0, 1, 2, 2, 1, 0)
+    assert pad.solves == sum(s._kernel.solves for s in ref.solvers)
+    assert pad.events == sum(s._kernel.events for s in ref.solvers)
+    for a, b in zip(pad.solvers, ref.solvers):  # a shadow's history reads as its own
+        same_history(b.get_state(), a.get_state())
+    # ridge 4 gets a path of its own: it leaves its master with the master's state
+    H = pad.model.geometry.height
+    z = np.ascontiguousarray(H - (ind[900:1000, None] - pad.indent_offset[None, :]))
+    z[:, 4] -= 1e-7
+    n = pad.model.n_nodes
+    lam = np.empty((100, 6, 2 * n))
+    state = np.empty((100, 6, n), dtype=np.int8)
+    assert pad._stepper.follow(y[900:1000], z, stepping == "every", lam, None, state, None)[0] == 0
+    assert pad._stepper.sources == (0, 1, 2, 2, 4, 0)
+    for k, s in enumerate(ref.solvers):
+        lk = np.empty((100, 2 * n))
+        sk = np.empty((100, n), dtype=np.int8)
+        assert s._kernel.follow(y[900:1000], z[:, k].copy(), stepping == "every", lk, None, sk)[0] == 0
+        np.testing.assert_array_equal(state[:, k], sk)
+        np.testing.assert_array_equal(lam[:, k], lk)
+    # friction changed on every ridge, one history set from outside: all compute again
+    pad.mu = ref.mu = 0.7
+    pad.solvers[5].set_state(pad.solvers[0].get_state())
+    ref.solvers[5].set_state(ref.solvers[0].get_state())
+    st_ref, f_ref = unlinked_steps(ref, y[1000:1200], ind[1000:1200])
+    for i in range(200):
+        st = pad.advance(y[1000 + i], ind[1000 + i])
+        np.testing.assert_array_equal(st.node_state, st_ref[i])
+        np.testing.assert_array_equal(st.forces, f_ref[i])
+    assert pad._stepper.sources == (0, 1, 2, 3, 4, 5)
+    # after a reset the pairs form again
+    pad.reset()
+    pad.advance(y[0], ind[0])
+    assert pad._stepper.sources == (0, 1, 2, 2, 1, 0)
+
+
+def test_flat_finger_ridges_all_share_one_computation():
+    scene = tm.scenes.paper("fig6", n_ridges=4, duration=1.3, finger_radius=np.inf)
+    y, ind = scene.plate_motion()
+    pad = Pad.from_scene(scene)
+    lam, _, state = pad.follow(y, ind)
+    assert pad._stepper.sources == (0, 0, 0, 0)
+    ref = Pad.from_scene(dataclasses.replace(scene, n_ridges=1))
+    lam1, _, state1 = ref.follow(y, ind)
+    for k in range(4):
+        np.testing.assert_array_equal(lam[:, k], lam1[:, 0])
+        np.testing.assert_array_equal(state[:, k], state1[:, 0])
+    assert pad.solves == 4 * ref.solves and pad.events == 4 * ref.events
+
+
+@pytest.mark.parametrize("backend", ["cpp", "python"])
+def test_projected_follow_equals_the_full_rows(backend):
+    # proj @ lam, the slip fraction and the touch / gross-slip flags of every sample, as
+    # the full rows give them (proj @ lam to round-off: it is taken once per piece)
+    scene = tm.scenes.paper("fig8", n_ridges=2, finger_radius=0.05)
+    y, ind = scene.plate_motion()
+    full = Pad.from_scene(scene, backend=backend)
+    part = Pad.from_scene(scene, backend=backend)
+    lam, _, st = full.follow(y, ind)
+    n = full.model.n_nodes
+    proj = np.random.default_rng(3).standard_normal((5, 2 * n))
+    out, frac, flags = part.follow_projected(y, ind, proj)
+    ref = lam @ proj.T
+    assert np.max(np.abs(out - ref)) <= 1e-12 * np.max(np.abs(ref))
+    touching = st != 0
+    total = touching @ full.model.weights
+    np.testing.assert_allclose(frac, np.divide((st == 2) @ full.model.weights, total,
+                                               out=np.zeros_like(total), where=total > 0), rtol=1e-13, atol=1e-15)
+    touch = touching.any(axis=2)
+    np.testing.assert_array_equal((flags & 1) != 0, touch)
+    np.testing.assert_array_equal((flags & 2) != 0, touch & ~np.any(st == 1, axis=2))
+    assert ((flags & 2) != 0).any() and touch.any() and not touch.all()
+    assert (part.solves, part.events) == (full.solves, full.events)
+    with pytest.raises(ValueError, match="proj"):
+        part.follow_projected(y, ind, proj[:, :n])
+
+
+@pytest.mark.parametrize("stepping", ["auto", "every"])
+def test_advance_on_two_threads_equals_one(stepping):
+    # the pad's worker thread steps half of the computing ridges: the same bits, the
+    # same solves and events
+    scene = tm.scenes.paper("fig8", n_ridges=6, duration=1.6)
+    y, ind = scene.plate_motion()
+    pads = [Pad.from_scene(scene, stepping=stepping) for _ in range(2)]
+    pads[1].threads = 2
+    for i in range(y.size):
+        a, b = (p.advance(y[i], ind[i]) for p in pads)
+        np.testing.assert_array_equal(a.forces, b.forces)
+        np.testing.assert_array_equal(a.node_state, b.node_state)
+        assert (a.force_y, a.force_z, a.iterations) == (b.force_y, b.force_z, b.iterations)
+    assert (pads[0].solves, pads[0].events) == (pads[1].solves, pads[1].events)
+    # a non-finite height of one ridge on the worker's side: nothing is kept
+    H = pads[1].model.geometry.height
+    z = H - (ind[-1] - pads[1].indent_offset)
+    z[4] = np.nan
+    before = [s.get_state() for s in pads[1].solvers]
+    status, ridge = pads[1]._stepper.step(float(y[-1]) + 1e-6, z, stepping == "every", 2)[:2]
+    assert (status, ridge) == (1, 4)
+    for s, h in zip(pads[1].solvers, before):
+        same_history(h, s.get_state())
+    with pytest.raises(ValueError, match="threads"):
+        pads[1]._stepper.step(float(y[-1]), z, True, 0)

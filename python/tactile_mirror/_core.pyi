@@ -449,36 +449,33 @@ class _ContactPad:
     @property
     def n_ridges(self) -> int: ...
     def step(
-        self, plate_y: float, plate_z: npt.ArrayLike, every: bool = True
+        self, plate_y: float, plate_z: npt.ArrayLike, every: bool = True, threads: int = 1
     ) -> tuple[int, int, int, npt.NDArray[np.float64] | None, npt.NDArray[np.float64] | None,
-               npt.NDArray[np.int8] | None, npt.NDArray[np.float64] | None]:
-        """(status, failing ridge, iterations, forces, displacement, state, slip_fraction); committed only if all converged."""
-    def run(
-        self,
-        plate_y: npt.ArrayLike,
-        plate_z: npt.ArrayLike,
-        forces: npt.NDArray[np.float64],
-        displacement: npt.NDArray[np.float64] | None,
-        state: npt.NDArray[np.int8],
-        slip_fraction: npt.NDArray[np.float64],
-        iterations: npt.NDArray[np.int32],
-    ) -> tuple[int, int, int]:
-        """A trajectory of T samples in one call without the GIL, into preallocated arrays
-        ((T, n_ridges, 2n), (T, n_ridges, 2n) or None, (T, n_ridges, n), (T, n_ridges), (T,));
-        returns (status, failing ridge, steps done)."""
+               npt.NDArray[np.int8] | None, npt.NDArray[np.float64] | None, npt.NDArray[np.bool_] | None,
+               npt.NDArray[np.bool_] | None, float, float]:
+        """(status, failing ridge, iterations, forces, displacement, state, slip_fraction, touching,
+        gross_slip, sum of f_t, sum of f_n); committed only if all converged."""
+    @property
+    def sources(self) -> tuple[int, ...]:
+        """Of the last call, per ridge: the ridge whose results it got (itself, or the earlier
+        ridge with the same configuration, history and plate path it shadows)."""
     def follow(
         self,
         plate_y: npt.ArrayLike,
         plate_z: npt.ArrayLike,
         every: bool,
-        forces: npt.NDArray[np.float64],
+        lam: npt.NDArray[np.float64] | None,
         displacement: npt.NDArray[np.float64] | None,
-        state: npt.NDArray[np.int8],
+        state: npt.NDArray[np.int8] | None,
         slip_fraction: npt.NDArray[np.float64] | None,
         threads: int = 1,
+        proj: npt.ArrayLike | None = None,
+        proj_out: npt.NDArray[np.float64] | None = None,
+        flags: npt.NDArray[np.int8] | None = None,
     ) -> tuple[int, int, int, int]:
-        """Every ridge follows the whole trajectory (on 1 or 2 threads) into preallocated arrays;
-        returns (status, failing ridge, solves, events)."""
+        """Every ridge follows the whole trajectory (on 1 or 2 threads) into preallocated arrays
+        (forces lam = (lt, ln); with proj (q, 2n), proj_out gets proj @ lam per sample; flags:
+        bit 0 touching, bit 1 gross slip); returns (status, failing ridge, solves, events)."""
 
 def _contact_simd_path() -> str:
     """The variant the contact kernels run, by simd_path()'s names: 'avx2+fma' or the base variant."""

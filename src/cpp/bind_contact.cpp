@@ -12,14 +12,16 @@
 //   error(), reset(), get_history(), set_history(...), solves, events
 // _core._ContactPad(solvers)   several ridges stepped in one call, without the GIL
 //   step(plate_y, plate_z[n_ridges], every=True) -> (status, ridge, solves, forces, displacement,
-//       state, slip_fraction); the ridges keep the step only if every one succeeded.
-//   run(plate_y[T], plate_z[T, n_ridges], forces, displacement, state, slip_fraction,
-//       iterations) -> (status, ridge, steps): the trajectory sample by sample
-//       ("every"), written into preallocated arrays.
-//   follow(plate_y[T], plate_z[T, n_ridges], every, forces, displacement, state,
-//       slip_fraction, threads) -> (status, ridge, solves, events): each ridge follows
+//       state, slip_fraction, touching, gross_slip, sum f_t, sum f_n); the ridges keep the step
+//       only if every one succeeded.
+//   follow(plate_y[T], plate_z[T, n_ridges], every, lam, displacement, state,
+//       slip_fraction, threads, proj, proj_out, flags) -> (status, ridge, solves, events):
+//       each ridge follows
 //       the whole trajectory ("auto" or "every"); the ridges are independent, so with
 //       threads = 2 they are split over two threads (same results as one).
+//   A ridge with the configuration, history and plate path of an earlier ridge of the
+//   pad (the mirror-image ridges under a symmetric finger) is that ridge's shadow: it
+//   gets its results without computing them (see PyContact); sources tells which.
 // _contact_simd_path(), _contact_set_baseline(on): the kernel variant (AVX2+FMA or
 //   baseline) and a switch to force the baseline.
 // The Python-facing classes are tactile_mirror.contact.ContactSolver and Pad, which
@@ -28,6 +30,8 @@
 #include <pybind11/pybind11.h>
 
 #include <atomic>
+#include <condition_variable>
+#include <mutex>
 #include <cstring>
 #include <memory>
 #include <stdexcept>
@@ -46,11 +50,68 @@ namespace {
 using F64 = py::array_t<double, py::array::c_style | py::array::forcecast>;
 using I8 = py::array_t<std::int8_t, py::array::c_style>;
 
+// A ridge. A pad's ridges under a symmetric finger come in mirror-image pairs with the
+// same plate path (and under a flat finger all of them): a ridge of a pad that has the
+// same configuration, history and plate path as an earlier ridge of that pad is that
+// ridge's shadow (`master`). A shadow computes nothing: its results are the master's
+// (the kernel is deterministic, so they are the bits it would compute itself), its
+// read-only accessors read the master's kernel (`view`), and it becomes a kernel of its
+// own again (`detach`: a copy of the master's) before anything changes it or its
+// master from outside the pad, or when the pad gives it a path of its own.
 struct PyContact {
     ContactSolverKernel k;
     std::atomic<bool> busy{false};  // one call at a time: the pad steps without the GIL
+    std::shared_ptr<PyContact> master;  // non-null: a shadow of master
+    std::vector<PyContact*> shadows;     // the ridges shadowing this one
     template <typename... A>
     explicit PyContact(A&&... a) : k(std::forward<A>(a)...) {}
+    PyContact(const PyContact&) = delete;
+    PyContact& operator=(const PyContact&) = delete;
+    ~PyContact() { unlink(); }
+    const ContactSolverKernel& view() const noexcept { return master ? master->k : k; }
+    // drop the link to the master without copying (the caller has made k current)
+    void unlink() noexcept {
+        if (!master) return;
+        auto& v = master->shadows;
+        for (std::size_t i = 0; i < v.size(); ++i)
+            if (v[i] == this) { v.erase(v.begin() + static_cast<std::ptrdiff_t>(i)); break; }
+        master.reset();
+    }
+    // a kernel of its own again: the master's state copied (the same bits it would hold)
+    void detach() {
+        if (!master) return;
+        k = master->k;
+        unlink();
+    }
+    // before this ridge changes from outside its pad: it and its shadows get kernels of their own
+    void detach_all() {
+        detach();
+        while (!shadows.empty()) shadows.back()->detach();
+    }
+};
+
+// Every ridge of a pad busy for one call (nothing allocated): throws, with the ridges
+// taken so far released, if one of them is being used by another thread.
+class BusyAll {
+public:
+    explicit BusyAll(const std::vector<std::shared_ptr<PyContact>>& r) : r_(r) {
+        for (; n_ < r_.size(); ++n_)
+            if (r_[n_]->busy.exchange(true)) {
+                release();
+                throw std::runtime_error("this contact solver is being used by another thread");
+            }
+    }
+    BusyAll(const BusyAll&) = delete;
+    BusyAll& operator=(const BusyAll&) = delete;
+    ~BusyAll() { release(); }
+
+private:
+    void release() noexcept {
+        for (std::size_t k = 0; k < n_; ++k) r_[k]->busy.store(false);
+        n_ = 0;
+    }
+    const std::vector<std::shared_ptr<PyContact>>& r_;
+    std::size_t n_ = 0;
 };
 
 class Busy {
@@ -138,15 +199,16 @@ void tm_bind_contact(py::module_& m) {
              py::arg("compliance"), py::arg("node_z"), py::arg("weights"), py::arg("r"), py::arg("w_tol"))
         .def_property_readonly("n_nodes", [](const PyContact& c) { return c.k.n_nodes(); })
         .def_property_readonly("r", [](const PyContact& c) { return c.k.r(); })
-        .def_property_readonly("factorizations", [](const PyContact& c) { return c.k.factorizations(); },
+        .def_property_readonly("factorizations", [](const PyContact& c) { return c.view().factorizations(); },
                                "piece LU factorisations since construction")
-        .def_property_readonly("affine_steps", [](const PyContact& c) { return c.k.affine_steps(); },
+        .def_property_readonly("affine_steps", [](const PyContact& c) { return c.view().affine_steps(); },
                                "piece solves served by the affine response of an unchanged piece")
-        .def_property_readonly("updates", [](const PyContact& c) { return c.k.updates(); },
+        .def_property_readonly("updates", [](const PyContact& c) { return c.view().updates(); },
                                "pieces solved by bordering the factored base piece instead of refactoring")
         .def("set_params",
              [](PyContact& c, double mu, double mu_kinetic, double tol, int max_iter, int max_as) {
                  Busy b(c);
+                 c.detach_all();
                  c.k.params = {mu, mu_kinetic, tol, max_iter, max_as};
              },
              py::arg("mu"), py::arg("mu_kinetic"), py::arg("tol"), py::arg("max_iter"),
@@ -154,6 +216,7 @@ void tm_bind_contact(py::module_& m) {
         .def("step",
              [](PyContact& c, double plate_y, double plate_z, bool every) -> py::tuple {
                  Busy b(c);
+                 c.detach_all();
                  const ContactStatus s = c.k.step(plate_y, plate_z, every);
                  if (s != ContactStatus::ok)
                      return py::make_tuple(static_cast<int>(s), py::none(), py::none(), py::none(), 0.0, 0);
@@ -164,20 +227,22 @@ void tm_bind_contact(py::module_& m) {
              py::arg("plate_y"), py::arg("plate_z"), py::arg("every") = true)
         .def("error",
              [](const PyContact& c) {
-                 return py::make_tuple(c.k.error_info(), c.k.error_residual(), c.k.error_tolerance());
+                 const ContactSolverKernel& k = c.view();
+                 return py::make_tuple(k.error_info(), k.error_residual(), k.error_tolerance());
              },
              "(info, residual, tolerance) of the last failed step")
-        .def("error_point", [](const PyContact& c) { return py::make_tuple(c.k.error_y(), c.k.error_z()); },
+        .def("error_point", [](const PyContact& c) { return py::make_tuple(c.view().error_y(), c.view().error_z()); },
              "load point (plate_y, plate_z) of the last failure inside follow (cascade or status cycle)")
-        .def_property_readonly("solves", [](const PyContact& c) { return c.k.solves(); },
+        .def_property_readonly("solves", [](const PyContact& c) { return c.view().solves(); },
                                "linear solves of the path following since the last reset")
-        .def_property_readonly("events", [](const PyContact& c) { return c.k.events(); },
+        .def_property_readonly("events", [](const PyContact& c) { return c.view().events(); },
                                "points where node statuses changed since the last reset")
         .def("set_event_tolerances",
              [](PyContact& c, double g_tol, double f_tol, double evt_g_tol, double evt_f_tol) {
                  if (!(g_tol >= 0) || !(f_tol >= 0) || !(evt_g_tol >= 0) || !(evt_f_tol >= 0))
                      throw py::value_error("event tolerances must be >= 0");
                  Busy b(c);
+                 c.detach_all();
                  c.k.set_event_tolerances(g_tol, f_tol, evt_g_tol, evt_f_tol);
              },
              py::arg("g_tol"), py::arg("f_tol"), py::arg("evt_g_tol"), py::arg("evt_f_tol"))
@@ -194,6 +259,7 @@ void tm_bind_contact(py::module_& m) {
                  double* uo = out_rows<double>(u_out, "u_out", N, 2 * n);
                  std::int8_t* so = out_rows<std::int8_t>(state_out, "state_out", N, n);
                  Busy b(c);
+                 c.detach_all();
                  const long s0 = c.k.solves(), e0 = c.k.events();
                  ContactStatus st;
                  {
@@ -212,21 +278,24 @@ void tm_bind_contact(py::module_& m) {
         .def("reset",
              [](PyContact& c) {
                  Busy b(c);
+                 c.unlink();  // its own state is about to be the reset one: nothing to copy
+                 while (!c.shadows.empty()) c.shadows.back()->detach();
                  c.k.reset();
              })
         .def("get_history",
              [](const PyContact& c) {
-                 const std::size_t n = c.k.n_nodes();
+                 const ContactSolverKernel& k = c.view();
+                 const std::size_t n = k.n_nodes();
                  py::array_t<bool> sliding(static_cast<py::ssize_t>(n));
-                 for (std::size_t i = 0; i < n; ++i) sliding.mutable_data()[i] = c.k.state()[i] == tactile::kContactSlip;
+                 for (std::size_t i = 0; i < n; ++i) sliding.mutable_data()[i] = k.state()[i] == tactile::kContactSlip;
                  py::dict d;
-                 d["lam"] = copy_out(c.k.lam(), 2 * n);
-                 d["uy_prev"] = copy_out(c.k.path_displacement(), n);
-                 d["s_prev"] = c.k.s_prev();
-                 d["state"] = copy_out8(c.k.state(), n);
-                 d["sign"] = copy_out(c.k.sign(), n);
+                 d["lam"] = copy_out(k.lam(), 2 * n);
+                 d["uy_prev"] = copy_out(k.path_displacement(), n);
+                 d["s_prev"] = k.s_prev();
+                 d["state"] = copy_out8(k.state(), n);
+                 d["sign"] = copy_out(k.sign(), n);
                  d["sliding"] = sliding;
-                 d["z_prev"] = c.k.placed() ? py::object(py::float_(c.k.z_prev())) : py::object(py::none());
+                 d["z_prev"] = k.placed() ? py::object(py::float_(k.z_prev())) : py::object(py::none());
                  return d;
              })
         .def("set_history",
@@ -246,6 +315,7 @@ void tm_bind_contact(py::module_& m) {
                  const bool has_z = !z_prev.is_none();
                  const double zp = has_z ? z_prev.cast<double>() : 0.0;
                  Busy b(c);
+                 c.detach_all();
                  // uy_prev and sliding are checked but derived: the displacements are C P lam,
                  // the sliding nodes those with the status SLIP
                  c.k.set_path_history(l.data(), sg.data(), st.data(), s_prev, has_z, zp);
@@ -253,9 +323,106 @@ void tm_bind_contact(py::module_& m) {
              py::arg("lam"), py::arg("uy_prev"), py::arg("s_prev"), py::arg("state"), py::arg("sign"),
              py::arg("sliding"), py::arg("z_prev") = py::none());
 
+    // The ridges of a pad. Before every call, `link` decides which ridges shadow an
+    // earlier one (PyContact): a shadow keeps its link while its plate path is its
+    // master's, sample for sample; an unlinked ridge becomes the shadow of an earlier
+    // unlinked one when both are pristine (just built or reset), of the same
+    // configuration, and get the same path. The call then steps the masters only and
+    // copies their results to the shadows' rows.
     struct PyContactPad {
         std::vector<std::shared_ptr<PyContact>> ridges;
         std::size_t n = 0;
+        std::vector<std::size_t> src;  // src[k]: the ridge whose results ridge k gets (k itself if it computes)
+        std::vector<long> solved;      // step: the solves of each ridge in this call
+        std::vector<ContactStatus> status;  // step: the status of each computing ridge
+        // step with threads = 2: a worker thread started at the first such call and kept
+        // (a tick hands it a range of ridges and waits for it; nothing is allocated per tick)
+        struct Worker {
+            std::thread th;
+            std::mutex mu;
+            std::condition_variable cv;
+            bool job = false, quit = false;
+            void (*fn)(void*) = nullptr;
+            void* arg = nullptr;
+        };
+        std::unique_ptr<Worker> worker;
+        void start_worker() {
+            if (worker) return;
+            worker = std::make_unique<Worker>();
+            Worker* w = worker.get();
+            w->th = std::thread([w] {
+                std::unique_lock<std::mutex> lk(w->mu);
+                for (;;) {
+                    w->cv.wait(lk, [w] { return w->job || w->quit; });
+                    if (w->quit) return;
+                    lk.unlock();
+                    w->fn(w->arg);
+                    lk.lock();
+                    w->job = false;
+                    w->cv.notify_all();
+                }
+            });
+        }
+        // run fn(arg) on the worker while the caller runs its own part; join() waits for it
+        void post(void (*fn)(void*), void* arg) {
+            std::lock_guard<std::mutex> lk(worker->mu);
+            worker->fn = fn;
+            worker->arg = arg;
+            worker->job = true;
+            worker->cv.notify_all();
+        }
+        void join() {
+            std::unique_lock<std::mutex> lk(worker->mu);
+            worker->cv.wait(lk, [this] { return !worker->job; });
+        }
+        PyContactPad() = default;
+        PyContactPad(PyContactPad&&) = default;
+        ~PyContactPad() {
+            if (worker) {
+                {
+                    std::lock_guard<std::mutex> lk(worker->mu);
+                    worker->quit = true;
+                    worker->cv.notify_all();
+                }
+                worker->th.join();
+            }
+            for (auto& r : ridges) r->detach();  // a shadow is only valid inside its pad
+        }
+        // plate heights of ridge k: zk[t * stride]
+        void link(const double* z, std::size_t T, std::size_t stride_t, std::size_t stride_k) {
+            const std::size_t R = ridges.size();
+            auto same_path = [&](std::size_t j, std::size_t k) {
+                for (std::size_t t = 0; t < T; ++t)
+                    if (!(z[t * stride_t + j * stride_k] == z[t * stride_t + k * stride_k])) return false;
+                return true;
+            };
+            src.resize(R);
+            solved.resize(R);
+            status.resize(R);
+            for (std::size_t k = 0; k < R; ++k) {
+                PyContact& c = *ridges[k];
+                src[k] = k;
+                if (c.master) {
+                    std::size_t j = 0;
+                    while (j < k && ridges[j].get() != c.master.get()) ++j;
+                    if (j < k && same_path(j, k)) {
+                        src[k] = j;
+                        continue;
+                    }
+                    c.detach();
+                }
+                if (!c.shadows.empty() || !c.k.pristine()) continue;
+                for (std::size_t j = 0; j < k; ++j) {
+                    PyContact& m = *ridges[j];
+                    if (src[j] != j || m.master || !m.k.pristine() || !same_path(j, k) || !m.k.same_config(c.k))
+                        continue;
+                    c.master = ridges[j];
+                    m.shadows.push_back(&c);
+                    src[k] = j;
+                    break;
+                }
+            }
+        }
     };
     py::class_<PyContactPad>(m, "_ContactPad", "Ridges of a pad stepped in one call. Use tactile_mirror.contact.Pad.")
         .def(py::init([](const py::sequence& solvers) {
@@ -269,175 +436,244 @@ void tm_bind_contact(py::module_& m) {
                  p.n = p.ridges[0]->k.n_nodes();
                  for (const auto& r : p.ridges)
                      if (r->k.n_nodes() != p.n) throw py::value_error("solvers must all have the same number of nodes");
+                 for (std::size_t k = 0; k < p.ridges.size(); ++k)
+                     for (std::size_t j = 0; j < k; ++j)
+                         if (p.ridges[j] == p.ridges[k]) throw py::value_error("solvers must be distinct objects");
                  return p;
              }),
              py::arg("solvers"))
         .def_property_readonly("n_ridges", [](const PyContactPad& p) { return p.ridges.size(); })
+        .def_property_readonly("sources", [](const PyContactPad& p) {
+                                   py::tuple t(p.src.size());
+                                   for (std::size_t k = 0; k < p.src.size(); ++k) t[k] = p.src[k];
+                                   return t;
+                               },
+                               "of the last call, per ridge: the ridge whose results it got (itself, or the earlier "
+                               "ridge with the same configuration, history and plate path it shadows)")
         .def("step",
-             [](PyContactPad& p, double plate_y, py::handle plate_z, bool every) -> py::tuple {
+             [](PyContactPad& p, double plate_y, py::handle plate_z, bool every, int threads) -> py::tuple {
                  const std::size_t R = p.ridges.size(), n = p.n;
                  F64 z = vector_arg(plate_z, R, "plate_z");
-                 std::vector<Busy> locks;
-                 locks.reserve(R);
-                 for (auto& r : p.ridges) locks.emplace_back(*r);
+                 if (threads < 1) throw py::value_error("threads must be >= 1");
+                 BusyAll locks(p.ridges);
                  py::array_t<double> forces({static_cast<py::ssize_t>(R), static_cast<py::ssize_t>(2 * n)});
                  py::array_t<double> disp({static_cast<py::ssize_t>(R), static_cast<py::ssize_t>(2 * n)});
                  py::array_t<std::int8_t> state({static_cast<py::ssize_t>(R), static_cast<py::ssize_t>(n)});
                  py::array_t<double> frac(static_cast<py::ssize_t>(R));
+                 py::array_t<bool> touch(static_cast<py::ssize_t>(R)), gross(static_cast<py::ssize_t>(R));
+                 bool* to = touch.mutable_data();
+                 bool* go = gross.mutable_data();
+                 double sum_t = 0.0, sum_n = 0.0;
                  double* fo = forces.mutable_data();
                  double* dout = disp.mutable_data();
                  std::int8_t* so = state.mutable_data();
                  double* fr = frac.mutable_data();
                  const double* zp = z.data();
                  ContactStatus status = ContactStatus::ok;
-                 std::size_t bad = 0;
+                 std::size_t bad = R;
                  long its = 0;
-                 {
-                     py::gil_scoped_release nogil;
-                     std::size_t k = 0;
-                     for (; k < R; ++k) {
-                         ContactSolverKernel& s = p.ridges[k]->k;
+                 p.link(zp, 1, 0, 1);  // with the GIL: the links are read by the solvers' accessors
+                 std::size_t n_own = 0;
+                 for (std::size_t k = 0; k < R; ++k) n_own += p.src[k] == k;
+                 const bool two = threads >= 2 && n_own >= 2;
+                 if (two) p.start_worker();
+                 // the computing ridges [a, b) of the pad (shadows skipped)
+                 struct Part {
+                     PyContactPad* p;
+                     std::size_t a, b;
+                     double y;
+                     const double* z;
+                     bool every;
+                     double *fo, *dout, *fr;
+                     std::int8_t* so;
+                 };
+                 auto run = [](void* v) {
+                     const Part& t = *static_cast<Part*>(v);
+                     const std::size_t n = t.p->n;
+                     for (std::size_t k = t.a; k < t.b; ++k) {
+                         if (t.p->src[k] != k) continue;
+                         ContactSolverKernel& s = t.p->ridges[k]->k;
                          const long s0 = s.solves();
-                         status = s.follow(&plate_y, zp + k, 1, every, fo + k * 2 * n, dout + k * 2 * n, so + k * n,
-                                           0, 0);
-                         if (status != ContactStatus::ok) break;
-                         its += s.solves() - s0;
-                         s.report(fo + k * 2 * n, so + k * n, fo + k * 2 * n, fr[k]);
-                     }
-                     bad = k;
-                     if (status != ContactStatus::ok)  // the ridges before the failing one step back
-                         for (std::size_t q = 0; q < k; ++q) p.ridges[q]->k.restore();
-                 }
-                 if (status != ContactStatus::ok)
-                     return py::make_tuple(static_cast<int>(status), bad, 0, py::none(), py::none(), py::none(),
-                                           py::none());
-                 return py::make_tuple(0, 0, its, forces, disp, state, frac);
-             },
-             py::arg("plate_y"), py::arg("plate_z"), py::arg("every") = true,
-             "One sample for every ridge (every=False: from the unit responses while no status changes); "
-             "the ridges keep it only if every one succeeded.")
-        .def("run",
-             [](PyContactPad& p, py::handle plate_y, py::handle plate_z, py::handle forces, py::handle disp,
-                py::handle state, py::handle frac, py::handle iterations) -> py::tuple {
-                 const std::size_t R = p.ridges.size(), n = p.n;
-                 F64 y, z;
-                 const std::size_t T = pad_plate_path(plate_y, plate_z, R, y, z);
-                 if (forces.is_none()) throw py::type_error("forces must be a numpy array of dtype float64");
-                 double* fop = out_rows<double>(forces, "forces", T, R * 2 * n);
-                 double* dop = out_rows<double>(disp, "displacement", T, R * 2 * n);
-                 if (state.is_none()) throw py::type_error("state must be a numpy array of dtype int8");
-                 std::int8_t* sop = out_rows<std::int8_t>(state, "state", T, R * n);
-                 if (frac.is_none()) throw py::type_error("slip_fraction must be a numpy array of dtype float64");
-                 double* frp = out_rows<double>(frac, "slip_fraction", T, R);
-                 if (iterations.is_none()) throw py::type_error("iterations must be a numpy array of dtype int32");
-                 std::int32_t* iop = out_rows<std::int32_t>(iterations, "iterations", T, 1);
-                 std::vector<Busy> locks;
-                 locks.reserve(R);
-                 for (auto& r : p.ridges) locks.emplace_back(*r);
-                 const double* yp = y.data();
-                 const double* zp = z.data();
-                 ContactStatus status = ContactStatus::ok;
-                 std::size_t bad = 0, done = 0;
-                 {
-                     py::gil_scoped_release nogil;
-                     for (std::size_t t = 0; t < T && status == ContactStatus::ok; ++t) {
-                         long its = 0;
-                         std::size_t k = 0;
-                         for (; k < R; ++k) {
-                             ContactSolverKernel& s = p.ridges[k]->k;
-                             const std::size_t o = t * R + k;
-                             const long s0 = s.solves();
-                             status = s.follow(yp + t, zp + t * R + k, 1, true, fop + o * 2 * n,
-                                               dop ? dop + o * 2 * n : nullptr, sop + o * n, 0, 0);
-                             if (status != ContactStatus::ok) break;
-                             its += s.solves() - s0;
-                             s.report(fop + o * 2 * n, sop + o * n, fop + o * 2 * n, frp[o]);
-                         }
-                         if (status != ContactStatus::ok) {
-                             bad = k;
-                             for (std::size_t q = 0; q < k; ++q) p.ridges[q]->k.restore();
-                             break;
-                         }
-                         iop[t] = static_cast<std::int32_t>(its);
-                         done = t + 1;
-                     }
-                 }
-                 return py::make_tuple(static_cast<int>(status), bad, done);
-             },
-             py::arg("plate_y"), py::arg("plate_z"), py::arg("forces"), py::arg("displacement"), py::arg("state"),
-             py::arg("slip_fraction"), py::arg("iterations"),
-             "Step every ridge through a whole trajectory sample by sample (stepping 'every') without the GIL, "
-             "into preallocated C-contiguous arrays: forces and displacement (T, n_ridges, 2n) float64 "
-             "(displacement may be None), state (T, n_ridges, n) int8, slip_fraction (T, n_ridges) float64, "
-             "iterations (T,) int32 (the solves of each sample). Returns (status, ridge, steps): the steps done; "
-             "on a failure (status != 0) at step `steps`, the ridges hold the history after the last good step.")
-        .def("follow",
-             [](PyContactPad& p, py::handle plate_y, py::handle plate_z, bool every, py::handle forces,
-                py::handle disp, py::handle state, py::handle frac, int threads) -> py::tuple {
-                 const std::size_t R = p.ridges.size(), n = p.n;
-                 F64 y, z;
-                 const std::size_t T = pad_plate_path(plate_y, plate_z, R, y, z);
-                 if (threads < 1) throw py::value_error("threads must be >= 1");
-                 double* fop = out_rows<double>(forces, "forces", T, R * 2 * n);
-                 double* dop = out_rows<double>(disp, "displacement", T, R * 2 * n);
-                 std::int8_t* sop = out_rows<std::int8_t>(state, "state", T, R * n);
-                 double* frp = out_rows<double>(frac, "slip_fraction", T, R);
-                 if (!fop || !sop) throw py::type_error("forces and state must be numpy arrays");
-                 // the ridge's plate heights, contiguous
-                 std::vector<double> zr(T * R);
-                 for (std::size_t t = 0; t < T; ++t)
-                     for (std::size_t k = 0; k < R; ++k) zr[k * T + t] = z.data()[t * R + k];
-                 std::vector<Busy> locks;
-                 locks.reserve(R);
-                 for (auto& r : p.ridges) locks.emplace_back(*r);
-                 std::vector<ContactStatus> st(R, ContactStatus::ok);
-                 long s0 = 0, e0 = 0;
-                 for (auto& r : p.ridges) { s0 += r->k.solves(); e0 += r->k.events(); }
-                 const double* yp = y.data();
-                 auto ridge = [&](std::size_t k) {
-                     ContactSolverKernel& s = p.ridges[k]->k;
-                     st[k] = s.follow(yp, zr.data() + k * T, T, every, fop + k * 2 * n, dop ? dop + k * 2 * n : nullptr,
-                                      sop + k * n, R * 2 * n, R * n);
-                     if (st[k] != ContactStatus::ok) return;
-                     for (std::size_t t = 0; t < T; ++t) {
-                         const std::size_t o = t * R + k;
-                         double fr = 0.0;
-                         s.report(fop + o * 2 * n, sop + o * n, fop + o * 2 * n, fr);
-                         if (frp) frp[o] = fr;
+                         double y = t.y;
+                         ContactStatus st = s.follow(&y, t.z + k, 1, t.every, t.fo + k * 2 * n, t.dout + k * 2 * n,
+                                                     t.so + k * n, 0, 0);
+                         t.p->status[k] = st;
+                         if (st != ContactStatus::ok) return;  // the rest of this part is not stepped
+                         t.p->solved[k] = s.solves() - s0;
+                         s.report(t.fo + k * 2 * n, t.so + k * n, t.fo + k * 2 * n, t.fr[k]);
                      }
                  };
                  {
                      py::gil_scoped_release nogil;
-                     if (threads >= 2 && R >= 2) {
+                     for (std::size_t k = 0; k < R; ++k) p.status[k] = ContactStatus::ok;
+                     // with two threads the computing ridges are split in two halves by count
+                     std::size_t split = R;
+                     if (two) {
+                         std::size_t c = 0;
+                         for (split = 0; split < R; ++split)
+                             if (p.src[split] == split && c++ == (n_own + 1) / 2) break;
+                     }
+                     Part lo{&p, 0, split, plate_y, zp, every, fo, dout, fr, so};
+                     Part hi{&p, split, R, plate_y, zp, every, fo, dout, fr, so};
+                     if (two) p.post(+run, &hi);
+                     run(&lo);
+                     if (two) p.join();
+                     // the first failing ridge; the ridges before it that stepped step back, and
+                     // so do those after it (with two threads they may have stepped): the pad
+                     // keeps the tick only if every ridge succeeded
+                     const std::size_t lo_end = two ? split : R;
+                     for (std::size_t k = 0; k < R && bad == R; ++k)
+                         if (p.src[k] == k && p.status[k] != ContactStatus::ok) bad = k;
+                     if (bad < R) {
+                         status = p.status[bad];
+                         for (std::size_t k = 0; k < R; ++k) {
+                             if (p.src[k] != k || k == bad) continue;
+                             // ridges past a failure in their own part were not stepped
+                             const std::size_t a = k < lo_end ? 0 : lo_end;
+                             bool stepped = p.status[k] == ContactStatus::ok;
+                             for (std::size_t q = a; q < k && stepped; ++q)
+                                 stepped = !(p.src[q] == q && p.status[q] != ContactStatus::ok);
+                             if (stepped) p.ridges[k]->k.restore();
+                         }
+                     } else {
+                         for (std::size_t k = 0; k < R; ++k) {
+                             const std::size_t j = p.src[k];
+                             its += p.solved[j];
+                             if (j == k) continue;  // a shadow: its master's results
+                             std::memcpy(fo + k * 2 * n, fo + j * 2 * n, 2 * n * sizeof(double));
+                             std::memcpy(dout + k * 2 * n, dout + j * 2 * n, 2 * n * sizeof(double));
+                             std::memcpy(so + k * n, so + j * n, n);
+                             fr[k] = fr[j];
+                         }
+                         // what a pad state reads: touch, gross slip, force sums
+                         for (std::size_t q = 0; q < R; ++q) {
+                             const std::int8_t* sq = so + q * n;
+                             bool any = false, stick = false;
+                             for (std::size_t i = 0; i < n; ++i) {
+                                 any |= sq[i] != tactile::kContactOpen;
+                                 stick |= sq[i] == tactile::kContactStick;
+                             }
+                             to[q] = any;
+                             go[q] = any && !stick;
+                             const double* fq = fo + q * 2 * n;
+                             for (std::size_t i = 0; i < n; ++i) { sum_t += fq[i]; sum_n += fq[n + i]; }
+                         }
+                     }
+                 }
+                 if (status != ContactStatus::ok)
+                     return py::make_tuple(static_cast<int>(status), bad, 0, py::none(), py::none(), py::none(),
+                                           py::none(), py::none(), py::none(), 0.0, 0.0);
+                 return py::make_tuple(0, 0, its, forces, disp, state, frac, touch, gross, sum_t, sum_n);
+             },
+             py::arg("plate_y"), py::arg("plate_z"), py::arg("every") = true, py::arg("threads") = 1,
+             "One sample for every ridge (every=False: from the unit responses while no status changes; "
+             "threads=2: half of the computing ridges on a worker thread kept by the pad, the same bits); "
+             "the ridges keep it only if every one succeeded. Returns (status, ridge, solves, forces f = (lt, -ln), "
+             "displacement, state, slip_fraction, touching, gross_slip, sum of f_t, sum of f_n) (the sums over all "
+             "ridges and nodes, N/m). A ridge with the configuration, history and "
+             "plate height of an earlier one gets that ridge's results (the same bits) without computing them.")
+        .def("follow",
+             [](PyContactPad& p, py::handle plate_y, py::handle plate_z, bool every, py::handle lam,
+                py::handle disp, py::handle state, py::handle frac, int threads, py::handle proj,
+                py::handle proj_out, py::handle flags) -> py::tuple {
+                 const std::size_t R = p.ridges.size(), n = p.n;
+                 F64 y, z;
+                 const std::size_t T = pad_plate_path(plate_y, plate_z, R, y, z);
+                 if (threads < 1) throw py::value_error("threads must be >= 1");
+                 double* lop = out_rows<double>(lam, "lam", T, R * 2 * n);
+                 double* dop = out_rows<double>(disp, "displacement", T, R * 2 * n);
+                 std::int8_t* sop = out_rows<std::int8_t>(state, "state", T, R * n);
+                 double* frp = out_rows<double>(frac, "slip_fraction", T, R);
+                 std::int8_t* flp = out_rows<std::int8_t>(flags, "flags", T, R);
+                 F64 P;
+                 std::size_t q = 0;
+                 if (!proj.is_none()) {
+                     P = F64::ensure(proj);
+                     if (!P || P.ndim() != 2 || static_cast<std::size_t>(P.shape(1)) != 2 * n || P.shape(0) < 1)
+                         throw py::value_error("proj must have shape (q, " + std::to_string(2 * n) + ")");
+                     q = static_cast<std::size_t>(P.shape(0));
+                 }
+                 double* pop = out_rows<double>(proj_out, "proj_out", T, R * q);
+                 if ((q == 0) != (pop == nullptr)) throw py::value_error("proj and proj_out go together");
+                 BusyAll locks(p.ridges);
+                 p.link(z.data(), T, R, 1);
+                 std::vector<std::size_t> own;  // the ridges that compute
+                 for (std::size_t k = 0; k < R; ++k)
+                     if (p.src[k] == k) own.push_back(k);
+                 for (std::size_t k : own) p.ridges[k]->k.set_projection(q ? P.data() : nullptr, q);
+                 // the computing ridges' plate heights, contiguous
+                 std::vector<double> zr(T * R);
+                 for (std::size_t t = 0; t < T; ++t)
+                     for (std::size_t k : own) zr[k * T + t] = z.data()[t * R + k];
+                 std::vector<ContactStatus> st(R, ContactStatus::ok);
+                 long s0 = 0, e0 = 0;
+                 for (auto& r : p.ridges) { s0 += r->view().solves(); e0 += r->view().events(); }
+                 const double* yp = y.data();
+                 auto ridge = [&](std::size_t k) {
+                     ContactSolverKernel& s = p.ridges[k]->k;
+                     ContactSolverKernel::Extra ex;
+                     ex.proj = pop ? pop + k * q : nullptr;
+                     ex.stride_q = R * q;
+                     ex.frac = frp ? frp + k : nullptr;
+                     ex.flags = flp ? flp + k : nullptr;
+                     ex.stride_f = R;
+                     st[k] = s.follow(yp, zr.data() + k * T, T, every, lop ? lop + k * 2 * n : nullptr,
+                                      dop ? dop + k * 2 * n : nullptr, sop ? sop + k * n : nullptr, R * 2 * n, R * n,
+                                      ex);
+                 };
+                 {
+                     py::gil_scoped_release nogil;
+                     const std::size_t m = own.size();
+                     if (threads >= 2 && m >= 2) {
                          // ridges are independent: the upper half on a second thread
-                         const std::size_t half = (R + 1) / 2;
-                         std::thread other([&] { for (std::size_t k = half; k < R; ++k) ridge(k); });
-                         for (std::size_t k = 0; k < half; ++k) ridge(k);
+                         const std::size_t half = (m + 1) / 2;
+                         std::thread other([&] { for (std::size_t i = half; i < m; ++i) ridge(own[i]); });
+                         for (std::size_t i = 0; i < half; ++i) ridge(own[i]);
                          other.join();
                      } else {
-                         for (std::size_t k = 0; k < R; ++k) ridge(k);
+                         for (std::size_t k : own) ridge(k);
+                     }
+                     for (std::size_t k = 0; k < R; ++k) {  // the shadows: their masters' rows
+                         const std::size_t j = p.src[k];
+                         if (j == k) continue;
+                         st[k] = st[j];
+                         if (st[j] != ContactStatus::ok) continue;
+                         for (std::size_t t = 0; t < T; ++t) {
+                             const std::size_t o = t * R + k, oj = t * R + j;
+                             if (lop) std::memcpy(lop + o * 2 * n, lop + oj * 2 * n, 2 * n * sizeof(double));
+                             if (dop) std::memcpy(dop + o * 2 * n, dop + oj * 2 * n, 2 * n * sizeof(double));
+                             if (sop) std::memcpy(sop + o * n, sop + oj * n, n);
+                             if (pop) std::memcpy(pop + o * q, pop + oj * q, q * sizeof(double));
+                             if (frp) frp[o] = frp[oj];
+                             if (flp) flp[o] = flp[oj];
+                         }
                      }
                  }
                  std::size_t bad = R;
                  for (std::size_t k = 0; k < R && bad == R; ++k)
                      if (st[k] != ContactStatus::ok) bad = k;
                  if (bad < R) {  // all ridges back to where they were
-                     for (std::size_t k = 0; k < R; ++k)
+                     for (std::size_t k : own)
                          if (st[k] == ContactStatus::ok) p.ridges[k]->k.restore();
                      return py::make_tuple(static_cast<int>(st[bad]), bad, 0, 0);
                  }
                  long s1 = 0, e1 = 0;
-                 for (auto& r : p.ridges) { s1 += r->k.solves(); e1 += r->k.events(); }
+                 for (auto& r : p.ridges) { s1 += r->view().solves(); e1 += r->view().events(); }
                  return py::make_tuple(0, 0, s1 - s0, e1 - e0);
              },
-             py::arg("plate_y"), py::arg("plate_z"), py::arg("every"), py::arg("forces"), py::arg("displacement"),
-             py::arg("state"), py::arg("slip_fraction"), py::arg("threads") = 1,
+             py::arg("plate_y"), py::arg("plate_z"), py::arg("every"), py::arg("lam"), py::arg("displacement"),
+             py::arg("state"), py::arg("slip_fraction"), py::arg("threads") = 1, py::arg("proj") = py::none(),
+             py::arg("proj_out") = py::none(), py::arg("flags") = py::none(),
              "Every ridge follows the whole trajectory (every=True: a solve at every sample; False: at events "
-             "only) without the GIL, into preallocated C-contiguous arrays: forces and displacement (T, n_ridges, "
-             "2n) float64 (forces f = (lt, -ln); displacement and slip_fraction may be None), state (T, n_ridges, "
-             "n) int8, slip_fraction (T, n_ridges). threads=2 splits the ridges over two threads (the ridges are "
-             "independent: same results). Returns (status, ridge, solves, events); on a failure (status != 0, of "
-             "the first failing ridge) every ridge keeps the history it had before the call.");
+             "only) without the GIL, into preallocated C-contiguous arrays, each of which may be None: lam and "
+             "displacement (T, n_ridges, 2n) float64 (the forces (lt, ln), N/m, and the surface displacements), "
+             "state (T, n_ridges, n) int8, slip_fraction (T, n_ridges) float64, flags (T, n_ridges) int8 (bit 0: "
+             "some node touches; bit 1: gross slip, touching and none stuck), and with proj (q, 2n) float64, "
+             "proj_out (T, n_ridges, q) float64: proj @ lam of every sample, O(q) a sample along a piece instead "
+             "of O(n). threads=2 splits the ridges over two threads (the ridges are independent: same results). "
+             "A ridge with the configuration, history and plate path of an earlier one gets that ridge's results "
+             "(the same bits) without computing them. Returns (status, ridge, solves, events); on a failure "
+             "(status != 0, of the first failing ridge) every ridge keeps the history it had before the call.");
     m.def("_contact_simd_path", [] { return std::string(tactile::contact_simd_path()); },
           "The variant the contact kernels run, by simd_path()'s names: 'avx2+fma' or the base variant.");
     m.def("_contact_set_baseline", [](bool on) { tactile::set_contact_baseline(on); }, py::arg("on"),

@@ -401,6 +401,26 @@ public:
     double r() const noexcept { return r_; }
     ContactParams params;
 
+    // True from construction or reset() until the history first changes (a follow or
+    // step of at least one sample, set_history, set_path_history).
+    bool pristine() const noexcept { return pristine_; }
+    // The same model (compliance, node heights, weights, r, w_tol), parameters and
+    // event tolerances. The kernel is deterministic: two kernels of the same
+    // configuration and history given the same plate path compute the same bits
+    // (a pad's mirror-image ridges under a symmetric finger; see bind_contact.cpp).
+    bool same_config(const ContactSolverKernel& o) const noexcept {
+        if (n_ != o.n_ || r_ != o.r_ || w_tol_ != o.w_tol_) return false;
+        const ContactParams &a = params, &b = o.params;
+        if (a.mu != b.mu || a.mu_kinetic != b.mu_kinetic || a.tol != b.tol || a.max_iter != b.max_iter ||
+            a.max_active_set_iter != b.max_active_set_iter)
+            return false;
+        if (g_tol_ != o.g_tol_ || f_tol_ != o.f_tol_ || evt_g_tol_ != o.evt_g_tol_ || evt_f_tol_ != o.evt_f_tol_)
+            return false;
+        return std::memcmp(z0_.data(), o.z0_.data(), n_ * sizeof(double)) == 0 &&
+               std::memcmp(w_.data(), o.w_.data(), n_ * sizeof(double)) == 0 &&
+               std::memcmp(C_.data(), o.C_.data(), C_.size() * sizeof(double)) == 0;
+    }
+
     // Gaps (m) and forces (N/m) this close to zero count as zero in the event search.
     // evt_g_tol / evt_f_tol: the "decreasing" thresholds of the event search (gaps,
     // forces); g_tol / f_tol: the cascade's and the cycle rule's zero tests.
@@ -419,6 +439,7 @@ public:
         lu_valid_ = false;
         aff_stage_ = 0;
         has_candidate_ = false;
+        pristine_ = true;
     }
 
     // One step of the path following to the plate position (plate_y, plate_z), the
@@ -438,14 +459,16 @@ public:
         return s;
     }
 
-    // forces f = (lt, -ln) and the slip fraction (weight of SLIP nodes over the weight
-    // of touching nodes) of the forces lam and statuses st of one sample
+    // forces f = (lt, -ln) (unless forces is null) and the slip fraction (weight of SLIP
+    // nodes over the weight of touching nodes) of the forces lam and statuses st of one sample
     void report(const double* lam, const std::int8_t* st, double* forces, double& frac) const noexcept {
         const std::size_t n = n_;
         double total = 0.0, slipping = 0.0;
         for (std::size_t i = 0; i < n; ++i) {
-            forces[i] = lam[i];
-            forces[n + i] = -lam[n + i];
+            if (forces) {
+                forces[i] = lam[i];
+                forces[n + i] = -lam[n + i];
+            }
             if (st[i] != kContactOpen) total += w_[i];
             if (st[i] == kContactSlip) slipping += w_[i];
         }
@@ -535,6 +558,7 @@ public:
         s_prev_ = s_prev;
         aff_stage_ = 0;
         has_candidate_ = false;
+        pristine_ = false;
     }
 
     // ---- event-driven path following (the Python reference's ContactSolver.follow)
@@ -569,6 +593,7 @@ public:
             }
         }
         save();
+        if (N) pristine_ = false;
         out_lam_ = lam_out; out_u_ = u_out; out_state_ = state_out;
         out_s2_ = out_stride2; out_s1_ = out_stride1;
         if (N && !has_z_) {  // first placement: from above, no lower than the crown
@@ -594,6 +619,38 @@ public:
         return ContactStatus::ok;
     }
 
+    // Outputs of follow besides the full rows, per sample (each may be null): q linear
+    // functionals P lam of the forces (row k at proj + k * stride_q; P set by
+    // set_projection), the slip fraction (frac + k * stride_f) and flags (flags + k *
+    // stride_f: bit 0 some node touches, bit 1 gross slip: touching and none stuck). Along
+    // a piece they cost O(q) a sample (P lam is affine along it), not O(n).
+    struct Extra {
+        double* proj = nullptr;
+        std::size_t stride_q = 0;
+        double* frac = nullptr;
+        std::int8_t* flags = nullptr;
+        std::size_t stride_f = 0;
+    };
+    // P: (q, 2n) row-major, applied to lam = (lt, ln). Allocates: call it before stepping.
+    void set_projection(const double* P, std::size_t q) {
+        q_ = q;
+        Pt_.assign(q * n2_, 0.0);  // column-major: the q entries of column j together
+        for (std::size_t a = 0; a < q; ++a)
+            for (std::size_t j = 0; j < n2_; ++j) Pt_[j * q + a] = P[a * n2_ + j];
+        pc_.assign(q, 0.0);
+        pd_.assign(q, 0.0);
+    }
+    std::size_t projection_size() const noexcept { return q_; }
+    ContactStatus follow(const double* ys, const double* zs, std::size_t N, bool every, double* lam_out,
+                         double* u_out, std::int8_t* state_out, std::size_t out_stride2, std::size_t out_stride1,
+                         const Extra& extra) noexcept {
+        ex_ = extra;
+        if (!q_) ex_.proj = nullptr;
+        const ContactStatus s = follow(ys, zs, N, every, lam_out, u_out, state_out, out_stride2, out_stride1);
+        ex_ = Extra{};
+        return s;
+    }
+
     // Solves and events of the path following since the last reset.
     long solves() const noexcept { return solves_; }
     long events() const noexcept { return events_; }
@@ -611,6 +668,7 @@ public:
         copy(lam_.data(), sv_lam_.data(), n2_); copy(pu_.data(), sv_u_.data(), n2_);
         copy8(state_.data(), sv_state_.data()); copy(sign_.data(), sv_sign_.data());
         sv_s_ = s_prev_; sv_z_ = z_prev_; sv_has_z_ = has_z_; sv_solves_ = solves_; sv_events_ = events_;
+        sv_pristine_ = pristine_;
     }
     void restore() noexcept {
         copy(sv_lam_.data(), lam_.data(), n2_); copy(sv_u_.data(), pu_.data(), n2_);
@@ -618,6 +676,7 @@ public:
         copy8(sv_state_.data(), state_.data()); copy(sv_sign_.data(), sign_.data());
         for (std::size_t i = 0; i < n_; ++i) sliding_[i] = state_[i] == kContactSlip;
         s_prev_ = sv_s_; z_prev_ = sv_z_; has_z_ = sv_has_z_; solves_ = sv_solves_; events_ = sv_events_;
+        pristine_ = sv_pristine_;
         unit_valid_ = false;
         aff_stage_ = 0;
     }
@@ -647,6 +706,7 @@ public:
         unit_valid_ = false;
         aff_stage_ = 0;
         has_candidate_ = false;
+        pristine_ = false;
     }
 
 private:
@@ -668,10 +728,40 @@ private:
     void fill_rows(std::size_t a, std::size_t b, const double* lc, const double* uc, const double* l1, const double* u1,
               double th, std::size_t L) noexcept {
         const std::size_t n2 = n2_;
+        if (a >= b) return;
+        double frac = 0.0;
+        std::int8_t flags = 0;
+        if (ex_.proj) {  // P lc and P (l1 - lc), once for the rows
+            const std::size_t q = q_;
+            double* pc = pc_.data();
+            double* pd = pd_.data();
+            for (std::size_t c = 0; c < q; ++c) pc[c] = pd[c] = 0.0;
+            for (std::size_t j = 0; j < n2; ++j) {
+                const double* col = Pt_.data() + j * q;
+                const double x = lc[j], d = l1 ? l1[j] - lc[j] : 0.0;
+                if (x != 0.0) for (std::size_t c = 0; c < q; ++c) pc[c] += col[c] * x;
+                if (d != 0.0) for (std::size_t c = 0; c < q; ++c) pd[c] += col[c] * d;
+            }
+        }
+        if (ex_.frac || ex_.flags) {
+            report(lc, state_.data(), nullptr, frac);
+            bool touch = false, stick = false;
+            for (std::size_t i = 0; i < n_; ++i) {
+                touch |= state_[i] != kContactOpen;
+                stick |= state_[i] == kContactStick;
+            }
+            flags = static_cast<std::int8_t>((touch ? 1 : 0) | (touch && !stick ? 2 : 0));
+        }
         for (std::size_t k = a; k < b; ++k) {
             const std::size_t row = out_row0_ + k;
             double f = 0.0;
             if (l1) f = (static_cast<double>(k + 1) / static_cast<double>(L) - th) / (1.0 - th);
+            if (ex_.proj) {
+                double* o = ex_.proj + row * ex_.stride_q;
+                for (std::size_t c = 0; c < q_; ++c) o[c] = pc_[c] + f * pd_[c];
+            }
+            if (ex_.frac) ex_.frac[row * ex_.stride_f] = frac;
+            if (ex_.flags) ex_.flags[row * ex_.stride_f] = flags;
             if (out_lam_) {
                 double* o = out_lam_ + row * out_s2_;
                 if (l1) for (std::size_t i = 0; i < n2; ++i) o[i] = lc[i] + f * (l1[i] - lc[i]);
@@ -1542,12 +1632,16 @@ private:
     double g_tol_ = 0.0, f_tol_ = 0.0, evt_g_tol_ = 0.0, evt_f_tol_ = 0.0, err_y_ = 0.0, err_z_ = 0.0;
     std::vector<double> fl_lam_, fl_u_, fl_sign_;  // solve_load(exact): the first answer within tolerance
     std::vector<std::int8_t> fl_state_;
-    bool has_z_ = false, sv_has_z_ = false, unit_valid_ = false;
+    bool has_z_ = false, sv_has_z_ = false, unit_valid_ = false, pristine_ = true, sv_pristine_ = true;
     long solves_ = 0, events_ = 0, sv_solves_ = 0, sv_events_ = 0;
     double* out_lam_ = nullptr;
     double* out_u_ = nullptr;
     std::int8_t* out_state_ = nullptr;
     std::size_t out_s2_ = 0, out_s1_ = 0, out_row0_ = 0;
+    // projected outputs (set_projection, follow with Extra)
+    std::size_t q_ = 0;
+    std::vector<double> Pt_, pc_, pd_;
+    Extra ex_;
 };
 
 }  // namespace tactile

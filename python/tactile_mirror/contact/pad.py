@@ -13,6 +13,7 @@ default): the plane-strain model gives N/m.
 from __future__ import annotations
 
 import functools
+import math
 from dataclasses import dataclass, field
 from typing import TYPE_CHECKING
 
@@ -93,8 +94,9 @@ class Pad:
         load, a few vector operations), and a position that does not move costs
         nothing.
     threads : int
-        Threads of the compiled :meth:`follow` (1 or 2): the ridges are independent, so
-        with 2 half of them run on a second thread (same results, bit for bit). A plain
+        Threads of the compiled :meth:`follow` and :meth:`advance` (1 or 2): the ridges are
+        independent, so with 2 half of them run on a second thread (same results, bit for
+        bit; :meth:`advance` hands them to a worker thread the pad keeps). A plain
         attribute; the Python backend ignores it.
     """
 
@@ -158,7 +160,9 @@ class Pad:
             s.mu = float(value)
 
     def reset(self) -> None:
-        for s in self.solvers:
+        # last ridge first: a compiled ridge shadowing an earlier one (its mirror image,
+        # see _core._ContactPad) then drops the link without copying the earlier one's state
+        for s in reversed(self.solvers):
             s.reset()
         self._last = None
 
@@ -172,12 +176,9 @@ class Pad:
         """Points where node statuses changed so far (all ridges)."""
         return sum(getattr(s, "events", 0) for s in self.solvers)
 
-    def follow(self, plate_y: np.ndarray, indent: np.ndarray, stepping: str | None = None,
-               want_displacement: bool = False):
-        """Follow a whole trajectory: ``plate_y`` and ``indent`` (m) per sample (with the
-        compiled backend in one call without the GIL, on :attr:`threads` threads). Returns ``(lam, displacement, state)``: arrays ``(N, n_ridges, 2n)``
-        of contact forces ``(lt, ln)`` (N/m), of surface displacements (m, or None) and
-        ``(N, n_ridges, n)`` node states. ``stepping`` defaults to the pad's."""
+    def _plate_path(self, plate_y, indent, stepping):
+        """The checked stepping, plate path ``y`` (N,) and the ridges' plate heights
+        ``z`` (N, n_ridges), C-contiguous float64."""
         stepping = self.stepping if stepping is None else stepping
         if stepping not in STEPPINGS:
             raise ValueError(f"stepping must be one of {STEPPINGS}, got {stepping!r}")
@@ -190,9 +191,18 @@ class Pad:
         if not (np.all(np.isfinite(y)) and np.all(np.isfinite(z))):
             k = int(np.flatnonzero(~(np.isfinite(y) & np.all(np.isfinite(z), axis=1)))[0])
             raise ValueError(f"plate position must be finite, got y={y[k]!r}, indent={ind[k]!r}")
+        return stepping, y, z
+
+    def follow(self, plate_y: np.ndarray, indent: np.ndarray, stepping: str | None = None,
+               want_displacement: bool = False):
+        """Follow a whole trajectory: ``plate_y`` and ``indent`` (m) per sample (with the
+        compiled backend in one call without the GIL, on :attr:`threads` threads). Returns ``(lam, displacement, state)``: arrays ``(N, n_ridges, 2n)``
+        of contact forces ``(lt, ln)`` (N/m), of surface displacements (m, or None) and
+        ``(N, n_ridges, n)`` node states. ``stepping`` defaults to the pad's."""
+        stepping, y, z = self._plate_path(plate_y, indent, stepping)
         if self._stepper is not None:
             return self._follow_compiled(y, z, stepping, want_displacement)
-        n, R = m.n_nodes, self.n_ridges
+        n, R = self.model.n_nodes, self.n_ridges
         N = y.size
         lam = np.empty((R, N, 2 * n))
         disp = np.empty((R, N, 2 * n)) if want_displacement else None
@@ -209,6 +219,48 @@ class Pad:
         return (np.moveaxis(lam, 0, 1), None if disp is None else np.moveaxis(disp, 0, 1),
                 np.moveaxis(state, 0, 1))
 
+    def follow_projected(self, plate_y: np.ndarray, indent: np.ndarray, proj: np.ndarray,
+                         stepping: str | None = None):
+        """:meth:`follow` reduced to what a scene reads: ``proj`` (q, 2n) linear functionals
+        of the forces ``lam = (lt, ln)`` (strip stresses, force sums). Returns ``(out,
+        slip_fraction, flags)``: ``out`` (N, n_ridges, q) = ``proj @ lam`` per sample and
+        ridge, the slip fraction (N, n_ridges) and flags (N, n_ridges) int8 (bit 0: some
+        node touches; bit 1: gross slip, touching and no node stuck). The compiled backend
+        computes ``proj @ lam`` once per piece (it is affine along a piece), so a sample
+        between events costs O(q), not O(n)."""
+        stepping, y, z = self._plate_path(plate_y, indent, stepping)
+        n, R = self.model.n_nodes, self.n_ridges
+        proj = np.ascontiguousarray(proj, dtype=np.float64)
+        if proj.ndim != 2 or proj.shape[1] != 2 * n or proj.shape[0] < 1:
+            raise ValueError(f"proj must have shape (q, {2 * n}), got {proj.shape}")
+        N = y.size
+        if self._stepper is None:
+            lam, _, st = self.follow(plate_y, indent, stepping)
+            out = lam @ proj.T
+            touching = st != OPEN
+            w = self.model.weights
+            total = touching @ w
+            frac = np.divide((st == SLIP) @ w, total, out=np.zeros_like(total), where=total > 0)
+            touch = touching.any(axis=2)
+            gross = touch & ~np.any(st == STICK, axis=2)
+            flags = (touch.astype(np.int8) | (gross.astype(np.int8) << 1)).astype(np.int8)
+            return out, frac, flags
+        out = np.empty((N, R, proj.shape[0]))
+        frac = np.empty((N, R))
+        flags = np.empty((N, R), dtype=np.int8)
+        status, bad, _, _ = self._stepper.follow(y, z, stepping == "every", None, None, None, frac,
+                                                 min(self.threads, 2), proj, out, flags)
+        self._after_compiled(status, bad)
+        return out, frac, flags
+
+    def _after_compiled(self, status, bad):
+        for s in self.solvers:
+            s._sync_counts()
+        if status:
+            s = self.solvers[bad]
+            s._raise_status(status, *s._kernel.error_point())
+        self._last = None
+
     def _follow_compiled(self, y, z, stepping, want_displacement):
         """:meth:`follow` on the compiled pad: ``y`` (N,) and the ridges' plate heights
         ``z`` (N, n_ridges), checked and C-contiguous."""
@@ -219,13 +271,7 @@ class Pad:
         state = np.empty((N, R, n), dtype=np.int8)
         status, bad, _, _ = self._stepper.follow(y, z, stepping == "every", lam, disp, state, None,
                                                  min(self.threads, 2))
-        for s in self.solvers:
-            s._sync_counts()
-        if status:
-            s = self.solvers[bad]
-            s._raise_status(status, *s._kernel.error_point())
-        lam[:, :, n:] *= -1.0  # the kernel writes the forces (lt, -ln)
-        self._last = None
+        self._after_compiled(status, bad)
         return lam, disp, state
 
     def advance(self, plate_y: float, indent: float) -> PadState:
@@ -260,18 +306,15 @@ class Pad:
 
     def _advance_compiled(self, plate_y: float, indent: float) -> PadState:
         m = self.model
-        n = m.n_nodes
-        plate_z = m.geometry.height - (indent - self.indent_offset)
-        if not (np.isfinite(plate_y) and np.all(np.isfinite(plate_z))):
+        plate_y, indent = float(plate_y), float(indent)
+        if not (math.isfinite(plate_y) and math.isfinite(indent)):  # the ridges' offsets are finite
             raise ValueError(f"plate position must be finite, got y={plate_y!r}, indent={indent!r}")
-        status, bad, its, forces, disp, states, frac = self._stepper.step(float(plate_y), plate_z,
-                                                                          self.stepping == "every")
+        plate_z = m.geometry.height - (indent - self.indent_offset)
+        (status, bad, its, forces, disp, states, frac, touch, gross, sum_t,
+         sum_n) = self._stepper.step(plate_y, plate_z, self.stepping == "every", min(self.threads, 2))
         for s in self.solvers:
             s._sync_counts()
         if status:
             self.solvers[bad]._raise_status(status, *self.solvers[bad]._kernel.error_point())
-        touch = np.any(states != OPEN, axis=1)
-        gross = touch & ~np.any(states == STICK, axis=1)
-        fy = float(forces[:, :n].sum()) * self.ridge_length
-        fz = float(-forces[:, n:].sum()) * self.ridge_length
-        return PadState(frac, gross, touch, fy, fz, states, forces, disp, its, m)
+        L = self.ridge_length
+        return PadState(frac, gross, touch, sum_t * L, -sum_n * L, states, forces, disp, its, m)

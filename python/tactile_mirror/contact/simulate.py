@@ -173,24 +173,44 @@ def _run_events(pad, plate_y, indent, scene, want_stress, want_state, field_idx,
         from tqdm.auto import tqdm
 
         bar = tqdm(total=n_total, desc="contact", unit="step", leave=False)
+    # without node states or stress fields, only P lam is read: the strip stresses
+    # (f @ sensor.T with f = (lt, -ln)) and the sums of lt and ln
+    projected = not want_state and not field_idx
+    if projected:
+        ns = model.n_strips * 3 if want_stress else 0
+        proj = np.zeros((ns + 2, 2 * n))
+        if want_stress:
+            proj[:ns, :n] = model.sensor[:, :n]
+            proj[:ns, n:] = -model.sensor[:, n:]
+        proj[ns, :n] = 1.0
+        proj[ns + 1, n:] = 1.0
     while start < end:
         m = min(_EVENT_BLOCK, end - start)
         sl = slice(start, start + m)
-        lam, d, st = pad.follow(plate_y[sl], indent[sl], want_displacement=want_state)
-        f = np.concatenate([lam[:, :, :n], -lam[:, :, n:]], axis=2)  # (m, R, 2n)
-        if want_stress:
-            stress[..., sl] = np.moveaxis((f @ sensor_t).reshape(m, R, model.n_strips, 3), 0, -1)
-        touching = st != OPEN
-        total = touching @ w
-        slipping = (st == SLIP) @ w
-        frac[:, sl] = np.divide(slipping, total, out=np.zeros_like(total), where=total > 0).T
-        fy[sl] = f[:, :, :n].sum(axis=(1, 2)) * pad.ridge_length
-        fz[sl] = -f[:, :, n:].sum(axis=(1, 2)) * pad.ridge_length
-        if want_state:
-            node_state[..., sl] = np.moveaxis(st, 0, -1)
-            node_pos[:, 0, :, sl] = np.moveaxis(model.node_y + d[:, :, :n], 0, -1)
-            node_pos[:, 1, :, sl] = np.moveaxis(model.node_z + d[:, :, n:], 0, -1)
-        gross = touching.any(axis=2) & ~np.any(st == STICK, axis=2)  # (m, R)
+        if projected:
+            out, fr, flags = pad.follow_projected(plate_y[sl], indent[sl], proj)
+            if want_stress:
+                stress[..., sl] = np.moveaxis(out[:, :, :ns].reshape(m, R, model.n_strips, 3), 0, -1)
+            frac[:, sl] = fr.T
+            fy[sl] = out[:, :, ns].sum(axis=1) * pad.ridge_length
+            fz[sl] = out[:, :, ns + 1].sum(axis=1) * pad.ridge_length
+            gross = (flags & 2) != 0  # (m, R)
+        else:
+            lam, d, st = pad.follow(plate_y[sl], indent[sl], want_displacement=want_state)
+            f = np.concatenate([lam[:, :, :n], -lam[:, :, n:]], axis=2)  # (m, R, 2n)
+            if want_stress:
+                stress[..., sl] = np.moveaxis((f @ sensor_t).reshape(m, R, model.n_strips, 3), 0, -1)
+            touching = st != OPEN
+            total = touching @ w
+            slipping = (st == SLIP) @ w
+            frac[:, sl] = np.divide(slipping, total, out=np.zeros_like(total), where=total > 0).T
+            fy[sl] = f[:, :, :n].sum(axis=(1, 2)) * pad.ridge_length
+            fz[sl] = -f[:, :, n:].sum(axis=(1, 2)) * pad.ridge_length
+            if want_state:
+                node_state[..., sl] = np.moveaxis(st, 0, -1)
+                node_pos[:, 0, :, sl] = np.moveaxis(model.node_y + d[:, :, :n], 0, -1)
+                node_pos[:, 1, :, sl] = np.moveaxis(model.node_z + d[:, :, n:], 0, -1)
+            gross = touching.any(axis=2) & ~np.any(st == STICK, axis=2)  # (m, R)
         if slip_time is None:
             all_gross = gross.all(axis=1)
             if all_gross.any():
