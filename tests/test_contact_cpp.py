@@ -37,11 +37,20 @@ def run_both(scene, n_steps=None, mu_change=None):
         yield i, pads["python"].advance(y[i], z[i]), pads["cpp"].advance(y[i], z[i])
 
 
+class StatusesPart(AssertionError):
+    """The backends' node states differ at ``step``."""
+
+    def __init__(self, step):
+        super().__init__(f"node states differ at step {step}")
+        self.step = step
+
+
 def assert_same_run(scene, rtol=RTOL, **kw):
     """Identical node states at every step, forces within rtol of the run's peak force."""
     diff, peak, contact_steps, slip_steps = 0.0, 0.0, 0, 0
     for i, a, b in run_both(scene, **kw):
-        np.testing.assert_array_equal(a.node_state, b.node_state, err_msg=f"node states differ at step {i}")
+        if not np.array_equal(a.node_state, b.node_state):
+            raise StatusesPart(i)
         scale = np.max(np.abs(a.forces))
         if scale > 0:
             diff = max(diff, np.max(np.abs(a.forces - b.forces)))
@@ -70,17 +79,42 @@ def random_scenes_50hz():
     return tm.scenes.random(50, seed=13, fs=50.0, friction=(0.5, 1.2))
 
 
-@pytest.mark.xfail(strict=True, reason="known: stepped one 50 Hz sample at a time (Pad.advance, 'every'), one of "
-                   "the 50 scenes (index 1) parts in the statuses of the ridge's two edges at step 6: the forces "
-                   "already part by 2e-5 of peak at step 5 with equal statuses; from one history a single press "
-                   "step parts by ~1e-8 between the backends and by 4-6e-9 between the reference's own two "
-                   "steppings, whatever the solver tolerance (1e-10 or 1e-13), and the reference's result moves "
-                   "with the OpenBLAS kernel (with OPENBLAS_CORETYPE=SkylakeX this test passes)")
+def round_off_decides(scene, first_step):
+    """True if, up to ``first_step``, the reference cannot tell the outcome from round-off:
+    the plate has not moved tangentially yet (the press of a symmetric ridge, where which
+    edge breaks away first is a tie in exact arithmetic), or the reference's own two
+    steppings ("auto" and "every", the same law along the same path) part by then."""
+    y, ind = scene.plate_motion()
+    if np.all(y[: first_step + 1] == y[0]):
+        return True
+    states = [Pad.from_scene(scene, backend="python", stepping=st).follow(y, ind)[2] for st in ("auto", "every")]
+    parted = np.flatnonzero(np.any(states[0] != states[1], axis=tuple(range(1, states[0].ndim))))
+    return parted.size > 0 and parted[0] <= first_step
+
+
+# Round-off ties: from one history a single press step parts by ~1e-8 between the backends
+# (an LU of their own against LAPACK) and by 4-6e-9 between the reference's own two
+# steppings, whatever the solver tolerance (1e-10 or 1e-13); breakaway cascades amplify
+# it, in the press of a symmetric ridge and at low friction (0.5) in sliding, until
+# round-off decides which of two mirror-image nodes slips first. The outcome moves with
+# the OpenBLAS kernel the reference's LAPACK runs on (with one kernel a scene of each
+# random set parts, with another none; where the backends part the reference's own
+# steppings part too). So the random sets require identical statuses on every scene but
+# at most one, and that one only where round-off decides (round_off_decides).
+MAX_ROUND_OFF_TIES = 1
+
+
 def test_cpp_equals_python_on_random_scenes():
-    slipped = 0
-    for s in random_scenes_50hz():
-        _, slip = assert_same_run(s, rtol=None)  # statuses at every step; forces below
+    slipped, ties = 0, []
+    for k, s in enumerate(random_scenes_50hz()):
+        try:
+            _, slip = assert_same_run(s, rtol=None)  # statuses at every step; forces below
+        except StatusesPart as e:
+            assert round_off_decides(s, e.step), f"scene {k}: {e}, where the reference is not tied"
+            ties.append(k)
+            continue
         slipped += slip > 0
+    assert len(ties) <= MAX_ROUND_OFF_TIES, f"scenes parting on a round-off tie: {ties}"
     assert slipped >= 40
 
 
@@ -349,12 +383,21 @@ def random_scenes_100hz():
 
 
 def test_follow_cpp_equals_python_on_random_scenes():
-    # identical statuses at every sample, the same solves and events; forces below
-    slipped = 0
-    for s in random_scenes_100hz():
+    # identical statuses at every sample, the same solves and events (forces below), on
+    # every scene but at most one round-off tie (see MAX_ROUND_OFF_TIES)
+    slipped, ties = 0, []
+    for k, s in enumerate(random_scenes_100hz()):
+        out = follow_both(s, "auto")
+        sp, sc = out["python"][3], out["cpp"][3]
+        if not np.array_equal(sp, sc):
+            first = int(np.argwhere(sp != sc)[0][0])
+            assert round_off_decides(s, first), f"scene {k}: statuses part at sample {first}, the reference not tied"
+            ties.append(k)
+            continue
         _, slipping = assert_same_follow(s, "auto", rtol=None)
         slipped += slipping > 0
-    assert slipped >= 12
+    assert len(ties) <= MAX_ROUND_OFF_TIES, f"scenes parting on a round-off tie: {ties}"
+    assert slipped >= 12 - len(ties)
 
 
 @pytest.mark.xfail(strict=True, reason="known: on a few random scenes the backends meet the same statuses, "
