@@ -257,3 +257,22 @@ def test_slip_guard_waits_for_a_confirmed_slip():
     assert np.all(v[23:] == 0.0)             # held, then tared
     with pytest.raises(ValueError, match="slip_confirm"):
         VelocityController(slip_confirm=-1.0)
+
+
+def test_slip_guard_ignores_a_slip_reported_without_shear():
+    # slip_min_asym: a slip reported while |asymmetry| is below the gate leaves the law alone;
+    # above it, the guard holds as before.
+    kw = dict(threshold=0.2, y_full=0.6, v_max=5.0, a_max=1e6, shear_gain=0.5, ramp_gain=0.0, asym_tau=1e6,
+              x_min=-100.0, x_max=100.0, slip_hold=0.01)
+    n = 60
+    asym = np.zeros(n)
+    asym[0] = FS  # a = 1
+    slip = np.zeros(n, dtype=bool)
+    slip[20:25] = True
+    _, v_free = VelocityController(**kw).run(np.zeros(n), asym, FS)
+    _, v_gated = VelocityController(**kw, slip_min_asym=1.5).run(np.zeros(n), asym, FS, slip=slip)
+    np.testing.assert_array_equal(v_gated, v_free)
+    _, v_open = VelocityController(**kw, slip_min_asym=0.5).run(np.zeros(n), asym, FS, slip=slip)
+    assert np.all(v_open[20:] == 0.0)
+    with pytest.raises(ValueError, match="slip_min_asym"):
+        VelocityController(slip_min_asym=-1.0)

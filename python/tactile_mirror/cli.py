@@ -460,7 +460,8 @@ def build_parser() -> argparse.ArgumentParser:
                            help=f"comma-separated subset of: {', '.join(CONDITIONS)} (default: nominal)")
             q.add_argument("--laws", type=_names(list(_LAWS)), default=list(_LAWS),
                            help="comma-separated subset of: open loop,paper,default (default: all)")
-            q.add_argument("--paths", choices=["report", "tuning", "report-fast", "tuning-fast"], default="report",
+            q.add_argument("--paths", choices=["report", "tuning", "report-fast", "tuning-fast", "report-fast2",
+                                              "tuning-fast2"], default="report",
                            help="path set: a reported one or a disjoint tuning one; the -fast sets reach 0.5 m/s^2 "
                                 "(default: %(default)s)")
             q.add_argument("--duration", type=_positive(float), default=3.0, help="seconds per run, 0.5 s press "

@@ -124,7 +124,8 @@ inline const char* controller_name(ControllerKind k) noexcept {
     X(slip_hold, 0.0, 3, "s, >= 0: on detected slip hold the stage, re-tare this long after (0 = off)")  \
     X(shear_integral, 0.0, 2, "velocity: 1/s, >= 0: integral of the shear feedback (type-2 loop); 0 = off") \
     X(rate_gain, 0.0, 2, "velocity: m/s per unit of L-R stress rate (relative-velocity feedback), >= 0")  \
-    X(slip_confirm, 0.0, 3, "s, >= 0: a detected slip starts the slip guard once it lasted this long (0 = at once)")
+    X(slip_confirm, 0.0, 3, "s, >= 0: a detected slip starts the slip guard once it lasted this long (0 = at once)") \
+    X(slip_min_asym, 0.0, 3, ">= 0: a detected slip starts the slip guard only while |asymmetry| >= this (0 = always)")
 
 struct ControllerParams {
     ControllerKind kind = ControllerKind::none;
@@ -337,6 +338,7 @@ inline void validate_controller(const ControllerParams& c) {
     if (!(c.shear_integral >= 0.0)) bad("shear_integral", "must be >= 0 (1/s)");
     if (!(c.rate_gain >= 0.0)) bad("rate_gain", "must be >= 0 (m/s per unit of stress rate)");
     if (!(c.slip_confirm >= 0.0 && c.slip_confirm <= 3600.0)) bad("slip_confirm", "must lie in [0, 3600] s");
+    if (!(c.slip_min_asym >= 0.0)) bad("slip_min_asym", "must be >= 0 (rate units x s)");
 }
 
 inline void validate_config(const PipelineConfig& c) {
@@ -421,8 +423,13 @@ public:
             // row: a single tick of y_slip over its threshold while the contact still sticks
             // (a fast change of the shear) would otherwise stop a stage that follows a
             // moving finger, and the stop itself makes the slip.
+            // And only while the contact carries shear: a contact whose shear signal is
+            // near its tare cannot slip, so there the report is a false alarm (the
+            // detector's, at the fastest changes of the shear), and stopping a stage
+            // that follows a moving finger would itself make the slip.
             slip_run_ = slip ? slip_run_ + 1 : 0;
-            if ((slip && slip_run_ > confirm_ticks_) || runaway) hold_left_ = hold_ticks_;
+            const bool loaded = std::fabs(a_) >= p_.slip_min_asym;
+            if ((slip && loaded && slip_run_ > confirm_ticks_) || runaway) hold_left_ = hold_ticks_;
             if (hold_left_ > 0) {
                 hold = true;
                 y = 0.0;

@@ -117,6 +117,7 @@ typedef struct tm_controller_params {
     double rate_gain;        /* velocity: m/s per unit of L-R stress rate (relative-velocity feedback), >= 0 */
     /* ABI 5 (appended) */
     double slip_confirm;     /* s, >= 0: a detected slip starts the slip guard once it lasted this long (0 = at once) */
+    double slip_min_asym;    /* >= 0: a detected slip starts the slip guard only while |asymmetry| >= this (0 = always) */
 } tm_controller_params;
 
 typedef struct tm_config {

@@ -131,6 +131,10 @@ class Controller:
         s (>= 0): the guard starts once the detector reported slip on every tick
         for this long (0: at once). A one-tick ``y_slip`` peak while the contact
         still sticks would otherwise stop a stage that follows a moving finger.
+    slip_min_asym : float
+        (>= 0, asymmetry units; 0 = always): a detected slip starts the guard only
+        while the asymmetry integrator's magnitude is at least this: a contact whose
+        shear is near its tare cannot slip, so a report there is a false alarm.
     """
 
     kind = "none"
@@ -143,10 +147,11 @@ class Controller:
     arm_delay: float = _DEFAULTS["none"]["arm_delay"]
     slip_hold: float = _DEFAULTS["none"]["slip_hold"]
     slip_confirm: float = _DEFAULTS["none"]["slip_confirm"]
+    slip_min_asym: float = _DEFAULTS["none"]["slip_min_asym"]
 
     def __post_init__(self):
         for name in ("threshold", "x_min", "x_max", "direction_sign", "asym_tau", "asym_deadband", "arm_delay",
-                     "slip_hold", "slip_confirm"):
+                     "slip_hold", "slip_confirm", "slip_min_asym"):
             object.__setattr__(self, name, _real(getattr(self, name), name))
         if not 0.0 <= self.threshold < 1.0:
             raise ValueError(f"threshold must lie in [0, 1), got {self.threshold}")
@@ -166,6 +171,8 @@ class Controller:
             raise ValueError(f"slip_hold must lie in [0, 3600] s, got {self.slip_hold}")
         if not 0 <= self.slip_confirm <= 3600:
             raise ValueError(f"slip_confirm must lie in [0, 3600] s, got {self.slip_confirm}")
+        if not self.slip_min_asym >= 0:
+            raise ValueError(f"slip_min_asym must be >= 0, got {self.slip_min_asym}")
 
     def params(self) -> dict:
         """The parameters as the C++ pipeline takes them (``kind`` included)."""
@@ -236,7 +243,8 @@ class Controller:
         if hold_ticks > 0:  # slip guard (and the run-away guard of the type-2 law)
             runaway = getattr(self, "shear_integral", 0.0) > 0 and abs(st.w) >= getattr(self, "v_max", math.inf)
             st.slip_run = st.slip_run + 1 if slip else 0
-            if (slip and st.slip_run > round(self.slip_confirm * fs)) or runaway:
+            loaded = abs(st.a) >= self.slip_min_asym
+            if (slip and loaded and st.slip_run > round(self.slip_confirm * fs)) or runaway:
                 st.hold_left = hold_ticks
             if st.hold_left > 0:
                 hold, y, asym = True, 0.0, 0.0
