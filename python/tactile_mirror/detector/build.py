@@ -114,7 +114,7 @@ def subset(ts: TrainingSet, ridges_per_scene: int, n_ridges: int) -> TrainingSet
     """Keep the first ``ridges_per_scene`` of every ``n_ridges`` sequences (scene-major order)."""
     keep = (np.arange(ts.n_seq) % n_ridges) < ridges_per_scene
     return TrainingSet(ts.x[keep], ts.y_slip[keep], ts.y_pred[keep], ts.mask[keep], ts.fs, ts.features,
-                       ts.estimator, ts.targets, ts.load_tau)
+                       ts.estimator, ts.targets, ts.load_tau, ts.bank)
 
 
 def hidden_size_study(train, validation, sizes=(4, 8, 12, 16, 24), maxiter: int = 800, seed: int = 0,
@@ -291,10 +291,12 @@ class BuildOptions:
         ranges) is kept (:func:`select_candidate`). Defaults 120, 4, 25.
     progress : bool
         Progress bars. Default True.
-    kind : {"jordan", "jordan_memory"}
+    kind : {"jordan", "jordan_memory", "jordan_bank"}
         ``"jordan"``: the paper's net on the four stress rates (``paper_detector.npz``);
         ``"jordan_memory"``: the same net on the load-memory channels
-        (:mod:`~tactile_mirror.detector.memory`; ``memory_detector.npz``).
+        (:mod:`~tactile_mirror.detector.memory`; ``memory_detector.npz``);
+        ``"jordan_bank"``: on the filter-bank channels with the default bank
+        (:mod:`~tactile_mirror.detector.bank`; ``bank_detector.npz``).
     load_tau : float
         Leak time constant of the load integrals of ``"jordan_memory"``, s.
     n_extra_train : int
@@ -448,8 +450,10 @@ def _build(out_path, options: BuildOptions, report_path, figure_path, results, c
     n_ridges = np.asarray(train_res[0].v_out).shape[0]
     seqs = augment_noise(train_res, noise_copies, noise_range, seed=2) if noise_copies else train_res
     memory = o.kind == "jordan_memory"
-    ts = subset(make_training_set(seqs, "stress_rate_memory" if memory else "stress_rate",
-                                  load_tau=o.load_tau if memory else None), ridges_per_scene, n_ridges)
+    features = {"jordan": "stress_rate", "jordan_memory": "stress_rate_memory",
+                "jordan_bank": "stress_rate_bank"}[o.kind]
+    ts = subset(make_training_set(seqs, features, load_tau=o.load_tau if memory else None),
+                ridges_per_scene, n_ridges)
     if gain_range is not None:
         ts = augment_gains(ts, gain_range, seed=1)
     report = {"n_train_scenes": n_train, "n_test_scenes": n_test, "train_seed": TRAIN_SEED,
@@ -485,8 +489,8 @@ def _build(out_path, options: BuildOptions, report_path, figure_path, results, c
         tr_meta["selection"] = dict(report["candidates"], seeds=int(candidates), fa_cost=10.0)
     force = ForceRatioDetector.fit(train_res)
     det = SlipDetector(w)
-    if memory:
-        # The baseline of the load-memory net is the paper's net, on the same scenes.
+    if o.kind != "jordan":
+        # The baseline of the load-memory and filter-bank nets is the paper's net, on the same scenes.
         second = ("paper Jordan net", "paper", SlipDetector.paper())
     else:
         w_nf, _, _ = train(False)
@@ -528,7 +532,7 @@ def main(argv=None):
     ap.add_argument("--pred-weight", type=float, default=TRAIN_OPTIONS["pred_weight"])
     ap.add_argument("--normalisation", default="rms", choices=["rms", "median"])
     ap.add_argument("--kind", default="jordan", choices=sorted(KINDS),
-                    help="jordan: the paper's net; jordan_memory: the load-memory net")
+                    help="jordan: the paper's net; jordan_memory: the load-memory net; jordan_bank: the filter-bank net")
     ap.add_argument("--candidates", type=int, default=4, help="initial seeds trained (the best kept)")
     ap.add_argument("--cache", help="directory keeping the simulated scenes between builds")
     ap.add_argument("--extra-train", type=int, default=0,
