@@ -1,14 +1,15 @@
-"""The load-memory net against the paper's Jordan net on the build's held-out scenes.
+"""The filter-bank and load-memory nets against the paper's Jordan net on the build's held-out scenes.
 
-Both nets (and, with ``--bound``, the bound study's causal classifier, trained on the
-build's training scenes plus the bound study's extra scenes) are scored on the same
+The three nets (and, with ``--bound``, the bound study's causal classifier and the same
+boosted trees on the filter bank's inputs, both trained on the build's training scenes
+plus the bound study's extra scenes) are scored on the same
 held-out scenes (``build.TEST_SEED``, ``build.TEST_KWARGS`` ranges, disjoint from the
 training and validation seeds) with the definitions of ``detector.evaluate``: per
 noise condition (noise-free, 1 mV rms white noise on ``v_out``/``u_out``) the
 detection and false-alarm rates at ``y_slip >= 0.8``, split by onset kind, the mean
 latency per onset kind, the share of slips whose ``y_pred`` at the onset lies in
 0.8 +- 0.1, and the ``y_pred`` lead. Then the kernels' tick time for 6 ridges
-(measured inside C++, float32 and float64, both nets in the same run).
+(measured inside C++, float32 and float64, all nets in the same run).
 
 Run: ``python bench/detector_heldout.py [--cache out/scenes] [--bound]``.
 """
@@ -57,6 +58,21 @@ def table_rows(name, scores_pred, results, kinds, cond):
     return out
 
 
+def bank_tree_scores(train, test) -> list:
+    """Probabilities of the bound study's boosted trees on the filter bank's inputs (ridge 0)."""
+    from sklearn.ensemble import HistGradientBoostingClassifier
+    from tactile_mirror.detector.data_prep import features_from_result, targets_from_result
+
+    def feats(r):
+        return features_from_result(r, "stress_rate_bank")[0].T
+
+    X = np.vstack([feats(r)[::2] for r in train])
+    Y = np.concatenate([targets_from_result(r)[0][0][::2] for r in train])
+    w = np.where(Y > 0.5, 0.5 / max(Y.sum(), 1.0), 5.0 / max(Y.size - Y.sum(), 1.0)) * Y.size
+    clf = HistGradientBoostingClassifier(max_iter=300, random_state=0).fit(X, Y, sample_weight=w)
+    return [clf.predict_proba(feats(r))[:, 1] for r in test]
+
+
 def clean(results):
     """Copies of ``results`` with noise-free circuit outputs (their strip stresses through their circuit)."""
     import dataclasses
@@ -73,6 +89,7 @@ def main(argv=None):
     ap.add_argument("--cache", default="out/scenes", help="directory of cached simulated scenes ('' for none)")
     ap.add_argument("--n-test", type=int, default=200)
     ap.add_argument("--memory-weights", default=None, help="load-memory weights (default: bundled)")
+    ap.add_argument("--bank-weights", default=None, help="filter-bank weights (default: bundled)")
     ap.add_argument("--bound", action="store_true", help="also the bound study's classifier (scikit-learn)")
     ap.add_argument("--bound-extra", type=int, default=0, help="extra bound training scenes (seed 99)")
     args = ap.parse_args(argv)
@@ -84,7 +101,7 @@ def main(argv=None):
     from tactile_mirror.detector.evaluate import onset_kinds
     from tactile_mirror.measure import cpu_model
 
-    header("load-memory net vs the paper's Jordan net on the build's held-out scenes")
+    header("filter-bank and load-memory nets vs the paper's Jordan net on the build's held-out scenes")
     cache = args.cache or None
     t0 = time.perf_counter()
     test = build.simulate_cached(args.n_test, build.TEST_SEED, build.TEST_KWARGS, cache)
@@ -94,6 +111,8 @@ def main(argv=None):
           f"({time.perf_counter() - t0:.0f} s)", flush=True)
     memory = SlipDetector.load(args.memory_weights) if args.memory_weights else SlipDetector.memory()
     paper = SlipDetector.paper()
+    bank = SlipDetector.load(args.bank_weights) if args.bank_weights else SlipDetector.bank()
+    nets = (("filter-bank net", bank), ("load-memory net", memory), ("paper Jordan net", paper))
     train = []
     if args.bound:
         train = build.simulate_cached(64, build.TRAIN_SEED, build.TRAIN_KWARGS, cache)
@@ -105,7 +124,7 @@ def main(argv=None):
         noisy = clean(test)  # the scenes' own noise removed: the circuit outputs of their stresses
         if white:
             noisy = with_noise(noisy, "1 mV rms white", seed=1000 + ci)
-        for name, det in (("load-memory net", memory), ("paper Jordan net", paper)):
+        for name, det in nets:
             outs = []
             for r in noisy:
                 ys, _, yp = det.run(features_from_result(r, det.features, estimator=det.metadata.get("estimator")),
@@ -126,6 +145,11 @@ def main(argv=None):
                 a = debounce(p >= 0.8).astype(float)
                 outs.append((a[None], np.zeros_like(a)[None]))
             rows.append(table_rows("bound classifier (p>=0.8, 3 in a row)", outs, test, kinds, cond))
+            outs = []
+            for p in bank_tree_scores(noisy_train, noisy):
+                a = debounce(p >= 0.8).astype(float)
+                outs.append((a[None], np.zeros_like(a)[None]))
+            rows.append(table_rows("trees on the bank inputs (same rule)", outs, test, kinds, cond))
         print(f"{cond} done ({time.perf_counter() - t0:.0f} s)", flush=True)
     head = (f"{'noise':<15} {'detector':<38} {'detect %':>8} {'FA %':>6} {'release':>9} {'gradual':>9} "
             f"{'lat rel ms':>10} {'lat grad ms':>11} {'yp in .8+-.1':>12} {'yp med':>7} {'lead ms':>8}")
@@ -139,7 +163,7 @@ def main(argv=None):
     print(f"\n{n0['n_seq']} sequences, {n0['n_slip']} slips ({n0['n_release']} release, {n0['n_gradual']} gradual)")
     print(f"\nkernel tick, 6 ridges, measured in C++ (ns, best of 5 x 200000 ticks); CPU: {cpu_model()}")
     for dt in (np.float32, np.float64):
-        for name, det in (("load-memory net", memory), ("paper Jordan net", paper)):
+        for name, det in nets:
             k = SlipDetector(det.weights, dtype=dt).kernel(6)
             print(f"  {np.dtype(dt).name:<8} {name:<18} {k.time_step_ns(200000, 5):8.1f} ns  ({k.simd_path})")
 

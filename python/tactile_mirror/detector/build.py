@@ -538,10 +538,13 @@ def main(argv=None):
     ap.add_argument("--extra-train", type=int, default=0,
                     help=f"extra training scenes from the held-out ranges (seed {EXTRA_TRAIN_SEED})")
     ap.add_argument("--checkpoint-every", type=int, default=25)
+    ap.add_argument("--noise-range", type=float, nargs=2, default=list(NOISE_RANGE), metavar=("LOW", "HIGH"),
+                    help="range of the training noise copies' sensor noise, V rms")
     args = ap.parse_args(argv)
     options = BuildOptions(n_train=args.n_train, n_test=args.n_test, n_hidden=args.hidden, maxiter=args.maxiter,
                            study_sizes=args.study or None, kind=args.kind, candidates=args.candidates,
                            n_extra_train=args.extra_train, checkpoint_every=args.checkpoint_every,
+                           noise_range=tuple(args.noise_range),
                            train_options={"negative_weight": args.negative_weight, "pred_weight": args.pred_weight,
                                           "normalisation": args.normalisation})
     extra = {} if args.cache is None else {"cache_dir": args.cache}
