@@ -98,7 +98,7 @@ def main(argv=None):
     from detector_roc import bound_scores, with_noise
     from tactile_mirror.detector import SlipDetector, build
     from tactile_mirror.detector.data_prep import features_from_result
-    from tactile_mirror.detector.evaluate import onset_kinds
+    from tactile_mirror.detector.evaluate import onset_kinds, roc
     from tactile_mirror.measure import cpu_model
 
     header("filter-bank and load-memory nets vs the paper's Jordan net on the build's held-out scenes")
@@ -118,7 +118,7 @@ def main(argv=None):
         train = build.simulate_cached(64, build.TRAIN_SEED, build.TRAIN_KWARGS, cache)
         if args.bound_extra:
             train = train + build.simulate_cached(args.bound_extra, 99, build.TEST_KWARGS, cache)
-    rows = []
+    rows, curves = [], []
     for ci, cond in enumerate(CONDITIONS):
         white = 0.0 if cond == "noise-free" else 1e-3
         noisy = clean(test)  # the scenes' own noise removed: the circuit outputs of their stresses
@@ -131,6 +131,7 @@ def main(argv=None):
                                     fs=r.fs)
                 outs.append((ys, yp))
             rows.append(table_rows(name, outs, test, kinds, cond))
+            curves.append((cond, name, roc([o[0] for o in outs], test, kinds)))
         if args.bound:
             from detector_roc import CONDITIONS as RC
 
@@ -145,8 +146,11 @@ def main(argv=None):
                 a = debounce(p >= 0.8).astype(float)
                 outs.append((a[None], np.zeros_like(a)[None]))
             rows.append(table_rows("bound classifier (p>=0.8, 3 in a row)", outs, test, kinds, cond))
+            curves.append((cond, "bound classifier (3 in a row)", roc(probs, test, kinds, consecutive=3)))
             outs = []
-            for p in bank_tree_scores(noisy_train, noisy):
+            tree_probs = bank_tree_scores(noisy_train, noisy)
+            curves.append((cond, "trees on the bank inputs (3 in a row)", roc(tree_probs, test, kinds, consecutive=3)))
+            for p in tree_probs:
                 a = debounce(p >= 0.8).astype(float)
                 outs.append((a[None], np.zeros_like(a)[None]))
             rows.append(table_rows("trees on the bank inputs (same rule)", outs, test, kinds, cond))
@@ -159,6 +163,15 @@ def main(argv=None):
               f"{100 * r['det_release']:>9.1f} {100 * r['det_gradual']:>9.1f} {r['lat_release_ms']:>10.1f} "
               f"{r['lat_gradual_ms']:>11.1f} {100 * r['pred_in_band']:>12.1f} {r['pred_at_onset_median']:>7.2f} "
               f"{r['lead_ms']:>8.1f}")
+    print("\ndetection at a false-alarm rate (threshold swept; all / release / gradual)")
+    print(f"{'noise':<15} {'detector':<38} {'at 1 % FA':>20} {'at 2 % FA':>20} {'at 3 % FA':>20}")
+    for cond, name, c in curves:
+        cells = []
+        for fa in (0.01, 0.02, 0.03):
+            q = c.at_false_alarm(fa)
+            cells.append(f"{100 * q['detection_rate']:.1f}/{100 * q['detection_release']:.1f}/"
+                         f"{100 * q['detection_gradual']:.1f}")
+        print(f"{cond:<15} {name:<38} {cells[0]:>20} {cells[1]:>20} {cells[2]:>20}")
     n0 = rows[0]
     print(f"\n{n0['n_seq']} sequences, {n0['n_slip']} slips ({n0['n_release']} release, {n0['n_gradual']} gradual)")
     print(f"\nkernel tick, 6 ridges, measured in C++ (ns, best of 5 x 200000 ticks); CPU: {cpu_model()}")

@@ -283,3 +283,16 @@ def test_pipeline_refuses_bank_weights_by_name():
 def test_paper_net_is_unchanged_by_the_bank_kind():
     det = SlipDetector.paper()
     assert det.kind == "jordan" and det.weights.bank is None and det.n_channels == 4
+
+
+def test_bundled_bank_net_loads_and_runs_like_numpy():
+    det = SlipDetector.bank()
+    assert det.kind == "jordan_bank" and det.n_channels == 4 and det.features == "stress_rate"
+    assert det.weights.metadata["training"]["negative_weight"] == 30.0
+    x = _signals(n=400)
+    ys, _, yp = det.run(x)
+    rs, _, rp = reference_run(det.weights, x)
+    np.testing.assert_allclose(ys, rs, atol=1e-11)
+    np.testing.assert_allclose(yp, rp, atol=1e-11)
+    # default() stays the paper's net (the pipeline and the C ABI run kind "jordan" only)
+    assert SlipDetector.default().kind == "jordan"
