@@ -13,7 +13,10 @@ the held-out seed the nets are reported on:
 * ``rates+load``: plus the load-memory net's leaky load integrals;
 * ``lags (bound)``: the bound study's 45 lag and integral inputs;
 * ``bank``: the rates plus the filter bank of ``detector.bank`` (:data:`DEFAULT_BANK`);
-* ``bank, no peak`` and ``bank, no |d|``: the bank without one of its parts.
+* ``bank, no peak`` and ``bank, no |d|``: the bank without one of its parts;
+* ``lean bank``: :data:`LEAN_BANK`, three low-passes and no ``|d|`` (13 inputs, a cheaper kernel).
+
+``--only NAME ...`` runs some of the sets.
 
 Training scenes: the build's training set plus its extra scenes from the held-out ranges
 (``--extra``, seed ``build.EXTRA_TRAIN_SEED``). Noise-free signals (their circuit outputs
@@ -32,6 +35,9 @@ os.environ.setdefault("OMP_NUM_THREADS", "1")
 os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
 
 import numpy as np
+
+#: A smaller bank: three low-passes, no |d| channels (13 inputs with the four rates).
+LEAN_BANK = {"lp_taus": [0.008, 0.032, 0.128], "abs_taus": [], "load_tau": 0.5, "peak_tau": 2.0}
 
 
 def feature_sets(x, fs):
@@ -53,6 +59,7 @@ def feature_sets(x, fs):
         "bank": bank.T,
         "bank, no peak": np.delete(bank, peak, axis=0).T,
         "bank, no |d|": bank[keep_no_abs].T,
+        "lean bank": bank_features(x[None], fs, LEAN_BANK)[0].T,
     }
 
 
@@ -62,6 +69,7 @@ def main(argv=None):
     ap.add_argument("--extra", type=int, default=96)
     ap.add_argument("--n-validation", type=int, default=120)
     ap.add_argument("--noise", action="store_true", help="also with 1 mV rms white noise")
+    ap.add_argument("--only", nargs="*", help="input sets to run (default: all)")
     args = ap.parse_args(argv)
     sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
     from detector_heldout import clean
@@ -94,6 +102,8 @@ def main(argv=None):
         Y = np.concatenate([targets_from_result(r)[0][0][::2] for r in tr])
         w = np.where(Y > 0.5, 0.5 / max(Y.sum(), 1.0), 5.0 / max(Y.size - Y.sum(), 1.0)) * Y.size
         for name in ftr[0]:
+            if args.only and name not in args.only:
+                continue
             X = np.vstack([f[name][::2] for f in ftr])
             clf = HistGradientBoostingClassifier(max_iter=300, random_state=0).fit(X, Y, sample_weight=w)
             probs = [clf.predict_proba(f[name])[:, 1][None] for f in fva]

@@ -302,6 +302,9 @@ class BuildOptions:
     n_extra_train : int
         Extra training scenes drawn from the held-out ranges (``test_kwargs``) with seed
         :data:`EXTRA_TRAIN_SEED`: lower friction and stops, where slips creep in. Default 0.
+    bank : dict, optional
+        Time constants of the ``"jordan_bank"`` filter bank (:func:`~tactile_mirror.detector.bank.bank_config`);
+        default :data:`~tactile_mirror.detector.bank.DEFAULT_BANK`.
     """
 
     n_train: int = 64
@@ -324,6 +327,7 @@ class BuildOptions:
     kind: str = "jordan"
     load_tau: float = DEFAULT_LOAD_TAU
     n_extra_train: int = 0
+    bank: dict | None = None
 
     def __post_init__(self) -> None:
         def put(name, value):
@@ -335,6 +339,10 @@ class BuildOptions:
                 or not (np.isfinite(self.load_tau) and self.load_tau > 0):
             raise ValueError(f"load_tau must be a positive number of seconds, got {self.load_tau!r}")
         put("load_tau", float(self.load_tau))
+        if self.bank is not None:
+            from .bank import bank_config
+
+            put("bank", bank_config(self.bank))
         for name in ("n_train", "n_test", "n_hidden", "maxiter", "ridges_per_scene", "candidates"):
             put(name, _positive_int(name, getattr(self, name)))
         for name in ("noise_copies", "checkpoint_every", "n_extra_train"):
@@ -452,7 +460,8 @@ def _build(out_path, options: BuildOptions, report_path, figure_path, results, c
     memory = o.kind == "jordan_memory"
     features = {"jordan": "stress_rate", "jordan_memory": "stress_rate_memory",
                 "jordan_bank": "stress_rate_bank"}[o.kind]
-    ts = subset(make_training_set(seqs, features, load_tau=o.load_tau if memory else None),
+    ts = subset(make_training_set(seqs, features, load_tau=o.load_tau if memory else None,
+                                  bank=o.bank if o.kind == "jordan_bank" else None),
                 ridges_per_scene, n_ridges)
     if gain_range is not None:
         ts = augment_gains(ts, gain_range, seed=1)
@@ -538,11 +547,24 @@ def main(argv=None):
     ap.add_argument("--extra-train", type=int, default=0,
                     help=f"extra training scenes from the held-out ranges (seed {EXTRA_TRAIN_SEED})")
     ap.add_argument("--checkpoint-every", type=int, default=25)
+    ap.add_argument("--lp-taus", type=float, nargs="+", default=None,
+                    help="low-pass time constants of the jordan_bank filter bank, s (default: the default bank's)")
+    ap.add_argument("--abs-taus", type=float, nargs="*", default=None,
+                    help="time constants of its shear-rate energy low-passes, s (none: no such channels)")
     ap.add_argument("--noise-range", type=float, nargs=2, default=list(NOISE_RANGE), metavar=("LOW", "HIGH"),
                     help="range of the training noise copies' sensor noise, V rms")
     args = ap.parse_args(argv)
+    bank = None
+    if args.lp_taus is not None or args.abs_taus is not None:
+        from .bank import DEFAULT_BANK
+
+        bank = dict(DEFAULT_BANK)
+        if args.lp_taus is not None:
+            bank["lp_taus"] = list(args.lp_taus)
+        if args.abs_taus is not None:
+            bank["abs_taus"] = list(args.abs_taus)
     options = BuildOptions(n_train=args.n_train, n_test=args.n_test, n_hidden=args.hidden, maxiter=args.maxiter,
-                           study_sizes=args.study or None, kind=args.kind, candidates=args.candidates,
+                           bank=bank, study_sizes=args.study or None, kind=args.kind, candidates=args.candidates,
                            n_extra_train=args.extra_train, checkpoint_every=args.checkpoint_every,
                            noise_range=tuple(args.noise_range),
                            train_options={"negative_weight": args.negative_weight, "pred_weight": args.pred_weight,
