@@ -24,13 +24,17 @@ os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
 
 import numpy as np
 
-#: name -> (n_hidden, negative_weight, noise range V rms, candidates)
+#: A smaller bank (bench/detector_bank_study.py's): three low-passes, no |d| channels, 13 inputs.
+LEAN_BANK = {"lp_taus": [0.008, 0.032, 0.128], "abs_taus": [], "load_tau": 0.5, "peak_tau": 2.0}
+
+#: name -> (n_hidden, negative_weight, noise range V rms, candidates[, bank])
 VARIANTS = {
     "H16 nw10 noise0-5mV": (16, 10.0, (0.0, 5e-3), 1),
     "H16 nw30 noise0-5mV": (16, 30.0, (0.0, 5e-3), 1),
     "H16 nw100 noise0-5mV": (16, 100.0, (0.0, 5e-3), 1),
     "H16 nw30 noise0-2mV": (16, 30.0, (0.0, 2e-3), 1),
     "H8 nw30 noise0-5mV": (8, 30.0, (0.0, 5e-3), 1),
+    "lean H16 nw30 noise0-5mV": (16, 30.0, (0.0, 5e-3), 1, LEAN_BANK),
 }
 
 
@@ -62,12 +66,13 @@ def main(argv=None):
     print(f"# CPU: {cpu_model()}; {len(train)} training scenes; validation seed {build.VALIDATION_SEED}: "
           f"{kinds.count('release')} release, {kinds.count('gradual')} gradual", flush=True)
     rows = []
-    for name, (h, nw, noise, cand) in VARIANTS.items():
+    for name, (h, nw, noise, cand, *bank) in VARIANTS.items():
         if args.only and name not in args.only:
             continue
         t1 = time.perf_counter()
         seqs = augment_noise(train, build.NOISE_COPIES, noise, seed=2)
-        ts = augment_gains(make_training_set(seqs, "stress_rate_bank"), (0.6, 1.7), seed=1)
+        ts = augment_gains(make_training_set(seqs, "stress_rate_bank", bank=bank[0] if bank else None),
+                           (0.6, 1.7), seed=1)
         opts = {**build.TRAIN_OPTIONS, "negative_weight": nw}
         w, k, scores = build.train_selected(ts, h, args.maxiter, 0, cand, 25, scorer, True, False,
                                             {"kind": "jordan_bank"}, **opts)

@@ -5,13 +5,15 @@ boosted trees on the filter bank's inputs, both trained on the build's training 
 plus the bound study's extra scenes) are scored on the same
 held-out scenes (``build.TEST_SEED``, ``build.TEST_KWARGS`` ranges, disjoint from the
 training and validation seeds) with the definitions of ``detector.evaluate``: per
-noise condition (noise-free, 1 mV rms white noise on ``v_out``/``u_out``) the
+noise condition (noise-free, 1 mV rms white noise on ``v_out``/``u_out``, and with ``--hum``
+the circuit's thermal floor plus 2 mV of 50 Hz hum, the estimator notching it) the
 detection and false-alarm rates at ``y_slip >= 0.8``, split by onset kind, the mean
 latency per onset kind, the share of slips whose ``y_pred`` at the onset lies in
-0.8 +- 0.1, and the ``y_pred`` lead. Then the kernels' tick time for 6 ridges
+0.8 +- 0.1, and the ``y_pred`` lead; then the detection at 1, 2 and 3 % false alarms with
+the threshold swept (``detector.evaluate.roc``). Then the kernels' tick time for 6 ridges
 (measured inside C++, float32 and float64, all nets in the same run).
 
-Run: ``python bench/detector_heldout.py [--cache out/scenes] [--bound]``.
+Run: ``python bench/detector_heldout.py [--cache out/scenes] [--bound] [--bound-extra 96] [--hum]``.
 """
 from __future__ import annotations
 
@@ -26,6 +28,9 @@ os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
 import numpy as np
 
 CONDITIONS = ("noise-free", "1 mV rms white")
+#: The third condition of ``--hum`` (``detector_roc.CONDITIONS``: the circuit's thermal floor, 2 mV of
+#: 50 Hz hum with harmonics, the estimator's notch at 50, 100, 150 Hz).
+HUM = "thermal + 2 mV 50 Hz hum, notch"
 
 
 def table_rows(name, scores_pred, results, kinds, cond):
@@ -58,13 +63,15 @@ def table_rows(name, scores_pred, results, kinds, cond):
     return out
 
 
-def bank_tree_scores(train, test) -> list:
+def bank_tree_scores(train, test, notch=None) -> list:
     """Probabilities of the bound study's boosted trees on the filter bank's inputs (ridge 0)."""
     from sklearn.ensemble import HistGradientBoostingClassifier
-    from tactile_mirror.detector.data_prep import features_from_result, targets_from_result
+    from tactile_mirror.detector.data_prep import DEFAULT_ESTIMATOR, features_from_result, targets_from_result
+
+    est = dict(DEFAULT_ESTIMATOR, **({} if notch is None else {"notch": notch}))
 
     def feats(r):
-        return features_from_result(r, "stress_rate_bank")[0].T
+        return features_from_result(r, "stress_rate_bank", estimator=est)[0].T
 
     X = np.vstack([feats(r)[::2] for r in train])
     Y = np.concatenate([targets_from_result(r)[0][0][::2] for r in train])
@@ -92,10 +99,11 @@ def main(argv=None):
     ap.add_argument("--bank-weights", default=None, help="filter-bank weights (default: bundled)")
     ap.add_argument("--bound", action="store_true", help="also the bound study's classifier (scikit-learn)")
     ap.add_argument("--bound-extra", type=int, default=0, help="extra bound training scenes (seed 99)")
+    ap.add_argument("--hum", action="store_true", help="also the thermal floor + 2 mV 50 Hz hum condition, notched")
     args = ap.parse_args(argv)
     sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
     from _common import header
-    from detector_roc import bound_scores, with_noise
+    from detector_roc import bound_scores, estimator_of, with_noise
     from tactile_mirror.detector import SlipDetector, build
     from tactile_mirror.detector.data_prep import features_from_result
     from tactile_mirror.detector.evaluate import onset_kinds, roc
@@ -119,15 +127,15 @@ def main(argv=None):
         if args.bound_extra:
             train = train + build.simulate_cached(args.bound_extra, 99, build.TEST_KWARGS, cache)
     rows, curves = [], []
-    for ci, cond in enumerate(CONDITIONS):
-        white = 0.0 if cond == "noise-free" else 1e-3
+    conditions = CONDITIONS + ((HUM,) if args.hum else ())
+    for ci, cond in enumerate(conditions):
         noisy = clean(test)  # the scenes' own noise removed: the circuit outputs of their stresses
-        if white:
-            noisy = with_noise(noisy, "1 mV rms white", seed=1000 + ci)
+        if cond != "noise-free":
+            noisy = with_noise(noisy, cond, seed=1000 + ci)
         for name, det in nets:
             outs = []
             for r in noisy:
-                ys, _, yp = det.run(features_from_result(r, det.features, estimator=det.metadata.get("estimator")),
+                ys, _, yp = det.run(features_from_result(r, det.features, estimator=estimator_of(det, cond)),
                                     fs=r.fs)
                 outs.append((ys, yp))
             rows.append(table_rows(name, outs, test, kinds, cond))
@@ -135,9 +143,11 @@ def main(argv=None):
         if args.bound:
             from detector_roc import CONDITIONS as RC
 
-            cond_key = "noise-free" if not white else "1 mV rms white"
+            cond_key = cond
             assert cond_key in RC
-            noisy_train = with_noise(clean(train), cond_key, seed=2000 + ci)
+            noisy_train = clean(train)
+            if cond != "noise-free":
+                noisy_train = with_noise(noisy_train, cond_key, seed=2000 + ci)
             probs = bound_scores(noisy_train, noisy, cond_key)
             from detector_bound import debounce
 
@@ -148,7 +158,7 @@ def main(argv=None):
             rows.append(table_rows("bound classifier (p>=0.8, 3 in a row)", outs, test, kinds, cond))
             curves.append((cond, "bound classifier (3 in a row)", roc(probs, test, kinds, consecutive=3)))
             outs = []
-            tree_probs = bank_tree_scores(noisy_train, noisy)
+            tree_probs = bank_tree_scores(noisy_train, noisy, RC[cond][2])
             curves.append((cond, "trees on the bank inputs (3 in a row)", roc(tree_probs, test, kinds, consecutive=3)))
             for p in tree_probs:
                 a = debounce(p >= 0.8).astype(float)
