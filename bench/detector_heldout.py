@@ -99,6 +99,9 @@ def main(argv=None):
     ap.add_argument("--bank-weights", default=None, help="filter-bank weights (default: bundled)")
     ap.add_argument("--bound", action="store_true", help="also the bound study's classifier (scikit-learn)")
     ap.add_argument("--bound-extra", type=int, default=0, help="extra bound training scenes (seed 99)")
+    ap.add_argument("--val-threshold", type=float, default=None, metavar="FA",
+                    help="also the filter-bank net at the lowest threshold of y_slip whose false-alarm rate on the "
+                         "build's validation scenes (their own noise) is at most FA (e.g. 0.01)")
     ap.add_argument("--hum", action="store_true", help="also the thermal floor + 2 mV 50 Hz hum condition, notched")
     args = ap.parse_args(argv)
     sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
@@ -127,6 +130,16 @@ def main(argv=None):
         if args.bound_extra:
             train = train + build.simulate_cached(args.bound_extra, 99, build.TEST_KWARGS, cache)
     rows, curves = [], []
+    thr = None
+    if args.val_threshold is not None:
+        val = build.simulate_cached(120, build.VALIDATION_SEED, build.TEST_KWARGS, cache)
+        vk = onset_kinds(val)
+        vs = [bank.run(features_from_result(r, bank.features, estimator=bank.metadata.get("estimator")), fs=r.fs)[0]
+              for r in val]
+        pt = roc(vs, val, vk).at_false_alarm(args.val_threshold)
+        thr = pt["threshold"]
+        print(f"validation (seed {build.VALIDATION_SEED}): y_slip >= {thr:.4f} gives {100 * pt['detection_rate']:.1f} % "
+              f"detection at {100 * pt['false_alarm_rate']:.1f} % false alarms", flush=True)
     conditions = CONDITIONS + ((HUM,) if args.hum else ())
     for ci, cond in enumerate(conditions):
         noisy = clean(test)  # the scenes' own noise removed: the circuit outputs of their stresses
@@ -140,6 +153,10 @@ def main(argv=None):
                 outs.append((ys, yp))
             rows.append(table_rows(name, outs, test, kinds, cond))
             curves.append((cond, name, roc([o[0] for o in outs], test, kinds)))
+            if thr is not None and det is bank:
+                # the alarm at the validation-chosen threshold, as a 0/1 statistic for the same analysis
+                rows.append(table_rows(f"filter-bank net, y_slip >= {thr:.3f}",
+                                       [((ys >= thr).astype(float), yp) for ys, yp in outs], test, kinds, cond))
         if args.bound:
             from detector_roc import CONDITIONS as RC
 
