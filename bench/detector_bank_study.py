@@ -90,7 +90,7 @@ def main(argv=None):
     print(f"# CPU: {cpu_model()}; {len(train)} training scenes, {len(val)} validation scenes "
           f"(seed {build.VALIDATION_SEED}): {kinds.count('release')} release, {kinds.count('gradual')} gradual")
     conds = [("noise-free", 0.0)] + ([("1 mV rms white", 1e-3)] if args.noise else [])
-    print(f"\n| condition | inputs | n | detection at 2 % FA (all / release / gradual) | at 3 % | at 5 % |")
+    print("\n| condition | inputs | n | detection at 2 % FA (all / release / gradual) | at 3 % | at 5 % |")
     print("|---|---|---|---|---|---|")
     for ci, (cond, white) in enumerate(conds):
         tr, va = clean(train), clean(val)

@@ -22,7 +22,6 @@ import time
 os.environ.setdefault("OMP_NUM_THREADS", "1")
 os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
 
-import numpy as np
 
 #: A smaller bank (bench/detector_bank_study.py's): three low-passes, no |d| channels, 13 inputs.
 LEAN_BANK = {"lp_taus": [0.008, 0.032, 0.128], "abs_taus": [], "load_tau": 0.5, "peak_tau": 2.0}
@@ -74,7 +73,7 @@ def main(argv=None):
         ts = augment_gains(make_training_set(seqs, "stress_rate_bank", bank=bank[0] if bank else None),
                            (0.6, 1.7), seed=1)
         opts = {**build.TRAIN_OPTIONS, "negative_weight": nw}
-        w, k, scores = build.train_selected(ts, h, args.maxiter, 0, cand, 25, scorer, True, False,
+        w, _k, _scores = build.train_selected(ts, h, args.maxiter, 0, cand, 25, scorer, True, False,
                                             {"kind": "jordan_bank"}, **opts)
         det = SlipDetector(w)
         if args.out:

@@ -17,7 +17,7 @@ from tactile_mirror.detector.bank import (
     bank_units,
 )
 from tactile_mirror.detector.core import reference_run
-from tactile_mirror.detector.network import Params, init_params, loss_and_grad
+from tactile_mirror.detector.network import init_params, loss_and_grad
 from tactile_mirror.detector.weights import DetectorWeights, WeightsError
 
 FS = 1000.0
@@ -99,7 +99,7 @@ def test_cpp_bank_kernel_matches_numpy(dtype, tol, bank):
     w = _bank_weights(bank=bank)
     x = _signals(seed=5)
     ys, yn, yp = SlipDetector(w, dtype=dtype).run(x)
-    rs, rn, rp = reference_run(w, x)
+    rs, _, rp = reference_run(w, x)
     assert np.ptp(rs) > 0.05  # the outputs move: a real comparison
     np.testing.assert_allclose(ys, rs, atol=tol)
     np.testing.assert_allclose(yp, rp, atol=tol)

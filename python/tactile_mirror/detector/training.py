@@ -7,10 +7,10 @@ import time
 import numpy as np
 import scipy.optimize
 
+from .bank import bank_config
 from .data_prep import DEFAULT_ESTIMATOR, features_from_result, targets_from_result
 from .memory import DEFAULT_LOAD_TAU
 from .network import Params, init_params, loss_and_grad
-from .bank import bank_config
 from .weights import FEATURE_KINDS, DetectorWeights, feature_channels, feature_units
 
 __all__ = ["TrainingSet", "augment_noise", "fit_normalisation", "make_training_set", "train_detector"]
