@@ -34,6 +34,8 @@ VARIANTS = {
     "H16 nw30 noise0-2mV": (16, 30.0, (0.0, 2e-3), 1),
     "H8 nw30 noise0-5mV": (8, 30.0, (0.0, 5e-3), 1),
     "lean H16 nw30 noise0-5mV": (16, 30.0, (0.0, 5e-3), 1, LEAN_BANK),
+    "H16 nw20 noise0-5mV": (16, 20.0, (0.0, 5e-3), 1),
+    "H16 nw30 noise0-5mV 4 seeds": (16, 30.0, (0.0, 5e-3), 4),
 }
 
 
