@@ -1,16 +1,19 @@
-"""The load-memory net against the paper's Jordan net on the build's held-out scenes.
+"""The filter-bank and load-memory nets against the paper's Jordan net on the build's held-out scenes.
 
-Both nets (and, with ``--bound``, the bound study's causal classifier, trained on the
-build's training scenes plus the bound study's extra scenes) are scored on the same
+The three nets (and, with ``--bound``, the bound study's causal classifier and the same
+boosted trees on the filter bank's inputs, both trained on the build's training scenes
+plus the bound study's extra scenes) are scored on the same
 held-out scenes (``build.TEST_SEED``, ``build.TEST_KWARGS`` ranges, disjoint from the
 training and validation seeds) with the definitions of ``detector.evaluate``: per
-noise condition (noise-free, 1 mV rms white noise on ``v_out``/``u_out``) the
+noise condition (noise-free, 1 mV rms white noise on ``v_out``/``u_out``, and with ``--hum``
+the circuit's thermal floor plus 2 mV of 50 Hz hum, the estimator notching it) the
 detection and false-alarm rates at ``y_slip >= 0.8``, split by onset kind, the mean
 latency per onset kind, the share of slips whose ``y_pred`` at the onset lies in
-0.8 +- 0.1, and the ``y_pred`` lead. Then the kernels' tick time for 6 ridges
-(measured inside C++, float32 and float64, both nets in the same run).
+0.8 +- 0.1, and the ``y_pred`` lead; then the detection at 1, 2 and 3 % false alarms with
+the threshold swept (``detector.evaluate.roc``). Then the kernels' tick time for 6 ridges
+(measured inside C++, float32 and float64, all nets in the same run).
 
-Run: ``python bench/detector_heldout.py [--cache out/scenes] [--bound]``.
+Run: ``python bench/detector_heldout.py [--cache out/scenes] [--bound] [--bound-extra 96] [--hum]``.
 """
 from __future__ import annotations
 
@@ -25,6 +28,9 @@ os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
 import numpy as np
 
 CONDITIONS = ("noise-free", "1 mV rms white")
+#: The third condition of ``--hum`` (``detector_roc.CONDITIONS``: the circuit's thermal floor, 2 mV of
+#: 50 Hz hum with harmonics, the estimator's notch at 50, 100, 150 Hz).
+HUM = "thermal + 2 mV 50 Hz hum, notch"
 
 
 def table_rows(name, scores_pred, results, kinds, cond):
@@ -57,6 +63,23 @@ def table_rows(name, scores_pred, results, kinds, cond):
     return out
 
 
+def bank_tree_scores(train, test, notch=None) -> list:
+    """Probabilities of the bound study's boosted trees on the filter bank's inputs (ridge 0)."""
+    from sklearn.ensemble import HistGradientBoostingClassifier
+    from tactile_mirror.detector.data_prep import DEFAULT_ESTIMATOR, features_from_result, targets_from_result
+
+    est = dict(DEFAULT_ESTIMATOR, **({} if notch is None else {"notch": notch}))
+
+    def feats(r):
+        return features_from_result(r, "stress_rate_bank", estimator=est)[0].T
+
+    X = np.vstack([feats(r)[::2] for r in train])
+    Y = np.concatenate([targets_from_result(r)[0][0][::2] for r in train])
+    w = np.where(Y > 0.5, 0.5 / max(Y.sum(), 1.0), 5.0 / max(Y.size - Y.sum(), 1.0)) * Y.size
+    clf = HistGradientBoostingClassifier(max_iter=300, random_state=0).fit(X, Y, sample_weight=w)
+    return [clf.predict_proba(feats(r))[:, 1] for r in test]
+
+
 def clean(results):
     """Copies of ``results`` with noise-free circuit outputs (their strip stresses through their circuit)."""
     import dataclasses
@@ -73,18 +96,23 @@ def main(argv=None):
     ap.add_argument("--cache", default="out/scenes", help="directory of cached simulated scenes ('' for none)")
     ap.add_argument("--n-test", type=int, default=200)
     ap.add_argument("--memory-weights", default=None, help="load-memory weights (default: bundled)")
+    ap.add_argument("--bank-weights", default=None, help="filter-bank weights (default: bundled)")
     ap.add_argument("--bound", action="store_true", help="also the bound study's classifier (scikit-learn)")
     ap.add_argument("--bound-extra", type=int, default=0, help="extra bound training scenes (seed 99)")
+    ap.add_argument("--val-threshold", type=float, default=None, metavar="FA",
+                    help="also the filter-bank net at the lowest threshold of y_slip whose false-alarm rate on the "
+                         "build's validation scenes (their own noise) is at most FA (e.g. 0.01)")
+    ap.add_argument("--hum", action="store_true", help="also the thermal floor + 2 mV 50 Hz hum condition, notched")
     args = ap.parse_args(argv)
     sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
     from _common import header
-    from detector_roc import bound_scores, with_noise
+    from detector_roc import bound_scores, estimator_of, with_noise
     from tactile_mirror.detector import SlipDetector, build
     from tactile_mirror.detector.data_prep import features_from_result
-    from tactile_mirror.detector.evaluate import onset_kinds
+    from tactile_mirror.detector.evaluate import onset_kinds, roc
     from tactile_mirror.measure import cpu_model
 
-    header("load-memory net vs the paper's Jordan net on the build's held-out scenes")
+    header("filter-bank and load-memory nets vs the paper's Jordan net on the build's held-out scenes")
     cache = args.cache or None
     t0 = time.perf_counter()
     test = build.simulate_cached(args.n_test, build.TEST_SEED, build.TEST_KWARGS, cache)
@@ -94,30 +122,49 @@ def main(argv=None):
           f"({time.perf_counter() - t0:.0f} s)", flush=True)
     memory = SlipDetector.load(args.memory_weights) if args.memory_weights else SlipDetector.memory()
     paper = SlipDetector.paper()
+    bank = SlipDetector.load(args.bank_weights) if args.bank_weights else SlipDetector.bank()
+    nets = (("filter-bank net", bank), ("load-memory net", memory), ("paper Jordan net", paper))
     train = []
     if args.bound:
         train = build.simulate_cached(64, build.TRAIN_SEED, build.TRAIN_KWARGS, cache)
         if args.bound_extra:
             train = train + build.simulate_cached(args.bound_extra, 99, build.TEST_KWARGS, cache)
-    rows = []
-    for ci, cond in enumerate(CONDITIONS):
-        white = 0.0 if cond == "noise-free" else 1e-3
+    rows, curves = [], []
+    thr = None
+    if args.val_threshold is not None:
+        val = build.simulate_cached(120, build.VALIDATION_SEED, build.TEST_KWARGS, cache)
+        vk = onset_kinds(val)
+        vs = [bank.run(features_from_result(r, bank.features, estimator=bank.metadata.get("estimator")), fs=r.fs)[0]
+              for r in val]
+        pt = roc(vs, val, vk).at_false_alarm(args.val_threshold)
+        thr = pt["threshold"]
+        print(f"validation (seed {build.VALIDATION_SEED}): y_slip >= {thr:.4f} gives {100 * pt['detection_rate']:.1f} % "
+              f"detection at {100 * pt['false_alarm_rate']:.1f} % false alarms", flush=True)
+    conditions = CONDITIONS + ((HUM,) if args.hum else ())
+    for ci, cond in enumerate(conditions):
         noisy = clean(test)  # the scenes' own noise removed: the circuit outputs of their stresses
-        if white:
-            noisy = with_noise(noisy, "1 mV rms white", seed=1000 + ci)
-        for name, det in (("load-memory net", memory), ("paper Jordan net", paper)):
+        if cond != "noise-free":
+            noisy = with_noise(noisy, cond, seed=1000 + ci)
+        for name, det in nets:
             outs = []
             for r in noisy:
-                ys, _, yp = det.run(features_from_result(r, det.features, estimator=det.metadata.get("estimator")),
+                ys, _, yp = det.run(features_from_result(r, det.features, estimator=estimator_of(det, cond)),
                                     fs=r.fs)
                 outs.append((ys, yp))
             rows.append(table_rows(name, outs, test, kinds, cond))
+            curves.append((cond, name, roc([o[0] for o in outs], test, kinds)))
+            if thr is not None and det is bank:
+                # the alarm at the validation-chosen threshold, as a 0/1 statistic for the same analysis
+                rows.append(table_rows(f"filter-bank net, y_slip >= {thr:.3f}",
+                                       [((ys >= thr).astype(float), yp) for ys, yp in outs], test, kinds, cond))
         if args.bound:
             from detector_roc import CONDITIONS as RC
 
-            cond_key = "noise-free" if not white else "1 mV rms white"
+            cond_key = cond
             assert cond_key in RC
-            noisy_train = with_noise(clean(train), cond_key, seed=2000 + ci)
+            noisy_train = clean(train)
+            if cond != "noise-free":
+                noisy_train = with_noise(noisy_train, cond_key, seed=2000 + ci)
             probs = bound_scores(noisy_train, noisy, cond_key)
             from detector_bound import debounce
 
@@ -126,6 +173,14 @@ def main(argv=None):
                 a = debounce(p >= 0.8).astype(float)
                 outs.append((a[None], np.zeros_like(a)[None]))
             rows.append(table_rows("bound classifier (p>=0.8, 3 in a row)", outs, test, kinds, cond))
+            curves.append((cond, "bound classifier (3 in a row)", roc(probs, test, kinds, consecutive=3)))
+            outs = []
+            tree_probs = bank_tree_scores(noisy_train, noisy, RC[cond][2])
+            curves.append((cond, "trees on the bank inputs (3 in a row)", roc(tree_probs, test, kinds, consecutive=3)))
+            for p in tree_probs:
+                a = debounce(p >= 0.8).astype(float)
+                outs.append((a[None], np.zeros_like(a)[None]))
+            rows.append(table_rows("trees on the bank inputs (same rule)", outs, test, kinds, cond))
         print(f"{cond} done ({time.perf_counter() - t0:.0f} s)", flush=True)
     head = (f"{'noise':<15} {'detector':<38} {'detect %':>8} {'FA %':>6} {'release':>9} {'gradual':>9} "
             f"{'lat rel ms':>10} {'lat grad ms':>11} {'yp in .8+-.1':>12} {'yp med':>7} {'lead ms':>8}")
@@ -135,11 +190,20 @@ def main(argv=None):
               f"{100 * r['det_release']:>9.1f} {100 * r['det_gradual']:>9.1f} {r['lat_release_ms']:>10.1f} "
               f"{r['lat_gradual_ms']:>11.1f} {100 * r['pred_in_band']:>12.1f} {r['pred_at_onset_median']:>7.2f} "
               f"{r['lead_ms']:>8.1f}")
+    print("\ndetection at a false-alarm rate (threshold swept; all / release / gradual)")
+    print(f"{'noise':<15} {'detector':<38} {'at 1 % FA':>20} {'at 2 % FA':>20} {'at 3 % FA':>20}")
+    for cond, name, c in curves:
+        cells = []
+        for fa in (0.01, 0.02, 0.03):
+            q = c.at_false_alarm(fa)
+            cells.append(f"{100 * q['detection_rate']:.1f}/{100 * q['detection_release']:.1f}/"
+                         f"{100 * q['detection_gradual']:.1f}")
+        print(f"{cond:<15} {name:<38} {cells[0]:>20} {cells[1]:>20} {cells[2]:>20}")
     n0 = rows[0]
     print(f"\n{n0['n_seq']} sequences, {n0['n_slip']} slips ({n0['n_release']} release, {n0['n_gradual']} gradual)")
     print(f"\nkernel tick, 6 ridges, measured in C++ (ns, best of 5 x 200000 ticks); CPU: {cpu_model()}")
     for dt in (np.float32, np.float64):
-        for name, det in (("load-memory net", memory), ("paper Jordan net", paper)):
+        for name, det in nets:
             k = SlipDetector(det.weights, dtype=dt).kernel(6)
             print(f"  {np.dtype(dt).name:<8} {name:<18} {k.time_step_ns(200000, 5):8.1f} ns  ({k.simd_path})")
 

@@ -15,7 +15,9 @@ runs once; noise is added to ``v_out``/``u_out`` afterwards):
   harmonics, with the stress-rate estimator's 50 Hz notch switched on for every
   detector that reads the estimator.
 
-Detectors: the load-memory net (``SlipDetector.memory()``, or ``--memory-weights``:
+Detectors: the filter-bank net (``SlipDetector.bank()``, or ``--bank-weights``: the Jordan
+kernel on the stress rates plus a bank of IIR filters over them,
+:mod:`tactile_mirror.detector.bank`); the load-memory net (``SlipDetector.memory()``, or ``--memory-weights``:
 the Jordan kernel on the stress rates plus the ridge's load integrals and the pad's
 shear rate and load, :mod:`tactile_mirror.detector.memory`); the paper's Jordan net
 (``SlipDetector.paper()``); the no-feedback MLP,
@@ -234,6 +236,7 @@ def main(argv=None):
     ap.add_argument("--figure", default="docs/figures/detector_roc.png", help="figure to write")
     ap.add_argument("--out", default="out/detector_roc", help="table path without extension (.md and .json)")
     ap.add_argument("--memory-weights", default=None, help="load-memory net weights (default: the bundled ones)")
+    ap.add_argument("--bank-weights", default=None, help="filter-bank net weights (default: the bundled ones)")
     args = ap.parse_args(argv)
     test, train = simulated(args.scenes, args.train_scenes, args.cache or None)
     extra = bound_extra(args.bound_extra, args.cache or None)
@@ -254,6 +257,7 @@ def main(argv=None):
           f"training: {len(train)} scenes (+ {len(extra)} for the bound classifier)", flush=True)
     jordan = SlipDetector.paper()
     memory = SlipDetector.load(args.memory_weights) if args.memory_weights else SlipDetector.memory()
+    bank = SlipDetector.load(args.bank_weights) if args.bank_weights else SlipDetector.bank()
     mlp = train_mlp(train, progress=False)
     print(f"no-feedback MLP trained in {time.perf_counter() - t0:.0f} s", flush=True)
     force = ForceRatioDetector(1.0)
@@ -263,6 +267,7 @@ def main(argv=None):
         noisy_test = with_noise(test, cond, seed=1000 + ci)
         noisy_train = with_noise(train + extra, cond, seed=2000 + ci)
         curves[cond] = {
+            "filter-bank net, y_slip": roc(net_scores(bank, noisy_test, cond), test, kinds, name="filter-bank net"),
             "load-memory net, y_slip": roc(net_scores(memory, noisy_test, cond), test, kinds,
                                            name="load-memory net"),
             "paper Jordan net, y_slip": roc(net_scores(jordan, noisy_test, cond), test, kinds,
@@ -316,7 +321,7 @@ def main(argv=None):
 def figure(curves, n_scenes):
     import matplotlib.pyplot as plt
 
-    colors = ["C4", "C0", "C1", "C2", "C3"]
+    colors = ["C5", "C4", "C0", "C1", "C2", "C3"]
     fig, axes = plt.subplots(1, len(curves), figsize=(5.2 * len(curves), 4.6), sharey=True)
     for ax, (cond, cs) in zip(np.atleast_1d(axes), curves.items()):
         for col, (name, c) in zip(colors, cs.items()):
@@ -335,7 +340,7 @@ def figure(curves, n_scenes):
         ax.set_title(cond)
         ax.grid(alpha=0.3)
     axes[0].set_ylabel("slips detected within 50 ms, %")
-    fig.legend(handles, labels, loc="lower center", ncol=5, fontsize=8, frameon=False)
+    fig.legend(handles, labels, loc="lower center", ncol=6, fontsize=8, frameon=False)
     fig.suptitle(f"Threshold sweeps on {n_scenes} held-out scenes (solid: all slips, dashed: gradual onsets; "
                  f"dotted: 2 % and 3 % false alarms)")
     fig.tight_layout(rect=(0, 0.12, 1, 1))

@@ -101,3 +101,27 @@ def test_module_command_maps_onto_options(monkeypatch, tmp_path):
     build.main(["--out", str(tmp_path / "w.npz"), "--hidden", "8", "--pred-weight", "2", "--report", "r.txt"])
     assert seen["options"] == BuildOptions(n_hidden=8, train_options=dict(TRAIN_OPTIONS, pred_weight=2.0))
     assert seen["report"] == "r.txt" and seen["figure"] is None
+
+
+def test_module_command_maps_the_bank_options(monkeypatch, tmp_path):
+    seen = {}
+
+    def fake(out_path, options, report_path=None, figure_path=None):
+        seen.update(options=options)
+        return None, {"evaluation_table": ""}
+
+    monkeypatch.setattr(build, "build_default", fake)
+    build.main(["--out", str(tmp_path / "w.npz"), "--kind", "jordan_bank", "--lp-taus", "0.008", "0.032",
+                "--abs-taus", "--negative-weight", "30", "--noise-range", "0", "0.002"])
+    o = seen["options"]
+    assert o.kind == "jordan_bank" and o.noise_range == (0.0, 0.002)
+    assert o.bank == {"lp_taus": [0.008, 0.032], "abs_taus": [], "load_tau": 0.5, "peak_tau": 2.0}
+    assert o.train_options["negative_weight"] == 30.0
+    # without bank options the build uses the default bank (None here)
+    build.main(["--out", str(tmp_path / "w.npz"), "--kind", "jordan_bank"])
+    assert seen["options"].bank is None
+
+
+def test_bad_bank_is_named():
+    with pytest.raises(ValueError, match="lp_taus"):
+        BuildOptions(kind="jordan_bank", bank={"lp_taus": [], "abs_taus": [], "load_tau": 0.5, "peak_tau": 2.0})

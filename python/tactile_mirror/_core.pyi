@@ -196,6 +196,61 @@ class MemoryJordanf32(_MemoryJordan[np.float32]):
 class MemoryJordanf64(_MemoryJordan[np.float64]):
     """Load-memory slip detector of one pad (float64). Inputs must be float64 arrays."""
 
+@type_check_only
+class _BankJordan(Generic[_F]):
+    def __init__(
+        self,
+        w1: npt.ArrayLike,
+        b1: npt.ArrayLike,
+        w2: npt.ArrayLike,
+        b2: npt.ArrayLike,
+        input_mean: npt.ArrayLike,
+        input_gain: npt.ArrayLike,
+        n_ridges: SupportsIndex,
+        fs: float,
+        lp_taus: npt.ArrayLike,
+        abs_taus: npt.ArrayLike,
+        load_tau: float,
+        peak_tau: float,
+        activation: _Activation = "exact",
+    ) -> None:
+        """Weights of the Jordan net on the bank's 4 + 2 len(lp_taus) + len(abs_taus) + 3 inputs;
+        fs (Hz) and the time constants (s) set the filters."""
+    @property
+    def n_instances(self) -> int: ...
+    @property
+    def n_inputs(self) -> int: ...
+    @property
+    def n_features(self) -> int: ...
+    @property
+    def n_hidden(self) -> int: ...
+    @property
+    def dtype(self) -> np.dtype[_F]: ...
+    @property
+    def simd_path(self) -> _DetectorPath: ...
+    def set_simd_path(self, path: _DetectorPathArg) -> None:
+        """Select the kernel path; ValueError if this CPU cannot run it."""
+    @property
+    def state(self) -> tuple[npt.NDArray[_F], npt.NDArray[_F]]:
+        """(y_pred(t-1) per ridge (n_ridges,), filter states (n_ridges, n_state))."""
+    @state.setter
+    def state(self, value: tuple[npt.NDArray[_F], npt.NDArray[_F]], /) -> None: ...
+    def reset(self) -> None:
+        """Set the feedback and filter states to zero."""
+    def step(self, x: npt.NDArray[_F]) -> npt.NDArray[_F]:
+        """One tick. x: (n_ridges, 4) -> (n_ridges, 3) [y_slip, y_non, y_pred]."""
+    def run(self, x: npt.NDArray[_F], reset: bool = False) -> npt.NDArray[_F]:
+        """Run over a block. x: (n_ridges, 4, n) -> (3, n_ridges, n); the state carries over."""
+    def time_step_ns(self, n_iter: SupportsIndex = 1000000, repeats: SupportsIndex = 5) -> float:
+        """Mean time of one tick (filter bank and net) of all ridges, measured in C++ (ns)."""
+
+class BankJordanf32(_BankJordan[np.float32]):
+    """Filter-bank slip detector (float32): IIR filters over the stress rates in front of the
+    Jordan kernel. Inputs must be float32 arrays."""
+
+class BankJordanf64(_BankJordan[np.float64]):
+    """Filter-bank slip detector (float64). Inputs must be float64 arrays."""
+
 # The detector kernel's sigmoid (with its clamp) on a flat copy of a, in a's dtype (float32 or
 # float64, else TypeError); for error measurements.
 @overload

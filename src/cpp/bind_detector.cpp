@@ -10,6 +10,10 @@
 //   (detector_memory.hpp): the load-integral and pad feature stage in front of the
 //   Jordan kernel with 8 inputs. Same API on the 4 raw channels per ridge; state is
 //   (y_pred (n_ridges,), load (n_ridges, 2)).
+// _core.BankJordanf32 / _core.BankJordanf64: the filter-bank detector (detector_bank.hpp):
+//   IIR low-passes of the rates, rate energy, load and peak load in front of the Jordan
+//   kernel. Same API on the 4 raw channels per ridge; state is (y_pred (n_ridges,),
+//   filter states (n_ridges, n_state)).
 // _core.jordan_loss_grad: training loss and exact BPTT gradient (jordan_bptt.hpp).
 #include <pybind11/numpy.h>
 #include <pybind11/pybind11.h>
@@ -21,6 +25,7 @@
 #include <sstream>
 #include <string>
 
+#include "detector_bank.hpp"
 #include "detector_memory.hpp"
 #include "jordan_bptt.hpp"
 #include "jordan_mlp.hpp"
@@ -31,6 +36,7 @@ namespace py = pybind11;
 using tactile::detector::Activation;
 using tactile::detector::JordanMLP;
 using tactile::detector::MemoryJordan;
+using tactile::detector::BankJordan;
 namespace simd = tactile::simd;
 
 namespace {
@@ -450,6 +456,171 @@ void bind_memory(py::module_& m, const char* cls) {
             "repeats).");
 }
 
+template <typename T>
+struct PyBank {
+    std::unique_ptr<BankJordan<T>> k;
+    int n_r;
+    tactile::OwnerFlag owner;
+};
+
+template <typename T>
+void bind_bank(py::module_& m, const char* cls) {
+    using PM = PyBank<T>;
+    py::class_<PM>(m, cls,
+                   (std::string("Filter-bank slip detector (") + dtype_name<T>() +
+                    "): IIR filters over the stress rates in front of the Jordan kernel.")
+                       .c_str())
+        .def(py::init([](py::handle w1, py::handle b1, py::handle w2, py::handle b2, py::handle input_mean,
+                         py::handle input_gain, int n_ridges, double fs, py::handle lp_taus, py::handle abs_taus,
+                         double load_tau, double peak_tau, const std::string& activation) {
+                 auto lp = py::array_t<double, py::array::c_style | py::array::forcecast>::ensure(lp_taus);
+                 auto ab = py::array_t<double, py::array::c_style | py::array::forcecast>::ensure(abs_taus);
+                 if (!lp || lp.ndim() != 1 || lp.shape(0) < 1 || lp.shape(0) > BankJordan<T>::kMaxTaus)
+                     throw py::value_error("lp_taus must be a 1-d array of 1 to 8 time constants");
+                 if (!ab || ab.ndim() != 1 || ab.shape(0) > BankJordan<T>::kMaxTaus)
+                     throw py::value_error("abs_taus must be a 1-d array of 0 to 8 time constants");
+                 for (py::ssize_t i = 0; i < lp.size(); ++i)
+                     if (!(std::isfinite(lp.data()[i]) && lp.data()[i] > 0))
+                         throw py::value_error("lp_taus must be positive numbers of s");
+                 for (py::ssize_t i = 0; i < ab.size(); ++i)
+                     if (!(std::isfinite(ab.data()[i]) && ab.data()[i] > 0))
+                         throw py::value_error("abs_taus must be positive numbers of s");
+                 const int n_lp = int(lp.shape(0)), n_abs = int(ab.shape(0));
+                 const py::ssize_t NF = BankJordan<T>::feature_count(n_lp, n_abs);
+                 py::array a1 = py::array::ensure(w1);
+                 if (!a1 || a1.ndim() != 2 || a1.shape(1) != NF + 1)
+                     throw py::value_error("w1 must have shape (n_hidden, " + std::to_string(NF + 1) +
+                                           "): the bank's " + std::to_string(NF) + " inputs and the feedback");
+                 const py::ssize_t h = a1.shape(0);
+                 if (h < 1 || h > 1024) throw py::value_error("w1 must have 1 to 1024 rows (n_hidden)");
+                 if (n_ridges < 1 || n_ridges > 65536)
+                     throw py::value_error("n_ridges must be in [1, 65536], got " + std::to_string(n_ridges));
+                 if (!(std::isfinite(fs) && fs > 0)) throw py::value_error("fs must be a positive number of Hz");
+                 if (!(std::isfinite(load_tau) && load_tau > 0))
+                     throw py::value_error("load_tau must be a positive number of s");
+                 if (!(std::isfinite(peak_tau) && peak_tau > 0))
+                     throw py::value_error("peak_tau must be a positive number of s");
+                 const Activation act = parse_activation(activation);
+                 auto cw1 = weight(w1, "w1", {h, NF + 1});
+                 auto cb1 = weight(b1, "b1", {h});
+                 auto cw2 = weight(w2, "w2", {2, h});
+                 auto cb2 = weight(b2, "b2", {2});
+                 auto cm = weight(input_mean, "input_mean", {NF});
+                 auto cg = weight(input_gain, "input_gain", {NF});
+                 auto p = std::make_unique<PM>();
+                 p->k = std::make_unique<BankJordan<T>>(int(h), n_ridges, cw1.data(), cb1.data(), cw2.data(),
+                                                        cb2.data(), cm.data(), cg.data(), fs, n_lp, lp.data(),
+                                                        n_abs, ab.data(), load_tau, peak_tau, act);
+                 p->n_r = n_ridges;
+                 return p;
+             }),
+             py::arg("w1"), py::arg("b1"), py::arg("w2"), py::arg("b2"), py::arg("input_mean"),
+             py::arg("input_gain"), py::arg("n_ridges"), py::arg("fs"), py::arg("lp_taus"), py::arg("abs_taus"),
+             py::arg("load_tau"), py::arg("peak_tau"), py::arg("activation") = "exact")
+        .def_property_readonly("n_features", [](const PM& p) { return p.k->n_features(); })
+        .def_property_readonly("n_instances", [](const PM& p) { return p.n_r; })
+        .def_property_readonly("n_inputs", [](const PM&) { return 4; })
+        .def_property_readonly("n_hidden", [](const PM& p) { return p.k->n_hidden(); })
+        .def_property_readonly("dtype", [](const PM&) { return py::dtype::of<T>(); })
+        .def_property_readonly("simd_path",
+                               [](const PM& p) { return std::string(simd::isa_name(p.k->net().isa())); })
+        .def(
+            "set_simd_path",
+            [](PM& p, const std::string& name) {
+                const auto isa = parse_path(name);
+                Claim claim(p.owner);
+                p.k->net().set_isa(isa);
+            },
+            py::arg("path"))
+        .def_property(
+            "state",
+            [](PM& p) {
+                py::array_t<T> yp(p.n_r);
+                py::array_t<T> ld({py::ssize_t(p.n_r), py::ssize_t(p.k->n_state())});
+                Claim claim(p.owner);
+                p.k->get_state(yp.mutable_data(), ld.mutable_data());
+                return py::make_tuple(yp, ld);
+            },
+            [](PM& p, py::tuple state) {
+                if (state.size() != 2) throw py::value_error("state must be a pair (y_pred, filters)");
+                auto yp = input<T>(state[0], "state[0]");
+                auto ld = input<T>(state[1], "state[1]");
+                if (yp.ndim() != 1 || yp.shape(0) != p.n_r)
+                    throw py::value_error("state[0] must have shape (" + std::to_string(p.n_r) + ",), got " +
+                                          shape_str(yp));
+                if (ld.ndim() != 2 || ld.shape(0) != p.n_r || ld.shape(1) != p.k->n_state())
+                    throw py::value_error("state[1] must have shape (" + std::to_string(p.n_r) + ", " +
+                                          std::to_string(p.k->n_state()) + "), got " + shape_str(ld));
+                for (py::ssize_t i = 0; i < yp.size(); ++i)
+                    if (!std::isfinite(yp.data()[i])) throw py::value_error("state[0] must be finite");
+                for (py::ssize_t i = 0; i < ld.size(); ++i)
+                    if (!std::isfinite(ld.data()[i])) throw py::value_error("state[1] must be finite");
+                Claim claim(p.owner);
+                p.k->set_state(yp.data(), ld.data());
+            },
+            "(y_pred(t-1) per ridge, filter states (n_ridges, n_state)): the recurrent state.")
+        .def(
+            "reset",
+            [](PM& p) {
+                Claim claim(p.owner);
+                p.k->reset();
+            },
+            "Set the feedback and filter states to zero.")
+        .def(
+            "step",
+            [](PM& p, py::handle x) {
+                auto a = input<T>(x, "x");
+                if (a.ndim() != 2 || a.shape(0) != p.n_r || a.shape(1) != 4)
+                    throw py::value_error("x must have shape (" + std::to_string(p.n_r) + ", 4), got " +
+                                          shape_str(a));
+                check_features(a.data(), p.n_r, 4, 1, 4, 1, 1);
+                py::array_t<T> out({py::ssize_t(p.n_r), py::ssize_t(3)});
+                Claim claim(p.owner);
+                p.k->step(a.data(), out.mutable_data());
+                return out;
+            },
+            py::arg("x"), "One tick. x: (n_ridges, 4) -> (n_ridges, 3) [y_slip, y_non, y_pred].")
+        .def(
+            "run",
+            [](PM& p, py::handle x, bool reset) {
+                auto a = input<T>(x, "x");
+                if (a.ndim() != 3 || a.shape(0) != p.n_r || a.shape(1) != 4)
+                    throw py::value_error("x must have shape (" + std::to_string(p.n_r) + ", 4, n), got " +
+                                          shape_str(a));
+                const py::ssize_t n = a.shape(2);
+                py::array_t<T> out({py::ssize_t(3), py::ssize_t(p.n_r), n});
+                T* o = out.mutable_data();
+                const T* xd = a.data();
+                const std::ptrdiff_t N = p.n_r;
+                check_features(xd, N, 4, n, 4 * n, n, 1);
+                {
+                    Claim claim(p.owner);
+                    py::gil_scoped_release release;
+                    if (reset) p.k->reset();
+                    tactile::DenormalGuard ftz;
+                    p.k->run(xd, 4 * n, n, 1, n, o, o + N * n, o + 2 * N * n, n);
+                }
+                return out;
+            },
+            py::arg("x"), py::arg("reset") = false,
+            "Run over a block. x: (n_ridges, 4, n) -> (3, n_ridges, n) [y_slip, y_non, y_pred]; the state "
+            "carries over between calls (reset=True starts from zero). NaN/Inf features: ValueError, state "
+            "unchanged.")
+        .def(
+            "time_step_ns",
+            [](PM& p, long n_iter, int repeats) {
+                if (n_iter < 1) throw py::value_error("n_iter must be >= 1");
+                if (repeats < 1) throw py::value_error("repeats must be >= 1");
+                if (p.n_r > 64) throw py::value_error("too many ridges for the timing loop");
+                Claim claim(p.owner);
+                py::gil_scoped_release release;
+                return p.k->time_step_ns(n_iter, repeats);
+            },
+            py::arg("n_iter") = 1000000, py::arg("repeats") = 5,
+            "Mean time of one tick (filter bank and net) of all ridges, measured inside C++ (ns, best of "
+            "repeats).");
+}
+
 }  // namespace
 
 void tm_bind_detector(py::module_& m) {
@@ -457,6 +628,8 @@ void tm_bind_detector(py::module_& m) {
     bind_one<double>(m, "JordanMLPf64");
     bind_memory<float>(m, "MemoryJordanf32");
     bind_memory<double>(m, "MemoryJordanf64");
+    bind_bank<float>(m, "BankJordanf32");
+    bind_bank<double>(m, "BankJordanf64");
     m.def(
         "detector_sigmoid",
         [](py::handle a, const std::string& activation, const std::string& path) {

@@ -1,6 +1,7 @@
 """Slip detection: the Jordan recurrent MLP of the paper (section 3.2, Figs 9-10), and the
 same net with load-memory inputs (:mod:`.memory`: the ridge's load integrals and the pad's
-shear rate and load), which sees slips that creep in.
+shear rate and load), and the same net on a bank of IIR filters over the rates (:mod:`.bank`:
+low-passed rates, rate energy, load and peak load), which sees slips that creep in.
 
 Inputs per ridge: ``[v_L, v_R, u_L, u_R]`` (stress rates from the estimator,
 or raw circuit voltages; the kind is stored with the weights) plus the net's own
@@ -10,7 +11,8 @@ L-BFGS-B; running is the allocation-free C++ kernel ``jordan_mlp.hpp``.
 """
 from __future__ import annotations
 
-from .core import DEFAULT_WEIGHTS, MEMORY_WEIGHTS, PAPER_WEIGHTS, SlipDetector, reference_run
+from .bank import DEFAULT_BANK, bank_features
+from .core import BANK_WEIGHTS, DEFAULT_WEIGHTS, MEMORY_WEIGHTS, PAPER_WEIGHTS, SlipDetector, reference_run
 from .data_prep import features_from_result, targets_from_result
 from .evaluate import DetectionMetrics, EvaluationReport, ForceRatioDetector, evaluate
 from .figures import figure10, figure10_data
@@ -20,6 +22,8 @@ from .training import TrainingSet, augment_noise, fit_normalisation, make_traini
 from .weights import FEATURE_KINDS, FORMAT_VERSION, KINDS, DetectorWeights, WeightsError
 
 __all__ = [
+    "BANK_WEIGHTS",
+    "DEFAULT_BANK",
     "DEFAULT_WEIGHTS",
     "FEATURE_KINDS",
     "FORMAT_VERSION",
@@ -36,6 +40,7 @@ __all__ = [
     "TrainingSet",
     "WeightsError",
     "augment_noise",
+    "bank_features",
     "evaluate",
     "features_from_result",
     "figure10",

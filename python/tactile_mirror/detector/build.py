@@ -114,7 +114,7 @@ def subset(ts: TrainingSet, ridges_per_scene: int, n_ridges: int) -> TrainingSet
     """Keep the first ``ridges_per_scene`` of every ``n_ridges`` sequences (scene-major order)."""
     keep = (np.arange(ts.n_seq) % n_ridges) < ridges_per_scene
     return TrainingSet(ts.x[keep], ts.y_slip[keep], ts.y_pred[keep], ts.mask[keep], ts.fs, ts.features,
-                       ts.estimator, ts.targets, ts.load_tau)
+                       ts.estimator, ts.targets, ts.load_tau, ts.bank)
 
 
 def hidden_size_study(train, validation, sizes=(4, 8, 12, 16, 24), maxiter: int = 800, seed: int = 0,
@@ -291,15 +291,20 @@ class BuildOptions:
         ranges) is kept (:func:`select_candidate`). Defaults 120, 4, 25.
     progress : bool
         Progress bars. Default True.
-    kind : {"jordan", "jordan_memory"}
+    kind : {"jordan", "jordan_memory", "jordan_bank"}
         ``"jordan"``: the paper's net on the four stress rates (``paper_detector.npz``);
         ``"jordan_memory"``: the same net on the load-memory channels
-        (:mod:`~tactile_mirror.detector.memory`; ``memory_detector.npz``).
+        (:mod:`~tactile_mirror.detector.memory`; ``memory_detector.npz``);
+        ``"jordan_bank"``: on the filter-bank channels with the default bank
+        (:mod:`~tactile_mirror.detector.bank`; ``bank_detector.npz``).
     load_tau : float
         Leak time constant of the load integrals of ``"jordan_memory"``, s.
     n_extra_train : int
         Extra training scenes drawn from the held-out ranges (``test_kwargs``) with seed
         :data:`EXTRA_TRAIN_SEED`: lower friction and stops, where slips creep in. Default 0.
+    bank : dict, optional
+        Time constants of the ``"jordan_bank"`` filter bank (:func:`~tactile_mirror.detector.bank.bank_config`);
+        default :data:`~tactile_mirror.detector.bank.DEFAULT_BANK`.
     """
 
     n_train: int = 64
@@ -322,6 +327,7 @@ class BuildOptions:
     kind: str = "jordan"
     load_tau: float = DEFAULT_LOAD_TAU
     n_extra_train: int = 0
+    bank: dict | None = None
 
     def __post_init__(self) -> None:
         def put(name, value):
@@ -333,6 +339,10 @@ class BuildOptions:
                 or not (np.isfinite(self.load_tau) and self.load_tau > 0):
             raise ValueError(f"load_tau must be a positive number of seconds, got {self.load_tau!r}")
         put("load_tau", float(self.load_tau))
+        if self.bank is not None:
+            from .bank import bank_config
+
+            put("bank", bank_config(self.bank))
         for name in ("n_train", "n_test", "n_hidden", "maxiter", "ridges_per_scene", "candidates"):
             put(name, _positive_int(name, getattr(self, name)))
         for name in ("noise_copies", "checkpoint_every", "n_extra_train"):
@@ -448,8 +458,11 @@ def _build(out_path, options: BuildOptions, report_path, figure_path, results, c
     n_ridges = np.asarray(train_res[0].v_out).shape[0]
     seqs = augment_noise(train_res, noise_copies, noise_range, seed=2) if noise_copies else train_res
     memory = o.kind == "jordan_memory"
-    ts = subset(make_training_set(seqs, "stress_rate_memory" if memory else "stress_rate",
-                                  load_tau=o.load_tau if memory else None), ridges_per_scene, n_ridges)
+    features = {"jordan": "stress_rate", "jordan_memory": "stress_rate_memory",
+                "jordan_bank": "stress_rate_bank"}[o.kind]
+    ts = subset(make_training_set(seqs, features, load_tau=o.load_tau if memory else None,
+                                  bank=o.bank if o.kind == "jordan_bank" else None),
+                ridges_per_scene, n_ridges)
     if gain_range is not None:
         ts = augment_gains(ts, gain_range, seed=1)
     report = {"n_train_scenes": n_train, "n_test_scenes": n_test, "train_seed": TRAIN_SEED,
@@ -485,8 +498,8 @@ def _build(out_path, options: BuildOptions, report_path, figure_path, results, c
         tr_meta["selection"] = dict(report["candidates"], seeds=int(candidates), fa_cost=10.0)
     force = ForceRatioDetector.fit(train_res)
     det = SlipDetector(w)
-    if memory:
-        # The baseline of the load-memory net is the paper's net, on the same scenes.
+    if o.kind != "jordan":
+        # The baseline of the load-memory and filter-bank nets is the paper's net, on the same scenes.
         second = ("paper Jordan net", "paper", SlipDetector.paper())
     else:
         w_nf, _, _ = train(False)
@@ -528,16 +541,32 @@ def main(argv=None):
     ap.add_argument("--pred-weight", type=float, default=TRAIN_OPTIONS["pred_weight"])
     ap.add_argument("--normalisation", default="rms", choices=["rms", "median"])
     ap.add_argument("--kind", default="jordan", choices=sorted(KINDS),
-                    help="jordan: the paper's net; jordan_memory: the load-memory net")
+                    help="jordan: the paper's net; jordan_memory: the load-memory net; jordan_bank: the filter-bank net")
     ap.add_argument("--candidates", type=int, default=4, help="initial seeds trained (the best kept)")
     ap.add_argument("--cache", help="directory keeping the simulated scenes between builds")
     ap.add_argument("--extra-train", type=int, default=0,
                     help=f"extra training scenes from the held-out ranges (seed {EXTRA_TRAIN_SEED})")
     ap.add_argument("--checkpoint-every", type=int, default=25)
+    ap.add_argument("--lp-taus", type=float, nargs="+", default=None,
+                    help="low-pass time constants of the jordan_bank filter bank, s (default: the default bank's)")
+    ap.add_argument("--abs-taus", type=float, nargs="*", default=None,
+                    help="time constants of its shear-rate energy low-passes, s (none: no such channels)")
+    ap.add_argument("--noise-range", type=float, nargs=2, default=list(NOISE_RANGE), metavar=("LOW", "HIGH"),
+                    help="range of the training noise copies' sensor noise, V rms")
     args = ap.parse_args(argv)
+    bank = None
+    if args.lp_taus is not None or args.abs_taus is not None:
+        from .bank import DEFAULT_BANK
+
+        bank = dict(DEFAULT_BANK)
+        if args.lp_taus is not None:
+            bank["lp_taus"] = list(args.lp_taus)
+        if args.abs_taus is not None:
+            bank["abs_taus"] = list(args.abs_taus)
     options = BuildOptions(n_train=args.n_train, n_test=args.n_test, n_hidden=args.hidden, maxiter=args.maxiter,
-                           study_sizes=args.study or None, kind=args.kind, candidates=args.candidates,
+                           bank=bank, study_sizes=args.study or None, kind=args.kind, candidates=args.candidates,
                            n_extra_train=args.extra_train, checkpoint_every=args.checkpoint_every,
+                           noise_range=tuple(args.noise_range),
                            train_options={"negative_weight": args.negative_weight, "pred_weight": args.pred_weight,
                                           "normalisation": args.normalisation})
     extra = {} if args.cache is None else {"cache_dir": args.cache}

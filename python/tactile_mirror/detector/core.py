@@ -8,11 +8,12 @@ from importlib import resources
 
 import numpy as np
 
+from .bank import bank_features
 from .memory import memory_features
 from .network import forward
 from .weights import DetectorWeights
 
-__all__ = ["DEFAULT_WEIGHTS", "MEMORY_WEIGHTS", "PAPER_WEIGHTS", "SlipDetector"]
+__all__ = ["BANK_WEIGHTS", "DEFAULT_WEIGHTS", "MEMORY_WEIGHTS", "PAPER_WEIGHTS", "SlipDetector"]
 
 #: File name of the bundled default weights inside ``tactile_mirror.detector.data``.
 DEFAULT_WEIGHTS = "default_detector.npz"
@@ -20,9 +21,14 @@ DEFAULT_WEIGHTS = "default_detector.npz"
 PAPER_WEIGHTS = "paper_detector.npz"
 #: File name of the bundled load-memory net (kind ``"jordan_memory"``).
 MEMORY_WEIGHTS = "memory_detector.npz"
+#: File name of the bundled filter-bank net (kind ``"jordan_bank"``).
+BANK_WEIGHTS = "bank_detector.npz"
 
 _DTYPES = {np.dtype(np.float32): "JordanMLPf32", np.dtype(np.float64): "JordanMLPf64"}
 _MEMORY_DTYPES = {np.dtype(np.float32): "MemoryJordanf32", np.dtype(np.float64): "MemoryJordanf64"}
+_BANK_DTYPES = {np.dtype(np.float32): "BankJordanf32", np.dtype(np.float64): "BankJordanf64"}
+#: Kinds whose kernel derives its inputs from the four stress rates itself.
+_DERIVED = ("jordan_memory", "jordan_bank")
 
 
 def _core():
@@ -39,7 +45,10 @@ class SlipDetector:
     net on the stress rates plus the load-memory channels of
     :mod:`tactile_mirror.detector.memory` (the ridge's shear and normal load and the
     pad's shear rate and load), which the kernel computes itself from the same four
-    inputs (C++ ``detector_memory.hpp``). Both take ``[v_L, v_R, u_L, u_R]`` per ridge;
+    inputs (C++ ``detector_memory.hpp``), and ``"jordan_bank"`` (:meth:`bank`), the same
+    net on the stress rates plus a bank of IIR filters over them
+    (:mod:`tactile_mirror.detector.bank`: low-passed rates, rate energy, load and peak
+    load; C++ ``detector_bank.hpp``). All take ``[v_L, v_R, u_L, u_R]`` per ridge;
     a ``"jordan_memory"`` detector must be given all ridges of one pad at once.
 
     Parameters
@@ -104,6 +113,11 @@ class SlipDetector:
         return cls._bundled(MEMORY_WEIGHTS, **kwargs)
 
     @classmethod
+    def bank(cls, **kwargs) -> SlipDetector:
+        """The filter-bank net (kind ``"jordan_bank"``), bundled weights."""
+        return cls._bundled(BANK_WEIGHTS, **kwargs)
+
+    @classmethod
     def _bundled(cls, name, **kwargs) -> SlipDetector:
         ref = resources.files("tactile_mirror.detector").joinpath("data", name)
         with resources.as_file(ref) as path:
@@ -128,18 +142,20 @@ class SlipDetector:
     @property
     def features(self) -> str:
         """Feature kind of the inputs (``"stress_rate"`` or ``"circuit"``): what :meth:`run` takes.
-        A ``"jordan_memory"`` net takes ``"stress_rate"`` and derives its other channels."""
-        return "stress_rate" if self.weights.kind == "jordan_memory" else self.weights.features
+        ``"jordan_memory"`` and ``"jordan_bank"`` nets take ``"stress_rate"`` and derive their other
+        channels."""
+        return "stress_rate" if self.weights.kind in _DERIVED else self.weights.features
 
     @property
     def kind(self) -> str:
-        """``"jordan"`` (the paper's net) or ``"jordan_memory"`` (load-memory inputs)."""
+        """``"jordan"`` (the paper's net), ``"jordan_memory"`` (load-memory inputs) or ``"jordan_bank"``
+        (filter-bank inputs)."""
         return self.weights.kind
 
     @property
     def n_channels(self) -> int:
         """Input channels per ridge that :meth:`run` and :meth:`step` take (4)."""
-        return 4 if self.weights.kind == "jordan_memory" else self.weights.n_inputs
+        return 4 if self.weights.kind in _DERIVED else self.weights.n_inputs
 
     @property
     def n_hidden(self) -> int:
@@ -171,6 +187,12 @@ class SlipDetector:
                 cls = getattr(_core(), _MEMORY_DTYPES[self.dtype])
                 k = cls(p.w1, p.b1, p.w2, p.b2, w.input_mean, w.input_gain, n_ridges, w.fs, w.load_tau,
                         self.activation)
+            elif w.kind == "jordan_bank":
+                b = w.bank
+                cls = getattr(_core(), _BANK_DTYPES[self.dtype])
+                k = cls(p.w1, p.b1, p.w2, p.b2, w.input_mean, w.input_gain, n_ridges, w.fs,
+                        np.asarray(b["lp_taus"], dtype=np.float64), np.asarray(b["abs_taus"], dtype=np.float64),
+                        b["load_tau"], b["peak_tau"], self.activation)
             else:
                 cls = getattr(_core(), _DTYPES[self.dtype])
                 k = cls(p.w1, p.b1, p.w2, p.b2, w.input_mean, w.input_gain, n_ridges, self.activation)
@@ -253,6 +275,8 @@ class SlipDetector:
                 l1 = None
                 if w.kind == "jordan_memory":
                     xf, l1 = memory_features(xf, w.fs, w.load_tau, state=l0, return_state=True)
+                elif w.kind == "jordan_bank":
+                    xf, l1 = bank_features(xf, w.fs, w.bank, state=l0, return_state=True)
                 xn = (xf - w.input_mean[None, :, None]) * w.input_gain[None, :, None]
                 ys, yp = forward(w.params, xn, p0)
                 p1 = yp[:, -1].copy() if yp.shape[1] else (np.zeros(n_r) if p0 is None else p0)
@@ -299,6 +323,8 @@ def reference_run(weights: DetectorWeights, features, dtype=np.float64):
     x = np.asarray(features, dtype=np.float64)
     if weights.kind == "jordan_memory":
         x = memory_features(x if x.ndim == 3 else x[None], weights.fs, weights.load_tau)
+    elif weights.kind == "jordan_bank":
+        x = bank_features(x if x.ndim == 3 else x[None], weights.fs, weights.bank)
     xn = (x - weights.input_mean[None, :, None]) * weights.input_gain[None, :, None]
     ys, yp = forward(weights.params, xn)
     return ys, 1.0 - ys, yp

@@ -41,7 +41,7 @@ def _circuit_of(result, circuit):
 
 
 def features_from_result(result, features: str = "stress_rate", circuit=None, estimator=None,
-                         load_tau: float | None = None) -> np.ndarray:
+                         load_tau: float | None = None, bank: dict | None = None) -> np.ndarray:
     """Detector features of one simulation result.
 
     Parameters
@@ -50,10 +50,12 @@ def features_from_result(result, features: str = "stress_rate", circuit=None, es
         A simulation result with ``fs`` and ``v_out``, ``u_out`` of shape
         (n_ridges, 2, n) [L, R strips]; or a record that carries ready
         ``features`` of shape (n_ridges, 4, n) (used as they are).
-    features : {"stress_rate", "circuit", "stress_rate_memory"}
+    features : {"stress_rate", "circuit", "stress_rate_memory", "stress_rate_bank"}
         Feature kind (see the module docstring). ``"stress_rate_memory"``: the
         stress rates and the load-memory channels of
-        :func:`~tactile_mirror.detector.memory.memory_features` (8 channels).
+        :func:`~tactile_mirror.detector.memory.memory_features` (8 channels);
+        ``"stress_rate_bank"``: the stress rates and the filter-bank channels of
+        :func:`~tactile_mirror.detector.bank.bank_features`.
     circuit : PVDFCircuit, optional
         Circuit for the estimator; default ``result.circuit``, ``result.scene.circuit``
         or ``PVDFCircuit()``.
@@ -62,13 +64,17 @@ def features_from_result(result, features: str = "stress_rate", circuit=None, es
     load_tau : float, optional
         Leak time constant of the load integrals (``"stress_rate_memory"``), s;
         default :data:`~tactile_mirror.detector.memory.DEFAULT_LOAD_TAU`.
+    bank : dict, optional
+        Time constants of the filter bank (``"stress_rate_bank"``); default
+        :data:`~tactile_mirror.detector.bank.DEFAULT_BANK`.
 
     Returns
     -------
     ndarray, shape (n_ridges, 4, n) (8 channels for ``"stress_rate_memory"``), float64
     """
-    if features not in ("stress_rate", "circuit", "stress_rate_memory"):
-        raise ValueError(f"features must be 'stress_rate', 'circuit' or 'stress_rate_memory', got {features!r}")
+    if features not in ("stress_rate", "circuit", "stress_rate_memory", "stress_rate_bank"):
+        raise ValueError(f"features must be 'stress_rate', 'circuit', 'stress_rate_memory' or 'stress_rate_bank', "
+                         f"got {features!r}")
     ready = getattr(result, "features", None)
     if ready is not None:
         x = np.asarray(ready, dtype=np.float64)
@@ -78,6 +84,10 @@ def features_from_result(result, features: str = "stress_rate", circuit=None, es
             from .memory import DEFAULT_LOAD_TAU, memory_features
 
             return memory_features(x, float(result.fs), DEFAULT_LOAD_TAU if load_tau is None else load_tau)
+        if features == "stress_rate_bank":
+            from .bank import bank_features
+
+            return bank_features(x, float(result.fs), bank)
         return x
     v = np.asarray(result.v_out, dtype=np.float64)
     u = np.asarray(result.u_out, dtype=np.float64)
@@ -95,6 +105,10 @@ def features_from_result(result, features: str = "stress_rate", circuit=None, es
         from .memory import DEFAULT_LOAD_TAU, memory_features
 
         x = memory_features(x, float(result.fs), DEFAULT_LOAD_TAU if load_tau is None else load_tau)
+    elif features == "stress_rate_bank":
+        from .bank import bank_features
+
+        x = bank_features(x, float(result.fs), bank)
     return x
 
 

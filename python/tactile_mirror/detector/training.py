@@ -7,10 +7,11 @@ import time
 import numpy as np
 import scipy.optimize
 
+from .bank import bank_config
 from .data_prep import DEFAULT_ESTIMATOR, features_from_result, targets_from_result
 from .memory import DEFAULT_LOAD_TAU
 from .network import Params, init_params, loss_and_grad
-from .weights import FEATURE_CHANNELS, FEATURE_KINDS, DetectorWeights
+from .weights import FEATURE_KINDS, DetectorWeights, feature_channels, feature_units
 
 __all__ = ["TrainingSet", "augment_noise", "fit_normalisation", "make_training_set", "train_detector"]
 
@@ -42,10 +43,12 @@ class TrainingSet:
         How the targets were made (``gross_level``, ``pred_scale``).
     load_tau : float or None
         Leak time constant (s) of ``"stress_rate_memory"`` features.
+    bank : dict or None
+        Time constants of ``"stress_rate_bank"`` features (:func:`~.bank.bank_config`).
     """
 
     def __init__(self, x, y_slip, y_pred, mask, fs, features="stress_rate", estimator=None, targets=None,
-                 load_tau=None):
+                 load_tau=None, bank=None):
         self.x = np.asarray(x, dtype=np.float64)
         self.y_slip = np.asarray(y_slip, dtype=np.float64)
         self.y_pred = np.asarray(y_pred, dtype=np.float64)
@@ -55,7 +58,8 @@ class TrainingSet:
         self.estimator = dict(DEFAULT_ESTIMATOR if estimator is None else estimator)
         self.targets = dict(targets or {})
         self.load_tau = load_tau_of(features, load_tau)
-        n_ch = len(FEATURE_KINDS.get(features, ())) or 4
+        self.bank = bank_config(bank) if features == "stress_rate_bank" else None
+        n_ch = len(feature_units(features, self.bank)) if features in FEATURE_KINDS else 4
         if self.x.ndim != 3 or self.x.shape[1] != n_ch:
             raise ValueError(f"x must have shape (n_seq, {n_ch}, n) for {features!r} features, got {self.x.shape}")
         for name in ("y_slip", "y_pred", "mask"):
@@ -76,7 +80,8 @@ class TrainingSet:
 
 def make_training_set(results, features: str = "stress_rate", circuit=None, estimator=None,
                       gross_level: float = 0.999, pred_scale: float = 0.8,
-                      pred_target: str = "load_ratio", load_tau: float | None = None) -> TrainingSet:
+                      pred_target: str = "load_ratio", load_tau: float | None = None,
+                      bank: dict | None = None) -> TrainingSet:
     """Stack simulation results (all at one rate) into a :class:`TrainingSet`.
 
     Targets as :func:`~tactile_mirror.detector.data_prep.targets_from_result`
@@ -90,7 +95,7 @@ def make_training_set(results, features: str = "stress_rate", circuit=None, esti
     for k, r in enumerate(results):
         if not np.isclose(float(r.fs), fs):
             raise ValueError(f"results[{k}].fs={r.fs} differs from results[0].fs={fs}")
-        x = features_from_result(r, features, circuit, estimator, load_tau=load_tau)
+        x = features_from_result(r, features, circuit, estimator, load_tau=load_tau, bank=bank)
         ys, yp = targets_from_result(r, gross_level, pred_scale, pred_target)
         if ys.shape[0] != x.shape[0]:
             ys = np.broadcast_to(ys[:1], (x.shape[0], ys.shape[1]))
@@ -114,7 +119,7 @@ def make_training_set(results, features: str = "stress_rate", circuit=None, esti
         i += m
     return TrainingSet(X, S, Pp, M, fs, features, estimator,
                        {"gross_level": float(gross_level), "pred_scale": float(pred_scale),
-                        "pred_target": pred_target}, load_tau)
+                        "pred_target": pred_target}, load_tau, bank)
 
 
 def augment_noise(results, copies: int = 2, noise=(0.0, 5e-3), seed=0) -> list:
@@ -168,7 +173,7 @@ def augment_gains(ts: TrainingSet, gain_range=(0.6, 1.7), seed=0) -> TrainingSet
     rng = np.random.default_rng(seed)
     g = np.exp(rng.uniform(np.log(lo), np.log(hi), ts.n_seq))
     return TrainingSet(ts.x * g[:, None, None], ts.y_slip, ts.y_pred, ts.mask, ts.fs, ts.features, ts.estimator,
-                       {**ts.targets, "gain_range": [lo, hi], "gain_seed": int(seed)}, ts.load_tau)
+                       {**ts.targets, "gain_range": [lo, hi], "gain_seed": int(seed)}, ts.load_tau, ts.bank)
 
 
 def fit_normalisation(x, mask=None, method: str = "rms"):
@@ -336,8 +341,9 @@ def train_detector(data, n_hidden: int = 16, feedback: bool = True, seed=0, maxi
     xn *= data.mask[:, None, :]
     w_slip, w_pred = _loss_weights(data, pred_weight, negative_weight)
     n_in = data.n_inputs
-    if len(FEATURE_KINDS.get(data.features, ())) != n_in:
-        raise ValueError(f"data.features {data.features!r} have {len(FEATURE_KINDS[data.features])} channels, "
+    if len(feature_units(data.features, data.bank)) != n_in:
+        raise ValueError(f"data.features {data.features!r} have {len(feature_units(data.features, data.bank))} "
+                         f"channels, "
                          f"data.x has {n_in}")
     p0 = init_params(n_in, int(n_hidden), seed)
     if not feedback:
@@ -368,10 +374,11 @@ def train_detector(data, n_hidden: int = 16, feedback: bool = True, seed=0, maxi
             params.w1[:, -1] = 0.0
         meta = {
             "features": data.features,
-            "units": list(FEATURE_KINDS[data.features]),
-            "channels": list(FEATURE_CHANNELS[data.features]),
+            "units": list(feature_units(data.features, data.bank)),
+            "channels": list(feature_channels(data.features, data.bank)),
             "estimator": data.estimator if data.features != "circuit" else None,
             **({"load_tau": float(data.load_tau)} if data.features == "stress_rate_memory" else {}),
+            **({"bank": data.bank} if data.features == "stress_rate_bank" else {}),
             "targets": {"y_slip": "1 while the ridge slips grossly (slip fraction >= gross_level)",
                         "y_pred": _PRED_TARGET_TEXT.get(data.targets.get("pred_target", "slip_zone"),
                                                         "see pred_target"),

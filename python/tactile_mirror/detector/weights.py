@@ -9,8 +9,9 @@ key                 shape / type           meaning
 ``format_version``  int                    :data:`FORMAT_VERSION` (version 1 files, which
                                            have no ``kind``, still load as ``"jordan"``)
 ``kind``            str                    :data:`KINDS`: ``"jordan"`` (the paper's net,
-                                           4 inputs) or ``"jordan_memory"`` (the same
-                                           net on the 8 load-memory channels)
+                                           4 inputs), ``"jordan_memory"`` (the same
+                                           net on the 8 load-memory channels) or
+                                           ``"jordan_bank"`` (on the filter-bank channels)
 ``w1``              (H, n_inputs + 1)      input-to-hidden weights, last column y_pred(t-1)
 ``b1``              (H,)
 ``w2``              (2, H)                 hidden-to-output, rows y_slip, y_pred
@@ -19,7 +20,8 @@ key                 shape / type           meaning
 ``input_scale``     (n_inputs,)            positive, in the units of the features
 ``fs``              float                  sample rate the net was trained for (Hz)
 ``metadata``        str (JSON)             features kind and units, targets, training;
-                                           ``load_tau`` (s) for ``"jordan_memory"``
+                                           ``load_tau`` (s) for ``"jordan_memory"``,
+                                           ``bank`` (time constants) for ``"jordan_bank"``
 ==================  =====================  ==========================================
 
 The loader reads only these members (others are ignored, unread), checks each
@@ -40,6 +42,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from .._npzfile import Member, check_json, parse_json, read_versioned, write_versioned
+from .bank import bank_channels, bank_config, bank_units
 from .memory import MEMORY_CHANNELS, MEMORY_UNITS
 from .network import Params
 
@@ -51,7 +54,9 @@ FORMAT = "tactile-mirror-detector"
 FORMAT_VERSION = 2
 _READ_VERSIONS = (1, 2)
 #: Network kinds -> the feature kinds they read.
-KINDS = {"jordan": ("stress_rate", "circuit"), "jordan_memory": ("stress_rate_memory",)}
+KINDS = {"jordan": ("stress_rate", "circuit"), "jordan_memory": ("stress_rate_memory",),
+         "jordan_bank": ("stress_rate_bank",)}
+_KIND_OF_FEATURES = {f: k for k, fs in KINDS.items() for f in fs}
 
 #: Largest hidden size a weights object or file may have: the C++ detector kernel's limit.
 MAX_HIDDEN = 1024
@@ -75,13 +80,25 @@ FEATURE_KINDS = {
     "stress_rate": ("Pa/s", "Pa/s", "Pa/s^2", "Pa/s^2"),
     "circuit": ("V", "V", "V", "V"),
     "stress_rate_memory": MEMORY_UNITS,
+    "stress_rate_bank": bank_units(),  # with the default bank; a weights file's own: its metadata["bank"]
 }
 #: Channel names per feature kind.
 FEATURE_CHANNELS = {
     "stress_rate": MEMORY_CHANNELS[:4],
     "circuit": MEMORY_CHANNELS[:4],
     "stress_rate_memory": MEMORY_CHANNELS,
+    "stress_rate_bank": bank_channels(),
 }
+
+
+def feature_units(features: str, bank=None) -> tuple:
+    """Units of the channels of a feature kind (of the filter bank ``bank`` for ``"stress_rate_bank"``)."""
+    return bank_units(bank) if features == "stress_rate_bank" else FEATURE_KINDS[features]
+
+
+def feature_channels(features: str, bank=None) -> tuple:
+    """Channel names of a feature kind (of the filter bank ``bank`` for ``"stress_rate_bank"``)."""
+    return bank_channels(bank) if features == "stress_rate_bank" else FEATURE_CHANNELS[features]
 
 
 class WeightsError(ValueError):
@@ -129,13 +146,19 @@ class DetectorWeights:
 
     @property
     def kind(self) -> str:
-        """``"jordan"`` (the paper's 4-input net) or ``"jordan_memory"`` (load-memory inputs)."""
-        return "jordan_memory" if self.features == "stress_rate_memory" else "jordan"
+        """``"jordan"`` (the paper's 4-input net), ``"jordan_memory"`` (load-memory inputs) or
+        ``"jordan_bank"`` (filter-bank inputs)."""
+        return _KIND_OF_FEATURES.get(self.features, "jordan")
 
     @property
     def load_tau(self) -> float | None:
         """Leak time constant (s) of the load integrals of a ``"jordan_memory"`` net, else None."""
         return float(self.metadata["load_tau"]) if self.kind == "jordan_memory" else None
+
+    @property
+    def bank(self) -> dict | None:
+        """Time constants of the filter bank of a ``"jordan_bank"`` net (:func:`~.bank.bank_config`), else None."""
+        return bank_config(self.metadata["bank"]) if self.kind == "jordan_bank" else None
 
     @property
     def input_gain(self) -> np.ndarray:
@@ -173,9 +196,18 @@ class DetectorWeights:
         kind = self.metadata.get("features", "stress_rate")
         if not isinstance(kind, str) or kind not in FEATURE_KINDS:
             raise WeightsError(f"metadata['features'] must be one of {sorted(FEATURE_KINDS)}, got {kind!r}")
-        if m - 1 != len(FEATURE_KINDS[kind]):
-            raise WeightsError(f"features {kind!r} have {len(FEATURE_KINDS[kind])} channels, "
-                               f"the weights take {m - 1}")
+        bank = None
+        if kind == "stress_rate_bank":
+            if not isinstance(self.metadata.get("bank"), dict):
+                raise WeightsError("metadata['bank'] (the filter bank's time constants) is required for "
+                                   "'stress_rate_bank' features")
+            try:
+                bank = bank_config(self.metadata["bank"])
+            except ValueError as exc:
+                raise WeightsError(f"metadata: {exc}") from None
+        n_ch = len(feature_units(kind, bank))
+        if m - 1 != n_ch:
+            raise WeightsError(f"features {kind!r} have {n_ch} channels, the weights take {m - 1}")
         if kind == "stress_rate_memory":
             tau = self.metadata.get("load_tau")
             if isinstance(tau, bool) or not isinstance(tau, (int, float)) or not math.isfinite(tau) or tau <= 0:

@@ -1,0 +1,166 @@
+"""Inputs of the filter-bank detector: low-passed stress rates, rate energy and load per ridge.
+
+Why: the bound study's causal classifier (``bench/detector_bound.py``) tells a creeping
+slip from a stop by the recent *history* of the rates (the signals at lags of 1-256 ms
+and their integrals since contact), which the paper's net, with one fed-back value,
+cannot hold. A slip that creeps in does not stop the shear rate at once: the ridge's
+shear load approaches what the contact carries and its rate fades over tens of ms, while
+a stop stills the rate within a few ms wherever the load happens to be. First-order
+low-passes of the rates at a few time constants keep that history in a handful of numbers
+(the differences of two of them are band-passes: how fast the rate has been falling), so
+a small recurrent net can read it. Per ridge, from ``d = v_L - v_R`` (the shear rate) and
+``s = v_L + v_R`` (the normal rate), with ``a(tau) = exp(-1 / (fs tau))``:
+
+``shear_lp(tau)``, ``normal_lp(tau)`` (Pa/s), one pair per ``lp_taus``
+    ``y_t = a y_{t-1} + (1 - a) x_t``: unit-gain low-passes of ``d`` and ``s``.
+``shear_abs(tau)`` (Pa/s), one per ``abs_taus``
+    The same low-pass of ``|d|``: the recent shear-rate energy (a stop and a creeping
+    slip differ in how it fades).
+``load``, ``press`` (Pa)
+    Leaky integrals of ``d`` and ``s``, ``y_t = b y_{t-1} + x_t / fs`` with
+    ``b = a(load_tau)``: the shear and normal load (as the load-memory net's).
+``load_peak`` (Pa)
+    ``p_t = max(|load_t|, c p_{t-1})`` with ``c = a(peak_tau)``: the largest shear load
+    held recently; a ridge whose load stalls at its peak while the rates fade is creeping
+    into slip, one whose rate stops below it has been stopped.
+
+The net (the Jordan kernel, ``jordan_mlp.hpp``) then reads the four stress rates and
+these channels, :func:`bank_channels` in order. This module is the specification of the
+C++ feature stage ``detector_bank.hpp``. Ridges are independent (no pad channels).
+"""
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+__all__ = ["DEFAULT_BANK", "bank_channels", "bank_config", "bank_features", "bank_state_size", "bank_units"]
+
+#: The bank of the bundled filter-bank net: time constants in s.
+DEFAULT_BANK = {"lp_taus": [0.004, 0.016, 0.064, 0.256], "abs_taus": [0.016, 0.064], "load_tau": 0.5,
+                "peak_tau": 2.0}
+#: Bounds of a bank (the C++ stage's limits).
+MAX_TAUS = 8
+
+
+def _tau(name, value) -> float:
+    if isinstance(value, bool) or not isinstance(value, (int, float, np.floating)) \
+            or not (math.isfinite(value) and value > 0):
+        raise ValueError(f"{name} must be a positive number of seconds, got {value!r}")
+    return float(value)
+
+
+def bank_config(bank=None) -> dict:
+    """A checked copy of a bank description (``DEFAULT_BANK`` when None).
+
+    Keys ``lp_taus`` (1-8 time constants), ``abs_taus`` (0-8), ``load_tau``, ``peak_tau``
+    (s, positive and finite). Raises ``ValueError`` naming the key.
+    """
+    if bank is not None and not isinstance(bank, dict):
+        raise ValueError(f"bank must be a dict, got {type(bank).__name__}")
+    b = dict(DEFAULT_BANK if bank is None else bank)
+    unknown = set(b) - set(DEFAULT_BANK)
+    if unknown:
+        raise ValueError(f"unknown bank keys {sorted(unknown)}; expected {sorted(DEFAULT_BANK)}")
+    out = {}
+    for key, lo in (("lp_taus", 1), ("abs_taus", 0)):
+        v = b.get(key)
+        if not isinstance(v, (list, tuple)) or not (lo <= len(v) <= MAX_TAUS):
+            raise ValueError(f"bank['{key}'] must be a list of {lo} to {MAX_TAUS} time constants, got {v!r}")
+        out[key] = [_tau(f"bank['{key}']", t) for t in v]
+    for key in ("load_tau", "peak_tau"):
+        out[key] = _tau(f"bank['{key}']", b.get(key))
+    return out
+
+
+def bank_channels(bank=None) -> tuple:
+    """Names of the filter-bank net's input channels, in order."""
+    b = bank_config(bank)
+    names = ["v_L", "v_R", "u_L", "u_R"]
+    for t in b["lp_taus"]:
+        names += [f"shear_lp_{1e3 * t:g}ms", f"normal_lp_{1e3 * t:g}ms"]
+    names += [f"shear_abs_{1e3 * t:g}ms" for t in b["abs_taus"]]
+    return tuple(names + ["load", "press", "load_peak"])
+
+
+def bank_units(bank=None) -> tuple:
+    """Units of :func:`bank_channels` (stress-rate features)."""
+    b = bank_config(bank)
+    return ("Pa/s", "Pa/s", "Pa/s^2", "Pa/s^2") + ("Pa/s",) * (2 * len(b["lp_taus"]) + len(b["abs_taus"])) \
+        + ("Pa", "Pa", "Pa")
+
+
+def bank_state_size(bank=None) -> int:
+    """Filter states per ridge: ``2 len(lp_taus) + len(abs_taus) + 3``."""
+    b = bank_config(bank)
+    return 2 * len(b["lp_taus"]) + len(b["abs_taus"]) + 3
+
+
+def bank_features(x, fs: float, bank=None, state=None, return_state: bool = False):
+    """The filter-bank net's channels from the 4 stress-rate channels of each ridge.
+
+    Parameters
+    ----------
+    x : array_like, shape (n_ridges, 4, n)
+        ``[v_L, v_R, u_L, u_R]`` per ridge (Pa/s, Pa/s^2), time last.
+    fs : float
+        Sample rate, Hz.
+    bank : dict, optional
+        Time constants (:func:`bank_config`); default :data:`DEFAULT_BANK`.
+    state : array_like, shape (n_ridges, bank_state_size), optional
+        Filter states before the first sample, in channel order after the four rates
+        (the low-passes, the |d| low-passes, load, press, load_peak); zero by default.
+    return_state : bool
+        Also return the state after the last sample.
+
+    Returns
+    -------
+    ndarray, shape (n_ridges, 4 + bank_state_size, n), float64 (and the state)
+    """
+    from scipy.signal import lfilter
+
+    b = bank_config(bank)
+    if not (isinstance(fs, (int, float, np.floating)) and math.isfinite(fs) and fs > 0):
+        raise ValueError(f"fs must be a positive number of Hz, got {fs!r}")
+    fs = float(fs)
+    x = np.asarray(x, dtype=np.float64)
+    if x.ndim != 3 or x.shape[1] != 4:
+        raise ValueError(f"x must have shape (n_ridges, 4, n), got {x.shape}")
+    n_r, _, n = x.shape
+    ns = bank_state_size(b)
+    s0 = np.zeros((n_r, ns)) if state is None else np.array(state, dtype=np.float64).reshape(n_r, ns)
+    d = x[:, 0] - x[:, 1]
+    s = x[:, 0] + x[:, 1]
+    out = np.empty((n_r, 4 + ns, n))
+    out[:, :4] = x
+    k = 0
+
+    def lowpass(src, a, gain, init):
+        # y_t = a y_{t-1} + gain x_t, from y_{-1} = init
+        return lfilter([gain], [1.0, -a], src, axis=-1, zi=(a * init)[:, None])[0]
+
+    for tau in b["lp_taus"]:
+        a = math.exp(-1.0 / (fs * tau))
+        out[:, 4 + k] = lowpass(d, a, 1.0 - a, s0[:, k])
+        out[:, 5 + k] = lowpass(s, a, 1.0 - a, s0[:, k + 1])
+        k += 2
+    ad = np.abs(d)
+    for tau in b["abs_taus"]:
+        a = math.exp(-1.0 / (fs * tau))
+        out[:, 4 + k] = lowpass(ad, a, 1.0 - a, s0[:, k])
+        k += 1
+    a = math.exp(-1.0 / (fs * b["load_tau"]))
+    out[:, 4 + k] = lowpass(d, a, 1.0 / fs, s0[:, k])
+    out[:, 5 + k] = lowpass(s, a, 1.0 / fs, s0[:, k + 1])
+    load = np.abs(out[:, 4 + k])
+    k += 2
+    c = math.exp(-1.0 / (fs * b["peak_tau"]))
+    peak = out[:, 4 + k]
+    p = s0[:, k].copy()
+    for t in range(n):
+        p = np.maximum(load[:, t], c * p)
+        peak[:, t] = p
+    if return_state:
+        end = out[:, 4:, -1].copy() if n else s0
+        return out, end
+    return out

@@ -1,0 +1,298 @@
+"""The filter-bank detector: feature stage, C++ kernel against numpy, BPTT gradient, weights kind."""
+from __future__ import annotations
+
+import json
+import math
+
+import numpy as np
+import pytest
+from tactile_mirror import _core
+from tactile_mirror.detector import SlipDetector
+from tactile_mirror.detector.bank import (
+    DEFAULT_BANK,
+    bank_channels,
+    bank_config,
+    bank_features,
+    bank_state_size,
+    bank_units,
+)
+from tactile_mirror.detector.core import reference_run
+from tactile_mirror.detector.network import init_params, loss_and_grad
+from tactile_mirror.detector.weights import DetectorWeights, WeightsError
+
+FS = 1000.0
+SMALL_BANK = {"lp_taus": [0.003, 0.05], "abs_taus": [0.02], "load_tau": 0.3, "peak_tau": 0.1}
+
+
+def _signals(n_r=6, n=700, seed=0):
+    rng = np.random.default_rng(seed)
+    t = np.arange(n) / FS
+    x = np.empty((n_r, 4, n))
+    for r in range(n_r):
+        ramp = np.clip((t - 0.1 * (r + 1) / n_r) * 8.0, 0, 1) * (t < 0.5)
+        x[r, 0] = 3e4 * ramp + 2e3 * rng.standard_normal(n)
+        x[r, 1] = -2e4 * ramp + 2e3 * rng.standard_normal(n)
+        x[r, 2] = 1e6 * rng.standard_normal(n)
+        x[r, 3] = 1e6 * rng.standard_normal(n)
+    return x
+
+
+def _bank_weights(seed=3, n_hidden=16, bank=None):
+    bank = bank_config(bank)
+    nf = len(bank_channels(bank))
+    p = init_params(nf, n_hidden, seed)
+    p.b2[:] = [0.5, -0.5]
+    x = bank_features(_signals(), FS, bank)
+    scale = np.sqrt(np.mean(x ** 2, axis=(0, 2)))
+    return DetectorWeights(p, np.zeros(nf), scale, FS, {"features": "stress_rate_bank", "bank": bank})
+
+
+def test_bank_features_follow_their_recurrences():
+    """Each channel against its one-line recurrence, sample by sample."""
+    x = _signals(n_r=3, n=300)
+    f = bank_features(x, FS, SMALL_BANK)
+    assert f.shape == (3, 4 + bank_state_size(SMALL_BANK), 300) == (3, len(bank_channels(SMALL_BANK)), 300)
+    np.testing.assert_array_equal(f[:, :4], x)
+    a = [math.exp(-1.0 / (FS * t)) for t in SMALL_BANK["lp_taus"]]
+    aa = math.exp(-1.0 / (FS * SMALL_BANK["abs_taus"][0]))
+    b = math.exp(-1.0 / (FS * SMALL_BANK["load_tau"]))
+    c = math.exp(-1.0 / (FS * SMALL_BANK["peak_tau"]))
+    z = np.zeros((3, 8))
+    for t in range(300):
+        d = x[:, 0, t] - x[:, 1, t]
+        s = x[:, 0, t] + x[:, 1, t]
+        for k in range(2):
+            z[:, 2 * k] = a[k] * z[:, 2 * k] + (1 - a[k]) * d
+            z[:, 2 * k + 1] = a[k] * z[:, 2 * k + 1] + (1 - a[k]) * s
+        z[:, 4] = aa * z[:, 4] + (1 - aa) * np.abs(d)
+        z[:, 5] = b * z[:, 5] + d / FS
+        z[:, 6] = b * z[:, 6] + s / FS
+        z[:, 7] = np.maximum(np.abs(z[:, 5]), c * z[:, 7])
+        np.testing.assert_allclose(f[:, 4:, t], z, rtol=1e-10, atol=1e-9)
+    # The peak holds the largest |load| and decays no faster than its leak.
+    assert np.all(f[:, -1] >= np.abs(f[:, -3]) - 1e-12)
+
+
+def test_bank_features_state_continues_across_blocks():
+    x = _signals(n_r=2, n=300)
+    whole = bank_features(x, FS)
+    a, st = bank_features(x[..., :111], FS, return_state=True)
+    b = bank_features(x[..., 111:], FS, state=st)
+    np.testing.assert_allclose(np.concatenate([a, b], axis=-1), whole, rtol=1e-12, atol=1e-9)
+
+
+@pytest.mark.parametrize("bad", [{"lp_taus": []}, {"lp_taus": [0.01, -1.0]}, {"abs_taus": [float("nan")]},
+                                 {"load_tau": 0.0}, {"peak_tau": "1"}, {"lp_taus": [0.01] * 9}, {"extra": 1}])
+def test_bank_config_refuses_bad_banks(bad):
+    with pytest.raises(ValueError):
+        bank_config({**DEFAULT_BANK, **bad})
+
+
+def test_bank_channels_and_units_agree():
+    assert len(bank_channels()) == len(bank_units()) == 4 + bank_state_size()
+    assert bank_channels()[-3:] == ("load", "press", "load_peak")
+
+
+@pytest.mark.parametrize("dtype,tol", [(np.float64, 1e-12), (np.float32, 2e-5)])
+@pytest.mark.parametrize("bank", [None, SMALL_BANK])
+def test_cpp_bank_kernel_matches_numpy(dtype, tol, bank):
+    w = _bank_weights(bank=bank)
+    x = _signals(seed=5)
+    ys, yn, yp = SlipDetector(w, dtype=dtype).run(x)
+    rs, _, rp = reference_run(w, x)
+    assert np.ptp(rs) > 0.05  # the outputs move: a real comparison
+    np.testing.assert_allclose(ys, rs, atol=tol)
+    np.testing.assert_allclose(yp, rp, atol=tol)
+    np.testing.assert_allclose(yn, 1.0 - ys, atol=tol)
+
+
+@pytest.mark.parametrize("dtype", [np.float64, np.float32])
+def test_cpp_bank_step_equals_run_and_blocks_continue(dtype):
+    w = _bank_weights()
+    x = _signals(n=150).astype(dtype)
+    det = SlipDetector(w, dtype=dtype)
+    ys, _, yp = det.run(x)
+    det2 = SlipDetector(w, dtype=dtype)
+    steps = np.stack([det2.step(x[:, :, t]) for t in range(x.shape[2])], axis=-1)
+    rtol = 1e-12 if dtype == np.float64 else 1e-5
+    np.testing.assert_allclose(steps[:, 0], ys, rtol=rtol, atol=rtol)
+    np.testing.assert_allclose(steps[:, 2], yp, rtol=rtol, atol=rtol)
+    det3 = SlipDetector(w, dtype=dtype)
+    a = det3.run(x[..., :70])
+    b = det3.run(x[..., 70:], reset=False)
+    np.testing.assert_allclose(np.concatenate([a[0], b[0]], axis=-1), ys, rtol=rtol, atol=rtol)
+    # The kernel's filter states are the numpy specification's end state.
+    _, st = bank_features(x.astype(np.float64), FS, return_state=True)
+    np.testing.assert_allclose(det3.kernel(x.shape[0]).state[1], st, rtol=1e-4 if dtype == np.float32 else 1e-12,
+                               atol=1e-6 * np.abs(st).max())
+
+
+def test_numpy_backend_continues_like_cpp():
+    w = _bank_weights()
+    x = _signals(n=200)
+    ref = SlipDetector(w).run(x)
+    det = SlipDetector(w, backend="numpy")
+    a = det.run(x[..., :90])
+    b = det.run(x[..., 90:], reset=False)
+    np.testing.assert_allclose(np.concatenate([a[0], b[0]], axis=-1), ref[0], atol=1e-12)
+
+
+@pytest.mark.parametrize("backend", ["cpp", "numpy"])
+def test_bank_rejects_nan_and_keeps_state(backend):
+    w = _bank_weights()
+    x = _signals(n=50)
+    det = SlipDetector(w, backend=backend)
+    det.run(x[..., :20])
+    before = (tuple(np.copy(s) for s in det.kernel(x.shape[0]).state) if backend == "cpp"
+              else tuple(np.copy(s) for s in det._state))
+    bad = x[..., 20:].copy()
+    bad[2, 1, 5] = np.nan
+    with pytest.raises(ValueError, match="ridge 2, channel 1, sample 5"):
+        det.run(bad, reset=False)
+    after = det.kernel(x.shape[0]).state if backend == "cpp" else det._state
+    np.testing.assert_array_equal(before[0], after[0])
+    np.testing.assert_array_equal(before[1], after[1])
+    # and it continues as if the bad block had never come
+    ref = SlipDetector(w, backend=backend)
+    ref.run(x[..., :20])
+    np.testing.assert_array_equal(det.run(x[..., 20:], reset=False)[0], ref.run(x[..., 20:], reset=False)[0])
+
+
+def test_bptt_gradient_bank_inputs_cpp_matches_numpy_and_finite_differences():
+    """The training gradient on the bank's inputs (real features, not white noise)."""
+    rng = np.random.default_rng(1)
+    n, h = 80, 5
+    x = bank_features(_signals(n_r=3, n=n, seed=2), FS)
+    nf = x.shape[1]
+    xn = x / np.sqrt(np.mean(x ** 2, axis=(0, 2)))[None, :, None]
+    s = xn.shape[0]
+    ts = (rng.random((s, n)) > 0.7).astype(float)
+    tp = rng.random((s, n))
+    ws = rng.random((s, n)) / (s * n)
+    wp = rng.random((s, n)) / (s * n)
+    theta = init_params(nf, h, 4).pack()
+    loss, grad = loss_and_grad(theta, xn, ts, tp, ws, wp, nf, h)
+    length = np.full(s, n, dtype=np.intp)
+    loss_c, grad_c = _core.jordan_loss_grad(theta, xn, ts, tp, ws, wp, length, h, 2)
+    assert abs(loss_c - loss) < 1e-12 * max(1.0, abs(loss))
+    np.testing.assert_allclose(grad_c, grad, rtol=1e-9, atol=1e-13)
+    eps = 1e-6
+    for j in rng.choice(theta.size, 12, replace=False):
+        d = np.zeros_like(theta)
+        d[j] = eps
+        num = (loss_and_grad(theta + d, xn, ts, tp, ws, wp, nf, h)[0]
+               - loss_and_grad(theta - d, xn, ts, tp, ws, wp, nf, h)[0]) / (2 * eps)
+        assert abs(num - grad[j]) < 1e-6 * max(1.0, abs(num))
+
+
+def test_weights_bank_kind_roundtrip(tmp_path):
+    w = _bank_weights(bank=SMALL_BANK)
+    assert w.kind == "jordan_bank" and w.bank == bank_config(SMALL_BANK) and w.load_tau is None
+    w.save(tmp_path / "b.npz")
+    back = DetectorWeights.load(tmp_path / "b.npz")
+    assert back.kind == "jordan_bank" and back.bank == w.bank
+    np.testing.assert_array_equal(back.params.w1, w.params.w1)
+    x = _signals(n=100)
+    np.testing.assert_array_equal(SlipDetector(back).run(x)[0], SlipDetector(w).run(x)[0])
+    json.dumps(back.metadata)
+
+
+def test_weights_bank_kind_needs_a_valid_bank(tmp_path):
+    w = _bank_weights()
+    meta = dict(w.metadata)
+    del meta["bank"]
+    with pytest.raises(WeightsError, match="bank"):
+        DetectorWeights(w.params, w.input_mean, w.input_scale, w.fs, meta)
+    with pytest.raises(WeightsError, match="load_tau"):
+        DetectorWeights(w.params, w.input_mean, w.input_scale, w.fs, {**meta, "bank": {**DEFAULT_BANK, "load_tau": -1}})
+    # a bank of another size than the weights' inputs
+    with pytest.raises(WeightsError, match="channels"):
+        DetectorWeights(w.params, w.input_mean, w.input_scale, w.fs, {**meta, "bank": SMALL_BANK})
+    # the same in a file: a bank edited in the stored metadata is refused on load
+    w.save(tmp_path / "b.npz")
+    data = dict(np.load(tmp_path / "b.npz", allow_pickle=False))
+    m = json.loads(str(data["metadata"]))
+    m["bank"]["lp_taus"] = [0.01]
+    data["metadata"] = np.array(json.dumps(m))
+    np.savez(tmp_path / "bad.npz", **data)
+    with pytest.raises(WeightsError, match="channels"):
+        DetectorWeights.load(tmp_path / "bad.npz")
+    data = dict(np.load(tmp_path / "b.npz", allow_pickle=False))
+    data["kind"] = np.array("jordan_memory")
+    np.savez(tmp_path / "bad2.npz", **data)
+    with pytest.raises(WeightsError, match="does not match"):
+        DetectorWeights.load(tmp_path / "bad2.npz")
+
+
+def test_truncated_bank_file_is_a_weights_error(tmp_path):
+    w = _bank_weights()
+    w.save(tmp_path / "b.npz")
+    raw = (tmp_path / "b.npz").read_bytes()
+    (tmp_path / "cut.npz").write_bytes(raw[: len(raw) // 2])
+    with pytest.raises(WeightsError):
+        DetectorWeights.load(tmp_path / "cut.npz")
+
+
+def test_bank_kernel_refuses_wrong_shapes():
+    w = _bank_weights()
+    p, b = w.params, w.bank
+    lp, ab = np.array(b["lp_taus"]), np.array(b["abs_taus"])
+    with pytest.raises(ValueError, match="w1 must have shape"):
+        _core.BankJordanf64(p.w1[:, :5], p.b1, p.w2, p.b2, w.input_mean[:4], w.input_gain[:4], 6, FS, lp, ab,
+                            0.5, 2.0)
+    with pytest.raises(ValueError, match="lp_taus"):
+        _core.BankJordanf64(p.w1, p.b1, p.w2, p.b2, w.input_mean, w.input_gain, 6, FS, -lp, ab, 0.5, 2.0)
+    with pytest.raises(ValueError, match="peak_tau"):
+        _core.BankJordanf64(p.w1, p.b1, p.w2, p.b2, w.input_mean, w.input_gain, 6, FS, lp, ab, 0.5, 0.0)
+    k = _core.BankJordanf64(p.w1, p.b1, p.w2, p.b2, w.input_mean, w.input_gain, 6, FS, lp, ab, 0.5, 2.0)
+    assert k.n_features == len(bank_channels()) and k.n_inputs == 4
+    with pytest.raises(ValueError, match=r"x must have shape \(6, 4\)"):
+        k.step(np.zeros((6, 8)))
+    with pytest.raises(TypeError, match="float64"):
+        k.step(np.zeros((6, 4), dtype=np.float32))
+    with pytest.raises(ValueError, match="state"):
+        k.state = (np.zeros(6), np.zeros((6, 2)))
+
+
+def test_training_bank_kind_from_results_records_bank():
+    from types import SimpleNamespace
+
+    from tactile_mirror.detector.training import make_training_set, train_detector
+
+    x = _signals(n_r=2, n=300)
+    t = np.arange(300) / FS
+    frac = np.zeros((2, 300))
+    frac[:, 200:] = 1.0
+    res = SimpleNamespace(features=x, fs=FS, t=t, slip_fraction=frac, v_out=np.zeros((2, 2, 300)))
+    ts = make_training_set([res], features="stress_rate_bank", bank=SMALL_BANK)
+    assert ts.x.shape == (2, len(bank_channels(SMALL_BANK)), 300) and ts.bank == bank_config(SMALL_BANK)
+    w = train_detector(ts, n_hidden=3, maxiter=3, progress=False)
+    assert w.kind == "jordan_bank" and w.bank == bank_config(SMALL_BANK)
+    assert w.metadata["channels"] == list(bank_channels(SMALL_BANK))
+    ys, _, _ = SlipDetector(w).run(x)
+    np.testing.assert_allclose(ys, reference_run(w, x)[0], atol=1e-11)
+
+
+def test_pipeline_refuses_bank_weights_by_name():
+    import tactile_mirror as tm
+
+    with pytest.raises(ValueError, match="jordan_bank"):
+        tm.MirrorPipeline(SlipDetector(_bank_weights()), FS, n_ridges=6)
+
+
+def test_paper_net_is_unchanged_by_the_bank_kind():
+    det = SlipDetector.paper()
+    assert det.kind == "jordan" and det.weights.bank is None and det.n_channels == 4
+
+
+def test_bundled_bank_net_loads_and_runs_like_numpy():
+    det = SlipDetector.bank()
+    assert det.kind == "jordan_bank" and det.n_channels == 4 and det.features == "stress_rate"
+    assert det.weights.metadata["training"]["negative_weight"] == 30.0
+    x = _signals(n=400)
+    ys, _, yp = det.run(x)
+    rs, _, rp = reference_run(det.weights, x)
+    np.testing.assert_allclose(ys, rs, atol=1e-11)
+    np.testing.assert_allclose(yp, rp, atol=1e-11)
+    # default() stays the paper's net (the pipeline and the C ABI run kind "jordan" only)
+    assert SlipDetector.default().kind == "jordan"
