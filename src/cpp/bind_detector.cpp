@@ -311,6 +311,72 @@ void bind_one(py::module_& m, const char* cls) {
             "scalar loop over the instances (step_one), the reference.");
 }
 
+// reset, step, run and time_step_ns of a detector with a feature stage in front of its
+// net (PyMemory, PyBank): the same calls, only the stage differs.
+template <typename T, typename PM>
+void def_staged_net_calls(py::class_<PM>& cls, const char* reset_doc, const char* timing_doc) {
+    cls
+        .def(
+            "reset",
+            [](PM& p) {
+                Claim claim(p.owner);
+                p.k->reset();
+            },
+            reset_doc)
+        .def(
+            "step",
+            [](PM& p, py::handle x) {
+                auto a = input<T>(x, "x");
+                if (a.ndim() != 2 || a.shape(0) != p.n_r || a.shape(1) != 4)
+                    throw py::value_error("x must have shape (" + std::to_string(p.n_r) + ", 4), got " +
+                                          shape_str(a));
+                check_features(a.data(), p.n_r, 4, 1, 4, 1, 1);
+                py::array_t<T> out({py::ssize_t(p.n_r), py::ssize_t(3)});
+                Claim claim(p.owner);
+                p.k->step(a.data(), out.mutable_data());
+                return out;
+            },
+            py::arg("x"), "One tick. x: (n_ridges, 4) -> (n_ridges, 3) [y_slip, y_non, y_pred].")
+        .def(
+            "run",
+            [](PM& p, py::handle x, bool reset) {
+                auto a = input<T>(x, "x");
+                if (a.ndim() != 3 || a.shape(0) != p.n_r || a.shape(1) != 4)
+                    throw py::value_error("x must have shape (" + std::to_string(p.n_r) + ", 4, n), got " +
+                                          shape_str(a));
+                const py::ssize_t n = a.shape(2);
+                py::array_t<T> out({py::ssize_t(3), py::ssize_t(p.n_r), n});
+                T* o = out.mutable_data();
+                const T* xd = a.data();
+                const std::ptrdiff_t N = p.n_r;
+                check_features(xd, N, 4, n, 4 * n, n, 1);
+                {
+                    Claim claim(p.owner);
+                    py::gil_scoped_release release;
+                    if (reset) p.k->reset();
+                    tactile::DenormalGuard ftz;
+                    p.k->run(xd, 4 * n, n, 1, n, o, o + N * n, o + 2 * N * n, n);
+                }
+                return out;
+            },
+            py::arg("x"), py::arg("reset") = false,
+            "Run over a block. x: (n_ridges, 4, n) -> (3, n_ridges, n) [y_slip, y_non, y_pred]; the state "
+            "carries over between calls (reset=True starts from zero). NaN/Inf features: ValueError, state "
+            "unchanged.")
+        .def(
+            "time_step_ns",
+            [](PM& p, long n_iter, int repeats) {
+                if (n_iter < 1) throw py::value_error("n_iter must be >= 1");
+                if (repeats < 1) throw py::value_error("repeats must be >= 1");
+                if (p.n_r > 64) throw py::value_error("too many ridges for the timing loop");
+                Claim claim(p.owner);
+                py::gil_scoped_release release;
+                return p.k->time_step_ns(n_iter, repeats);
+            },
+            py::arg("n_iter") = 1000000, py::arg("repeats") = 5,
+            timing_doc);
+}
+
 template <typename T>
 struct PyMemory {
     std::unique_ptr<MemoryJordan<T>> k;
@@ -322,7 +388,7 @@ template <typename T>
 void bind_memory(py::module_& m, const char* cls) {
     using PM = PyMemory<T>;
     constexpr int NF = MemoryJordan<T>::n_features;
-    py::class_<PM>(m, cls,
+    auto cls_ = py::class_<PM>(m, cls,
                    (std::string("Load-memory slip detector of one pad (") + dtype_name<T>() +
                     "): load integrals and pad channels in front of the Jordan kernel (8 inputs).")
                        .c_str())
@@ -393,67 +459,10 @@ void bind_memory(py::module_& m, const char* cls) {
                 Claim claim(p.owner);
                 p.k->set_state(yp.data(), ld.data());
             },
-            "(y_pred(t-1) per ridge, [load, press] per ridge): the recurrent state.")
-        .def(
-            "reset",
-            [](PM& p) {
-                Claim claim(p.owner);
-                p.k->reset();
-            },
-            "Set the feedback and load state to zero.")
-        .def(
-            "step",
-            [](PM& p, py::handle x) {
-                auto a = input<T>(x, "x");
-                if (a.ndim() != 2 || a.shape(0) != p.n_r || a.shape(1) != 4)
-                    throw py::value_error("x must have shape (" + std::to_string(p.n_r) + ", 4), got " +
-                                          shape_str(a));
-                check_features(a.data(), p.n_r, 4, 1, 4, 1, 1);
-                py::array_t<T> out({py::ssize_t(p.n_r), py::ssize_t(3)});
-                Claim claim(p.owner);
-                p.k->step(a.data(), out.mutable_data());
-                return out;
-            },
-            py::arg("x"), "One tick. x: (n_ridges, 4) -> (n_ridges, 3) [y_slip, y_non, y_pred].")
-        .def(
-            "run",
-            [](PM& p, py::handle x, bool reset) {
-                auto a = input<T>(x, "x");
-                if (a.ndim() != 3 || a.shape(0) != p.n_r || a.shape(1) != 4)
-                    throw py::value_error("x must have shape (" + std::to_string(p.n_r) + ", 4, n), got " +
-                                          shape_str(a));
-                const py::ssize_t n = a.shape(2);
-                py::array_t<T> out({py::ssize_t(3), py::ssize_t(p.n_r), n});
-                T* o = out.mutable_data();
-                const T* xd = a.data();
-                const std::ptrdiff_t N = p.n_r;
-                check_features(xd, N, 4, n, 4 * n, n, 1);
-                {
-                    Claim claim(p.owner);
-                    py::gil_scoped_release release;
-                    if (reset) p.k->reset();
-                    tactile::DenormalGuard ftz;
-                    p.k->run(xd, 4 * n, n, 1, n, o, o + N * n, o + 2 * N * n, n);
-                }
-                return out;
-            },
-            py::arg("x"), py::arg("reset") = false,
-            "Run over a block. x: (n_ridges, 4, n) -> (3, n_ridges, n) [y_slip, y_non, y_pred]; the state "
-            "carries over between calls (reset=True starts from zero). NaN/Inf features: ValueError, state "
-            "unchanged.")
-        .def(
-            "time_step_ns",
-            [](PM& p, long n_iter, int repeats) {
-                if (n_iter < 1) throw py::value_error("n_iter must be >= 1");
-                if (repeats < 1) throw py::value_error("repeats must be >= 1");
-                if (p.n_r > 64) throw py::value_error("too many ridges for the timing loop");
-                Claim claim(p.owner);
-                py::gil_scoped_release release;
-                return p.k->time_step_ns(n_iter, repeats);
-            },
-            py::arg("n_iter") = 1000000, py::arg("repeats") = 5,
-            "Mean time of one tick (feature stage and net) of all ridges, measured inside C++ (ns, best of "
-            "repeats).");
+            "(y_pred(t-1) per ridge, [load, press] per ridge): the recurrent state.");
+    def_staged_net_calls<T>(cls_, "Set the feedback and load state to zero.",
+                            "Mean time of one tick (feature stage and net) of all ridges, measured inside C++ "
+                            "(ns, best of repeats).");
 }
 
 template <typename T>
@@ -466,7 +475,7 @@ struct PyBank {
 template <typename T>
 void bind_bank(py::module_& m, const char* cls) {
     using PM = PyBank<T>;
-    py::class_<PM>(m, cls,
+    auto cls_ = py::class_<PM>(m, cls,
                    (std::string("Filter-bank slip detector (") + dtype_name<T>() +
                     "): IIR filters over the stress rates in front of the Jordan kernel.")
                        .c_str())
@@ -558,67 +567,10 @@ void bind_bank(py::module_& m, const char* cls) {
                 Claim claim(p.owner);
                 p.k->set_state(yp.data(), ld.data());
             },
-            "(y_pred(t-1) per ridge, filter states (n_ridges, n_state)): the recurrent state.")
-        .def(
-            "reset",
-            [](PM& p) {
-                Claim claim(p.owner);
-                p.k->reset();
-            },
-            "Set the feedback and filter states to zero.")
-        .def(
-            "step",
-            [](PM& p, py::handle x) {
-                auto a = input<T>(x, "x");
-                if (a.ndim() != 2 || a.shape(0) != p.n_r || a.shape(1) != 4)
-                    throw py::value_error("x must have shape (" + std::to_string(p.n_r) + ", 4), got " +
-                                          shape_str(a));
-                check_features(a.data(), p.n_r, 4, 1, 4, 1, 1);
-                py::array_t<T> out({py::ssize_t(p.n_r), py::ssize_t(3)});
-                Claim claim(p.owner);
-                p.k->step(a.data(), out.mutable_data());
-                return out;
-            },
-            py::arg("x"), "One tick. x: (n_ridges, 4) -> (n_ridges, 3) [y_slip, y_non, y_pred].")
-        .def(
-            "run",
-            [](PM& p, py::handle x, bool reset) {
-                auto a = input<T>(x, "x");
-                if (a.ndim() != 3 || a.shape(0) != p.n_r || a.shape(1) != 4)
-                    throw py::value_error("x must have shape (" + std::to_string(p.n_r) + ", 4, n), got " +
-                                          shape_str(a));
-                const py::ssize_t n = a.shape(2);
-                py::array_t<T> out({py::ssize_t(3), py::ssize_t(p.n_r), n});
-                T* o = out.mutable_data();
-                const T* xd = a.data();
-                const std::ptrdiff_t N = p.n_r;
-                check_features(xd, N, 4, n, 4 * n, n, 1);
-                {
-                    Claim claim(p.owner);
-                    py::gil_scoped_release release;
-                    if (reset) p.k->reset();
-                    tactile::DenormalGuard ftz;
-                    p.k->run(xd, 4 * n, n, 1, n, o, o + N * n, o + 2 * N * n, n);
-                }
-                return out;
-            },
-            py::arg("x"), py::arg("reset") = false,
-            "Run over a block. x: (n_ridges, 4, n) -> (3, n_ridges, n) [y_slip, y_non, y_pred]; the state "
-            "carries over between calls (reset=True starts from zero). NaN/Inf features: ValueError, state "
-            "unchanged.")
-        .def(
-            "time_step_ns",
-            [](PM& p, long n_iter, int repeats) {
-                if (n_iter < 1) throw py::value_error("n_iter must be >= 1");
-                if (repeats < 1) throw py::value_error("repeats must be >= 1");
-                if (p.n_r > 64) throw py::value_error("too many ridges for the timing loop");
-                Claim claim(p.owner);
-                py::gil_scoped_release release;
-                return p.k->time_step_ns(n_iter, repeats);
-            },
-            py::arg("n_iter") = 1000000, py::arg("repeats") = 5,
-            "Mean time of one tick (filter bank and net) of all ridges, measured inside C++ (ns, best of "
-            "repeats).");
+            "(y_pred(t-1) per ridge, filter states (n_ridges, n_state)): the recurrent state.");
+    def_staged_net_calls<T>(cls_, "Set the feedback and filter states to zero.",
+                            "Mean time of one tick (filter bank and net) of all ridges, measured inside C++ "
+                            "(ns, best of repeats).");
 }
 
 }  // namespace
