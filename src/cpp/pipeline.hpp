@@ -34,7 +34,7 @@
 //              (shear load) high-passed at 1/(2 pi asym_tau). With shear_weights w the
 //              sum is sum_r (w_2r rate_L,r + w_2r+1 rate_R,r): a calibrated combination of
 //              the strips that stays monotonic in the shear where the plain L-R
-//              difference turns back (loop.calibrate_shear_weights). dir = direction_sign *
+//              difference turns back (loop.experiment.calibrate_shear_weights). dir = direction_sign *
 //              sign(a) while |a| > asym_deadband, else the previous dir (0 at start).
 //   paper      (the paper's law, section 4.2.2) every tick with y >= threshold the
 //              stage target moves by dir * gain * y * dt (gain in m/s per unit
@@ -56,7 +56,9 @@
 //
 // Slip guard (both laws, slip_hold > 0): while the detector reports gross slip and for
 // slip_hold seconds after, the controller holds as in a fault; then the asymmetry is
-// tared again (the re-stuck contact is the new reference).
+// tared again (the re-stuck contact is the new reference). A report starts it once it
+// lasted slip_confirm and while |a| >= slip_min_asym; a type-2 integral at v_max (a
+// run-away) starts it at once.
 //
 // Arming (both laws): for the first arm_delay seconds after a reset the command holds
 // (the finger settles on the pad); at the end the asymmetry integrator is zeroed, so the
@@ -396,7 +398,8 @@ public:
         confirm_ticks_ = static_cast<std::uint64_t>(std::llround(p.slip_confirm * fs));
     }
 
-    // y: max y_pred of the ridges; asym: sum over ridges of (rate_L - rate_R);
+    // y: max y_pred of the ridges; asym: the shear signal (sum over ridges of
+    // rate_L - rate_R, or the pipeline's shear_weights combination);
     // fault: no valid input any more, bring the stage to rest; slip: the detector
     // reports gross slip now (any ridge's y_slip at its threshold).
     TM_ALWAYS_INLINE void step(double y, double asym, bool fault = false, bool slip = false) noexcept {
@@ -419,14 +422,11 @@ public:
             // sliding contact's inverted asymmetry) or a finger the stage cannot follow:
             // either way, guard as after a detected slip.
             const bool runaway = p_.shear_integral > 0.0 && std::fabs(w_) >= p_.v_max;
-            // A slip counts once the detector reported it on confirm_ticks_ + 1 ticks in a
-            // row: a single tick of y_slip over its threshold while the contact still sticks
-            // (a fast change of the shear) would otherwise stop a stage that follows a
-            // moving finger, and the stop itself makes the slip.
-            // And only while the contact carries shear: a contact whose shear signal is
-            // near its tare cannot slip, so there the report is a false alarm (the
-            // detector's, at the fastest changes of the shear), and stopping a stage
-            // that follows a moving finger would itself make the slip.
+            // A detected slip counts once reported on confirm_ticks_ + 1 ticks in a row and
+            // only while the shear signal is at least slip_min_asym from its tare: the
+            // detector raises y_slip for a few ticks at the fastest changes of the shear
+            // while the contact sticks, and a contact near its tare cannot slip; stopping
+            // a stage that follows a moving finger on such a report makes the slip.
             slip_run_ = slip ? slip_run_ + 1 : 0;
             const bool loaded = std::fabs(a_) >= p_.slip_min_asym;
             if ((slip && loaded && slip_run_ > confirm_ticks_) || runaway) hold_left_ = hold_ticks_;
@@ -586,7 +586,8 @@ public:
         ctrl_ = StageController(c.controller, c.fs);
         ctrl_kind_ = c.controller.kind;
         shear_w_.resize(nch_);
-        for (std::size_t i = 0; i < nch_; ++i) shear_w_[i] = c.shear_weights ? c.shear_weights[i] : (i % 2 ? -1.0 : 1.0);
+        for (std::size_t i = 0; i < nch_; ++i)
+            shear_w_[i] = c.shear_weights ? c.shear_weights[i] : (i % 2 ? -1.0 : 1.0);
         xin_.resize(n_inputs());
         rate_.resize(nch_);
         rate2_.resize(nch_);
@@ -819,7 +820,8 @@ private:
     // instead of multiplying it, so the bounds grow by about alpha <= 3 per tick.
     // Chained through the cascades (a section's input bound is the previous one's
     // output bound; the differentiator's input is the rate) and the controller's
-    // asymmetry integrator (|a'| <= |a| + dt sum|w| |rate|, w the shear weights), the bounds after one tick
+    // asymmetry integrator (|a'| <= |a| + dt sum|w| |rate|, w the shear weights), the
+    // bounds after one tick
     // are an affine, non-negative map v' <= M v of v = (section state bounds, |a|, 1)
     // whose input term is the largest accepted sample (input_bound_). The map and
     // its powers M^(2^j) are built at construction; after a guarded, accepted tick
