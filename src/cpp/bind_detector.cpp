@@ -311,11 +311,26 @@ void bind_one(py::module_& m, const char* cls) {
             "scalar loop over the instances (step_one), the reference.");
 }
 
-// reset, step, run and time_step_ns of a detector with a feature stage in front of its
-// net (PyMemory, PyBank): the same calls, only the stage differs.
+// The sizes, dtype, SIMD path, reset, step, run and time_step_ns of a detector with a
+// feature stage in front of its net (PyMemory, PyBank): the same calls, only the stage
+// (its constructor and state) differs.
 template <typename T, typename PM>
 void def_staged_net_calls(py::class_<PM>& cls, const char* reset_doc, const char* timing_doc) {
     cls
+        .def_property_readonly("n_instances", [](const PM& p) { return p.n_r; })
+        .def_property_readonly("n_inputs", [](const PM&) { return 4; })
+        .def_property_readonly("n_hidden", [](const PM& p) { return p.k->n_hidden(); })
+        .def_property_readonly("dtype", [](const PM&) { return py::dtype::of<T>(); })
+        .def_property_readonly("simd_path",
+                               [](const PM& p) { return std::string(simd::isa_name(p.k->net().isa())); })
+        .def(
+            "set_simd_path",
+            [](PM& p, const std::string& name) {
+                const auto isa = parse_path(name);
+                Claim claim(p.owner);
+                p.k->net().set_isa(isa);
+            },
+            py::arg("path"))
         .def(
             "reset",
             [](PM& p) {
@@ -419,20 +434,6 @@ void bind_memory(py::module_& m, const char* cls) {
              py::arg("w1"), py::arg("b1"), py::arg("w2"), py::arg("b2"), py::arg("input_mean"),
              py::arg("input_gain"), py::arg("n_ridges"), py::arg("fs"), py::arg("tau"),
              py::arg("activation") = "exact")
-        .def_property_readonly("n_instances", [](const PM& p) { return p.n_r; })
-        .def_property_readonly("n_inputs", [](const PM&) { return 4; })
-        .def_property_readonly("n_hidden", [](const PM& p) { return p.k->n_hidden(); })
-        .def_property_readonly("dtype", [](const PM&) { return py::dtype::of<T>(); })
-        .def_property_readonly("simd_path",
-                               [](const PM& p) { return std::string(simd::isa_name(p.k->net().isa())); })
-        .def(
-            "set_simd_path",
-            [](PM& p, const std::string& name) {
-                const auto isa = parse_path(name);
-                Claim claim(p.owner);
-                p.k->net().set_isa(isa);
-            },
-            py::arg("path"))
         .def_property(
             "state",
             [](PM& p) {
@@ -527,20 +528,6 @@ void bind_bank(py::module_& m, const char* cls) {
              py::arg("input_gain"), py::arg("n_ridges"), py::arg("fs"), py::arg("lp_taus"), py::arg("abs_taus"),
              py::arg("load_tau"), py::arg("peak_tau"), py::arg("activation") = "exact")
         .def_property_readonly("n_features", [](const PM& p) { return p.k->n_features(); })
-        .def_property_readonly("n_instances", [](const PM& p) { return p.n_r; })
-        .def_property_readonly("n_inputs", [](const PM&) { return 4; })
-        .def_property_readonly("n_hidden", [](const PM& p) { return p.k->n_hidden(); })
-        .def_property_readonly("dtype", [](const PM&) { return py::dtype::of<T>(); })
-        .def_property_readonly("simd_path",
-                               [](const PM& p) { return std::string(simd::isa_name(p.k->net().isa())); })
-        .def(
-            "set_simd_path",
-            [](PM& p, const std::string& name) {
-                const auto isa = parse_path(name);
-                Claim claim(p.owner);
-                p.k->net().set_isa(isa);
-            },
-            py::arg("path"))
         .def_property(
             "state",
             [](PM& p) {
