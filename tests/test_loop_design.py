@@ -316,9 +316,12 @@ def test_shear_weights_are_checked(bad, match):
 def test_calibrated_shear_signal_stays_monotonic_beyond_the_plain_difference():
     # The pad alone (no finger path): the calibrated weights, then a slow push of the finger
     # each way; the shear signal's range of monotonic growth against L - R's.
-    from tactile_mirror.loop.experiment import _weights_dict, calibrate_shear_weights, default_weights
-    from tactile_mirror.loop.scene import LoopScene, PlantSource, loop_pipeline, make_plant
-    from tactile_mirror.loop.controller import NoController
+    from tactile_mirror.loop.experiment import (
+        _weights_dict,
+        calibrate_shear_weights,
+        default_weights,
+        still_pad_features,
+    )
 
     w = _weights_dict(default_weights("fem", FS))
     sw = calibrate_shear_weights(w, FS)
@@ -329,10 +332,7 @@ def test_calibrated_shear_signal_stays_monotonic_beyond_the_plain_difference():
     def monotonic_to(sign, weights):
         n0 = 500
         finger = np.concatenate([np.zeros(n0), sign * np.arange(1, 241) * 0.5e-6])  # to 0.12 mm
-        sc = LoopScene(duration=finger.size / FS, fs=FS, plant="fem")
-        src = PlantSource(sc, make_plant(sc, 6), PVDFCircuit(), finger)
-        x = np.stack([src.read(0.0, k / FS) for k in range(finger.size)])
-        f = loop_pipeline(w, FS, NoController(), 6).process_block(x, features=True)[1].reshape(-1, 6, 4)
+        f = still_pad_features(w, finger, FS)
         s = np.cumsum(f[:, :, 0] * weights[:, 0] + f[:, :, 1] * weights[:, 1], axis=0).sum(axis=1)
         s = sign * (s[n0:] - s[n0])
         turn = np.flatnonzero(np.diff(s) < 0)

@@ -61,6 +61,7 @@ __all__ = [
     "make_laws",
     "open_and_closed",
     "run_experiment",
+    "still_pad_features",
     "train_detector_on_brush",
 ]
 
@@ -126,6 +127,17 @@ def calibrate_shear(weights, fs: float = 1000.0, n_ridges: int = 6, plant: str =
     return (1.0 if a > 0 else -1.0), abs(a) / push
 
 
+def still_pad_features(weights, finger, fs: float = 1000.0, n_ridges: int = 6, plant: str = "fem") -> np.ndarray:
+    """The loop pipeline's features ``(n, n_ridges, 4)`` (rate_L, rate_R, rate2_L, rate2_R) for
+    a finger path (m) over the pad held still: the calibration's measurement."""
+    finger = np.asarray(finger, dtype=np.float64)
+    scene = LoopScene(duration=finger.size / fs, fs=fs, label="calibration", plant=plant)
+    source = PlantSource(scene, _make_plant(scene, n_ridges), PVDFCircuit(), finger)
+    x = np.stack([source.read(0.0, k / fs) for k in range(finger.size)])
+    pipe = loop_pipeline(weights, fs, NoController(), n_ridges)
+    return pipe.process_block(x, features=True)[1].reshape(finger.size, n_ridges, 4)
+
+
 def _triangle_path(amplitudes, step: float) -> np.ndarray:
     """0, then one cycle +a, -a per amplitude, back to 0; ``step`` m per tick."""
     path, x = [np.zeros(1)], 0.0
@@ -157,11 +169,7 @@ def calibrate_shear_weights(weights, fs: float = 1000.0, n_ridges: int = 6, plan
     """
     n0 = round(0.5 * fs) if plant == "fem" else 0
     finger = np.concatenate([np.zeros(n0), _triangle_path(amplitudes, speed / fs)])
-    scene = LoopScene(duration=finger.size / fs, fs=fs, label="calibration", plant=plant)
-    source = PlantSource(scene, _make_plant(scene, n_ridges), PVDFCircuit(), finger)
-    x = np.stack([source.read(0.0, k / fs) for k in range(finger.size)])
-    pipe = loop_pipeline(weights, fs, NoController(), n_ridges)
-    feats = pipe.process_block(x, features=True)[1].reshape(finger.size, n_ridges, 4)
+    feats = still_pad_features(weights, finger, fs, n_ridges, plant)
     diff = np.cumsum(feats[:, :, 0] - feats[:, :, 1], axis=0) / fs  # integrated L-R rate per ridge
     diff = diff[n0:] - diff[n0]
     c = np.linalg.lstsq(diff, finger[n0:], rcond=None)[0]
