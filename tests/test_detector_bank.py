@@ -273,13 +273,6 @@ def test_training_bank_kind_from_results_records_bank():
     np.testing.assert_allclose(ys, reference_run(w, x)[0], atol=1e-11)
 
 
-def test_pipeline_refuses_bank_weights_by_name():
-    import tactile_mirror as tm
-
-    with pytest.raises(ValueError, match="jordan_bank"):
-        tm.MirrorPipeline(SlipDetector(_bank_weights()), FS, n_ridges=6)
-
-
 def test_paper_net_is_unchanged_by_the_bank_kind():
     det = SlipDetector.paper()
     assert det.kind == "jordan" and det.weights.bank is None and det.n_channels == 4

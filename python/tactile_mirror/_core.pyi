@@ -360,10 +360,12 @@ class _MirrorPipeline(Generic[_F, _FD]):
         max_hold_ticks: SupportsIndex,
         controller: _ControllerParams,
         shear_weights: npt.ArrayLike | None = None,
+        bank: dict[str, Any] | None = None,
     ) -> None:
         """Build the pipeline; see tactile_mirror.pipeline.pipeline_config for the arguments.
-        Filters (sos_*) are None or (n_sections, 6); w1 is (n_hidden, 5); shear_weights
-        None or (n_ridges, 2)."""
+        Filters (sos_*) are None or (n_sections, 6); w1 is (n_hidden, nf + 1) with nf = 4, or
+        the filter bank's input count when bank (lp_taus, abs_taus, load_tau, peak_tau) is
+        given; shear_weights None or (n_ridges, 2)."""
     @property
     def n_ridges(self) -> int: ...
     @property
@@ -374,6 +376,11 @@ class _MirrorPipeline(Generic[_F, _FD]):
     def fs(self) -> float: ...
     @property
     def use_u(self) -> bool: ...
+    @property
+    def detector_kind(self) -> int:
+        """0: the paper's net; 1: the filter-bank net."""
+    @property
+    def n_detector_inputs(self) -> int: ...
     @property
     def dtype(self) -> np.dtype[_F]:
         """Arithmetic of the filters."""

@@ -3,7 +3,9 @@
 :class:`MirrorPipeline` is one C++ object (``src/cpp/pipeline.hpp``) stepped once per
 tick with no allocation: stress-rate estimation (the equaliser sections of
 :mod:`tactile_mirror.estimator`), the slip detector (one Jordan MLP instance per
-ridge) and a stage controller (:mod:`tactile_mirror.loop.controller`). The same
+ridge: the paper's net on the four stress rates, or the filter-bank net of
+:mod:`tactile_mirror.detector.bank` on those plus its filter channels) and a stage
+controller (:mod:`tactile_mirror.loop.controller`). The same
 object is reachable through the plain C ABI ``tm.h``
 (:mod:`tactile_mirror.loop.capi`), built from the same :attr:`MirrorPipeline.config`.
 
@@ -17,6 +19,7 @@ reference the C++ results are tested against, and the baseline of the benchmarks
 """
 from __future__ import annotations
 
+import copy
 import math
 import numbers
 
@@ -36,6 +39,10 @@ _CORES = {("float64", "float64"): "_MirrorPipelineF64", ("float32", "float32"): 
 _DEFAULTS = _core.pipeline_defaults()
 
 
+#: Detector kinds the pipeline runs (weights ``kind``).
+PIPELINE_DETECTOR_KINDS = ("jordan", "jordan_bank")
+
+
 def _weights_of(detector):
     """DetectorWeights from a SlipDetector, DetectorWeights or a mapping of arrays."""
     w = getattr(detector, "weights", detector)
@@ -45,13 +52,17 @@ def _weights_of(detector):
     if not all(hasattr(w, k) for k in needed):
         raise TypeError("detector must be a SlipDetector, a DetectorWeights or a dict of weight arrays, "
                         f"got {type(detector).__name__}")
-    if getattr(w, "kind", "jordan") != "jordan":
-        raise ValueError(f"the pipeline runs the paper's Jordan net (weights kind 'jordan'); weights of kind "
-                         f"{w.kind!r} run through SlipDetector, not yet in the pipeline")
+    kind = getattr(w, "kind", "jordan")
+    if kind not in PIPELINE_DETECTOR_KINDS:
+        raise ValueError(f"the pipeline runs detectors of kind {PIPELINE_DETECTOR_KINDS}; weights of kind "
+                         f"{kind!r} run through SlipDetector only")
     p = w.params
+    bank = w.bank if kind == "jordan_bank" else None
     return {"w1": p.w1, "b1": p.b1, "w2": p.w2, "b2": p.b2, "input_mean": w.input_mean,
             "input_gain": 1.0 / np.asarray(w.input_scale, dtype=np.float64), "fs": float(w.fs),
-            "features": getattr(w, "features", "stress_rate")}
+            # the filter-bank net derives its other inputs from the stress rates in C++
+            "features": "stress_rate" if bank is not None else getattr(w, "features", "stress_rate"),
+            "detector_kind": kind, "bank": bank}
 
 
 def _positive(value, name: str) -> float:
@@ -91,6 +102,19 @@ def pipeline_config(detector, fs, n_ridges: int = 6, *, estimator=None, sos_v=No
     if not math.isclose(weights_fs, fs, rel_tol=1e-9):
         raise ValueError(f"fs={fs} Hz does not match the {weights_fs} Hz the detector was trained for")
     features = w.get("features", "stress_rate")
+    detector_kind = w.get("detector_kind") or "jordan"
+    if detector_kind not in PIPELINE_DETECTOR_KINDS:
+        raise ValueError(f"detector_kind must be one of {PIPELINE_DETECTOR_KINDS}, got {detector_kind!r}")
+    bank = None
+    if detector_kind == "jordan_bank":
+        from .detector.bank import bank_config
+
+        bank = bank_config(w.get("bank"))
+        if features != "stress_rate":
+            raise ValueError("the filter-bank detector takes stress-rate features")
+    elif w.get("bank") is not None:
+        raise ValueError("bank is given but detector_kind is 'jordan' (the paper's net has no filter bank)")
+    n_det = 4 if bank is None else 4 + 2 * len(bank["lp_taus"]) + len(bank["abs_taus"]) + 3
     if estimator is not None:
         if any(s is not None for s in (sos_v, sos_u, sos_diff)):
             raise ValueError("give either estimator or sos_v/sos_u/sos_diff, not both")
@@ -150,6 +174,13 @@ def pipeline_config(detector, fs, n_ridges: int = 6, *, estimator=None, sos_v=No
         if not np.all(np.isfinite(a)):
             raise ValueError(f"detector {k} must be finite")
         arrays[k] = a.copy()
+    if arrays["w1"].ndim != 2 or arrays["w1"].shape[1] != n_det + 1:
+        raise ValueError(f"detector w1 must have shape (n_hidden, {n_det + 1}) for a {detector_kind!r} net, "
+                         f"got {arrays['w1'].shape}")
+    for k in ("input_mean", "input_gain"):
+        if arrays[k].shape != (n_det,):
+            raise ValueError(f"detector {k} must have shape ({n_det},) for a {detector_kind!r} net, "
+                             f"got {arrays[k].shape}")
     return {
         "n_ridges": n_ridges, "ridges": ridges, "fs": fs, "use_u": use_u,
         "sos_v": sos_v, "sos_u": sos_u, "sos_diff": sos_diff,
@@ -157,6 +188,7 @@ def pipeline_config(detector, fs, n_ridges: int = 6, *, estimator=None, sos_v=No
         "features": features, "activation": activation, "slip_threshold": slip_threshold,
         "max_hold_ticks": int(max_hold_ticks), "controller": ctrl.params(), "dtype": dt.name,
         "detector_dtype": ddt.name, "shear_weights": shear_weights,
+        "detector_kind": detector_kind, "bank": bank,
     }
 
 
@@ -166,9 +198,11 @@ class MirrorPipeline:
     Parameters
     ----------
     detector : SlipDetector or DetectorWeights
-        The trained detector; its sample rate must equal ``fs`` (weights made for
-        another rate are refused) and its feature kind decides the estimator:
-        ``"stress_rate"`` needs equaliser sections, ``"circuit"`` takes raw voltages.
+        The trained detector, of kind ``"jordan"`` (the paper's net) or
+        ``"jordan_bank"`` (the filter-bank net, its bank run in C++ on the stress
+        rates); its sample rate must equal ``fs`` (weights made for another rate are
+        refused) and its feature kind decides the estimator: ``"stress_rate"`` needs
+        equaliser sections, ``"circuit"`` takes raw voltages.
     fs : float
         Tick rate, Hz.
     n_ridges : int
@@ -242,6 +276,8 @@ class MirrorPipeline:
         weights = {k: cfg[k] for k in ("w1", "b1", "w2", "b2", "input_mean", "input_gain")}
         weights["fs"] = cfg["weights_fs"]
         weights["features"] = cfg.get("features", "stress_rate")
+        weights["detector_kind"] = cfg.get("detector_kind") or "jordan"
+        weights["bank"] = cfg.get("bank")
         kw = {k: cfg.get(k) for k in ("sos_v", "sos_u", "sos_diff", "use_u", "v_limit", "u_limit",
                                        "controller", "dtype", "detector_dtype", "activation", "slip_threshold",
                                        "max_hold_ticks", "ridges", "shear_weights")}
@@ -256,7 +292,7 @@ class MirrorPipeline:
                               cfg["sos_diff"], cfg["v_limit"], cfg["u_limit"], cfg["w1"], cfg["b1"],
                               cfg["w2"], cfg["b2"], cfg["input_mean"], cfg["input_gain"], cfg["weights_fs"],
                               cfg["activation"], cfg["slip_threshold"], cfg["max_hold_ticks"],
-                              dict(cfg["controller"]), cfg.get("shear_weights"))
+                              dict(cfg["controller"]), cfg.get("shear_weights"), cfg.get("bank"))
         self._controller = controller_from_dict(cfg["controller"])
         # Bound C++ methods: calling them costs no Python frame.
         self.step = self._core.step
@@ -305,7 +341,7 @@ class MirrorPipeline:
     @property
     def config(self) -> dict:
         """Everything the pipeline was built from (plain arrays, numbers, strings)."""
-        return {k: (v.copy() if isinstance(v, np.ndarray) else v) for k, v in self._config.items()}
+        return {k: (v.copy() if isinstance(v, np.ndarray) else copy.deepcopy(v)) for k, v in self._config.items()}
 
     @property
     def controller(self) -> Controller:
@@ -334,6 +370,11 @@ class MirrorPipeline:
     @property
     def dtype(self) -> np.dtype:
         return self._core.dtype
+
+    @property
+    def detector_kind(self) -> str:
+        """``"jordan"`` (the paper's net) or ``"jordan_bank"`` (the filter-bank net)."""
+        return self._config["detector_kind"]
 
     @property
     def detector_dtype(self) -> np.dtype:
@@ -394,8 +435,9 @@ class ReferencePipeline:
 
     Same configuration, layout and semantics as :class:`MirrorPipeline` (built from
     its :attr:`~MirrorPipeline.config`): ``scipy.signal.sosfilt`` with carried ``zi``
-    per path, the Jordan MLP in numpy, the controller's :meth:`Controller.run`
-    arithmetic. Slow (tens of microseconds per tick): for tests and benchmarks.
+    per path, the filter bank of a ``"jordan_bank"`` detector with
+    :func:`~tactile_mirror.detector.bank.bank_features` (state carried), the Jordan MLP
+    in numpy, the controller's :meth:`Controller.run` arithmetic. Slow (tens of microseconds per tick): for tests and benchmarks.
     """
 
     def __init__(self, config: dict):
@@ -414,6 +456,11 @@ class ReferencePipeline:
         second = c["sos_u"] if c["use_u"] else c["sos_diff"]
         self.z2 = None if second is None else np.zeros((second.shape[0], self.nch, 2))
         self.p = np.zeros(self.R)
+        self.bank_state = None
+        if c.get("bank") is not None:
+            from .detector.bank import bank_state_size
+
+            self.bank_state = np.zeros((self.R, bank_state_size(c["bank"])))
         self.det = np.zeros((self.R, 3))
         self.feat = np.zeros((self.R, 4))
         self.law = self.ctrl._start(x0)
@@ -440,7 +487,7 @@ class ReferencePipeline:
             if not ok:
                 reason = "overflow"
         if ok:
-            zv, z2, feat, p, det = new
+            zv, z2, feat, p, det, bank_state = new
             sw = c.get("shear_weights")
             asym = float(np.sum(feat[:, 0] - feat[:, 1]) if sw is None else np.sum(sw * feat[:, :2]))
             slip = float(np.max(det[:, 0])) >= c["slip_threshold"]
@@ -454,6 +501,7 @@ class ReferencePipeline:
                 ok, reason = False, "overflow"
             else:  # accepted: commit
                 self.zv, self.z2, self.feat, self.p, self.det = zv, z2, feat, p, det
+                self.bank_state = bank_state
                 self.out[2:] = det.ravel()
                 self.consecutive = 0
                 self.slip = slip
@@ -473,7 +521,7 @@ class ReferencePipeline:
 
     def _update(self, x):
         """The estimator and detector update of an accepted tick, not yet committed:
-        (zv, z2, features, y_pred state, detector outputs)."""
+        (zv, z2, features, y_pred state, detector outputs, filter-bank state)."""
         c = self.cfg
         nch = self.nch
         zv, z2 = self.zv, self.z2
@@ -493,14 +541,22 @@ class ReferencePipeline:
         rate = rate[:, 0].reshape(self.R, 2)
         rate2 = rate2[:, 0].reshape(self.R, 2)
         feat = np.concatenate([rate, rate2], axis=1)
-        xn = (feat - c["input_mean"]) * c["input_gain"]
+        net_in, bank_state = feat, None
+        if self.bank_state is not None:
+            from .detector.bank import bank_features
+
+            full, bank_state = bank_features(feat[:, :, None], c["fs"], c["bank"], state=self.bank_state,
+                                             return_state=True)
+            net_in = full[:, :, 0]
+        nf = net_in.shape[1]
+        xn = (net_in - c["input_mean"]) * c["input_gain"]
         clamp = 600.0 if np.dtype(c.get("detector_dtype") or c["dtype"]) == np.float64 else 80.0
-        a1 = xn @ c["w1"][:, :4].T + self.p[:, None] * c["w1"][:, 4] + c["b1"]
+        a1 = xn @ c["w1"][:, :nf].T + self.p[:, None] * c["w1"][:, nf] + c["b1"]
         h = 1.0 / (1.0 + np.exp(-np.clip(a1, -clamp, clamp)))
         o = h @ c["w2"].T + c["b2"]
         y = 1.0 / (1.0 + np.exp(-np.clip(o, -clamp, clamp)))
         det = np.stack([y[:, 0], 1.0 - y[:, 0], y[:, 1]], axis=1)
-        return zv, z2, feat, y[:, 1].copy(), det
+        return zv, z2, feat, y[:, 1].copy(), det, bank_state
 
     def process_block(self, x) -> np.ndarray:
         x = np.asarray(x, dtype=np.float64)

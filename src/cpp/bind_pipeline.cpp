@@ -4,7 +4,9 @@
 // the filters and of the detector; inputs and outputs are float64 either way):
 //   __init__(n_ridges, fs, use_u, sos_v, sos_u, sos_diff, v_limit, u_limit, w1, b1, w2, b2,
 //            input_mean, input_gain, weights_fs, activation, slip_threshold, max_hold_ticks,
-//            controller)
+//            controller, shear_weights=None, bank=None)
+//   bank: None (the paper's net, w1 (H, 5)) or the filter-bank net's time constants
+//   {"lp_taus", "abs_taus", "load_tau", "peak_tau"} (w1 (H, nf + 1), nf of them)
 //   step(x, out=None) -> x_cmd     one tick; x float64 (n_inputs,), out float64 (n_outputs,)
 //   process_block(x, features=False, accepted=False)
 //   outputs (live read-only view), features, status, reset(x0), set_position(x),
@@ -175,7 +177,7 @@ void bind_one(py::module_& m, const char* cls) {
                          py::handle sos_diff, double v_limit, double u_limit, py::handle w1, py::handle b1,
                          py::handle w2, py::handle b2, py::handle input_mean, py::handle input_gain,
                          double weights_fs, const std::string& activation, double slip_threshold,
-                         long max_hold_ticks, py::dict controller, py::handle shear_weights) {
+                         long max_hold_ticks, py::dict controller, py::handle shear_weights, py::handle bank) {
                  PipelineConfig c;
                  c.n_ridges = n_ridges;
                  c.fs = fs;
@@ -188,13 +190,36 @@ void bind_one(py::module_& m, const char* cls) {
                  c.sos_diff = c.n_sos_diff ? sd.data() : nullptr;
                  c.v_limit = v_limit;
                  c.u_limit = u_limit;
+                 F64 lp, ab;
+                 if (!bank.is_none()) {
+                     if (!py::isinstance<py::dict>(bank))
+                         throw py::type_error("bank must be None or a dict of the filter bank's time constants");
+                     py::dict b = bank.cast<py::dict>();
+                     for (const char* k : {"lp_taus", "abs_taus", "load_tau", "peak_tau"})
+                         if (!b.contains(k)) throw py::value_error(std::string("bank lacks '") + k + "'");
+                     lp = real_array(b["lp_taus"], "bank['lp_taus']");
+                     ab = real_array(b["abs_taus"], "bank['abs_taus']");
+                     if (lp.ndim() != 1 || ab.ndim() != 1)
+                         throw py::value_error("bank['lp_taus'] and bank['abs_taus'] must be 1-d");
+                     c.detector_kind = 1;
+                     c.bank_n_lp = int(lp.shape(0));
+                     c.bank_lp_taus = lp.data();
+                     c.bank_n_abs = int(ab.shape(0));
+                     c.bank_abs_taus = ab.shape(0) ? ab.data() : nullptr;
+                     c.bank_load_tau = b["load_tau"].cast<double>();
+                     c.bank_peak_tau = b["peak_tau"].cast<double>();
+                     if (c.bank_n_lp < 1 || c.bank_n_lp > 8 || c.bank_n_abs > 8)
+                         throw py::value_error("bank: lp_taus must hold 1 to 8 and abs_taus 0 to 8 time constants");
+                 }
+                 const py::ssize_t nf = tactile::detector_input_count(c);
                  F64 aw1 = real_array(w1, "w1");
-                 if (aw1.ndim() != 2 || aw1.shape(1) != 5)
-                     throw py::value_error("w1 must have shape (n_hidden, 5): 4 features and the y_pred feedback");
+                 if (aw1.ndim() != 2 || aw1.shape(1) != nf + 1)
+                     throw py::value_error("w1 must have shape (n_hidden, " + std::to_string(nf + 1) + "): " +
+                                           std::to_string(nf) + " detector inputs and the y_pred feedback");
                  const py::ssize_t h = aw1.shape(0);
                  c.n_hidden = int(h);
                  F64 ab1 = sized(b1, "b1", {h}), aw2 = sized(w2, "w2", {2, h}), ab2 = sized(b2, "b2", {2});
-                 F64 am = sized(input_mean, "input_mean", {4}), ag = sized(input_gain, "input_gain", {4});
+                 F64 am = sized(input_mean, "input_mean", {nf}), ag = sized(input_gain, "input_gain", {nf});
                  c.w1 = aw1.data();
                  c.b1 = ab1.data();
                  c.w2 = aw2.data();
@@ -228,12 +253,14 @@ void bind_one(py::module_& m, const char* cls) {
              py::arg("sos_diff"), py::arg("v_limit"), py::arg("u_limit"), py::arg("w1"), py::arg("b1"),
              py::arg("w2"), py::arg("b2"), py::arg("input_mean"), py::arg("input_gain"), py::arg("weights_fs"),
              py::arg("activation"), py::arg("slip_threshold"), py::arg("max_hold_ticks"), py::arg("controller"),
-             py::arg("shear_weights") = py::none())
+             py::arg("shear_weights") = py::none(), py::arg("bank") = py::none())
         .def_property_readonly("n_ridges", [](const PP& s) { return s.p->n_ridges(); })
         .def_property_readonly("n_inputs", [](const PP& s) { return s.p->n_inputs(); })
         .def_property_readonly("n_outputs", [](const PP& s) { return s.p->n_outputs(); })
         .def_property_readonly("fs", [](const PP& s) { return s.p->fs(); })
         .def_property_readonly("use_u", [](const PP& s) { return s.p->use_u(); })
+        .def_property_readonly("detector_kind", [](const PP& s) { return s.p->detector_kind(); })
+        .def_property_readonly("n_detector_inputs", [](const PP& s) { return s.p->n_detector_inputs(); })
         .def_property_readonly("dtype", [](const PP&) { return py::dtype::of<T>(); })
         .def_property_readonly("detector_dtype", [](const PP&) { return py::dtype::of<TD>(); })
         .def_property_readonly("simd_path", [](const PP& s) {

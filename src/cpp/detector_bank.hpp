@@ -105,6 +105,13 @@ public:
         net_.set_state(y_pred);
         for (std::size_t k = 0; k < std::size_t(n_r_) * ns_; ++k) st_[k] = filt[k];
     }
+    /// The filter states themselves, (n_ridges, n_state) row-major (the pipeline's
+    /// overflow guard reads and restores them in place).
+    const T* filter_state() const noexcept { return st_; }
+    std::size_t filter_state_size() const noexcept { return std::size_t(n_r_) * ns_; }
+    void load_filter_state(const T* filt) noexcept {
+        for (std::size_t k = 0; k < std::size_t(n_r_) * ns_; ++k) st_[k] = filt[k];
+    }
     void reset() noexcept {
         net_.reset();
         for (std::size_t k = 0; k < std::size_t(n_r_) * ns_; ++k) st_[k] = T(0);

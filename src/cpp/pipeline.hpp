@@ -9,7 +9,9 @@
 //            -> rate2    2nd-order stress rate:       SosCascade on u_out, or the
 //                        digital differentiator SosCascade on rate
 //            -> detector Jordan MLP, one instance per ridge, features
-//                        [rate_L, rate_R, rate2_L, rate2_R]
+//                        [rate_L, rate_R, rate2_L, rate2_R] (detector_kind 0, the
+//                        paper's net) or those plus a bank of first-order filters
+//                        over them (detector_kind 1, detector_bank.hpp)
 //            -> controller  stage command (position, velocity) from the largest
 //                        y_pred of the ridges in use, direction from the L/R asymmetry
 //
@@ -86,6 +88,7 @@
 #include <type_traits>
 #include <vector>
 
+#include "detector_bank.hpp"
 #include "jordan_mlp.hpp"
 #include "sos.hpp"
 
@@ -181,14 +184,24 @@ struct PipelineConfig {
     int n_sos_diff = 0;
     double v_limit = kFrontEndSwing;  // |v_out| above this (V): rejected; finite
     double u_limit = kFrontEndSwing;
-    // detector
+    // detector: nf inputs (4, or the bank's count), + the fed-back y_pred
     int n_hidden = 0;
-    const double* w1 = nullptr;    // (n_hidden, 5)
+    const double* w1 = nullptr;    // (n_hidden, nf + 1)
     const double* b1 = nullptr;    // (n_hidden)
     const double* w2 = nullptr;    // (2, n_hidden)
     const double* b2 = nullptr;    // (2)
-    const double* input_mean = nullptr;  // (4)
-    const double* input_gain = nullptr;  // (4)
+    const double* input_mean = nullptr;  // (nf)
+    const double* input_gain = nullptr;  // (nf)
+    // 0: the paper's net on the four rates (nf = 4); 1: the filter-bank net
+    // (detector_bank.hpp: the rates plus first-order filters over them, nf =
+    // 4 + 2 bank_n_lp + bank_n_abs + 3; time constants in s).
+    int detector_kind = 0;
+    int bank_n_lp = 0;
+    const double* bank_lp_taus = nullptr;   // (bank_n_lp), 1..8
+    int bank_n_abs = 0;
+    const double* bank_abs_taus = nullptr;  // (bank_n_abs), 0..8
+    double bank_load_tau = 0.0;
+    double bank_peak_tau = 0.0;
     double weights_fs = 0.0;       // Hz the weights were trained for; must equal fs
     int activation = 0;            // 0 exact, 1 fast
     double slip_threshold = 0.8;
@@ -343,6 +356,13 @@ inline void validate_controller(const ControllerParams& c) {
     if (!(c.slip_min_asym >= 0.0)) bad("slip_min_asym", "must be >= 0 (rate units x s)");
 }
 
+// The detector's inputs per ridge (without the fed-back y_pred); 0 for an unknown kind.
+inline int detector_input_count(const PipelineConfig& c) noexcept {
+    if (c.detector_kind == 0) return 4;
+    if (c.detector_kind == 1) return detector::BankJordan<double>::feature_count(c.bank_n_lp, c.bank_n_abs);
+    return 0;
+}
+
 inline void validate_config(const PipelineConfig& c) {
     auto bad = [](const std::string& m) { throw std::invalid_argument(m); };
     if (c.n_ridges < 1 || c.n_ridges > 64) bad("n_ridges must lie in [1, 64], got " + std::to_string(c.n_ridges));
@@ -369,10 +389,27 @@ inline void validate_config(const PipelineConfig& c) {
     if (!std::isfinite(c.v_limit) || !(c.v_limit > 0.0)) bad("v_limit must be a positive finite voltage");
     if (!std::isfinite(c.u_limit) || !(c.u_limit > 0.0)) bad("u_limit must be a positive finite voltage");
     if (c.n_hidden < 1 || c.n_hidden > 1024) bad("n_hidden must lie in [1, 1024]");
-    const std::size_t h = std::size_t(c.n_hidden);
+    if (c.detector_kind != 0 && c.detector_kind != 1)
+        bad("detector_kind must be 0 (the paper's net) or 1 (filter bank), got " + std::to_string(c.detector_kind));
+    if (c.detector_kind == 1) {
+        if (c.bank_n_lp < 1 || c.bank_n_lp > detector::BankJordan<double>::kMaxTaus)
+            bad("bank_n_lp must lie in [1, 8]");
+        if (c.bank_n_abs < 0 || c.bank_n_abs > detector::BankJordan<double>::kMaxTaus)
+            bad("bank_n_abs must lie in [0, 8]");
+        auto taus_ok = [&](const double* t, int n, const char* name) {
+            if (n > 0 && !t) bad(std::string(name) + " is a null pointer");
+            for (int k = 0; k < n; ++k)
+                if (!(std::isfinite(t[k]) && t[k] > 0.0)) bad(std::string(name) + " must be positive finite times (s)");
+        };
+        taus_ok(c.bank_lp_taus, c.bank_n_lp, "bank_lp_taus");
+        taus_ok(c.bank_abs_taus, c.bank_n_abs, "bank_abs_taus");
+        taus_ok(&c.bank_load_tau, 1, "bank_load_tau");
+        taus_ok(&c.bank_peak_tau, 1, "bank_peak_tau");
+    }
+    const std::size_t h = std::size_t(c.n_hidden), nf = std::size_t(detector_input_count(c));
     const double* arrs[] = {c.w1, c.b1, c.w2, c.b2, c.input_mean, c.input_gain};
     const char* names[] = {"w1", "b1", "w2", "b2", "input_mean", "input_gain"};
-    const std::size_t sizes[] = {h * 5, h, 2 * h, 2, 4, 4};
+    const std::size_t sizes[] = {h * (nf + 1), h, 2 * h, 2, nf, nf};
     for (int i = 0; i < 6; ++i) {
         if (!arrs[i]) bad(std::string(names[i]) + " is a null pointer");
         check_finite_array(arrs[i], sizes[i], names[i]);
@@ -560,6 +597,7 @@ class MirrorPipeline {
     static_assert(std::is_same<TD, float>::value || std::is_same<TD, double>::value,
                   "MirrorPipeline's detector supports float and double");
     using Mlp = detector::JordanMLP<TD>;
+    using Bank = detector::BankJordan<TD>;
 
 public:
     static constexpr int kFeatures = 4;  // rate_L, rate_R, rate2_L, rate2_R
@@ -579,10 +617,18 @@ public:
         if (c.n_sos_v > 0) rate_f_ = make_cascade(c.sos_v, c.n_sos_v);
         if (use_u_ && c.n_sos_u > 0) rate2_f_ = make_cascade(c.sos_u, c.n_sos_u);
         if (!use_u_) rate2_f_ = make_cascade(c.sos_diff, c.n_sos_diff);
-        mlp_ = std::make_unique<Mlp>(kFeatures, c.n_hidden, R_, c.w1, c.b1, c.w2, c.b2, c.input_mean,
-                                     c.input_gain,
-                                     c.activation == 1 ? detector::Activation::fast
-                                                       : detector::Activation::exact);
+        const auto act = c.activation == 1 ? detector::Activation::fast : detector::Activation::exact;
+        if (c.detector_kind == 1) {
+            bank_ = std::make_unique<Bank>(c.n_hidden, R_, c.w1, c.b1, c.w2, c.b2, c.input_mean, c.input_gain,
+                                           c.fs, c.bank_n_lp, c.bank_lp_taus, c.bank_n_abs, c.bank_abs_taus,
+                                           c.bank_load_tau, c.bank_peak_tau, act);
+            mlp_ = &bank_->net();
+            undo_bank_.resize(bank_->filter_state_size());
+        } else {
+            mlp_own_ = std::make_unique<Mlp>(kFeatures, c.n_hidden, R_, c.w1, c.b1, c.w2, c.b2, c.input_mean,
+                                             c.input_gain, act);
+            mlp_ = mlp_own_.get();
+        }
         ctrl_ = StageController(c.controller, c.fs);
         ctrl_kind_ = c.controller.kind;
         shear_w_.resize(nch_);
@@ -616,6 +662,10 @@ public:
     std::size_t n_features() const noexcept { return std::size_t(R_) * kFeatures; }
     bool has_rate_filter() const noexcept { return bool(rate_f_); }
     bool has_rate2_filter() const noexcept { return bool(rate2_f_); }
+    // 0: the paper's net; 1: the filter-bank net.
+    int detector_kind() const noexcept { return bank_ ? 1 : 0; }
+    // The detector's inputs per ridge (4, or the bank's feature count).
+    int n_detector_inputs() const noexcept { return bank_ ? bank_->n_features() : kFeatures; }
     ControllerKind controller_kind() const noexcept { return ctrl_kind_; }
     const StageController& controller() const noexcept { return ctrl_; }
     const PipelineStatus& status() const noexcept { return st_; }
@@ -669,7 +719,10 @@ public:
     void reset(double x0 = 0.0) noexcept {
         if (rate_f_) rate_f_->reset();
         if (rate2_f_) rate2_f_->reset();
-        mlp_->reset();
+        if (bank_)
+            bank_->reset();
+        else
+            mlp_->reset();
         ctrl_.reset(x0);
         st_ = PipelineStatus{};
         unguarded_left_ = 0;
@@ -780,6 +833,7 @@ private:
         if (rate_f_) std::memcpy(undo_z1_.data(), rate_f_->raw_state(), undo_z1_.size() * sizeof(T));
         if (rate2_f_) std::memcpy(undo_z2_.data(), rate2_f_->raw_state(), undo_z2_.size() * sizeof(T));
         mlp_->get_state(undo_mlp_.data());
+        if (bank_) std::memcpy(undo_bank_.data(), bank_->filter_state(), undo_bank_.size() * sizeof(TD));
         std::memcpy(undo_feat_.data(), feat_.data(), feat_.size() * sizeof(TD));
         std::memcpy(undo_det_.data(), det_.data(), det_.size() * sizeof(TD));
     }
@@ -787,6 +841,7 @@ private:
         if (rate_f_) rate_f_->load_raw_state(undo_z1_.data());
         if (rate2_f_) rate2_f_->load_raw_state(undo_z2_.data());
         mlp_->set_state(undo_mlp_.data());
+        if (bank_) bank_->load_filter_state(undo_bank_.data());
         std::memcpy(feat_.data(), undo_feat_.data(), feat_.size() * sizeof(TD));
         std::memcpy(det_.data(), undo_det_.data(), det_.size() * sizeof(TD));
     }
@@ -801,6 +856,7 @@ private:
     }
     TM_ALWAYS_INLINE bool update_finite() const noexcept {
         bool ok = all_finite(feat_.data(), feat_.size()) && all_finite(det_.data(), det_.size());
+        if (bank_) ok &= all_finite(bank_->filter_state(), bank_->filter_state_size());
         if (rate_f_) ok &= all_finite(rate_f_->raw_state(), rate_f_->raw_state_size());
         if (rate2_f_) ok &= all_finite(rate2_f_->raw_state(), rate2_f_->raw_state_size());
         return ok;
@@ -851,14 +907,15 @@ private:
     }
     void setup_unguarded(const PipelineConfig& c) {
         lift_dim_ = 0;  // 0: never unguarded
-        // Detector: |xn| <= (m + |mean|) |gain|; a hidden unit sums 4 of them times w1.
+        // Detector: |xn| <= (m + |mean|) |gain|; a hidden unit sums nf of them times w1.
+        const int nf = detector_input_count(c);
         double gmax = 1.0, mean = 0.0;
         for (int h = 0; h < c.n_hidden; ++h) {
             double row = 0.0;
-            for (int i = 0; i < kFeatures; ++i) row += std::fabs(c.w1[5 * h + i] * c.input_gain[i]);
+            for (int i = 0; i < nf; ++i) row += std::fabs(c.w1[(nf + 1) * h + i] * c.input_gain[i]);
             gmax = std::max(gmax, row);
         }
-        for (int i = 0; i < kFeatures; ++i) mean = std::max(mean, std::fabs(c.input_mean[i]));
+        for (int i = 0; i < nf; ++i) mean = std::max(mean, std::fabs(c.input_mean[i]));
         limit_ = std::min(double(std::numeric_limits<T>::max()), double(std::numeric_limits<TD>::max())) * 1e-6 / gmax;
         // The accepted samples' bound: the sample limits, or where the arithmetic's range
         // allows larger limits (float64 throughout), kUnguardedInput checked per tick.
@@ -869,7 +926,9 @@ private:
         if (!(limit_ > 1e6 * (mean + 1.0) && limit_ > input_bound_ * 1e6)) return;
 
         const int n1 = c.n_sos_v, n2 = c.use_u ? c.n_sos_u : c.n_sos_diff;
-        const std::size_t d = std::size_t(n1 + n2 + 2), ia = d - 2, ic = d - 1;
+        // State bounds: the sections', the filter bank's (one for all its states), |a|, 1.
+        const std::size_t nb = bank_ ? 1 : 0;
+        const std::size_t d = std::size_t(n1 + n2) + nb + 2, ib = std::size_t(n1 + n2), ia = d - 2, ic = d - 1;
         using Row = std::vector<double>;
         auto unit = [&](std::size_t j, double v = 1.0) {
             Row r(d, 0.0);
@@ -902,6 +961,14 @@ private:
         for (int i = 0; i < 2 * c.n_ridges; ++i) wsum += c.shear_weights ? std::fabs(c.shear_weights[i]) : 1.0;
         const Row arow = axpy(wsum / fs_ * kRoundingMargin, f1, unit(ia));
         std::copy(arow.begin(), arow.end(), m.begin() + std::ptrdiff_t(ia * d));
+        if (bank_) {
+            // Every bank state z is a low-pass (a z + (1 - a) x, a in [0, 1)), a leaky
+            // integral (b z + x / fs) or a decaying peak (max(|load|, c z)) of
+            // x in {d, s, |d|}, |x| <= 2 (the rates' bound): so |z'| <= |z| + 2 max(1, 1/fs)
+            // (the rates' bound), whatever the time constants.
+            const Row brow = axpy(2.0 * std::max(1.0, 1.0 / fs_) * kRoundingMargin, f1, unit(ib, kRoundingMargin));
+            std::copy(brow.begin(), brow.end(), m.begin() + std::ptrdiff_t(ib * d));
+        }
         m[ic * d + ic] = 1.0;
         for (double v : m)
             if (!std::isfinite(v)) return;
@@ -935,6 +1002,7 @@ private:
         lift_ref_k_ = 0;
         lift_sections_[0] = std::size_t(n1);
         lift_sections_[1] = std::size_t(n2);
+        lift_bank_ = ib;
         lift_dim_ = d;
     }
     // Largest |value| of each section's two states (the raw layout is section-major).
@@ -965,6 +1033,7 @@ private:
         double* v = lift_v_.data();
         if (rate_f_) section_bounds(rate_f_.get(), v);
         if (rate2_f_) section_bounds(rate2_f_.get(), v + lift_sections_[0]);
+        if (bank_) v[lift_bank_] = max_abs(bank_->filter_state(), bank_->filter_state_size());
         v[d - 2] = std::fabs(ctrl_.asymmetry());
         v[d - 1] = 1.0;
         bool below = lift_ref_k_ != 0;
@@ -1049,7 +1118,7 @@ private:
 #ifdef TM_BENCH_NO_GUARDS
         if (samples_ok(x)) {
             estimate(x);
-            mlp_->step(feat_.data(), det_.data());
+            detect();
             bool slip = false;
             drive(true, &slip);
             accept(slip);
@@ -1059,7 +1128,7 @@ private:
 #endif
         if (unguarded_left_ != 0 && samples_ok(x) && inputs_small(x)) {
             estimate(x);
-            mlp_->step(feat_.data(), det_.data());
+            detect();
             bool slip = false;
             drive(true, &slip);  // cannot overflow: renew_unguarded bounds its input
             accept(slip);
@@ -1079,7 +1148,7 @@ private:
             const bool guarded = unguarded_left_ == 0 || !inputs_small(x);
             if (guarded) save_undo();
             estimate(x);
-            mlp_->step(feat_.data(), det_.data());
+            detect();
             if (guarded && !update_finite()) {
                 load_undo();
                 why = RejectReason::overflow;
@@ -1130,6 +1199,14 @@ private:
         publish();
     }
 
+    // Features -> detector outputs (n_ridges, 3): one branch, the same every tick.
+    TM_ALWAYS_INLINE void detect() noexcept {
+        if (bank_)
+            bank_->step(feat_.data(), det_.data());
+        else
+            mlp_->step(feat_.data(), det_.data());
+    }
+
     // Samples -> features (n_ridges, 4).
     TM_ALWAYS_INLINE void estimate(const double* x) noexcept {
         const T* xv;
@@ -1170,7 +1247,7 @@ private:
 
     struct Snapshot {
         std::vector<T> z1, z2;
-        std::vector<TD> mlp, feat, det;
+        std::vector<TD> mlp, bank, feat, det;
         std::vector<double> out;
         StageController ctrl;
         PipelineStatus st;
@@ -1187,6 +1264,7 @@ private:
         }
         s.mlp.resize(std::size_t(R_));
         mlp_->get_state(s.mlp.data());
+        if (bank_) s.bank.assign(bank_->filter_state(), bank_->filter_state() + bank_->filter_state_size());
         s.feat.assign(feat_.data(), feat_.data() + feat_.size());
         s.det.assign(det_.data(), det_.data() + det_.size());
         s.out = out_;
@@ -1198,6 +1276,7 @@ private:
         if (rate_f_) rate_f_->set_state(s.z1.data());
         if (rate2_f_) rate2_f_->set_state(s.z2.data());
         mlp_->set_state(s.mlp.data());
+        if (bank_) bank_->load_filter_state(s.bank.data());
         std::copy(s.feat.begin(), s.feat.end(), feat_.data());
         std::copy(s.det.begin(), s.det.end(), det_.data());
         out_ = s.out;
@@ -1212,13 +1291,15 @@ private:
     double v_limit_ = 0.0, u_limit_ = 0.0, slip_threshold_ = 0.8;
     long max_hold_ = 0;
     std::unique_ptr<SosCascade<T>> rate_f_, rate2_f_;
-    std::unique_ptr<Mlp> mlp_;
+    std::unique_ptr<Mlp> mlp_own_;  // the paper's net (detector_kind 0)
+    std::unique_ptr<Bank> bank_;    // the filter-bank net (detector_kind 1)
+    Mlp* mlp_ = nullptr;            // the net that runs: mlp_own_ or the bank's
     StageController ctrl_;
     ControllerKind ctrl_kind_ = ControllerKind::none;
     AlignedBuffer<T> xin_, rate_, rate2_;
     AlignedBuffer<TD> feat_, det_;
     AlignedBuffer<T> undo_z1_, undo_z2_;
-    AlignedBuffer<TD> undo_mlp_, undo_feat_, undo_det_;
+    AlignedBuffer<TD> undo_mlp_, undo_bank_, undo_feat_, undo_det_;
     std::vector<double> out_;
     std::vector<double> shear_w_;  // (n_ridges, 2): weights of rate_L, rate_R in the shear signal
     PipelineStatus st_;
@@ -1228,8 +1309,9 @@ private:
     double limit_ = 0.0, input_bound_ = kUnguardedInput;
     bool inputs_bounded_ = false;
     std::uint32_t unguarded_left_ = 0;
-    std::size_t lift_dim_ = 0;      // d: section bounds, |asymmetry|, 1; 0: always guarded
+    std::size_t lift_dim_ = 0;      // d: section bounds, (bank bound), |asymmetry|, 1; 0: always guarded
     std::size_t lift_sections_[2] = {0, 0};
+    std::size_t lift_bank_ = 0;       // index of the filter bank's bound (with a bank)
     std::vector<double> lift_pow_;    // kLiftLevels matrices M^(2^l), d x d
     std::vector<double> lift_check_;  // (d + 1) x d rows bounded by lift_limit_
     std::vector<double> lift_limit_;

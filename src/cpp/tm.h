@@ -73,8 +73,10 @@ extern "C" {
  * library's behaviour. 3: TM_ERR_BUSY, the overflow rejection and its status fields,
  * finite default limits (+inf refused), tm_controller_defaults and the controller
  * defaults shared with the Python library. 4: the velocity law's shear_integral
- * and rate_gain (appended to tm_controller_params, the last member of tm_config). */
-#define TM_ABI_VERSION 5
+ * and rate_gain (appended to tm_controller_params, the last member of tm_config).
+ * 5: slip_confirm, slip_min_asym, shear_weights. 6: the filter-bank detector
+ * (detector_kind and the bank's time constants, appended to tm_config). */
+#define TM_ABI_VERSION 6
 
 typedef enum tm_status_code {
     TM_OK = 0,
@@ -137,14 +139,15 @@ typedef struct tm_config {
     int32_t n_sos_diff;
     double v_limit, u_limit; /* |sample| above the limit (V): the tick is rejected; finite, > 0;
                               * default 15 V, the swing of a +-15 V front end */
-    /* Detector (Jordan MLP, 4 features + y_pred feedback, H hidden units). */
+    /* Detector (Jordan MLP, nf inputs + y_pred feedback, H hidden units; nf = 4, the
+     * stress rates, unless detector_kind (ABI 6) selects the filter bank). */
     int32_t n_hidden;
-    const double* w1;        /* (H, 5) row-major */
+    const double* w1;        /* (H, nf + 1) row-major */
     const double* b1;        /* (H) */
     const double* w2;        /* (2, H) row-major: rows y_slip, y_pred */
     const double* b2;        /* (2) */
-    const double* input_mean;  /* (4) */
-    const double* input_gain;  /* (4): features are (x - mean) * gain */
+    const double* input_mean;  /* (nf) */
+    const double* input_gain;  /* (nf): inputs are (x - mean) * gain */
     double weights_fs;       /* Hz the detector was trained for: must equal fs */
     int32_t activation;      /* 0 exact sigmoid, 1 fast polynomial sigmoid */
     double slip_threshold;   /* y_slip >= this counts as slip in the status, (0, 1) */
@@ -153,6 +156,18 @@ typedef struct tm_config {
     /* ABI 5 (appended) */
     const double* shear_weights;  /* (n_ridges, 2) row-major or NULL: the controller's shear signal is
                                    * sum_r w[r][0] rate_L + w[r][1] rate_R; NULL: +1, -1 (L - R) */
+    /* ABI 6 (appended) */
+    int32_t detector_kind;   /* 0: the paper's net on [rate_L, rate_R, rate2_L, rate2_R] (nf = 4);
+                              * 1: the filter-bank net: those plus, per ridge, low-passes of the
+                              * shear and normal rates, of |shear rate|, the shear and normal load
+                              * and the peak load (nf = 4 + 2 bank_n_lp + bank_n_abs + 3; the
+                              * weights file of kind "jordan_bank" holds them) */
+    int32_t bank_n_lp;       /* 1..8 low-pass time constants (s) in bank_lp_taus */
+    const double* bank_lp_taus;
+    int32_t bank_n_abs;      /* 0..8 time constants (s) of the |shear rate| low-passes */
+    const double* bank_abs_taus;
+    double bank_load_tau;    /* s: leak of the load integrals */
+    double bank_peak_tau;    /* s: decay of the peak load */
 } tm_config;
 
 typedef struct tm_pipeline_status {

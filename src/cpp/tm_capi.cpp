@@ -238,8 +238,9 @@ int32_t tm_config_init(tm_config* cfg) {
 // sizeof(tm_config) in ABI 2, the first ABI with struct_size (and in ABI 3): it ended
 // with the controller's slip_hold. Fields are only ever appended since (ABI 4:
 // shear_integral and rate_gain at the end of the controller, the end of tm_config;
-// ABI 5: slip_confirm at the end of the controller, shear_weights after it). A struct
-// of ABI 4 ends where slip_confirm begins.
+// ABI 5: slip_confirm at the end of the controller, shear_weights after it; ABI 6:
+// detector_kind and the filter bank's time constants). A struct of ABI 4 ends where
+// slip_confirm begins, one of ABI 5 where detector_kind begins.
 constexpr std::size_t kConfigSizeAbi2 = offsetof(tm_config, controller) + offsetof(tm_controller_params, shear_integral);
 static_assert(kConfigSizeAbi2 <= sizeof(tm_config), "tm_config only grows");
 
@@ -293,6 +294,13 @@ int32_t tm_pipeline_create(const tm_config* user_cfg, tm_pipeline* out) {
     c.max_hold_ticks = long(cfg->max_hold_ticks);
     c.controller = controller_from_c(cfg->controller);
     c.shear_weights = cfg->shear_weights;
+    c.detector_kind = cfg->detector_kind;
+    c.bank_n_lp = cfg->bank_n_lp;
+    c.bank_lp_taus = cfg->bank_lp_taus;
+    c.bank_n_abs = cfg->bank_n_abs;
+    c.bank_abs_taus = cfg->bank_abs_taus;
+    c.bank_load_tau = cfg->bank_load_tau;
+    c.bank_peak_tau = cfg->bank_peak_tau;
     // The sample-rate check first, with its own code.
     if (std::isfinite(c.fs) && c.fs > 0 && std::isfinite(c.weights_fs) && c.weights_fs > 0 &&
         std::fabs(c.fs - c.weights_fs) > 1e-9 * c.fs)

@@ -190,6 +190,13 @@ class CPipeline:
         cfg.slip_threshold = float(c["slip_threshold"])
         cfg.max_hold_ticks = int(c["max_hold_ticks"])
         cfg.shear_weights = arr(c.get("shear_weights"))[0]
+        bank = c.get("bank")
+        if bank is not None:
+            cfg.detector_kind = 1
+            cfg.bank_lp_taus, cfg.bank_n_lp = arr(np.asarray(bank["lp_taus"], dtype=np.float64))
+            cfg.bank_abs_taus, cfg.bank_n_abs = arr(np.asarray(bank["abs_taus"], dtype=np.float64))
+            cfg.bank_load_tau = float(bank["load_tau"])
+            cfg.bank_peak_tau = float(bank["peak_tau"])
         ctrl = c["controller"]
         cfg.controller.kind = _CTRL_KINDS[ctrl["kind"]]
         for k, v in ctrl.items():

@@ -231,9 +231,10 @@ def train_detector_on_brush(seeds=range(100, 106), fs: float = 1000.0, duration:
 
 
 def _weights_dict(w):
-    p = w.params
-    return {"w1": p.w1, "b1": p.b1, "w2": p.w2, "b2": p.b2, "input_mean": w.input_mean,
-            "input_gain": 1.0 / w.input_scale, "fs": w.fs, "features": w.features}
+    """The pipeline's weight arrays of a DetectorWeights (kind and filter bank included)."""
+    from ..pipeline import _weights_of
+
+    return _weights_of(w)
 
 
 def default_weights(plant: str = "fem", fs: float = 1000.0):
