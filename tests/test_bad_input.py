@@ -299,4 +299,4 @@ def test_version_string_and_struct_sizes():
     cfg.struct_size = abi3 - 8
     assert lib.tm_pipeline_create(cfg, h) == -6
     assert b"accepts" in ffi.string(lib.tm_last_error())
-    assert lib.tm_config_init(cfg) == 0 and cfg.abi_version == 5 and cfg.v_limit == 15.0
+    assert lib.tm_config_init(cfg) == 0 and cfg.abi_version == 6 and cfg.v_limit == 15.0

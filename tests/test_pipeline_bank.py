@@ -134,9 +134,10 @@ def test_c_abi_refuses_a_bad_bank_naming_the_field():
         CPipeline(cfg)
     assert e.value.code == -3 and "bank_load_tau" in str(e.value)
     cfg = make().config
-    cfg["w1"] = cfg["w1"][:, :5]  # the paper net's width with a bank: the sizes disagree
-    with pytest.raises(CAPIError):
+    cfg["bank"] = dict(cfg["bank"], lp_taus=[])
+    with pytest.raises(CAPIError) as e:
         CPipeline(cfg)
+    assert e.value.code == -3 and "bank_n_lp" in str(e.value)
 
 
 def test_python_refuses_inconsistent_bank_weights():
@@ -231,3 +232,26 @@ def test_memory_net_is_refused_by_name():
     est = StressRateEstimator(PVDFCircuit(), FS, 12)
     with pytest.raises(ValueError, match="jordan_memory"):
         MirrorPipeline(det, FS, 6, estimator=est)
+
+
+def test_c_abi_5_struct_runs_the_paper_net():
+    """A program built against ABI 5 (tm_config ending before detector_kind) gets the
+    paper's net whatever lies beyond its struct: the bank fields are not read."""
+    from tactile_mirror.loop.capi import load
+
+    ffi, lib = load()
+    cfg = ffi.new("tm_config*")
+    assert lib.tm_config_init(cfg) == 0 and cfg.detector_kind == 0
+    cfg.detector_kind = 1  # beyond the ABI-5 struct: must be ignored
+    cfg.bank_n_lp = 99
+    cfg.weights_fs = cfg.fs
+    cfg.n_hidden = 16
+    cfg.struct_size = ffi.offsetof("tm_config", "detector_kind")
+    cfg.abi_version = 5
+    h = ffi.new("tm_pipeline*")
+    assert lib.tm_pipeline_create(cfg, h) == lib.TM_ERR_ARGUMENT  # accepted; fails on the missing weights
+    assert b"w1" in ffi.string(lib.tm_last_error())
+    cfg.struct_size = ffi.sizeof("tm_config")
+    cfg.abi_version = 6
+    assert lib.tm_pipeline_create(cfg, h) == lib.TM_ERR_ARGUMENT
+    assert b"bank_n_lp" in ffi.string(lib.tm_last_error())
