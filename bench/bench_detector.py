@@ -9,6 +9,11 @@
 3. Run time against output error: exact/fast sigmoid x float32/float64, error
    measured against the float64 numpy reference (the detector kernel of
    ``tactile-mirror bench``: :func:`tactile_mirror.measure.detector_variants`).
+5. The bundled filter-bank net (kind ``"jordan_bank"``, 17 inputs per ridge: the
+   four rates and their filter bank): one tick of 6 ridges inside C++ (goal
+   <= 250 ns float32) and its block API against its numpy reference
+   (``detector.core.reference_run``: ``bank_features`` + the numpy recurrence; goal
+   >= 50x).
 4. Training: one loss-and-gradient evaluation (exact BPTT) of the C++ kernel
    (``_core.jordan_loss_grad``, 1 and 2 threads) against the numpy specification
    (``network.loss_and_grad``) on the same padded training batch, with the
@@ -58,6 +63,31 @@ def numpy_tick_loop(w, x):
         y = 1.0 / (1.0 + np.exp(-(h @ w2t + p.b2)))
         prev = y[:, 1]
     return prev
+
+
+def bank_net(n_iter, n_block):
+    from tactile_mirror.detector.core import reference_run
+
+    bank = SlipDetector.bank()
+    print("\n5) the bundled filter-bank net (kind 'jordan_bank', 17 inputs + y_pred, H = 16), 6 ridges")
+    print(f"   {'dtype':<8} {'sigmoid':<7} {'step() ns/tick':>15}")
+    for dtype in (np.float32, np.float64):
+        for act in ("exact", "fast"):
+            k = SlipDetector(bank.weights, dtype=dtype, activation=act).kernel(6)
+            print(f"   {np.dtype(dtype).name:<8} {act:<7} {k.time_step_ns(n_iter, 5):>15.1f}")
+    rng = np.random.default_rng(3)
+    x = np.cumsum(rng.normal(size=(6, 4, n_block)), axis=-1) * 2e3 + rng.normal(size=(6, 4, n_block)) * 1e3
+    x[:, 2:] *= 30.0  # second-order rates: larger
+    t_ref = best_time(lambda: reference_run(bank.weights, x), 3) / n_block
+    print(f"   numpy reference (bank_features + forward): {t_ref * 1e6:8.3f} us/tick")
+    ref = reference_run(bank.weights, x)
+    for dtype in (np.float64, np.float32):
+        det = SlipDetector(bank.weights, dtype=dtype)
+        xc = np.ascontiguousarray(x, dtype=dtype)
+        t_c = best_time(lambda: det.run(xc), 5) / n_block
+        err = max(float(np.max(np.abs(a - b))) for a, b in zip(det.run(xc), ref))
+        print(f"   C++ run() {np.dtype(dtype).name} ({det.simd_path}): {t_c * 1e6:8.3f} us/tick   "
+              f"{t_ref / t_c:6.0f}x numpy   max |dy| {err:.1e}")
 
 
 def main(argv=None):
@@ -113,6 +143,9 @@ def main(argv=None):
         for act in ("exact", "fast"):
             for path in paths:
                 print(f"     {np.dtype(dtype).name:<8} {act:<6} {path:<9} {sigmoid_error(dtype, act, path):.2e}")
+
+    # 5. (printed here, before the long training section) the filter-bank net
+    bank_net(n_iter, n_block)
 
     # 4. training gradient
     from tactile_mirror.detector.network import init_params, loss_and_grad

@@ -15,6 +15,11 @@ Tables (one run, same machine, same configuration):
    over -> stage command issued), overruns and late starts; and the same run from the C
    program (``tm_pipeline_step`` paced by a busy wait, no Python).
 
+4. ``filter-bank detector``: the same 6-ridge tick with the bundled filter-bank net
+   (kind ``"jordan_bank"``: the rates plus 13 filter states per ridge in front of the
+   net) inside C++ in each arithmetic, through the C ABI, and its scipy + numpy
+   reference; goal <= 500 ns float64 inside C++.
+
 Run: ``python bench/bench_pipeline.py`` (``--quick``: shorter runs, 1 s latency run;
 ``--latency-seconds``). Goals: <= 300 ns per 6-ridge tick in C++ and through the C
 ABI, <= 1.5 us from Python, scipy + numpy >= 100x slower.
@@ -173,6 +178,31 @@ def table_latency(seconds, fs=10000.0):
     return pc, res.overruns, res.late_starts
 
 
+def table_bank(n_iter, n_ref):
+    from tactile_mirror.detector import SlipDetector
+
+    print("\n4. one 6-ridge tick with the filter-bank detector (bundled 'jordan_bank' net, H=16, fast sigmoid, "
+          "velocity controller)")
+    det = SlipDetector.bank()
+    res = {}
+    for dt, ddt in ((np.float64, None), (np.float32, None), (np.float64, np.float32)):
+        est = StressRateEstimator(PVDFCircuit(), 1000.0, 12)
+        p = MirrorPipeline(det, 1000.0, 6, estimator=est, controller=VelocityController(v_max=0.02, a_max=1.0),
+                           dtype=dt, detector_dtype=ddt, activation="fast", v_limit=10.0, u_limit=10.0)
+        name = np.dtype(dt).name + ("" if ddt is None else " filters, float32 detector")
+        res[f"C++ inside, {name}"] = p.time_step_ns(n_iter, 5)
+        if ddt is None and dt is np.float64:
+            base = p
+    res["Python -> MirrorPipeline.step (pybind11)"] = python_step_ns(base, max(n_iter // 10, 1000))
+    with CPipeline(base.config) as c:
+        res["Python -> cffi -> tm_pipeline_step"] = python_step_ns(c, max(n_iter // 100, 1000))
+    res["scipy sosfilt + numpy (ReferencePipeline.step)"] = reference_step_ns(base, n_ref)
+    width = max(len(k) for k in res)
+    for k, v in res.items():
+        print(f"  {k:<{width}}  {v:>10.1f} ns")
+    return res
+
+
 def main(argv=None):
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--quick", action="store_true")
@@ -188,6 +218,7 @@ def main(argv=None):
     table_scaling(n_iter)
     table_doors(n_iter, n_py, n_ref)
     table_latency(lat_s)
+    table_bank(n_iter, n_ref)
 
 
 if __name__ == "__main__":

@@ -72,7 +72,7 @@ def make_pipeline(v_limit=LIMIT):
     from tactile_mirror.estimator import StressRateEstimator
     from tactile_mirror.loop import VelocityController
 
-    det = SlipDetector.default()
+    det = SlipDetector.paper()  # the net the pre-guard tree (ABI 4) can run too
     est = StressRateEstimator(PVDFCircuit(), FS, 2 * N_RIDGES, use_u=True)
     return MirrorPipeline(det, FS, N_RIDGES, estimator=est, controller=VelocityController(shear_gain=1e-4),
                           v_limit=v_limit, u_limit=v_limit, activation="fast")

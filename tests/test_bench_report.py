@@ -214,7 +214,7 @@ def test_report_and_measure_functions_give_the_same_errors(quick):
     sos = ss.butter(4, 0.5, "highpass", fs=10_000.0, output="sos")
     cases = measure.filter_variants(sos, 12, n_err=4_000, n_time=64, repeat=1)
     assert {c.label: c.error for c in cases} == {v.label: v.error for v in report.kernels["filters"].variants}
-    weights = SlipDetector.default().weights
+    weights = SlipDetector.paper().weights
     rows = measure.detector_variants(weights, measure.detector_features(weights, 3), repeat=1)
     assert {r["label"]: r["error"] for r in rows} == {v.label: v.error for v in report.kernels["detector"].variants}
     v, u, rate, rate2 = measure.estimator_signals(noise=1e-3, channels=12, seed=0)

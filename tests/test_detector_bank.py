@@ -287,5 +287,6 @@ def test_bundled_bank_net_loads_and_runs_like_numpy():
     rs, _, rp = reference_run(det.weights, x)
     np.testing.assert_allclose(ys, rs, atol=1e-11)
     np.testing.assert_allclose(yp, rp, atol=1e-11)
-    # default() stays the paper's net (the pipeline and the C ABI run kind "jordan" only)
-    assert SlipDetector.default().kind == "jordan"
+    # default() is the filter-bank net (it won on the held-out set)
+    assert SlipDetector.default().kind == "jordan_bank"
+    np.testing.assert_array_equal(SlipDetector.default().weights.params.w1, det.weights.params.w1)

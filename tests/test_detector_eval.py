@@ -166,14 +166,13 @@ def paper_results():
 
 @pytest.fixture(scope="module")
 def default_detector():
-    """The paper's Jordan net (``SlipDetector.paper()``), which is also ``default()``: the
-    load-memory net did not beat it on the held-out set (bench/detector_heldout.py)."""
+    """The paper's Jordan net (``SlipDetector.paper()``): the net of the paper's Fig. 10
+    (``default()`` is the filter-bank net, which won on the held-out set)."""
     try:
         det = SlipDetector.paper()
     except FileNotFoundError:
         pytest.skip("bundled detector weights missing")
     assert det.kind == "jordan"
-    np.testing.assert_array_equal(det.weights.params.w1, SlipDetector.default().weights.params.w1)
     return det
 
 

@@ -274,7 +274,7 @@ def _bench_detector(quick: bool, progress: _Progress) -> KernelReport:
     from .detector import SlipDetector, reference_run
 
     n_scenes, repeat, repeat_ref = (3, 5, 2) if quick else (10, 7, 3)
-    weights = SlipDetector.default().weights
+    weights = SlipDetector.paper().weights
     x = measure.detector_features(weights, n_scenes)
     n = x.shape[2]
     bar = progress.bar("detector", 4 + repeat + 1)
@@ -287,7 +287,7 @@ def _bench_detector(quick: bool, progress: _Progress) -> KernelReport:
                          "path": r["path"], "dtype": r["dtype"], "activation": r["activation"]}) for r in rows]
     return KernelReport(
         name="detector",
-        title=f"slip detector: SlipDetector.run, default weights (H = {weights.n_hidden}), 6 ridges",
+        title=f"slip detector: SlipDetector.run, the paper's net (H = {weights.n_hidden}), 6 ridges",
         error_name="max |y - y_ref| (y_slip, y_pred)",
         unit="tick (6 ridges)", time_scale=1e9, time_unit="ns",
         notes=(f"{n_scenes} synthetic stick-slip scenes (`tactile_mirror.detector.synthetic`), 6 ridges x {n} "

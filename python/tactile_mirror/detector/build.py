@@ -4,7 +4,7 @@ Command line (writes the weights, a report and Figure 10)::
 
     python -m tactile_mirror.detector.build --out weights.npz [--study] [--report report.txt]
 
-The bundled ``data/default_detector.npz`` was made with the defaults of :class:`BuildOptions`
+The bundled ``data/paper_detector.npz`` (the paper's net) was made with the defaults of :class:`BuildOptions`
 (64 training scenes, two noise copies of each at 0-5 mV, gain augmentation 0.6-1.7, H = 16,
 :data:`TRAIN_OPTIONS`, 4 initial seeds with checkpoints every 25 iterations, the best on 120
 validation scenes kept, evaluated on 200 held-out scenes; about 8 min on 2 cores); its
