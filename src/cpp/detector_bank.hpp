@@ -129,8 +129,7 @@ public:
              T* y_non, T* y_pred, std::ptrdiff_t ld) noexcept {
         for (std::ptrdiff_t t0 = 0; t0 < n; t0 += kChunk) {
             const int m = int(n - t0 < kChunk ? n - t0 : kChunk);
-            for (int k = 0; k < m; ++k)
-                features(x + (t0 + k) * st, sr, si, xch_ + k, std::ptrdiff_t(nf_) * kChunk, kChunk);
+            features_chunk(x + t0 * st, sr, si, st, m);
             net_.run(xch_, std::ptrdiff_t(nf_) * kChunk, kChunk, 1, m, y_slip + t0, y_non + t0, y_pred + t0, ld);
         }
     }
@@ -192,7 +191,42 @@ private:
         }
     }
 
-    static constexpr int kChunk = 64;
+    // m <= kChunk ticks of features into xch_, (n_ridges, nf, kChunk): ridge by ridge, so
+    // that a ridge's states stay in registers and every feature row is written in order
+    // (the tick-by-tick order of features() wrote 17 rows per tick; measured 1.3x slower
+    // per block tick in float64). The same arithmetic as features(), term for term.
+    void features_chunk(const T* x0, std::ptrdiff_t sr, std::ptrdiff_t si, std::ptrdiff_t st, int m) noexcept {
+        T z[2 * kMaxTaus + kMaxTaus + 3];
+        for (int r = 0; r < n_r_; ++r) {
+            T* zs = st_ + std::size_t(r) * ns_;
+            for (int k = 0; k < ns_; ++k) z[k] = zs[k];
+            T* o = xch_ + std::size_t(r) * nf_ * kChunk;
+            const T* xr = x0 + r * sr;
+            for (int t = 0; t < m; ++t) {
+                const T* x = xr + t * st;
+                const T vl = x[0], vr = x[si], ul = x[2 * si], ur = x[3 * si];
+                const T d = vl - vr, s = vl + vr, ad = std::fabs(d);
+                o[t] = vl;
+                o[kChunk + t] = vr;
+                o[2 * kChunk + t] = ul;
+                o[3 * kChunk + t] = ur;
+                int j = 0;
+                for (int k = 0; k < n_lp_; ++k, j += 2) {
+                    z[j] = a_lp_[k] * z[j] + g_lp_[k] * d;
+                    z[j + 1] = a_lp_[k] * z[j + 1] + g_lp_[k] * s;
+                }
+                for (int k = 0; k < n_abs_; ++k, ++j) z[j] = a_abs_[k] * z[j] + g_abs_[k] * ad;
+                z[j] = b_ * z[j] + d * inv_fs_;
+                z[j + 1] = b_ * z[j + 1] + s * inv_fs_;
+                const T held = c_ * z[j + 2], now = std::fabs(z[j]);
+                z[j + 2] = now > held ? now : held;
+                for (int k = 0; k < ns_; ++k) o[(4 + k) * kChunk + t] = z[k];
+            }
+            for (int k = 0; k < ns_; ++k) zs[k] = z[k];
+        }
+    }
+
+    static constexpr int kChunk = 32;
     JordanMLP<T> net_;
     int n_r_, n_lp_, n_abs_, nf_, ns_;
     T a_lp_[kMaxTaus] = {}, g_lp_[kMaxTaus] = {}, a_abs_[kMaxTaus] = {}, g_abs_[kMaxTaus] = {};
