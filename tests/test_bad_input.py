@@ -30,10 +30,10 @@ def weights(h=8, seed=3):
             "input_gain": np.array([3e-3, 3e-3, 3e-5, 3e-5]), "fs": FS}
 
 
-def make(controller=None, n_ridges=6, activation="fast", **kw):
+def make(controller=None, n_ridges=6, activation="fast", detector=None, **kw):
     est = StressRateEstimator(PVDFCircuit(), FS, 2 * n_ridges, use_u=True)
-    return MirrorPipeline(weights(), FS, n_ridges, estimator=est, controller=controller, activation=activation,
-                          **kw)
+    return MirrorPipeline(weights() if detector is None else detector, FS, n_ridges, estimator=est,
+                          controller=controller, activation=activation, **kw)
 
 
 def signals(n, ni, seed=2):
@@ -58,11 +58,15 @@ def test_default_limits_are_the_front_end_swing_and_infinite_limits_are_refused(
 
 @pytest.mark.parametrize("backend", ["pybind", "capi"])
 @pytest.mark.parametrize("limit", [None, DBL_MAX], ids=["default", "dbl_max"])
-def test_one_huge_sample_does_not_poison_the_loop(backend, limit):
+@pytest.mark.parametrize("net", ["jordan", "jordan_bank"])
+def test_one_huge_sample_does_not_poison_the_loop(backend, limit, net):
     """The issue's case: one sample of 1.7e308 V. With the default limits it is out
     of range; with no limit (DBL_MAX) the update overflows and the tick is rejected
-    as such. Either way every later output is finite and equals the run without it."""
+    as such (for the filter-bank net, its bank's states too). Either way every later
+    output is finite and equals the run without it."""
     kw = {} if limit is None else {"v_limit": limit, "u_limit": limit}
+    if net == "jordan_bank":
+        kw["detector"] = SlipDetector.bank()
     p = make(VelocityController(shear_gain=1e-4), **kw)
     clean = make(VelocityController(shear_gain=1e-4), **kw)
     if backend == "capi":

@@ -290,13 +290,18 @@ def test_published_status_follows_every_rejection_and_recovery(backend):
         p.close()
 
 
-def test_float32_windows_without_undo_never_let_an_overflow_through():
+@pytest.mark.parametrize("net", ["jordan", "jordan_bank"])
+def test_float32_windows_without_undo_never_let_an_overflow_through(net):
     # float32 with huge finite limits: samples of random magnitude up to the limit
     # and random sign. Ticks inside a window skip the undo and the finiteness check,
     # so a window longer than the bound allows would show up as a non-finite output
-    # or feature; every overflowing tick must instead be rejected as 'overflow'.
+    # or feature; every overflowing tick must instead be rejected as 'overflow'. The
+    # filter-bank net's window bounds include its bank's states.
+    from tactile_mirror.detector import SlipDetector
+
     est = StressRateEstimator(PVDFCircuit(), FS, 4, use_u=True, dtype=np.float32)
-    p = MirrorPipeline(weights(), FS, 2, estimator=est, controller=VelocityController(shear_gain=1e-4),
+    det = weights() if net == "jordan" else SlipDetector.bank()
+    p = MirrorPipeline(det, FS, 2, estimator=est, controller=VelocityController(shear_gain=1e-4),
                        v_limit=1e30, u_limit=1e30, dtype=np.float32)
     rng = np.random.default_rng(4)
     n = 20000

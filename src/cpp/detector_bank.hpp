@@ -167,34 +167,38 @@ private:
     // ridge r written to out[r * orow + j * ocol]. Updates the filter states.
     void features(const T* in, std::ptrdiff_t sr, std::ptrdiff_t si, T* out, std::ptrdiff_t orow,
                   std::ptrdiff_t ocol) noexcept {
-        for (int r = 0; r < n_r_; ++r) {
-            const T* x = in + r * sr;
-            const T vl = x[0], vr = x[si], ul = x[2 * si], ur = x[3 * si];
-            const T d = vl - vr, s = vl + vr, ad = std::fabs(d);
-            T* z = st_ + std::size_t(r) * ns_;
-            T* o = out + r * orow;
-            o[0] = vl;
-            o[ocol] = vr;
-            o[2 * ocol] = ul;
-            o[3 * ocol] = ur;
-            int j = 0;
-            for (int k = 0; k < n_lp_; ++k, j += 2) {
-                z[j] = a_lp_[k] * z[j] + g_lp_[k] * d;
-                z[j + 1] = a_lp_[k] * z[j + 1] + g_lp_[k] * s;
-            }
-            for (int k = 0; k < n_abs_; ++k, ++j) z[j] = a_abs_[k] * z[j] + g_abs_[k] * ad;
-            z[j] = b_ * z[j] + d * inv_fs_;
-            z[j + 1] = b_ * z[j + 1] + s * inv_fs_;
-            const T held = c_ * z[j + 2], now = std::fabs(z[j]);
-            z[j + 2] = now > held ? now : held;
-            for (int k = 0; k < ns_; ++k) o[(4 + k) * ocol] = z[k];
+        for (int r = 0; r < n_r_; ++r)
+            ridge_tick(in + r * sr, si, st_ + std::size_t(r) * ns_, out + r * orow, ocol);
+    }
+
+    // One tick of one ridge: raw channel i at x[i * si]; updates its filter states z and
+    // writes the ridge's features to o[j * ocol]. The one definition of the bank's
+    // recurrences (detector.bank, the specification).
+    __attribute__((always_inline)) inline void ridge_tick(const T* x, std::ptrdiff_t si, T* __restrict z,
+                                                          T* __restrict o, std::ptrdiff_t ocol) const noexcept {
+        const T vl = x[0], vr = x[si], ul = x[2 * si], ur = x[3 * si];
+        const T d = vl - vr, s = vl + vr, ad = std::fabs(d);
+        o[0] = vl;
+        o[ocol] = vr;
+        o[2 * ocol] = ul;
+        o[3 * ocol] = ur;
+        int j = 0;
+        for (int k = 0; k < n_lp_; ++k, j += 2) {
+            z[j] = a_lp_[k] * z[j] + g_lp_[k] * d;
+            z[j + 1] = a_lp_[k] * z[j + 1] + g_lp_[k] * s;
         }
+        for (int k = 0; k < n_abs_; ++k, ++j) z[j] = a_abs_[k] * z[j] + g_abs_[k] * ad;
+        z[j] = b_ * z[j] + d * inv_fs_;
+        z[j + 1] = b_ * z[j + 1] + s * inv_fs_;
+        const T held = c_ * z[j + 2], now = std::fabs(z[j]);
+        z[j + 2] = now > held ? now : held;
+        for (int k = 0; k < ns_; ++k) o[(4 + k) * ocol] = z[k];
     }
 
     // m <= kChunk ticks of features into xch_, (n_ridges, nf, kChunk): ridge by ridge, so
     // that a ridge's states stay in registers and every feature row is written in order
     // (the tick-by-tick order of features() wrote 17 rows per tick; measured 1.3x slower
-    // per block tick in float64). The same arithmetic as features(), term for term.
+    // per block tick in float64). The same arithmetic as features() (ridge_tick).
     void features_chunk(const T* x0, std::ptrdiff_t sr, std::ptrdiff_t si, std::ptrdiff_t st, int m) noexcept {
         T z[2 * kMaxTaus + kMaxTaus + 3];
         for (int r = 0; r < n_r_; ++r) {
@@ -202,26 +206,7 @@ private:
             for (int k = 0; k < ns_; ++k) z[k] = zs[k];
             T* o = xch_ + std::size_t(r) * nf_ * kChunk;
             const T* xr = x0 + r * sr;
-            for (int t = 0; t < m; ++t) {
-                const T* x = xr + t * st;
-                const T vl = x[0], vr = x[si], ul = x[2 * si], ur = x[3 * si];
-                const T d = vl - vr, s = vl + vr, ad = std::fabs(d);
-                o[t] = vl;
-                o[kChunk + t] = vr;
-                o[2 * kChunk + t] = ul;
-                o[3 * kChunk + t] = ur;
-                int j = 0;
-                for (int k = 0; k < n_lp_; ++k, j += 2) {
-                    z[j] = a_lp_[k] * z[j] + g_lp_[k] * d;
-                    z[j + 1] = a_lp_[k] * z[j + 1] + g_lp_[k] * s;
-                }
-                for (int k = 0; k < n_abs_; ++k, ++j) z[j] = a_abs_[k] * z[j] + g_abs_[k] * ad;
-                z[j] = b_ * z[j] + d * inv_fs_;
-                z[j + 1] = b_ * z[j + 1] + s * inv_fs_;
-                const T held = c_ * z[j + 2], now = std::fabs(z[j]);
-                z[j + 2] = now > held ? now : held;
-                for (int k = 0; k < ns_; ++k) o[(4 + k) * kChunk + t] = z[k];
-            }
+            for (int t = 0; t < m; ++t) ridge_tick(xr + t * st, si, z, o + t, kChunk);
             for (int k = 0; k < ns_; ++k) zs[k] = z[k];
         }
     }
