@@ -445,10 +445,12 @@ def _cc():
 
 
 @pytest.mark.skipif(_cc() is None or not sys.platform.startswith("linux"), reason="needs a C compiler on Linux")
-def test_tick_path_allocates_nothing_and_takes_no_lock(tmp_path):
+@pytest.mark.parametrize("net", ["paper", "bank"])
+def test_tick_path_allocates_nothing_and_takes_no_lock(tmp_path, net):
     """tests/c/rt_safety.c under the interposer tests/c/rt_counter.c: 2e5 ticks,
     5e4 block ticks, 1e3 status and feature reads, rejected ticks of every kind and
-    the error paths make no allocation, take no lock and never yield."""
+    the error paths make no allocation, take no lock and never yield; with the
+    paper's net and with the filter-bank net."""
     lib = library_path()
     shim = tmp_path / "librt_counter.so"
     subprocess.run([_cc(), "-shared", "-fPIC", "-O1", str(HERE / "c" / "rt_counter.c"), "-o", str(shim), "-ldl"],
@@ -458,7 +460,7 @@ def test_tick_path_allocates_nothing_and_takes_no_lock(tmp_path):
                     os.path.dirname(header_path()), lib, "-Wl,-rpath," + os.path.dirname(lib), "-lm", "-ldl",
                     "-lpthread", "-o", str(exe)], check=True, capture_output=True)
     env = dict(os.environ, LD_PRELOAD=str(shim))
-    r = subprocess.run([str(exe)], capture_output=True, text=True, timeout=120, env=env, check=False)
+    r = subprocess.run([str(exe), net], capture_output=True, text=True, timeout=120, env=env, check=False)
     assert r.returncode == 0, r.stdout + r.stderr
     lines = dict(line.split(" ", 1) for line in r.stdout.strip().splitlines())
     calib = lines["calibration"].split()

@@ -9,7 +9,9 @@
  * and exits 0 when the pipeline behaved as expected (the counts are judged by the
  * caller, tests/test_rt_safety.py). "calibration alloc <a> lock <l>" is printed
  * first: one malloc and one mutex lock made on purpose while counting, so a
- * missing interposer cannot pass for a clean run.
+ * missing interposer cannot pass for a clean run. With the argument "bank" the
+ * pipelines run the filter-bank detector (detector_kind 1, ABI 6) instead of the
+ * paper's net.
  */
 #define _GNU_SOURCE
 #include <dlfcn.h>
@@ -28,9 +30,13 @@
 #define NO (2 + 3 * R)
 #define BLOCK 50
 
-static double w1[H * 5], b1[H], w2[2 * H], b2[2];
-static const double mean[4] = {0.0, 0.0, 0.0, 0.0};
-static const double gain[4] = {2.0, 2.0, 0.5, 0.5};
+#define NF_BANK 17 /* 4 rates + 2 x 4 low-passes + 2 |d| low-passes + load, press, peak */
+static double w1[H * (NF_BANK + 1)], b1[H], w2[2 * H], b2[2];
+static const double mean[NF_BANK] = {0.0};
+static const double gain[NF_BANK] = {2.0, 2.0, 0.5, 0.5, 1.0, 1.0, 1.0, 1.0, 1.0,
+                                     1.0, 1.0, 1.0, 1.0, 1.0, 10.0, 10.0, 10.0};
+static const double lp_taus[4] = {0.004, 0.016, 0.064, 0.256};
+static const double abs_taus[2] = {0.016, 0.064};
 static const double sos_v[6] = {0.0675, 0.1349, 0.0675, 1.0, -1.1430, 0.4128};
 static const double sos_u[12] = {0.2, 0.0, -0.2, 1.0, -0.5, 0.1, 1.0, 0.5, 0.0, 1.0, -0.3, 0.0};
 
@@ -51,9 +57,10 @@ static int failures = 0;
         }                                                                                           \
     } while (0)
 
-static void make_config(tm_config* c, double limit) {
+static void make_config(tm_config* c, double limit, int bank) {
+    const int nw = H * (bank ? NF_BANK + 1 : 5);
     unsigned s = 12345u;
-    for (int i = 0; i < H * 5; ++i) { s = s * 1103515245u + 12345u; w1[i] = ((s >> 8) % 2001 - 1000) / 500.0; }
+    for (int i = 0; i < nw; ++i) { s = s * 1103515245u + 12345u; w1[i] = ((s >> 8) % 2001 - 1000) / 500.0; }
     for (int i = 0; i < H; ++i) { s = s * 1103515245u + 12345u; b1[i] = ((s >> 8) % 2001 - 1000) / 1000.0; }
     for (int i = 0; i < 2 * H; ++i) { s = s * 1103515245u + 12345u; w2[i] = ((s >> 8) % 2001 - 1000) / 300.0; }
     b2[0] = -1.0;
@@ -76,6 +83,15 @@ static void make_config(tm_config* c, double limit) {
     c->activation = 1;
     tm_controller_defaults(TM_CONTROLLER_VELOCITY, &c->controller);
     c->controller.shear_gain = 1e-3;
+    if (bank) {
+        c->detector_kind = 1;
+        c->bank_n_lp = 4;
+        c->bank_lp_taus = lp_taus;
+        c->bank_n_abs = 2;
+        c->bank_abs_taus = abs_taus;
+        c->bank_load_tau = 0.5;
+        c->bank_peak_tau = 2.0;
+    }
 }
 
 /* Sample t of a smooth test signal, with bad samples of every kind sprinkled in. */
@@ -90,7 +106,8 @@ static void sample(long t, double* x, long* expect_bad) {
     }
 }
 
-int main(void) {
+int main(int argc, char** argv) {
+    const int bank = argc > 1 && strcmp(argv[1], "bank") == 0;
     counter_enable = (enable_fn)dlsym(RTLD_DEFAULT, "rt_counter_enable");
     counter_get = (get_fn)dlsym(RTLD_DEFAULT, "rt_counter_get");
     counter_clear = (clear_fn)dlsym(RTLD_DEFAULT, "rt_counter_clear");
@@ -100,9 +117,9 @@ int main(void) {
     }
     tm_config cfg;
     tm_pipeline h = 0, h_over = 0, dead = 0;
-    make_config(&cfg, 15.0);
+    make_config(&cfg, 15.0, bank);
     CHECK(tm_pipeline_create(&cfg, &h) == TM_OK);
-    make_config(&cfg, DBL_MAX);  /* no sample limit: only the overflow guard stands */
+    make_config(&cfg, DBL_MAX, bank);  /* no sample limit: only the overflow guard stands */
     CHECK(tm_pipeline_create(&cfg, &h_over) == TM_OK);
     CHECK(tm_pipeline_create(&cfg, &dead) == TM_OK);
     CHECK(tm_pipeline_destroy(dead) == TM_OK);
