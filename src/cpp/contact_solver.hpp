@@ -194,21 +194,99 @@ TM_ALWAYS_INLINE double dot_impl(const double* a, const double* b, std::size_t m
     return s;
 }
 
-// Solve with the factors of lu_factor: b (length m) is overwritten by the solution.
+// s[q] = sum_j r_q[j] x[j] over j < len for four rows r_0..r_3: one load of x feeds
+// the four rows and their four sums are reduced together, so a triangular solve pays
+// one horizontal reduction per four rows; two partial sums per row (eight independent
+// chains) keep the loop bound by the loads, not by the FMA latency.
 template <int B>
-TM_ALWAYS_INLINE void lu_solve_impl(const double* lu, std::size_t m, std::size_t lda, const int* piv,
-                                    double* b) noexcept {
-    for (std::size_t k = 0; k < m; ++k) {
-        const std::size_t p = static_cast<std::size_t>(piv[k]);
-        if (p != k) { const double t = b[k]; b[k] = b[p]; b[p] = t; }
+TM_ALWAYS_INLINE void dot4_impl(const double* r0, const double* r1, const double* r2, const double* r3,
+                                const double* x, std::size_t len, double* s) noexcept {
+    using V = typename simd::Vec<double, 32>::type;
+    std::size_t j = 0;
+    double s0 = 0.0, s1 = 0.0, s2 = 0.0, s3 = 0.0;
+    if (len >= 4) {
+        V a0 = simd::splat<double, 32>(0.0), a1 = a0, a2 = a0, a3 = a0;
+        V b0 = a0, b1 = a0, b2 = a0, b3 = a0;
+        for (; j + 8 <= len; j += 8) {
+            const V x0 = simd::load<V>(x + j), x1 = simd::load<V>(x + j + 4);
+            a0 += simd::load<V>(r0 + j) * x0; b0 += simd::load<V>(r0 + j + 4) * x1;
+            a1 += simd::load<V>(r1 + j) * x0; b1 += simd::load<V>(r1 + j + 4) * x1;
+            a2 += simd::load<V>(r2 + j) * x0; b2 += simd::load<V>(r2 + j + 4) * x1;
+            a3 += simd::load<V>(r3 + j) * x0; b3 += simd::load<V>(r3 + j + 4) * x1;
+        }
+        if (j + 4 <= len) {
+            const V x0 = simd::load<V>(x + j);
+            a0 += simd::load<V>(r0 + j) * x0; a1 += simd::load<V>(r1 + j) * x0;
+            a2 += simd::load<V>(r2 + j) * x0; a3 += simd::load<V>(r3 + j) * x0;
+            j += 4;
+        }
+        a0 += b0; a1 += b1; a2 += b2; a3 += b3;
+        s0 = (a0[0] + a0[1]) + (a0[2] + a0[3]);
+        s1 = (a1[0] + a1[1]) + (a1[2] + a1[3]);
+        s2 = (a2[0] + a2[1]) + (a2[2] + a2[3]);
+        s3 = (a3[0] + a3[1]) + (a3[2] + a3[3]);
     }
-    for (std::size_t i = 1; i < m; ++i) {  // L y = P b, unit diagonal
-        const double* ri = lu + i * lda;
-        b[i] -= dot_impl<B>(ri, b, i);
+    for (; j < len; ++j) {
+        s0 += r0[j] * x[j]; s1 += r1[j] * x[j]; s2 += r2[j] * x[j]; s3 += r3[j] * x[j];
     }
-    for (std::size_t i = m; i-- > 0;) {  // U x = y
-        const double* ri = lu + i * lda;
-        b[i] = (b[i] - dot_impl<B>(ri + i + 1, b + i + 1, m - i - 1)) / ri[i];
+    s[0] = s0; s[1] = s1; s[2] = s2; s[3] = s3;
+}
+
+// Solve with the factors of lu_factor for k right-hand sides, column c at x + c * ldx
+// (length m), overwritten by the solutions. Four rows at a time (dot4_impl against the
+// solved part, then the 4 x 4 triangle): the solve reads each factor entry once, as the
+// one-row version, with a quarter of its reductions and loop overheads (about twice as
+// fast for m of a few hundred). The columns are taken inside the row loop, so the four
+// rows stream from L2 / L3 once and are reread from L1 for the other columns; each
+// column's arithmetic is that of a solve on its own.
+template <int B>
+TM_ALWAYS_INLINE void lu_solve_impl(const double* lu, std::size_t m, std::size_t lda, const int* piv, double* x,
+                                    std::size_t ldx, std::size_t k) noexcept {
+    for (std::size_t c = 0; c < k; ++c) {
+        double* b = x + c * ldx;
+        for (std::size_t r = 0; r < m; ++r) {
+            const std::size_t p = static_cast<std::size_t>(piv[r]);
+            if (p != r) { const double t = b[r]; b[r] = b[p]; b[p] = t; }
+        }
+    }
+    double s[4];
+    std::size_t i = 0;
+    for (; i + 4 <= m; i += 4) {  // L y = P b, unit diagonal
+        const double *r0 = lu + i * lda, *r1 = r0 + lda, *r2 = r1 + lda, *r3 = r2 + lda;
+        for (std::size_t c = 0; c < k; ++c) {
+            double* b = x + c * ldx;
+            dot4_impl<B>(r0, r1, r2, r3, b, i, s);
+            const double y0 = b[i] - s[0];
+            const double y1 = b[i + 1] - (s[1] + r1[i] * y0);
+            const double y2 = b[i + 2] - (s[2] + r2[i] * y0 + r2[i + 1] * y1);
+            const double y3 = b[i + 3] - (s[3] + r3[i] * y0 + r3[i + 1] * y1 + r3[i + 2] * y2);
+            b[i] = y0; b[i + 1] = y1; b[i + 2] = y2; b[i + 3] = y3;
+        }
+    }
+    for (; i < m; ++i)
+        for (std::size_t c = 0; c < k; ++c) x[c * ldx + i] -= dot_impl<B>(lu + i * lda, x + c * ldx, i);
+    std::size_t e = m;  // U x = y; rows [e, m) solved
+    while (e % 4) {
+        --e;
+        const double* re = lu + e * lda;
+        for (std::size_t c = 0; c < k; ++c) {
+            double* b = x + c * ldx;
+            b[e] = (b[e] - dot_impl<B>(re + e + 1, b + e + 1, m - e - 1)) / re[e];
+        }
+    }
+    while (e >= 4) {
+        const std::size_t i0 = e - 4;
+        const double *r0 = lu + i0 * lda, *r1 = r0 + lda, *r2 = r1 + lda, *r3 = r2 + lda;
+        for (std::size_t c = 0; c < k; ++c) {
+            double* b = x + c * ldx;
+            dot4_impl<B>(r0 + e, r1 + e, r2 + e, r3 + e, b + e, m - e, s);
+            const double x3 = (b[i0 + 3] - s[3]) / r3[i0 + 3];
+            const double x2 = (b[i0 + 2] - (s[2] + r2[i0 + 3] * x3)) / r2[i0 + 2];
+            const double x1 = (b[i0 + 1] - (s[1] + r1[i0 + 2] * x2 + r1[i0 + 3] * x3)) / r1[i0 + 1];
+            const double x0 = (b[i0] - (s[0] + r0[i0 + 1] * x1 + r0[i0 + 2] * x2 + r0[i0 + 3] * x3)) / r0[i0];
+            b[i0] = x0; b[i0 + 1] = x1; b[i0 + 2] = x2; b[i0 + 3] = x3;
+        }
+        e = i0;
     }
 }
 
@@ -261,8 +339,13 @@ inline int lu_factor_base(double* a, std::size_t m, std::size_t lda, int* piv) n
 inline double dot_base(const double* a, const double* b, std::size_t m) noexcept {
     return dot_impl<simd::kBaseBytes>(a, b, m);
 }
-inline void lu_solve_base(const double* lu, std::size_t m, std::size_t lda, const int* piv, double* b) noexcept {
-    lu_solve_impl<simd::kBaseBytes>(lu, m, lda, piv, b);
+inline void dot4_base(const double* r0, const double* r1, const double* r2, const double* r3, const double* x,
+                      std::size_t len, double* s) noexcept {
+    dot4_impl<simd::kBaseBytes>(r0, r1, r2, r3, x, len, s);
+}
+inline void lu_solve_base(const double* lu, std::size_t m, std::size_t lda, const int* piv, double* x,
+                          std::size_t ldx, std::size_t k) noexcept {
+    lu_solve_impl<simd::kBaseBytes>(lu, m, lda, piv, x, ldx, k);
 }
 inline void compliance_product_base(const double* C, std::size_t n, const double* lam, double* u) noexcept {
     compliance_product_impl<simd::kBaseBytes>(C, n, lam, u);
@@ -274,9 +357,13 @@ TM_TARGET_AVX2 inline int lu_factor_avx2(double* a, std::size_t m, std::size_t l
 TM_TARGET_AVX2 inline double dot_avx2(const double* a, const double* b, std::size_t m) noexcept {
     return dot_impl<32>(a, b, m);
 }
+TM_TARGET_AVX2 inline void dot4_avx2(const double* r0, const double* r1, const double* r2, const double* r3,
+                                     const double* x, std::size_t len, double* s) noexcept {
+    dot4_impl<32>(r0, r1, r2, r3, x, len, s);
+}
 TM_TARGET_AVX2 inline void lu_solve_avx2(const double* lu, std::size_t m, std::size_t lda, const int* piv,
-                                         double* b) noexcept {
-    lu_solve_impl<32>(lu, m, lda, piv, b);
+                                         double* x, std::size_t ldx, std::size_t k) noexcept {
+    lu_solve_impl<32>(lu, m, lda, piv, x, ldx, k);
 }
 TM_TARGET_AVX2 inline void compliance_product_avx2(const double* C, std::size_t n, const double* lam,
                                                    double* u) noexcept {
@@ -325,11 +412,23 @@ inline double dot(const double* a, const double* b, std::size_t m) noexcept {
 #endif
     return contact_detail::dot_base(a, b, m);
 }
-inline void lu_solve(const double* lu, std::size_t m, std::size_t lda, const int* piv, double* b) noexcept {
+inline void rows_dot4(const double* r0, const double* r1, const double* r2, const double* r3, const double* x,
+                      std::size_t len, double* s) noexcept {
 #if TM_HAVE_DISPATCH
-    if (contact_detail::use_avx2()) return contact_detail::lu_solve_avx2(lu, m, lda, piv, b);
+    if (contact_detail::use_avx2()) return contact_detail::dot4_avx2(r0, r1, r2, r3, x, len, s);
 #endif
-    contact_detail::lu_solve_base(lu, m, lda, piv, b);
+    contact_detail::dot4_base(r0, r1, r2, r3, x, len, s);
+}
+// k right-hand sides at once, column c at x + c * ldx (see lu_solve_impl).
+inline void lu_solve(const double* lu, std::size_t m, std::size_t lda, const int* piv, double* x, std::size_t ldx,
+                     std::size_t k) noexcept {
+#if TM_HAVE_DISPATCH
+    if (contact_detail::use_avx2()) return contact_detail::lu_solve_avx2(lu, m, lda, piv, x, ldx, k);
+#endif
+    contact_detail::lu_solve_base(lu, m, lda, piv, x, ldx, k);
+}
+inline void lu_solve(const double* lu, std::size_t m, std::size_t lda, const int* piv, double* b) noexcept {
+    lu_solve(lu, m, lda, piv, b, 0, 1);
 }
 inline void compliance_product(const double* C, std::size_t n, const double* lam, double* u) noexcept {
 #if TM_HAVE_DISPATCH
@@ -375,12 +474,14 @@ public:
         pos_ln_.assign(n, -1); pos_lt_.assign(n, -1);
         base_state_.assign(n, kContactOpen); base_coef_ = vec(n);
         Vs_ = vec(kMaxBorder * n2_); Wt_ = vec(kMaxBorder * n2_); S_ = vec(kMaxBorder * kMaxBorder);
+        vnew_ = vec(kMaxBorder * n2_); new_col_.assign(kMaxBorder, 0);
         spiv_.assign(kMaxBorder, 0); by_ = vec(kMaxBorder); brow_.resize(kMaxBorder); bcol_.resize(kMaxBorder);
         vcache_ = vec(kColCache * n2_); ccol_.resize(kColCache);
         aff_lam_ = vec(n2_); aff_u_ = vec(n2_); aff_lz_ = vec(n2_); aff_uz_ = vec(n2_); aff_ly_ = vec(n2_);
         aff_uy_ = vec(n2_); aff_v_ = vec(n);
         key_state_.assign(n, kContactOpen); key_coef_ = vec(n);
         slip_coef_ = vec(n);
+        plam_ = vec(n2_); free_rows_.assign(n2_, 0);
         pu_ = vec(n2_); pl1_ = vec(n2_); pu1_ = vec(n2_); rs_ = vec(n2_); rz_ = vec(n2_); us_ = vec(n2_);
         uz_ = vec(n2_); ukey_sign_ = vec(n); ev_frac_ = vec(4 * n); prev_sign_ = vec(n);
         sv_lam_ = vec(n2_); sv_u_ = vec(n2_); sv_sign_ = vec(n); o_lam_ = vec(n2_); o_u_ = vec(n2_); zunit_ = vec(2 * n2_);
@@ -795,8 +896,8 @@ private:
         if (info != 0) return info;
         solve_prepared(0.0, 0.0, rs_.data(), true, 0.0, 1.0);
         solve_prepared(0.0, 0.0, rz_.data(), true, 1.0, 0.0);
-        displacement(rs_.data(), us_.data());
-        displacement(rz_.data(), uz_.data());
+        piece_displacement(rs_.data(), us_.data(), true, 0.0, 1.0, 0.0, 0.0);
+        piece_displacement(rz_.data(), uz_.data(), true, 1.0, 0.0, 0.0, 0.0);
         copy8(state_.data(), ukey_state_.data()); copy(sign_.data(), ukey_sign_.data());
         ukey_mu_ = params.mu; ukey_muk_ = params.mu_kinetic;
         unit_valid_ = true;
@@ -938,7 +1039,7 @@ private:
                 const int info = factor_piece(state_.data(), sign_.data());
                 if (info != 0) { err_info_ = info; return ContactStatus::singular_piece; }
                 solve_prepared(z1, s1 - sc, l1);
-                displacement(l1, u1);
+                piece_displacement(l1, u1, false, 0.0, 0.0, z1, s1 - sc);
                 ++solves_;
             } else {
                 const int info = unit_response();
@@ -1130,6 +1231,39 @@ public:
     // (sign-flipped for the normal block); only the nonzero forces contribute.
     void displacement(const double* lam, double* u) const noexcept { compliance_product(C_.data(), n_, lam, u); }
 
+    // u = C P lam for forces lam solved for the prepared piece (solve_prepared with the
+    // same plate_z, ds or unit loads az, ay): the piece's own equations give u on their
+    // rows (u_z = plate_z - z0 on a touching node, g = 0; u_y = uy_prev + ds on a stuck
+    // one, w = 0), so only the other rows (the open nodes, the sliding nodes' u_y) are
+    // computed, as dot products of rows of the symmetric C with P lam. With most nodes
+    // stuck that is a small part of the product (none at all when every node sticks);
+    // the equation rows differ from the product by the solve's round-off only.
+    void piece_displacement(const double* lam, double* u, bool unit, double az, double ay, double plate_z,
+                            double ds) noexcept {
+        const std::size_t n = n_, n2 = n2_;
+        double* pl = plam_.data();
+        for (std::size_t i = 0; i < n; ++i) { pl[i] = lam[i]; pl[n + i] = -lam[n + i]; }
+        std::size_t* fr = free_rows_.data();
+        std::size_t nf = 0;
+        for (std::size_t i = 0; i < n; ++i) {
+            const std::int8_t s = key_state_[i];
+            if (s == kContactStick) u[i] = unit ? ay : uy_prev_[i] + ds;
+            else fr[nf++] = i;
+        }
+        for (std::size_t i = 0; i < n; ++i) {
+            if (key_state_[i] != kContactOpen) u[n + i] = unit ? az : plate_z - z0_[i];
+            else fr[nf++] = n + i;
+        }
+        std::size_t q = 0;
+        const double* C = C_.data();
+        double s4[4];
+        for (; q + 4 <= nf; q += 4) {
+            rows_dot4(C + fr[q] * n2, C + fr[q + 1] * n2, C + fr[q + 2] * n2, C + fr[q + 3] * n2, pl, n2, s4);
+            u[fr[q]] = s4[0]; u[fr[q + 1]] = s4[1]; u[fr[q + 2]] = s4[2]; u[fr[q + 3]] = s4[3];
+        }
+        for (; q < nf; ++q) u[fr[q]] = dot(C + fr[q] * n2, pl, n2);
+    }
+
     // Alart-Curnier residual F (2n) at (lam, u), the classification open / stick /
     // slip and the slip signs; returns max |F|. Uses the per-node cone of this step.
     double classify(const double* lam, const double* u, double plate_z, double ds, double* F, std::int8_t* state,
@@ -1275,9 +1409,9 @@ public:
             const double dz = plate_z - aff_z_, dy = plate_y - aff_y_;
             if (aff_stage_ == 1 && (dz != 0.0 || dy != 0.0)) {
                 solve_prepared(0.0, 0.0, aff_lz_.data(), true, 1.0, 0.0);
-                displacement(aff_lz_.data(), aff_uz_.data());
+                piece_displacement(aff_lz_.data(), aff_uz_.data(), true, 1.0, 0.0, 0.0, 0.0);
                 solve_prepared(0.0, 0.0, aff_ly_.data(), true, 0.0, 1.0);
-                displacement(aff_ly_.data(), aff_uy_.data());
+                piece_displacement(aff_ly_.data(), aff_uy_.data(), true, 0.0, 1.0, 0.0, 0.0);
                 aff_stage_ = 2;
             }
             if (aff_stage_ == 2) {
@@ -1295,7 +1429,7 @@ public:
             return 0;
         }
         solve_prepared(plate_z, ds, lam);
-        displacement(lam, u);
+        piece_displacement(lam, u, false, 0.0, 0.0, plate_z, ds);
         copy(lam, aff_lam_.data(), n2_);
         copy(u, aff_u_.data(), n2_);
         aff_z_ = plate_z;
@@ -1468,7 +1602,9 @@ private:
         if (nr != nc) return false;  // cannot happen (both pieces are square); be safe
         const std::size_t nb = nr;
         // M0^-1 V: columns already solved for this base (the same border column of an
-        // earlier nearby piece) come from the column cache, the others are solved
+        // earlier nearby piece) come from the column cache; the others are gathered to
+        // the front of vnew_ and solved together (one pass over the factors for all)
+        std::size_t nnew = 0;
         for (std::size_t c = 0; c < nb; ++c) {
             const BorderCol& bc = bcol_[c];
             const double coef = bc.kind == kAddLn ? slip_coef_[bc.node] : 0.0;
@@ -1482,15 +1618,24 @@ private:
                 copy(vcache_.data() + hit * n2_, v, m);
                 continue;
             }
+            double* w = vnew_.data() + nnew * n2_;
             for (std::size_t k = 0; k < m; ++k) {
-                if (bc.kind == kSlack) v[k] = k == bc.pos ? 1.0 : 0.0;
-                else if (bc.kind == kAddLn) v[k] = coef_ln(eq_row(k), bc.node, coef);
-                else v[k] = coef_lt(eq_row(k), bc.node);
+                if (bc.kind == kSlack) w[k] = k == bc.pos ? 1.0 : 0.0;
+                else if (bc.kind == kAddLn) w[k] = coef_ln(eq_row(k), bc.node, coef);
+                else w[k] = coef_lt(eq_row(k), bc.node);
             }
-            lu_solve(M_.data(), m, m, piv_.data(), v);
+            new_col_[nnew++] = c;
+        }
+        if (nnew > 0) lu_solve(M_.data(), m, m, piv_.data(), vnew_.data(), n2_, nnew);
+        for (std::size_t q = 0; q < nnew; ++q) {
+            const std::size_t c = new_col_[q];
+            const BorderCol& bc = bcol_[c];
+            const double coef = bc.kind == kAddLn ? slip_coef_[bc.node] : 0.0;
+            const double* w = vnew_.data() + q * n2_;
+            copy(w, Vs_.data() + c * n2_, m);
             const std::size_t slot = n_cached_ < kColCache ? n_cached_++ : (next_slot_++ % kColCache);
             ccol_[slot] = {bc.kind, bc.node, bc.pos, coef};
-            copy(v, vcache_.data() + slot * n2_, m);
+            copy(w, vcache_.data() + slot * n2_, m);
         }
         // W^T rows over the base unknowns, and S = Z - W^T (M0^-1 V)
         for (std::size_t r = 0; r < nb; ++r) {
@@ -1592,13 +1737,16 @@ private:
     // workspaces
     std::vector<double> mu_node_, F_, F2_, u2_, lam2_, d_, ws_sign_, ws_sign2_, rhs_, M_, J_, slip_coef_, key_coef_;
     std::vector<std::int8_t> ws_state_, ws_state2_, key_state_;
+    std::vector<double> plam_;  // P lam (piece_displacement)
+    std::vector<std::size_t> free_rows_;
     std::vector<int> piv_, jpiv_;
     std::vector<std::size_t> idxA_, idxT_;
     std::size_t nA_ = 0, nT_ = 0;
     // base piece and its border
     std::vector<long> pos_ln_, pos_lt_;
     std::vector<std::int8_t> base_state_;
-    std::vector<double> base_coef_, Vs_, Wt_, S_, by_;
+    std::vector<double> base_coef_, Vs_, Wt_, S_, by_, vnew_;
+    std::vector<std::size_t> new_col_;
     std::vector<int> spiv_;
     std::vector<BorderRow> brow_;
     std::vector<BorderCol> bcol_;
