@@ -240,8 +240,8 @@ TM_ALWAYS_INLINE void dot4_impl(const double* r0, const double* r1, const double
 // rows stream from L2 / L3 once and are reread from L1 for the other columns; each
 // column's arithmetic is that of a solve on its own.
 template <int B>
-TM_ALWAYS_INLINE void lu_solve_impl(const double* lu, std::size_t m, std::size_t lda, const int* piv, double* x,
-                                    std::size_t ldx, std::size_t k) noexcept {
+TM_ALWAYS_INLINE void lu_forward_impl(const double* lu, std::size_t m, std::size_t lda, const int* piv, double* x,
+                                      std::size_t ldx, std::size_t k) noexcept {
     for (std::size_t c = 0; c < k; ++c) {
         double* b = x + c * ldx;
         for (std::size_t r = 0; r < m; ++r) {
@@ -265,6 +265,12 @@ TM_ALWAYS_INLINE void lu_solve_impl(const double* lu, std::size_t m, std::size_t
     }
     for (; i < m; ++i)
         for (std::size_t c = 0; c < k; ++c) x[c * ldx + i] -= dot_impl<B>(lu + i * lda, x + c * ldx, i);
+}
+
+template <int B>
+TM_ALWAYS_INLINE void lu_backward_impl(const double* lu, std::size_t m, std::size_t lda, double* x, std::size_t ldx,
+                                       std::size_t k) noexcept {
+    double s[4];
     std::size_t e = m;  // U x = y; rows [e, m) solved
     while (e % 4) {
         --e;
@@ -287,6 +293,40 @@ TM_ALWAYS_INLINE void lu_solve_impl(const double* lu, std::size_t m, std::size_t
             b[i0] = x0; b[i0 + 1] = x1; b[i0 + 2] = x2; b[i0 + 3] = x3;
         }
         e = i0;
+    }
+}
+
+template <int B>
+TM_ALWAYS_INLINE void lu_solve_impl(const double* lu, std::size_t m, std::size_t lda, const int* piv, double* x,
+                                    std::size_t ldx, std::size_t k) noexcept {
+    lu_forward_impl<B>(lu, m, lda, piv, x, ldx, k);
+    lu_backward_impl<B>(lu, m, lda, x, ldx, k);
+}
+
+// Row vectors x_r (k of them, row r at x + r * ldx) overwritten by x_r U^-1 for the upper
+// factor U of lu_factor (the rows of a block appended below the factored matrix,
+// extend_base): column by column, x_r[j] /= U[j][j] and the rest of the row loses
+// x_r[j] U[j][j+1:], an axpy along a row of U that stays in L1 for the k rows.
+template <int B>
+TM_ALWAYS_INLINE void lu_right_upper_impl(const double* lu, std::size_t m, std::size_t lda, double* x,
+                                          std::size_t ldx, std::size_t k) noexcept {
+    using V = typename simd::Vec<double, 32>::type;
+    for (std::size_t j = 0; j < m; ++j) {
+        const double* uj = lu + j * lda;
+        const double d = uj[j];
+        for (std::size_t r = 0; r < k; ++r) {
+            double* xr = x + r * ldx;
+            const double a = xr[j] / d;
+            xr[j] = a;
+            if (a == 0.0) continue;
+            const V av = simd::splat<double, 32>(a);
+            std::size_t i = j + 1;
+            for (; i + 4 <= m; i += 4) {
+                const V v = simd::load<V>(xr + i) - av * simd::load<V>(uj + i);
+                std::memcpy(xr + i, &v, sizeof(v));
+            }
+            for (; i < m; ++i) xr[i] -= a * uj[i];
+        }
     }
 }
 
@@ -343,6 +383,14 @@ inline void dot4_base(const double* r0, const double* r1, const double* r2, cons
                       std::size_t len, double* s) noexcept {
     dot4_impl<simd::kBaseBytes>(r0, r1, r2, r3, x, len, s);
 }
+inline void lu_forward_base(const double* lu, std::size_t m, std::size_t lda, const int* piv, double* x,
+                            std::size_t ldx, std::size_t k) noexcept {
+    lu_forward_impl<simd::kBaseBytes>(lu, m, lda, piv, x, ldx, k);
+}
+inline void lu_right_upper_base(const double* lu, std::size_t m, std::size_t lda, double* x, std::size_t ldx,
+                                std::size_t k) noexcept {
+    lu_right_upper_impl<simd::kBaseBytes>(lu, m, lda, x, ldx, k);
+}
 inline void lu_solve_base(const double* lu, std::size_t m, std::size_t lda, const int* piv, double* x,
                           std::size_t ldx, std::size_t k) noexcept {
     lu_solve_impl<simd::kBaseBytes>(lu, m, lda, piv, x, ldx, k);
@@ -360,6 +408,14 @@ TM_TARGET_AVX2 inline double dot_avx2(const double* a, const double* b, std::siz
 TM_TARGET_AVX2 inline void dot4_avx2(const double* r0, const double* r1, const double* r2, const double* r3,
                                      const double* x, std::size_t len, double* s) noexcept {
     dot4_impl<32>(r0, r1, r2, r3, x, len, s);
+}
+TM_TARGET_AVX2 inline void lu_forward_avx2(const double* lu, std::size_t m, std::size_t lda, const int* piv,
+                                           double* x, std::size_t ldx, std::size_t k) noexcept {
+    lu_forward_impl<32>(lu, m, lda, piv, x, ldx, k);
+}
+TM_TARGET_AVX2 inline void lu_right_upper_avx2(const double* lu, std::size_t m, std::size_t lda, double* x,
+                                               std::size_t ldx, std::size_t k) noexcept {
+    lu_right_upper_impl<32>(lu, m, lda, x, ldx, k);
 }
 TM_TARGET_AVX2 inline void lu_solve_avx2(const double* lu, std::size_t m, std::size_t lda, const int* piv,
                                          double* x, std::size_t ldx, std::size_t k) noexcept {
@@ -419,6 +475,22 @@ inline void rows_dot4(const double* r0, const double* r1, const double* r2, cons
 #endif
     contact_detail::dot4_base(r0, r1, r2, r3, x, len, s);
 }
+// The forward half of lu_solve (P and L) for k right-hand sides.
+inline void lu_forward(const double* lu, std::size_t m, std::size_t lda, const int* piv, double* x, std::size_t ldx,
+                       std::size_t k) noexcept {
+#if TM_HAVE_DISPATCH
+    if (contact_detail::use_avx2()) return contact_detail::lu_forward_avx2(lu, m, lda, piv, x, ldx, k);
+#endif
+    contact_detail::lu_forward_base(lu, m, lda, piv, x, ldx, k);
+}
+// x_r <- x_r U^-1 for k row vectors (see lu_right_upper_impl).
+inline void lu_right_upper(const double* lu, std::size_t m, std::size_t lda, double* x, std::size_t ldx,
+                           std::size_t k) noexcept {
+#if TM_HAVE_DISPATCH
+    if (contact_detail::use_avx2()) return contact_detail::lu_right_upper_avx2(lu, m, lda, x, ldx, k);
+#endif
+    contact_detail::lu_right_upper_base(lu, m, lda, x, ldx, k);
+}
 // k right-hand sides at once, column c at x + c * ldx (see lu_solve_impl).
 inline void lu_solve(const double* lu, std::size_t m, std::size_t lda, const int* piv, double* x, std::size_t ldx,
                      std::size_t k) noexcept {
@@ -470,7 +542,7 @@ public:
         mu_node_ = vec(n); F_ = vec(n2_); F2_ = vec(n2_); u2_ = vec(n2_); lam2_ = vec(n2_); d_ = vec(n2_);
         ws_state_.assign(n, kContactOpen); ws_sign_ = vec(n); ws_state2_.assign(n, kContactOpen); ws_sign2_ = vec(n);
         rhs_ = vec(n2_); M_ = vec(n2_ * n2_); piv_.assign(n2_, 0); J_ = vec(n2_ * n2_); jpiv_.assign(n2_, 0);
-        idxA_.assign(n, 0); idxT_.assign(n, 0);
+        bnode_.assign(n2_, 0); bkind_.assign(n2_, 0);
         pos_ln_.assign(n, -1); pos_lt_.assign(n, -1);
         base_state_.assign(n, kContactOpen); base_coef_ = vec(n);
         Vs_ = vec(kMaxBorder * n2_); Wt_ = vec(kMaxBorder * n2_); S_ = vec(kMaxBorder * kMaxBorder);
@@ -637,6 +709,9 @@ public:
     long factorizations() const noexcept { return n_factorizations_; }
     // Pieces solved by bordering the factored base piece instead of refactoring.
     long updates() const noexcept { return n_updates_; }
+    // Times the base was extended by the nodes a piece added (extend_base) instead of
+    // refactored.
+    long extensions() const noexcept { return n_extensions_; }
     // Piece solves served by the affine response of an unchanged piece (O(n) each).
     long affine_steps() const noexcept { return n_affine_; }
     // ---- error details of the last failed solve
@@ -1302,7 +1377,7 @@ public:
             for (std::size_t i = 0; i < n && same; ++i)
                 same = key_state_[i] == state[i] && key_coef_[i] == slip_coef_[i];
             if (same) return 0;
-            if (update_piece(state)) {
+            if (update_piece(state) || (extend_base(state) && update_piece(state))) {
                 copy8(state, key_state_.data());
                 copy(slip_coef_.data(), key_coef_.data());
                 ++n_updates_;
@@ -1321,29 +1396,25 @@ public:
         nB_ = 0;
         n_cached_ = 0;  // cached M0^-1 V columns belong to the old base
         zunit_valid_[0] = zunit_valid_[1] = false;
-        std::size_t a = 0, t = 0;
-        for (std::size_t i = 0; i < n; ++i) {
-            pos_ln_[i] = pos_lt_[i] = -1;
-            if (state[i] != kContactOpen) idxA_[a++] = i;
-            if (state[i] == kContactStick) idxT_[t++] = i;
-        }
-        nA_ = a; nT_ = t;
-        for (std::size_t k = 0; k < nA_; ++k) pos_ln_[idxA_[k]] = static_cast<long>(k);
-        for (std::size_t k = 0; k < nT_; ++k) pos_lt_[idxT_[k]] = static_cast<long>(nA_ + k);
-        const std::size_t nA = nA_, m = nA_ + nT_;
+        std::size_t m = 0;
+        for (std::size_t i = 0; i < n; ++i) pos_ln_[i] = pos_lt_[i] = -1;
+        for (std::size_t i = 0; i < n; ++i)
+            if (state[i] != kContactOpen) { bnode_[m] = i; bkind_[m] = 0; pos_ln_[i] = static_cast<long>(m++); }
+        for (std::size_t i = 0; i < n; ++i)
+            if (state[i] == kContactStick) { bnode_[m] = i; bkind_[m] = 1; pos_lt_[i] = static_cast<long>(m++); }
+        mB_ = m;
         double* M = M_.data();
         // rows: g on the active nodes, then w on the stuck ones; columns: ln_A, lt_T
         for (std::size_t k = 0; k < m; ++k) {
             const double* c = C_.data() + eq_row(k) * n2_;
-            double* mk = M + k * m;
-            for (std::size_t j = 0; j < nA; ++j) {
-                const std::size_t i = idxA_[j];
-                mk[j] = c[i] * slip_coef_[i] - c[n + i];
+            double* mk = M + k * n2_;
+            for (std::size_t j = 0; j < m; ++j) {
+                const std::size_t i = bnode_[j];
+                mk[j] = bkind_[j] ? c[i] : c[i] * slip_coef_[i] - c[n + i];
             }
-            for (std::size_t j = nA; j < m; ++j) mk[j] = c[idxT_[j - nA]];
         }
         ++n_factorizations_;
-        const int info = lu_factor(M, m, m, piv_.data());
+        const int info = lu_factor(M, m, n2_, piv_.data());
         if (info != 0) return info;
         copy8(state, key_state_.data());
         copy(slip_coef_.data(), key_coef_.data());
@@ -1360,15 +1431,12 @@ public:
     // unit: the right-hand side is az on every contact equation and ay on every stick
     // equation (the response to a unit plate motion), instead of the plate's gaps.
     void solve_prepared(double plate_z, double ds, double* lam, bool unit, double az, double ay) noexcept {
-        const std::size_t n = n_, nA = nA_, m = nA_ + nT_, nb = nB_;
+        const std::size_t n = n_, m = mB_, nb = nB_;
         auto rhs_g = [&](std::size_t i) { return unit ? az : plate_z - z0_[i]; };
         auto rhs_w = [&](std::size_t i) { return unit ? ay : uy_prev_[i] + ds; };
         double* b = rhs_.data();
         double* c = by_.data();
-        for (std::size_t k = 0; k < m; ++k) {
-            const std::size_t i = k < nA ? idxA_[k] : idxT_[k - nA];
-            b[k] = k < nA ? rhs_g(i) : rhs_w(i);
-        }
+        for (std::size_t k = 0; k < m; ++k) b[k] = bkind_[k] ? rhs_w(bnode_[k]) : rhs_g(bnode_[k]);
         for (std::size_t r = 0; r < nb; ++r) {
             const BorderRow& br = brow_[r];
             c[r] = br.kind == kAddG ? rhs_g(br.node) : (br.kind == kAddW ? rhs_w(br.node) : 0.0);
@@ -1380,7 +1448,7 @@ public:
         if (which >= 0) {
             double* zc = zunit_.data() + static_cast<std::size_t>(which) * n2_;
             if (!zunit_valid_[which]) {
-                lu_solve(M_.data(), m, m, piv_.data(), b);
+                lu_solve(M_.data(), m, n2_, piv_.data(), b);
                 copy(b, zc, m);
                 zunit_valid_[which] = true;
             } else {
@@ -1443,9 +1511,9 @@ public:
     // x of the prepared piece for right-hand sides b (base equations, overwritten) and
     // c (border rows, overwritten), as forces lam (2n).
     void solve_bordered(double* b, double* c, double* lam, bool base_solved = false) noexcept {
-        const std::size_t n = n_, nA = nA_, m = nA_ + nT_, nb = nB_;
+        const std::size_t n = n_, m = mB_, nb = nB_;
         double* z = b;
-        if (!base_solved) lu_solve(M_.data(), m, m, piv_.data(), z);
+        if (!base_solved) lu_solve(M_.data(), m, n2_, piv_.data(), z);
         double* y = c;
         if (nb > 0) {  // Schur complement: S y = c - W^T M0^-1 b, x = M0^-1 b - (M0^-1 V) y
             for (std::size_t r = 0; r < nb; ++r) {
@@ -1461,8 +1529,7 @@ public:
         for (std::size_t i = 0; i < n2_; ++i) lam[i] = 0.0;
         // base unknowns (those fixed to zero by the border come out as ~zero and are
         // overwritten below)
-        for (std::size_t k = 0; k < nA; ++k) lam[n + idxA_[k]] = z[k];
-        for (std::size_t k = nA; k < m; ++k) lam[idxT_[k - nA]] = z[k];
+        for (std::size_t k = 0; k < m; ++k) lam[bkind_[k] ? bnode_[k] : n + bnode_[k]] = z[k];
         for (std::size_t col = 0; col < nb; ++col) {
             const BorderCol& bc = bcol_[col];
             if (bc.kind == kAddLn) lam[n + bc.node] = y[col];
@@ -1554,7 +1621,14 @@ private:
     // that P0 lacks (or the changed unknown's new version) is a column / row. The
     // Schur complement S = Z - W^T M0^-1 V (at most kMaxBorder square) is factored;
     // M0^-1 V is kept, so a solve is one base solve and O(m nb) more.
-    enum : std::uint8_t { kFix = 0, kAddG = 1, kAddW = 2, kAddLn = 3, kAddLt = 4, kSlack = 5 };
+    //
+    // A node stuck in P0 that slides in P1 (the common change while the slip front
+    // moves) keeps both its unknowns: its stick equation w_i is voided by a slack
+    // column and the slip law lt_i - mu s ln_i = 0 is added as a row over the base
+    // unknowns (kSlipRow). That is two borders, where fixing lt_i and replacing the
+    // ln_i column by its slip version would take four, so twice as many nodes may
+    // break away before the base is refactored.
+    enum : std::uint8_t { kFix = 0, kAddG = 1, kAddW = 2, kAddLn = 3, kAddLt = 4, kSlack = 5, kSlipRow = 6 };
     struct BorderRow { std::uint8_t kind; std::size_t node; std::size_t pos; };
     struct BorderCol { std::uint8_t kind; std::size_t node; std::size_t pos; };
     static constexpr std::size_t kMaxBorder = 16;
@@ -1562,7 +1636,7 @@ private:
     struct CachedCol { std::uint8_t kind; std::size_t node; std::size_t pos; double coef; };
 
     std::size_t eq_row(std::size_t k) const noexcept {  // C row of base equation k
-        return k < nA_ ? n_ + idxA_[k] : idxT_[k - nA_];
+        return bkind_[k] ? bnode_[k] : n_ + bnode_[k];
     }
     // coefficient of unknown (ln_i with slip coefficient coef, or lt_i) in C row r
     double coef_ln(std::size_t r, std::size_t i, double coef) const noexcept {
@@ -1570,11 +1644,16 @@ private:
         return c[i] * coef - c[n_ + i];
     }
     double coef_lt(std::size_t r, std::size_t i) const noexcept { return C_[r * n2_ + i]; }
+    // coefficient of base unknown k in C row r
+    double base_coef(std::size_t r, std::size_t k) const noexcept {
+        const std::size_t i = bnode_[k];
+        return bkind_[k] ? coef_lt(r, i) : coef_ln(r, i, base_coef_[i]);
+    }
 
     // Border the base for the piece (state, slip_coef_); false if it needs more than
     // kMaxBorder borders or its Schur complement is singular (then refactor).
     bool update_piece(const std::int8_t* state) noexcept {
-        const std::size_t n = n_, m = nA_ + nT_;
+        const std::size_t n = n_, m = mB_;
         std::size_t nr = 0, nc = 0;
         auto add_row = [&](std::uint8_t kind, std::size_t node, std::size_t pos) {
             if (nr < kMaxBorder) brow_[nr] = {kind, node, pos};
@@ -1588,6 +1667,12 @@ private:
             const std::int8_t s0 = base_state_[i], s1 = state[i];
             const bool a0 = s0 != kContactOpen, a1 = s1 != kContactOpen;
             const bool t0 = s0 == kContactStick, t1 = s1 == kContactStick;
+            if (t0 && s1 == kContactSlip) {  // stuck in the base, sliding now: the slip law as a row
+                add_row(kSlipRow, i, static_cast<std::size_t>(pos_lt_[i]));
+                add_col(kSlack, i, static_cast<std::size_t>(pos_lt_[i]));  // w_i is base equation pos_lt
+                if (nr > kMaxBorder || nc > kMaxBorder) return false;
+                continue;
+            }
             const bool same_ln = a0 && a1 && base_coef_[i] == slip_coef_[i];
             if (a0 && !same_ln) add_row(kFix, i, static_cast<std::size_t>(pos_ln_[i]));
             if (a1 && !same_ln) add_col(kAddLn, i, 0);
@@ -1626,7 +1711,7 @@ private:
             }
             new_col_[nnew++] = c;
         }
-        if (nnew > 0) lu_solve(M_.data(), m, m, piv_.data(), vnew_.data(), n2_, nnew);
+        if (nnew > 0) lu_solve(M_.data(), m, n2_, piv_.data(), vnew_.data(), n2_, nnew);
         for (std::size_t q = 0; q < nnew; ++q) {
             const std::size_t c = new_col_[q];
             const BorderCol& bc = bcol_[c];
@@ -1644,16 +1729,19 @@ private:
             if (br.kind == kFix) {
                 for (std::size_t k = 0; k < m; ++k) w[k] = 0.0;
                 w[br.pos] = 1.0;
+            } else if (br.kind == kSlipRow) {  // lt_i - mu s ln_i (ln_i has slip coefficient 0 in the base)
+                for (std::size_t k = 0; k < m; ++k) w[k] = 0.0;
+                w[br.pos] = 1.0;
+                w[static_cast<std::size_t>(pos_ln_[br.node])] = -slip_coef_[br.node];
             } else {
                 const std::size_t row = br.kind == kAddG ? n + br.node : br.node;
-                for (std::size_t k = 0; k < nA_; ++k) w[k] = coef_ln(row, idxA_[k], base_coef_[idxA_[k]]);
-                for (std::size_t k = nA_; k < m; ++k) w[k] = coef_lt(row, idxT_[k - nA_]);
+                for (std::size_t k = 0; k < m; ++k) w[k] = base_coef(row, k);
             }
             double* srow = S_.data() + r * nb;
             for (std::size_t c = 0; c < nb; ++c) {
                 const BorderCol& bc = bcol_[c];
                 double z = 0.0;
-                if (br.kind != kFix && bc.kind != kSlack) {
+                if (br.kind != kFix && br.kind != kSlipRow && bc.kind != kSlack) {
                     const std::size_t row = br.kind == kAddG ? n + br.node : br.node;
                     z = bc.kind == kAddLn ? coef_ln(row, bc.node, slip_coef_[bc.node]) : coef_lt(row, bc.node);
                 }
@@ -1665,6 +1753,98 @@ private:
             nB_ = 0;
             return false;
         }
+        return true;
+    }
+
+    // Append to the base the nodes the piece (state, slip_coef_) touches and the base
+    // leaves open (the contact growing under the press, a node touching down), their
+    // ln (and lt, if stuck) as new unknowns and g (and w) as new equations, when the
+    // piece's other differences then fit a border; false if there is nothing to append,
+    // they do not fit, or the appended block is singular (then the caller refactors).
+    //
+    // With P0 M0 = L0 U0 the factors of the base, the extended matrix [M0 V; W^T Z]
+    // has the factors L = [L0 0; Ps X Ls], U = [U0 Y; 0 Us] with Y = L0^-1 P0 V,
+    // X = W^T U0^-1 and Ps (Z - X Y) = Ls Us (partial pivoting within the new block):
+    // O(nb m^2) for nb new positions, where refactoring costs O(m^3). This is the
+    // bordered system's own Schur complement, kept as part of the base; the growing
+    // contact of a press is then factored once instead of once per kMaxBorder / 2
+    // nodes.
+    bool extend_base(const std::int8_t* state) noexcept {
+        const std::size_t n = n_, n2 = n2_, m = mB_;
+        std::size_t rows = 0, add = 0;  // border rows of the other differences; positions to append
+        for (std::size_t i = 0; i < n; ++i) {
+            const std::int8_t s0 = base_state_[i], s1 = state[i];
+            const bool a0 = s0 != kContactOpen, a1 = s1 != kContactOpen;
+            const bool t0 = s0 == kContactStick, t1 = s1 == kContactStick;
+            if (!a0 && a1) { add += t1 ? 2 : 1; continue; }
+            if (t0 && s1 == kContactSlip) { ++rows; continue; }
+            const bool same_ln = a0 && a1 && base_coef_[i] == slip_coef_[i];
+            rows += (a0 && !same_ln) + (t0 && !t1) + (t1 && !t0);
+        }
+        if (add == 0 || rows > kMaxBorder) return false;
+        const std::size_t me = m + add;
+        for (std::size_t i = 0, q = m; i < n; ++i) {
+            if (base_state_[i] != kContactOpen || state[i] == kContactOpen) continue;
+            bnode_[q] = i; bkind_[q] = 0; pos_ln_[i] = static_cast<long>(q++);
+            if (state[i] == kContactStick) { bnode_[q] = i; bkind_[q] = 1; pos_lt_[i] = static_cast<long>(q++); }
+            base_state_[i] = state[i];
+            base_coef_[i] = slip_coef_[i];
+        }
+        // from here on the base is changed: a failure must refactor
+        lu_valid_ = false;
+        nB_ = 0;
+        n_cached_ = 0;
+        zunit_valid_[0] = zunit_valid_[1] = false;
+        double* M = M_.data();
+        // Y: the new columns over the base equations, through P0 and L0, in chunks of
+        // kMaxBorder columns gathered into vnew_
+        for (std::size_t c0 = m; c0 < me; c0 += kMaxBorder) {
+            const std::size_t kc = me - c0 < kMaxBorder ? me - c0 : kMaxBorder;
+            for (std::size_t c = 0; c < kc; ++c) {
+                double* v = vnew_.data() + c * n2;
+                for (std::size_t k = 0; k < m; ++k) v[k] = base_coef(eq_row(k), c0 + c);
+            }
+            lu_forward(M, m, n2, piv_.data(), vnew_.data(), n2, kc);
+            for (std::size_t c = 0; c < kc; ++c) {
+                const double* v = vnew_.data() + c * n2;
+                for (std::size_t k = 0; k < m; ++k) M[k * n2 + c0 + c] = v[k];
+            }
+        }
+        // X: the new equations over the base unknowns, through U0 (rows m..me-1)
+        for (std::size_t r = m; r < me; ++r) {
+            const std::size_t row = eq_row(r);
+            double* x = M + r * n2;
+            for (std::size_t k = 0; k < m; ++k) x[k] = base_coef(row, k);
+        }
+        lu_right_upper(M, m, n2, M + m * n2, n2, add);
+        // S = Z - X Y into the new block, then its LU; its row swaps apply to X too
+        for (std::size_t r = m; r < me; ++r) {
+            const std::size_t row = eq_row(r);
+            double* sr = M + r * n2 + m;
+            for (std::size_t c = 0; c < add; ++c) sr[c] = base_coef(row, m + c);
+            const double* x = M + r * n2;
+            for (std::size_t k = 0; k < m; ++k) {
+                const double a = x[k];
+                if (a == 0.0) continue;
+                const double* yk = M + k * n2 + m;
+                for (std::size_t c = 0; c < add; ++c) sr[c] -= a * yk[c];
+            }
+        }
+        int* ps = piv_.data() + m;
+        if (lu_factor(M + m * n2 + m, add, n2, ps) != 0) return false;
+        for (std::size_t t = 0; t < add; ++t) {
+            const std::size_t p = static_cast<std::size_t>(ps[t]);
+            if (p != t) {
+                double* a = M + (m + t) * n2;
+                double* b = M + (m + p) * n2;
+                for (std::size_t k = 0; k < m; ++k) { const double h = a[k]; a[k] = b[k]; b[k] = h; }
+            }
+            ps[t] = static_cast<int>(m + p);
+        }
+        mB_ = me;
+        lu_valid_ = true;
+        ++n_extensions_;
+        ++piece_id_;
         return true;
     }
 
@@ -1740,8 +1920,12 @@ private:
     std::vector<double> plam_;  // P lam (piece_displacement)
     std::vector<std::size_t> free_rows_;
     std::vector<int> piv_, jpiv_;
-    std::vector<std::size_t> idxA_, idxT_;
-    std::size_t nA_ = 0, nT_ = 0;
+    // the base piece's unknowns / equations: position k is ln (kind 0, with equation
+    // g) or lt (kind 1, with equation w) of node bnode_[k]; mB_ of them
+    std::vector<std::size_t> bnode_;
+    std::vector<std::uint8_t> bkind_;
+    std::size_t mB_ = 0;
+    long n_extensions_ = 0;
     // base piece and its border
     std::vector<long> pos_ln_, pos_lt_;
     std::vector<std::int8_t> base_state_;
