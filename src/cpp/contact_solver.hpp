@@ -1226,7 +1226,18 @@ private:
             const std::size_t i = ev_node_[e];
             const int kind = ev_kind_[e];
             if (kind == 0) { state_[i] = kContactStick; sign_[i] = 0.0; }
-            else if (kind == 1) { state_[i] = kContactOpen; sign_[i] = 0.0; lam_[i] = lam_[n + i] = 0.0; }
+            else if (kind == 1) {
+                // the displacements at the event point are the piece's (pu_, C P lam_ to
+                // round-off); a node lifting off sheds what it still carried (zero to
+                // the event tolerance): its columns of C P come off them, O(n) instead
+                // of the whole product
+                const double dt = -lam_[i], dn = lam_[n + i];  // the change of P lam
+                const double* ct = C_.data() + i * n2_;
+                const double* cn = C_.data() + (n + i) * n2_;
+                if (dt != 0.0 || dn != 0.0)
+                    for (std::size_t j = 0; j < n2_; ++j) pu_[j] += ct[j] * dt + cn[j] * dn;
+                state_[i] = kContactOpen; sign_[i] = 0.0; lam_[i] = lam_[n + i] = 0.0;
+            }
             else { state_[i] = kContactSlip; sign_[i] = kind == 2 ? 1.0 : -1.0; }
         }
         for (std::size_t e = 0; e < n_ev; ++e) {  // pressures after all of this point's changes
@@ -1237,7 +1248,6 @@ private:
             }
         }
         for (std::size_t i = 0; i < n; ++i) sliding_[i] = state_[i] == kContactSlip;
-        displacement(lam_.data(), pu_.data());
         copy(pu_.data(), uy_prev_.data());
         changes = n_ev;
         if (any_broke && (params.mu - params.mu_kinetic) * broke_ln > f_tol_) {
