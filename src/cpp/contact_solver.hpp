@@ -24,15 +24,19 @@
 // reused while the piece (classification and slip coefficients) is unchanged; a piece
 // that differs from the factored one in a few nodes (the slip front moved by a node)
 // is solved by bordering the factored one (a Schur complement of at most 16 rows and
-// columns), so refactorisations are rare. The base solves of the unit right-hand
-// sides (the responses to a unit plate motion) are kept with the base, so the unit
-// responses of a bordered piece cost O(m nb) besides their compliance products. No
-// iterative refinement: the bordered solves agree with the reference's fresh LAPACK
-// factorisations as closely as the reference's two stepping modes agree with each
-// other (tests/test_contact_cpp.py). Within one piece the response is affine in the
-// plate position; the active-set iteration of the breakaway cascade serves a piece met
-// a third time from its reference solution and unit responses in O(n)
-// (piece_response).
+// columns; a stuck node that slides costs two borders, its slip law as a row), and a
+// piece that adds touching nodes (the contact growing under the press) extends the
+// base's factors by them (extend_base, O(nb m^2)), so refactorisations are rare. The
+// base solves of the unit right-hand sides (the responses to a unit plate motion) are
+// kept with the base, so the unit responses of a bordered piece cost O(m nb) besides
+// their compliance products. No iterative refinement: the bordered solves agree with
+// the reference's fresh LAPACK factorisations as closely as the reference's two
+// stepping modes agree with each other (tests/test_contact_cpp.py). A piece's
+// displacements come from its own equations where they fix them (piece_displacement:
+// only the open nodes and the sliding nodes' u_y take dot products with C). Within one
+// piece the response is affine in the plate position; the active-set iteration of the
+// breakaway cascade serves a piece met a third time from its reference solution and
+// unit responses in O(n) (piece_response).
 #pragma once
 
 #include <cmath>
@@ -1339,14 +1343,31 @@ public:
             if (key_state_[i] != kContactOpen) u[n + i] = unit ? az : plate_z - z0_[i];
             else fr[nf++] = n + i;
         }
+        // P lam is zero off the touching nodes: the dot products run over the span of
+        // its nonzeros in each half (the contact is one run of nodes: its share of the
+        // surface)
+        std::size_t a0 = n, b0 = 0, a1 = n2, b1 = n;
+        for (std::size_t i = 0; i < n; ++i) {
+            if (pl[i] != 0.0) { if (i < a0) a0 = i; b0 = i + 1; }
+            if (pl[n + i] != 0.0) { if (n + i < a1) a1 = n + i; b1 = n + i + 1; }
+        }
+        const std::size_t l0 = b0 > a0 ? b0 - a0 : 0, l1 = b1 > a1 ? b1 - a1 : 0;
         std::size_t q = 0;
         const double* C = C_.data();
-        double s4[4];
+        double s4[4], t4[4];
         for (; q + 4 <= nf; q += 4) {
-            rows_dot4(C + fr[q] * n2, C + fr[q + 1] * n2, C + fr[q + 2] * n2, C + fr[q + 3] * n2, pl, n2, s4);
-            u[fr[q]] = s4[0]; u[fr[q + 1]] = s4[1]; u[fr[q + 2]] = s4[2]; u[fr[q + 3]] = s4[3];
+            const double *r0 = C + fr[q] * n2, *r1 = C + fr[q + 1] * n2, *r2 = C + fr[q + 2] * n2,
+                         *r3 = C + fr[q + 3] * n2;
+            s4[0] = s4[1] = s4[2] = s4[3] = t4[0] = t4[1] = t4[2] = t4[3] = 0.0;
+            if (l0) rows_dot4(r0 + a0, r1 + a0, r2 + a0, r3 + a0, pl + a0, l0, s4);
+            if (l1) rows_dot4(r0 + a1, r1 + a1, r2 + a1, r3 + a1, pl + a1, l1, t4);
+            u[fr[q]] = s4[0] + t4[0]; u[fr[q + 1]] = s4[1] + t4[1];
+            u[fr[q + 2]] = s4[2] + t4[2]; u[fr[q + 3]] = s4[3] + t4[3];
         }
-        for (; q < nf; ++q) u[fr[q]] = dot(C + fr[q] * n2, pl, n2);
+        for (; q < nf; ++q) {
+            const double* r = C + fr[q] * n2;
+            u[fr[q]] = (l0 ? dot(r + a0, pl + a0, l0) : 0.0) + (l1 ? dot(r + a1, pl + a1, l1) : 0.0);
+        }
     }
 
     // Alart-Curnier residual F (2n) at (lam, u), the classification open / stick /
