@@ -122,6 +122,70 @@ TM_ALWAYS_INLINE void lu_update_row8(double* ri, const double* U, std::size_t ld
     }
 }
 
+// A double into the four lanes: one broadcast load in the AVX variant (B = 32), a
+// splat on the baseline.
+template <int B>
+TM_ALWAYS_INLINE typename simd::Vec<double, 32>::type lu_bcast(const double* p) noexcept {
+    if constexpr (B == 32) return simd::bcast<double, 32>(p);
+    else return simd::splat<double, 32>(*p);
+}
+
+// Rows r0..r3 of the trailing update with a full panel, rj[j] -= sum_t rj[kb + t] U[t][j]
+// for j in [ke, m): a 4 x 8 block of the rows in eight accumulators, each row's eight
+// multipliers broadcast from memory and each U row's two vectors loaded once for the
+// four rows (six loads per eight multiply-adds, where one row at a time loads nine
+// per eight and holds eight splats that do not fit the registers with the rest):
+// about 1.4x faster factorisations for m of 200-320. AVX variant only: with 16-byte
+// vectors the block's sixteen registers spill (the baseline keeps lu_update_row8).
+template <int B>
+TM_ALWAYS_INLINE void lu_update_rows4(double* r0, double* r1, double* r2, double* r3, const double* U,
+                                      std::size_t lda, std::size_t kb, std::size_t ke, std::size_t m) noexcept {
+    using V = typename simd::Vec<double, 32>::type;
+    std::size_t j = ke;
+    for (; j + 8 <= m; j += 8) {
+        V a0 = simd::load<V>(r0 + j), b0 = simd::load<V>(r0 + j + 4);
+        V a1 = simd::load<V>(r1 + j), b1 = simd::load<V>(r1 + j + 4);
+        V a2 = simd::load<V>(r2 + j), b2 = simd::load<V>(r2 + j + 4);
+        V a3 = simd::load<V>(r3 + j), b3 = simd::load<V>(r3 + j + 4);
+        for (std::size_t t = 0; t < kLuBlock; ++t) {
+            const double* ut = U + t * lda + j;
+            const V u0 = simd::load<V>(ut), u1 = simd::load<V>(ut + 4);
+            V l = lu_bcast<B>(r0 + kb + t);
+            a0 -= l * u0; b0 -= l * u1;
+            l = lu_bcast<B>(r1 + kb + t);
+            a1 -= l * u0; b1 -= l * u1;
+            l = lu_bcast<B>(r2 + kb + t);
+            a2 -= l * u0; b2 -= l * u1;
+            l = lu_bcast<B>(r3 + kb + t);
+            a3 -= l * u0; b3 -= l * u1;
+        }
+        std::memcpy(r0 + j, &a0, sizeof(a0)); std::memcpy(r0 + j + 4, &b0, sizeof(b0));
+        std::memcpy(r1 + j, &a1, sizeof(a1)); std::memcpy(r1 + j + 4, &b1, sizeof(b1));
+        std::memcpy(r2 + j, &a2, sizeof(a2)); std::memcpy(r2 + j + 4, &b2, sizeof(b2));
+        std::memcpy(r3 + j, &a3, sizeof(a3)); std::memcpy(r3 + j + 4, &b3, sizeof(b3));
+    }
+    if (j + 4 <= m) {
+        V a0 = simd::load<V>(r0 + j), a1 = simd::load<V>(r1 + j);
+        V a2 = simd::load<V>(r2 + j), a3 = simd::load<V>(r3 + j);
+        for (std::size_t t = 0; t < kLuBlock; ++t) {
+            const V u0 = simd::load<V>(U + t * lda + j);
+            a0 -= lu_bcast<B>(r0 + kb + t) * u0; a1 -= lu_bcast<B>(r1 + kb + t) * u0;
+            a2 -= lu_bcast<B>(r2 + kb + t) * u0; a3 -= lu_bcast<B>(r3 + kb + t) * u0;
+        }
+        std::memcpy(r0 + j, &a0, sizeof(a0)); std::memcpy(r1 + j, &a1, sizeof(a1));
+        std::memcpy(r2 + j, &a2, sizeof(a2)); std::memcpy(r3 + j, &a3, sizeof(a3));
+        j += 4;
+    }
+    for (; j < m; ++j) {
+        double a0 = r0[j], a1 = r1[j], a2 = r2[j], a3 = r3[j];
+        for (std::size_t t = 0; t < kLuBlock; ++t) {
+            const double u = U[t * lda + j];
+            a0 -= r0[kb + t] * u; a1 -= r1[kb + t] * u; a2 -= r2[kb + t] * u; a3 -= r3[kb + t] * u;
+        }
+        r0[j] = a0; r1[j] = a1; r2[j] = a2; r3[j] = a3;
+    }
+}
+
 template <int B>
 TM_ALWAYS_INLINE int lu_factor_impl(double* a, std::size_t m, std::size_t lda, int* piv) noexcept {
     for (std::size_t kb = 0; kb < m; kb += kLuBlock) {
@@ -163,7 +227,14 @@ TM_ALWAYS_INLINE int lu_factor_impl(double* a, std::size_t m, std::size_t lda, i
         }
         // trailing update A22 -= L21 U12
         if (b == kLuBlock) {
-            for (std::size_t i = ke; i < m; ++i) lu_update_row8<B>(a + i * lda, a + kb * lda, lda, kb, ke, m);
+            std::size_t i = ke;
+            if constexpr (B == 32) {  // the 4 x 8 blocks need the sixteen AVX registers
+                for (; i + 4 <= m; i += 4) {
+                    double* r0 = a + i * lda;
+                    lu_update_rows4<B>(r0, r0 + lda, r0 + 2 * lda, r0 + 3 * lda, a + kb * lda, lda, kb, ke, m);
+                }
+            }
+            for (; i < m; ++i) lu_update_row8<B>(a + i * lda, a + kb * lda, lda, kb, ke, m);
         } else {
             for (std::size_t i = ke; i < m; ++i) {
                 double* ri = a + i * lda;
