@@ -181,6 +181,21 @@ def test_singular_system_is_reported(ridge, backend):
     same_history(before, s.get_state())
 
 
+def test_paper_scene_prepares_pieces_every_way():
+    # fig6 meets every way the kernel prepares a piece (a refactorisation, an extension
+    # of the base by the nodes the press adds, a border, slip rows among them), so the
+    # equality tests above check each of them against the reference
+    scene = tm.scenes.paper("fig6")
+    model = ridge_model(scene.geometry)
+    s = ContactSolver(model, scene.friction, mu_kinetic=scene.friction * scene.kinetic_ratio)
+    y, ind = scene.plate_motion()
+    s.follow(y, model.geometry.height - ind, "auto")
+    k = s._kernel
+    assert k.factorizations > 0 and k.extensions > 0 and k.updates > 0
+    # the extensions replace most refactorisations of the press
+    assert k.extensions > k.factorizations
+
+
 @pytest.mark.parametrize("stepping", ["auto", "every"])
 @pytest.mark.parametrize("threads", [1, 2])
 def test_pad_commits_all_ridges_or_none(stepping, threads):
