@@ -191,9 +191,11 @@ def test_paper_scene_prepares_pieces_every_way():
     y, ind = scene.plate_motion()
     s.follow(y, model.geometry.height - ind, "auto")
     k = s._kernel
-    assert k.factorizations > 0 and k.extensions > 0 and k.updates > 0
-    # the extensions replace most refactorisations of the press
-    assert k.extensions > k.factorizations
+    assert k.factorizations > 0 and k.updates > 0
+    # the press adds the contact's nodes a few at a time: the base is extended by them,
+    # not refactored (one factorisation per kMaxBorder / 2 added nodes would be about
+    # 20 for the press alone; fig6 needs 15 in all, 33 without the extensions)
+    assert k.factorizations < 20
 
 
 @pytest.mark.parametrize("stepping", ["auto", "every"])

@@ -203,8 +203,6 @@ void tm_bind_contact(py::module_& m) {
                                "piece LU factorisations since construction")
         .def_property_readonly("affine_steps", [](const PyContact& c) { return c.view().affine_steps(); },
                                "piece solves served by the affine response of an unchanged piece")
-        .def_property_readonly("extensions", [](const PyContact& c) { return c.view().extensions(); },
-                               "times the base piece was extended by the nodes a piece added instead of refactored")
         .def_property_readonly("updates", [](const PyContact& c) { return c.view().updates(); },
                                "pieces solved by bordering the factored base piece instead of refactoring")
         .def("set_params",
