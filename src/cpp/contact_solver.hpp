@@ -24,15 +24,19 @@
 // reused while the piece (classification and slip coefficients) is unchanged; a piece
 // that differs from the factored one in a few nodes (the slip front moved by a node)
 // is solved by bordering the factored one (a Schur complement of at most 16 rows and
-// columns), so refactorisations are rare. The base solves of the unit right-hand
-// sides (the responses to a unit plate motion) are kept with the base, so the unit
-// responses of a bordered piece cost O(m nb) besides their compliance products. No
-// iterative refinement: the bordered solves agree with the reference's fresh LAPACK
-// factorisations as closely as the reference's two stepping modes agree with each
-// other (tests/test_contact_cpp.py). Within one piece the response is affine in the
-// plate position; the active-set iteration of the breakaway cascade serves a piece met
-// a third time from its reference solution and unit responses in O(n)
-// (piece_response).
+// columns; a stuck node that slides costs two borders, its slip law as a row), and a
+// piece that adds touching nodes (the contact growing under the press) extends the
+// base's factors by them (extend_base, O(nb m^2)), so refactorisations are rare. The
+// base solves of the unit right-hand sides (the responses to a unit plate motion) are
+// kept with the base, so the unit responses of a bordered piece cost O(m nb) besides
+// their compliance products. No iterative refinement: the bordered solves agree with
+// the reference's fresh LAPACK factorisations as closely as the reference's two
+// stepping modes agree with each other (tests/test_contact_cpp.py). A piece's
+// displacements come from its own equations where they fix them (piece_displacement:
+// only the open nodes and the sliding nodes' u_y take dot products with C). Within one
+// piece the response is affine in the plate position; the active-set iteration of the
+// breakaway cascade serves a piece met a third time from its reference solution and
+// unit responses in O(n) (piece_response).
 #pragma once
 
 #include <cmath>
@@ -118,6 +122,70 @@ TM_ALWAYS_INLINE void lu_update_row8(double* ri, const double* U, std::size_t ld
     }
 }
 
+// A double into the four lanes: one broadcast load in the AVX variant (B = 32), a
+// splat on the baseline.
+template <int B>
+TM_ALWAYS_INLINE typename simd::Vec<double, 32>::type lu_bcast(const double* p) noexcept {
+    if constexpr (B == 32) return simd::bcast<double, 32>(p);
+    else return simd::splat<double, 32>(*p);
+}
+
+// Rows r0..r3 of the trailing update with a full panel, rj[j] -= sum_t rj[kb + t] U[t][j]
+// for j in [ke, m): a 4 x 8 block of the rows in eight accumulators, each row's eight
+// multipliers broadcast from memory and each U row's two vectors loaded once for the
+// four rows (six loads per eight multiply-adds, where one row at a time loads nine
+// per eight and holds eight splats that do not fit the registers with the rest):
+// about 1.4x faster factorisations for m of 200-320. AVX variant only: with 16-byte
+// vectors the block's sixteen registers spill (the baseline keeps lu_update_row8).
+template <int B>
+TM_ALWAYS_INLINE void lu_update_rows4(double* r0, double* r1, double* r2, double* r3, const double* U,
+                                      std::size_t lda, std::size_t kb, std::size_t ke, std::size_t m) noexcept {
+    using V = typename simd::Vec<double, 32>::type;
+    std::size_t j = ke;
+    for (; j + 8 <= m; j += 8) {
+        V a0 = simd::load<V>(r0 + j), b0 = simd::load<V>(r0 + j + 4);
+        V a1 = simd::load<V>(r1 + j), b1 = simd::load<V>(r1 + j + 4);
+        V a2 = simd::load<V>(r2 + j), b2 = simd::load<V>(r2 + j + 4);
+        V a3 = simd::load<V>(r3 + j), b3 = simd::load<V>(r3 + j + 4);
+        for (std::size_t t = 0; t < kLuBlock; ++t) {
+            const double* ut = U + t * lda + j;
+            const V u0 = simd::load<V>(ut), u1 = simd::load<V>(ut + 4);
+            V l = lu_bcast<B>(r0 + kb + t);
+            a0 -= l * u0; b0 -= l * u1;
+            l = lu_bcast<B>(r1 + kb + t);
+            a1 -= l * u0; b1 -= l * u1;
+            l = lu_bcast<B>(r2 + kb + t);
+            a2 -= l * u0; b2 -= l * u1;
+            l = lu_bcast<B>(r3 + kb + t);
+            a3 -= l * u0; b3 -= l * u1;
+        }
+        std::memcpy(r0 + j, &a0, sizeof(a0)); std::memcpy(r0 + j + 4, &b0, sizeof(b0));
+        std::memcpy(r1 + j, &a1, sizeof(a1)); std::memcpy(r1 + j + 4, &b1, sizeof(b1));
+        std::memcpy(r2 + j, &a2, sizeof(a2)); std::memcpy(r2 + j + 4, &b2, sizeof(b2));
+        std::memcpy(r3 + j, &a3, sizeof(a3)); std::memcpy(r3 + j + 4, &b3, sizeof(b3));
+    }
+    if (j + 4 <= m) {
+        V a0 = simd::load<V>(r0 + j), a1 = simd::load<V>(r1 + j);
+        V a2 = simd::load<V>(r2 + j), a3 = simd::load<V>(r3 + j);
+        for (std::size_t t = 0; t < kLuBlock; ++t) {
+            const V u0 = simd::load<V>(U + t * lda + j);
+            a0 -= lu_bcast<B>(r0 + kb + t) * u0; a1 -= lu_bcast<B>(r1 + kb + t) * u0;
+            a2 -= lu_bcast<B>(r2 + kb + t) * u0; a3 -= lu_bcast<B>(r3 + kb + t) * u0;
+        }
+        std::memcpy(r0 + j, &a0, sizeof(a0)); std::memcpy(r1 + j, &a1, sizeof(a1));
+        std::memcpy(r2 + j, &a2, sizeof(a2)); std::memcpy(r3 + j, &a3, sizeof(a3));
+        j += 4;
+    }
+    for (; j < m; ++j) {
+        double a0 = r0[j], a1 = r1[j], a2 = r2[j], a3 = r3[j];
+        for (std::size_t t = 0; t < kLuBlock; ++t) {
+            const double u = U[t * lda + j];
+            a0 -= r0[kb + t] * u; a1 -= r1[kb + t] * u; a2 -= r2[kb + t] * u; a3 -= r3[kb + t] * u;
+        }
+        r0[j] = a0; r1[j] = a1; r2[j] = a2; r3[j] = a3;
+    }
+}
+
 template <int B>
 TM_ALWAYS_INLINE int lu_factor_impl(double* a, std::size_t m, std::size_t lda, int* piv) noexcept {
     for (std::size_t kb = 0; kb < m; kb += kLuBlock) {
@@ -159,7 +227,14 @@ TM_ALWAYS_INLINE int lu_factor_impl(double* a, std::size_t m, std::size_t lda, i
         }
         // trailing update A22 -= L21 U12
         if (b == kLuBlock) {
-            for (std::size_t i = ke; i < m; ++i) lu_update_row8<B>(a + i * lda, a + kb * lda, lda, kb, ke, m);
+            std::size_t i = ke;
+            if constexpr (B == 32) {  // the 4 x 8 blocks need the sixteen AVX registers
+                for (; i + 4 <= m; i += 4) {
+                    double* r0 = a + i * lda;
+                    lu_update_rows4<B>(r0, r0 + lda, r0 + 2 * lda, r0 + 3 * lda, a + kb * lda, lda, kb, ke, m);
+                }
+            }
+            for (; i < m; ++i) lu_update_row8<B>(a + i * lda, a + kb * lda, lda, kb, ke, m);
         } else {
             for (std::size_t i = ke; i < m; ++i) {
                 double* ri = a + i * lda;
@@ -194,21 +269,139 @@ TM_ALWAYS_INLINE double dot_impl(const double* a, const double* b, std::size_t m
     return s;
 }
 
-// Solve with the factors of lu_factor: b (length m) is overwritten by the solution.
+// s[q] = sum_j r_q[j] x[j] over j < len for four rows r_0..r_3: one load of x feeds
+// the four rows and their four sums are reduced together, so a triangular solve pays
+// one horizontal reduction per four rows; two partial sums per row (eight independent
+// chains) keep the loop bound by the loads, not by the FMA latency.
 template <int B>
-TM_ALWAYS_INLINE void lu_solve_impl(const double* lu, std::size_t m, std::size_t lda, const int* piv,
-                                    double* b) noexcept {
-    for (std::size_t k = 0; k < m; ++k) {
-        const std::size_t p = static_cast<std::size_t>(piv[k]);
-        if (p != k) { const double t = b[k]; b[k] = b[p]; b[p] = t; }
+TM_ALWAYS_INLINE void dot4_impl(const double* r0, const double* r1, const double* r2, const double* r3,
+                                const double* x, std::size_t len, double* s) noexcept {
+    using V = typename simd::Vec<double, 32>::type;
+    std::size_t j = 0;
+    double s0 = 0.0, s1 = 0.0, s2 = 0.0, s3 = 0.0;
+    if (len >= 4) {
+        V a0 = simd::splat<double, 32>(0.0), a1 = a0, a2 = a0, a3 = a0;
+        V b0 = a0, b1 = a0, b2 = a0, b3 = a0;
+        for (; j + 8 <= len; j += 8) {
+            const V x0 = simd::load<V>(x + j), x1 = simd::load<V>(x + j + 4);
+            a0 += simd::load<V>(r0 + j) * x0; b0 += simd::load<V>(r0 + j + 4) * x1;
+            a1 += simd::load<V>(r1 + j) * x0; b1 += simd::load<V>(r1 + j + 4) * x1;
+            a2 += simd::load<V>(r2 + j) * x0; b2 += simd::load<V>(r2 + j + 4) * x1;
+            a3 += simd::load<V>(r3 + j) * x0; b3 += simd::load<V>(r3 + j + 4) * x1;
+        }
+        if (j + 4 <= len) {
+            const V x0 = simd::load<V>(x + j);
+            a0 += simd::load<V>(r0 + j) * x0; a1 += simd::load<V>(r1 + j) * x0;
+            a2 += simd::load<V>(r2 + j) * x0; a3 += simd::load<V>(r3 + j) * x0;
+            j += 4;
+        }
+        a0 += b0; a1 += b1; a2 += b2; a3 += b3;
+        s0 = (a0[0] + a0[1]) + (a0[2] + a0[3]);
+        s1 = (a1[0] + a1[1]) + (a1[2] + a1[3]);
+        s2 = (a2[0] + a2[1]) + (a2[2] + a2[3]);
+        s3 = (a3[0] + a3[1]) + (a3[2] + a3[3]);
     }
-    for (std::size_t i = 1; i < m; ++i) {  // L y = P b, unit diagonal
-        const double* ri = lu + i * lda;
-        b[i] -= dot_impl<B>(ri, b, i);
+    for (; j < len; ++j) {
+        s0 += r0[j] * x[j]; s1 += r1[j] * x[j]; s2 += r2[j] * x[j]; s3 += r3[j] * x[j];
     }
-    for (std::size_t i = m; i-- > 0;) {  // U x = y
-        const double* ri = lu + i * lda;
-        b[i] = (b[i] - dot_impl<B>(ri + i + 1, b + i + 1, m - i - 1)) / ri[i];
+    s[0] = s0; s[1] = s1; s[2] = s2; s[3] = s3;
+}
+
+// Solve with the factors of lu_factor for k right-hand sides, column c at x + c * ldx
+// (length m), overwritten by the solutions. Four rows at a time (dot4_impl against the
+// solved part, then the 4 x 4 triangle): the solve reads each factor entry once, as the
+// one-row version, with a quarter of its reductions and loop overheads (about twice as
+// fast for m of a few hundred). The columns are taken inside the row loop, so the four
+// rows stream from L2 / L3 once and are reread from L1 for the other columns; each
+// column's arithmetic is that of a solve on its own.
+template <int B>
+TM_ALWAYS_INLINE void lu_forward_impl(const double* lu, std::size_t m, std::size_t lda, const int* piv, double* x,
+                                      std::size_t ldx, std::size_t k) noexcept {
+    for (std::size_t c = 0; c < k; ++c) {
+        double* b = x + c * ldx;
+        for (std::size_t r = 0; r < m; ++r) {
+            const std::size_t p = static_cast<std::size_t>(piv[r]);
+            if (p != r) { const double t = b[r]; b[r] = b[p]; b[p] = t; }
+        }
+    }
+    double s[4];
+    std::size_t i = 0;
+    for (; i + 4 <= m; i += 4) {  // L y = P b, unit diagonal
+        const double *r0 = lu + i * lda, *r1 = r0 + lda, *r2 = r1 + lda, *r3 = r2 + lda;
+        for (std::size_t c = 0; c < k; ++c) {
+            double* b = x + c * ldx;
+            dot4_impl<B>(r0, r1, r2, r3, b, i, s);
+            const double y0 = b[i] - s[0];
+            const double y1 = b[i + 1] - (s[1] + r1[i] * y0);
+            const double y2 = b[i + 2] - (s[2] + r2[i] * y0 + r2[i + 1] * y1);
+            const double y3 = b[i + 3] - (s[3] + r3[i] * y0 + r3[i + 1] * y1 + r3[i + 2] * y2);
+            b[i] = y0; b[i + 1] = y1; b[i + 2] = y2; b[i + 3] = y3;
+        }
+    }
+    for (; i < m; ++i)
+        for (std::size_t c = 0; c < k; ++c) x[c * ldx + i] -= dot_impl<B>(lu + i * lda, x + c * ldx, i);
+}
+
+template <int B>
+TM_ALWAYS_INLINE void lu_backward_impl(const double* lu, std::size_t m, std::size_t lda, double* x, std::size_t ldx,
+                                       std::size_t k) noexcept {
+    double s[4];
+    std::size_t e = m;  // U x = y; rows [e, m) solved
+    while (e % 4) {
+        --e;
+        const double* re = lu + e * lda;
+        for (std::size_t c = 0; c < k; ++c) {
+            double* b = x + c * ldx;
+            b[e] = (b[e] - dot_impl<B>(re + e + 1, b + e + 1, m - e - 1)) / re[e];
+        }
+    }
+    while (e >= 4) {
+        const std::size_t i0 = e - 4;
+        const double *r0 = lu + i0 * lda, *r1 = r0 + lda, *r2 = r1 + lda, *r3 = r2 + lda;
+        for (std::size_t c = 0; c < k; ++c) {
+            double* b = x + c * ldx;
+            dot4_impl<B>(r0 + e, r1 + e, r2 + e, r3 + e, b + e, m - e, s);
+            const double x3 = (b[i0 + 3] - s[3]) / r3[i0 + 3];
+            const double x2 = (b[i0 + 2] - (s[2] + r2[i0 + 3] * x3)) / r2[i0 + 2];
+            const double x1 = (b[i0 + 1] - (s[1] + r1[i0 + 2] * x2 + r1[i0 + 3] * x3)) / r1[i0 + 1];
+            const double x0 = (b[i0] - (s[0] + r0[i0 + 1] * x1 + r0[i0 + 2] * x2 + r0[i0 + 3] * x3)) / r0[i0];
+            b[i0] = x0; b[i0 + 1] = x1; b[i0 + 2] = x2; b[i0 + 3] = x3;
+        }
+        e = i0;
+    }
+}
+
+template <int B>
+TM_ALWAYS_INLINE void lu_solve_impl(const double* lu, std::size_t m, std::size_t lda, const int* piv, double* x,
+                                    std::size_t ldx, std::size_t k) noexcept {
+    lu_forward_impl<B>(lu, m, lda, piv, x, ldx, k);
+    lu_backward_impl<B>(lu, m, lda, x, ldx, k);
+}
+
+// Row vectors x_r (k of them, row r at x + r * ldx) overwritten by x_r U^-1 for the upper
+// factor U of lu_factor (the rows of a block appended below the factored matrix,
+// extend_base): column by column, x_r[j] /= U[j][j] and the rest of the row loses
+// x_r[j] U[j][j+1:], an axpy along a row of U that stays in L1 for the k rows.
+template <int B>
+TM_ALWAYS_INLINE void lu_right_upper_impl(const double* lu, std::size_t m, std::size_t lda, double* x,
+                                          std::size_t ldx, std::size_t k) noexcept {
+    using V = typename simd::Vec<double, 32>::type;
+    for (std::size_t j = 0; j < m; ++j) {
+        const double* uj = lu + j * lda;
+        const double d = uj[j];
+        for (std::size_t r = 0; r < k; ++r) {
+            double* xr = x + r * ldx;
+            const double a = xr[j] / d;
+            xr[j] = a;
+            if (a == 0.0) continue;
+            const V av = simd::splat<double, 32>(a);
+            std::size_t i = j + 1;
+            for (; i + 4 <= m; i += 4) {
+                const V v = simd::load<V>(xr + i) - av * simd::load<V>(uj + i);
+                std::memcpy(xr + i, &v, sizeof(v));
+            }
+            for (; i < m; ++i) xr[i] -= a * uj[i];
+        }
     }
 }
 
@@ -261,8 +454,21 @@ inline int lu_factor_base(double* a, std::size_t m, std::size_t lda, int* piv) n
 inline double dot_base(const double* a, const double* b, std::size_t m) noexcept {
     return dot_impl<simd::kBaseBytes>(a, b, m);
 }
-inline void lu_solve_base(const double* lu, std::size_t m, std::size_t lda, const int* piv, double* b) noexcept {
-    lu_solve_impl<simd::kBaseBytes>(lu, m, lda, piv, b);
+inline void dot4_base(const double* r0, const double* r1, const double* r2, const double* r3, const double* x,
+                      std::size_t len, double* s) noexcept {
+    dot4_impl<simd::kBaseBytes>(r0, r1, r2, r3, x, len, s);
+}
+inline void lu_forward_base(const double* lu, std::size_t m, std::size_t lda, const int* piv, double* x,
+                            std::size_t ldx, std::size_t k) noexcept {
+    lu_forward_impl<simd::kBaseBytes>(lu, m, lda, piv, x, ldx, k);
+}
+inline void lu_right_upper_base(const double* lu, std::size_t m, std::size_t lda, double* x, std::size_t ldx,
+                                std::size_t k) noexcept {
+    lu_right_upper_impl<simd::kBaseBytes>(lu, m, lda, x, ldx, k);
+}
+inline void lu_solve_base(const double* lu, std::size_t m, std::size_t lda, const int* piv, double* x,
+                          std::size_t ldx, std::size_t k) noexcept {
+    lu_solve_impl<simd::kBaseBytes>(lu, m, lda, piv, x, ldx, k);
 }
 inline void compliance_product_base(const double* C, std::size_t n, const double* lam, double* u) noexcept {
     compliance_product_impl<simd::kBaseBytes>(C, n, lam, u);
@@ -274,9 +480,21 @@ TM_TARGET_AVX2 inline int lu_factor_avx2(double* a, std::size_t m, std::size_t l
 TM_TARGET_AVX2 inline double dot_avx2(const double* a, const double* b, std::size_t m) noexcept {
     return dot_impl<32>(a, b, m);
 }
+TM_TARGET_AVX2 inline void dot4_avx2(const double* r0, const double* r1, const double* r2, const double* r3,
+                                     const double* x, std::size_t len, double* s) noexcept {
+    dot4_impl<32>(r0, r1, r2, r3, x, len, s);
+}
+TM_TARGET_AVX2 inline void lu_forward_avx2(const double* lu, std::size_t m, std::size_t lda, const int* piv,
+                                           double* x, std::size_t ldx, std::size_t k) noexcept {
+    lu_forward_impl<32>(lu, m, lda, piv, x, ldx, k);
+}
+TM_TARGET_AVX2 inline void lu_right_upper_avx2(const double* lu, std::size_t m, std::size_t lda, double* x,
+                                               std::size_t ldx, std::size_t k) noexcept {
+    lu_right_upper_impl<32>(lu, m, lda, x, ldx, k);
+}
 TM_TARGET_AVX2 inline void lu_solve_avx2(const double* lu, std::size_t m, std::size_t lda, const int* piv,
-                                         double* b) noexcept {
-    lu_solve_impl<32>(lu, m, lda, piv, b);
+                                         double* x, std::size_t ldx, std::size_t k) noexcept {
+    lu_solve_impl<32>(lu, m, lda, piv, x, ldx, k);
 }
 TM_TARGET_AVX2 inline void compliance_product_avx2(const double* C, std::size_t n, const double* lam,
                                                    double* u) noexcept {
@@ -325,11 +543,39 @@ inline double dot(const double* a, const double* b, std::size_t m) noexcept {
 #endif
     return contact_detail::dot_base(a, b, m);
 }
-inline void lu_solve(const double* lu, std::size_t m, std::size_t lda, const int* piv, double* b) noexcept {
+inline void rows_dot4(const double* r0, const double* r1, const double* r2, const double* r3, const double* x,
+                      std::size_t len, double* s) noexcept {
 #if TM_HAVE_DISPATCH
-    if (contact_detail::use_avx2()) return contact_detail::lu_solve_avx2(lu, m, lda, piv, b);
+    if (contact_detail::use_avx2()) return contact_detail::dot4_avx2(r0, r1, r2, r3, x, len, s);
 #endif
-    contact_detail::lu_solve_base(lu, m, lda, piv, b);
+    contact_detail::dot4_base(r0, r1, r2, r3, x, len, s);
+}
+// The forward half of lu_solve (P and L) for k right-hand sides.
+inline void lu_forward(const double* lu, std::size_t m, std::size_t lda, const int* piv, double* x, std::size_t ldx,
+                       std::size_t k) noexcept {
+#if TM_HAVE_DISPATCH
+    if (contact_detail::use_avx2()) return contact_detail::lu_forward_avx2(lu, m, lda, piv, x, ldx, k);
+#endif
+    contact_detail::lu_forward_base(lu, m, lda, piv, x, ldx, k);
+}
+// x_r <- x_r U^-1 for k row vectors (see lu_right_upper_impl).
+inline void lu_right_upper(const double* lu, std::size_t m, std::size_t lda, double* x, std::size_t ldx,
+                           std::size_t k) noexcept {
+#if TM_HAVE_DISPATCH
+    if (contact_detail::use_avx2()) return contact_detail::lu_right_upper_avx2(lu, m, lda, x, ldx, k);
+#endif
+    contact_detail::lu_right_upper_base(lu, m, lda, x, ldx, k);
+}
+// k right-hand sides at once, column c at x + c * ldx (see lu_solve_impl).
+inline void lu_solve(const double* lu, std::size_t m, std::size_t lda, const int* piv, double* x, std::size_t ldx,
+                     std::size_t k) noexcept {
+#if TM_HAVE_DISPATCH
+    if (contact_detail::use_avx2()) return contact_detail::lu_solve_avx2(lu, m, lda, piv, x, ldx, k);
+#endif
+    contact_detail::lu_solve_base(lu, m, lda, piv, x, ldx, k);
+}
+inline void lu_solve(const double* lu, std::size_t m, std::size_t lda, const int* piv, double* b) noexcept {
+    lu_solve(lu, m, lda, piv, b, 0, 1);
 }
 inline void compliance_product(const double* C, std::size_t n, const double* lam, double* u) noexcept {
 #if TM_HAVE_DISPATCH
@@ -371,16 +617,18 @@ public:
         mu_node_ = vec(n); F_ = vec(n2_); F2_ = vec(n2_); u2_ = vec(n2_); lam2_ = vec(n2_); d_ = vec(n2_);
         ws_state_.assign(n, kContactOpen); ws_sign_ = vec(n); ws_state2_.assign(n, kContactOpen); ws_sign2_ = vec(n);
         rhs_ = vec(n2_); M_ = vec(n2_ * n2_); piv_.assign(n2_, 0); J_ = vec(n2_ * n2_); jpiv_.assign(n2_, 0);
-        idxA_.assign(n, 0); idxT_.assign(n, 0);
+        bnode_.assign(n2_, 0); bkind_.assign(n2_, 0);
         pos_ln_.assign(n, -1); pos_lt_.assign(n, -1);
         base_state_.assign(n, kContactOpen); base_coef_ = vec(n);
         Vs_ = vec(kMaxBorder * n2_); Wt_ = vec(kMaxBorder * n2_); S_ = vec(kMaxBorder * kMaxBorder);
+        vnew_ = vec(kMaxBorder * n2_); new_col_.assign(kMaxBorder, 0);
         spiv_.assign(kMaxBorder, 0); by_ = vec(kMaxBorder); brow_.resize(kMaxBorder); bcol_.resize(kMaxBorder);
         vcache_ = vec(kColCache * n2_); ccol_.resize(kColCache);
         aff_lam_ = vec(n2_); aff_u_ = vec(n2_); aff_lz_ = vec(n2_); aff_uz_ = vec(n2_); aff_ly_ = vec(n2_);
         aff_uy_ = vec(n2_); aff_v_ = vec(n);
         key_state_.assign(n, kContactOpen); key_coef_ = vec(n);
         slip_coef_ = vec(n);
+        plam_ = vec(n2_); free_rows_.assign(n2_, 0);
         pu_ = vec(n2_); pl1_ = vec(n2_); pu1_ = vec(n2_); rs_ = vec(n2_); rz_ = vec(n2_); us_ = vec(n2_);
         uz_ = vec(n2_); ukey_sign_ = vec(n); ev_frac_ = vec(4 * n); prev_sign_ = vec(n);
         sv_lam_ = vec(n2_); sv_u_ = vec(n2_); sv_sign_ = vec(n); o_lam_ = vec(n2_); o_u_ = vec(n2_); zunit_ = vec(2 * n2_);
@@ -536,6 +784,9 @@ public:
     long factorizations() const noexcept { return n_factorizations_; }
     // Pieces solved by bordering the factored base piece instead of refactoring.
     long updates() const noexcept { return n_updates_; }
+    // Times the base was extended by the nodes a piece added (extend_base) instead of
+    // refactored.
+    long extensions() const noexcept { return n_extensions_; }
     // Piece solves served by the affine response of an unchanged piece (O(n) each).
     long affine_steps() const noexcept { return n_affine_; }
     // ---- error details of the last failed solve
@@ -795,8 +1046,8 @@ private:
         if (info != 0) return info;
         solve_prepared(0.0, 0.0, rs_.data(), true, 0.0, 1.0);
         solve_prepared(0.0, 0.0, rz_.data(), true, 1.0, 0.0);
-        displacement(rs_.data(), us_.data());
-        displacement(rz_.data(), uz_.data());
+        piece_displacement(rs_.data(), us_.data(), true, 0.0, 1.0, 0.0, 0.0);
+        piece_displacement(rz_.data(), uz_.data(), true, 1.0, 0.0, 0.0, 0.0);
         copy8(state_.data(), ukey_state_.data()); copy(sign_.data(), ukey_sign_.data());
         ukey_mu_ = params.mu; ukey_muk_ = params.mu_kinetic;
         unit_valid_ = true;
@@ -938,7 +1189,7 @@ private:
                 const int info = factor_piece(state_.data(), sign_.data());
                 if (info != 0) { err_info_ = info; return ContactStatus::singular_piece; }
                 solve_prepared(z1, s1 - sc, l1);
-                displacement(l1, u1);
+                piece_displacement(l1, u1, false, 0.0, 0.0, z1, s1 - sc);
                 ++solves_;
             } else {
                 const int info = unit_response();
@@ -1050,7 +1301,18 @@ private:
             const std::size_t i = ev_node_[e];
             const int kind = ev_kind_[e];
             if (kind == 0) { state_[i] = kContactStick; sign_[i] = 0.0; }
-            else if (kind == 1) { state_[i] = kContactOpen; sign_[i] = 0.0; lam_[i] = lam_[n + i] = 0.0; }
+            else if (kind == 1) {
+                // the displacements at the event point are the piece's (pu_, C P lam_ to
+                // round-off); a node lifting off sheds what it still carried (zero to
+                // the event tolerance): its columns of C P come off them, O(n) instead
+                // of the whole product
+                const double dt = -lam_[i], dn = lam_[n + i];  // the change of P lam
+                const double* ct = C_.data() + i * n2_;
+                const double* cn = C_.data() + (n + i) * n2_;
+                if (dt != 0.0 || dn != 0.0)
+                    for (std::size_t j = 0; j < n2_; ++j) pu_[j] += ct[j] * dt + cn[j] * dn;
+                state_[i] = kContactOpen; sign_[i] = 0.0; lam_[i] = lam_[n + i] = 0.0;
+            }
             else { state_[i] = kContactSlip; sign_[i] = kind == 2 ? 1.0 : -1.0; }
         }
         for (std::size_t e = 0; e < n_ev; ++e) {  // pressures after all of this point's changes
@@ -1061,7 +1323,6 @@ private:
             }
         }
         for (std::size_t i = 0; i < n; ++i) sliding_[i] = state_[i] == kContactSlip;
-        displacement(lam_.data(), pu_.data());
         copy(pu_.data(), uy_prev_.data());
         changes = n_ev;
         if (any_broke && (params.mu - params.mu_kinetic) * broke_ln > f_tol_) {
@@ -1130,6 +1391,56 @@ public:
     // (sign-flipped for the normal block); only the nonzero forces contribute.
     void displacement(const double* lam, double* u) const noexcept { compliance_product(C_.data(), n_, lam, u); }
 
+    // u = C P lam for forces lam solved for the prepared piece (solve_prepared with the
+    // same plate_z, ds or unit loads az, ay): the piece's own equations give u on their
+    // rows (u_z = plate_z - z0 on a touching node, g = 0; u_y = uy_prev + ds on a stuck
+    // one, w = 0), so only the other rows (the open nodes, the sliding nodes' u_y) are
+    // computed, as dot products of rows of the symmetric C with P lam. With most nodes
+    // stuck that is a small part of the product (none at all when every node sticks);
+    // the equation rows differ from the product by the solve's round-off only.
+    void piece_displacement(const double* lam, double* u, bool unit, double az, double ay, double plate_z,
+                            double ds) noexcept {
+        const std::size_t n = n_, n2 = n2_;
+        double* pl = plam_.data();
+        for (std::size_t i = 0; i < n; ++i) { pl[i] = lam[i]; pl[n + i] = -lam[n + i]; }
+        std::size_t* fr = free_rows_.data();
+        std::size_t nf = 0;
+        for (std::size_t i = 0; i < n; ++i) {
+            const std::int8_t s = key_state_[i];
+            if (s == kContactStick) u[i] = unit ? ay : uy_prev_[i] + ds;
+            else fr[nf++] = i;
+        }
+        for (std::size_t i = 0; i < n; ++i) {
+            if (key_state_[i] != kContactOpen) u[n + i] = unit ? az : plate_z - z0_[i];
+            else fr[nf++] = n + i;
+        }
+        // P lam is zero off the touching nodes: the dot products run over the span of
+        // its nonzeros in each half (the contact is one run of nodes: its share of the
+        // surface)
+        std::size_t a0 = n, b0 = 0, a1 = n2, b1 = n;
+        for (std::size_t i = 0; i < n; ++i) {
+            if (pl[i] != 0.0) { if (i < a0) a0 = i; b0 = i + 1; }
+            if (pl[n + i] != 0.0) { if (n + i < a1) a1 = n + i; b1 = n + i + 1; }
+        }
+        const std::size_t l0 = b0 > a0 ? b0 - a0 : 0, l1 = b1 > a1 ? b1 - a1 : 0;
+        std::size_t q = 0;
+        const double* C = C_.data();
+        double s4[4], t4[4];
+        for (; q + 4 <= nf; q += 4) {
+            const double *r0 = C + fr[q] * n2, *r1 = C + fr[q + 1] * n2, *r2 = C + fr[q + 2] * n2,
+                         *r3 = C + fr[q + 3] * n2;
+            s4[0] = s4[1] = s4[2] = s4[3] = t4[0] = t4[1] = t4[2] = t4[3] = 0.0;
+            if (l0) rows_dot4(r0 + a0, r1 + a0, r2 + a0, r3 + a0, pl + a0, l0, s4);
+            if (l1) rows_dot4(r0 + a1, r1 + a1, r2 + a1, r3 + a1, pl + a1, l1, t4);
+            u[fr[q]] = s4[0] + t4[0]; u[fr[q + 1]] = s4[1] + t4[1];
+            u[fr[q + 2]] = s4[2] + t4[2]; u[fr[q + 3]] = s4[3] + t4[3];
+        }
+        for (; q < nf; ++q) {
+            const double* r = C + fr[q] * n2;
+            u[fr[q]] = (l0 ? dot(r + a0, pl + a0, l0) : 0.0) + (l1 ? dot(r + a1, pl + a1, l1) : 0.0);
+        }
+    }
+
     // Alart-Curnier residual F (2n) at (lam, u), the classification open / stick /
     // slip and the slip signs; returns max |F|. Uses the per-node cone of this step.
     double classify(const double* lam, const double* u, double plate_z, double ds, double* F, std::int8_t* state,
@@ -1168,7 +1479,7 @@ public:
             for (std::size_t i = 0; i < n && same; ++i)
                 same = key_state_[i] == state[i] && key_coef_[i] == slip_coef_[i];
             if (same) return 0;
-            if (update_piece(state)) {
+            if (update_piece(state) || (extend_base(state) && update_piece(state))) {
                 copy8(state, key_state_.data());
                 copy(slip_coef_.data(), key_coef_.data());
                 ++n_updates_;
@@ -1187,29 +1498,25 @@ public:
         nB_ = 0;
         n_cached_ = 0;  // cached M0^-1 V columns belong to the old base
         zunit_valid_[0] = zunit_valid_[1] = false;
-        std::size_t a = 0, t = 0;
-        for (std::size_t i = 0; i < n; ++i) {
-            pos_ln_[i] = pos_lt_[i] = -1;
-            if (state[i] != kContactOpen) idxA_[a++] = i;
-            if (state[i] == kContactStick) idxT_[t++] = i;
-        }
-        nA_ = a; nT_ = t;
-        for (std::size_t k = 0; k < nA_; ++k) pos_ln_[idxA_[k]] = static_cast<long>(k);
-        for (std::size_t k = 0; k < nT_; ++k) pos_lt_[idxT_[k]] = static_cast<long>(nA_ + k);
-        const std::size_t nA = nA_, m = nA_ + nT_;
+        std::size_t m = 0;
+        for (std::size_t i = 0; i < n; ++i) pos_ln_[i] = pos_lt_[i] = -1;
+        for (std::size_t i = 0; i < n; ++i)
+            if (state[i] != kContactOpen) { bnode_[m] = i; bkind_[m] = 0; pos_ln_[i] = static_cast<long>(m++); }
+        for (std::size_t i = 0; i < n; ++i)
+            if (state[i] == kContactStick) { bnode_[m] = i; bkind_[m] = 1; pos_lt_[i] = static_cast<long>(m++); }
+        mB_ = m;
         double* M = M_.data();
         // rows: g on the active nodes, then w on the stuck ones; columns: ln_A, lt_T
         for (std::size_t k = 0; k < m; ++k) {
             const double* c = C_.data() + eq_row(k) * n2_;
-            double* mk = M + k * m;
-            for (std::size_t j = 0; j < nA; ++j) {
-                const std::size_t i = idxA_[j];
-                mk[j] = c[i] * slip_coef_[i] - c[n + i];
+            double* mk = M + k * n2_;
+            for (std::size_t j = 0; j < m; ++j) {
+                const std::size_t i = bnode_[j];
+                mk[j] = bkind_[j] ? c[i] : c[i] * slip_coef_[i] - c[n + i];
             }
-            for (std::size_t j = nA; j < m; ++j) mk[j] = c[idxT_[j - nA]];
         }
         ++n_factorizations_;
-        const int info = lu_factor(M, m, m, piv_.data());
+        const int info = lu_factor(M, m, n2_, piv_.data());
         if (info != 0) return info;
         copy8(state, key_state_.data());
         copy(slip_coef_.data(), key_coef_.data());
@@ -1226,15 +1533,12 @@ public:
     // unit: the right-hand side is az on every contact equation and ay on every stick
     // equation (the response to a unit plate motion), instead of the plate's gaps.
     void solve_prepared(double plate_z, double ds, double* lam, bool unit, double az, double ay) noexcept {
-        const std::size_t n = n_, nA = nA_, m = nA_ + nT_, nb = nB_;
+        const std::size_t n = n_, m = mB_, nb = nB_;
         auto rhs_g = [&](std::size_t i) { return unit ? az : plate_z - z0_[i]; };
         auto rhs_w = [&](std::size_t i) { return unit ? ay : uy_prev_[i] + ds; };
         double* b = rhs_.data();
         double* c = by_.data();
-        for (std::size_t k = 0; k < m; ++k) {
-            const std::size_t i = k < nA ? idxA_[k] : idxT_[k - nA];
-            b[k] = k < nA ? rhs_g(i) : rhs_w(i);
-        }
+        for (std::size_t k = 0; k < m; ++k) b[k] = bkind_[k] ? rhs_w(bnode_[k]) : rhs_g(bnode_[k]);
         for (std::size_t r = 0; r < nb; ++r) {
             const BorderRow& br = brow_[r];
             c[r] = br.kind == kAddG ? rhs_g(br.node) : (br.kind == kAddW ? rhs_w(br.node) : 0.0);
@@ -1246,7 +1550,7 @@ public:
         if (which >= 0) {
             double* zc = zunit_.data() + static_cast<std::size_t>(which) * n2_;
             if (!zunit_valid_[which]) {
-                lu_solve(M_.data(), m, m, piv_.data(), b);
+                lu_solve(M_.data(), m, n2_, piv_.data(), b);
                 copy(b, zc, m);
                 zunit_valid_[which] = true;
             } else {
@@ -1275,9 +1579,9 @@ public:
             const double dz = plate_z - aff_z_, dy = plate_y - aff_y_;
             if (aff_stage_ == 1 && (dz != 0.0 || dy != 0.0)) {
                 solve_prepared(0.0, 0.0, aff_lz_.data(), true, 1.0, 0.0);
-                displacement(aff_lz_.data(), aff_uz_.data());
+                piece_displacement(aff_lz_.data(), aff_uz_.data(), true, 1.0, 0.0, 0.0, 0.0);
                 solve_prepared(0.0, 0.0, aff_ly_.data(), true, 0.0, 1.0);
-                displacement(aff_ly_.data(), aff_uy_.data());
+                piece_displacement(aff_ly_.data(), aff_uy_.data(), true, 0.0, 1.0, 0.0, 0.0);
                 aff_stage_ = 2;
             }
             if (aff_stage_ == 2) {
@@ -1295,7 +1599,7 @@ public:
             return 0;
         }
         solve_prepared(plate_z, ds, lam);
-        displacement(lam, u);
+        piece_displacement(lam, u, false, 0.0, 0.0, plate_z, ds);
         copy(lam, aff_lam_.data(), n2_);
         copy(u, aff_u_.data(), n2_);
         aff_z_ = plate_z;
@@ -1309,9 +1613,9 @@ public:
     // x of the prepared piece for right-hand sides b (base equations, overwritten) and
     // c (border rows, overwritten), as forces lam (2n).
     void solve_bordered(double* b, double* c, double* lam, bool base_solved = false) noexcept {
-        const std::size_t n = n_, nA = nA_, m = nA_ + nT_, nb = nB_;
+        const std::size_t n = n_, m = mB_, nb = nB_;
         double* z = b;
-        if (!base_solved) lu_solve(M_.data(), m, m, piv_.data(), z);
+        if (!base_solved) lu_solve(M_.data(), m, n2_, piv_.data(), z);
         double* y = c;
         if (nb > 0) {  // Schur complement: S y = c - W^T M0^-1 b, x = M0^-1 b - (M0^-1 V) y
             for (std::size_t r = 0; r < nb; ++r) {
@@ -1327,8 +1631,7 @@ public:
         for (std::size_t i = 0; i < n2_; ++i) lam[i] = 0.0;
         // base unknowns (those fixed to zero by the border come out as ~zero and are
         // overwritten below)
-        for (std::size_t k = 0; k < nA; ++k) lam[n + idxA_[k]] = z[k];
-        for (std::size_t k = nA; k < m; ++k) lam[idxT_[k - nA]] = z[k];
+        for (std::size_t k = 0; k < m; ++k) lam[bkind_[k] ? bnode_[k] : n + bnode_[k]] = z[k];
         for (std::size_t col = 0; col < nb; ++col) {
             const BorderCol& bc = bcol_[col];
             if (bc.kind == kAddLn) lam[n + bc.node] = y[col];
@@ -1420,7 +1723,14 @@ private:
     // that P0 lacks (or the changed unknown's new version) is a column / row. The
     // Schur complement S = Z - W^T M0^-1 V (at most kMaxBorder square) is factored;
     // M0^-1 V is kept, so a solve is one base solve and O(m nb) more.
-    enum : std::uint8_t { kFix = 0, kAddG = 1, kAddW = 2, kAddLn = 3, kAddLt = 4, kSlack = 5 };
+    //
+    // A node stuck in P0 that slides in P1 (the common change while the slip front
+    // moves) keeps both its unknowns: its stick equation w_i is voided by a slack
+    // column and the slip law lt_i - mu s ln_i = 0 is added as a row over the base
+    // unknowns (kSlipRow). That is two borders, where fixing lt_i and replacing the
+    // ln_i column by its slip version would take four, so twice as many nodes may
+    // break away before the base is refactored.
+    enum : std::uint8_t { kFix = 0, kAddG = 1, kAddW = 2, kAddLn = 3, kAddLt = 4, kSlack = 5, kSlipRow = 6 };
     struct BorderRow { std::uint8_t kind; std::size_t node; std::size_t pos; };
     struct BorderCol { std::uint8_t kind; std::size_t node; std::size_t pos; };
     static constexpr std::size_t kMaxBorder = 16;
@@ -1428,7 +1738,7 @@ private:
     struct CachedCol { std::uint8_t kind; std::size_t node; std::size_t pos; double coef; };
 
     std::size_t eq_row(std::size_t k) const noexcept {  // C row of base equation k
-        return k < nA_ ? n_ + idxA_[k] : idxT_[k - nA_];
+        return bkind_[k] ? bnode_[k] : n_ + bnode_[k];
     }
     // coefficient of unknown (ln_i with slip coefficient coef, or lt_i) in C row r
     double coef_ln(std::size_t r, std::size_t i, double coef) const noexcept {
@@ -1436,11 +1746,16 @@ private:
         return c[i] * coef - c[n_ + i];
     }
     double coef_lt(std::size_t r, std::size_t i) const noexcept { return C_[r * n2_ + i]; }
+    // coefficient of base unknown k in C row r
+    double base_coef(std::size_t r, std::size_t k) const noexcept {
+        const std::size_t i = bnode_[k];
+        return bkind_[k] ? coef_lt(r, i) : coef_ln(r, i, base_coef_[i]);
+    }
 
     // Border the base for the piece (state, slip_coef_); false if it needs more than
     // kMaxBorder borders or its Schur complement is singular (then refactor).
     bool update_piece(const std::int8_t* state) noexcept {
-        const std::size_t n = n_, m = nA_ + nT_;
+        const std::size_t n = n_, m = mB_;
         std::size_t nr = 0, nc = 0;
         auto add_row = [&](std::uint8_t kind, std::size_t node, std::size_t pos) {
             if (nr < kMaxBorder) brow_[nr] = {kind, node, pos};
@@ -1454,6 +1769,12 @@ private:
             const std::int8_t s0 = base_state_[i], s1 = state[i];
             const bool a0 = s0 != kContactOpen, a1 = s1 != kContactOpen;
             const bool t0 = s0 == kContactStick, t1 = s1 == kContactStick;
+            if (t0 && s1 == kContactSlip) {  // stuck in the base, sliding now: the slip law as a row
+                add_row(kSlipRow, i, static_cast<std::size_t>(pos_lt_[i]));
+                add_col(kSlack, i, static_cast<std::size_t>(pos_lt_[i]));  // w_i is base equation pos_lt
+                if (nr > kMaxBorder || nc > kMaxBorder) return false;
+                continue;
+            }
             const bool same_ln = a0 && a1 && base_coef_[i] == slip_coef_[i];
             if (a0 && !same_ln) add_row(kFix, i, static_cast<std::size_t>(pos_ln_[i]));
             if (a1 && !same_ln) add_col(kAddLn, i, 0);
@@ -1468,7 +1789,9 @@ private:
         if (nr != nc) return false;  // cannot happen (both pieces are square); be safe
         const std::size_t nb = nr;
         // M0^-1 V: columns already solved for this base (the same border column of an
-        // earlier nearby piece) come from the column cache, the others are solved
+        // earlier nearby piece) come from the column cache; the others are gathered to
+        // the front of vnew_ and solved together (one pass over the factors for all)
+        std::size_t nnew = 0;
         for (std::size_t c = 0; c < nb; ++c) {
             const BorderCol& bc = bcol_[c];
             const double coef = bc.kind == kAddLn ? slip_coef_[bc.node] : 0.0;
@@ -1482,15 +1805,24 @@ private:
                 copy(vcache_.data() + hit * n2_, v, m);
                 continue;
             }
+            double* w = vnew_.data() + nnew * n2_;
             for (std::size_t k = 0; k < m; ++k) {
-                if (bc.kind == kSlack) v[k] = k == bc.pos ? 1.0 : 0.0;
-                else if (bc.kind == kAddLn) v[k] = coef_ln(eq_row(k), bc.node, coef);
-                else v[k] = coef_lt(eq_row(k), bc.node);
+                if (bc.kind == kSlack) w[k] = k == bc.pos ? 1.0 : 0.0;
+                else if (bc.kind == kAddLn) w[k] = coef_ln(eq_row(k), bc.node, coef);
+                else w[k] = coef_lt(eq_row(k), bc.node);
             }
-            lu_solve(M_.data(), m, m, piv_.data(), v);
+            new_col_[nnew++] = c;
+        }
+        if (nnew > 0) lu_solve(M_.data(), m, n2_, piv_.data(), vnew_.data(), n2_, nnew);
+        for (std::size_t q = 0; q < nnew; ++q) {
+            const std::size_t c = new_col_[q];
+            const BorderCol& bc = bcol_[c];
+            const double coef = bc.kind == kAddLn ? slip_coef_[bc.node] : 0.0;
+            const double* w = vnew_.data() + q * n2_;
+            copy(w, Vs_.data() + c * n2_, m);
             const std::size_t slot = n_cached_ < kColCache ? n_cached_++ : (next_slot_++ % kColCache);
             ccol_[slot] = {bc.kind, bc.node, bc.pos, coef};
-            copy(v, vcache_.data() + slot * n2_, m);
+            copy(w, vcache_.data() + slot * n2_, m);
         }
         // W^T rows over the base unknowns, and S = Z - W^T (M0^-1 V)
         for (std::size_t r = 0; r < nb; ++r) {
@@ -1499,16 +1831,19 @@ private:
             if (br.kind == kFix) {
                 for (std::size_t k = 0; k < m; ++k) w[k] = 0.0;
                 w[br.pos] = 1.0;
+            } else if (br.kind == kSlipRow) {  // lt_i - mu s ln_i (ln_i has slip coefficient 0 in the base)
+                for (std::size_t k = 0; k < m; ++k) w[k] = 0.0;
+                w[br.pos] = 1.0;
+                w[static_cast<std::size_t>(pos_ln_[br.node])] = -slip_coef_[br.node];
             } else {
                 const std::size_t row = br.kind == kAddG ? n + br.node : br.node;
-                for (std::size_t k = 0; k < nA_; ++k) w[k] = coef_ln(row, idxA_[k], base_coef_[idxA_[k]]);
-                for (std::size_t k = nA_; k < m; ++k) w[k] = coef_lt(row, idxT_[k - nA_]);
+                for (std::size_t k = 0; k < m; ++k) w[k] = base_coef(row, k);
             }
             double* srow = S_.data() + r * nb;
             for (std::size_t c = 0; c < nb; ++c) {
                 const BorderCol& bc = bcol_[c];
                 double z = 0.0;
-                if (br.kind != kFix && bc.kind != kSlack) {
+                if (br.kind != kFix && br.kind != kSlipRow && bc.kind != kSlack) {
                     const std::size_t row = br.kind == kAddG ? n + br.node : br.node;
                     z = bc.kind == kAddLn ? coef_ln(row, bc.node, slip_coef_[bc.node]) : coef_lt(row, bc.node);
                 }
@@ -1520,6 +1855,98 @@ private:
             nB_ = 0;
             return false;
         }
+        return true;
+    }
+
+    // Append to the base the nodes the piece (state, slip_coef_) touches and the base
+    // leaves open (the contact growing under the press, a node touching down), their
+    // ln (and lt, if stuck) as new unknowns and g (and w) as new equations, when the
+    // piece's other differences then fit a border; false if there is nothing to append,
+    // they do not fit, or the appended block is singular (then the caller refactors).
+    //
+    // With P0 M0 = L0 U0 the factors of the base, the extended matrix [M0 V; W^T Z]
+    // has the factors L = [L0 0; Ps X Ls], U = [U0 Y; 0 Us] with Y = L0^-1 P0 V,
+    // X = W^T U0^-1 and Ps (Z - X Y) = Ls Us (partial pivoting within the new block):
+    // O(nb m^2) for nb new positions, where refactoring costs O(m^3). This is the
+    // bordered system's own Schur complement, kept as part of the base; the growing
+    // contact of a press is then factored once instead of once per kMaxBorder / 2
+    // nodes.
+    bool extend_base(const std::int8_t* state) noexcept {
+        const std::size_t n = n_, n2 = n2_, m = mB_;
+        std::size_t rows = 0, add = 0;  // border rows of the other differences; positions to append
+        for (std::size_t i = 0; i < n; ++i) {
+            const std::int8_t s0 = base_state_[i], s1 = state[i];
+            const bool a0 = s0 != kContactOpen, a1 = s1 != kContactOpen;
+            const bool t0 = s0 == kContactStick, t1 = s1 == kContactStick;
+            if (!a0 && a1) { add += t1 ? 2 : 1; continue; }
+            if (t0 && s1 == kContactSlip) { ++rows; continue; }
+            const bool same_ln = a0 && a1 && base_coef_[i] == slip_coef_[i];
+            rows += (a0 && !same_ln) + (t0 && !t1) + (t1 && !t0);
+        }
+        if (add == 0 || rows > kMaxBorder) return false;
+        const std::size_t me = m + add;
+        for (std::size_t i = 0, q = m; i < n; ++i) {
+            if (base_state_[i] != kContactOpen || state[i] == kContactOpen) continue;
+            bnode_[q] = i; bkind_[q] = 0; pos_ln_[i] = static_cast<long>(q++);
+            if (state[i] == kContactStick) { bnode_[q] = i; bkind_[q] = 1; pos_lt_[i] = static_cast<long>(q++); }
+            base_state_[i] = state[i];
+            base_coef_[i] = slip_coef_[i];
+        }
+        // from here on the base is changed: a failure must refactor
+        lu_valid_ = false;
+        nB_ = 0;
+        n_cached_ = 0;
+        zunit_valid_[0] = zunit_valid_[1] = false;
+        double* M = M_.data();
+        // Y: the new columns over the base equations, through P0 and L0, in chunks of
+        // kMaxBorder columns gathered into vnew_
+        for (std::size_t c0 = m; c0 < me; c0 += kMaxBorder) {
+            const std::size_t kc = me - c0 < kMaxBorder ? me - c0 : kMaxBorder;
+            for (std::size_t c = 0; c < kc; ++c) {
+                double* v = vnew_.data() + c * n2;
+                for (std::size_t k = 0; k < m; ++k) v[k] = base_coef(eq_row(k), c0 + c);
+            }
+            lu_forward(M, m, n2, piv_.data(), vnew_.data(), n2, kc);
+            for (std::size_t c = 0; c < kc; ++c) {
+                const double* v = vnew_.data() + c * n2;
+                for (std::size_t k = 0; k < m; ++k) M[k * n2 + c0 + c] = v[k];
+            }
+        }
+        // X: the new equations over the base unknowns, through U0 (rows m..me-1)
+        for (std::size_t r = m; r < me; ++r) {
+            const std::size_t row = eq_row(r);
+            double* x = M + r * n2;
+            for (std::size_t k = 0; k < m; ++k) x[k] = base_coef(row, k);
+        }
+        lu_right_upper(M, m, n2, M + m * n2, n2, add);
+        // S = Z - X Y into the new block, then its LU; its row swaps apply to X too
+        for (std::size_t r = m; r < me; ++r) {
+            const std::size_t row = eq_row(r);
+            double* sr = M + r * n2 + m;
+            for (std::size_t c = 0; c < add; ++c) sr[c] = base_coef(row, m + c);
+            const double* x = M + r * n2;
+            for (std::size_t k = 0; k < m; ++k) {
+                const double a = x[k];
+                if (a == 0.0) continue;
+                const double* yk = M + k * n2 + m;
+                for (std::size_t c = 0; c < add; ++c) sr[c] -= a * yk[c];
+            }
+        }
+        int* ps = piv_.data() + m;
+        if (lu_factor(M + m * n2 + m, add, n2, ps) != 0) return false;
+        for (std::size_t t = 0; t < add; ++t) {
+            const std::size_t p = static_cast<std::size_t>(ps[t]);
+            if (p != t) {
+                double* a = M + (m + t) * n2;
+                double* b = M + (m + p) * n2;
+                for (std::size_t k = 0; k < m; ++k) { const double h = a[k]; a[k] = b[k]; b[k] = h; }
+            }
+            ps[t] = static_cast<int>(m + p);
+        }
+        mB_ = me;
+        lu_valid_ = true;
+        ++n_extensions_;
+        ++piece_id_;
         return true;
     }
 
@@ -1592,13 +2019,20 @@ private:
     // workspaces
     std::vector<double> mu_node_, F_, F2_, u2_, lam2_, d_, ws_sign_, ws_sign2_, rhs_, M_, J_, slip_coef_, key_coef_;
     std::vector<std::int8_t> ws_state_, ws_state2_, key_state_;
+    std::vector<double> plam_;  // P lam (piece_displacement)
+    std::vector<std::size_t> free_rows_;
     std::vector<int> piv_, jpiv_;
-    std::vector<std::size_t> idxA_, idxT_;
-    std::size_t nA_ = 0, nT_ = 0;
+    // the base piece's unknowns / equations: position k is ln (kind 0, with equation
+    // g) or lt (kind 1, with equation w) of node bnode_[k]; mB_ of them
+    std::vector<std::size_t> bnode_;
+    std::vector<std::uint8_t> bkind_;
+    std::size_t mB_ = 0;
+    long n_extensions_ = 0;
     // base piece and its border
     std::vector<long> pos_ln_, pos_lt_;
     std::vector<std::int8_t> base_state_;
-    std::vector<double> base_coef_, Vs_, Wt_, S_, by_;
+    std::vector<double> base_coef_, Vs_, Wt_, S_, by_, vnew_;
+    std::vector<std::size_t> new_col_;
     std::vector<int> spiv_;
     std::vector<BorderRow> brow_;
     std::vector<BorderCol> bcol_;

@@ -254,8 +254,6 @@ class Pad:
         return out, frac, flags
 
     def _after_compiled(self, status, bad):
-        for s in self.solvers:
-            s._sync_counts()
         if status:
             s = self.solvers[bad]
             s._raise_status(status, *s._kernel.error_point())
@@ -312,8 +310,6 @@ class Pad:
         plate_z = m.geometry.height - (indent - self.indent_offset)
         (status, bad, its, forces, disp, states, frac, touch, gross, sum_t,
          sum_n) = self._stepper.step(plate_y, plate_z, self.stepping == "every", min(self.threads, 2))
-        for s in self.solvers:
-            s._sync_counts()
         if status:
             self.solvers[bad]._raise_status(status, *self.solvers[bad]._kernel.error_point())
         L = self.ridge_length
