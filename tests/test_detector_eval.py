@@ -288,3 +288,38 @@ def test_figure10_image(default_detector, paper_results, tmp_path):
     fig = figure10(default_detector, paper_results["fig6"], paper_results["fig8"], stops_b=[(1.40, 1.45)])
     fig.savefig(tmp_path / "fig10.png")
     assert (tmp_path / "fig10.png").stat().st_size > 1000
+
+
+def test_calibrate_slip_moves_the_decision_point_exactly(paper_results):
+    """calibrate_slip shifts y_slip's output bias only: the calibrated net's y_slip >= 0.8
+    alarms on exactly the samples where the original's y_slip reaches the threshold it
+    found, y_pred is untouched, and the calibration is recorded."""
+    from tactile_mirror.detector.build import calibrate_slip
+    from tactile_mirror.detector.data_prep import features_from_result
+
+    bank = SlipDetector.bank()
+    val = [paper_results["fig7"], paper_results["fig8"]]
+    w, info = calibrate_slip(bank.weights, val, 0.5, scenes="fig7, fig8")
+    assert w.metadata["slip_calibration"] == info and info["validation"] == "fig7, fig8"
+    assert "slip_calibration" not in bank.weights.metadata  # the input is not changed
+    p0, p1 = bank.weights.params, w.params
+    for name in ("w1", "b1", "w2"):
+        np.testing.assert_array_equal(getattr(p0, name), getattr(p1, name))
+    assert p1.b2[1] == p0.b2[1] and p1.b2[0] == p0.b2[0] + info["b2_shift"]
+    x = features_from_result(paper_results["fig6"], bank.features)
+    ys0, _, yp0 = bank.run(x)
+    ys1, _, yp1 = SlipDetector(w).run(x)
+    np.testing.assert_array_equal(yp0, yp1)
+    t = info["threshold"]
+    near = np.abs(ys0 - t) < 1e-9  # ties at the threshold itself may round either way
+    np.testing.assert_array_equal((ys1 >= 0.8)[~near], (ys0 >= t)[~near])
+
+
+@pytest.mark.parametrize("bad", [0.0, 1.0, -0.1, True, "0.02"])
+def test_build_options_refuse_a_bad_calibration_rate(bad):
+    from tactile_mirror.detector.build import BuildOptions
+
+    with pytest.raises(ValueError, match="calibrate_fa"):
+        BuildOptions(calibrate_fa=bad)
+    with pytest.raises(ValueError, match="calibrate_fa"):
+        BuildOptions(calibrate_fa=0.02, candidates=1, checkpoint_every=0)

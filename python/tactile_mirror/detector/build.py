@@ -40,6 +40,7 @@ __all__ = [
     "BuildOptions",
     "ValidationScorer",
     "build_default",
+    "calibrate_slip",
     "hidden_size_study",
     "select_candidate",
     "simulate_cached",
@@ -225,6 +226,42 @@ def select_candidate(candidates, validation, fa_cost: float = 10.0):
     return candidates[best], best, scores
 
 
+def calibrate_slip(weights, validation, false_alarm: float, slip_threshold: float = 0.8, scenes: str = ""):
+    """Weights whose ``y_slip >= slip_threshold`` alarms at most ``false_alarm`` of the
+    validation sequences without slip in time.
+
+    ``y_slip`` is not fed back (only ``y_pred`` is), so adding ``c`` to its output bias
+    ``b2[0]`` thresholds the same net at another level, exactly: the lowest threshold
+    ``t`` whose false-alarm rate on ``validation`` is at most ``false_alarm``
+    (:func:`~tactile_mirror.detector.evaluate.roc`, the evaluation's own definitions)
+    becomes ``slip_threshold`` with ``c = logit(slip_threshold) - logit(t)``. Every
+    consumer (the pipeline's status, the slip guard, :func:`evaluate`) keeps the one
+    rule ``y_slip >= 0.8``. Choose ``validation`` disjoint from what is reported.
+
+    Returns ``(weights, info)``; ``info`` (threshold found, bias shift, the validation's
+    detection and false-alarm rates) is also stored in ``metadata["slip_calibration"]``.
+    """
+    import copy
+    import math
+
+    from .data_prep import features_from_result
+    from .evaluate import onset_kinds, roc
+
+    det = SlipDetector(weights)
+    scores = [det.run(features_from_result(r, det.features, estimator=det.metadata.get("estimator")), fs=r.fs)[0]
+              for r in validation]
+    pt = roc(scores, validation, onset_kinds(validation)).at_false_alarm(false_alarm)
+    t = min(max(float(pt["threshold"]), 1e-6), 1 - 1e-6)
+    shift = math.log(slip_threshold / (1 - slip_threshold)) - math.log(t / (1 - t))
+    w = copy.deepcopy(weights)
+    w.params.b2[0] += shift
+    info = {"false_alarm": float(false_alarm), "validation": scenes, "threshold": t, "b2_shift": shift,
+            "validation_detection": float(pt["detection_rate"]),
+            "validation_false_alarm": float(pt["false_alarm_rate"])}
+    w.metadata["slip_calibration"] = info
+    return w, info
+
+
 def _random_scenes(n, seed, **kwargs):
     from .. import scenes
 
@@ -305,6 +342,10 @@ class BuildOptions:
     bank : dict, optional
         Time constants of the ``"jordan_bank"`` filter bank (:func:`~tactile_mirror.detector.bank.bank_config`);
         default :data:`~tactile_mirror.detector.bank.DEFAULT_BANK`.
+    calibrate_fa : float, optional
+        After the selection, move ``y_slip``'s decision point so that ``y_slip >= 0.8``
+        gives at most this false-alarm rate on the validation scenes
+        (:func:`calibrate_slip`); None (default): no calibration.
     """
 
     n_train: int = 64
@@ -328,6 +369,7 @@ class BuildOptions:
     load_tau: float = DEFAULT_LOAD_TAU
     n_extra_train: int = 0
     bank: dict | None = None
+    calibrate_fa: float | None = None
 
     def __post_init__(self) -> None:
         def put(name, value):
@@ -364,6 +406,13 @@ class BuildOptions:
             put("gain_range", _pair("gain_range", self.gain_range))
         put("noise_range", _pair("noise_range", self.noise_range))
         put("progress", bool(self.progress))
+        if self.calibrate_fa is not None:
+            fa = self.calibrate_fa
+            if isinstance(fa, bool) or not isinstance(fa, (int, float)) or not 0 < fa < 1:
+                raise ValueError(f"calibrate_fa must be a false-alarm rate in (0, 1), got {fa!r}")
+            if not self.selecting:
+                raise ValueError("calibrate_fa needs the validation scenes: candidates > 1 or checkpoint_every > 0")
+            put("calibrate_fa", float(fa))
 
     @property
     def selecting(self) -> bool:
@@ -496,6 +545,10 @@ def _build(out_path, options: BuildOptions, report_path, figure_path, results, c
             "chosen_seed": int(tr_meta["seed"]), "chosen_iteration": int(tr_meta["iterations"]),
             "chosen_score": scores[k_best]}
         tr_meta["selection"] = dict(report["candidates"], seeds=int(candidates), fa_cost=10.0)
+    if o.calibrate_fa is not None:
+        w, report["slip_calibration"] = calibrate_slip(
+            w, val_res, o.calibrate_fa,
+            scenes=f"scenes.random({n_validation}, seed={VALIDATION_SEED}, **{test_kwargs})")
     force = ForceRatioDetector.fit(train_res)
     det = SlipDetector(w)
     if o.kind != "jordan":
@@ -551,6 +604,8 @@ def main(argv=None):
                     help="low-pass time constants of the jordan_bank filter bank, s (default: the default bank's)")
     ap.add_argument("--abs-taus", type=float, nargs="*", default=None,
                     help="time constants of its shear-rate energy low-passes, s (none: no such channels)")
+    ap.add_argument("--calibrate-fa", type=float, default=None, metavar="FA",
+                    help="move y_slip's decision point to FA false alarms on the validation scenes (e.g. 0.02)")
     ap.add_argument("--noise-range", type=float, nargs=2, default=list(NOISE_RANGE), metavar=("LOW", "HIGH"),
                     help="range of the training noise copies' sensor noise, V rms")
     args = ap.parse_args(argv)
@@ -566,7 +621,7 @@ def main(argv=None):
     options = BuildOptions(n_train=args.n_train, n_test=args.n_test, n_hidden=args.hidden, maxiter=args.maxiter,
                            bank=bank, study_sizes=args.study or None, kind=args.kind, candidates=args.candidates,
                            n_extra_train=args.extra_train, checkpoint_every=args.checkpoint_every,
-                           noise_range=tuple(args.noise_range),
+                           noise_range=tuple(args.noise_range), calibrate_fa=args.calibrate_fa,
                            train_options={"negative_weight": args.negative_weight, "pred_weight": args.pred_weight,
                                           "normalisation": args.normalisation})
     extra = {} if args.cache is None else {"cache_dir": args.cache}
