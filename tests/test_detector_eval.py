@@ -298,10 +298,13 @@ def test_calibrate_slip_moves_the_decision_point_exactly(paper_results):
     from tactile_mirror.detector.data_prep import features_from_result
 
     bank = SlipDetector.bank()
+    before = (bank.weights.params.b2.copy(), dict(bank.weights.metadata.get("slip_calibration") or {}))
     val = [paper_results["fig7"], paper_results["fig8"]]
     w, info = calibrate_slip(bank.weights, val, 0.5, scenes="fig7, fig8")
     assert w.metadata["slip_calibration"] == info and info["validation"] == "fig7, fig8"
-    assert "slip_calibration" not in bank.weights.metadata  # the input is not changed
+    # the input is not changed
+    np.testing.assert_array_equal(bank.weights.params.b2, before[0])
+    assert dict(bank.weights.metadata.get("slip_calibration") or {}) == before[1]
     p0, p1 = bank.weights.params, w.params
     for name in ("w1", "b1", "w2"):
         np.testing.assert_array_equal(getattr(p0, name), getattr(p1, name))
