@@ -245,8 +245,8 @@ def default_weights(plant: str = "fem", fs: float = 1000.0):
     Why not :meth:`SlipDetector.default` (the filter-bank net, the better detector on
     held-out scenes): with the default law the detector only starts the slip guard, and
     on the tuning paths (10 per class) the two nets gave the same nominal runs (0 gross
-    slips at 10 and 20 mm/s on ``tuning-fast``, identical tracking), 18 against 19 gross
-    slips with 1 mV of noise at 20 mm/s, but 30 against 20 under sweat (mu 0.45, 5 mm/s):
+    slips at 10 and 20 mm/s on ``tuning-fast``, identical tracking), 16 against 19 gross
+    slips with 1 mV of noise at 20 mm/s, but 29 against 20 under sweat (mu 0.45, 5 mm/s):
     the bank net also reports the creeping slips, and each report holds the stage.
     """
     if plant == "fem":
