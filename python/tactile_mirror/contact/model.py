@@ -9,7 +9,8 @@ contact forces ``f`` at the candidate surface nodes, and is computed once per ge
     ``u_c = C f``: displacements of the contact nodes (``y`` block, then ``z`` block)
     under nodal forces ``f`` (same layout), ``C = G^T K^-1 G``.
 ``sensor``      (n_strips * 3 x 2n)
-    strip-averaged normal stresses ``(s1, s2, s3)`` of each strip in its own frame
+    strip-averaged normal stresses ``(s1, s2, s3)`` of each strip in its own frame, read
+    from the FEM stress as ``RidgeGeometry.stress_recovery`` says
     (``s1`` along the strip length = the ridge axis ``x``, ``s2`` along its width,
     ``s3`` through the film), ``sigma = S f``.
 ``reaction``    (2 x 2n)
@@ -132,8 +133,15 @@ class RidgeModel:
         return out, d["mesh"].p[:, d["mesh"].t].mean(axis=1)
 
 
-def _strip_operator(geom: RidgeGeometry, mesh, basis, lam: float, mu: float) -> sp.csr_matrix:
-    """Rows: (s1, s2, s3) of each strip, averaged over its mid-line sample points."""
+def _strip_operator(geom: RidgeGeometry, mesh, basis, lam: float, mu: float):
+    """Rows: (s1, s2, s3) of each strip as ``geom.stress_recovery`` reads them, per P2 DOF."""
+    if geom.stress_recovery == "projected":
+        return _projected_strip_operator(geom, mesh, basis, lam, mu)
+    return _pointwise_strip_operator(geom, mesh, basis, lam, mu)
+
+
+def _pointwise_strip_operator(geom: RidgeGeometry, mesh, basis, lam: float, mu: float) -> sp.csr_matrix:
+    """Rows: (s1, s2, s3) of each strip, the P2 stress averaged over its mid-line sample points."""
     rows, cols, vals = [], [], []
     e2, e3 = geom.strip_directions
     nu_ps = lam / (2 * (lam + mu))  # Poisson's ratio from the Lame parameters
@@ -163,6 +171,44 @@ def _strip_operator(geom: RidgeGeometry, mesh, basis, lam: float, mu: float) -> 
                 vals.append(s / n_pts)
     shape = (3 * len(geom.strip_y), basis.N)
     return sp.csr_matrix((np.concatenate(vals), (np.concatenate(rows), np.concatenate(cols))), shape=shape)
+
+
+def _projected_strip_operator(geom: RidgeGeometry, mesh, basis, lam: float, mu: float) -> np.ndarray:
+    """Rows: (s1, s2, s3) of each strip, the stress L2-projected onto continuous P1 fields,
+    averaged over its mid-line sample points (``stress_recovery="projected"``: why, in
+    :class:`RidgeGeometry`). Dense: the projection spreads every row over the mesh."""
+    from skfem import Basis, BilinearForm, ElementTriP1, asm
+    from skfem.helpers import sym_grad
+
+    e2, e3 = geom.strip_directions
+    nu_ps = lam / (2 * (lam + mu))  # Poisson's ratio from the Lame parameters
+    p1 = Basis(mesh, ElementTriP1(), quadrature=basis.quadrature)  # same points as the P2 basis
+
+    def component(kind):
+        @BilinearForm
+        def form(u, q, w):
+            eps = sym_grad(u)
+            tr = eps[0, 0] + eps[1, 1]
+            if kind == "yy":
+                return (lam * tr + 2 * mu * eps[0, 0]) * q
+            if kind == "zz":
+                return (lam * tr + 2 * mu * eps[1, 1]) * q
+            return 2 * mu * eps[0, 1] * q
+        return asm(form, basis, p1).tocsr()  # (N_p1, N): int sigma(u) phi_i
+
+    mass = spla.splu(asm(BilinearForm(lambda p, q, w: p * q), p1).tocsc())
+    B = {kind: component(kind) for kind in ("yy", "zz", "yz")}
+    rows = []
+    for ys in geom.strip_y:
+        pts = geom.strip_points(ys).T  # (2, n)
+        average = np.asarray(p1.probes(pts).mean(axis=0)).ravel()  # mean over the points of a P1 field
+        z = mass.solve(average)  # the projection's adjoint: mean of P(s) = (M^-1 average) . (int s phi)
+        syy, szz, syz = (np.asarray(B[kind].T @ z).ravel() for kind in ("yy", "zz", "yz"))
+        sxx = nu_ps * (syy + szz)  # plane strain: s_xx = nu (s_yy + s_zz)
+        rows += [sxx,
+                 e2[0] * e2[0] * syy + 2 * e2[0] * e2[1] * syz + e2[1] * e2[1] * szz,
+                 e3[0] * e3[0] * syy + 2 * e3[0] * e3[1] * syz + e3[1] * e3[1] * szz]
+    return np.array(rows)
 
 
 @functools.lru_cache(maxsize=8)
