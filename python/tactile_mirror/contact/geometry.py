@@ -96,11 +96,13 @@ class RidgeGeometry:
         ``strip_mesh_size``). Default 0.2 mm, from ``bench/mesh_study.py`` (fig6 scene, mesh
         size ``h`` with the contact zone at ``h / 4``, against ``h = 0.05 mm``): with
         ``stress_recovery="projected"`` the strip-stress error falls steadily with ``h``
-        (observed order about 1.6), 2.4e-3 of the peak (rms) at 0.2 mm against 3.9e-3 at
-        0.3 mm and 1.4e-3 at 0.15 mm, at 0.7 / 0.4 / 1.4 ms per sample solved. The default
-        stays 0.2 mm: 0.3 mm would halve the cost per sample at 1.6x the error and move
-        fig6's gross slip; the bundled detector weights and the loop's calibration were made
-        at 0.2 mm. The earlier finding that 0.2 mm was less accurate than 0.3 mm came from
+        (observed order 1.65), 3.0e-3 of the peak (rms) at 0.2 mm against 5.0e-3 at 0.3 mm
+        and 1.7e-3 at 0.15 mm, at 0.08 / 0.04 / 0.17 ms per sample solved (C++, every
+        sample; ``docs/figures/mesh_study.json``). Read pointwise (the default) the errors
+        are 4.4e-2 / 6.1e-2 / 2.5e-2. fig6's gross slip comes at 1.471 s at 0.2 mm, 1.450 s
+        at 0.3 mm and 1.44 s on the fine meshes. The default stays 0.2 mm: 0.3 mm would halve
+        the cost per sample at 1.7x the error and move fig6's gross slip; the bundled
+        detector weights and the loop's calibration were made at 0.2 mm. The earlier finding that 0.2 mm was less accurate than 0.3 mm came from
         the pointwise stress reading (see ``stress_recovery``) and from meshes with an odd
         number of columns at 0.4 and 0.3 mm (now always even, see :func:`ridge_mesh`).
     contact_mesh_size : float
