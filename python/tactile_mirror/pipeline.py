@@ -107,14 +107,14 @@ def pipeline_config(detector, fs, n_ridges: int = 6, *, estimator=None, sos_v=No
         raise ValueError(f"detector_kind must be one of {PIPELINE_DETECTOR_KINDS}, got {detector_kind!r}")
     bank = None
     if detector_kind == "jordan_bank":
-        from .detector.bank import bank_config
+        from .detector.bank import bank_channels, bank_config
 
         bank = bank_config(w.get("bank"))
         if features != "stress_rate":
             raise ValueError("the filter-bank detector takes stress-rate features")
     elif w.get("bank") is not None:
         raise ValueError("bank is given but detector_kind is 'jordan' (the paper's net has no filter bank)")
-    n_det = 4 if bank is None else 4 + 2 * len(bank["lp_taus"]) + len(bank["abs_taus"]) + 3
+    n_det = 4 if bank is None else len(bank_channels(bank))
     if estimator is not None:
         if any(s is not None for s in (sos_v, sos_u, sos_diff)):
             raise ValueError("give either estimator or sos_v/sos_u/sos_diff, not both")

@@ -311,11 +311,41 @@ void bind_one(py::module_& m, const char* cls) {
             "scalar loop over the instances (step_one), the reference.");
 }
 
-// The sizes, dtype, SIMD path, reset, step, run and time_step_ns of a detector with a
-// feature stage in front of its net (PyMemory, PyBank): the same calls, only the stage
-// (its constructor and state) differs.
+// The sizes, dtype, SIMD path, state, reset, step, run and time_step_ns of a detector
+// with a feature stage in front of its net (PyMemory, PyBank): the same calls, only the
+// stage's constructor and its number of states per ridge (k->n_state()) differ.
+// state_name names the stage's states in messages.
 template <typename T, typename PM>
-void def_staged_net_calls(py::class_<PM>& cls, const char* reset_doc, const char* timing_doc) {
+void def_staged_net_calls(py::class_<PM>& cls, const char* state_name, const char* state_doc, const char* reset_doc,
+                          const char* timing_doc) {
+    const std::string pair_msg = std::string("state must be a pair (y_pred, ") + state_name + ")";
+    cls.def_property(
+           "state",
+           [](PM& p) {
+               py::array_t<T> yp(p.n_r);
+               py::array_t<T> ld({py::ssize_t(p.n_r), py::ssize_t(p.k->n_state())});
+               Claim claim(p.owner);
+               p.k->get_state(yp.mutable_data(), ld.mutable_data());
+               return py::make_tuple(yp, ld);
+           },
+           [pair_msg](PM& p, py::tuple state) {
+               if (state.size() != 2) throw py::value_error(pair_msg);
+               auto yp = input<T>(state[0], "state[0]");
+               auto ld = input<T>(state[1], "state[1]");
+               if (yp.ndim() != 1 || yp.shape(0) != p.n_r)
+                   throw py::value_error("state[0] must have shape (" + std::to_string(p.n_r) + ",), got " +
+                                         shape_str(yp));
+               if (ld.ndim() != 2 || ld.shape(0) != p.n_r || ld.shape(1) != p.k->n_state())
+                   throw py::value_error("state[1] must have shape (" + std::to_string(p.n_r) + ", " +
+                                         std::to_string(p.k->n_state()) + "), got " + shape_str(ld));
+               for (py::ssize_t i = 0; i < yp.size(); ++i)
+                   if (!std::isfinite(yp.data()[i])) throw py::value_error("state[0] must be finite");
+               for (py::ssize_t i = 0; i < ld.size(); ++i)
+                   if (!std::isfinite(ld.data()[i])) throw py::value_error("state[1] must be finite");
+               Claim claim(p.owner);
+               p.k->set_state(yp.data(), ld.data());
+           },
+           state_doc);
     cls
         .def_property_readonly("n_instances", [](const PM& p) { return p.n_r; })
         .def_property_readonly("n_inputs", [](const PM&) { return 4; })
@@ -433,35 +463,9 @@ void bind_memory(py::module_& m, const char* cls) {
              }),
              py::arg("w1"), py::arg("b1"), py::arg("w2"), py::arg("b2"), py::arg("input_mean"),
              py::arg("input_gain"), py::arg("n_ridges"), py::arg("fs"), py::arg("tau"),
-             py::arg("activation") = "exact")
-        .def_property(
-            "state",
-            [](PM& p) {
-                py::array_t<T> yp(p.n_r);
-                py::array_t<T> ld({py::ssize_t(p.n_r), py::ssize_t(2)});
-                Claim claim(p.owner);
-                p.k->get_state(yp.mutable_data(), ld.mutable_data());
-                return py::make_tuple(yp, ld);
-            },
-            [](PM& p, py::tuple state) {
-                if (state.size() != 2) throw py::value_error("state must be a pair (y_pred, load)");
-                auto yp = input<T>(state[0], "state[0]");
-                auto ld = input<T>(state[1], "state[1]");
-                if (yp.ndim() != 1 || yp.shape(0) != p.n_r)
-                    throw py::value_error("state[0] must have shape (" + std::to_string(p.n_r) + ",), got " +
-                                          shape_str(yp));
-                if (ld.ndim() != 2 || ld.shape(0) != p.n_r || ld.shape(1) != 2)
-                    throw py::value_error("state[1] must have shape (" + std::to_string(p.n_r) + ", 2), got " +
-                                          shape_str(ld));
-                for (py::ssize_t i = 0; i < yp.size(); ++i)
-                    if (!std::isfinite(yp.data()[i])) throw py::value_error("state[0] must be finite");
-                for (py::ssize_t i = 0; i < ld.size(); ++i)
-                    if (!std::isfinite(ld.data()[i])) throw py::value_error("state[1] must be finite");
-                Claim claim(p.owner);
-                p.k->set_state(yp.data(), ld.data());
-            },
-            "(y_pred(t-1) per ridge, [load, press] per ridge): the recurrent state.");
-    def_staged_net_calls<T>(cls_, "Set the feedback and load state to zero.",
+             py::arg("activation") = "exact");
+    def_staged_net_calls<T>(cls_, "load", "(y_pred(t-1) per ridge, [load, press] per ridge): the recurrent state.",
+                            "Set the feedback and load state to zero.",
                             "Mean time of one tick (feature stage and net) of all ridges, measured inside C++ "
                             "(ns, best of repeats).");
 }
@@ -527,35 +531,10 @@ void bind_bank(py::module_& m, const char* cls) {
              py::arg("w1"), py::arg("b1"), py::arg("w2"), py::arg("b2"), py::arg("input_mean"),
              py::arg("input_gain"), py::arg("n_ridges"), py::arg("fs"), py::arg("lp_taus"), py::arg("abs_taus"),
              py::arg("load_tau"), py::arg("peak_tau"), py::arg("activation") = "exact")
-        .def_property_readonly("n_features", [](const PM& p) { return p.k->n_features(); })
-        .def_property(
-            "state",
-            [](PM& p) {
-                py::array_t<T> yp(p.n_r);
-                py::array_t<T> ld({py::ssize_t(p.n_r), py::ssize_t(p.k->n_state())});
-                Claim claim(p.owner);
-                p.k->get_state(yp.mutable_data(), ld.mutable_data());
-                return py::make_tuple(yp, ld);
-            },
-            [](PM& p, py::tuple state) {
-                if (state.size() != 2) throw py::value_error("state must be a pair (y_pred, filters)");
-                auto yp = input<T>(state[0], "state[0]");
-                auto ld = input<T>(state[1], "state[1]");
-                if (yp.ndim() != 1 || yp.shape(0) != p.n_r)
-                    throw py::value_error("state[0] must have shape (" + std::to_string(p.n_r) + ",), got " +
-                                          shape_str(yp));
-                if (ld.ndim() != 2 || ld.shape(0) != p.n_r || ld.shape(1) != p.k->n_state())
-                    throw py::value_error("state[1] must have shape (" + std::to_string(p.n_r) + ", " +
-                                          std::to_string(p.k->n_state()) + "), got " + shape_str(ld));
-                for (py::ssize_t i = 0; i < yp.size(); ++i)
-                    if (!std::isfinite(yp.data()[i])) throw py::value_error("state[0] must be finite");
-                for (py::ssize_t i = 0; i < ld.size(); ++i)
-                    if (!std::isfinite(ld.data()[i])) throw py::value_error("state[1] must be finite");
-                Claim claim(p.owner);
-                p.k->set_state(yp.data(), ld.data());
-            },
-            "(y_pred(t-1) per ridge, filter states (n_ridges, n_state)): the recurrent state.");
-    def_staged_net_calls<T>(cls_, "Set the feedback and filter states to zero.",
+        .def_property_readonly("n_features", [](const PM& p) { return p.k->n_features(); });
+    def_staged_net_calls<T>(cls_, "filters",
+                            "(y_pred(t-1) per ridge, filter states (n_ridges, n_state)): the recurrent state.",
+                            "Set the feedback and filter states to zero.",
                             "Mean time of one tick (filter bank and net) of all ridges, measured inside C++ "
                             "(ns, best of repeats).");
 }

@@ -71,6 +71,8 @@ public:
     }
 
     int n_hidden() const noexcept { return net_.n_hidden(); }
+    /// Stage states per ridge: [load, press].
+    int n_state() const noexcept { return 2; }
     int n_ridges() const noexcept { return n_r_; }
     T leak() const noexcept { return a_; }
     JordanMLP<T>& net() noexcept { return net_; }
