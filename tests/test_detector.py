@@ -287,6 +287,28 @@ def test_step_equals_run_and_state_carries_over():
     assert np.all(k.state == 0)
 
 
+@pytest.mark.parametrize("dtype", [np.float64, np.float32])
+@pytest.mark.parametrize("n_inputs", [4, 8, 17, 5])
+def test_kernel_step_and_block_give_the_same_bits(n_inputs, dtype):
+    # The block path precomputes the input projections of a chunk (8 and 17 inputs,
+    # several groups of ridges) and adds the feedback afterwards; summed in the same
+    # order, it must give step()'s bits, for every group size and activation.
+    cls = getattr(core, "JordanMLPf64" if dtype == np.float64 else "JordanMLPf32")
+    rng = np.random.default_rng(n_inputs)
+    for n_ridges in (1, 2, 3, 6, 7, 13):
+        for act in ("exact", "fast"):
+            w1, b1 = rng.normal(size=(16, n_inputs + 1)), rng.normal(size=16)
+            w2, b2 = rng.normal(size=(2, 16)), rng.normal(size=2)
+            mean, gain = rng.normal(size=n_inputs), rng.uniform(0.5, 2.0, size=n_inputs)
+            a = cls(w1, b1, w2, b2, mean, gain, n_ridges, act)
+            b = cls(w1, b1, w2, b2, mean, gain, n_ridges, act)
+            x = rng.normal(size=(n_ridges, n_inputs, 150)).astype(dtype)  # > 2 chunks
+            ys, _, yp = a.run(x)
+            steps = np.stack([b.step(np.ascontiguousarray(x[:, :, t])) for t in range(x.shape[2])], axis=-1)
+            np.testing.assert_array_equal(steps[:, 0], ys, err_msg=f"{n_ridges} ridges, {act}")
+            np.testing.assert_array_equal(steps[:, 2], yp, err_msg=f"{n_ridges} ridges, {act}")
+
+
 def test_numpy_backend_matches_cpp():
     w = random_weights(8, seed=11)
     x = random_features(3, 500, seed=7)

@@ -116,7 +116,13 @@ public:
         // State: prev_ (n_slot); scratch: xs_ (one tick's normalised inputs), the
         // chunk buffers of run(): xch_ (n_slot * n_in, kChunk), ych_ (kChunk, urec_).
         const std::size_t n_state = n_slot_pad + n_slot * n_in_ + L + std::size_t(kChunk) * (n_slot * n_in_ + urec_);
-        const std::size_t count = 2 * n_col + n_w + n_state + 64;
+        // The block path's input projections (see project()): kChunk ticks of every
+        // slot's hp_ pre-activations, for the unrolled sizes and while they fit in
+        // 1 MiB (else the block path computes them inside the recurrence, as step()).
+        nslot_ = n_slot;
+        const std::size_t n_proj = std::size_t(kChunk) * n_slot * hp_;
+        const bool proj = hp_ == 16 && (n_in_ == 8 || n_in_ == 17) && n_proj * sizeof(T) <= (std::size_t(1) << 20);
+        const std::size_t count = 2 * n_col + n_w + n_state + (proj ? n_proj : 0) + 64;
         void* mem = std::aligned_alloc(64, ((count * sizeof(T) + 63) / 64) * 64);
         if (!mem) throw std::bad_alloc();
         buf_.reset(mem);
@@ -126,6 +132,10 @@ public:
         p += n_col;
         wcol_[1] = p;
         p += n_col;
+        if (proj) {
+            pch_ = p;
+            p += n_proj;
+        }
         ych_ = p;
         p += std::size_t(kChunk) * urec_;
         xch_ = p;
@@ -233,7 +243,35 @@ public:
     /// row-major with row stride ld (>= n).
     void run(const T* x, std::ptrdiff_t sr, std::ptrdiff_t si, std::ptrdiff_t st, std::ptrdiff_t n,
              T* y_slip, T* y_non, T* y_pred, std::ptrdiff_t ld) noexcept {
-        const Io io{x, sr, si, st, n, y_slip, y_non, y_pred, ld};
+        const Io io{x, sr, si, st, n, y_slip, y_non, y_pred, ld, false};
+#if TM_HAVE_DISPATCH
+        if (isa_ == simd::Isa::avx2_fma) {
+            if (act_ == Activation::exact)
+                run_avx2_exact(io);
+            else
+                run_avx2_fast(io);
+            return;
+        }
+#endif
+        if (act_ == Activation::exact)
+            run_base_exact(io);
+        else
+            run_base_fast(io);
+    }
+
+    /// For a front end that computes the features itself (detector_bank.hpp): it
+    /// writes up to chunk_ticks() ticks of normalised features, (x - input_mean) *
+    /// input_gain, into staging(): feature i of instance r at tick k at
+    /// staging()[(r * n_inputs + i) * chunk_ticks() + k]; run_staged(m, ...) then runs
+    /// those m ticks as run() would (the same bits), without a copy.
+    static constexpr int chunk_ticks() noexcept { return kChunk; }
+    T* staging() noexcept { return xch_; }
+    const T* input_mean() const noexcept { return mean_; }
+    const T* input_gain() const noexcept { return gain_; }
+    void run_staged(int m, T* y_slip, T* y_non, T* y_pred, std::ptrdiff_t ld) noexcept {
+        if (m < 1) return;
+        if (m > kChunk) m = kChunk;
+        Io io{nullptr, 0, 0, 0, m, y_slip, y_non, y_pred, ld, true};
 #if TM_HAVE_DISPATCH
         if (isa_ == simd::Isa::avx2_fma) {
             if (act_ == Activation::exact)
@@ -287,6 +325,7 @@ private:
         std::ptrdiff_t sr, si, st, n;
         T *ys, *yn, *yp;
         std::ptrdiff_t ld;
+        bool staged = false;  // x unused: n <= kChunk normalised ticks are in xch_ (run_staged())
     };
 
     T sig_scalar(T a) const noexcept {
@@ -330,7 +369,7 @@ private:
     template <int B, Activation A, int NIN, int NV>
     __attribute__((always_inline)) inline void run_impl(const Io& io) noexcept {
         const int nin = NIN > 0 ? NIN : n_in_;
-        if (io.n == 1 && io.si == 1 && io.sr == nin) {
+        if (!io.staged && io.n == 1 && io.si == 1 && io.sr == nin) {
             // One tick of contiguous features (step()): normalise into xs_.
             const int ni = n_inst_;
             const T* __restrict xin = io.x;
@@ -386,7 +425,7 @@ private:
         for (std::ptrdiff_t t0 = 0; t0 < io.n; t0 += kChunk) {
             const int m = int(io.n - t0 < kChunk ? io.n - t0 : kChunk);
             const bool more = t0 + 2 * kChunk <= io.n;
-            for (int r = 0; r < ni; ++r)
+            for (int r = 0; r < (io.staged ? 0 : ni); ++r)
                 for (int i = 0; i < nin; ++i) {
                     const T* __restrict src = io.x + r * io.sr + i * io.si + t0 * io.st;
                     T* __restrict dst = xch_ + std::size_t(r * nin + i) * kChunk;
@@ -403,7 +442,8 @@ private:
                     }
                     for (; k < m; ++k) dst[k] = (src[k * io.st] - mu) * g;
                 }
-            tick_impl<B, A, NIN, NV>(xch_, std::ptrdiff_t(nin) * kChunk, kChunk, 1, m, ych_);
+            const bool projected = NV > 0 && NIN > 0 && pch_ && ng > 1;
+            tick_impl<B, A, NIN, NV>(xch_, std::ptrdiff_t(nin) * kChunk, kChunk, 1, m, ych_, projected);
             for (int r0 = 0; r0 < ni; r0 += gsz) {
                 const int gr = ni - r0 < gsz ? ni - r0 : gsz;  // real instances of the group
                 T* ys = io.ys + r0 * ld + t0;
@@ -453,12 +493,13 @@ private:
     // of G <= lanes / 2 (the last one padded with ghost instances if needed).
     template <int B, Activation A, int NIN, int NV>
     __attribute__((always_inline)) inline void tick_impl(const T* xs, std::ptrdiff_t xr, std::ptrdiff_t xi,
-                                                         std::ptrdiff_t xk, int m, T* u) noexcept {
+                                                         std::ptrdiff_t xk, int m, T* u,
+                                                         bool projected = false) noexcept {
         constexpr int NL = simd::Vec<T, B>::lanes;
         constexpr int GM = NL / 2 > 0 ? NL / 2 : 1;
         const int ng = (n_inst_ + GM - 1) / GM;
         const int g = (n_inst_ + ng - 1) / ng;
-        const Ticks t{xs, xr, xi, xk, m, u, ng};
+        const Ticks t{xs, xr, xi, xk, m, u, ng, projected};
         // g <= GM <= 4; each size is instantiated once.
         if constexpr (GM >= 4) {
             if (g == 4) return tick_groups<B, A, NIN, NV, 4>(t);
@@ -478,13 +519,17 @@ private:
         int m;
         T* u;
         int ng;
+        bool projected;  // the input projections of the m ticks are in pch_ (project())
     };
 
     template <int B, Activation A, int NIN, int NV, int G>
     __attribute__((always_inline)) inline void tick_groups(const Ticks& t) noexcept {
         if constexpr (NV > 0) {
             if (t.ng > 1) {
-                tick_pipelined<B, A, NIN, NV, G>(t);
+                if (t.projected)
+                    tick_pipelined<B, A, NIN, NV, G, true>(t);
+                else
+                    tick_pipelined<B, A, NIN, NV, G, false>(t);
                 return;
             }
         }
@@ -506,12 +551,16 @@ private:
     // the out-of-order window does not reach far enough to overlap consecutive
     // groups by itself (measured: groups ran almost one after the other); placing
     // independent work next to it in program order does.
-    template <int B, Activation A, int NIN, int NV, int G>
+    template <int B, Activation A, int NIN, int NV, int G, bool PROJ>
     __attribute__((always_inline)) inline void tick_pipelined(const Ticks& t) noexcept {
         typedef typename simd::Vec<T, B>::type V;
+        constexpr int NL = simd::Vec<T, B>::lanes;
         constexpr int KH = NV * G;
-        V o;              // pending output pre-activations
+        V o{};            // pending output pre-activations
         T* od = nullptr;  // and where their sigmoids go
+        // The input projections (PROJ) of all m ticks first, in one pass (measured
+        // faster than placing them between the ticks, next to the serial chain).
+        if constexpr (PROJ) project<B, A, NIN, NV>(0, t.m, t.ng * G);
         for (int k = 0; k < t.m; ++k) {
             const T* xk = t.xs + k * t.xk;
             T* uk = t.u + std::size_t(k) * urec_;
@@ -519,7 +568,11 @@ private:
             const std::ptrdiff_t ps = k == 0 ? 1 : 2;
             for (int g = 0, r0 = 0; g < t.ng; ++g, r0 += G) {
                 V a[KH];
-                hidden_pre<B, A, NIN, NV, G>(xk + r0 * t.xr, t.xr, t.xi, pk + r0 * ps, ps, a);
+                if constexpr (PROJ)
+                    hidden_projected<B, A, NIN, NV, G>(pch_ + (std::size_t(k) * nslot_ + r0) * (NV * NL), pk + r0 * ps,
+                                                       ps, a);
+                else
+                    hidden_pre<B, A, NIN, NV, G>(xk + r0 * t.xr, t.xr, t.xi, pk + r0 * ps, ps, a);
                 sigmoid_batch<B, A, KH>(a);
                 if (od) {
                     simd::sigmoid_k<T, B, A, 1, A == Activation::fast>(&o);
@@ -571,6 +624,73 @@ private:
                     acc += simd::load<V>(w + (1 + i) * cs) * simd::bcast<T, B>(xg + j * xr + i * xi);
                 a[v * G + j] = acc + simd::load<V>(w + (1 + NIN) * cs) * pb[j];
             }
+        }
+    }
+
+    // The block path's input projections: for ticks k0 to m - 1 of the normalised chunk
+    // in xch_ (time-contiguous rows, as run_impl writes them) and the first nslots slots,
+    // pch_[(k * nslot_ + r) * NV * NL + h] = b1[h] + sum_i W1[h, i] xn_i(r, k), summed
+    // in the order of hidden_pre (b1, then i = 0, 1, ...), so that hidden_projected()
+    // then gives hidden_pre()'s bits. They do not depend on the feedback, so they
+    // leave the recurrence's serial chain: here KT ticks share each weight load
+    // (8 accumulators), where hidden_pre loads a weight and a broadcast per FMA.
+    template <int B, Activation A, int NIN, int NV>
+    __attribute__((always_inline)) inline void project(int k0, int m, int nslots) noexcept {
+        typedef typename simd::Vec<T, B>::type V;
+        constexpr int NL = simd::Vec<T, B>::lanes;
+        constexpr std::size_t cs = std::size_t(NV * NL);
+        constexpr int KT = NV >= 8 ? 1 : 8 / NV;
+        const T* __restrict wc = wcol_[A == Activation::fast ? 1 : 0];
+        T* __restrict out = pch_;
+        for (int r = 0; r < nslots; ++r) {
+            const T* __restrict xr = xch_ + std::size_t(r) * NIN * kChunk;
+            int k = k0;
+            for (; k + KT <= m; k += KT) {
+                V acc[NV * KT];
+                _Pragma("GCC unroll 8") for (int v = 0; v < NV; ++v) {
+                    const V b = simd::load<V>(wc + v * NL);
+                    _Pragma("GCC unroll 8") for (int q = 0; q < KT; ++q) acc[v * KT + q] = b;
+                }
+                _Pragma("GCC unroll 32") for (int i = 0; i < NIN; ++i) {
+                    V x[KT];
+                    _Pragma("GCC unroll 8") for (int q = 0; q < KT; ++q)
+                        x[q] = simd::bcast<T, B>(xr + std::size_t(i) * kChunk + k + q);
+                    _Pragma("GCC unroll 8") for (int v = 0; v < NV; ++v) {
+                        const V w = simd::load<V>(wc + (1 + i) * cs + v * NL);
+                        _Pragma("GCC unroll 8") for (int q = 0; q < KT; ++q) acc[v * KT + q] += w * x[q];
+                    }
+                }
+                _Pragma("GCC unroll 8") for (int q = 0; q < KT; ++q)
+                    _Pragma("GCC unroll 8") for (int v = 0; v < NV; ++v)
+                        std::memcpy(out + (std::size_t(k + q) * nslot_ + r) * cs + v * NL, &acc[v * KT + q],
+                                    sizeof(V));
+            }
+            for (; k < m; ++k)
+                _Pragma("GCC unroll 8") for (int v = 0; v < NV; ++v) {
+                    V acc = simd::load<V>(wc + v * NL);
+                    _Pragma("GCC unroll 32") for (int i = 0; i < NIN; ++i)
+                        acc += simd::load<V>(wc + (1 + i) * cs + v * NL) *
+                               simd::bcast<T, B>(xr + std::size_t(i) * kChunk + k);
+                    std::memcpy(out + (std::size_t(k) * nslot_ + r) * cs + v * NL, &acc, sizeof(V));
+                }
+        }
+    }
+
+    // hidden_pre() from the projections of a group's G instances at pg (project()):
+    // adds the feedback term, the same last FMA.
+    template <int B, Activation A, int NIN, int NV, int G>
+    __attribute__((always_inline)) inline void hidden_projected(const T* pg, const T* fb, std::ptrdiff_t ps,
+                                                                typename simd::Vec<T, B>::type* a) const noexcept {
+        typedef typename simd::Vec<T, B>::type V;
+        constexpr int NL = simd::Vec<T, B>::lanes;
+        constexpr std::size_t cs = std::size_t(NV * NL);
+        const T* __restrict wc = wcol_[A == Activation::fast ? 1 : 0];
+        V pb[G];
+        _Pragma("GCC unroll 4") for (int j = 0; j < G; ++j) pb[j] = simd::bcast<T, B>(fb + j * ps);
+        _Pragma("GCC unroll 8") for (int v = 0; v < NV; ++v) {
+            const V w = simd::load<V>(wc + (1 + NIN) * cs + v * NL);
+            _Pragma("GCC unroll 4") for (int j = 0; j < G; ++j)
+                a[v * G + j] = simd::load<V>(pg + j * cs + v * NL) + w * pb[j];
         }
     }
 
@@ -655,7 +775,7 @@ private:
     }
 
     int n_in_, n_h_, n_inst_, hp_ = 0;
-    std::size_t urec_ = 0;
+    std::size_t urec_ = 0, nslot_ = 0;
     Activation act_;
     simd::Isa isa_ = simd::Isa::baseline;
     std::unique_ptr<void, detail::AlignedFree> buf_;
@@ -664,6 +784,7 @@ private:
     T* xs_ = nullptr;
     T* xch_ = nullptr;
     T* ych_ = nullptr;
+    T* pch_ = nullptr;  // input projections of the block path (nullptr: not used)
     T* prev_ = nullptr;
     T* w1_ = nullptr;
     T* b1_ = nullptr;
