@@ -7,7 +7,7 @@ from __future__ import annotations
 
 from tactile_mirror.measure import best_time, best_times, environment_line, markdown_table, timed
 
-__all__ = ["best_time", "best_times", "environment_line", "header", "table", "timed"]
+__all__ = ["best_time", "best_times", "environment_line", "header", "study_training_scenes", "table", "timed"]
 
 
 def table(title: str, header, rows) -> None:
@@ -18,3 +18,14 @@ def table(title: str, header, rows) -> None:
 def header(what: str) -> None:
     """Print what is measured and where (versions, SIMD path, CPU model, threads)."""
     print(f"# {what}\n# {environment_line()}")
+
+
+def study_training_scenes(cache, extra: int, progress: bool = True) -> list:
+    """The detector studies' training scenes: the build's 64 training scenes and ``extra``
+    scenes drawn from the held-out ranges with ``build.EXTRA_TRAIN_SEED`` (cached in ``cache``)."""
+    from tactile_mirror.detector import build
+
+    train = build.simulate_cached(64, build.TRAIN_SEED, build.TRAIN_KWARGS, cache, progress)
+    if extra:
+        train = train + build.simulate_cached(extra, build.EXTRA_TRAIN_SEED, build.TEST_KWARGS, cache, progress)
+    return train

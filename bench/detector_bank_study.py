@@ -72,6 +72,7 @@ def main(argv=None):
     ap.add_argument("--only", nargs="*", help="input sets to run (default: all)")
     args = ap.parse_args(argv)
     sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
+    from _common import study_training_scenes
     from detector_heldout import clean
     from detector_roc import with_noise
     from sklearn.ensemble import HistGradientBoostingClassifier
@@ -82,9 +83,7 @@ def main(argv=None):
 
     t0 = time.perf_counter()
     cache = args.cache or None
-    train = build.simulate_cached(64, build.TRAIN_SEED, build.TRAIN_KWARGS, cache)
-    if args.extra:
-        train = train + build.simulate_cached(args.extra, build.EXTRA_TRAIN_SEED, build.TEST_KWARGS, cache)
+    train = study_training_scenes(cache, args.extra)
     val = build.simulate_cached(args.n_validation, build.VALIDATION_SEED, build.TEST_KWARGS, cache)
     kinds = onset_kinds(val)
     print(f"# CPU: {cpu_model()}; {len(train)} training scenes, {len(val)} validation scenes "

@@ -48,6 +48,7 @@ def main(argv=None):
     ap.add_argument("--extra", type=int, default=96, help="extra training scenes (seed build.EXTRA_TRAIN_SEED)")
     args = ap.parse_args(argv)
     sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
+    from _common import study_training_scenes
     from detector_heldout import clean, table_rows
     from detector_roc import with_noise
     from tactile_mirror.detector import SlipDetector, build
@@ -58,8 +59,7 @@ def main(argv=None):
 
     t0 = time.perf_counter()
     cache = args.cache or None
-    train = build.simulate_cached(64, build.TRAIN_SEED, build.TRAIN_KWARGS, cache, False)
-    train = train + build.simulate_cached(args.extra, build.EXTRA_TRAIN_SEED, build.TEST_KWARGS, cache, False)
+    train = study_training_scenes(cache, args.extra, False)
     val = build.simulate_cached(120, build.VALIDATION_SEED, build.TEST_KWARGS, cache, False)
     kinds = onset_kinds(val)
     scorer = build.ValidationScorer(val)

@@ -66,7 +66,7 @@ def main(argv=None):
     ap.add_argument("--every", type=int, default=4, help="training samples: every n-th")
     args = ap.parse_args(argv)
     sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
-    from _common import header
+    from _common import header, study_training_scenes
     from sklearn.ensemble import HistGradientBoostingRegressor
     from tactile_mirror.detector import SlipDetector, build
     from tactile_mirror.detector.data_prep import features_from_result
@@ -76,9 +76,7 @@ def main(argv=None):
     header("y_pred at the onset: the bundled net against causal regressors with more information")
     cache = args.cache or None
     t0 = time.perf_counter()
-    train = build.simulate_cached(64, build.TRAIN_SEED, build.TRAIN_KWARGS, cache)
-    if args.extra:
-        train = train + build.simulate_cached(args.extra, build.EXTRA_TRAIN_SEED, build.TEST_KWARGS, cache)
+    train = study_training_scenes(cache, args.extra)
     test = build.simulate_cached(args.n_test, build.TEST_SEED, build.TEST_KWARGS, cache)
     kinds = onset_kinds(test)
     print(f"{len(train)} training scenes (seeds {build.TRAIN_SEED}, {build.EXTRA_TRAIN_SEED}), {len(test)} held-out "

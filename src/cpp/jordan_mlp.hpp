@@ -243,20 +243,7 @@ public:
     /// row-major with row stride ld (>= n).
     void run(const T* x, std::ptrdiff_t sr, std::ptrdiff_t si, std::ptrdiff_t st, std::ptrdiff_t n,
              T* y_slip, T* y_non, T* y_pred, std::ptrdiff_t ld) noexcept {
-        const Io io{x, sr, si, st, n, y_slip, y_non, y_pred, ld, false};
-#if TM_HAVE_DISPATCH
-        if (isa_ == simd::Isa::avx2_fma) {
-            if (act_ == Activation::exact)
-                run_avx2_exact(io);
-            else
-                run_avx2_fast(io);
-            return;
-        }
-#endif
-        if (act_ == Activation::exact)
-            run_base_exact(io);
-        else
-            run_base_fast(io);
+        dispatch(Io{x, sr, si, st, n, y_slip, y_non, y_pred, ld, false});
     }
 
     /// For a front end that computes the features itself (detector_bank.hpp): it
@@ -271,20 +258,7 @@ public:
     void run_staged(int m, T* y_slip, T* y_non, T* y_pred, std::ptrdiff_t ld) noexcept {
         if (m < 1) return;
         if (m > kChunk) m = kChunk;
-        Io io{nullptr, 0, 0, 0, m, y_slip, y_non, y_pred, ld, true};
-#if TM_HAVE_DISPATCH
-        if (isa_ == simd::Isa::avx2_fma) {
-            if (act_ == Activation::exact)
-                run_avx2_exact(io);
-            else
-                run_avx2_fast(io);
-            return;
-        }
-#endif
-        if (act_ == Activation::exact)
-            run_base_exact(io);
-        else
-            run_base_fast(io);
+        dispatch(Io{nullptr, 0, 0, 0, m, y_slip, y_non, y_pred, ld, true});
     }
 
     /// Mean time of one tick of all instances over n_iter ticks, in ns (best of
@@ -327,6 +301,23 @@ private:
         std::ptrdiff_t ld;
         bool staged = false;  // x unused: n <= kChunk normalised ticks are in xch_ (run_staged())
     };
+
+    // The compiled variant for the code path and activation in use.
+    void dispatch(const Io& io) noexcept {
+#if TM_HAVE_DISPATCH
+        if (isa_ == simd::Isa::avx2_fma) {
+            if (act_ == Activation::exact)
+                run_avx2_exact(io);
+            else
+                run_avx2_fast(io);
+            return;
+        }
+#endif
+        if (act_ == Activation::exact)
+            run_base_exact(io);
+        else
+            run_base_fast(io);
+    }
 
     T sig_scalar(T a) const noexcept {
         return act_ == Activation::exact ? simd::sigmoid_exact_scalar<T>(a) : simd::sigmoid_fast_scalar<T>(a);
