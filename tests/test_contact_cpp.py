@@ -417,14 +417,48 @@ def test_follow_cpp_equals_python_on_random_scenes():
     assert slipped >= 12 - len(ties)
 
 
-@pytest.mark.xfail(strict=True, reason="known: on a few random scenes the backends meet the same statuses, "
-                   "solves and events but their forces part by up to 5e-4 of the peak (100 Hz) and 1.3e-7 "
-                   "(50 Hz, per sample); not round-off, to be traced")
+def reference_parts(scene, rtol=RTOL_PATH):
+    """True if the reference's own two steppings ("auto" and "every", the same law along
+    the same path) part on ``scene``: in statuses, or in forces by more than ``rtol`` of
+    their peak. Then the path amplifies round-off beyond ``rtol`` (a breakaway cascade
+    that alternates between the two edges of the contact, each alternation longer than
+    the last, carries a shift of its first event point on to every later one) and no
+    backend computes the forces to that accuracy."""
+    y, ind = scene.plate_motion()
+    (la, _, sa), (le, _, se) = (Pad.from_scene(scene, backend="python", stepping=st).follow(y, ind)
+                                for st in ("auto", "every"))
+    return not np.array_equal(sa, se) or np.max(np.abs(la - le)) > rtol * np.max(np.abs(le))
+
+
+# Scenes of a random set whose path amplifies round-off beyond RTOL_PATH (reference_parts):
+# one of random_scenes_100hz (to 2e-4) and one of random_scenes_50hz (to 1e-8).
+MAX_SENSITIVE = 1
+
+
 def test_random_scene_forces_agree_to_round_off():
-    for s in random_scenes_100hz():
-        assert_same_follow(s, "auto", rtol=RTOL_PATH)
-    for s in random_scenes_50hz():
-        assert_same_run(s, rtol=RTOL_PATH)
+    # forces within RTOL_PATH of their peak on every scene but the round-off ties
+    # (round_off_decides) and the scenes whose path amplifies round-off (reference_parts)
+    sensitive = []
+    for k, s in enumerate(random_scenes_100hz()):
+        try:
+            assert_same_follow(s, "auto", rtol=RTOL_PATH)
+        except AssertionError:
+            assert_same_follow(s, "auto", rtol=None)  # the same statuses, solves and events
+            assert reference_parts(s), f"100 Hz scene {k}: forces part where the reference's steppings agree"
+            sensitive.append(k)
+    assert len(sensitive) <= MAX_SENSITIVE, f"100 Hz scenes sensitive to round-off: {sensitive}"
+    sensitive, ties = [], []
+    for k, s in enumerate(random_scenes_50hz()):
+        try:
+            assert_same_run(s, rtol=RTOL_PATH)
+        except StatusesPart as e:
+            assert round_off_decides(s, e.step), f"50 Hz scene {k}: {e}, where the reference is not tied"
+            ties.append(k)
+        except AssertionError:
+            assert reference_parts(s), f"50 Hz scene {k}: forces part where the reference's steppings agree"
+            sensitive.append(k)
+    assert len(ties) <= MAX_ROUND_OFF_TIES, f"scenes parting on a round-off tie: {ties}"
+    assert len(sensitive) <= MAX_SENSITIVE, f"50 Hz scenes sensitive to round-off: {sensitive}"
 
 
 def test_follow_on_two_threads_equals_one():

@@ -1824,17 +1824,27 @@ private:
             ccol_[slot] = {bc.kind, bc.node, bc.pos, coef};
             copy(w, vcache_.data() + slot * n2_, m);
         }
-        // W^T rows over the base unknowns, and S = Z - W^T (M0^-1 V)
+        // W^T rows over the base unknowns, and S = Z - W^T (M0^-1 V). The rows of the
+        // force laws (kFix: an unknown is zero; kSlipRow: lt - mu s ln = 0) are written
+        // in the units of the displacement rows (kAddG, kAddW: rows of C), times 1 / r:
+        // the partial pivoting of S compares its rows, and with unit coefficients the
+        // force-law rows outweighed the displacement rows by 1 / mean(diag C) (~1e6),
+        // so S was factored with pivots chosen by units, not by size. On an extended
+        // base (a slip front moving through nodes that touched sliding) that lost up to
+        // 1e-9 of the peak force per bordered solve (a fresh factorisation: 1e-14).
+        // The reference scales the other way (its displacement rows by r): the same
+        // ratio between the two kinds of rows.
+        const double law = 1.0 / r_;
         for (std::size_t r = 0; r < nb; ++r) {
             const BorderRow& br = brow_[r];
             double* w = Wt_.data() + r * n2_;
             if (br.kind == kFix) {
                 for (std::size_t k = 0; k < m; ++k) w[k] = 0.0;
-                w[br.pos] = 1.0;
+                w[br.pos] = law;
             } else if (br.kind == kSlipRow) {  // lt_i - mu s ln_i (ln_i has slip coefficient 0 in the base)
                 for (std::size_t k = 0; k < m; ++k) w[k] = 0.0;
-                w[br.pos] = 1.0;
-                w[static_cast<std::size_t>(pos_ln_[br.node])] = -slip_coef_[br.node];
+                w[br.pos] = law;
+                w[static_cast<std::size_t>(pos_ln_[br.node])] = -slip_coef_[br.node] * law;
             } else {
                 const std::size_t row = br.kind == kAddG ? n + br.node : br.node;
                 for (std::size_t k = 0; k < m; ++k) w[k] = base_coef(row, k);
