@@ -559,11 +559,8 @@ private:
             const std::ptrdiff_t ps = k == 0 ? 1 : 2;
             for (int g = 0, r0 = 0; g < t.ng; ++g, r0 += G) {
                 V a[KH];
-                if constexpr (PROJ)
-                    hidden_projected<B, A, NIN, NV, G>(pch_ + (std::size_t(k) * nslot_ + r0) * (NV * NL), pk + r0 * ps,
-                                                       ps, a);
-                else
-                    hidden_pre<B, A, NIN, NV, G>(xk + r0 * t.xr, t.xr, t.xi, pk + r0 * ps, ps, a);
+                hidden_pre<B, A, NIN, NV, G, PROJ>(xk + r0 * t.xr, t.xr, t.xi, pk + r0 * ps, ps, a,
+                                                   PROJ ? pch_ + (std::size_t(k) * nslot_ + r0) * (NV * NL) : nullptr);
                 sigmoid_batch<B, A, KH>(a);
                 if (od) {
                     simd::sigmoid_k<T, B, A, 1, A == Activation::fast>(&o);
@@ -596,11 +593,14 @@ private:
         }
     }
 
-    // Pre-activations of the G * NV hidden vectors of a group (a[v * G + j]).
-    template <int B, Activation A, int NIN, int NV, int G>
+    // Pre-activations of the G * NV hidden vectors of a group (a[v * G + j]). PROJ: the
+    // input part comes from the group's projections at pr (project()), and only the
+    // feedback term is added, the same last FMA as without.
+    template <int B, Activation A, int NIN, int NV, int G, bool PROJ = false>
     __attribute__((always_inline)) inline void hidden_pre(const T* xg, std::ptrdiff_t xr, std::ptrdiff_t xi,
                                                           const T* pg, std::ptrdiff_t ps,
-                                                          typename simd::Vec<T, B>::type* a) const noexcept {
+                                                          typename simd::Vec<T, B>::type* a,
+                                                          const T* pr = nullptr) const noexcept {
         typedef typename simd::Vec<T, B>::type V;
         constexpr int NL = simd::Vec<T, B>::lanes;
         constexpr std::size_t cs = std::size_t(NV * NL);
@@ -610,9 +610,14 @@ private:
         _Pragma("GCC unroll 8") for (int v = 0; v < NV; ++v) {
             const T* w = wc + std::size_t(v) * NL;
             _Pragma("GCC unroll 4") for (int j = 0; j < G; ++j) {
-                V acc = simd::load<V>(w);
-                _Pragma("GCC unroll 8") for (int i = 0; i < NIN; ++i)
-                    acc += simd::load<V>(w + (1 + i) * cs) * simd::bcast<T, B>(xg + j * xr + i * xi);
+                V acc;
+                if constexpr (PROJ) {
+                    acc = simd::load<V>(pr + j * cs + v * NL);
+                } else {
+                    acc = simd::load<V>(w);
+                    _Pragma("GCC unroll 8") for (int i = 0; i < NIN; ++i)
+                        acc += simd::load<V>(w + (1 + i) * cs) * simd::bcast<T, B>(xg + j * xr + i * xi);
+                }
                 a[v * G + j] = acc + simd::load<V>(w + (1 + NIN) * cs) * pb[j];
             }
         }
@@ -621,8 +626,8 @@ private:
     // The block path's input projections: for ticks k0 to m - 1 of the normalised chunk
     // in xch_ (time-contiguous rows, as run_impl writes them) and the first nslots slots,
     // pch_[(k * nslot_ + r) * NV * NL + h] = b1[h] + sum_i W1[h, i] xn_i(r, k), summed
-    // in the order of hidden_pre (b1, then i = 0, 1, ...), so that hidden_projected()
-    // then gives hidden_pre()'s bits. They do not depend on the feedback, so they
+    // in the order of hidden_pre (b1, then i = 0, 1, ...), so that hidden_pre<PROJ>
+    // gives the bits of hidden_pre without. They do not depend on the feedback, so they
     // leave the recurrence's serial chain: here KT ticks share each weight load
     // (8 accumulators), where hidden_pre loads a weight and a broadcast per FMA.
     template <int B, Activation A, int NIN, int NV>
@@ -664,24 +669,6 @@ private:
                                simd::bcast<T, B>(xr + std::size_t(i) * kChunk + k);
                     std::memcpy(out + (std::size_t(k) * nslot_ + r) * cs + v * NL, &acc, sizeof(V));
                 }
-        }
-    }
-
-    // hidden_pre() from the projections of a group's G instances at pg (project()):
-    // adds the feedback term, the same last FMA.
-    template <int B, Activation A, int NIN, int NV, int G>
-    __attribute__((always_inline)) inline void hidden_projected(const T* pg, const T* fb, std::ptrdiff_t ps,
-                                                                typename simd::Vec<T, B>::type* a) const noexcept {
-        typedef typename simd::Vec<T, B>::type V;
-        constexpr int NL = simd::Vec<T, B>::lanes;
-        constexpr std::size_t cs = std::size_t(NV * NL);
-        const T* __restrict wc = wcol_[A == Activation::fast ? 1 : 0];
-        V pb[G];
-        _Pragma("GCC unroll 4") for (int j = 0; j < G; ++j) pb[j] = simd::bcast<T, B>(fb + j * ps);
-        _Pragma("GCC unroll 8") for (int v = 0; v < NV; ++v) {
-            const V w = simd::load<V>(wc + (1 + NIN) * cs + v * NL);
-            _Pragma("GCC unroll 4") for (int j = 0; j < G; ++j)
-                a[v * G + j] = simd::load<V>(pg + j * cs + v * NL) + w * pb[j];
         }
     }
 
