@@ -42,6 +42,14 @@
 // AVX2 machine (Zen 3): about 0.7x the time of the previous instances-in-lanes
 // kernel in float, 0.6x in double.
 //
+// Block runs (run() over many ticks, 8 or 17 inputs, two or more groups): the input
+// part of the hidden pre-activations, b1 + W1[:, :n_in] xn, does not depend on the
+// feedback, so a chunk's projections are computed first (project(): eight
+// accumulators share each weight load, where the tick loads a weight and a broadcast
+// per FMA) and the ticks add only the feedback term, in the same order: the same
+// bits as step(). Measured on the filter-bank net, 6 ridges (AMD EPYC, AVX2): 1.27x
+// per block tick in double, 1.23x in float.
+//
 // Activations: Activation (simd::Accuracy) exact or fast, the layer's sigmoid
 // approximations, with their measured errors in simd.hpp; the scalar step_one
 // uses std::exp for exact.
