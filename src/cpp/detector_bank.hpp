@@ -17,8 +17,8 @@
 //
 // RTNeural-like: sizes fixed at construction (which may throw); step(), run(), the
 // state accessors allocate nothing and throw nothing. Block runs go in chunks of the
-// net's chunk_ticks(): the features are written normalised, time-contiguous, straight
-// into the net's staging rows, then the net's block path runs them (JordanMLP::
+// net's chunk_ticks(): the features are written time-contiguous straight into the
+// net's staging rows, which its block path normalises in place and runs (JordanMLP::
 // run_staged); step() and run() give the same bits.
 #pragma once
 
@@ -195,7 +195,7 @@ private:
         for (int k = 0; k < ns_; ++k) o[(4 + k) * ocol] = z[k];
     }
 
-    // m <= K ticks of normalised features into the net's staging rows, (n_ridges, nf, K): ridge by ridge, so
+    // m <= K ticks of features into the net's staging rows, (n_ridges, nf, K): ridge by ridge, so
     // that a ridge's states stay in registers and every feature row is written in order
     // (the tick-by-tick order of features() wrote 17 rows per tick; measured 1.3x slower
     // per block tick in float64). The same arithmetic as features() (ridge_tick).
@@ -203,8 +203,6 @@ private:
         constexpr int K = JordanMLP<T>::chunk_ticks();
         T z[2 * kMaxTaus + kMaxTaus + 3];
         T* out = net_.staging();
-        const T* mean = net_.input_mean();
-        const T* gain = net_.input_gain();
         for (int r = 0; r < n_r_; ++r) {
             T* zs = st_ + std::size_t(r) * ns_;
             for (int k = 0; k < ns_; ++k) z[k] = zs[k];
@@ -212,21 +210,6 @@ private:
             const T* xr = x0 + r * sr;
             for (int t = 0; t < m; ++t) ridge_tick(xr + t * st, si, z, o + t, K);
             for (int k = 0; k < ns_; ++k) zs[k] = z[k];
-            // normalised in place, a row at a time (as vectors: measured 1.15x faster
-            // per block tick in float32 than normalising each value in ridge_tick)
-            typedef typename simd::Vec<T, simd::kBaseBytes>::type V;
-            constexpr int NL = simd::Vec<T, simd::kBaseBytes>::lanes;
-            for (int j = 0; j < nf_; ++j) {
-                T* row = o + std::size_t(j) * K;
-                const T mu = mean[j], g = gain[j];
-                int k = 0;
-                for (; k + NL <= m; k += NL) {
-                    V v = simd::load<V>(row + k);
-                    v = (v - mu) * g;
-                    std::memcpy(row + k, &v, sizeof v);
-                }
-                for (; k < m; ++k) row[k] = (row[k] - mu) * g;
-            }
         }
     }
 

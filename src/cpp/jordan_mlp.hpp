@@ -251,22 +251,20 @@ public:
     /// row-major with row stride ld (>= n).
     void run(const T* x, std::ptrdiff_t sr, std::ptrdiff_t si, std::ptrdiff_t st, std::ptrdiff_t n,
              T* y_slip, T* y_non, T* y_pred, std::ptrdiff_t ld) noexcept {
-        dispatch(Io{x, sr, si, st, n, y_slip, y_non, y_pred, ld, false});
+        dispatch(Io{x, sr, si, st, n, y_slip, y_non, y_pred, ld});
     }
 
     /// For a front end that computes the features itself (detector_bank.hpp): it
-    /// writes up to chunk_ticks() ticks of normalised features, (x - input_mean) *
-    /// input_gain, into staging(): feature i of instance r at tick k at
-    /// staging()[(r * n_inputs + i) * chunk_ticks() + k]; run_staged(m, ...) then runs
-    /// those m ticks as run() would (the same bits), without a copy.
+    /// writes up to chunk_ticks() ticks of raw features into staging(): feature i of
+    /// instance r at tick k at staging()[(r * n_inputs + i) * chunk_ticks() + k];
+    /// run_staged(m, ...) then runs those m ticks as run() would (the same bits),
+    /// normalising them in place instead of copying them.
     static constexpr int chunk_ticks() noexcept { return kChunk; }
     T* staging() noexcept { return xch_; }
-    const T* input_mean() const noexcept { return mean_; }
-    const T* input_gain() const noexcept { return gain_; }
     void run_staged(int m, T* y_slip, T* y_non, T* y_pred, std::ptrdiff_t ld) noexcept {
         if (m < 1) return;
         if (m > kChunk) m = kChunk;
-        dispatch(Io{nullptr, 0, 0, 0, m, y_slip, y_non, y_pred, ld, true});
+        run(xch_, std::ptrdiff_t(n_in_) * kChunk, kChunk, 1, m, y_slip, y_non, y_pred, ld);
     }
 
     /// Mean time of one tick of all instances over n_iter ticks, in ns (best of
@@ -307,7 +305,6 @@ private:
         std::ptrdiff_t sr, si, st, n;
         T *ys, *yn, *yp;
         std::ptrdiff_t ld;
-        bool staged = false;  // x unused: n <= kChunk normalised ticks are in xch_ (run_staged())
     };
 
     // The compiled variant for the code path and activation in use.
@@ -379,7 +376,7 @@ private:
     template <int B, Activation A, int NIN, int NV>
     __attribute__((always_inline)) inline void run_impl(const Io& io) noexcept {
         const int nin = NIN > 0 ? NIN : n_in_;
-        if (!io.staged && io.n == 1 && io.si == 1 && io.sr == nin) {
+        if (io.n == 1 && io.si == 1 && io.sr == nin) {
             // One tick of contiguous features (step()): normalise into xs_.
             const int ni = n_inst_;
             const T* __restrict xin = io.x;
@@ -435,10 +432,11 @@ private:
         for (std::ptrdiff_t t0 = 0; t0 < io.n; t0 += kChunk) {
             const int m = int(io.n - t0 < kChunk ? io.n - t0 : kChunk);
             const bool more = t0 + 2 * kChunk <= io.n;
-            for (int r = 0; r < (io.staged ? 0 : ni); ++r)
+            // (src is dst for the staged features of run_staged(): normalised in place)
+            for (int r = 0; r < ni; ++r)
                 for (int i = 0; i < nin; ++i) {
-                    const T* __restrict src = io.x + r * io.sr + i * io.si + t0 * io.st;
-                    T* __restrict dst = xch_ + std::size_t(r * nin + i) * kChunk;
+                    const T* src = io.x + r * io.sr + i * io.si + t0 * io.st;
+                    T* dst = xch_ + std::size_t(r * nin + i) * kChunk;
                     const T mu = mean_[i], g = gain_[i];
                     int k = 0;
                     if (io.st == 1) {
@@ -570,7 +568,7 @@ private:
         T* od = nullptr;  // and where their sigmoids go
         // The input projections (PROJ) of all m ticks first, in one pass (measured
         // faster than placing them between the ticks, next to the serial chain).
-        if constexpr (PROJ) project<B, A, NIN, NV>(0, t.m, t.ng * G);
+        if constexpr (PROJ) project<B, A, NIN, NV>(t.m, t.ng * G);
         for (int k = 0; k < t.m; ++k) {
             const T* xk = t.xs + k * t.xk;
             T* uk = t.u + std::size_t(k) * urec_;
@@ -642,53 +640,48 @@ private:
         }
     }
 
-    // The block path's input projections: for ticks k0 to m - 1 of the normalised chunk
-    // in xch_ (time-contiguous rows, as run_impl writes them) and the first nslots slots,
+    // The block path's input projections: for the m ticks of the normalised chunk in
+    // xch_ (time-contiguous rows, as run_impl writes them) and the first nslots slots,
     // pch_[(k * nslot_ + r) * NV * NL + h] = b1[h] + sum_i W1[h, i] xn_i(r, k), summed
     // in the order of hidden_pre (b1, then i = 0, 1, ...), so that hidden_pre<PROJ>
     // gives the bits of hidden_pre without. They do not depend on the feedback, so they
     // leave the recurrence's serial chain: here KT ticks share each weight load
     // (8 accumulators), where hidden_pre loads a weight and a broadcast per FMA.
     template <int B, Activation A, int NIN, int NV>
-    __attribute__((always_inline)) inline void project(int k0, int m, int nslots) noexcept {
+    __attribute__((always_inline)) inline void project(int m, int nslots) noexcept {
+        constexpr int KT = NV >= 8 ? 1 : 8 / NV;
+        for (int r = 0; r < nslots; ++r) {
+            int k = 0;
+            for (; k + KT <= m; k += KT) project_ticks<B, A, NIN, NV, KT>(r, k);
+            for (; k < m; ++k) project_ticks<B, A, NIN, NV, 1>(r, k);
+        }
+    }
+
+    // project() for ticks k to k + KT - 1 of slot r.
+    template <int B, Activation A, int NIN, int NV, int KT>
+    __attribute__((always_inline)) inline void project_ticks(int r, int k) noexcept {
         typedef typename simd::Vec<T, B>::type V;
         constexpr int NL = simd::Vec<T, B>::lanes;
         constexpr std::size_t cs = std::size_t(NV * NL);
-        constexpr int KT = NV >= 8 ? 1 : 8 / NV;
         const T* __restrict wc = wcol_[A == Activation::fast ? 1 : 0];
-        T* __restrict out = pch_;
-        for (int r = 0; r < nslots; ++r) {
-            const T* __restrict xr = xch_ + std::size_t(r) * NIN * kChunk;
-            int k = k0;
-            for (; k + KT <= m; k += KT) {
-                V acc[NV * KT];
-                _Pragma("GCC unroll 8") for (int v = 0; v < NV; ++v) {
-                    const V b = simd::load<V>(wc + v * NL);
-                    _Pragma("GCC unroll 8") for (int q = 0; q < KT; ++q) acc[v * KT + q] = b;
-                }
-                _Pragma("GCC unroll 32") for (int i = 0; i < NIN; ++i) {
-                    V x[KT];
-                    _Pragma("GCC unroll 8") for (int q = 0; q < KT; ++q)
-                        x[q] = simd::bcast<T, B>(xr + std::size_t(i) * kChunk + k + q);
-                    _Pragma("GCC unroll 8") for (int v = 0; v < NV; ++v) {
-                        const V w = simd::load<V>(wc + (1 + i) * cs + v * NL);
-                        _Pragma("GCC unroll 8") for (int q = 0; q < KT; ++q) acc[v * KT + q] += w * x[q];
-                    }
-                }
-                _Pragma("GCC unroll 8") for (int q = 0; q < KT; ++q)
-                    _Pragma("GCC unroll 8") for (int v = 0; v < NV; ++v)
-                        std::memcpy(out + (std::size_t(k + q) * nslot_ + r) * cs + v * NL, &acc[v * KT + q],
-                                    sizeof(V));
-            }
-            for (; k < m; ++k)
-                _Pragma("GCC unroll 8") for (int v = 0; v < NV; ++v) {
-                    V acc = simd::load<V>(wc + v * NL);
-                    _Pragma("GCC unroll 32") for (int i = 0; i < NIN; ++i)
-                        acc += simd::load<V>(wc + (1 + i) * cs + v * NL) *
-                               simd::bcast<T, B>(xr + std::size_t(i) * kChunk + k);
-                    std::memcpy(out + (std::size_t(k) * nslot_ + r) * cs + v * NL, &acc, sizeof(V));
-                }
+        const T* __restrict xr = xch_ + std::size_t(r) * NIN * kChunk + k;
+        V acc[NV * KT];
+        _Pragma("GCC unroll 8") for (int v = 0; v < NV; ++v) {
+            const V b = simd::load<V>(wc + v * NL);
+            _Pragma("GCC unroll 8") for (int q = 0; q < KT; ++q) acc[v * KT + q] = b;
         }
+        _Pragma("GCC unroll 32") for (int i = 0; i < NIN; ++i) {
+            V x[KT];
+            _Pragma("GCC unroll 8") for (int q = 0; q < KT; ++q)
+                x[q] = simd::bcast<T, B>(xr + std::size_t(i) * kChunk + q);
+            _Pragma("GCC unroll 8") for (int v = 0; v < NV; ++v) {
+                const V w = simd::load<V>(wc + (1 + i) * cs + v * NL);
+                _Pragma("GCC unroll 8") for (int q = 0; q < KT; ++q) acc[v * KT + q] += w * x[q];
+            }
+        }
+        _Pragma("GCC unroll 8") for (int q = 0; q < KT; ++q)
+            _Pragma("GCC unroll 8") for (int v = 0; v < NV; ++v)
+                std::memcpy(pch_ + (std::size_t(k + q) * nslot_ + r) * cs + v * NL, &acc[v * KT + q], sizeof(V));
     }
 
     // Output pre-activations of a group from its hidden activations: one vector
