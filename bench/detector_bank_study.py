@@ -73,7 +73,7 @@ def main(argv=None):
     args = ap.parse_args(argv)
     sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
     from _common import study_training_scenes
-    from detector_heldout import clean
+    from tactile_mirror.detector.evaluate import noise_free as clean
     from detector_roc import with_noise
     from sklearn.ensemble import HistGradientBoostingClassifier
     from tactile_mirror.detector import build

@@ -49,7 +49,8 @@ def main(argv=None):
     args = ap.parse_args(argv)
     sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
     from _common import study_training_scenes
-    from detector_heldout import clean, table_rows
+    from detector_heldout import table_rows
+    from tactile_mirror.detector.evaluate import noise_free as clean
     from detector_roc import with_noise
     from tactile_mirror.detector import SlipDetector, build
     from tactile_mirror.detector.data_prep import features_from_result

@@ -80,17 +80,6 @@ def bank_tree_scores(train, test, notch=None) -> list:
     return [clf.predict_proba(feats(r))[:, 1] for r in test]
 
 
-def clean(results):
-    """Copies of ``results`` with noise-free circuit outputs (their strip stresses through their circuit)."""
-    import dataclasses
-
-    out = []
-    for r in results:
-        v, u = r.scene.circuit.simulate(r.stress, r.fs)
-        out.append(dataclasses.replace(r, v_out=v, u_out=u))
-    return out
-
-
 def main(argv=None):
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--cache", default="out/scenes", help="directory of cached simulated scenes ('' for none)")
@@ -107,6 +96,7 @@ def main(argv=None):
     sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
     from _common import header
     from detector_roc import bound_scores, estimator_of, with_noise
+    from tactile_mirror.detector.evaluate import noise_free as clean
     from tactile_mirror.detector import SlipDetector, build
     from tactile_mirror.detector.data_prep import features_from_result
     from tactile_mirror.detector.evaluate import onset_kinds, roc

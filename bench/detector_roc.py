@@ -45,7 +45,6 @@ false alarms in steps of 1.25 %; the figure in ``docs/figures`` was made with
 from __future__ import annotations
 
 import argparse
-import dataclasses
 import os
 import pickle
 import sys
@@ -55,6 +54,8 @@ os.environ.setdefault("OMP_NUM_THREADS", "1")
 os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
 
 import numpy as np
+from tactile_mirror.detector.evaluate import NOISE_CONDITIONS, with_noise
+from tactile_mirror.detector.evaluate import condition_estimator as estimator_of
 
 #: Seed of the held-out scenes of this study (disjoint from every seed the build uses).
 ROC_SEED = 5150
@@ -97,40 +98,8 @@ def simulated(n_test: int, n_train: int, cache: str | None):
 
 
 #: Noise conditions: name -> (white noise V rms, SensorNoise hum V rms or None, estimator notch Hz or None).
-CONDITIONS = {
-    "noise-free": (0.0, None, None),
-    "1 mV rms white": (1e-3, None, None),
-    "thermal + 2 mV 50 Hz hum, notch": (0.0, 2e-3, (50.0, 100.0, 150.0)),
-}
+CONDITIONS = NOISE_CONDITIONS
 FA_POINTS = (0.02, 0.03)
-
-
-def with_noise(results, condition: str, seed: int):
-    """Copies of ``results`` with the condition's noise on ``v_out``/``u_out`` (seeded per scene)."""
-    from tactile_mirror.noise import SensorNoise
-
-    white, hum, _ = CONDITIONS[condition]
-    out = []
-    for k, r in enumerate(results):
-        rng = np.random.default_rng([seed, k])
-        v, u = np.asarray(r.v_out), np.asarray(r.u_out)
-        if white:
-            v = v + rng.normal(0.0, white, v.shape)
-            u = u + rng.normal(0.0, white, u.shape)
-        if hum is not None:
-            v, u = SensorNoise(circuit=r.scene.circuit, hum=hum).apply(v, u, r.fs, seed=rng)
-        out.append(dataclasses.replace(r, v_out=v, u_out=u))
-    return out
-
-
-def estimator_of(detector, condition: str) -> dict:
-    from tactile_mirror.detector.data_prep import DEFAULT_ESTIMATOR
-
-    est = dict(detector.metadata.get("estimator") or DEFAULT_ESTIMATOR)
-    notch = CONDITIONS[condition][2]
-    if notch is not None:
-        est["notch"] = notch
-    return est
 
 
 def net_scores(detector, results, condition: str) -> list:

@@ -318,6 +318,95 @@ def test_calibrate_slip_moves_the_decision_point_exactly(paper_results):
     np.testing.assert_array_equal((ys1 >= 0.8)[~near], (ys0 >= t)[~near])
 
 
+def test_calibration_per_condition_keeps_every_condition_within_its_bound(paper_results):
+    """calibrate_slip(conditions=...) picks the lowest threshold that keeps each sensor
+    condition's false alarms on the validation scenes within its own bound: the largest of
+    the per-condition thresholds, recomputed here from the same noisy copies; uncalibrate
+    gives the net as trained back, bit for bit."""
+    from tactile_mirror.detector.build import calibrate_slip, uncalibrate
+    from tactile_mirror.detector.data_prep import features_from_result
+    from tactile_mirror.detector.evaluate import (
+        NOISE_CONDITIONS,
+        condition_estimator,
+        noise_free,
+        onset_kinds,
+        roc,
+        with_noise,
+    )
+
+    bank = SlipDetector.bank()
+    raw = uncalibrate(bank.weights)
+    assert "slip_calibration" not in raw.metadata and "slip_calibration" in bank.weights.metadata
+    shift = bank.weights.metadata["slip_calibration"]["b2_shift"]
+    np.testing.assert_allclose(raw.params.b2[0] + shift, bank.weights.params.b2[0], rtol=0, atol=1e-15)
+    val = [paper_results["fig6"], paper_results["fig7"], paper_results["fig8"]]
+    bounds = {"noise-free": 0.5, "1 mV rms white": 0.7}
+    w, info = calibrate_slip(raw, val, None, conditions=bounds, seed=11)
+    assert set(info["conditions"]) == set(bounds) and info["noise_seed"] == 11
+    det0 = SlipDetector(raw)
+    clean = noise_free(val)
+    thresholds = []
+    for k, (name, fa) in enumerate(bounds.items()):
+        x = clean if k == 0 else with_noise(clean, name, 11 + k)
+        scores = [det0.run(features_from_result(r, det0.features, estimator=condition_estimator(det0, name)),
+                           fs=r.fs)[0] for r in x]
+        curve = roc(scores, val, onset_kinds(val))
+        thresholds.append(curve.at_false_alarm(fa)["threshold"])
+        at = curve.at_threshold(info["threshold"])
+        assert at["false_alarm_rate"] <= fa + 1e-12
+        assert info["conditions"][name]["validation_false_alarm"] == at["false_alarm_rate"]
+    assert info["threshold"] == pytest.approx(min(max(max(thresholds), 1e-6), 1 - 1e-6), abs=0)
+    # the shift is relative to the net as trained
+    assert w.params.b2[0] == raw.params.b2[0] + info["b2_shift"]
+    with pytest.raises(ValueError, match="unknown condition"):
+        calibrate_slip(raw, val, None, conditions={"2 mV": 0.01})
+    with pytest.raises(ValueError, match="false_alarm or conditions"):
+        calibrate_slip(raw, val, None)
+    assert set(NOISE_CONDITIONS) >= set(bounds)
+
+
+def test_noise_conditions_add_what_they_name(paper_results):
+    """noise_free removes a scene's own noise (its stresses through its circuit);
+    with_noise adds the condition's noise, seeded: white 1 mV rms on both outputs."""
+    from tactile_mirror.detector.evaluate import noise_free, with_noise
+
+    r = paper_results["fig6"]
+    clean = noise_free([r])[0]
+    v, u = r.scene.circuit.simulate(r.stress, r.fs)
+    np.testing.assert_array_equal(clean.v_out, v)
+    np.testing.assert_array_equal(clean.u_out, u)
+    a = with_noise([clean], "1 mV rms white", seed=3)[0]
+    b = with_noise([clean], "1 mV rms white", seed=3)[0]
+    c = with_noise([clean], "1 mV rms white", seed=4)[0]
+    np.testing.assert_array_equal(a.v_out, b.v_out)
+    assert not np.array_equal(a.v_out, c.v_out)
+    for got, ref in ((a.v_out, clean.v_out), (a.u_out, clean.u_out)):
+        d = np.asarray(got) - np.asarray(ref)
+        assert abs(d.std() - 1e-3) < 0.05e-3 and abs(d.mean()) < 0.05e-3
+    hum = with_noise([clean], "thermal + 2 mV 50 Hz hum, notch", seed=3)[0]
+    d = np.asarray(hum.v_out) - np.asarray(clean.v_out)
+    spec = np.abs(np.fft.rfft(d.reshape(-1, d.shape[-1])[0]))  # (ridges, strips, samples)
+    f = np.fft.rfftfreq(d.shape[-1], 1.0 / r.fs)
+    assert f[np.argmax(spec[1:]) + 1] == pytest.approx(50.0, abs=1.0)  # the hum's fundamental dominates
+    with pytest.raises(ValueError, match="condition"):
+        with_noise([clean], "3 mV", seed=0)
+
+
+def test_build_options_check_the_calibration_conditions():
+    from tactile_mirror.detector.build import BuildOptions
+
+    o = BuildOptions(calibrate_conditions={"noise-free": 0.015, "1 mV rms white": 0.025})
+    assert o.calibrate_conditions == {"noise-free": 0.015, "1 mV rms white": 0.025}
+    for bad, msg in (({}, "non-empty"), ({"pink": 0.01}, "unknown condition"), ({"noise-free": 1.5}, "noise-free"),
+                     ({"noise-free": True}, "noise-free")):
+        with pytest.raises(ValueError, match=msg):
+            BuildOptions(calibrate_conditions=bad)
+    with pytest.raises(ValueError, match="not both"):
+        BuildOptions(calibrate_fa=0.01, calibrate_conditions={"noise-free": 0.01})
+    with pytest.raises(ValueError, match="validation scenes"):
+        BuildOptions(calibrate_conditions={"noise-free": 0.01}, candidates=1, checkpoint_every=0)
+
+
 @pytest.mark.parametrize("bad", [0.0, 1.0, -0.1, True, "0.02"])
 def test_build_options_refuse_a_bad_calibration_rate(bad):
     from tactile_mirror.detector.build import BuildOptions

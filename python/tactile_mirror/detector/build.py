@@ -42,10 +42,12 @@ __all__ = [
     "build_default",
     "calibrate_slip",
     "hidden_size_study",
+    "recalibrate",
     "select_candidate",
     "simulate_cached",
     "simulate_scenes",
     "train_selected",
+    "uncalibrate",
 ]
 
 #: Seeds of the training, validation and held-out scene sets (different on purpose).
@@ -226,7 +228,8 @@ def select_candidate(candidates, validation, fa_cost: float = 10.0):
     return candidates[best], best, scores
 
 
-def calibrate_slip(weights, validation, false_alarm: float, slip_threshold: float = 0.8, scenes: str = ""):
+def calibrate_slip(weights, validation, false_alarm: float | None, slip_threshold: float = 0.8, scenes: str = "",
+                   conditions=None, seed: int = 5000):
     """Weights whose ``y_slip >= slip_threshold`` alarms at most ``false_alarm`` of the
     validation sequences without slip in time.
 
@@ -238,27 +241,101 @@ def calibrate_slip(weights, validation, false_alarm: float, slip_threshold: floa
     consumer (the pipeline's status, the slip guard, :func:`evaluate`) keeps the one
     rule ``y_slip >= 0.8``. Choose ``validation`` disjoint from what is reported.
 
+    ``conditions``: a mapping of sensor conditions (keys of
+    :data:`~tactile_mirror.detector.evaluate.NOISE_CONDITIONS`) to false-alarm bounds. The
+    validation scenes are then scored in each condition (their noise-free outputs plus the
+    condition's noise, seeded by ``seed`` + the condition's index) instead of in their own
+    noise, and ``t`` is the lowest threshold that keeps every condition within its bound
+    (``false_alarm`` is not used; pass None). A bound somewhat below the rate a goal allows
+    leaves room for the difference between two scene sets: the standard error of a rate
+    near 2 % is 0.6 points on 480 sequences, 1 point on 200.
+
     Returns ``(weights, info)``; ``info`` (threshold found, bias shift, the validation's
-    detection and false-alarm rates) is also stored in ``metadata["slip_calibration"]``.
+    detection and false-alarm rates, per condition if given) is also stored in
+    ``metadata["slip_calibration"]``.
     """
     import copy
     import math
 
     from .data_prep import features_from_result
-    from .evaluate import onset_kinds, roc
+    from .evaluate import NOISE_CONDITIONS, condition_estimator, noise_free, onset_kinds, roc, with_noise
 
     det = SlipDetector(weights)
-    scores = [det.run(features_from_result(r, det.features, estimator=det.metadata.get("estimator")), fs=r.fs)[0]
-              for r in validation]
-    pt = roc(scores, validation, onset_kinds(validation)).at_false_alarm(false_alarm)
-    t = min(max(float(pt["threshold"]), 1e-6), 1 - 1e-6)
+    kinds = onset_kinds(validation)
+    if conditions is None:
+        if false_alarm is None:
+            raise ValueError("give false_alarm or conditions")
+        runs = {"own noise": (validation, det.metadata.get("estimator"), float(false_alarm))}
+    else:
+        conditions = dict(conditions)
+        if not conditions:
+            raise ValueError("conditions must name at least one condition")
+        clean = noise_free(validation)
+        runs = {}
+        for k, (name, fa) in enumerate(conditions.items()):
+            if name not in NOISE_CONDITIONS:
+                raise ValueError(f"conditions: unknown condition {name!r}; known: {sorted(NOISE_CONDITIONS)}")
+            if not (isinstance(fa, (int, float)) and 0 <= fa < 1):
+                raise ValueError(f"conditions[{name!r}] must be a false-alarm rate in [0, 1), got {fa!r}")
+            res = clean if NOISE_CONDITIONS[name] == (0.0, None, None) else with_noise(clean, name, seed + k)
+            runs[name] = (res, condition_estimator(det, name), float(fa))
+    curves = {}
+    t = 0.0
+    for name, (res, est, fa) in runs.items():
+        scores = [det.run(features_from_result(r, det.features, estimator=est), fs=r.fs)[0] for r in res]
+        curves[name] = roc(scores, validation, kinds)
+        t = max(t, float(curves[name].at_false_alarm(fa)["threshold"]))
+    t = min(max(t, 1e-6), 1 - 1e-6)
     shift = math.log(slip_threshold / (1 - slip_threshold)) - math.log(t / (1 - t))
     w = copy.deepcopy(weights)
     w.params.b2[0] += shift
-    info = {"false_alarm": float(false_alarm), "validation": scenes, "threshold": t, "b2_shift": shift,
-            "validation_detection": float(pt["detection_rate"]),
-            "validation_false_alarm": float(pt["false_alarm_rate"])}
+    at = {name: c.at_threshold(t) for name, c in curves.items()}
+    info = {"validation": scenes, "threshold": t, "b2_shift": shift}
+    if conditions is None:
+        info.update({"false_alarm": float(false_alarm),
+                     "validation_detection": float(at["own noise"]["detection_rate"]),
+                     "validation_false_alarm": float(at["own noise"]["false_alarm_rate"])})
+    else:
+        info["conditions"] = {name: {"false_alarm_bound": runs[name][2],
+                                     "validation_detection": float(at[name]["detection_rate"]),
+                                     "validation_false_alarm": float(at[name]["false_alarm_rate"])}
+                              for name in runs}
+        info["noise_seed"] = int(seed)
     w.metadata["slip_calibration"] = info
+    return w, info
+
+
+def uncalibrate(weights):
+    """A copy of ``weights`` without the decision-point shift :func:`calibrate_slip` recorded
+    in ``metadata["slip_calibration"]`` (the net as trained), to calibrate it anew."""
+    import copy
+
+    w = copy.deepcopy(weights)
+    info = w.metadata.pop("slip_calibration", None)
+    if info is not None:
+        w.params.b2[0] -= float(info["b2_shift"])
+    return w
+
+
+def recalibrate(weights_path, out_path, conditions: dict, n_validation: int = 480, n_test: int = 200,
+                cache_dir=None, progress: bool = True):
+    """Calibrate a trained net's decision point anew (:func:`uncalibrate`, then
+    :func:`calibrate_slip` with ``conditions`` on ``n_validation`` validation scenes, seed
+    :data:`VALIDATION_SEED`), refresh its held-out evaluation record (``n_test`` scenes, seed
+    :data:`TEST_SEED`, as :func:`build_default` writes it) and save it to ``out_path``.
+    Returns ``(weights, info)``."""
+    from .weights import DetectorWeights
+
+    w = uncalibrate(DetectorWeights.load(weights_path))
+    val = simulate_cached(n_validation, VALIDATION_SEED, TEST_KWARGS, cache_dir, progress)
+    w, info = calibrate_slip(w, val, None, conditions=conditions,
+                             scenes=f"scenes.random({n_validation}, seed={VALIDATION_SEED}, **{TEST_KWARGS})")
+    test = simulate_cached(n_test, TEST_SEED, TEST_KWARGS, cache_dir, progress)
+    rep = evaluate(SlipDetector(w), test, {})
+    w.metadata["evaluation"] = dict(w.metadata.get("evaluation") or {},
+                                    scenes=f"scenes.random({n_test}, seed={TEST_SEED}, **{TEST_KWARGS})",
+                                    detector=rep["detector"].as_dict())
+    w.save(out_path)
     return w, info
 
 
@@ -346,6 +423,11 @@ class BuildOptions:
         After the selection, move ``y_slip``'s decision point so that ``y_slip >= 0.8``
         gives at most this false-alarm rate on the validation scenes
         (:func:`calibrate_slip`); None (default): no calibration.
+    calibrate_conditions : dict, optional
+        Instead of ``calibrate_fa``: false-alarm bounds per sensor condition (keys of
+        :data:`~tactile_mirror.detector.evaluate.NOISE_CONDITIONS`); the decision point is
+        the lowest that keeps the validation scenes within every bound in its condition
+        (:func:`calibrate_slip` with ``conditions``).
     """
 
     n_train: int = 64
@@ -370,6 +452,7 @@ class BuildOptions:
     n_extra_train: int = 0
     bank: dict | None = None
     calibrate_fa: float | None = None
+    calibrate_conditions: dict | None = None
 
     def __post_init__(self) -> None:
         def put(name, value):
@@ -413,6 +496,25 @@ class BuildOptions:
             if not self.selecting:
                 raise ValueError("calibrate_fa needs the validation scenes: candidates > 1 or checkpoint_every > 0")
             put("calibrate_fa", float(fa))
+        if self.calibrate_conditions is not None:
+            from .evaluate import NOISE_CONDITIONS
+
+            cc = self.calibrate_conditions
+            if not isinstance(cc, dict) or not cc:
+                raise ValueError(f"calibrate_conditions must be a non-empty dict, got {cc!r}")
+            if self.calibrate_fa is not None:
+                raise ValueError("give calibrate_fa or calibrate_conditions, not both")
+            for name, fa in cc.items():
+                if name not in NOISE_CONDITIONS:
+                    raise ValueError(f"calibrate_conditions: unknown condition {name!r}; "
+                                     f"known: {sorted(NOISE_CONDITIONS)}")
+                if isinstance(fa, bool) or not isinstance(fa, (int, float)) or not 0 < fa < 1:
+                    raise ValueError(f"calibrate_conditions[{name!r}] must be a false-alarm rate in (0, 1), "
+                                     f"got {fa!r}")
+            if not self.selecting:
+                raise ValueError("calibrate_conditions needs the validation scenes: candidates > 1 or "
+                                 "checkpoint_every > 0")
+            put("calibrate_conditions", {k: float(v) for k, v in cc.items()})
 
     @property
     def selecting(self) -> bool:
@@ -545,9 +647,9 @@ def _build(out_path, options: BuildOptions, report_path, figure_path, results, c
             "chosen_seed": int(tr_meta["seed"]), "chosen_iteration": int(tr_meta["iterations"]),
             "chosen_score": scores[k_best]}
         tr_meta["selection"] = dict(report["candidates"], seeds=int(candidates), fa_cost=10.0)
-    if o.calibrate_fa is not None:
+    if o.calibrate_fa is not None or o.calibrate_conditions is not None:
         w, report["slip_calibration"] = calibrate_slip(
-            w, val_res, o.calibrate_fa,
+            w, val_res, o.calibrate_fa, conditions=o.calibrate_conditions,
             scenes=f"scenes.random({n_validation}, seed={VALIDATION_SEED}, **{test_kwargs})")
     force = ForceRatioDetector.fit(train_res)
     det = SlipDetector(w)
@@ -583,6 +685,9 @@ def _build(out_path, options: BuildOptions, report_path, figure_path, results, c
 def main(argv=None):
     ap = argparse.ArgumentParser(description="Train and evaluate the default slip detector.")
     ap.add_argument("--out", required=True, help="weights file to write (.npz)")
+    ap.add_argument("--recalibrate", metavar="WEIGHTS", default=None,
+                    help="do not train: calibrate the net in WEIGHTS anew (--calibrate-goals, --n-validation) and "
+                         "write it to --out")
     ap.add_argument("--report", help="text report to write")
     ap.add_argument("--figure", help="Figure 10 image to write (.png)")
     ap.add_argument("--n-train", type=int, default=64)
@@ -606,6 +711,12 @@ def main(argv=None):
                     help="time constants of its shear-rate energy low-passes, s (none: no such channels)")
     ap.add_argument("--calibrate-fa", type=float, default=None, metavar="FA",
                     help="move y_slip's decision point to FA false alarms on the validation scenes (e.g. 0.02)")
+    ap.add_argument("--calibrate-goals", type=float, nargs=2, default=None, metavar=("FA_CLEAN", "FA_NOISY"),
+                    help="instead: the decision point that keeps the validation scenes within FA_CLEAN false alarms "
+                         "noise-free and FA_NOISY with 1 mV rms white noise and with the thermal floor + 2 mV hum "
+                         "(notched), e.g. 0.015 0.025")
+    ap.add_argument("--n-validation", type=int, default=120,
+                    help=f"validation scenes (seed {VALIDATION_SEED}) for the choice among candidates and the calibration")
     ap.add_argument("--noise-range", type=float, nargs=2, default=list(NOISE_RANGE), metavar=("LOW", "HIGH"),
                     help="range of the training noise copies' sensor noise, V rms")
     args = ap.parse_args(argv)
@@ -618,10 +729,24 @@ def main(argv=None):
             bank["lp_taus"] = list(args.lp_taus)
         if args.abs_taus is not None:
             bank["abs_taus"] = list(args.abs_taus)
+    goals = None
+    if args.calibrate_goals is not None:
+        from .evaluate import NOISE_CONDITIONS
+
+        clean_fa, noisy_fa = args.calibrate_goals
+        goals = {name: (clean_fa if name == "noise-free" else noisy_fa) for name in NOISE_CONDITIONS}
+    if args.recalibrate is not None:
+        if goals is None:
+            ap.error("--recalibrate needs --calibrate-goals")
+        _w, info = recalibrate(args.recalibrate, args.out, goals, _positive_int("n_validation", args.n_validation),
+                               _positive_int("n_test", args.n_test), args.cache)
+        print(json.dumps(info, indent=1))
+        return
     options = BuildOptions(n_train=args.n_train, n_test=args.n_test, n_hidden=args.hidden, maxiter=args.maxiter,
                            bank=bank, study_sizes=args.study or None, kind=args.kind, candidates=args.candidates,
                            n_extra_train=args.extra_train, checkpoint_every=args.checkpoint_every,
                            noise_range=tuple(args.noise_range), calibrate_fa=args.calibrate_fa,
+                           calibrate_conditions=goals, n_validation=args.n_validation,
                            train_options={"negative_weight": args.negative_weight, "pred_weight": args.pred_weight,
                                           "normalisation": args.normalisation})
     extra = {} if args.cache is None else {"cache_dir": args.cache}

@@ -33,8 +33,69 @@ import numpy as np
 
 from .data_prep import features_from_result, targets_from_result
 
-__all__ = ["DetectionMetrics", "EvaluationReport", "ForceRatioDetector", "RocCurve", "analyse_sequence",
-           "detection_by_onset", "evaluate", "onset_kinds", "roc", "sequence_extremes"]
+__all__ = ["NOISE_CONDITIONS", "DetectionMetrics", "EvaluationReport", "ForceRatioDetector", "RocCurve",
+           "analyse_sequence", "condition_estimator", "detection_by_onset", "evaluate", "noise_free", "onset_kinds",
+           "roc", "sequence_extremes", "with_noise"]
+
+#: The sensor conditions the detectors are evaluated in: name -> (white noise on ``v_out`` and
+#: ``u_out``, V rms; mains hum at ``v_out``, V rms of the 50 Hz fundamental with harmonics over the
+#: circuit's thermal floor (:class:`~tactile_mirror.noise.SensorNoise`), or None; the estimator's
+#: notch frequencies, Hz, or None). Applied to noise-free outputs (:func:`noise_free`).
+NOISE_CONDITIONS = {
+    "noise-free": (0.0, None, None),
+    "1 mV rms white": (1e-3, None, None),
+    "thermal + 2 mV 50 Hz hum, notch": (0.0, 2e-3, (50.0, 100.0, 150.0)),
+}
+
+
+def noise_free(results) -> list:
+    """Copies of simulation results with noise-free circuit outputs: their strip stresses through
+    their own circuit (a scene's own sensor noise removed)."""
+    import dataclasses
+
+    out = []
+    for r in results:
+        v, u = r.scene.circuit.simulate(r.stress, r.fs)
+        out.append(dataclasses.replace(r, v_out=v, u_out=u))
+    return out
+
+
+def with_noise(results, condition: str, seed: int) -> list:
+    """Copies of ``results`` with the noise of ``condition`` (a key of :data:`NOISE_CONDITIONS`)
+    added to ``v_out`` / ``u_out``, seeded per scene by ``(seed, index)``. Give it
+    :func:`noise_free` results to evaluate in that condition alone."""
+    import dataclasses
+
+    from ..noise import SensorNoise
+
+    if condition not in NOISE_CONDITIONS:
+        raise ValueError(f"condition must be one of {sorted(NOISE_CONDITIONS)}, got {condition!r}")
+    white, hum, _ = NOISE_CONDITIONS[condition]
+    out = []
+    for k, r in enumerate(results):
+        rng = np.random.default_rng([seed, k])
+        v, u = np.asarray(r.v_out), np.asarray(r.u_out)
+        if white:
+            v = v + rng.normal(0.0, white, v.shape)
+            u = u + rng.normal(0.0, white, u.shape)
+        if hum is not None:
+            v, u = SensorNoise(circuit=r.scene.circuit, hum=hum).apply(v, u, r.fs, seed=rng)
+        out.append(dataclasses.replace(r, v_out=v, u_out=u))
+    return out
+
+
+def condition_estimator(detector, condition: str) -> dict:
+    """The stress-rate estimator settings ``detector`` runs with in ``condition``: its own, plus
+    the condition's mains notch."""
+    from .data_prep import DEFAULT_ESTIMATOR
+
+    if condition not in NOISE_CONDITIONS:
+        raise ValueError(f"condition must be one of {sorted(NOISE_CONDITIONS)}, got {condition!r}")
+    est = dict(detector.metadata.get("estimator") or DEFAULT_ESTIMATOR)
+    notch = NOISE_CONDITIONS[condition][2]
+    if notch is not None:
+        est["notch"] = notch
+    return est
 
 
 @dataclass
