@@ -196,6 +196,10 @@ def test_paper_scene_prepares_pieces_every_way():
     # not refactored (one factorisation per kMaxBorder / 2 added nodes would be about
     # 20 for the press alone; fig6 needs 15 in all, 33 without the extensions)
     assert k.factorizations < 20
+    # the active-set steps and cascade rounds of one load point border one base with one
+    # right-hand side: its base solve is served by the kept one (the equality tests above
+    # check that the reused solution is the fresh one's)
+    assert k.rhs_reuses > 0
 
 
 @pytest.mark.parametrize("stepping", ["auto", "every"])

@@ -203,6 +203,9 @@ void tm_bind_contact(py::module_& m) {
                                "piece LU factorisations since construction")
         .def_property_readonly("affine_steps", [](const PyContact& c) { return c.view().affine_steps(); },
                                "piece solves served by the affine response of an unchanged piece")
+        .def_property_readonly("rhs_reuses", [](const PyContact& c) { return c.view().rhs_reuses(); },
+                               "base solves of a load's right-hand side served by the previous one (the "
+                               "iterations of one load point)")
         .def_property_readonly("updates", [](const PyContact& c) { return c.view().updates(); },
                                "pieces solved by bordering the factored base piece instead of refactoring")
         .def("set_params",
