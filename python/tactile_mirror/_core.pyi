@@ -466,6 +466,9 @@ class _ContactSolver:
     def affine_steps(self) -> int:
         """Piece solves served by the affine response of an unchanged piece."""
     @property
+    def rhs_reuses(self) -> int:
+        """Base solves of a load's right-hand side served by the previous one (the iterations of one load point)."""
+    @property
     def updates(self) -> int:
         """Pieces solved by bordering the factored base piece instead of refactoring."""
     def set_params(
