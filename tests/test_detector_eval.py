@@ -360,6 +360,8 @@ def test_calibration_per_condition_keeps_every_condition_within_its_bound(paper_
     assert w.params.b2[0] == raw.params.b2[0] + info["b2_shift"]
     with pytest.raises(ValueError, match="unknown condition"):
         calibrate_slip(raw, val, None, conditions={"2 mV": 0.01})
+    with pytest.raises(ValueError, match="noise-free"):
+        calibrate_slip(raw, val, None, conditions={"noise-free": True})
     with pytest.raises(ValueError, match="false_alarm or conditions"):
         calibrate_slip(raw, val, None)
     assert set(NOISE_CONDITIONS) >= set(bounds)

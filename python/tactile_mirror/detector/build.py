@@ -275,7 +275,7 @@ def calibrate_slip(weights, validation, false_alarm: float | None, slip_threshol
         for k, (name, fa) in enumerate(conditions.items()):
             if name not in NOISE_CONDITIONS:
                 raise ValueError(f"conditions: unknown condition {name!r}; known: {sorted(NOISE_CONDITIONS)}")
-            if not (isinstance(fa, (int, float)) and 0 <= fa < 1):
+            if isinstance(fa, bool) or not (isinstance(fa, (int, float)) and 0 <= fa < 1):
                 raise ValueError(f"conditions[{name!r}] must be a false-alarm rate in [0, 1), got {fa!r}")
             res = clean if NOISE_CONDITIONS[name] == (0.0, None, None) else with_noise(clean, name, seed + k)
             runs[name] = (res, condition_estimator(det, name), float(fa))
