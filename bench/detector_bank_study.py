@@ -74,7 +74,7 @@ def main(argv=None):
     sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
     from _common import study_training_scenes
     from tactile_mirror.detector.evaluate import noise_free as clean
-    from detector_roc import with_noise
+    from tactile_mirror.detector.evaluate import with_noise
     from sklearn.ensemble import HistGradientBoostingClassifier
     from tactile_mirror.detector import build
     from tactile_mirror.detector.data_prep import features_from_result, targets_from_result

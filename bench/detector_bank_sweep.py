@@ -51,7 +51,7 @@ def main(argv=None):
     from _common import study_training_scenes
     from detector_heldout import table_rows
     from tactile_mirror.detector.evaluate import noise_free as clean
-    from detector_roc import with_noise
+    from tactile_mirror.detector.evaluate import with_noise
     from tactile_mirror.detector import SlipDetector, build
     from tactile_mirror.detector.data_prep import features_from_result
     from tactile_mirror.detector.evaluate import onset_kinds

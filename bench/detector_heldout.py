@@ -28,7 +28,7 @@ os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
 import numpy as np
 
 CONDITIONS = ("noise-free", "1 mV rms white")
-#: The third condition of ``--hum`` (``detector_roc.CONDITIONS``: the circuit's thermal floor, 2 mV of
+#: The third condition of ``--hum`` (``detector.evaluate.NOISE_CONDITIONS``: the circuit's thermal floor, 2 mV of
 #: 50 Hz hum with harmonics, the estimator's notch at 50, 100, 150 Hz).
 HUM = "thermal + 2 mV 50 Hz hum, notch"
 
@@ -95,7 +95,9 @@ def main(argv=None):
     args = ap.parse_args(argv)
     sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
     from _common import header
-    from detector_roc import bound_scores, estimator_of, with_noise
+    from detector_roc import bound_scores
+    from tactile_mirror.detector.evaluate import NOISE_CONDITIONS, with_noise
+    from tactile_mirror.detector.evaluate import condition_estimator as estimator_of
     from tactile_mirror.detector.evaluate import noise_free as clean
     from tactile_mirror.detector import SlipDetector, build
     from tactile_mirror.detector.data_prep import features_from_result
@@ -148,10 +150,8 @@ def main(argv=None):
                 rows.append(table_rows(f"filter-bank net, y_slip >= {thr:.3f}",
                                        [((ys >= thr).astype(float), yp) for ys, yp in outs], test, kinds, cond))
         if args.bound:
-            from detector_roc import CONDITIONS as RC
-
             cond_key = cond
-            assert cond_key in RC
+            assert cond_key in NOISE_CONDITIONS
             noisy_train = clean(train)
             if cond != "noise-free":
                 noisy_train = with_noise(noisy_train, cond_key, seed=2000 + ci)

@@ -54,8 +54,7 @@ os.environ.setdefault("OMP_NUM_THREADS", "1")
 os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
 
 import numpy as np
-from tactile_mirror.detector.evaluate import NOISE_CONDITIONS, with_noise
-from tactile_mirror.detector.evaluate import condition_estimator as estimator_of
+from tactile_mirror.detector.evaluate import NOISE_CONDITIONS, condition_estimator, with_noise
 
 #: Seed of the held-out scenes of this study (disjoint from every seed the build uses).
 ROC_SEED = 5150
@@ -97,15 +96,13 @@ def simulated(n_test: int, n_train: int, cache: str | None):
     return test, train
 
 
-#: Noise conditions: name -> (white noise V rms, SensorNoise hum V rms or None, estimator notch Hz or None).
-CONDITIONS = NOISE_CONDITIONS
 FA_POINTS = (0.02, 0.03)
 
 
 def net_scores(detector, results, condition: str) -> list:
     from tactile_mirror.detector.data_prep import features_from_result
 
-    est = estimator_of(detector, condition)
+    est = condition_estimator(detector, condition)
     return [detector.run(features_from_result(r, detector.features, estimator=est), fs=r.fs)[0] for r in results]
 
 
@@ -137,11 +134,9 @@ def bound_features(results, condition: str):
     from types import SimpleNamespace
 
     from detector_bound import window_features
-    from tactile_mirror.detector.data_prep import DEFAULT_ESTIMATOR, features_from_result
+    from tactile_mirror.detector.data_prep import features_from_result
 
-    est = dict(DEFAULT_ESTIMATOR)
-    if CONDITIONS[condition][2] is not None:
-        est["notch"] = CONDITIONS[condition][2]
+    est = condition_estimator(None, condition)
     out = []
     for r in results:
         x = features_from_result(r, "stress_rate", estimator=est)
@@ -232,7 +227,7 @@ def main(argv=None):
     force = ForceRatioDetector(1.0)
     force_scores = [force.ratio(r) for r in test]
     curves = {}
-    for ci, cond in enumerate(CONDITIONS):
+    for ci, cond in enumerate(NOISE_CONDITIONS):
         noisy_test = with_noise(test, cond, seed=1000 + ci)
         noisy_train = with_noise(train + extra, cond, seed=2000 + ci)
         curves[cond] = {
@@ -279,7 +274,7 @@ def main(argv=None):
     out = args.out
     write_text(out + ".md", md)
     write_json(out + ".json", {"settings": {"n_scenes": len(test), "n_train_scenes": len(train), "roc_seed": ROC_SEED,
-                                            "conditions": {k: list(map(str, v)) for k, v in CONDITIONS.items()},
+                                            "conditions": {k: list(map(str, v)) for k, v in NOISE_CONDITIONS.items()},
                                             "mlp_maxiter": MLP_MAXITER, "environment": env},
                                "curves": {cond: {n: c.as_dict() for n, c in cs.items()}
                                           for cond, cs in curves.items()}})

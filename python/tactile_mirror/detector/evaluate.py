@@ -85,13 +85,14 @@ def with_noise(results, condition: str, seed: int) -> list:
 
 
 def condition_estimator(detector, condition: str) -> dict:
-    """The stress-rate estimator settings ``detector`` runs with in ``condition``: its own, plus
-    the condition's mains notch."""
+    """The stress-rate estimator settings ``detector`` runs with in ``condition``: its own (the
+    default estimator's for ``detector`` None), plus the condition's mains notch."""
     from .data_prep import DEFAULT_ESTIMATOR
 
     if condition not in NOISE_CONDITIONS:
         raise ValueError(f"condition must be one of {sorted(NOISE_CONDITIONS)}, got {condition!r}")
-    est = dict(detector.metadata.get("estimator") or DEFAULT_ESTIMATOR)
+    own = detector.metadata.get("estimator") if detector is not None else None
+    est = dict(own or DEFAULT_ESTIMATOR)
     notch = NOISE_CONDITIONS[condition][2]
     if notch is not None:
         est["notch"] = notch
