@@ -32,14 +32,14 @@
 // their compliance products; so is the last base solve of a load's right-hand side,
 // which the active-set steps and breakaway-cascade rounds of one load point share
 // (reused when base and right-hand side are bitwise the same: the same bits as a
-// fresh solve; about a tenth of a gross slip's cost). No iterative refinement: the bordered solves agree with
-// the reference's fresh LAPACK factorisations as closely as the reference's two
-// stepping modes agree with each other (tests/test_contact_cpp.py). A piece's
-// displacements come from its own equations where they fix them (piece_displacement:
-// only the open nodes and the sliding nodes' u_y take dot products with C). Within one
-// piece the response is affine in the plate position; the active-set iteration of the
-// breakaway cascade serves a piece met a third time from its reference solution and
-// unit responses in O(n) (piece_response).
+// fresh solve; about a tenth of a gross slip's cost). No iterative refinement: the
+// bordered solves agree with the reference's fresh LAPACK factorisations as closely as
+// the reference's two stepping modes agree with each other (tests/test_contact_cpp.py).
+// A piece's displacements come from its own equations where they fix them
+// (piece_displacement: only the open nodes and the sliding nodes' u_y take dot products
+// with C). Within one piece the response is affine in the plate position; the
+// active-set iteration of the breakaway cascade serves a piece met a third time from its
+// reference solution and unit responses in O(n) (piece_response).
 #pragma once
 
 #include <cmath>
@@ -1500,12 +1500,8 @@ public:
     // Factor the piece (state, slip_coef_) as the new base, no border.
     int refactor_piece(const std::int8_t* state) noexcept {
         const std::size_t n = n_;
-        lu_valid_ = false;
         ++piece_id_;
-        nB_ = 0;
-        n_cached_ = 0;  // cached M0^-1 V columns belong to the old base
-        zunit_valid_[0] = zunit_valid_[1] = false;
-        rhs_valid_ = false;
+        base_changing();
         std::size_t m = 0;
         for (std::size_t i = 0; i < n; ++i) pos_ln_[i] = pos_lt_[i] = -1;
         for (std::size_t i = 0; i < n; ++i)
@@ -1627,14 +1623,13 @@ public:
             // The iterations of one point (the active-set steps of a solve, the rounds of a
             // breakaway cascade) border the same base with the same right-hand side: its
             // base solve is kept and reused while both are unchanged (the same bits)
-            if (rhs_valid_ && rhs_m_ == m && std::memcmp(rhs_in_.data(), b, m * sizeof(double)) == 0) {
+            if (rhs_valid_ && std::memcmp(rhs_in_.data(), b, m * sizeof(double)) == 0) {
                 copy(rhs_out_.data(), z, m);
                 ++n_rhs_reused_;
             } else {
                 copy(b, rhs_in_.data(), m);
                 lu_solve(M_.data(), m, n2_, piv_.data(), z);
                 copy(z, rhs_out_.data(), m);
-                rhs_m_ = m;
                 rhs_valid_ = true;
             }
         }
@@ -1758,6 +1753,17 @@ private:
     static constexpr std::size_t kMaxBorder = 16;
     static constexpr std::size_t kColCache = 2 * kMaxBorder;
     struct CachedCol { std::uint8_t kind; std::size_t node; std::size_t pos; double coef; };
+
+    // The base factors are about to change (refactor_piece, extend_base): they are not valid
+    // until the change succeeds, and the border and every solve kept with the old base (the
+    // M0^-1 V columns, the unit and load right-hand sides' base solves) are forgotten.
+    void base_changing() noexcept {
+        lu_valid_ = false;
+        nB_ = 0;
+        n_cached_ = 0;
+        zunit_valid_[0] = zunit_valid_[1] = false;
+        rhs_valid_ = false;
+    }
 
     std::size_t eq_row(std::size_t k) const noexcept {  // C row of base equation k
         return bkind_[k] ? bnode_[k] : n_ + bnode_[k];
@@ -1925,11 +1931,7 @@ private:
             base_coef_[i] = slip_coef_[i];
         }
         // from here on the base is changed: a failure must refactor
-        lu_valid_ = false;
-        nB_ = 0;
-        n_cached_ = 0;
-        zunit_valid_[0] = zunit_valid_[1] = false;
-        rhs_valid_ = false;
+        base_changing();
         double* M = M_.data();
         // Y: the new columns over the base equations, through P0 and L0, in chunks of
         // kMaxBorder columns gathered into vnew_
@@ -2091,7 +2093,6 @@ private:
     bool zunit_valid_[2] = {false, false};  // base solves of the unit right-hand sides (solve_prepared)
     // the last base solve of a load's right-hand side (solve_bordered): input and solution
     std::vector<double> rhs_in_, rhs_out_;
-    std::size_t rhs_m_ = 0;
     bool rhs_valid_ = false;
     long n_rhs_reused_ = 0;
     std::vector<std::int8_t> ukey_state_, ev_kind_, prev_state_, sv_state_;
