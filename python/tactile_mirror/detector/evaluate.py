@@ -27,7 +27,7 @@ the curve is exact at every threshold. At ``c = 0.8`` on ``y_slip`` it gives
 """
 from __future__ import annotations
 
-from dataclasses import asdict, dataclass
+from dataclasses import asdict, dataclass, replace
 
 import numpy as np
 
@@ -48,15 +48,20 @@ NOISE_CONDITIONS = {
 }
 
 
+def _noise_condition(condition: str) -> tuple:
+    """The entry of :data:`NOISE_CONDITIONS` for ``condition``; ValueError naming it if unknown."""
+    if condition not in NOISE_CONDITIONS:
+        raise ValueError(f"condition must be one of {sorted(NOISE_CONDITIONS)}, got {condition!r}")
+    return NOISE_CONDITIONS[condition]
+
+
 def noise_free(results) -> list:
     """Copies of simulation results with noise-free circuit outputs: their strip stresses through
     their own circuit (a scene's own sensor noise removed)."""
-    import dataclasses
-
     out = []
     for r in results:
         v, u = r.scene.circuit.simulate(r.stress, r.fs)
-        out.append(dataclasses.replace(r, v_out=v, u_out=u))
+        out.append(replace(r, v_out=v, u_out=u))
     return out
 
 
@@ -64,13 +69,9 @@ def with_noise(results, condition: str, seed: int) -> list:
     """Copies of ``results`` with the noise of ``condition`` (a key of :data:`NOISE_CONDITIONS`)
     added to ``v_out`` / ``u_out``, seeded per scene by ``(seed, index)``. Give it
     :func:`noise_free` results to evaluate in that condition alone."""
-    import dataclasses
-
     from ..noise import SensorNoise
 
-    if condition not in NOISE_CONDITIONS:
-        raise ValueError(f"condition must be one of {sorted(NOISE_CONDITIONS)}, got {condition!r}")
-    white, hum, _ = NOISE_CONDITIONS[condition]
+    white, hum, _ = _noise_condition(condition)
     out = []
     for k, r in enumerate(results):
         rng = np.random.default_rng([seed, k])
@@ -80,7 +81,7 @@ def with_noise(results, condition: str, seed: int) -> list:
             u = u + rng.normal(0.0, white, u.shape)
         if hum is not None:
             v, u = SensorNoise(circuit=r.scene.circuit, hum=hum).apply(v, u, r.fs, seed=rng)
-        out.append(dataclasses.replace(r, v_out=v, u_out=u))
+        out.append(replace(r, v_out=v, u_out=u))
     return out
 
 
@@ -89,11 +90,9 @@ def condition_estimator(detector, condition: str) -> dict:
     default estimator's for ``detector`` None), plus the condition's mains notch."""
     from .data_prep import DEFAULT_ESTIMATOR
 
-    if condition not in NOISE_CONDITIONS:
-        raise ValueError(f"condition must be one of {sorted(NOISE_CONDITIONS)}, got {condition!r}")
+    notch = _noise_condition(condition)[2]
     own = detector.metadata.get("estimator") if detector is not None else None
     est = dict(own or DEFAULT_ESTIMATOR)
-    notch = NOISE_CONDITIONS[condition][2]
     if notch is not None:
         est["notch"] = notch
     return est
