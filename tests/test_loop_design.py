@@ -161,9 +161,8 @@ def test_velocity_integral_removes_the_speed_error_of_a_ramp():
 def fem_fast_run():
     """One closed-loop run of the default law on the FEM pad, on a path faster than any tuning
     path (tuning: peak 20 mm/s, <= 0.30 m/s^2, 1.5 Hz band; this one: 25 mm/s, 0.14 m/s^2,
-    1 Hz band, seed 5000, in neither the tuning nor the reported set). The law's limit is the
-    finger's acceleration, not its speed (the reported envelope slips at 20 mm/s on paths
-    reaching 0.33 m/s^2)."""
+    1 Hz band, seed 5000, in neither the tuning nor the reported set). The type-2 law's error
+    follows the finger's acceleration, not its speed."""
     from tactile_mirror.loop.experiment import _weights_dict, calibrate_shear, default_weights
     from tactile_mirror.loop.scene import LoopScene, run_scene
 
@@ -343,3 +342,97 @@ def test_calibrated_shear_signal_stays_monotonic_beyond_the_plain_difference():
         d_plain, d_cal = monotonic_to(sign, plain), monotonic_to(sign, sw)
         assert d_plain < 0.045e-3          # L - R turns back early (about 0.03 mm)
         assert d_cal > 1.5 * d_plain and d_cal > 0.06e-3
+
+
+def _planned(ctrl, v_law, lag=0.0, delay=0.0):
+    """The law's positions for the speeds v_law (m/s per tick) and the simulated stage's
+    positions when it is sent ``ctrl.command`` each tick."""
+    from tactile_mirror.loop import SimulatedStage
+
+    stage = SimulatedStage(STAGE, delay=delay, lag=lag, x0=-0.019)
+    st = ctrl._start(-0.019)
+    xs, ps = np.empty(v_law.size), np.empty(v_law.size)
+    for k, v in enumerate(v_law):
+        st.v = float(v)
+        st.x += st.v / FS
+        stage.move_to(ctrl.command(st, FS))
+        xs[k], ps[k] = st.x, stage.advance(1.0 / FS)
+    return xs, ps
+
+
+def test_planner_lead_makes_a_planning_stage_follow_the_law():
+    # A stage whose move command plans a braking move to each target (SimulatedStage) trails a
+    # target moving at v by v^2 / (2 a_max); led by the braking distance it moves with the law.
+    t = np.arange(1500) / FS
+    v = np.minimum(0.5 * t, 0.02) * (t < 1.2) + np.maximum(0.02 - 0.5 * (t - 1.2), 0.0) * (t >= 1.2)
+    plain = VelocityController()  # planner_decel 0: the command is the law's position
+    led = VelocityController(planner_decel=STAGE.a_max)
+    x0, p0 = _planned(plain, v)
+    x1, p1 = _planned(led, v)
+    cruise = (t > 0.1) & (t < 1.15)
+    assert np.mean((x0 - p0)[cruise]) == pytest.approx(0.02**2 / (2 * STAGE.a_max), rel=0.1)  # 0.2 mm behind
+    assert np.max(np.abs(x1 - p1)) < 1e-6    # with the lead: within 1 um everywhere (a tick's motion: 20 um)
+    assert np.max(np.abs(x1 - p1)[cruise]) < 1e-9
+    # the design sets the lead from the stage's own a_max (its data sheet), or none for a streaming stage
+    assert design().controller.planner_decel == STAGE.a_max
+    assert design(planner=False).controller.planner_decel == 0.0
+
+
+def test_planner_lead_restores_the_designed_stage_phase_at_speed():
+    # Small-signal response of the simulated stage (1 ms dead time, 2 ms lag) around 20 mm/s at the
+    # loop's crossover (25 Hz): without the lead the planner adds ~55 degrees, with it the stage is
+    # its data sheet's delay and lag (the design's G).
+    f = 25.0
+    t = np.arange(1600) / FS  # 30 mm of travel: within the stage's 40
+    base = np.minimum(0.5 * t, 0.02)
+    wob = 2e-6 * 2 * np.pi * f * np.cos(2 * np.pi * f * t) * (t > 0.3)   # a 2 um sine in position
+    model = np.exp(-1j * 2 * np.pi * f * 0.001) / (1 + 1j * 2 * np.pi * f * 0.002)
+    phases = []
+    for ctrl in (VelocityController(), VelocityController(planner_decel=STAGE.a_max)):
+        x, p = _planned(ctrl, base + wob, lag=0.002, delay=0.001)
+        m = t > 0.6
+        xb = -0.019 + np.cumsum(base) / FS
+        r_in, r_out = (x - xb)[m], (p - xb)[m]
+        r_out = r_out - np.polyval(np.polyfit(t[m], r_out, 1), t[m])
+        c = np.exp(-2j * np.pi * f * t[m])
+        phases.append(np.angle((r_out * c).sum() / (r_in * c).sum() / model, deg=True))
+    assert phases[0] < -35      # the planner's own lag at 20 mm/s
+    assert abs(phases[1]) < 6   # led: the design's stage model (measured 4 deg: the lag's discretisation)
+
+
+def test_planner_decel_is_checked_and_carried_by_the_c_abi():
+    from tactile_mirror.loop.capi import CAPIError, CPipeline, load
+
+    with pytest.raises(ValueError, match="planner_decel"):
+        VelocityController(planner_decel=-1.0)
+    with pytest.raises(ValueError, match="planner_decel"):
+        _pipe({"kind": "velocity", "planner_decel": float("nan")})
+    with pytest.raises(TypeError, match="planner"):
+        design(planner=1)
+    ffi, lib = load()
+    assert lib.tm_abi_version() >= 7
+    c = dataclasses.replace(design(calibration=(1.0, 2e3)).controller, arm_delay=0.05, v_max=0.004, a_max=0.2,
+                            planner_decel=0.05)
+    pipe = _pipe(c)
+    x = _signals(800, pipe.n_inputs)
+    out = pipe.process_block(x)[0]
+    assert pipe.controller_state["command"] == out[-1, 0]
+    no_lead = _pipe(dataclasses.replace(c, planner_decel=0.0)).process_block(x)[0]
+    assert np.max(np.abs(out[:, 0] - no_lead[:, 0])) > 1e-5 and np.array_equal(out[:, 1], no_lead[:, 1])
+    ref = ReferencePipeline(pipe.config).process_block(x)
+    np.testing.assert_allclose(out[:, :2], ref[:, :2], rtol=1e-9, atol=1e-12)
+    with CPipeline(pipe.config) as cp:  # through tm.h: bit for bit
+        assert np.array_equal(cp.process_block(x)[0].view(np.uint64), out.view(np.uint64))
+    # an ABI-6 program (tm_config ending before planner_decel) gets no lead, whatever lies beyond
+    cfg = ffi.new("tm_config*")
+    assert lib.tm_config_init(cfg) == 0 and cfg.planner_decel == 0.0 and cfg.abi_version == 7
+    cfg.planner_decel = -5.0  # beyond the ABI-6 struct: not read
+    cfg.struct_size = ffi.offsetof("tm_config", "planner_decel")
+    cfg.abi_version = 6
+    h = ffi.new("tm_pipeline*")
+    assert lib.tm_pipeline_create(cfg, h) == lib.TM_ERR_ARGUMENT  # accepted; fails on the missing weights
+    assert b"weights_fs" in ffi.string(lib.tm_last_error())
+    # through tm.h a bad value is refused, naming it
+    bad = {**pipe.config, "controller": {**pipe.config["controller"], "planner_decel": -5.0}}
+    with pytest.raises(CAPIError, match="planner_decel"):
+        CPipeline(bad)

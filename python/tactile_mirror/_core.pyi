@@ -299,10 +299,16 @@ class _ControllerParams(TypedDict, total=False):
     ramp_gain: float
     pred_boost: float
     slip_hold: float
+    shear_integral: float
+    rate_gain: float
+    slip_confirm: float
+    slip_min_asym: float
+    planner_decel: float
 
 @type_check_only
 class _ControllerState(TypedDict):
     position: float
+    command: float
     velocity: float
     asymmetry: float
     direction: float

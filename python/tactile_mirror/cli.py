@@ -306,7 +306,8 @@ def cmd_loop_design(args) -> int:
     w = _weights(weights)
     sw = calibrate_shear_weights(w, args.fs, 6, plant="fem")
     cal = calibrate_shear(w, args.fs, 6, plant="fem", shear_weights=sw)
-    d = design_loop(limits, cal, args.fs, stage_delay=args.delay * 1e-3, stage_lag=args.lag * 1e-3, shear_weights=sw)
+    d = design_loop(limits, cal, args.fs, stage_delay=args.delay * 1e-3, stage_lag=args.lag * 1e-3, shear_weights=sw,
+                    planner=not args.streaming)
     out = pathlib.Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
     design_figure(d, str(out / "loop_design.png"))
@@ -455,6 +456,9 @@ def build_parser() -> argparse.ArgumentParser:
         q.set_defaults(func=func)
         if name == "design":
             q.add_argument("--fs", type=_positive(float), default=1000.0, help="tick rate, Hz (default: 1000)")
+            q.add_argument("--streaming", action="store_true",
+                           help="the stage follows streamed set points (default: its move command plans a braking "
+                                "move to each target at --a-max, and the command leads by the braking distance)")
         else:
             from .loop.envelope import _LAWS, CONDITIONS
 

@@ -409,7 +409,9 @@ class MirrorPipeline:
 
     @property
     def controller_state(self) -> dict:
-        """``position`` (m), ``velocity`` (m/s), ``asymmetry`` and ``direction``."""
+        """``position`` (the law's, m), ``command`` (what goes to the stage: the position led by the
+        braking distance of a planning stage, ``planner_decel``; m), ``velocity`` (m/s), ``asymmetry``
+        and ``direction``."""
         return self._core.controller_state
 
     def reset(self, x0: float = 0.0) -> None:
@@ -514,7 +516,7 @@ class ReferencePipeline:
                 ypred = 0.0
             if self.ctrl.kind != "none":
                 self.ctrl._tick(self.law, ypred, 0.0, fault, self.slip, c["fs"])
-        self.x, self.v = self.law.x, self.law.v
+        self.x, self.v = self.ctrl.command(self.law, c["fs"]), self.law.v
         self.out[0] = self.x
         self.out[1] = self.v
         return self.out.copy()

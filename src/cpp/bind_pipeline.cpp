@@ -344,6 +344,7 @@ void bind_one(py::module_& m, const char* cls) {
                                    const auto& c = s.p->controller();
                                    py::dict d;
                                    d["position"] = c.position();
+                                   d["command"] = c.command();
                                    d["velocity"] = c.velocity();
                                    d["asymmetry"] = c.asymmetry();
                                    d["direction"] = c.direction();

@@ -62,6 +62,12 @@
 // lasted slip_confirm and while |a| >= slip_min_asym; a type-2 integral at v_max (a
 // run-away) starts it at once.
 //
+// Command (both laws): the law's position x, or, with planner_decel = d > 0 (a stage whose
+// move command plans a braking move to the target, at its deceleration d), x led by the
+// braking distance sign(v) max(0, v^2 / (2 d) - |v| dt / 2): such a planner then moves its
+// set point at the law's speed v instead of trailing by v^2 / (2 d) with a lag |v| / d
+// (StageController::command). Clipped to the travel.
+//
 // Arming (both laws): for the first arm_delay seconds after a reset the command holds
 // (the finger settles on the pad); at the end the asymmetry integrator is zeroed, so the
 // shear of the settled contact is the reference (a tare).
@@ -132,10 +138,20 @@ inline const char* controller_name(ControllerKind k) noexcept {
     X(slip_confirm, 0.0, 3, "s, >= 0: a detected slip starts the slip guard once it lasted this long (0 = at once)") \
     X(slip_min_asym, 0.0, 3, ">= 0: a detected slip starts the slip guard only while |asymmetry| >= this (0 = always)")
 
+// Parameters added after tm_controller_params stopped being the last member of tm_config
+// (ABI 5 appended fields behind it): the C ABI carries these as fields of tm_config itself,
+// appended at its end, so that every older layout stays valid. Everywhere else (the
+// pipeline, the bindings, the Python dataclasses) they are controller parameters like the
+// others.
+#define TM_CONTROLLER_TAIL_FIELDS(X)                                                                      \
+    X(planner_decel, 0.0, 3, "m/s^2, >= 0: the stage plans a braking move to each target at this rate; the command leads by the braking distance (0 = the stage follows the command)")
+
+#define TM_CONTROLLER_ALL_FIELDS(X) TM_CONTROLLER_FIELDS(X) TM_CONTROLLER_TAIL_FIELDS(X)
+
 struct ControllerParams {
     ControllerKind kind = ControllerKind::none;
 #define TM_CONTROLLER_MEMBER(name, def, laws, doc) double name = def;
-    TM_CONTROLLER_FIELDS(TM_CONTROLLER_MEMBER)
+    TM_CONTROLLER_ALL_FIELDS(TM_CONTROLLER_MEMBER)
 #undef TM_CONTROLLER_MEMBER
 };
 
@@ -159,7 +175,7 @@ struct ControllerField {
 };
 inline const ControllerField* controller_fields(std::size_t* n) noexcept {
 #define TM_CONTROLLER_ENTRY(name, def, laws, doc) {#name, &ControllerParams::name, laws, doc},
-    static const ControllerField fields[] = {TM_CONTROLLER_FIELDS(TM_CONTROLLER_ENTRY)};
+    static const ControllerField fields[] = {TM_CONTROLLER_ALL_FIELDS(TM_CONTROLLER_ENTRY)};
 #undef TM_CONTROLLER_ENTRY
     *n = sizeof fields / sizeof fields[0];
     return fields;
@@ -354,6 +370,7 @@ inline void validate_controller(const ControllerParams& c) {
     if (!(c.rate_gain >= 0.0)) bad("rate_gain", "must be >= 0 (m/s per unit of stress rate)");
     if (!(c.slip_confirm >= 0.0 && c.slip_confirm <= 3600.0)) bad("slip_confirm", "must lie in [0, 3600] s");
     if (!(c.slip_min_asym >= 0.0)) bad("slip_min_asym", "must be >= 0 (rate units x s)");
+    if (!(c.planner_decel >= 0.0)) bad("planner_decel", "must be >= 0 (m/s^2; 0 = off)");
 }
 
 // The detector's inputs per ridge (without the fed-back y_pred); 0 for an unknown kind.
@@ -552,6 +569,22 @@ public:
     }
     double position() const noexcept { return x_; }
     double velocity() const noexcept { return v_; }
+    // What goes to the stage. A stage that plans a move to each target (a point-to-point
+    // trajectory generator braking at planner_decel, as SimulatedStage and most stage
+    // controllers' move commands do) moves its set point at the speed that still stops on
+    // the target, sqrt(h^2 + 2 d e) - h with h = d dt / 2 and e the distance left: tracking a
+    // target that moves at v it trails by v^2 / (2 d), and its small-signal lag is a time
+    // constant |v| / d (20 ms at 20 mm/s and 1 m/s^2; measured on SimulatedStage: 55 degrees
+    // more phase at 25 Hz than the data sheet's delay and lag). Leading the target by the
+    // braking distance, e = v dt + lead = v^2 / (2 d) + v dt / 2, makes that speed exactly
+    // v: the set point moves with the law and the stage is its delay and lag again.
+    double command() const noexcept {
+        if (!(p_.planner_decel > 0.0) || v_ == 0.0) return x_;
+        const double s = std::fabs(v_);
+        const double lead = s * s / (2.0 * p_.planner_decel) - 0.5 * s * dt_;
+        if (!(lead > 0.0)) return x_;
+        return clamp(v_ > 0.0 ? x_ + lead : x_ - lead);
+    }
     double asymmetry() const noexcept { return a_; }
     double direction() const noexcept { return dir_; }
     bool at_limit() const noexcept { return x_ <= p_.x_min || x_ >= p_.x_max; }
@@ -732,7 +765,7 @@ public:
         for (int r = 0; r < R_; ++r) {
             out_[2 + 3 * r + 1] = 1.0;
         }
-        out_[0] = ctrl_.position();
+        out_[0] = ctrl_.command();
         publish_all();
     }
 
@@ -740,7 +773,7 @@ public:
     void set_position(double x) noexcept {
         ctrl_.set_position(x);
         unguarded_left_ = 0;
-        out_[0] = ctrl_.position();
+        out_[0] = ctrl_.command();
         out_[1] = 0.0;
         publish();
     }
@@ -1182,7 +1215,7 @@ private:
         for (std::size_t i = 0; i < det_.size(); ++i) out_[2 + i] = double(det_[i]);
     }
     TM_ALWAYS_INLINE void finish_tick() noexcept {
-        out_[0] = ctrl_.position();
+        out_[0] = ctrl_.command();
         out_[1] = ctrl_.velocity();
         st_.at_limit = ctrl_kind_ != ControllerKind::none && ctrl_.at_limit();
         ++st_.ticks;
@@ -1191,7 +1224,7 @@ private:
     // The status for other threads. Per tick only the words a tick always changes,
     // plus the counters when a rejection or a recovery changed them.
     void publish() noexcept {
-        board_.publish(st_, ctrl_.position(), ctrl_.velocity(), counters_changed_);
+        board_.publish(st_, ctrl_.command(), ctrl_.velocity(), counters_changed_);
         counters_changed_ = false;
     }
     void publish_all() noexcept {

@@ -75,8 +75,10 @@ extern "C" {
  * defaults shared with the Python library. 4: the velocity law's shear_integral
  * and rate_gain (appended to tm_controller_params, the last member of tm_config).
  * 5: slip_confirm, slip_min_asym, shear_weights. 6: the filter-bank detector
- * (detector_kind and the bank's time constants, appended to tm_config). */
-#define TM_ABI_VERSION 6
+ * (detector_kind and the bank's time constants, appended to tm_config). 7: the
+ * controller's planner_decel (appended to tm_config: tm_controller_params is no longer
+ * its last member), and the command leads a planning stage's target when it is > 0. */
+#define TM_ABI_VERSION 7
 
 typedef enum tm_status_code {
     TM_OK = 0,
@@ -168,6 +170,12 @@ typedef struct tm_config {
     const double* bank_abs_taus;
     double bank_load_tau;    /* s: leak of the load integrals */
     double bank_peak_tau;    /* s: decay of the peak load */
+    /* ABI 7 (appended) */
+    double planner_decel;    /* controller (both laws), m/s^2, >= 0: the stage plans a braking move to each
+                              * target at this deceleration (a point-to-point move command; its a_max); the
+                              * command then leads the law's position by the braking distance
+                              * v^2 / (2 planner_decel) - |v| / (2 fs), so that the planned set point moves at the
+                              * law's speed. 0 (default): the stage follows the command (streamed set points) */
 } tm_config;
 
 typedef struct tm_pipeline_status {
@@ -182,7 +190,7 @@ typedef struct tm_pipeline_status {
     int32_t fault;           /* 1: more than max_hold_ticks consecutive rejections, the stage stops */
     int32_t slip;            /* 1: max y_slip >= slip_threshold at the last accepted tick */
     int32_t at_limit;        /* 1: the command is on a travel limit */
-    double position;         /* controller's commanded position, m */
+    double position;         /* the command sent to the stage (the law's position, led with planner_decel), m */
     double velocity;         /* commanded velocity, m/s */
     /* ABI 3 */
     uint64_t overflow;       /* rejected ticks whose update would have made a state non-finite */

@@ -232,6 +232,10 @@ int32_t tm_config_init(tm_config* cfg) {
     cfg->slip_threshold = d.slip_threshold;
     cfg->max_hold_ticks = d.max_hold_ticks;
     controller_to_c(tactile::default_controller(tactile::ControllerKind::none), &cfg->controller);
+    const tactile::ControllerParams dc = tactile::default_controller(tactile::ControllerKind::none);
+#define TM_TAIL_DEFAULT(name, def, laws, doc) cfg->name = dc.name;
+    TM_CONTROLLER_TAIL_FIELDS(TM_TAIL_DEFAULT)
+#undef TM_TAIL_DEFAULT
     return TM_OK;
 }
 
@@ -239,8 +243,10 @@ int32_t tm_config_init(tm_config* cfg) {
 // with the controller's slip_hold. Fields are only ever appended since (ABI 4:
 // shear_integral and rate_gain at the end of the controller, the end of tm_config;
 // ABI 5: slip_confirm at the end of the controller, shear_weights after it; ABI 6:
-// detector_kind and the filter bank's time constants). A struct of ABI 4 ends where
-// slip_confirm begins, one of ABI 5 where detector_kind begins.
+// detector_kind and the filter bank's time constants; ABI 7: planner_decel, a controller
+// parameter kept in tm_config's tail, TM_CONTROLLER_TAIL_FIELDS). A struct of ABI 4 ends
+// where slip_confirm begins, one of ABI 5 where detector_kind begins, one of ABI 6 where
+// planner_decel begins.
 constexpr std::size_t kConfigSizeAbi2 = offsetof(tm_config, controller) + offsetof(tm_controller_params, shear_integral);
 static_assert(kConfigSizeAbi2 <= sizeof(tm_config), "tm_config only grows");
 
@@ -293,6 +299,9 @@ int32_t tm_pipeline_create(const tm_config* user_cfg, tm_pipeline* out) {
     c.slip_threshold = cfg->slip_threshold;
     c.max_hold_ticks = long(cfg->max_hold_ticks);
     c.controller = controller_from_c(cfg->controller);
+#define TM_FROM_TAIL(name, def, laws, doc) c.controller.name = cfg->name;
+    TM_CONTROLLER_TAIL_FIELDS(TM_FROM_TAIL)
+#undef TM_FROM_TAIL
     c.shear_weights = cfg->shear_weights;
     c.detector_kind = cfg->detector_kind;
     c.bank_n_lp = cfg->bank_n_lp;

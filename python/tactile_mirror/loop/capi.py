@@ -201,7 +201,8 @@ class CPipeline:
         cfg.controller.kind = _CTRL_KINDS[ctrl["kind"]]
         for k, v in ctrl.items():
             if k != "kind":
-                setattr(cfg.controller, k, float(v))
+                # parameters added after ABI 6 live in tm_config's tail, not in tm_controller_params
+                setattr(cfg.controller if hasattr(cfg.controller, k) else cfg, k, float(v))
         h = ffi.new("tm_pipeline*")
         self._check(lib.tm_pipeline_create(cfg, h))
         self._keep.clear()

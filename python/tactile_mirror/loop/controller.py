@@ -19,6 +19,16 @@ Direction (both laws)
     ``direction_sign`` maps the strips' orientation to the stage axis (+1 or -1;
     calibrate it once per pad, e.g. with :func:`tactile_mirror.loop.experiment.calibrate_shear`).
 
+Command (both laws)
+    What goes to the stage is the law's position ``x``, or, with ``planner_decel`` = ``d`` > 0,
+    ``x`` led by the braking distance ``sign(v) max(0, v^2 / (2 d) - |v| dt / 2)``. A stage
+    whose move command plans a braking move to each target (a point-to-point trajectory
+    generator, as :class:`~tactile_mirror.loop.SimulatedStage`) moves its set point at
+    ``sqrt(h^2 + 2 d e) - h`` (``h = d dt / 2``, ``e`` the distance left): a target moving at
+    ``v`` is trailed by ``v^2 / (2 d)``, with a small-signal lag of time constant ``|v| / d``
+    (20 ms at 20 mm/s and 1 m/s^2). Led by the braking distance, the planner moves at the
+    law's speed and the stage is its dead time and servo lag again.
+
 Arming (both laws)
     For ``arm_delay`` seconds after a reset the stage holds while the finger settles;
     then the asymmetry is zeroed (the settled contact's shear is the reference).
@@ -135,6 +145,12 @@ class Controller:
         (>= 0, asymmetry units; 0 = always): a detected slip starts the guard only
         while the asymmetry integrator's magnitude is at least this: a contact whose
         shear is near its tare cannot slip, so a report there is a false alarm.
+    planner_decel : float
+        m/s^2 (>= 0; 0 = off, the default): the deceleration with which the stage plans a
+        braking move to each target (its ``a_max`` for a point-to-point move command). The
+        command then leads the law's position by the braking distance (see the module
+        docstring), so that the planned set point moves at the law's speed. 0 for a stage
+        that follows streamed set points.
     """
 
     kind = "none"
@@ -148,10 +164,11 @@ class Controller:
     slip_hold: float = _DEFAULTS["none"]["slip_hold"]
     slip_confirm: float = _DEFAULTS["none"]["slip_confirm"]
     slip_min_asym: float = _DEFAULTS["none"]["slip_min_asym"]
+    planner_decel: float = _DEFAULTS["none"]["planner_decel"]
 
     def __post_init__(self):
         for name in ("threshold", "x_min", "x_max", "direction_sign", "asym_tau", "asym_deadband", "arm_delay",
-                     "slip_hold", "slip_confirm", "slip_min_asym"):
+                     "slip_hold", "slip_confirm", "slip_min_asym", "planner_decel"):
             object.__setattr__(self, name, _real(getattr(self, name), name))
         if not 0.0 <= self.threshold < 1.0:
             raise ValueError(f"threshold must lie in [0, 1), got {self.threshold}")
@@ -173,6 +190,8 @@ class Controller:
             raise ValueError(f"slip_confirm must lie in [0, 3600] s, got {self.slip_confirm}")
         if not self.slip_min_asym >= 0:
             raise ValueError(f"slip_min_asym must be >= 0, got {self.slip_min_asym}")
+        if not self.planner_decel >= 0:
+            raise ValueError(f"planner_decel must be >= 0 m/s^2 (0 = off), got {self.planner_decel}")
 
     def params(self) -> dict:
         """The parameters as the C++ pipeline takes them (``kind`` included)."""
@@ -203,7 +222,8 @@ class Controller:
         Returns
         -------
         x, v : ndarray, shape (n,)
-            Commanded position (m) and velocity (m/s) after each tick.
+            The command sent to the stage (m; :meth:`command`) and the commanded
+            velocity (m/s) after each tick.
         """
         y = np.asarray(y_pred, dtype=np.float64)
         d = np.asarray(asym, dtype=np.float64)
@@ -220,8 +240,20 @@ class Controller:
         vs = np.empty_like(y)
         for k in range(y.size):
             self._tick(st, float(y[k]), float(d[k]), False, bool(sl[k]), fs)
-            xs[k], vs[k] = st.x, st.v
+            xs[k], vs[k] = self.command(st, fs), st.v
         return xs, vs
+
+    def command(self, st: _LawState, fs: float) -> float:
+        """What goes to the stage: the law's position, led by the planner's braking
+        distance when ``planner_decel`` > 0 (the C++ ``StageController::command``)."""
+        d, v = self.planner_decel, st.v
+        if not d > 0 or v == 0.0:
+            return st.x
+        s = abs(v)
+        lead = s * s / (2.0 * d) - 0.5 * s / fs
+        if not lead > 0:
+            return st.x
+        return self._clamp(st.x + lead if v > 0 else st.x - lead)
 
     def _start(self, x0: float) -> _LawState:
         return _LawState(self._clamp(float(x0)))

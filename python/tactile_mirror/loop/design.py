@@ -46,6 +46,20 @@ Gains
     constant ``Kp z``. These robustness targets are the only choices, and they are
     textbook values, not fitted to any finger path.
 
+The stage's planner
+    A stage whose move command plans a braking move to each target (a point-to-point
+    trajectory generator: :class:`~tactile_mirror.loop.stage.SimulatedStage`, and the move
+    commands of most stage controllers) is not the data sheet's dead time and lag when it
+    is sent a new target every tick: its set point moves at the speed that still stops on
+    the target, so it trails a moving target by ``v^2 / (2 a_max)`` (0.2 mm at 20 mm/s and
+    1 m/s^2, more than the contact carries) with a small-signal lag of time constant
+    ``|v| / a_max`` (20 ms at 20 mm/s: measured on the simulated stage, 55 degrees more
+    phase at 25 Hz than delay and lag, which leaves the loop no phase margin). The law
+    therefore leads its command by that braking distance (``planner_decel = a_max``,
+    :meth:`~tactile_mirror.loop.controller.Controller.command`), which makes the planned set
+    point move at the law's speed; then ``G`` above holds at every speed. A stage that follows
+    streamed set points (``planner=False``) gets the law's position itself.
+
 Limits and partial slip
     ``v_max``, ``a_max`` and the travel are the stage's own (the law never asks for
     more than the stage can do, and stops before a travel limit). The slip guard
@@ -248,6 +262,7 @@ class LoopDesign:
                 "rate_gain": self.controller.rate_gain, "slip_hold_s": self.controller.slip_hold,
                 "slip_confirm_s": self.controller.slip_confirm, "slip_min_asym": self.controller.slip_min_asym,
                 "v_max": self.controller.v_max, "a_max": self.controller.a_max,
+                "planner_decel": self.controller.planner_decel,
                 "shear_weights": None if self.shear_weights is None else self.shear_weights.tolist(),
                 "error_mm_peak_sine": {f"{v * 1e3:g} mm/s, {a:g} m/s^2": e for (v, a), e in self.error_table().items()}}
 
@@ -273,7 +288,7 @@ def _estimator_group_delay(fs, order, bandwidth, f0=1.0):
 def design_loop(limits: StageLimits, calibration, fs: float, *, stage_delay: float, stage_lag: float,
                 estimator_order: int = 2, estimator_bandwidth: float = 100.0, arm_delay: float = 0.5,
                 phase_margin: float = 45.0, gain_margin: float = 6.0, max_sensitivity: float = 2.0,
-                asym_tau: float = 1.0, shear_weights=None) -> LoopDesign:
+                asym_tau: float = 1.0, shear_weights=None, planner: bool = True) -> LoopDesign:
     """Design the default shear loop from the stage's data sheet, the calibration and the rate.
 
     Parameters
@@ -305,6 +320,12 @@ def design_loop(limits: StageLimits, calibration, fs: float, *, stage_delay: flo
         The pipeline's shear signal the calibration was taken with
         (:func:`tactile_mirror.loop.experiment.calibrate_shear_weights`); kept in the
         design for :meth:`LoopDesign.pipeline_kwargs`. None: the plain L - R difference.
+    planner : bool
+        True (default): the stage's move command plans a braking move to each target at
+        ``limits.a_max`` (as :class:`~tactile_mirror.loop.stage.SimulatedStage` and most
+        stage controllers' point-to-point moves), so the law leads its command by the
+        braking distance (``planner_decel = limits.a_max``; see the module docstring).
+        False: the stage follows the command as a streamed set point (``planner_decel = 0``).
 
     Returns
     -------
@@ -334,6 +355,8 @@ def design_loop(limits: StageLimits, calibration, fs: float, *, stage_delay: flo
         raise ValueError(f"max_sensitivity must be > 1, got {max_sensitivity!r}")
     if not (limits.x_min <= 0.0 <= limits.x_max):
         raise ValueError(f"limits must bracket 0 (the start position), got [{limits.x_min}, {limits.x_max}]")
+    if not isinstance(planner, (bool, np.bool_)):
+        raise TypeError(f"planner must be True or False, got {type(planner).__name__}")
 
     f = np.geomspace(0.05, 0.499 * fs, 1500)
     best = None
@@ -376,7 +399,7 @@ def design_loop(limits: StageLimits, calibration, fs: float, *, stage_delay: flo
                               asym_tau=asym_tau, asym_deadband=0.0, arm_delay=arm_delay, slip_hold=slip_hold,
                               slip_confirm=slip_confirm, slip_min_asym=slip_min_asym,
                               shear_gain=kp / a_per_m, ramp_gain=0.0, pred_boost=0.0, shear_integral=z,
-                              rate_gain=kv / a_per_m)
+                              rate_gain=kv / a_per_m, planner_decel=limits.a_max if planner else 0.0)
     gd = _estimator_group_delay(fs, estimator_order, estimator_bandwidth)
     delays = {"stage_dead_time": stage_delay, "command_tick": 1.0 / fs, "stage_lag": stage_lag,
               "estimator_group_delay": gd, "total": stage_delay + 1.0 / fs + stage_lag + gd}

@@ -152,9 +152,11 @@ class SimulatedStage:
         """Move the simulated time on by ``dt`` seconds; returns the position, m."""
         if not dt > 0:
             raise ValueError(f"dt must be > 0 s, got {dt}")
-        self.t += dt
+        # Targets take effect at the start of the interval they fall in (a target sent at t
+        # with a dead time equal to dt moves the carriage from t + dt on, not over [t, t + dt]).
         while self._pending and self._pending[0][0] <= self.t + 1e-12:
             self._target = self._pending.popleft()[1]
+        self.t += dt
         lim = self._limits
         e = self._target - self._sp
         # Speed that still allows stopping on the target (decelerating by a_max dt
