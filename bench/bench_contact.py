@@ -348,7 +348,8 @@ def bench_stepping(quick):
         te10, _ = timed(lambda: simulate(hi, backend="python", stepping="every"), repeat=1)
         goals.append(["fig6 at 10 kHz against 1 kHz, every", f"{te10 / te1:.2f}x ({te10:.2f} / {te1:.2f} s)",
                       "(about 10x)"])
-    table("Goals of the event-driven stepping (Python backend; the compiled kernel steps every sample)",
+    table("Goals of the event-driven stepping (Python backend; the compiled solver's: 'Event stepping in the "
+          "compiled solver')",
           ["what", "measured", "goal"], goals)
 
 
@@ -502,11 +503,12 @@ def main(argv=None):
     p.add_argument("--solver-only", action="store_true",
                    help="only the compiled-against-Python solver table and the paced loop")
     p.add_argument("--stepping-only", action="store_true",
-                   help="only the 'every' against 'auto' stepping tables")
+                   help="only the 'every' against 'auto' stepping tables (compiled and Python solvers)")
     p.add_argument("--realtime-only", action="store_true", help="only the paced loop")
     args = p.parse_args(argv)
     print(f"CPU: {cpu_model()} ({os.cpu_count()} logical cores)")
     if args.stepping_only:
+        bench_cpp_events(args.quick)
         bench_stepping(args.quick)
         return
     if args.realtime_only:
