@@ -692,6 +692,7 @@ public:
         aff_stage_ = 0;
         has_candidate_ = false;
         pristine_ = true;
+        fr_mu_ = params.mu; fr_muk_ = params.mu_kinetic;
     }
 
     // One step of the path following to the plate position (plate_y, plate_z), the
@@ -817,6 +818,7 @@ public:
         aff_stage_ = 0;
         has_candidate_ = false;
         pristine_ = false;
+        fr_mu_ = params.mu; fr_muk_ = params.mu_kinetic;  // a given history holds under the current friction
     }
 
     // ---- event-driven path following (the Python reference's ContactSolver.follow)
@@ -858,6 +860,13 @@ public:
             s_prev_ = ys[0];
             z_prev_ = zs[0] > z0_max_ ? zs[0] : z0_max_;
             has_z_ = true;
+        }
+        if (N) {
+            const ContactStatus s = settle_friction();
+            if (s != ContactStatus::ok) {
+                restore();
+                return s;
+            }
         }
         std::size_t k = 0;
         while (k < N) {
@@ -927,6 +936,7 @@ public:
         copy8(state_.data(), sv_state_.data()); copy(sign_.data(), sv_sign_.data());
         sv_s_ = s_prev_; sv_z_ = z_prev_; sv_has_z_ = has_z_; sv_solves_ = solves_; sv_events_ = events_;
         sv_pristine_ = pristine_;
+        sv_fr_mu_ = fr_mu_; sv_fr_muk_ = fr_muk_;
     }
     void restore() noexcept {
         copy(sv_lam_.data(), lam_.data(), n2_); copy(sv_u_.data(), pu_.data(), n2_);
@@ -935,6 +945,7 @@ public:
         for (std::size_t i = 0; i < n_; ++i) sliding_[i] = state_[i] == kContactSlip;
         s_prev_ = sv_s_; z_prev_ = sv_z_; has_z_ = sv_has_z_; solves_ = sv_solves_; events_ = sv_events_;
         pristine_ = sv_pristine_;
+        fr_mu_ = sv_fr_mu_; fr_muk_ = sv_fr_muk_;
         unit_valid_ = false;
         aff_stage_ = 0;
     }
@@ -965,6 +976,7 @@ public:
         aff_stage_ = 0;
         has_candidate_ = false;
         pristine_ = false;
+        fr_mu_ = params.mu; fr_muk_ = params.mu_kinetic;
     }
 
 private:
@@ -1338,6 +1350,29 @@ private:
             if (s != ContactStatus::ok) return s;
             changes += more;
         }
+        return ContactStatus::ok;
+    }
+
+    // A change of the friction coefficients (params, set between calls) is an event at the
+    // current load: the state was solved with the old cones, so the nodes now beyond their
+    // static cone break away, the sliding ones drop to the new kinetic cone, and what they
+    // shed is carried at that same load (the breakaway cascade), before the path goes on.
+    // Without it a load that stands still (or moves so as to unload those nodes) would keep
+    // tractions the new friction cannot carry. The reference's _settle_friction.
+    ContactStatus settle_friction() noexcept {
+        if (fr_mu_ == params.mu && fr_muk_ == params.mu_kinetic) return ContactStatus::ok;
+        bool touching = false;
+        for (std::size_t i = 0; i < n_ && !touching; ++i) touching = state_[i] != kContactOpen;
+        if (touching && has_z_) {
+            std::size_t changes = 0;
+            const ContactStatus s = cascade(changes);
+            if (s != ContactStatus::ok) return s;
+            if (changes) ++events_;
+            unit_valid_ = false;
+            aff_stage_ = 0;
+            has_candidate_ = false;
+        }
+        fr_mu_ = params.mu; fr_muk_ = params.mu_kinetic;
         return ContactStatus::ok;
     }
 
@@ -2051,6 +2086,8 @@ private:
     double c_frac_ = 0.0, c_plate_y_ = 0.0;
     int c_iterations_ = 0;
     bool has_candidate_ = false;
+    // friction coefficients the current state was solved with (settle_friction)
+    double fr_mu_ = 0.0, fr_muk_ = 0.0, sv_fr_mu_ = 0.0, sv_fr_muk_ = 0.0;
     // workspaces
     std::vector<double> mu_node_, F_, F2_, u2_, lam2_, d_, ws_sign_, ws_sign2_, rhs_, M_, J_, slip_coef_, key_coef_;
     std::vector<std::int8_t> ws_state_, ws_state2_, key_state_;

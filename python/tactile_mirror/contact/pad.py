@@ -158,6 +158,9 @@ class Pad:
         for s in self.solvers:  # the kinetic coefficient keeps its ratio to the static one
             s.mu_kinetic = s.mu_kinetic * float(value) / s.mu
             s.mu = float(value)
+        # the next step settles the contact under the new cones, even where the plate stands
+        # still (the solvers treat a friction change as an event at the current load)
+        self._last = None
 
     def reset(self) -> None:
         # last ridge first: a compiled ridge shadowing an earlier one (its mirror image,

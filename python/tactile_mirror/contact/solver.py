@@ -67,6 +67,11 @@ For a fixed status set the forces are linear in the load (one linear system, the
        classification (OPEN / STICK / SLIP with the sign of the friction force;
        grazing nodes as in 5) becomes the status set, the state stays at the point.
        A second return raises ContactConvergenceError.
+    7. friction change: ``mu`` or ``mu_kinetic`` changed since the state was solved (set
+       between calls, e.g. sweat) is an event at the current load, before the path goes
+       on: the breakaway cascade of 5 at that load, with the new cones (nodes beyond the
+       static cone break away, sliding nodes drop to the kinetic one). A plate that
+       stands still then still carries only what the new friction holds.
 
 ``stepping="every"`` follows each sample interval as its own segment and solves the
 piece at every sample (the reference); ``stepping="auto"`` takes the longest run of
@@ -298,6 +303,7 @@ class ContactSolver:
         self._z_prev = None if z_prev is None else float(z_prev)
         self._lu_key = None
         self._unit_key = None
+        self._friction_applied = (self.mu, self.mu_kinetic)  # a given history holds under the current friction
 
     def reset(self) -> None:
         """Back to the undeformed, unloaded state."""
@@ -315,6 +321,7 @@ class ContactSolver:
         self._sliding = np.zeros(n, dtype=bool)
         self._u = np.zeros(2 * n)
         self._z_prev = None  # plate height of the current state (None: not placed yet)
+        self._friction_applied = (self.mu, self.mu_kinetic)  # the cones the state was solved with
         self._lu_key = None
         self._lu = None
         self._unit_key = None
@@ -431,6 +438,8 @@ class ContactSolver:
                 # y, no lower than the crown (nothing touches before)
                 self._s_prev = float(ys[0])
                 self._z_prev = max(float(zs[0]), float(np.max(self.model.node_z)))
+            if N:
+                self._settle_friction()
             k = 0
             while k < N:
                 if stepping == "every":
@@ -466,13 +475,29 @@ class ContactSolver:
             end, chunk = hi, 2 * chunk
         return N
 
+    def _settle_friction(self):
+        """A change of ``mu`` / ``mu_kinetic`` since the state was solved is an event at the
+        current load: the nodes beyond their new static cone break away, the sliding ones
+        drop to the new kinetic cone, and what they shed is carried at that load (the
+        breakaway cascade), before the path goes on. Without it a load standing still (or
+        moving so as to unload those nodes) would keep tractions the new friction cannot
+        carry."""
+        friction = (self.mu, self.mu_kinetic)
+        if self._friction_applied == friction:
+            return
+        if self._z_prev is not None and np.any(self._state != OPEN):
+            if self._cascade():
+                self.events += 1
+            self._unit_key = None
+        self._friction_applied = friction
+
     def _snapshot(self):
         return (self._lam.copy(), self._u.copy(), self._uy_prev.copy(), self._s_prev, self._z_prev,
-                self._state.copy(), self._sign.copy(), self.solves, self.events)
+                self._state.copy(), self._sign.copy(), self.solves, self.events, self._friction_applied)
 
     def _restore(self, snap):
         (self._lam, self._u, self._uy_prev, self._s_prev, self._z_prev, self._state, self._sign,
-         self.solves, self.events) = snap
+         self.solves, self.events, self._friction_applied) = snap
         self._sliding = self._state == SLIP
         self._lu_key = None
 
