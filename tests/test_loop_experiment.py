@@ -147,6 +147,21 @@ def test_fem_plant_has_the_plant_interface():
     assert st.stress.shape == (1, 2) and st.force_z > 0
 
 
+def test_run_scene_takes_a_given_finger_path():
+    """A recorded (here: generated elsewhere) finger path replaces the scene's own, tick for
+    tick; the run lasts as long as it; a bad one is refused by name."""
+    sc = Scene(seed=3, duration=0.6)
+    own = run_scene(sc, weights(), None)
+    path = scene_finger(Scene(seed=9, duration=0.3))
+    r = run_scene(sc, weights(), None, finger=path)
+    np.testing.assert_array_equal(r.finger, path)
+    assert r.t.size == path.size and r.tracking_max == pytest.approx(np.abs(path).max())
+    assert not np.array_equal(r.finger, own.finger[: path.size])
+    for bad in (np.zeros((2, 5)), np.array([]), np.array([0.0, np.nan])):
+        with pytest.raises(ValueError, match="finger"):
+            run_scene(sc, weights(), None, finger=bad)
+
+
 def test_pressed_finger_path_rests_then_follows_the_trajectory():
     y = pressed_finger_path(5, 1.5, FS, press=0.5, amplitude=1e-3)
     assert np.all(y[:500] == 0.0)

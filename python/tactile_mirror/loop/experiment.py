@@ -127,11 +127,13 @@ def calibrate_shear(weights, fs: float = 1000.0, n_ridges: int = 6, plant: str =
     return (1.0 if a > 0 else -1.0), abs(a) / push
 
 
-def still_pad_features(weights, finger, fs: float = 1000.0, n_ridges: int = 6, plant: str = "fem") -> np.ndarray:
+def still_pad_features(weights, finger, fs: float = 1000.0, n_ridges: int = 6, plant: str = "fem",
+                       mu_change: tuple | None = None) -> np.ndarray:
     """The loop pipeline's features ``(n, n_ridges, 4)`` (rate_L, rate_R, rate2_L, rate2_R) for
-    a finger path (m) over the pad held still: the calibration's measurement."""
+    a finger path (m) over the pad held still: the calibration's measurement. ``mu_change``
+    as in :class:`~tactile_mirror.loop.scene.LoopScene` (a friction change during the path)."""
     finger = np.asarray(finger, dtype=np.float64)
-    scene = LoopScene(duration=finger.size / fs, fs=fs, label="calibration", plant=plant)
+    scene = LoopScene(duration=finger.size / fs, fs=fs, label="calibration", plant=plant, mu_change=mu_change)
     source = PlantSource(scene, _make_plant(scene, n_ridges), PVDFCircuit(), finger)
     x = np.stack([source.read(0.0, k / fs) for k in range(finger.size)])
     pipe = loop_pipeline(weights, fs, NoController(), n_ridges)

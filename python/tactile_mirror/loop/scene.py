@@ -203,12 +203,20 @@ def loop_pipeline(weights, fs: float, controller: Controller, n_ridges: int, she
 
 
 def run_scene(scene: LoopScene, weights, controller: Controller | None, limits: StageLimits | None = None,
-              n_ridges: int = 6, shear_weights=None) -> SceneResult:
+              n_ridges: int = 6, shear_weights=None, finger=None) -> SceneResult:
     """Run one scene, open loop (``controller`` None or :class:`NoController`) or closed loop;
-    ``shear_weights`` go to the pipeline (:func:`loop_pipeline`)."""
+    ``shear_weights`` go to the pipeline (:func:`loop_pipeline`). ``finger`` (m, one value
+    per tick; for the FEM pad at rest during the press) replaces the scene's generated path,
+    e.g. a recorded one or a finger held still; the run lasts as many ticks."""
     controller = controller or NoController()
     limits = limits or StageLimits(-0.02, 0.02, 0.03, 1.0)
-    finger = scene_finger(scene)
+    if finger is None:
+        finger = scene_finger(scene)
+    else:
+        finger = np.array(finger, dtype=np.float64)
+        if finger.ndim != 1 or finger.size == 0 or not np.all(np.isfinite(finger)):
+            raise ValueError(f"finger must be a non-empty 1-D array of finite positions (m), got shape "
+                             f"{finger.shape}")
     plant = make_plant(scene, n_ridges)
     source = PlantSource(scene, plant, PVDFCircuit(), finger)
     stage = SimulatedStage(limits, delay=scene.stage_delay, lag=scene.stage_lag)
