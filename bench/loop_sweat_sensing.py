@@ -1,7 +1,8 @@
 """Why the loop slips under sweat: a friction change moves the strips' shear signal as a
 relative displacement does.
 
-    python bench/loop_sweat_sensing.py            # about 1 min on 2 cores
+    python bench/loop_sweat_sensing.py                        # about 1 min on 2 cores
+    python bench/loop_sweat_sensing.py --figure docs/figures/sweat_sensing.png
 
 Two measurements on the 6-ridge FEM pad, the finger held still (no relative motion at all):
 
@@ -31,6 +32,7 @@ def main(argv=None) -> None:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--mu", default="0.45,0.40", help="friction after the drop (comma separated)")
     ap.add_argument("--offsets", default="0,10,20,40,-20", help="shear offsets held during the drop, um")
+    ap.add_argument("--figure", help="also write the figure (PNG): the signal's moves and the still finger's runs")
     args = ap.parse_args(argv)
     from tactile_mirror.loop.envelope import _laws
     from tactile_mirror.loop.experiment import _weights_dict, default_weights, still_pad_features
@@ -47,7 +49,7 @@ def main(argv=None) -> None:
     c = design.shear_weights[:, 0]                    # per ridge, on L - R
     per_m = design.asym_per_m                         # the shear signal per metre
 
-    rows = []
+    rows, traces, runs = [], {}, {}
     for mu in mus:
         for d in offsets:
             finger = np.zeros(1400)
@@ -57,6 +59,7 @@ def main(argv=None) -> None:
             shear = np.cumsum(f[:, :, 0] - f[:, :, 1], axis=0) @ c / fs / per_m
             shear = shear - shear[n0 - 1]  # from the end of the press, as the loop arms
             move = shear[999:] - shear[999]
+            traces[(mu, d)] = shear
             k = int(np.argmax(np.abs(move)))
             rows.append([f"{mu:.2f}", f"{d * 1e6:+.0f}", f"{shear[999] * 1e6:+.1f}",
                          f"{move[k] * 1e6:+.1f}", f"{move[-1] * 1e6:+.1f}"])
@@ -71,10 +74,50 @@ def main(argv=None) -> None:
             res = run_scene(sc, w, laws[name], limits=limits, n_ridges=n_ridges, finger=np.zeros(3000),
                             shear_weights=design.shear_weights if name == "default" else None)
             pad = res.log["pad"][: res.t.size]
+            runs[(mu, name)] = res
             rows.append(["0.76 (no drop)" if mu is None else f"0.76 -> {mu:.2f}", name, res.gross_slips,
                          f"{np.abs(pad).max() * 1e6:.1f}"])
     table("Finger held still for 3 s, friction drop from 1.75 s over 0.2 s",
           ["friction", "law", "gross slips", "stage's largest excursion (um)"], rows)
+    if args.figure:
+        figure(args.figure, fs, traces, runs, mus)
+
+
+def figure(path, fs, traces, runs, mus) -> None:
+    """Left: the calibrated shear signal through the drop, pad and finger still, one line per
+    held offset. Right: the stage under the still finger through the same drop, open loop and
+    the default law, with the gross slips marked."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    fig, (ax1, ax2) = plt.subplots(1, 2, figsize=(11, 4.2))
+    mu = mus[0]
+    for (m, d), shear in traces.items():
+        if m != mu:
+            continue
+        t = np.arange(shear.size) / fs
+        ax1.plot(t, shear * 1e6, label=f"held at {d * 1e6:+.0f} um")
+    ax1.axvspan(1.0, 1.2, color="0.85", label=f"friction 0.76 -> {mu:.2f}")
+    ax1.set(xlabel="time (s)", ylabel="shear signal (um of relative displacement)", xlim=(0.5, 1.4),
+            title="Finger and pad still: what the strips report")
+    ax1.legend(fontsize=8)
+    for (m, name), res in runs.items():
+        if m is None or m == mus[-1] and len(mus) > 1:
+            continue
+        pad = res.log["pad"][: res.t.size] * 1e6
+        line, = ax2.plot(res.t, pad, label=f"{name}, mu -> {m:.2f}: {res.gross_slips} gross slips")
+        sf = res.log["slip_fraction"][:, : res.t.size]
+        g = np.all(sf >= 0.999, axis=0)
+        starts = np.flatnonzero(g[1:] & ~g[:-1]) + 1
+        ax2.plot(res.t[starts], pad[starts], "x", color=line.get_color(), ms=8)
+    ax2.axvspan(1.75, 1.95, color="0.85")
+    ax2.set(xlabel="time (s)", ylabel="stage position (um)", title="Finger held still: the loop follows the phantom")
+    ax2.legend(fontsize=8)
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
 
 
 if __name__ == "__main__":
