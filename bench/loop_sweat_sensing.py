@@ -24,6 +24,7 @@ from __future__ import annotations
 import argparse
 
 import numpy as np
+import scipy.signal
 
 from _common import header, table
 
@@ -48,6 +49,7 @@ def main(argv=None) -> None:
     laws, design = _laws(w, fs, limits, 0.001, 0.002, n_ridges, "fem")
     c = design.shear_weights[:, 0]                    # per ridge, on L - R
     per_m = design.asym_per_m                         # the shear signal per metre
+    tau = design.controller.asym_tau                  # its integrator's leak, s
 
     rows, traces, runs = [], {}, {}
     for mu in mus:
@@ -56,8 +58,11 @@ def main(argv=None) -> None:
             finger[n0:n0 + 101] = np.linspace(0.0, d, 101)
             finger[n0 + 101:] = d
             f = still_pad_features(w, finger, fs, n_ridges, "fem", mu_change=(1.0, mu, 0.2))
-            shear = np.cumsum(f[:, :, 0] - f[:, :, 1], axis=0) @ c / fs / per_m
-            shear = shear - shear[n0 - 1]  # from the end of the press, as the loop arms
+            # the loop's own shear signal: its leaky integral of the weighted L - R rates,
+            # tared at the end of the press as the loop arms
+            x = (f[:, :, 0] - f[:, :, 1]) @ c / per_m
+            x[:n0] = 0.0
+            shear = scipy.signal.lfilter([1.0 / fs], [1.0, -np.exp(-1.0 / (fs * tau))], x)
             move = shear[999:] - shear[999]
             traces[(mu, d)] = shear
             k = int(np.argmax(np.abs(move)))
@@ -91,6 +96,7 @@ def figure(path, fs, traces, runs, mus) -> None:
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
+    from tactile_mirror.loop.scene import gross_slip_starts
 
     fig, (ax1, ax2) = plt.subplots(1, 2, figsize=(11, 4.2))
     mu = mus[0]
@@ -108,9 +114,7 @@ def figure(path, fs, traces, runs, mus) -> None:
             continue
         pad = res.log["pad"][: res.t.size] * 1e6
         line, = ax2.plot(res.t, pad, label=f"{name}, mu -> {m:.2f}: {res.gross_slips} gross slips")
-        sf = res.log["slip_fraction"][:, : res.t.size]
-        g = np.all(sf >= 0.999, axis=0)
-        starts = np.flatnonzero(g[1:] & ~g[:-1]) + 1
+        starts = gross_slip_starts(res.log["slip_fraction"][:, : res.t.size])
         ax2.plot(res.t[starts], pad[starts], "x", color=line.get_color(), ms=8)
     ax2.axvspan(1.75, 1.95, color="0.85")
     ax2.set(xlabel="time (s)", ylabel="stage position (um)", title="Finger held still: the loop follows the phantom")

@@ -205,7 +205,10 @@ class CLib:
     def create(self, config: dict, precision: int = 64):
         ffi, lib = self.ffi, self.lib
         cfg = ffi.new("tm_config*")
-        assert lib.tm_config_init(cfg) == 0
+        try:  # this tree's library fills exactly this header's struct
+            assert lib.tm_config_init_sized(cfg, ffi.sizeof("tm_config")) == 0
+        except AttributeError:  # a --base build from before ABI 7
+            assert lib.tm_config_init(cfg) == 0
         cfg.precision = precision
         keep = []
 
@@ -230,8 +233,13 @@ class CLib:
         cfg.activation = 1
         cfg.controller.kind = 2
         for k, v in c["controller"].items():
-            if k != "kind":
-                setattr(cfg.controller, k, float(v))
+            # a controller field kept in tm_config's tail (planner_decel) goes there; a
+            # --base build's header may lack a newer field: it keeps that build's behaviour
+            if k == "kind":
+                continue
+            target = cfg.controller if hasattr(cfg.controller, k) else cfg if hasattr(cfg, k) else None
+            if target is not None:
+                setattr(target, k, float(v))
         h = ffi.new("tm_pipeline*")
         rc = lib.tm_pipeline_create(cfg, h)
         if rc != 0:

@@ -222,13 +222,13 @@ def test_controller_dataclasses_take_fields_and_defaults_from_cpp():
     assert {k: v for k, v in p._core.controller.items()} == {**_core.controller_defaults("velocity")}
 
 
-def _c_default_velocity_pipeline(w, est):
-    """A pipeline built the way a C program would: tm_config_init, the sections and
-    weights, tm_controller_defaults(TM_CONTROLLER_VELOCITY, ...)."""
+def _c_default_velocity_config(w, est, keep):
+    """A configuration filled the way a C program would: tm_config_init (the header's macro:
+    tm_config_init_sized with the struct's size), the sections and weights,
+    tm_controller_defaults(TM_CONTROLLER_VELOCITY, ...); arrays it points to go to ``keep``."""
     ffi, lib = load()
     cfg = ffi.new("tm_config*")
-    assert lib.tm_config_init(cfg) == 0
-    keep = []
+    assert lib.tm_config_init_sized(cfg, ffi.sizeof("tm_config")) == 0
 
     def ptr(a):
         a = np.ascontiguousarray(a, dtype=np.float64)
@@ -244,9 +244,79 @@ def _c_default_velocity_pipeline(w, est):
     cfg.weights_fs = FS
     cfg.activation = 1
     assert lib.tm_controller_defaults(2, ffi.addressof(cfg.controller)) == 0
+    return ffi, lib, cfg
+
+
+def _c_default_velocity_pipeline(w, est):
+    """A pipeline built from :func:`_c_default_velocity_config`."""
+    keep = []
+    ffi, lib, cfg = _c_default_velocity_config(w, est, keep)
     h = ffi.new("tm_pipeline*")
     assert lib.tm_pipeline_create(cfg, h) == 0, ffi.string(lib.tm_last_error())
     return ffi, lib, h[0], cfg
+
+
+def test_config_init_writes_exactly_the_callers_struct():
+    """tm_config_init_sized fills the given size and no byte beyond; the exported
+    tm_config_init (what programs built against ABI <= 6 headers call) fills an ABI-6
+    struct; sizes outside the accepted range write nothing."""
+    ffi, lib = load()
+    full = ffi.sizeof("tm_config")
+    abi6 = ffi.offsetof("tm_config", "planner_decel")
+    abi4 = ffi.offsetof("tm_config", "controller") + ffi.offsetof("tm_controller_params", "slip_confirm")
+    abi3 = ffi.offsetof("tm_config", "controller") + ffi.offsetof("tm_controller_params", "shear_integral")
+
+    def fresh():
+        buf = ffi.new("char[]", full + 16)
+        ffi.memmove(buf, b"\xab" * (full + 16), full + 16)
+        return buf, ffi.cast("tm_config*", buf)
+
+    for size, abi, call in [(full, 7, lambda c: lib.tm_config_init_sized(c, full)),
+                            (abi6, 6, lambda c: lib.tm_config_init(c)),
+                            (abi4, 4, lambda c: lib.tm_config_init_sized(c, abi4)),
+                            (abi3, 3, lambda c: lib.tm_config_init_sized(c, abi3))]:
+        buf, c = fresh()
+        assert call(c) == 0
+        assert c.struct_size == size and c.abi_version == abi and c.v_limit == 15.0 and c.n_ridges == 6
+        assert bytes(ffi.buffer(buf)[size:]) == b"\xab" * (full + 16 - size), size
+    for size in (abi3 - 8, full + 8, 0):
+        buf, c = fresh()
+        assert lib.tm_config_init_sized(c, size) == lib.TM_ERR_VERSION
+        assert bytes(ffi.buffer(buf)) == b"\xab" * (full + 16)
+        assert b"size" in ffi.string(lib.tm_last_error())
+    assert lib.tm_config_init_sized(ffi.NULL, full) == lib.TM_ERR_NULL
+
+
+def test_abi6_struct_runs_without_the_planner_lead():
+    """A program of ABI 6 (tm_config ends before planner_decel) gets no lead, whatever lies
+    beyond its struct: the same outputs, bit for bit, as planner_decel = 0 in a full struct;
+    the same bytes at full size are refused, naming the field."""
+    w = weights()
+    est = StressRateEstimator(PVDFCircuit(), FS, 12, use_u=True)
+    keep = []
+    ffi, lib, cfg = _c_default_velocity_config(w, est, keep)
+    cfg.controller.arm_delay = 0.0
+    x = np.random.default_rng(5).normal(scale=0.05, size=(300, 24))
+    h = ffi.new("tm_pipeline*")
+
+    def run(c):
+        assert lib.tm_pipeline_create(c, h) == 0, ffi.string(lib.tm_last_error())
+        out = np.empty((x.shape[0], 2 + 3 * 6))  # n_outputs = 2 + 3 n_ridges
+        xb = np.ascontiguousarray(x)
+        for k in range(x.shape[0]):
+            assert lib.tm_pipeline_step(h[0], ffi.cast("const double*", ffi.from_buffer(xb[k])), 24,
+                                        ffi.cast("double*", ffi.from_buffer(out[k])), out.shape[1]) == 0
+        assert lib.tm_pipeline_destroy(h[0]) == 0
+        return out
+
+    ref = run(cfg)  # full struct, planner_decel = 0
+    assert np.ptp(ref[:, 0]) > 0  # the stage moves: a lead would show
+    cfg.planner_decel = -5.0
+    assert lib.tm_pipeline_create(cfg, h) == lib.TM_ERR_ARGUMENT and h[0] == 0
+    assert b"planner_decel" in ffi.string(lib.tm_last_error())
+    cfg.struct_size = ffi.offsetof("tm_config", "planner_decel")
+    cfg.abi_version = 6
+    assert np.array_equal(run(cfg).view(np.uint64), ref.view(np.uint64))
 
 
 def test_default_velocity_law_is_bit_identical_from_c_and_python():
@@ -296,7 +366,7 @@ def test_version_string_and_struct_sizes():
     assert bytes(ffi.buffer(buf)[old:]) == b"\xab" * (len(buf) - old)
     # tm_config: sizes beyond this header's are refused; abi_version 2 is accepted
     cfg = ffi.new("tm_config*")
-    lib.tm_config_init(cfg)
+    lib.tm_config_init_sized(cfg, ffi.sizeof("tm_config"))
     h = ffi.new("tm_pipeline*")
     cfg.struct_size = ffi.sizeof("tm_config") + 8
     assert lib.tm_pipeline_create(cfg, h) == -6
@@ -305,4 +375,4 @@ def test_version_string_and_struct_sizes():
     cfg.struct_size = abi3 - 8
     assert lib.tm_pipeline_create(cfg, h) == -6
     assert b"accepts" in ffi.string(lib.tm_last_error())
-    assert lib.tm_config_init(cfg) == 0 and cfg.abi_version == 7 and cfg.v_limit == 15.0
+    assert lib.tm_config_init_sized(cfg, ffi.sizeof("tm_config")) == 0 and cfg.abi_version == 7 and cfg.v_limit == 15.0

@@ -123,11 +123,11 @@ def test_create_errors_name_the_field():
         CPipeline(dict(cfg, use_u=False))
     ffi, lib = load()
     c = ffi.new("tm_config*")
-    lib.tm_config_init(c)
+    lib.tm_config_init_sized(c, ffi.sizeof("tm_config"))
     c.abi_version = 99
     h = ffi.new("tm_pipeline*")
     assert lib.tm_pipeline_create(c, h) == lib.TM_ERR_VERSION and h[0] == 0
-    lib.tm_config_init(c)
+    lib.tm_config_init_sized(c, ffi.sizeof("tm_config"))
     c.precision = 32
     c.detector_precision = 64
     assert lib.tm_pipeline_create(c, h) == lib.TM_ERR_ARGUMENT

@@ -15,7 +15,7 @@ from tactile_mirror.loop import VelocityController, experiment
 from tactile_mirror.loop.experiment import ExperimentOptions, calibrate_direction, run_experiment
 from tactile_mirror.loop.finger import finger_trajectory, pressed_finger_path
 from tactile_mirror.loop.scene import LoopScene as Scene
-from tactile_mirror.loop.scene import gross_slip_events, make_plant, run_scene, scene_finger
+from tactile_mirror.loop.scene import gross_slip_events, gross_slip_starts, make_plant, run_scene, scene_finger
 
 FS = 1000.0
 
@@ -74,6 +74,9 @@ def test_gross_slip_events():
     assert gross_slip_events(sf) == 2
     assert gross_slip_events(sf[1:]) == 3
     assert gross_slip_events(np.zeros((2, 10))) == 0
+    assert gross_slip_starts(sf).tolist() == [10, 60] and gross_slip_starts(sf[1:]).tolist() == [10, 60, 90]
+    sf[:, :5] = 1.0  # slipping from the first tick
+    assert gross_slip_starts(sf).tolist() == [0, 60]  # 10 starts 5 ticks after: merged
 
 
 def test_short_open_and_closed_runs():

@@ -198,7 +198,7 @@ def test_c_abi_5_struct_runs_the_paper_net():
 
     ffi, lib = load()
     cfg = ffi.new("tm_config*")
-    assert lib.tm_config_init(cfg) == 0 and cfg.detector_kind == 0
+    assert lib.tm_config_init_sized(cfg, ffi.sizeof("tm_config")) == 0 and cfg.detector_kind == 0
     cfg.detector_kind = 1  # beyond the ABI-5 struct: must be ignored
     cfg.bank_n_lp = 99
     cfg.weights_fs = cfg.fs

@@ -189,7 +189,7 @@ typedef struct tm_pipeline_status {
     uint32_t consecutive_rejected;
     int32_t fault;           /* 1: more than max_hold_ticks consecutive rejections, the stage stops */
     int32_t slip;            /* 1: max y_slip >= slip_threshold at the last accepted tick */
-    int32_t at_limit;        /* 1: the command is on a travel limit */
+    int32_t at_limit;        /* 1: the law's position is on a travel limit (the led command may reach one first) */
     double position;         /* the command sent to the stage (the law's position, led with planner_decel), m */
     double velocity;         /* commanded velocity, m/s */
     /* ABI 3 */
@@ -214,8 +214,19 @@ TM_API const char* tm_status_name(int32_t code);
 TM_API const char* tm_last_error(void);
 
 /* Fill cfg with defaults: 6 ridges, 1 kHz, use_u, no filters, limits 15 V, no detector
- * weights (w1 ... must be set), no controller. */
+ * weights (w1 ... must be set), no controller. Writes exactly `size` bytes (the size of
+ * tm_config as the caller's header declares it), sets struct_size to it and abi_version to
+ * the newest ABI whose struct fits; size must lie in the range tm_pipeline_create accepts
+ * (TM_ERR_VERSION otherwise, nothing written). */
+TM_API int32_t tm_config_init_sized(tm_config* cfg, uint32_t size);
+/* tm_config_init(cfg) is tm_config_init_sized(cfg, sizeof(tm_config)) (the macro below):
+ * a program built against this header fills exactly its own struct, whatever later
+ * library it runs against. The function of that name is what programs built against the
+ * headers of ABI 6 and earlier call: it fills an ABI-6 struct (struct_size up to
+ * planner_decel, abi_version 6) and writes no byte beyond it. (Programs built against
+ * ABI 5 or earlier that call it must be rebuilt: their struct is shorter still.) */
 TM_API int32_t tm_config_init(tm_config* cfg);
+#define tm_config_init(cfg) tm_config_init_sized((cfg), (uint32_t)sizeof(tm_config))
 /* The defaults of every parameter with kind TM_CONTROLLER_NONE. */
 TM_API int32_t tm_controller_init(tm_controller_params* params);
 /* The defaults of a law (tm_controller_kind): the same numbers as the Python library's

@@ -215,8 +215,22 @@ int32_t tm_controller_defaults(int32_t kind, tm_controller_params* params) {
     return TM_OK;
 }
 
-int32_t tm_config_init(tm_config* cfg) {
-    if (!cfg) return fail(TM_ERR_NULL, "cfg is NULL");
+// sizeof(tm_config) in ABI 2, the first ABI with struct_size (and in ABI 3): it ended
+// with the controller's slip_hold. Fields are only ever appended since (ABI 4:
+// shear_integral and rate_gain at the end of the controller, the end of tm_config;
+// ABI 5: slip_confirm at the end of the controller, shear_weights after it; ABI 6:
+// detector_kind and the filter bank's time constants; ABI 7: planner_decel, a controller
+// parameter kept in tm_config's tail, TM_CONTROLLER_TAIL_FIELDS). A struct of ABI 4 ends
+// where slip_confirm begins, one of ABI 5 where detector_kind begins, one of ABI 6 where
+// planner_decel begins.
+constexpr std::size_t kConfigSizeAbi2 = offsetof(tm_config, controller) + offsetof(tm_controller_params, shear_integral);
+constexpr std::size_t kConfigSizeAbi4 = offsetof(tm_config, controller) + offsetof(tm_controller_params, slip_confirm);
+constexpr std::size_t kConfigSizeAbi5 = offsetof(tm_config, detector_kind);
+constexpr std::size_t kConfigSizeAbi6 = offsetof(tm_config, planner_decel);
+static_assert(kConfigSizeAbi2 < kConfigSizeAbi4 && kConfigSizeAbi4 < kConfigSizeAbi5 &&
+              kConfigSizeAbi5 < kConfigSizeAbi6 && kConfigSizeAbi6 < sizeof(tm_config), "tm_config only grows");
+
+static void config_defaults(tm_config* cfg) noexcept {
     std::memset(cfg, 0, sizeof *cfg);
     const PipelineConfig d;
     cfg->struct_size = sizeof(tm_config);
@@ -236,19 +250,35 @@ int32_t tm_config_init(tm_config* cfg) {
 #define TM_TAIL_DEFAULT(name, def, laws, doc) cfg->name = dc.name;
     TM_CONTROLLER_TAIL_FIELDS(TM_TAIL_DEFAULT)
 #undef TM_TAIL_DEFAULT
+}
+
+// The newest ABI whose tm_config fits in `size` bytes (sizes of the accepted range).
+static uint32_t abi_for_size(std::size_t size) noexcept {
+    if (size >= sizeof(tm_config)) return TM_ABI_VERSION;
+    if (size >= kConfigSizeAbi6) return 6;
+    if (size >= kConfigSizeAbi5) return 5;
+    if (size >= kConfigSizeAbi4) return 4;
+    return 3;  // ABI 2 and 3 share their struct
+}
+
+int32_t tm_config_init_sized(tm_config* cfg, uint32_t size) {
+    if (!cfg) return fail(TM_ERR_NULL, "cfg is NULL");
+    if (size < kConfigSizeAbi2 || size > sizeof(tm_config))
+        return fail(TM_ERR_VERSION, "size is %u, this library fills %u to %u bytes", unsigned(size),
+                    unsigned(kConfigSizeAbi2), unsigned(sizeof(tm_config)));
+    tm_config full;
+    config_defaults(&full);
+    full.struct_size = size;
+    full.abi_version = abi_for_size(size);
+    std::memcpy(cfg, &full, size);  // not one byte beyond the caller's struct
     return TM_OK;
 }
 
-// sizeof(tm_config) in ABI 2, the first ABI with struct_size (and in ABI 3): it ended
-// with the controller's slip_hold. Fields are only ever appended since (ABI 4:
-// shear_integral and rate_gain at the end of the controller, the end of tm_config;
-// ABI 5: slip_confirm at the end of the controller, shear_weights after it; ABI 6:
-// detector_kind and the filter bank's time constants; ABI 7: planner_decel, a controller
-// parameter kept in tm_config's tail, TM_CONTROLLER_TAIL_FIELDS). A struct of ABI 4 ends
-// where slip_confirm begins, one of ABI 5 where detector_kind begins, one of ABI 6 where
-// planner_decel begins.
-constexpr std::size_t kConfigSizeAbi2 = offsetof(tm_config, controller) + offsetof(tm_controller_params, shear_integral);
-static_assert(kConfigSizeAbi2 <= sizeof(tm_config), "tm_config only grows");
+// Programs built against the headers of ABI 6 and earlier call this symbol directly (the
+// header's macro of the same name has replaced it since): an ABI-6 struct, never more.
+int32_t (tm_config_init)(tm_config* cfg) {
+    return tm_config_init_sized(cfg, static_cast<uint32_t>(kConfigSizeAbi6));
+}
 
 int32_t tm_pipeline_create(const tm_config* user_cfg, tm_pipeline* out) {
     if (!user_cfg) return fail(TM_ERR_NULL, "cfg is NULL");

@@ -158,9 +158,6 @@ class Pad:
         for s in self.solvers:  # the kinetic coefficient keeps its ratio to the static one
             s.mu_kinetic = s.mu_kinetic * float(value) / s.mu
             s.mu = float(value)
-        # the next step settles the contact under the new cones, even where the plate stands
-        # still (the solvers treat a friction change as an event at the current load)
-        self._last = None
 
     def reset(self) -> None:
         # last ridge first: a compiled ridge shadowing an earlier one (its mirror image,
@@ -281,7 +278,9 @@ class Pad:
         the contact of every ridge; returns the new :class:`PadState`."""
         m = self.model
         n = m.n_nodes
-        key = (float(plate_y), float(indent))
+        # friction is part of the load: a change of it (Pad.mu, or a solver's own mu) is an
+        # event at the current load that the solvers settle, even with the plate still
+        key = (float(plate_y), float(indent), tuple((s.mu, s.mu_kinetic) for s in self.solvers))
         if self.stepping == "auto" and self._last is not None and self._last[0] == key and self._last[2]:
             # the plate stands still (and its first repeat has stopped the sliding
             # nodes): the quasi-static state does not change

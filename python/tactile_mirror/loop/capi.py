@@ -157,7 +157,7 @@ class CPipeline:
         self.ffi, self.lib = ffi, lib
         c = config
         cfg = ffi.new("tm_config*")
-        self._check(lib.tm_config_init(cfg))
+        self._check(lib.tm_config_init_sized(cfg, ffi.sizeof("tm_config")))
         self._keep = []
 
         def arr(a):

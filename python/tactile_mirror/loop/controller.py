@@ -69,7 +69,8 @@ _DEFAULTS = {kind: _core.controller_defaults(kind) for kind in ("none", "paper",
 
 
 def controller_fields(kind: str | None = None) -> tuple[str, ...]:
-    """Names of the controller parameters, in the order of ``tm_controller_params``.
+    """Names of the controller parameters: those of ``tm_controller_params`` in its order,
+    then those kept in ``tm_config``'s tail (``planner_decel``).
 
     ``kind=None``: all of them; ``"paper"`` / ``"velocity"``: those the law reads;
     ``"none"``: those every law reads.
@@ -250,7 +251,7 @@ class Controller:
         if not d > 0 or v == 0.0:
             return st.x
         s = abs(v)
-        lead = s * s / (2.0 * d) - 0.5 * s / fs
+        lead = s * s / (2.0 * d) - 0.5 * s * (1.0 / fs)
         if not lead > 0:
             return st.x
         return self._clamp(st.x + lead if v > 0 else st.x - lead)

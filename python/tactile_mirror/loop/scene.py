@@ -27,7 +27,7 @@ from .finger import pressed_finger_path
 from .runner import LoopRunner
 from .stage import SimulatedStage, StageLimits
 
-__all__ = ["PLANT_KINDS", "LoopScene", "PlantSource", "SceneResult", "gross_slip_events", "make_plant",
+__all__ = ["PLANT_KINDS", "LoopScene", "PlantSource", "SceneResult", "gross_slip_events", "gross_slip_starts", "make_plant",
            "run_scene", "scene_finger"]
 
 #: The plants a scene can name: ``"brush"`` (:class:`~tactile_mirror.contact.brush.BrushRidges`)
@@ -143,22 +143,26 @@ class PlantSource:
         return x
 
 
-def gross_slip_events(slip_fraction, level: float = 0.999, min_gap: int = 20) -> int:
-    """Number of gross-slip events of the contact: every ridge grossly slipping
-    (slip fraction >= ``level``); events closer than ``min_gap`` ticks are merged."""
+def gross_slip_starts(slip_fraction, level: float = 0.999, min_gap: int = 20) -> np.ndarray:
+    """Ticks where gross-slip events of the contact start: every ridge grossly slipping
+    (slip fraction >= ``level``, shape ``(n_ridges, n)``); an event starting fewer than
+    ``min_gap`` ticks after the previous one ended is merged into it."""
     g = np.all(np.asarray(slip_fraction) >= level, axis=0)
     starts = np.flatnonzero(g[1:] & ~g[:-1]) + 1
     if g.size and g[0]:
         starts = np.concatenate([[0], starts])
-    if starts.size == 0:
-        return 0
     ends = np.flatnonzero(g[:-1] & ~g[1:]) + 1
-    n = 1
-    for s in starts[1:]:
+    kept = []
+    for s in starts:
         prev_end = ends[ends < s]
-        if prev_end.size == 0 or s - prev_end[-1] >= min_gap:
-            n += 1
-    return n
+        if not kept or prev_end.size == 0 or s - prev_end[-1] >= min_gap:
+            kept.append(int(s))
+    return np.asarray(kept, dtype=np.int64)
+
+
+def gross_slip_events(slip_fraction, level: float = 0.999, min_gap: int = 20) -> int:
+    """Number of gross-slip events of the contact (:func:`gross_slip_starts`)."""
+    return int(gross_slip_starts(slip_fraction, level, min_gap).size)
 
 
 @dataclass

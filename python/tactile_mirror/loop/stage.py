@@ -152,8 +152,9 @@ class SimulatedStage:
         """Move the simulated time on by ``dt`` seconds; returns the position, m."""
         if not dt > 0:
             raise ValueError(f"dt must be > 0 s, got {dt}")
-        # Targets take effect at the start of the interval they fall in (a target sent at t
-        # with a dead time equal to dt moves the carriage from t + dt on, not over [t, t + dt]).
+        # A target takes effect at the first interval that starts at or after its due time
+        # (sent at t with a dead time of one dt, it moves the carriage from t + dt on, not
+        # over [t, t + dt]); dead times are thus whole ticks, rounded up.
         while self._pending and self._pending[0][0] <= self.t + 1e-12:
             self._target = self._pending.popleft()[1]
         self.t += dt
