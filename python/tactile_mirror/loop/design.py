@@ -33,7 +33,7 @@ The loop
     displacement): a *type-2* loop in the finger's band. A finger accelerating at ``A``
     leaves ``e = A / (Kp z)``; a type-1 loop (``z = 0``, the previous law) leaves
     ``v / Kp``, which grows with finger speed while the contact carries only a fraction
-    of a millimetre (at sweat friction some 20 um) before gross slip. Below the shear
+    of a millimetre (0.18 mm at mu 0.76, 0.074 mm at sweat's 0.45) before gross slip. Below the shear
     leak's corner ``1 / (2 pi asym_tau)`` (0.16 Hz) the loop is type 1 with the velocity
     constant ``Kp z asym_tau`` (11 900 1/s in the nominal design: 1.7 um at 20 mm/s).
 
@@ -68,6 +68,16 @@ Limits and partial slip
     displacement while the ridges' edges slide: it answers with the wrong sign); during
     the hold the stage decelerates at ``a_max`` with ``w`` cleared, then the shear is
     re-tared and the loop starts again from the re-stuck contact.
+
+What the design cannot hold: a change of friction under load (sweat)
+    The shear signal is the strips' stress, calibrated as a displacement in full stick.
+    When friction falls, the tractions left at the ridges' edges relax by partial slip and
+    the signal moves with no relative motion at all: -69 to -176 um and +137 um at mu 0.45
+    (up to -390 um at 0.40) with finger and pad still, as much as the contact carries before
+    gross slip (``bench/loop_sweat_sensing.py``). A still finger's contact holds through
+    the drop open loop; this law follows the phantom into gross slip. Holding through a
+    friction change needs a measurement that tells it from a displacement (a force sensor
+    under the pad, the finger's position) or an observer of the partial slip.
 
 The numbers of the nominal design (FEM pad, 1 kHz, 2nd-order 100 Hz estimator, stage
 1 ms dead time, 2 ms lag) are given by :meth:`LoopDesign.summary`; the README and
