@@ -8,10 +8,10 @@ Two measurements on the 6-ridge FEM pad, the finger held still (no relative moti
 
 1. The pad held still, the finger resting at a shear offset ``d`` (0 to 40 um, reached in
    0.1 s after the 0.5 s press), friction ramped from the pad's 0.76 to ``mu`` over 0.2 s
-   from 1.0 s. Printed: the calibrated shear signal's move over the ramp and the 0.4 s
-   after it (the loop's own calibration: ``calibrate_shear_weights``, ``calibrate_shear``,
-   um of relative displacement), the pad's lateral force before and after. A displacement
-   sensor would read 0 um.
+   from 1.0 s. Printed: the calibrated shear signal (the loop's own: its calibration by
+   ``calibrate_shear_weights`` and ``calibrate_shear``, its 1 s leak, tared after the press;
+   um of relative displacement) before the drop, its largest move over the ramp and the 0.4 s
+   after it, and its move by the end. A displacement sensor would read 0 um.
 2. The same drop from 1.75 s, finger at rest for the whole 3 s, open loop and with the
    default law (``design_loop``, the envelope's stage): gross slips and the stage's
    largest excursion.

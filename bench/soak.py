@@ -203,11 +203,13 @@ class CLib:
         self.lib = self.ffi.dlopen(str(lib))
 
     def create(self, config: dict, precision: int = 64):
+        from tactile_mirror.loop.capi import controller_param_owner, new_config
+
         ffi, lib = self.ffi, self.lib
-        cfg = ffi.new("tm_config*")
         try:  # this tree's library fills exactly this header's struct
-            assert lib.tm_config_init_sized(cfg, ffi.sizeof("tm_config")) == 0
+            cfg = new_config(ffi, lib)
         except AttributeError:  # a --base build from before ABI 7
+            cfg = ffi.new("tm_config*")
             assert lib.tm_config_init(cfg) == 0
         cfg.precision = precision
         keep = []
@@ -233,13 +235,10 @@ class CLib:
         cfg.activation = 1
         cfg.controller.kind = 2
         for k, v in c["controller"].items():
-            # a controller field kept in tm_config's tail (planner_decel) goes there; a
-            # --base build's header may lack a newer field: it keeps that build's behaviour
-            if k == "kind":
-                continue
-            target = cfg.controller if hasattr(cfg.controller, k) else cfg if hasattr(cfg, k) else None
-            if target is not None:
-                setattr(target, k, float(v))
+            # a --base build's header may lack a newer field: it keeps that build's behaviour
+            owner = None if k == "kind" else controller_param_owner(cfg, k)
+            if owner is not None:
+                setattr(owner, k, float(v))
         h = ffi.new("tm_pipeline*")
         rc = lib.tm_pipeline_create(cfg, h)
         if rc != 0:

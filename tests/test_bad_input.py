@@ -17,7 +17,7 @@ from tactile_mirror.loop.controller import NoController, controller_fields
 from tactile_mirror.pipeline import MirrorPipeline, ReferencePipeline
 
 cffi = pytest.importorskip("cffi")
-from tactile_mirror.loop.capi import CAPIError, CPipeline, load
+from tactile_mirror.loop.capi import CAPIError, CPipeline, load, new_config
 
 FS = 1000.0
 DBL_MAX = float(np.finfo(np.float64).max)
@@ -227,8 +227,7 @@ def _c_default_velocity_config(w, est, keep):
     tm_config_init_sized with the struct's size), the sections and weights,
     tm_controller_defaults(TM_CONTROLLER_VELOCITY, ...); arrays it points to go to ``keep``."""
     ffi, lib = load()
-    cfg = ffi.new("tm_config*")
-    assert lib.tm_config_init_sized(cfg, ffi.sizeof("tm_config")) == 0
+    cfg = new_config(ffi, lib)
 
     def ptr(a):
         a = np.ascontiguousarray(a, dtype=np.float64)
@@ -365,8 +364,7 @@ def test_version_string_and_struct_sizes():
     assert s.struct_size == old and s.ticks == 0
     assert bytes(ffi.buffer(buf)[old:]) == b"\xab" * (len(buf) - old)
     # tm_config: sizes beyond this header's are refused; abi_version 2 is accepted
-    cfg = ffi.new("tm_config*")
-    lib.tm_config_init_sized(cfg, ffi.sizeof("tm_config"))
+    cfg = new_config(ffi, lib)
     h = ffi.new("tm_pipeline*")
     cfg.struct_size = ffi.sizeof("tm_config") + 8
     assert lib.tm_pipeline_create(cfg, h) == -6

@@ -15,7 +15,7 @@ from tactile_mirror.loop import PaperController, VelocityController, header_path
 from tactile_mirror.pipeline import MirrorPipeline
 
 cffi = pytest.importorskip("cffi")
-from tactile_mirror.loop.capi import CAPIError, CPipeline, load
+from tactile_mirror.loop.capi import CAPIError, CPipeline, load, new_config
 
 FS = 1000.0
 HERE = Path(__file__).resolve().parent
@@ -122,12 +122,11 @@ def test_create_errors_name_the_field():
     with pytest.raises(CAPIError, match="sos_u must be empty"):
         CPipeline(dict(cfg, use_u=False))
     ffi, lib = load()
-    c = ffi.new("tm_config*")
-    lib.tm_config_init_sized(c, ffi.sizeof("tm_config"))
+    c = new_config(ffi, lib)
     c.abi_version = 99
     h = ffi.new("tm_pipeline*")
     assert lib.tm_pipeline_create(c, h) == lib.TM_ERR_VERSION and h[0] == 0
-    lib.tm_config_init_sized(c, ffi.sizeof("tm_config"))
+    c = new_config(ffi, lib)
     c.precision = 32
     c.detector_precision = 64
     assert lib.tm_pipeline_create(c, h) == lib.TM_ERR_ARGUMENT

@@ -198,7 +198,7 @@ def test_predicted_tracking_error_matches_the_simulated_one(fem_fast_run):
 
 def test_c_abi_carries_the_new_parameters_with_its_version_bumped():
     # ABI 4: shear_integral, rate_gain; ABI 5: shear_weights (test_shear_weights_...)
-    from tactile_mirror.loop.capi import CPipeline, load
+    from tactile_mirror.loop.capi import CPipeline, load, new_config
 
     ffi, lib = load()
     assert lib.tm_abi_version() >= 4
@@ -216,8 +216,7 @@ def test_c_abi_carries_the_new_parameters_with_its_version_bumped():
     assert np.array_equal(out.view(np.uint64), ref.view(np.uint64))
     # a program built against ABI 3 (tm_config ending at slip_hold) still creates a pipeline;
     # the new fields take their defaults
-    cfg = ffi.new("tm_config*")
-    lib.tm_config_init_sized(cfg, ffi.sizeof("tm_config"))
+    cfg = new_config(ffi, lib)
     old_size = ffi.offsetof("tm_config", "controller") + ffi.offsetof("tm_controller_params", "shear_integral")
     assert old_size < ffi.sizeof("tm_config")
     cfg.struct_size = old_size
@@ -227,8 +226,7 @@ def test_c_abi_carries_the_new_parameters_with_its_version_bumped():
     assert lib.tm_pipeline_create(cfg, h) == lib.TM_ERR_ARGUMENT
     cfg.struct_size = old_size - 8  # shorter than any ABI had
     assert lib.tm_pipeline_create(cfg, h) == lib.TM_ERR_VERSION
-    bad = ffi.new("tm_config*")
-    lib.tm_config_init_sized(bad, ffi.sizeof("tm_config"))
+    bad = new_config(ffi, lib)
     bad.abi_version = lib.tm_abi_version() + 1
     h = ffi.new("tm_pipeline*")
     assert lib.tm_pipeline_create(bad, h) == lib.TM_ERR_VERSION
@@ -263,7 +261,7 @@ def test_envelope_table_sums_per_class():
 
 
 def test_shear_weights_in_cpp_equal_the_reference_recordings_and_the_c_abi(tmp_path):
-    from tactile_mirror.loop.capi import CPipeline, load
+    from tactile_mirror.loop.capi import CPipeline, load, new_config
 
     c = dataclasses.replace(design(calibration=(1.0, 2e3)).controller, arm_delay=0.05, slip_hold=0.0,
                             v_max=0.004, a_max=0.2)
@@ -294,8 +292,7 @@ def test_shear_weights_in_cpp_equal_the_reference_recordings_and_the_c_abi(tmp_p
     with CPipeline(pipe.config) as cp:
         assert np.array_equal(cp.process_block(x)[0].view(np.uint64), out.view(np.uint64))
     # a program built against ABI 4 (tm_config ending at the controller) gets L - R
-    cfg = ffi.new("tm_config*")
-    lib.tm_config_init_sized(cfg, ffi.sizeof("tm_config"))
+    cfg = new_config(ffi, lib)
     assert cfg.shear_weights == ffi.NULL
     abi4 = ffi.offsetof("tm_config", "controller") + ffi.offsetof("tm_controller_params", "slip_confirm")
     cfg.struct_size = abi4
@@ -401,7 +398,7 @@ def test_planner_lead_restores_the_designed_stage_phase_at_speed():
 
 
 def test_planner_decel_is_checked_and_carried_by_the_c_abi():
-    from tactile_mirror.loop.capi import CAPIError, CPipeline, load
+    from tactile_mirror.loop.capi import CAPIError, CPipeline, load, new_config
 
     with pytest.raises(ValueError, match="planner_decel"):
         VelocityController(planner_decel=-1.0)
@@ -424,8 +421,7 @@ def test_planner_decel_is_checked_and_carried_by_the_c_abi():
     with CPipeline(pipe.config) as cp:  # through tm.h: bit for bit
         assert np.array_equal(cp.process_block(x)[0].view(np.uint64), out.view(np.uint64))
     # (an ABI-6 program's struct, without planner_decel: tests/test_bad_input.py)
-    cfg = ffi.new("tm_config*")
-    assert lib.tm_config_init_sized(cfg, ffi.sizeof("tm_config")) == 0
+    cfg = new_config(ffi, lib)
     assert cfg.planner_decel == 0.0 and cfg.abi_version == 7
     # through tm.h a bad value is refused, naming it
     bad = {**pipe.config, "controller": {**pipe.config["controller"], "planner_decel": -5.0}}

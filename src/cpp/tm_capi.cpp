@@ -293,7 +293,7 @@ int32_t tm_pipeline_create(const tm_config* user_cfg, tm_pipeline* out) {
                     unsigned(user_cfg->abi_version), TM_ABI_VERSION);
     // A shorter (older) struct: the fields it lacks keep their defaults.
     tm_config full;
-    tm_config_init(&full);
+    config_defaults(&full);
     std::memcpy(&full, user_cfg, size);
     const tm_config* cfg = &full;
     if (cfg->precision != 64 && cfg->precision != 32)

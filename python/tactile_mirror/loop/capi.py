@@ -20,7 +20,8 @@ from pathlib import Path
 
 import numpy as np
 
-__all__ = ["CAPIError", "CPipeline", "header_path", "include_dir", "library_path", "load"]
+__all__ = ["CAPIError", "CPipeline", "controller_param_owner", "header_path", "include_dir", "library_path", "load",
+           "new_config"]
 
 _LIB_NAMES = {"linux": "libtactile_mirror_c.so", "darwin": "libtactile_mirror_c.dylib",
               "win32": "tactile_mirror_c.dll"}
@@ -124,6 +125,32 @@ class CAPIError(RuntimeError):
 
 
 _CTRL_KINDS = {"none": 0, "paper": 1, "velocity": 2}
+
+
+def _raise_status(ffi, lib, rc: int) -> int:
+    """``rc`` if it is not an error code, else :class:`CAPIError` with the library's message."""
+    if rc < 0:
+        raise CAPIError(rc, ffi.string(lib.tm_status_name(rc)).decode(), ffi.string(lib.tm_last_error()).decode())
+    return rc
+
+
+def new_config(ffi, lib):
+    """A ``tm_config*`` holding the library's defaults, filled as the header's ``tm_config_init``
+    macro fills a C program's struct: ``tm_config_init_sized`` with the size these
+    declarations give it. (The exported ``tm_config_init`` fills an ABI-6 struct, for programs
+    built against the older headers.)"""
+    cfg = ffi.new("tm_config*")
+    _raise_status(ffi, lib, lib.tm_config_init_sized(cfg, ffi.sizeof("tm_config")))
+    return cfg
+
+
+def controller_param_owner(cfg, name: str):
+    """The struct of ``cfg`` that holds controller parameter ``name``: ``cfg.controller``, or
+    ``cfg`` itself for the parameters added after ABI 6 (kept in ``tm_config``'s tail:
+    ``planner_decel``); None if these declarations have neither (an older header)."""
+    if hasattr(cfg.controller, name):
+        return cfg.controller
+    return cfg if hasattr(cfg, name) else None
 _REASONS = {0: "", 1: "nonfinite", 2: "out_of_range", 3: "overflow"}
 
 
@@ -156,8 +183,7 @@ class CPipeline:
         ffi, lib = load(path)
         self.ffi, self.lib = ffi, lib
         c = config
-        cfg = ffi.new("tm_config*")
-        self._check(lib.tm_config_init_sized(cfg, ffi.sizeof("tm_config")))
+        cfg = new_config(ffi, lib)
         self._keep = []
 
         def arr(a):
@@ -201,8 +227,7 @@ class CPipeline:
         cfg.controller.kind = _CTRL_KINDS[ctrl["kind"]]
         for k, v in ctrl.items():
             if k != "kind":
-                # parameters added after ABI 6 live in tm_config's tail, not in tm_controller_params
-                setattr(cfg.controller if hasattr(cfg.controller, k) else cfg, k, float(v))
+                setattr(controller_param_owner(cfg, k), k, float(v))
         h = ffi.new("tm_pipeline*")
         self._check(lib.tm_pipeline_create(cfg, h))
         self._keep.clear()
@@ -217,10 +242,7 @@ class CPipeline:
         self._out = np.zeros(self.n_outputs)
 
     def _check(self, rc: int) -> int:
-        if rc < 0:
-            raise CAPIError(rc, self.ffi.string(self.lib.tm_status_name(rc)).decode(),
-                            self.ffi.string(self.lib.tm_last_error()).decode())
-        return rc
+        return _raise_status(self.ffi, self.lib, rc)
 
     def step(self, x, out=None) -> float:
         """One tick, as :meth:`tactile_mirror.MirrorPipeline.step`: ``x`` float64
