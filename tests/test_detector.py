@@ -505,3 +505,37 @@ def test_sigmoid_error_bound(dtype, activation, bound, path):
     assert np.all((y >= 0) & (y <= 1))
     tiny = np.finfo(dtype).tiny
     assert not np.any((y != 0) & (y < tiny))
+
+
+def test_onset_windows_mark_the_first_samples_of_every_slip():
+    from tactile_mirror.detector.training import onset_windows
+
+    y = np.array([[0, 0, 1, 1, 1, 1, 0, 1, 1, 0, 0],
+                  [1, 1, 1, 0, 0, 0, 0, 0, 0, 0, 0],
+                  [0, 0, 0, 0, 0, 0, 0, 0, 1, 1, 1]], dtype=float)
+    mask = np.ones(y.shape, dtype=bool)
+    mask[2, 9:] = False  # padding is never a window sample
+    w = onset_windows(y, mask, 3)
+    np.testing.assert_array_equal(w.astype(int), [[0, 0, 1, 1, 1, 0, 0, 1, 1, 0, 0],
+                                                  [1, 1, 1, 0, 0, 0, 0, 0, 0, 0, 0],
+                                                  [0, 0, 0, 0, 0, 0, 0, 0, 1, 0, 0]])
+    assert not onset_windows(y, mask, 0).any()
+
+
+def test_onset_weight_adds_the_window_as_a_class_of_its_own():
+    from tactile_mirror.detector.training import _loss_weights, onset_windows
+
+    ts = small_set(2)
+    base, wp = _loss_weights(ts, 4.0, 10.0)
+    ws, wp2 = _loss_weights(ts, 4.0, 10.0, onset_weight=2.0, onset_window=0.02)
+    win = onset_windows(ts.y_slip, ts.mask, int(round(0.02 * ts.fs)))
+    assert win.any()
+    np.testing.assert_array_equal(ws[~win], base[~win])  # only the window's samples change
+    assert ws[win].sum() - base[win].sum() == pytest.approx(0.5 * 2.0)  # half the weight of the slip class x 2
+    np.testing.assert_array_equal(wp2, wp)
+    w = train_detector(ts, n_hidden=3, maxiter=2, progress=False, onset_weight=2.0, onset_window=0.02)
+    assert w.metadata["training"]["onset_weight"] == 2.0
+    assert "onset_weight" not in train_detector(ts, n_hidden=3, maxiter=2, progress=False).metadata["training"]
+    for bad in ({"onset_weight": -1.0}, {"onset_weight": np.nan}, {"onset_window": 0.0}):
+        with pytest.raises(ValueError, match=next(iter(bad))):
+            train_detector(ts, n_hidden=3, maxiter=1, progress=False, **bad)

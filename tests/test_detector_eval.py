@@ -417,3 +417,32 @@ def test_build_options_refuse_a_bad_calibration_rate(bad):
         BuildOptions(calibrate_fa=bad)
     with pytest.raises(ValueError, match="calibrate_fa"):
         BuildOptions(calibrate_fa=0.02, candidates=1, checkpoint_every=0)
+
+
+def test_scorer_at_false_alarm_scores_the_curve_not_the_threshold(synthetic_detectors):
+    """A net calibrated afterwards is scored by its curve: shifting y_slip's bias moves the
+    threshold-0.8 score but not the detection at a false-alarm rate."""
+    from tactile_mirror.detector.build import ValidationScorer
+    from tactile_mirror.detector.data_prep import features_from_result
+    from tactile_mirror.detector.evaluate import roc
+
+    det, _, _ = synthetic_detectors
+    val = [synthetic_scene(seed=3000 + s, n_ridges=1) for s in range(4)]
+    val += [synthetic_scene(seed=3100 + s, n_ridges=1, stop_before_slip=True) for s in range(2)]
+    scorer = ValidationScorer(val, at_false_alarm=0.2)
+    s0 = scorer(det.weights)
+    scores = [det.run(features_from_result(r, det.features, estimator=det.metadata.get("estimator")),
+                      fs=r.fs)[0] for r in val]
+    expect = roc(scores, val).at_false_alarm(0.2)["detection_rate"]
+    assert s0["score"] == s0["detection_at_false_alarm"] == expect
+    shifted = det.weights.params.copy()
+    shifted.b2[0] -= 15.0  # a monotone map of y_slip: the same curve, another threshold-0.8 point
+    w_shift = type(det.weights)(shifted, det.weights.input_mean, det.weights.input_scale, det.weights.fs,
+                                det.metadata)
+    s1 = scorer(w_shift)
+    assert s1["score"] == s0["score"]
+    assert s1["false_alarm_rate"] < s0["false_alarm_rate"]  # the threshold score did move
+    assert ValidationScorer(val)(det.weights)["score"] != s0["score"]
+    for bad in (1.0, -0.1, True, "0.02"):
+        with pytest.raises(ValueError, match="at_false_alarm"):
+            ValidationScorer(val, at_false_alarm=bad)

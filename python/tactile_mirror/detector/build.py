@@ -180,22 +180,46 @@ class ValidationScorer:
     weights on the validation set (:func:`~tactile_mirror.detector.evaluate.evaluate`'s
     definitions). Scoring hundreds of checkpoints costs one C++ block run per
     scene each, not a feature computation.
+
+    With ``at_false_alarm`` (a rate) the score is instead the detection rate at that
+    false-alarm rate along the net's threshold sweep (:func:`~tactile_mirror.detector.evaluate.roc`;
+    also returned as ``detection_at_false_alarm``): the right score for a net whose decision
+    point is calibrated afterwards (:func:`calibrate_slip`), where what the threshold
+    0.8 of the uncalibrated net gives does not matter, only how far its curve reaches.
     """
 
-    def __init__(self, validation, fa_cost: float = 10.0):
+    def __init__(self, validation, fa_cost: float = 10.0, at_false_alarm: float | None = None):
         self.validation = list(validation)
         if not self.validation:
             raise ValueError("validation must not be empty")
         if not np.isfinite(fa_cost) or fa_cost < 0:
             raise ValueError(f"fa_cost must be a non-negative number, got {fa_cost!r}")
+        if at_false_alarm is not None and not (isinstance(at_false_alarm, (int, float))
+                                               and not isinstance(at_false_alarm, bool)
+                                               and 0 <= at_false_alarm < 1):
+            raise ValueError(f"at_false_alarm must be a false-alarm rate in [0, 1) or None, got {at_false_alarm!r}")
         self.fa_cost = float(fa_cost)
+        self.at_false_alarm = None if at_false_alarm is None else float(at_false_alarm)
         self._features = {}
 
     def __call__(self, weights) -> dict:
-        m = evaluate(SlipDetector(weights), self.validation, features_cache=self._features)["detector"]
-        return {"detection_rate": m.detection_rate, "false_alarm_rate": m.false_alarm_rate,
-                "false_alarm_samples": m.false_alarm_samples, "pred_lead_mean_ms": m.pred_lead_mean_ms,
-                "score": m.detection_rate - self.fa_cost * m.false_alarm_rate}
+        det = SlipDetector(weights)
+        m = evaluate(det, self.validation, features_cache=self._features)["detector"]
+        out = {"detection_rate": m.detection_rate, "false_alarm_rate": m.false_alarm_rate,
+               "false_alarm_samples": m.false_alarm_samples, "pred_lead_mean_ms": m.pred_lead_mean_ms,
+               "score": m.detection_rate - self.fa_cost * m.false_alarm_rate}
+        if self.at_false_alarm is not None:
+            from .evaluate import roc
+
+            est = det.metadata.get("estimator")
+            key = repr(sorted(est.items())) if isinstance(est, dict) else repr(est)
+            # evaluate() filled the cache with these features under its own keys
+            scores = [det.run(self._features[(k, det.features, key)], fs=r.fs)[0]
+                      for k, r in enumerate(self.validation)]
+            point = roc(scores, self.validation).at_false_alarm(self.at_false_alarm)
+            out["detection_at_false_alarm"] = point["detection_rate"]
+            out["score"] = point["detection_rate"]
+        return out
 
 
 def select_candidate(candidates, validation, fa_cost: float = 10.0):
@@ -428,6 +452,11 @@ class BuildOptions:
         :data:`~tactile_mirror.detector.evaluate.NOISE_CONDITIONS`); the decision point is
         the lowest that keeps the validation scenes within every bound in its condition
         (:func:`calibrate_slip` with ``conditions``).
+
+        With either, the candidates are chosen by their validation detection at that
+        false-alarm rate (the smallest bound) along their threshold sweep
+        (``ValidationScorer(at_false_alarm=...)``), since the calibration, not the
+        threshold the net was trained to, sets where they operate.
     """
 
     n_train: int = 64
@@ -621,7 +650,10 @@ def _build(out_path, options: BuildOptions, report_path, figure_path, results, c
               "train_kwargs": train_kwargs, "test_kwargs": test_kwargs, "train_options": opts,
               "gain_range": None if gain_range is None else list(gain_range),
               "noise_copies": int(noise_copies), "noise_range": list(noise_range)}
-    scorer = ValidationScorer(val_res) if selecting else None
+    # A net calibrated afterwards is chosen by how far its curve reaches at the false-alarm
+    # rate it will be calibrated to, not by what its uncalibrated threshold gives.
+    select_fa = o.calibrate_fa if o.calibrate_conditions is None else min(o.calibrate_conditions.values())
+    scorer = ValidationScorer(val_res, at_false_alarm=select_fa) if selecting else None
     if study_sizes:
         if scorer is None:
             raise ValueError("study_sizes needs validation scenes: candidates > 1 or checkpoint_every > 0")
@@ -697,6 +729,8 @@ def main(argv=None):
     ap.add_argument("--study", type=int, nargs="*", help="hidden sizes to compare")
     ap.add_argument("--negative-weight", type=float, default=TRAIN_OPTIONS["negative_weight"])
     ap.add_argument("--pred-weight", type=float, default=TRAIN_OPTIONS["pred_weight"])
+    ap.add_argument("--onset-weight", type=float, default=0.0,
+                    help="extra weight of the first 50 ms of every slip in the y_slip loss (0: none)")
     ap.add_argument("--normalisation", default="rms", choices=["rms", "median"])
     ap.add_argument("--kind", default="jordan", choices=sorted(KINDS),
                     help="jordan: the paper's net; jordan_memory: the load-memory net; jordan_bank: the filter-bank net")
@@ -748,7 +782,8 @@ def main(argv=None):
                            noise_range=tuple(args.noise_range), calibrate_fa=args.calibrate_fa,
                            calibrate_conditions=goals, n_validation=args.n_validation,
                            train_options={"negative_weight": args.negative_weight, "pred_weight": args.pred_weight,
-                                          "normalisation": args.normalisation})
+                                          "normalisation": args.normalisation,
+                                          **({"onset_weight": args.onset_weight} if args.onset_weight else {})})
     extra = {} if args.cache is None else {"cache_dir": args.cache}
     _w, report = build_default(args.out, options, report_path=args.report, figure_path=args.figure, **extra)
     print(report["evaluation_table"])

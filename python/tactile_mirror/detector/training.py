@@ -218,12 +218,33 @@ _PRED_TARGET_TEXT = {
 }
 
 
-def _loss_weights(ts: TrainingSet, pred_weight: float, negative_weight: float = 1.0):
+def onset_windows(y_slip: np.ndarray, mask: np.ndarray, n_window: int) -> np.ndarray:
+    """True on the first ``n_window`` samples of every run of ``y_slip >= 0.5`` (per row,
+    within ``mask``): the samples where a slip is detected or missed (the evaluation's
+    detection window, :func:`~tactile_mirror.detector.evaluate.analyse_sequence`)."""
+    pos = (np.asarray(y_slip) >= 0.5) & np.asarray(mask, dtype=bool)
+    if n_window < 1:
+        return np.zeros_like(pos)
+    start = pos & ~np.concatenate([np.zeros((pos.shape[0], 1), dtype=bool), pos[:, :-1]], axis=1)
+    # Samples since the last start: a running count, reset at each start.
+    idx = np.arange(pos.shape[1])[None, :]
+    last = np.maximum.accumulate(np.where(start, idx, -1), axis=1)
+    return pos & (last >= 0) & (idx - last < n_window)
+
+
+def _loss_weights(ts: TrainingSet, pred_weight: float, negative_weight: float = 1.0, onset_weight: float = 0.0,
+                  onset_window: float = 0.05):
     m = ts.mask.astype(np.float64)
     pos = m * (ts.y_slip >= 0.5)
     neg = m - pos
     n_pos, n_neg = pos.sum(), neg.sum()
     w_slip = 0.5 * pos / max(n_pos, 1.0) + 0.5 * negative_weight * neg / max(n_neg, 1.0)
+    if onset_weight:
+        # Most positive samples are steady sliding, which any net gets right; whether a
+        # slip is found is decided in the first samples after its onset, where a creeping
+        # slip's signals are weakest. This term weights that window as a class of its own.
+        win = onset_windows(ts.y_slip, ts.mask, int(round(onset_window * ts.fs))).astype(np.float64)
+        w_slip = w_slip + 0.5 * onset_weight * win / max(win.sum(), 1.0)
     w_pred = pred_weight * m / max(m.sum(), 1.0)
     return w_slip, w_pred
 
@@ -262,7 +283,7 @@ def _cpp_loss(xn, data, w_slip, w_pred, n_hidden, l2, feedback, n_threads):
 
 def train_detector(data, n_hidden: int = 16, feedback: bool = True, seed=0, maxiter: int = 400,
                    l2: float = 1e-4, pred_weight: float = 1.0, negative_weight: float = 1.0,
-                   features: str = "stress_rate",
+                   onset_weight: float = 0.0, onset_window: float = 0.05, features: str = "stress_rate",
                    estimator=None, circuit=None, progress: bool = True, metadata=None,
                    normalisation: str = "rms", backend: str = "cpp", n_threads=None, callback=None,
                    callback_every: int = 25) -> DetectorWeights:
@@ -288,6 +309,13 @@ def train_detector(data, n_hidden: int = 16, feedback: bool = True, seed=0, maxi
     negative_weight : float
         Extra weight of the no-slip samples of the y_slip loss (> 1 penalises
         false alarms more than late detections).
+    onset_weight : float
+        Weight of the first ``onset_window`` seconds of every gross slip in the y_slip
+        loss, on top of their weight as slip samples, relative to the slip class (0:
+        none, the default). The detection of a slip is decided there
+        (:func:`~tactile_mirror.detector.evaluate.evaluate`'s ``max_latency``).
+    onset_window : float
+        Length of that window, s. Default 0.05.
     features, estimator, circuit
         Feature kind and estimator settings (only used when ``data`` holds results).
     progress : bool
@@ -339,7 +367,11 @@ def train_detector(data, n_hidden: int = 16, feedback: bool = True, seed=0, maxi
     mean, scale = fit_normalisation(data.x, data.mask, normalisation)
     xn = (data.x - mean[None, :, None]) * (1.0 / scale)[None, :, None]
     xn *= data.mask[:, None, :]
-    w_slip, w_pred = _loss_weights(data, pred_weight, negative_weight)
+    if not (np.isfinite(onset_weight) and onset_weight >= 0.0):
+        raise ValueError(f"onset_weight must be finite and >= 0, got {onset_weight!r}")
+    if not (np.isfinite(onset_window) and onset_window > 0.0):
+        raise ValueError(f"onset_window must be finite and > 0 s, got {onset_window!r}")
+    w_slip, w_pred = _loss_weights(data, pred_weight, negative_weight, onset_weight, onset_window)
     n_in = data.n_inputs
     if len(feature_units(data.features, data.bank)) != n_in:
         raise ValueError(f"data.features {data.features!r} have {len(feature_units(data.features, data.bank))} "
@@ -388,6 +420,8 @@ def train_detector(data, n_hidden: int = 16, feedback: bool = True, seed=0, maxi
             "training": {"n_sequences": int(data.n_seq), "n_samples": int(data.mask.sum()), "seed": int(seed),
                          "maxiter": int(maxiter), "l2": float(l2),
                          "pred_weight": float(pred_weight), "negative_weight": float(negative_weight),
+                         **({"onset_weight": float(onset_weight), "onset_window": float(onset_window)}
+                            if onset_weight else {}),
                          "normalisation": normalisation, "backend": backend,
                          "optimizer": "scipy.optimize L-BFGS-B, exact BPTT gradient", **extra, **(metadata or {})},
         }
