@@ -408,6 +408,27 @@ TM_ALWAYS_INLINE void lu_right_upper_impl(const double* lu, std::size_t m, std::
     }
 }
 
+// z[k] -= sum_c V_c[k] y[c] for k < m, nb columns V_c at V + c * ldv: the border's
+// correction of a bordered solve (solve_bordered), four entries of z at a time through
+// all the columns (each column's term in column order, as one axpy per column would
+// add them), so z is loaded and stored once instead of once per column.
+template <int B>
+TM_ALWAYS_INLINE void sub_columns_impl(double* z, std::size_t m, const double* V, std::size_t ldv, const double* y,
+                                       std::size_t nb) noexcept {
+    using V4 = typename simd::Vec<double, 32>::type;
+    std::size_t k = 0;
+    for (; k + 4 <= m; k += 4) {
+        V4 a = simd::load<V4>(z + k);
+        for (std::size_t c = 0; c < nb; ++c) a -= simd::load<V4>(V + c * ldv + k) * lu_bcast<B>(y + c);
+        std::memcpy(z + k, &a, sizeof(a));
+    }
+    for (; k < m; ++k) {
+        double a = z[k];
+        for (std::size_t c = 0; c < nb; ++c) a -= V[c * ldv + k] * y[c];
+        z[k] = a;
+    }
+}
+
 // u = C P lam for the symmetric (m x m, m = 2n) compliance C, P = diag(1, -1):
 // column j of C P is row j of C (sign-flipped for the normal block); only the
 // nonzero forces contribute (open nodes carry none).
@@ -473,6 +494,10 @@ inline void lu_solve_base(const double* lu, std::size_t m, std::size_t lda, cons
                           std::size_t ldx, std::size_t k) noexcept {
     lu_solve_impl<simd::kBaseBytes>(lu, m, lda, piv, x, ldx, k);
 }
+inline void sub_columns_base(double* z, std::size_t m, const double* V, std::size_t ldv, const double* y,
+                             std::size_t nb) noexcept {
+    sub_columns_impl<simd::kBaseBytes>(z, m, V, ldv, y, nb);
+}
 inline void compliance_product_base(const double* C, std::size_t n, const double* lam, double* u) noexcept {
     compliance_product_impl<simd::kBaseBytes>(C, n, lam, u);
 }
@@ -498,6 +523,10 @@ TM_TARGET_AVX2 inline void lu_right_upper_avx2(const double* lu, std::size_t m, 
 TM_TARGET_AVX2 inline void lu_solve_avx2(const double* lu, std::size_t m, std::size_t lda, const int* piv,
                                          double* x, std::size_t ldx, std::size_t k) noexcept {
     lu_solve_impl<32>(lu, m, lda, piv, x, ldx, k);
+}
+TM_TARGET_AVX2 inline void sub_columns_avx2(double* z, std::size_t m, const double* V, std::size_t ldv,
+                                            const double* y, std::size_t nb) noexcept {
+    sub_columns_impl<32>(z, m, V, ldv, y, nb);
 }
 TM_TARGET_AVX2 inline void compliance_product_avx2(const double* C, std::size_t n, const double* lam,
                                                    double* u) noexcept {
@@ -579,6 +608,14 @@ inline void lu_solve(const double* lu, std::size_t m, std::size_t lda, const int
 }
 inline void lu_solve(const double* lu, std::size_t m, std::size_t lda, const int* piv, double* b) noexcept {
     lu_solve(lu, m, lda, piv, b, 0, 1);
+}
+// z -= V y for nb columns of V (see sub_columns_impl).
+inline void sub_columns(double* z, std::size_t m, const double* V, std::size_t ldv, const double* y,
+                        std::size_t nb) noexcept {
+#if TM_HAVE_DISPATCH
+    if (contact_detail::use_avx2()) return contact_detail::sub_columns_avx2(z, m, V, ldv, y, nb);
+#endif
+    contact_detail::sub_columns_base(z, m, V, ldv, y, nb);
 }
 inline void compliance_product(const double* C, std::size_t n, const double* lam, double* u) noexcept {
 #if TM_HAVE_DISPATCH
@@ -1670,15 +1707,9 @@ public:
         }
         double* y = c;
         if (nb > 0) {  // Schur complement: S y = c - W^T M0^-1 b, x = M0^-1 b - (M0^-1 V) y
-            for (std::size_t r = 0; r < nb; ++r) {
-                y[r] -= dot(Wt_.data() + r * n2_, z, m);
-            }
+            for (std::size_t r = 0; r < nb; ++r) y[r] -= border_row_dot(r, z);
             lu_solve(S_.data(), nb, nb, spiv_.data(), y);
-            for (std::size_t col = 0; col < nb; ++col) {
-                const double* v = Vs_.data() + col * n2_;
-                const double yc = y[col];
-                for (std::size_t k = 0; k < m; ++k) z[k] -= v[k] * yc;
-            }
+            sub_columns(z, m, Vs_.data(), n2_, y, nb);
         }
         for (std::size_t i = 0; i < n2_; ++i) lam[i] = 0.0;
         // base unknowns (those fixed to zero by the border come out as ~zero and are
@@ -1803,6 +1834,21 @@ private:
     std::size_t eq_row(std::size_t k) const noexcept {  // C row of base equation k
         return bkind_[k] ? bnode_[k] : n_ + bnode_[k];
     }
+    // Border row r of W^T (Wt_) against x (length mB_). The rows of the force laws are
+    // zero but at one entry (kFix: the unknown fixed to zero) or two (kSlipRow: lt_i and
+    // ln_i), so they cost those entries, not a dot product over the base: with the
+    // slip front moving, most border rows are of this kind, and the dot products were
+    // a bordered solve's largest cost after its base solve.
+    double border_row_dot(std::size_t r, const double* x) const noexcept {
+        const BorderRow& br = brow_[r];
+        const double* w = Wt_.data() + r * n2_;
+        if (br.kind == kFix) return w[br.pos] * x[br.pos];
+        if (br.kind == kSlipRow) {
+            const std::size_t q = static_cast<std::size_t>(pos_ln_[br.node]);
+            return w[br.pos] * x[br.pos] + w[q] * x[q];
+        }
+        return dot(w, x, mB_);
+    }
     // coefficient of unknown (ln_i with slip coefficient coef, or lt_i) in C row r
     double coef_ln(std::size_t r, std::size_t i, double coef) const noexcept {
         const double* c = C_.data() + r * n2_;
@@ -1920,7 +1966,7 @@ private:
                     const std::size_t row = br.kind == kAddG ? n + br.node : br.node;
                     z = bc.kind == kAddLn ? coef_ln(row, bc.node, slip_coef_[bc.node]) : coef_lt(row, bc.node);
                 }
-                srow[c] = z - dot(w, Vs_.data() + c * n2_, m);
+                srow[c] = z - border_row_dot(r, Vs_.data() + c * n2_);
             }
         }
         nB_ = nb;
