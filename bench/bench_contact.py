@@ -390,7 +390,8 @@ def bench_cpp_events(quick):
                    f"{times['python', 'auto'] / times['cpp', 'auto']:.1f}x vs python auto")
         rows.append([name, "cpp auto: speed-up", "", speedup, "", "", "", ""])
         # auto cannot beat every by more than every's solves over auto's: a sample of
-        # every that meets no event reuses the piece's factors, while each of auto's
+        # every that meets no event reuses the piece's factors (from its third sample its
+        # affine response, O(n) like auto's samples between events), while each of auto's
         # solves is an event (a new piece: bordered update, unit responses, cascade)
         ra = simulate(scene, backend="cpp", stepping="auto")
         re_ = simulate(scene, backend="cpp", stepping="every")

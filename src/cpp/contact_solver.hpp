@@ -38,8 +38,11 @@
 // A piece's displacements come from its own equations where they fix them
 // (piece_displacement: only the open nodes and the sliding nodes' u_y take dot products
 // with C). Within one piece the response is affine in the plate position; the
-// active-set iteration of the breakaway cascade serves a piece met a third time from its
-// reference solution and unit responses in O(n) (piece_response).
+// active-set iteration of the breakaway cascade and the per-sample stepping (every)
+// serve a piece met a third time from its reference solution and unit responses in
+// O(n) (piece_response): a sample of `every` that meets no event costs no solve with
+// the factors and no product with C (on fig6 stepped per sample the median step went
+// from 17 to 5 us, the mean from 28 to 17 us).
 #pragma once
 
 #include <cmath>
@@ -867,8 +870,9 @@ public:
     // reaching zero, a stuck node's traction reaching the static cone (breakaway, with
     // the breakaway cascade solved at that load), a sliding node's slip rate stopping.
     // every = true follows each sample interval as its own segment and solves the piece
-    // at every sample (the reference); every = false takes the longest run of samples
-    // with equal load increments as one segment and fills the samples from the piece's
+    // at every sample (the reference; a piece met before with the same stick offsets is
+    // solved by its affine response, piece_response); every = false takes the longest
+    // run of samples with equal load increments as one segment and fills the samples from the piece's
     // responses to unit loads, so only events cost a solve and a load that does not
     // move costs nothing. The steps, tests and tolerances are those of the reference
     // (tactile_mirror/contact/solver.py, "Event-driven path following"), in the same
@@ -913,7 +917,7 @@ public:
             // a segment of several samples: the end of each piece by a direct solve (its
             // own accuracy, not the unit responses' extrapolated over the segment)
             const ContactStatus s =
-                follow_segment(ys[end - 1], zs[end - 1], L, 1e-9 / static_cast<double>(L), every || L > 1);
+                follow_segment(ys[end - 1], zs[end - 1], L, 1e-9 / static_cast<double>(L), every || L > 1, every);
             if (s != ContactStatus::ok) {
                 restore();
                 return s;
@@ -984,7 +988,9 @@ public:
         pristine_ = sv_pristine_;
         fr_mu_ = sv_fr_mu_; fr_muk_ = sv_fr_muk_;
         unit_valid_ = false;
-        aff_stage_ = 0;
+        // the affine response of the current piece (piece_response) stays: it holds while
+        // the piece and its stuck nodes' offsets do, and both are checked where it is
+        // used; the restored history is then served as the uninterrupted one would be
     }
 
     // History as the path follower keeps it: lam, the statuses and signs, s_prev and
@@ -1161,19 +1167,24 @@ private:
     // tolerance, and the working classification copied from the accepted one. Returns
     // the absolute tolerance of the Alart-Curnier residual.
     double begin_point_solve(double zp) noexcept {
-        const std::size_t n = n_;
         copy8(state_.data(), prev_state_.data());
         copy(sign_.data(), prev_sign_.data());
         set_path_cones();
+        set_scale_len(zp);
+        copy8(state_.data(), ws_state_.data());
+        copy(sign_.data(), ws_sign_.data());
+        return params.tol * (r_ * scale_len_);
+    }
+
+    // The length scale of a solve with the plate face at zp: the indent, or the largest
+    // tangential displacement (at least 1e-9 m).
+    void set_scale_len(double zp) noexcept {
         double uy_max = 0.0;
-        for (std::size_t i = 0; i < n; ++i) uy_max = std::fmax(uy_max, std::fabs(uy_prev_[i]));
+        for (std::size_t i = 0; i < n_; ++i) uy_max = std::fmax(uy_max, std::fabs(uy_prev_[i]));
         double scale_len = z0_max_ - zp;
         if (1e-9 > scale_len) scale_len = 1e-9;
         if (uy_max > scale_len) scale_len = uy_max;
         scale_len_ = scale_len;
-        copy8(state_.data(), ws_state_.data());
-        copy(sign_.data(), ws_sign_.data());
-        return params.tol * (r_ * scale_len);
     }
 
     // Statuses at the current point from the Alart-Curnier solve of the step (tiny_y,
@@ -1203,7 +1214,11 @@ private:
         return ContactStatus::ok;
     }
 
-    ContactStatus follow_segment(double s1, double z1, std::size_t L, double eps, bool direct) noexcept {
+    // direct: the end of each piece by a solve of the piece for it; affine (every): that
+    // solve served by piece_response, O(n) once the piece is met a third time with the
+    // same stick offsets (see follow).
+    ContactStatus follow_segment(double s1, double z1, std::size_t L, double eps, bool direct,
+                                 bool affine) noexcept {
         const std::size_t n = n_, n2 = n2_;
         const double s0 = s_prev_, z0p = z_prev_;
         double th = 0.0;
@@ -1242,10 +1257,18 @@ private:
                 copy(lc, l1, n2); copy(uc, u1, n2);
             } else if (direct) {
                 set_path_cones();
-                const int info = factor_piece(state_.data(), sign_.data());
+                int info;
+                if (affine) {
+                    set_scale_len(z1);
+                    info = piece_response(state_.data(), sign_.data(), z1, s1, s1 - sc, l1, u1);
+                } else {
+                    info = factor_piece(state_.data(), sign_.data());
+                    if (info == 0) {
+                        solve_prepared(z1, s1 - sc, l1);
+                        piece_displacement(l1, u1, false, 0.0, 0.0, z1, s1 - sc);
+                    }
+                }
                 if (info != 0) { err_info_ = info; return ContactStatus::singular_piece; }
-                solve_prepared(z1, s1 - sc, l1);
-                piece_displacement(l1, u1, false, 0.0, 0.0, z1, s1 - sc);
                 ++solves_;
             } else {
                 const int info = unit_response();
