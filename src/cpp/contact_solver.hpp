@@ -1180,7 +1180,10 @@ private:
     // tangential displacement (at least 1e-9 m).
     void set_scale_len(double zp) noexcept {
         double uy_max = 0.0;
-        for (std::size_t i = 0; i < n_; ++i) uy_max = std::fmax(uy_max, std::fabs(uy_prev_[i]));
+        for (std::size_t i = 0; i < n_; ++i) {  // (a NaN is skipped, as by fmax)
+            const double a = std::fabs(uy_prev_[i]);
+            if (a > uy_max) uy_max = a;
+        }
         double scale_len = z0_max_ - zp;
         if (1e-9 > scale_len) scale_len = 1e-9;
         if (uy_max > scale_len) scale_len = uy_max;
@@ -1339,26 +1342,33 @@ private:
     double first_event(const double* lc, const double* uc, const double* l1, const double* u1, double zc, double z1,
                        double eps, std::size_t& n_ev) noexcept {
         const std::size_t n = n_;
-        const double mu = params.mu;
+        const double mu = params.mu, tg = evt_g_tol_, tf = evt_f_tol_;
+        // one pass over the nodes (each node's status decides which of its functions
+        // count), the crossings of kind k at ev_frac_[k n + i], INFINITY where none
+        auto cross = [](double pc, double p1, double tol) {
+            const double drop = pc - p1;
+            return drop > tol && p1 < 0 ? (pc > 0.0 ? pc : 0.0) / drop : INFINITY;
+        };
+        double* f0 = ev_frac_.data();
+        double *f1 = f0 + n, *f2 = f1 + n, *f3 = f2 + n;
         double first = INFINITY;
-        for (int kind = 0; kind < 4; ++kind) {
-            const double tol = kind == 0 ? evt_g_tol_ : evt_f_tol_;
-            for (std::size_t i = 0; i < n; ++i) {
-                const std::int8_t s = state_[i];
-                const bool mask = kind == 0 ? s == kContactOpen : (kind == 1 ? s != kContactOpen : s == kContactStick);
-                double fr = INFINITY;
-                if (mask) {
-                    double pc, p1;
-                    if (kind == 0) { pc = zc - z0_[i] - uc[n + i]; p1 = z1 - z0_[i] - u1[n + i]; }
-                    else if (kind == 1) { pc = lc[n + i]; p1 = l1[n + i]; }
-                    else if (kind == 2) { pc = mu * lc[n + i] - lc[i]; p1 = mu * l1[n + i] - l1[i]; }
-                    else { pc = mu * lc[n + i] + lc[i]; p1 = mu * l1[n + i] + l1[i]; }
-                    const double drop = pc - p1;
-                    if (drop > tol && p1 < 0) fr = (pc > 0.0 ? pc : 0.0) / drop;
+        for (std::size_t i = 0; i < n; ++i) {
+            const std::int8_t s = state_[i];
+            double a = INFINITY, b = INFINITY, c = INFINITY, d = INFINITY;
+            if (s == kContactOpen) {
+                a = cross(zc - z0_[i] - uc[n + i], z1 - z0_[i] - u1[n + i], tg);
+            } else {
+                const double lnc = lc[n + i], ln1 = l1[n + i];
+                b = cross(lnc, ln1, tf);
+                if (s == kContactStick) {
+                    c = cross(mu * lnc - lc[i], mu * ln1 - l1[i], tf);
+                    d = cross(mu * lnc + lc[i], mu * ln1 + l1[i], tf);
                 }
-                ev_frac_[static_cast<std::size_t>(kind) * n + i] = fr;
-                if (fr < first) first = fr;
             }
+            f0[i] = a; f1[i] = b; f2[i] = c; f3[i] = d;
+            const double ab = b < a ? b : a, cd = d < c ? d : c;  // no NaN here (cross)
+            const double m = cd < ab ? cd : ab;
+            if (m < first) first = m;
         }
         n_ev = 0;
         if (!(first <= 1.0 + eps)) return first;
