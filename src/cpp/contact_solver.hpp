@@ -23,8 +23,8 @@
 // is exactly zero is a singular system, as LAPACK getrf reports it. Factors are
 // reused while the piece (classification and slip coefficients) is unchanged; a piece
 // that differs from the factored one in a few nodes (the slip front moved by a node)
-// is solved by bordering the factored one (a Schur complement of at most 16 rows and
-// columns; a stuck node that slides costs two borders, its slip law as a row), and a
+// is solved by bordering the factored one (a Schur complement of at most 64 rows and
+// columns, its entries kept from one piece to the next; a stuck node that slides costs two borders, its slip law as a row), and a
 // piece that adds touching nodes (the contact growing under the press) extends the
 // base's factors by them (extend_base, O(nb m^2)), so refactorisations are rare. The
 // base solves of the unit right-hand sides (the responses to a unit plate motion) are
@@ -411,23 +411,23 @@ TM_ALWAYS_INLINE void lu_right_upper_impl(const double* lu, std::size_t m, std::
     }
 }
 
-// z[k] -= sum_c V_c[k] y[c] for k < m, nb columns V_c at V + c * ldv: the border's
+// z[k] -= sum_c V_c[k] y[c] for k < m, nb columns V_c at V[c]: the border's
 // correction of a bordered solve (solve_bordered), four entries of z at a time through
 // all the columns (each column's term in column order, as one axpy per column would
 // add them), so z is loaded and stored once instead of once per column.
 template <int B>
-TM_ALWAYS_INLINE void sub_columns_impl(double* z, std::size_t m, const double* V, std::size_t ldv, const double* y,
+TM_ALWAYS_INLINE void sub_columns_impl(double* z, std::size_t m, const double* const* V, const double* y,
                                        std::size_t nb) noexcept {
     using V4 = typename simd::Vec<double, 32>::type;
     std::size_t k = 0;
     for (; k + 4 <= m; k += 4) {
         V4 a = simd::load<V4>(z + k);
-        for (std::size_t c = 0; c < nb; ++c) a -= simd::load<V4>(V + c * ldv + k) * lu_bcast<B>(y + c);
+        for (std::size_t c = 0; c < nb; ++c) a -= simd::load<V4>(V[c] + k) * lu_bcast<B>(y + c);
         std::memcpy(z + k, &a, sizeof(a));
     }
     for (; k < m; ++k) {
         double a = z[k];
-        for (std::size_t c = 0; c < nb; ++c) a -= V[c * ldv + k] * y[c];
+        for (std::size_t c = 0; c < nb; ++c) a -= V[c][k] * y[c];
         z[k] = a;
     }
 }
@@ -497,9 +497,9 @@ inline void lu_solve_base(const double* lu, std::size_t m, std::size_t lda, cons
                           std::size_t ldx, std::size_t k) noexcept {
     lu_solve_impl<simd::kBaseBytes>(lu, m, lda, piv, x, ldx, k);
 }
-inline void sub_columns_base(double* z, std::size_t m, const double* V, std::size_t ldv, const double* y,
+inline void sub_columns_base(double* z, std::size_t m, const double* const* V, const double* y,
                              std::size_t nb) noexcept {
-    sub_columns_impl<simd::kBaseBytes>(z, m, V, ldv, y, nb);
+    sub_columns_impl<simd::kBaseBytes>(z, m, V, y, nb);
 }
 inline void compliance_product_base(const double* C, std::size_t n, const double* lam, double* u) noexcept {
     compliance_product_impl<simd::kBaseBytes>(C, n, lam, u);
@@ -527,9 +527,9 @@ TM_TARGET_AVX2 inline void lu_solve_avx2(const double* lu, std::size_t m, std::s
                                          double* x, std::size_t ldx, std::size_t k) noexcept {
     lu_solve_impl<32>(lu, m, lda, piv, x, ldx, k);
 }
-TM_TARGET_AVX2 inline void sub_columns_avx2(double* z, std::size_t m, const double* V, std::size_t ldv,
-                                            const double* y, std::size_t nb) noexcept {
-    sub_columns_impl<32>(z, m, V, ldv, y, nb);
+TM_TARGET_AVX2 inline void sub_columns_avx2(double* z, std::size_t m, const double* const* V, const double* y,
+                                            std::size_t nb) noexcept {
+    sub_columns_impl<32>(z, m, V, y, nb);
 }
 TM_TARGET_AVX2 inline void compliance_product_avx2(const double* C, std::size_t n, const double* lam,
                                                    double* u) noexcept {
@@ -613,12 +613,12 @@ inline void lu_solve(const double* lu, std::size_t m, std::size_t lda, const int
     lu_solve(lu, m, lda, piv, b, 0, 1);
 }
 // z -= V y for nb columns of V (see sub_columns_impl).
-inline void sub_columns(double* z, std::size_t m, const double* V, std::size_t ldv, const double* y,
+inline void sub_columns(double* z, std::size_t m, const double* const* V, const double* y,
                         std::size_t nb) noexcept {
 #if TM_HAVE_DISPATCH
-    if (contact_detail::use_avx2()) return contact_detail::sub_columns_avx2(z, m, V, ldv, y, nb);
+    if (contact_detail::use_avx2()) return contact_detail::sub_columns_avx2(z, m, V, y, nb);
 #endif
-    contact_detail::sub_columns_base(z, m, V, ldv, y, nb);
+    contact_detail::sub_columns_base(z, m, V, y, nb);
 }
 inline void compliance_product(const double* C, std::size_t n, const double* lam, double* u) noexcept {
 #if TM_HAVE_DISPATCH
@@ -663,10 +663,13 @@ public:
         bnode_.assign(n2_, 0); bkind_.assign(n2_, 0);
         pos_ln_.assign(n, -1); pos_lt_.assign(n, -1);
         base_state_.assign(n, kContactOpen); base_coef_ = vec(n);
-        Vs_ = vec(kMaxBorder * n2_); Wt_ = vec(kMaxBorder * n2_); S_ = vec(kMaxBorder * kMaxBorder);
+        vcol_.assign(kMaxBorder, nullptr); vslot_.assign(kMaxBorder, 0); slot_used_.assign(kColCache, 0); Wt_ = vec(kMaxBorder * n2_); S_ = vec(kMaxBorder * kMaxBorder);
         vnew_ = vec(kMaxBorder * n2_); new_col_.assign(kMaxBorder, 0);
         spiv_.assign(kMaxBorder, 0); by_ = vec(kMaxBorder); brow_.resize(kMaxBorder); bcol_.resize(kMaxBorder);
         vcache_ = vec(kColCache * n2_); ccol_.resize(kColCache);
+        obrow_.resize(kMaxBorder); obcol_.resize(kMaxBorder); orcoef_ = vec(kMaxBorder); occoef_ = vec(kMaxBorder);
+        Wt2_ = vec(kMaxBorder * n2_); S0_ = vec(kMaxBorder * kMaxBorder); S1_ = vec(kMaxBorder * kMaxBorder);
+        rmap_.assign(kMaxBorder, -1); cmap_.assign(kMaxBorder, -1); trow_.resize(kMaxBorder); tcol_.resize(kMaxBorder);
         rhs_in_ = vec(n2_); rhs_out_ = vec(n2_);
         aff_lam_ = vec(n2_); aff_u_ = vec(n2_); aff_lz_ = vec(n2_); aff_uz_ = vec(n2_); aff_ly_ = vec(n2_);
         aff_uy_ = vec(n2_); aff_v_ = vec(n);
@@ -1741,8 +1744,11 @@ public:
         double* y = c;
         if (nb > 0) {  // Schur complement: S y = c - W^T M0^-1 b, x = M0^-1 b - (M0^-1 V) y
             for (std::size_t r = 0; r < nb; ++r) y[r] -= border_row_dot(r, z);
-            lu_solve(S_.data(), nb, nb, spiv_.data(), y);
-            sub_columns(z, m, Vs_.data(), n2_, y, nb);
+            lu_solve(S_.data(), nb, kMaxBorder, spiv_.data(), y);
+            // (the columns' addresses from their slots: a kernel copied from another
+            // (a pad's shadow ridge detached from its master) has its own cache)
+            for (std::size_t c = 0; c < nb; ++c) vcol_[c] = vcache_.data() + vslot_[c] * n2_;
+            sub_columns(z, m, vcol_.data(), y, nb);
         }
         for (std::size_t i = 0; i < n2_; ++i) lam[i] = 0.0;
         // base unknowns (those fixed to zero by the border come out as ~zero and are
@@ -1849,7 +1855,11 @@ private:
     enum : std::uint8_t { kFix = 0, kAddG = 1, kAddW = 2, kAddLn = 3, kAddLt = 4, kSlack = 5, kSlipRow = 6 };
     struct BorderRow { std::uint8_t kind; std::size_t node; std::size_t pos; };
     struct BorderCol { std::uint8_t kind; std::size_t node; std::size_t pos; };
-    static constexpr std::size_t kMaxBorder = 16;
+    // 64: a gross slip slides the stuck nodes a few at a time, two borders each; 16
+    // refactored every eighth node (on the open-loop pad paths 2002 factorisations in
+    // 3000 ticks, 200 with 64; the border's rows and columns kept from one piece to the
+    // next keep the larger border's updates cheap)
+    static constexpr std::size_t kMaxBorder = 64;
     static constexpr std::size_t kColCache = 2 * kMaxBorder;
     struct CachedCol { std::uint8_t kind; std::size_t node; std::size_t pos; double coef; };
 
@@ -1860,6 +1870,8 @@ private:
         lu_valid_ = false;
         nB_ = 0;
         n_cached_ = 0;
+        onb_ = 0;
+        s_lu_ok_ = false;
         zunit_valid_[0] = zunit_valid_[1] = false;
         rhs_valid_ = false;
     }
@@ -1930,21 +1942,76 @@ private:
         }
         if (nr != nc) return false;  // cannot happen (both pieces are square); be safe
         const std::size_t nb = nr;
+        const std::size_t K = kMaxBorder;
+        auto row_coef = [&](const BorderRow& br) { return br.kind == kSlipRow ? slip_coef_[br.node] : 0.0; };
+        auto col_coef = [&](const BorderCol& bc) { return bc.kind == kAddLn ? slip_coef_[bc.node] : 0.0; };
+        for (std::size_t r = 0; r < nb; ++r) {
+            const BorderRow& br = brow_[r];
+            const double rc = row_coef(br);
+            rmap_[r] = -1;
+            for (std::size_t q = 0; q < onb_; ++q) {
+                const BorderRow& o = obrow_[q];
+                if (o.kind == br.kind && o.node == br.node && o.pos == br.pos && orcoef_[q] == rc) {
+                    rmap_[r] = static_cast<long>(q);
+                    break;
+                }
+            }
+        }
+        for (std::size_t c = 0; c < nb; ++c) {
+            const BorderCol& bc = bcol_[c];
+            const double cc = col_coef(bc);
+            cmap_[c] = -1;
+            for (std::size_t q = 0; q < onb_; ++q) {
+                const BorderCol& o = obcol_[q];
+                if (o.kind == bc.kind && o.node == bc.node && o.pos == bc.pos && occoef_[q] == cc) {
+                    cmap_[c] = static_cast<long>(q);
+                    break;
+                }
+            }
+        }
+        // (the rows of the force laws are read at their one or two entries only,
+        // border_row_dot: the others are not written)
+        // when every row and column of the last border is kept (nodes added to the
+        // border, none taken off: a cascade sliding its nodes a few at a time), they
+        // go first in their old order and the factors of the last S are extended by
+        // the new rows and columns (extend_s), O(nb^2 k) for k new ones instead of O(nb^3)
+        std::size_t kept_r = 0, kept_c = 0;
+        for (std::size_t r = 0; r < nb; ++r) kept_r += rmap_[r] >= 0;
+        for (std::size_t c = 0; c < nb; ++c) kept_c += cmap_[c] >= 0;
+        const bool extend = s_lu_ok_ && onb_ > 0 && kept_r == onb_ && kept_c == onb_ && nb >= onb_;
+        if (extend) {
+            std::size_t qr = onb_, qc = onb_;
+            for (std::size_t r = 0; r < nb; ++r) {
+                const std::size_t d = rmap_[r] >= 0 ? static_cast<std::size_t>(rmap_[r]) : qr++;
+                trow_[d] = brow_[r];
+            }
+            for (std::size_t c = 0; c < nb; ++c) {
+                const std::size_t d = cmap_[c] >= 0 ? static_cast<std::size_t>(cmap_[c]) : qc++;
+                tcol_[d] = bcol_[c];
+            }
+            for (std::size_t r = 0; r < nb; ++r) {
+                brow_[r] = trow_[r];
+                bcol_[r] = tcol_[r];
+                rmap_[r] = cmap_[r] = r < onb_ ? static_cast<long>(r) : -1;
+            }
+        }
         // M0^-1 V: columns already solved for this base (the same border column of an
         // earlier nearby piece) come from the column cache; the others are gathered to
         // the front of vnew_ and solved together (one pass over the factors for all)
         std::size_t nnew = 0;
+        for (std::size_t q = 0; q < kColCache; ++q) slot_used_[q] = 0;
         for (std::size_t c = 0; c < nb; ++c) {
             const BorderCol& bc = bcol_[c];
             const double coef = bc.kind == kAddLn ? slip_coef_[bc.node] : 0.0;
-            double* v = Vs_.data() + c * n2_;
             std::size_t hit = kColCache;
             for (std::size_t q = 0; q < n_cached_; ++q) {
                 const CachedCol& cc = ccol_[q];
                 if (cc.kind == bc.kind && cc.node == bc.node && cc.pos == bc.pos && cc.coef == coef) { hit = q; break; }
             }
-            if (hit < kColCache) {
-                copy(vcache_.data() + hit * n2_, v, m);
+            if (hit < kColCache) {  // the border reads the cached column in place
+                vcol_[c] = vcache_.data() + hit * n2_;
+                vslot_[c] = hit;
+                slot_used_[hit] = 1;
                 continue;
             }
             double* w = vnew_.data() + nnew * n2_;
@@ -1956,15 +2023,24 @@ private:
             new_col_[nnew++] = c;
         }
         if (nnew > 0) lu_solve(M_.data(), m, n2_, piv_.data(), vnew_.data(), n2_, nnew);
+        // the new columns go to free slots of the cache, or replace columns this border
+        // does not use (kColCache >= 2 kMaxBorder: there is always one)
         for (std::size_t q = 0; q < nnew; ++q) {
             const std::size_t c = new_col_[q];
             const BorderCol& bc = bcol_[c];
             const double coef = bc.kind == kAddLn ? slip_coef_[bc.node] : 0.0;
-            const double* w = vnew_.data() + q * n2_;
-            copy(w, Vs_.data() + c * n2_, m);
-            const std::size_t slot = n_cached_ < kColCache ? n_cached_++ : (next_slot_++ % kColCache);
+            std::size_t slot;
+            if (n_cached_ < kColCache) {
+                slot = n_cached_++;
+            } else {
+                do slot = next_slot_++ % kColCache; while (slot_used_[slot]);
+            }
+            slot_used_[slot] = 1;
             ccol_[slot] = {bc.kind, bc.node, bc.pos, coef};
-            copy(w, vcache_.data() + slot * n2_, m);
+            double* v = vcache_.data() + slot * n2_;
+            std::memcpy(v, vnew_.data() + q * n2_, m * sizeof(double));
+            vcol_[c] = v;
+            vslot_[c] = slot;
         }
         // W^T rows over the base unknowns, and S = Z - W^T (M0^-1 V). The rows of the
         // force laws (kFix: an unknown is zero; kSlipRow: lt - mu s ln = 0) are written
@@ -1976,36 +2052,106 @@ private:
         // 1e-9 of the peak force per bordered solve (a fresh factorisation: 1e-14).
         // The reference scales the other way (its displacement rows by r): the same
         // ratio between the two kinds of rows.
+        //
+        // A border row and column met in the last border of this base (the same kind,
+        // node, position and coefficient) keep their W^T row and their entry of S: the
+        // pieces of one point (active-set steps, cascade rounds) differ by a few nodes,
+        // so only the new rows and columns cost dot products over the base. The entries
+        // are the same bits as computed afresh.
         const double law = 1.0 / r_;
         for (std::size_t r = 0; r < nb; ++r) {
             const BorderRow& br = brow_[r];
-            double* w = Wt_.data() + r * n2_;
+            double* w = Wt2_.data() + r * n2_;
             if (br.kind == kFix) {
-                for (std::size_t k = 0; k < m; ++k) w[k] = 0.0;
                 w[br.pos] = law;
             } else if (br.kind == kSlipRow) {  // lt_i - mu s ln_i (ln_i has slip coefficient 0 in the base)
-                for (std::size_t k = 0; k < m; ++k) w[k] = 0.0;
                 w[br.pos] = law;
                 w[static_cast<std::size_t>(pos_ln_[br.node])] = -slip_coef_[br.node] * law;
+            } else if (rmap_[r] >= 0) {
+                std::memcpy(w, Wt_.data() + static_cast<std::size_t>(rmap_[r]) * n2_, m * sizeof(double));
             } else {
                 const std::size_t row = br.kind == kAddG ? n + br.node : br.node;
                 for (std::size_t k = 0; k < m; ++k) w[k] = base_coef(row, k);
             }
-            double* srow = S_.data() + r * nb;
+        }
+        Wt_.swap(Wt2_);
+        for (std::size_t r = 0; r < nb; ++r) {
+            const BorderRow& br = brow_[r];
+            double* srow = S1_.data() + r * K;
+            const double* orow = rmap_[r] >= 0 ? S0_.data() + static_cast<std::size_t>(rmap_[r]) * K : nullptr;
             for (std::size_t c = 0; c < nb; ++c) {
+                if (orow && cmap_[c] >= 0) {
+                    srow[c] = orow[cmap_[c]];
+                    continue;
+                }
                 const BorderCol& bc = bcol_[c];
                 double z = 0.0;
                 if (br.kind != kFix && br.kind != kSlipRow && bc.kind != kSlack) {
                     const std::size_t row = br.kind == kAddG ? n + br.node : br.node;
                     z = bc.kind == kAddLn ? coef_ln(row, bc.node, slip_coef_[bc.node]) : coef_lt(row, bc.node);
                 }
-                srow[c] = z - border_row_dot(r, Vs_.data() + c * n2_);
+                srow[c] = z - border_row_dot(r, vcol_[c]);
             }
         }
+        S0_.swap(S1_);
+        const std::size_t nb0 = onb_;
+        for (std::size_t r = 0; r < nb; ++r) {
+            obrow_[r] = brow_[r];
+            orcoef_[r] = row_coef(brow_[r]);
+            obcol_[r] = bcol_[r];
+            occoef_[r] = col_coef(bcol_[r]);
+        }
+        onb_ = nb;
         nB_ = nb;
-        if (nb > 0 && lu_factor(S_.data(), nb, nb, spiv_.data()) != 0) {
-            nB_ = 0;
-            return false;
+        const bool ok = extend ? extend_s(nb0, nb) : factor_s(nb);
+        s_lu_ok_ = ok;
+        if (!ok) nB_ = 0;
+        return ok;
+    }
+
+    // LU of the border's Schur complement S0_ (nb square, ld kMaxBorder) into S_.
+    bool factor_s(std::size_t nb) noexcept {
+        const std::size_t K = kMaxBorder;
+        for (std::size_t r = 0; r < nb; ++r) copy(S0_.data() + r * K, S_.data() + r * K, nb);
+        return nb == 0 || lu_factor(S_.data(), nb, K, spiv_.data()) == 0;
+    }
+
+    // S_ holds the factors of S0_'s leading nb0 x nb0 block (the last border's S):
+    // extend them to all of S0_ (nb square), as extend_base extends the base: with
+    // P0 S00 = L0 U0, the new columns through P0 and L0 (Y), the new rows through U0
+    // (X), and the LU of Z - X Y with partial pivoting within the new block.
+    bool extend_s(std::size_t nb0, std::size_t nb) noexcept {
+        const std::size_t K = kMaxBorder, k = nb - nb0;
+        if (k == 0) return true;
+        double* S = S_.data();
+        const double* S0 = S0_.data();
+        double* t = vnew_.data();  // the new columns, column-major (ld K)
+        for (std::size_t c = 0; c < k; ++c)
+            for (std::size_t r = 0; r < nb0; ++r) t[c * K + r] = S0[r * K + nb0 + c];
+        if (nb0 > 0) lu_forward(S, nb0, K, spiv_.data(), t, K, k);
+        for (std::size_t c = 0; c < k; ++c)
+            for (std::size_t r = 0; r < nb0; ++r) S[r * K + nb0 + c] = t[c * K + r];
+        for (std::size_t r = nb0; r < nb; ++r) copy(S0 + r * K, S + r * K, nb);
+        if (nb0 > 0) lu_right_upper(S, nb0, K, S + nb0 * K, K, k);
+        for (std::size_t r = nb0; r < nb; ++r) {
+            double* sr = S + r * K;
+            for (std::size_t q = 0; q < nb0; ++q) {
+                const double a = sr[q];
+                if (a == 0.0) continue;
+                const double* yq = S + q * K + nb0;
+                for (std::size_t c = 0; c < k; ++c) sr[nb0 + c] -= a * yq[c];
+            }
+        }
+        int* ps = spiv_.data() + nb0;
+        if (lu_factor(S + nb0 * K + nb0, k, K, ps) != 0) return false;
+        for (std::size_t q = 0; q < k; ++q) {
+            const std::size_t p = static_cast<std::size_t>(ps[q]);
+            if (p != q) {
+                double* a = S + (nb0 + q) * K;
+                double* b = S + (nb0 + p) * K;
+                for (std::size_t j = 0; j < nb0; ++j) { const double h = a[j]; a[j] = b[j]; b[j] = h; }
+            }
+            ps[q] = static_cast<int>(nb0 + p);
         }
         return true;
     }
@@ -2182,12 +2328,25 @@ private:
     // base piece and its border
     std::vector<long> pos_ln_, pos_lt_;
     std::vector<std::int8_t> base_state_;
-    std::vector<double> base_coef_, Vs_, Wt_, S_, by_, vnew_;
+    std::vector<double> base_coef_, Wt_, S_, by_, vnew_;
+    std::vector<std::size_t> vslot_;   // M0^-1 V: column c of the border is slot vslot_[c] of vcache_
+    std::vector<const double*> vcol_;  // its address (set where it is used)
+    std::vector<std::uint8_t> slot_used_;
     std::vector<std::size_t> new_col_;
     std::vector<int> spiv_;
     std::vector<BorderRow> brow_;
     std::vector<BorderCol> bcol_;
     std::size_t nB_ = 0;
+    // the last border's rows and columns (with their coefficients), its W^T rows and its
+    // Schur complement before factoring (ld kMaxBorder), kept with the base (update_piece)
+    std::vector<BorderRow> obrow_;
+    std::vector<BorderCol> obcol_;
+    std::vector<double> orcoef_, occoef_, Wt2_, S0_, S1_;
+    std::vector<long> rmap_, cmap_;
+    std::size_t onb_ = 0;
+    bool s_lu_ok_ = false;  // S_ holds the factors of the last border's S (extend_s may extend them)
+    std::vector<BorderRow> trow_;
+    std::vector<BorderCol> tcol_;
     long n_updates_ = 0;
     std::vector<double> vcache_;
     std::vector<CachedCol> ccol_;
