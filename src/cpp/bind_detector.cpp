@@ -135,13 +135,30 @@ private:
 template <typename T>
 void check_features(const T* x, std::ptrdiff_t n_inst, std::ptrdiff_t n_in, std::ptrdiff_t n, std::ptrdiff_t sr,
                     std::ptrdiff_t si, std::ptrdiff_t st) {
-    bool ok = true;
+    // x * 0 is +-0 for a finite x and NaN for Inf or NaN, so a sum of them is NaN iff
+    // some value is not finite. Contiguous rows go a vector (and four accumulators) at
+    // a time: the per-value isfinite loop was not vectorised and cost about a sixth of
+    // a float32 bank-net block run (measured 37 ns of 220 per tick of 6 ridges).
+    typedef typename tactile::simd::Vec<T, tactile::simd::kBaseBytes>::type V;
+    constexpr int NL = tactile::simd::Vec<T, tactile::simd::kBaseBytes>::lanes;
+    V acc[4] = {};
+    T sacc = 0;
     for (std::ptrdiff_t r = 0; r < n_inst; ++r)
         for (std::ptrdiff_t i = 0; i < n_in; ++i) {
             const T* row = x + r * sr + i * si;
-            for (std::ptrdiff_t t = 0; t < n; ++t) ok &= std::isfinite(row[t * st]);
+            std::ptrdiff_t t = 0;
+            if (st == 1)
+                for (; t + 4 * NL <= n; t += 4 * NL)
+                    for (int q = 0; q < 4; ++q) {
+                        V v;
+                        std::memcpy(&v, row + t + q * NL, sizeof v);
+                        acc[q] += v * T(0);
+                    }
+            for (; t < n; ++t) sacc += row[t * st] * T(0);
         }
-    if (ok) return;
+    const V a = (acc[0] + acc[1]) + (acc[2] + acc[3]);
+    for (int q = 0; q < NL; ++q) sacc += a[q];
+    if (sacc == T(0)) return;
     // Earliest by sample, then ridge, then channel.
     for (std::ptrdiff_t t = 0; t < n; ++t)
         for (std::ptrdiff_t r = 0; r < n_inst; ++r)
