@@ -2133,25 +2133,34 @@ private:
             for (std::size_t r = 0; r < nb0; ++r) S[r * K + nb0 + c] = t[c * K + r];
         for (std::size_t r = nb0; r < nb; ++r) copy(S0 + r * K, S + r * K, nb);
         if (nb0 > 0) lu_right_upper(S, nb0, K, S + nb0 * K, K, k);
-        for (std::size_t r = nb0; r < nb; ++r) {
-            double* sr = S + r * K;
-            for (std::size_t q = 0; q < nb0; ++q) {
-                const double a = sr[q];
+        return finish_extension(S, K, nb0, k, spiv_.data());
+    }
+
+    // The last step of extending an LU (P0 A00 = L0 U0, leading m0 x m0 of A, ld lda) by k
+    // rows and columns, as extend_base and extend_s do: A's new rows hold X (through U0)
+    // left of the new block and Z in it, its new columns Y (through P0 and L0) above it.
+    // S = Z - X Y goes into the new block, then its LU with partial pivoting within the
+    // block (pivots piv[m0..m0+k), offset to whole rows); its row swaps apply to X too.
+    static bool finish_extension(double* A, std::size_t lda, std::size_t m0, std::size_t k, int* piv) noexcept {
+        for (std::size_t r = m0; r < m0 + k; ++r) {
+            double* ar = A + r * lda;
+            for (std::size_t q = 0; q < m0; ++q) {
+                const double a = ar[q];
                 if (a == 0.0) continue;
-                const double* yq = S + q * K + nb0;
-                for (std::size_t c = 0; c < k; ++c) sr[nb0 + c] -= a * yq[c];
+                const double* yq = A + q * lda + m0;
+                for (std::size_t c = 0; c < k; ++c) ar[m0 + c] -= a * yq[c];
             }
         }
-        int* ps = spiv_.data() + nb0;
-        if (lu_factor(S + nb0 * K + nb0, k, K, ps) != 0) return false;
+        int* ps = piv + m0;
+        if (lu_factor(A + m0 * lda + m0, k, lda, ps) != 0) return false;
         for (std::size_t q = 0; q < k; ++q) {
             const std::size_t p = static_cast<std::size_t>(ps[q]);
             if (p != q) {
-                double* a = S + (nb0 + q) * K;
-                double* b = S + (nb0 + p) * K;
-                for (std::size_t j = 0; j < nb0; ++j) { const double h = a[j]; a[j] = b[j]; b[j] = h; }
+                double* a = A + (m0 + q) * lda;
+                double* b = A + (m0 + p) * lda;
+                for (std::size_t j = 0; j < m0; ++j) { const double h = a[j]; a[j] = b[j]; b[j] = h; }
             }
-            ps[q] = static_cast<int>(nb0 + p);
+            ps[q] = static_cast<int>(m0 + p);
         }
         return true;
     }
@@ -2214,30 +2223,13 @@ private:
             for (std::size_t k = 0; k < m; ++k) x[k] = base_coef(row, k);
         }
         lu_right_upper(M, m, n2, M + m * n2, n2, add);
-        // S = Z - X Y into the new block, then its LU; its row swaps apply to X too
+        // Z into the new block; S = Z - X Y, its LU and its row swaps in finish_extension
         for (std::size_t r = m; r < me; ++r) {
             const std::size_t row = eq_row(r);
             double* sr = M + r * n2 + m;
             for (std::size_t c = 0; c < add; ++c) sr[c] = base_coef(row, m + c);
-            const double* x = M + r * n2;
-            for (std::size_t k = 0; k < m; ++k) {
-                const double a = x[k];
-                if (a == 0.0) continue;
-                const double* yk = M + k * n2 + m;
-                for (std::size_t c = 0; c < add; ++c) sr[c] -= a * yk[c];
-            }
         }
-        int* ps = piv_.data() + m;
-        if (lu_factor(M + m * n2 + m, add, n2, ps) != 0) return false;
-        for (std::size_t t = 0; t < add; ++t) {
-            const std::size_t p = static_cast<std::size_t>(ps[t]);
-            if (p != t) {
-                double* a = M + (m + t) * n2;
-                double* b = M + (m + p) * n2;
-                for (std::size_t k = 0; k < m; ++k) { const double h = a[k]; a[k] = b[k]; b[k] = h; }
-            }
-            ps[t] = static_cast<int>(m + p);
-        }
+        if (!finish_extension(M, n2, m, add, piv_.data())) return false;
         mB_ = me;
         lu_valid_ = true;
         ++n_extensions_;
