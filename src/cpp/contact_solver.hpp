@@ -1945,30 +1945,16 @@ private:
         const std::size_t K = kMaxBorder;
         auto row_coef = [&](const BorderRow& br) { return br.kind == kSlipRow ? slip_coef_[br.node] : 0.0; };
         auto col_coef = [&](const BorderCol& bc) { return bc.kind == kAddLn ? slip_coef_[bc.node] : 0.0; };
-        for (std::size_t r = 0; r < nb; ++r) {
-            const BorderRow& br = brow_[r];
-            const double rc = row_coef(br);
-            rmap_[r] = -1;
-            for (std::size_t q = 0; q < onb_; ++q) {
-                const BorderRow& o = obrow_[q];
-                if (o.kind == br.kind && o.node == br.node && o.pos == br.pos && orcoef_[q] == rc) {
-                    rmap_[r] = static_cast<long>(q);
-                    break;
-                }
-            }
-        }
-        for (std::size_t c = 0; c < nb; ++c) {
-            const BorderCol& bc = bcol_[c];
-            const double cc = col_coef(bc);
-            cmap_[c] = -1;
-            for (std::size_t q = 0; q < onb_; ++q) {
-                const BorderCol& o = obcol_[q];
-                if (o.kind == bc.kind && o.node == bc.node && o.pos == bc.pos && occoef_[q] == cc) {
-                    cmap_[c] = static_cast<long>(q);
-                    break;
-                }
-            }
-        }
+        // where a border row (column) of this piece was one of the last piece's, with the
+        // same coefficient: its entries are kept (-1: new)
+        auto kept = [&](const auto& b, double coef, const auto& old, const auto& old_coef) -> long {
+            for (std::size_t q = 0; q < onb_; ++q)
+                if (old[q].kind == b.kind && old[q].node == b.node && old[q].pos == b.pos && old_coef[q] == coef)
+                    return static_cast<long>(q);
+            return -1;
+        };
+        for (std::size_t r = 0; r < nb; ++r) rmap_[r] = kept(brow_[r], row_coef(brow_[r]), obrow_, orcoef_);
+        for (std::size_t c = 0; c < nb; ++c) cmap_[c] = kept(bcol_[c], col_coef(bcol_[c]), obcol_, occoef_);
         // (the rows of the force laws are read at their one or two entries only,
         // border_row_dot: the others are not written)
         // when every row and column of the last border is kept (nodes added to the
