@@ -1988,7 +1988,7 @@ private:
         for (std::size_t q = 0; q < kColCache; ++q) slot_used_[q] = 0;
         for (std::size_t c = 0; c < nb; ++c) {
             const BorderCol& bc = bcol_[c];
-            const double coef = bc.kind == kAddLn ? slip_coef_[bc.node] : 0.0;
+            const double coef = col_coef(bc);
             std::size_t hit = kColCache;
             for (std::size_t q = 0; q < n_cached_; ++q) {
                 const CachedCol& cc = ccol_[q];
@@ -2014,7 +2014,7 @@ private:
         for (std::size_t q = 0; q < nnew; ++q) {
             const std::size_t c = new_col_[q];
             const BorderCol& bc = bcol_[c];
-            const double coef = bc.kind == kAddLn ? slip_coef_[bc.node] : 0.0;
+            const double coef = col_coef(bc);
             std::size_t slot;
             if (n_cached_ < kColCache) {
                 slot = n_cached_++;
