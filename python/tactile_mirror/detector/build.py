@@ -209,12 +209,10 @@ class ValidationScorer:
                "false_alarm_samples": m.false_alarm_samples, "pred_lead_mean_ms": m.pred_lead_mean_ms,
                "score": m.detection_rate - self.fa_cost * m.false_alarm_rate}
         if self.at_false_alarm is not None:
-            from .evaluate import roc
+            from .evaluate import cached_features, roc
 
-            est = det.metadata.get("estimator")
-            key = repr(sorted(est.items())) if isinstance(est, dict) else repr(est)
-            # evaluate() filled the cache with these features under its own keys
-            scores = [det.run(self._features[(k, det.features, key)], fs=r.fs)[0]
+            # the features evaluate() has just computed, from the same cache
+            scores = [det.run(cached_features(det, k, r, self._features), fs=r.fs)[0]
                       for k, r in enumerate(self.validation)]
             point = roc(scores, self.validation).at_false_alarm(self.at_false_alarm)
             out["detection_at_false_alarm"] = point["detection_rate"]

@@ -34,8 +34,8 @@ import numpy as np
 from .data_prep import features_from_result, targets_from_result
 
 __all__ = ["NOISE_CONDITIONS", "DetectionMetrics", "EvaluationReport", "ForceRatioDetector", "RocCurve",
-           "analyse_sequence", "condition_estimator", "detection_by_onset", "evaluate", "noise_free", "onset_kinds",
-           "roc", "sequence_extremes", "with_noise"]
+           "analyse_sequence", "cached_features", "condition_estimator", "detection_by_onset", "evaluate", "noise_free",
+           "onset_kinds", "roc", "sequence_extremes", "with_noise"]
 
 #: The sensor conditions the detectors are evaluated in: name -> (white noise on ``v_out`` and
 #: ``u_out``, V rms; mains hum at ``v_out``, V rms of the 50 Hz fundamental with harmonics over the
@@ -266,6 +266,17 @@ def _as_results(scenes, progress):
     return out
 
 
+def cached_features(detector, index: int, result, cache: dict) -> np.ndarray:
+    """The features ``detector`` reads from ``result`` (its kind, its own estimator),
+    kept in ``cache`` under (``index``, kind, estimator): the cache :func:`evaluate`'s
+    ``features_cache`` holds."""
+    est = detector.metadata.get("estimator")
+    key = (index, detector.features, repr(sorted(est.items())) if isinstance(est, dict) else repr(est))
+    if key not in cache:
+        cache[key] = features_from_result(result, detector.features, estimator=est)
+    return cache[key]
+
+
 def evaluate(detector, scenes, baselines=None, slip_threshold: float = 0.8, pred_threshold: float = 0.5,
              max_latency: float = 0.05, progress: bool = False, features_cache=None) -> EvaluationReport:
     """Evaluate a detector (and baselines) on held-out scenes.
@@ -314,11 +325,7 @@ def evaluate(detector, scenes, baselines=None, slip_threshold: float = 0.8, pred
                     pass
                 ys, yp = det.outputs(res, n_r)
             else:
-                est = det.metadata.get("estimator")
-                key = (k, det.features, repr(sorted(est.items())) if isinstance(est, dict) else repr(est))
-                if key not in feats_cache:
-                    feats_cache[key] = features_from_result(res, det.features, estimator=est)
-                ys, _, yp = det.run(feats_cache[key], fs=res.fs)
+                ys, _, yp = det.run(cached_features(det, k, res, feats_cache), fs=res.fs)
             items.append(((ys, yp), res))
         rows.append(_metrics(name, items, slip_threshold, pred_threshold, max_latency))
     return EvaluationReport(rows, {"slip_threshold": slip_threshold, "pred_threshold": pred_threshold,
