@@ -218,8 +218,8 @@ def test_paper_scene_prepares_pieces_every_way():
 def test_pad_commits_all_ridges_or_none(stepping, threads):
     # ridge 4 cannot solve a breakaway cascade (no iterations allowed): the step where
     # its first cascade comes fails, and every ridge keeps the history it had before
-    # (with two threads ridge 4 is stepped on the worker with ridge 2, ridges 0 and 1
-    # on the calling thread)
+    # (with two threads the worker takes the ridges from the back, ridge 4 among its
+    # first, the calling thread from the front)
     scene = tm.scenes.paper("fig6", n_ridges=6)
     pad = Pad.from_scene(scene, stepping=stepping)
     pad.threads = threads
@@ -641,8 +641,8 @@ def test_projected_follow_equals_the_full_rows(backend):
 
 @pytest.mark.parametrize("stepping", ["auto", "every"])
 def test_advance_on_two_threads_equals_one(stepping):
-    # the pad's worker thread steps half of the computing ridges: the same bits, the
-    # same solves and events
+    # the pad's worker thread shares the computing ridges: the same bits, the same
+    # solves and events
     scene = tm.scenes.paper("fig8", n_ridges=6, duration=1.6)
     y, ind = scene.plate_motion()
     pads = [Pad.from_scene(scene, stepping=stepping) for _ in range(2)]

@@ -1,5 +1,6 @@
 """The header-only C++ kernels, built stand-alone with AddressSanitizer and UBSan
 and checked against references computed here with scipy."""
+import os
 import pathlib
 import shutil
 import subprocess
@@ -107,3 +108,30 @@ def test_jordan_kernels_under_address_sanitizer(tmp_path):
     out = subprocess.run([str(exe)], check=False, capture_output=True, text=True, timeout=300)
     assert out.returncode == 0, out.stdout + out.stderr
     assert "ok: 0 failures" in out.stdout
+
+
+def _thread_sanitizer_runs(tmp_path) -> bool:
+    probe = tmp_path / "probe.cpp"
+    probe.write_text("int main() { return 0; }\n")
+    p = subprocess.run([CXX, "-fsanitize=thread", str(probe), "-o", str(tmp_path / "probe")], check=False,
+                       capture_output=True)
+    return p.returncode == 0 and subprocess.run([str(tmp_path / "probe")], check=False).returncode == 0
+
+
+@pytest.mark.parametrize("sanitizers", ["thread", "address,undefined"])
+def test_shared_list_under_sanitizers(tmp_path, sanitizers):
+    # the two threads of a pad (Pad.threads = 2) sharing its ridges: 20000 lists of
+    # random cost, failures, pauses that put the second thread to sleep; every item runs
+    # once, the per-item data is ordered between the threads (ThreadSanitizer), and the
+    # second thread takes part
+    if sanitizers == "thread" and not _thread_sanitizer_runs(tmp_path):
+        pytest.skip("the compiler cannot build or run ThreadSanitizer programs here")
+    try:
+        exe = build(tmp_path, "test_shared_list.cpp", sanitizers=sanitizers)
+    except subprocess.CalledProcessError as exc:
+        raise AssertionError(f"building tests/cpp/test_shared_list.cpp with {sanitizers} failed:\n{exc.stderr}") from exc
+    env = {**os.environ, "TSAN_OPTIONS": "halt_on_error=1"}
+    out = subprocess.run([str(exe)], check=False, capture_output=True, text=True, timeout=300, env=env)
+    assert out.returncode == 0, out.stdout + out.stderr[-5000:]
+    assert "ok: 0 failures" in out.stdout
+    assert "ThreadSanitizer" not in out.stderr

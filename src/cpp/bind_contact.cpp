@@ -18,7 +18,7 @@
 //       slip_fraction, threads, proj, proj_out, flags) -> (status, ridge, solves, events):
 //       each ridge follows
 //       the whole trajectory ("auto" or "every"); the ridges are independent, so with
-//       threads = 2 they are split over two threads (same results as one).
+//       threads = 2 they are shared with a second thread (shared_list.hpp; same results).
 //   A ridge with the configuration, history and plate path of an earlier ridge of the
 //   pad (the mirror-image ridges under a symmetric finger) is that ridge's shadow: it
 //   gets its results without computing them (see PyContact); sources tells which.
@@ -29,17 +29,16 @@
 #include <pybind11/numpy.h>
 #include <pybind11/pybind11.h>
 
+#include <cstdint>
 #include <atomic>
-#include <condition_variable>
-#include <mutex>
 #include <cstring>
 #include <memory>
 #include <stdexcept>
 #include <string>
-#include <thread>
 #include <vector>
 
 #include "contact_solver.hpp"
+#include "shared_list.hpp"
 
 namespace py = pybind11;
 using tactile::ContactSolverKernel;
@@ -338,57 +337,13 @@ void tm_bind_contact(py::module_& m) {
         std::vector<std::size_t> src;  // src[k]: the ridge whose results ridge k gets (k itself if it computes)
         std::vector<long> solved;      // step: the solves of each ridge in this call
         std::vector<ContactStatus> status;  // step: the status of each computing ridge
-        // step with threads = 2: a worker thread started at the first such call and kept
-        // (a tick hands it a range of ridges and waits for it; nothing is allocated per tick)
-        struct Worker {
-            std::thread th;
-            std::mutex mu;
-            std::condition_variable cv;
-            bool job = false, quit = false;
-            void (*fn)(void*) = nullptr;
-            void* arg = nullptr;
-        };
-        std::unique_ptr<Worker> worker;
-        void start_worker() {
-            if (worker) return;
-            worker = std::make_unique<Worker>();
-            Worker* w = worker.get();
-            w->th = std::thread([w] {
-                std::unique_lock<std::mutex> lk(w->mu);
-                for (;;) {
-                    w->cv.wait(lk, [w] { return w->job || w->quit; });
-                    if (w->quit) return;
-                    lk.unlock();
-                    w->fn(w->arg);
-                    lk.lock();
-                    w->job = false;
-                    w->cv.notify_all();
-                }
-            });
-        }
-        // run fn(arg) on the worker while the caller runs its own part; join() waits for it
-        void post(void (*fn)(void*), void* arg) {
-            std::lock_guard<std::mutex> lk(worker->mu);
-            worker->fn = fn;
-            worker->arg = arg;
-            worker->job = true;
-            worker->cv.notify_all();
-        }
-        void join() {
-            std::unique_lock<std::mutex> lk(worker->mu);
-            worker->cv.wait(lk, [this] { return !worker->job; });
-        }
+        std::vector<char> ran;         // step: the ridges stepped in this call (a failure stops the others)
+        std::vector<std::size_t> own;  // the computing ridges (src[k] == k), in order
+        // threads = 2: the computing ridges shared with a second thread kept by the pad
+        tactile::SharedList workers;
         PyContactPad() = default;
         PyContactPad(PyContactPad&&) = default;
         ~PyContactPad() {
-            if (worker) {
-                {
-                    std::lock_guard<std::mutex> lk(worker->mu);
-                    worker->quit = true;
-                    worker->cv.notify_all();
-                }
-                worker->th.join();
-            }
             for (auto& r : ridges) r->detach();  // a shadow is only valid inside its pad
         }
         // plate heights of ridge k: zk[t * stride]
@@ -401,6 +356,7 @@ void tm_bind_contact(py::module_& m) {
             };
             src.resize(R);
             solved.resize(R);
+            ran.resize(R);
             status.resize(R);
             for (std::size_t k = 0; k < R; ++k) {
                 PyContact& c = *ridges[k];
@@ -476,68 +432,38 @@ void tm_bind_contact(py::module_& m) {
                  std::size_t bad = R;
                  long its = 0;
                  p.link(zp, 1, 0, 1);  // with the GIL: the links are read by the solvers' accessors
-                 std::size_t n_own = 0;
-                 for (std::size_t k = 0; k < R; ++k) n_own += p.src[k] == k;
-                 const bool two = threads >= 2 && n_own >= 2;
-                 if (two) p.start_worker();
-                 // the computing ridges [a, b) of the pad (shadows skipped)
-                 struct Part {
-                     PyContactPad* p;
-                     std::size_t a, b;
-                     double y;
-                     const double* z;
-                     bool every;
-                     double *fo, *dout, *fr;
-                     std::int8_t* so;
-                 };
-                 auto run = [](void* v) {
-                     const Part& t = *static_cast<Part*>(v);
-                     const std::size_t n = t.p->n;
-                     for (std::size_t k = t.a; k < t.b; ++k) {
-                         if (t.p->src[k] != k) continue;
-                         ContactSolverKernel& s = t.p->ridges[k]->k;
-                         const long s0 = s.solves();
-                         double y = t.y;
-                         ContactStatus st = s.follow(&y, t.z + k, 1, t.every, t.fo + k * 2 * n, t.dout + k * 2 * n,
-                                                     t.so + k * n, 0, 0);
-                         t.p->status[k] = st;
-                         if (st != ContactStatus::ok) return;  // the rest of this part is not stepped
-                         t.p->solved[k] = s.solves() - s0;
-                         s.report(t.fo + k * 2 * n, t.so + k * n, t.fo + k * 2 * n, t.fr[k]);
-                     }
+                 p.own.clear();  // (capacity R after the first call: no allocation)
+                 for (std::size_t k = 0; k < R; ++k)
+                     if (p.src[k] == k) p.own.push_back(k);
+                 auto step_ridge = [&](std::size_t k) -> bool {
+                     ContactSolverKernel& s = p.ridges[k]->k;
+                     const long s0 = s.solves();
+                     double y = plate_y;
+                     const ContactStatus st = s.follow(&y, zp + k, 1, every, fo + k * 2 * n, dout + k * 2 * n,
+                                                       so + k * n, 0, 0);
+                     p.ran[k] = 1;
+                     p.status[k] = st;
+                     if (st != ContactStatus::ok) return false;
+                     p.solved[k] = s.solves() - s0;
+                     s.report(fo + k * 2 * n, so + k * n, fo + k * 2 * n, fr[k]);
+                     return true;
                  };
                  {
                      py::gil_scoped_release nogil;
-                     for (std::size_t k = 0; k < R; ++k) p.status[k] = ContactStatus::ok;
-                     // with two threads the computing ridges are split in two halves by count
-                     std::size_t split = R;
-                     if (two) {
-                         std::size_t c = 0;
-                         for (split = 0; split < R; ++split)
-                             if (p.src[split] == split && c++ == (n_own + 1) / 2) break;
+                     for (std::size_t k = 0; k < R; ++k) {
+                         p.status[k] = ContactStatus::ok;
+                         p.ran[k] = 0;
                      }
-                     Part lo{&p, 0, split, plate_y, zp, every, fo, dout, fr, so};
-                     Part hi{&p, split, R, plate_y, zp, every, fo, dout, fr, so};
-                     if (two) p.post(+run, &hi);
-                     run(&lo);
-                     if (two) p.join();
-                     // the first failing ridge; the ridges before it that stepped step back, and
-                     // so do those after it (with two threads they may have stepped): the pad
-                     // keeps the tick only if every ridge succeeded
-                     const std::size_t lo_end = two ? split : R;
+                     p.workers.run(p.own.data(), p.own.size(), step_ridge, threads >= 2);
+                     // the first failing ridge; every other ridge that stepped steps back (a
+                     // failure stops the ridges not yet started): the pad keeps the tick only
+                     // if every ridge succeeded
                      for (std::size_t k = 0; k < R && bad == R; ++k)
-                         if (p.src[k] == k && p.status[k] != ContactStatus::ok) bad = k;
+                         if (p.ran[k] && p.status[k] != ContactStatus::ok) bad = k;
                      if (bad < R) {
                          status = p.status[bad];
-                         for (std::size_t k = 0; k < R; ++k) {
-                             if (p.src[k] != k || k == bad) continue;
-                             // ridges past a failure in their own part were not stepped
-                             const std::size_t a = k < lo_end ? 0 : lo_end;
-                             bool stepped = p.status[k] == ContactStatus::ok;
-                             for (std::size_t q = a; q < k && stepped; ++q)
-                                 stepped = !(p.src[q] == q && p.status[q] != ContactStatus::ok);
-                             if (stepped) p.ridges[k]->k.restore();
-                         }
+                         for (std::size_t k : p.own)
+                             if (k != bad && p.ran[k] && p.status[k] == ContactStatus::ok) p.ridges[k]->k.restore();
                      } else {
                          for (std::size_t k = 0; k < R; ++k) {
                              const std::size_t j = p.src[k];
@@ -570,7 +496,8 @@ void tm_bind_contact(py::module_& m) {
              },
              py::arg("plate_y"), py::arg("plate_z"), py::arg("every") = true, py::arg("threads") = 1,
              "One sample for every ridge (every=False: from the unit responses while no status changes; "
-             "threads=2: half of the computing ridges on a worker thread kept by the pad, the same bits); "
+             "threads=2: the computing ridges shared, one at a time, with a worker thread kept by the pad, the "
+             "same bits); "
              "the ridges keep it only if every one succeeded. Returns (status, ridge, solves, forces f = (lt, -ln), "
              "displacement, state, slip_fraction, touching, gross_slip, sum of f_t, sum of f_n) (the sums over all "
              "ridges and nodes, N/m). A ridge with the configuration, history and "
@@ -609,10 +536,11 @@ void tm_bind_contact(py::module_& m) {
                  for (std::size_t t = 0; t < T; ++t)
                      for (std::size_t k : own) zr[k * T + t] = z.data()[t * R + k];
                  std::vector<ContactStatus> st(R, ContactStatus::ok);
+                 std::vector<char> ran(R, 0);  // a failure stops the ridges not yet started
                  long s0 = 0, e0 = 0;
                  for (auto& r : p.ridges) { s0 += r->view().solves(); e0 += r->view().events(); }
                  const double* yp = y.data();
-                 auto ridge = [&](std::size_t k) {
+                 auto ridge = [&](std::size_t k) -> bool {
                      ContactSolverKernel& s = p.ridges[k]->k;
                      ContactSolverKernel::Extra ex;
                      ex.proj = pop ? pop + k * q : nullptr;
@@ -623,24 +551,17 @@ void tm_bind_contact(py::module_& m) {
                      st[k] = s.follow(yp, zr.data() + k * T, T, every, lop ? lop + k * 2 * n : nullptr,
                                       dop ? dop + k * 2 * n : nullptr, sop ? sop + k * n : nullptr, R * 2 * n, R * n,
                                       ex);
+                     ran[k] = 1;
+                     return st[k] == ContactStatus::ok;
                  };
                  {
                      py::gil_scoped_release nogil;
-                     const std::size_t m = own.size();
-                     if (threads >= 2 && m >= 2) {
-                         // ridges are independent: the upper half on a second thread
-                         const std::size_t half = (m + 1) / 2;
-                         std::thread other([&] { for (std::size_t i = half; i < m; ++i) ridge(own[i]); });
-                         for (std::size_t i = 0; i < half; ++i) ridge(own[i]);
-                         other.join();
-                     } else {
-                         for (std::size_t k : own) ridge(k);
-                     }
+                     p.workers.run(own.data(), own.size(), ridge, threads >= 2);
                      for (std::size_t k = 0; k < R; ++k) {  // the shadows: their masters' rows
                          const std::size_t j = p.src[k];
                          if (j == k) continue;
                          st[k] = st[j];
-                         if (st[j] != ContactStatus::ok) continue;
+                         if (!ran[j] || st[j] != ContactStatus::ok) continue;
                          for (std::size_t t = 0; t < T; ++t) {
                              const std::size_t o = t * R + k, oj = t * R + j;
                              if (lop) std::memcpy(lop + o * 2 * n, lop + oj * 2 * n, 2 * n * sizeof(double));
@@ -657,7 +578,7 @@ void tm_bind_contact(py::module_& m) {
                      if (st[k] != ContactStatus::ok) bad = k;
                  if (bad < R) {  // all ridges back to where they were
                      for (std::size_t k : own)
-                         if (st[k] == ContactStatus::ok) p.ridges[k]->k.restore();
+                         if (ran[k] && st[k] == ContactStatus::ok) p.ridges[k]->k.restore();
                      return py::make_tuple(static_cast<int>(st[bad]), bad, 0, 0);
                  }
                  long s1 = 0, e1 = 0;
@@ -673,7 +594,8 @@ void tm_bind_contact(py::module_& m) {
              "state (T, n_ridges, n) int8, slip_fraction (T, n_ridges) float64, flags (T, n_ridges) int8 (bit 0: "
              "some node touches; bit 1: gross slip, touching and none stuck), and with proj (q, 2n) float64, "
              "proj_out (T, n_ridges, q) float64: proj @ lam of every sample, O(q) a sample along a piece instead "
-             "of O(n). threads=2 splits the ridges over two threads (the ridges are independent: same results). "
+             "of O(n). threads=2 shares the ridges with a second thread, one at a time (the ridges are "
+             "independent: same results). "
              "A ridge with the configuration, history and plate path of an earlier one gets that ridge's results "
              "(the same bits) without computing them. Returns (status, ridge, solves, events); on a failure "
              "(status != 0, of the first failing ridge) every ridge keeps the history it had before the call.");
