@@ -109,21 +109,16 @@ def bench_backends(quick):
 def bench_realtime(duration):
     """The paced loop at 1 kHz against the simulated 6-ridge FEM pad: open loop (the pad
     stands still, the finger slips: the solver's worst case, breakaway cascades over the whole
-    contact) and closed loop with the default law (what hardware in the loop runs)."""
+    contact) and closed loop with the default law (what hardware in the loop runs); the
+    default pad on one and two threads, and :meth:`FemPad.realtime` (coarser contact
+    elements, two threads)."""
     from tactile_mirror.circuit import PVDFCircuit
     from tactile_mirror.contact.plants import FemPad
     from tactile_mirror.loop.controller import NoController
     from tactile_mirror.loop.envelope import REPORT_PATHS, _laws
     from tactile_mirror.loop.experiment import PLANTS, default_weights
     from tactile_mirror.loop.runner import LoopRunner
-    from tactile_mirror.loop.scene import (
-        LoopScene,
-        PlantSource,
-        gross_slip_events,
-        loop_pipeline,
-        make_plant,
-        scene_finger,
-    )
+    from tactile_mirror.loop.scene import LoopScene, PlantSource, gross_slip_events, loop_pipeline, scene_finger
     from tactile_mirror.loop.stage import SimulatedStage, StageLimits
 
     rows = []
@@ -137,28 +132,81 @@ def bench_realtime(duration):
         rows.append([label, len(res.t), slips, f"{tp['p50']:.0f} / {tp['p99']:.0f} / {tp['max']:.0f}",
                      f"{lp['p50']:.0f} / {lp['p99']:.0f}", res.overruns, res.late_starts])
 
+    pads = {"default pad": lambda sc: FemPad(6, mu=sc.mu, fs=sc.fs),
+            "default pad, 2 threads": lambda sc: FemPad(6, mu=sc.mu, fs=sc.fs, threads=2),
+            "FemPad.realtime()": lambda sc: FemPad.realtime(6, mu=sc.mu, fs=sc.fs)}
     weights = default_weights("fem", 1000.0)
     for n_ridges in (1, 6):
         sc = LoopScene(seed=0, duration=duration, press=0.5, plant="fem", trajectory=PLANTS["fem"]["trajectory"])
         pipe = loop_pipeline(weights, sc.fs, NoController(), n_ridges)
-        run(f"open loop, {n_ridges} ridge{'s' if n_ridges > 1 else ''}, experiment path", sc,
+        run(f"open loop, {n_ridges} ridge{'s' if n_ridges > 1 else ''}, experiment path, default pad", sc,
             FemPad(n_ridges, fs=sc.fs), None, pipe, SimulatedStage(), False)
     limits = StageLimits(-0.02, 0.02, 0.03, 1.0)
     laws, design = _laws(weights, 1000.0, limits, 0.001, 0.002, 6, "fem")
-    for law in ("open loop", "default"):
-        for v in (0.005, 0.02):
-            sc = LoopScene(seed=REPORT_PATHS.first_seed, duration=duration, fs=1000.0, plant="fem",
-                           trajectory=REPORT_PATHS.trajectory(v))
-            controller = laws[law] or NoController()
-            pipe = loop_pipeline(weights, sc.fs, controller, 6, design.shear_weights)
-            run(f"{law}, 6 ridges, report path {v * 1e3:g} mm/s", sc, make_plant(sc, 6), controller, pipe,
-                SimulatedStage(limits, delay=0.001, lag=0.002), law != "open loop")
+    for law, pad_names in (("open loop", list(pads)), ("default", ["default pad", "FemPad.realtime()"])):
+        for pad_name in pad_names:
+            for v in (0.005, 0.02):
+                sc = LoopScene(seed=REPORT_PATHS.first_seed, duration=duration, fs=1000.0, plant="fem",
+                               trajectory=REPORT_PATHS.trajectory(v))
+                controller = laws[law] or NoController()
+                pipe = loop_pipeline(weights, sc.fs, controller, 6, design.shear_weights)
+                run(f"{law}, 6 ridges, report path {v * 1e3:g} mm/s, {pad_name}", sc, pads[pad_name](sc), controller,
+                    pipe, SimulatedStage(limits, delay=0.001, lag=0.002), law != "open loop")
     table(f"Paced loop (realtime=True) at 1 kHz against the simulated FEM pad, {duration:g} s "
           "(tick: plant + pipeline + stage; goal: p99 below one tick, 1000 us). Open loop the finger slips "
           "over the still pad: every gross slip is a breakaway cascade over the whole contact, several "
-          "refactorisations in one tick; closed loop the default law keeps the contact stuck",
+          "refactorisations in one tick; closed loop the default law keeps the contact stuck. FemPad.realtime(): "
+          "contact elements of 0.2 mm instead of 0.05 mm, two threads",
           ["run", "ticks", "gross slips", "tick p50 / p99 / max [us]", "pipeline latency p50 / p99 [us]",
            "overruns", "late starts"], rows)
+
+
+def bench_realtime_accuracy(duration):
+    """What the real-time pad gives up: the open-loop report paths (finger over a still
+    pad, 6 ridges) stepped as fast as possible through the default pad, FemPad.realtime()
+    and a reference pad with contact elements of 0.025 mm, their strips' L - R stress and
+    tangential force compared, with the plant's own time per tick."""
+    from tactile_mirror.contact.plants import REALTIME_CONTACT_MESH_SIZE, FemPad
+    from tactile_mirror.loop.envelope import REPORT_PATHS
+    from tactile_mirror.loop.scene import LoopScene, gross_slip_events, scene_finger
+
+    fine = RidgeGeometry(contact_mesh_size=0.025e-3)
+    pads = {"reference (contact elements 0.025 mm)": lambda sc: FemPad(6, mu=sc.mu, fs=sc.fs, geometry=fine),
+            "default pad (0.05 mm)": lambda sc: FemPad(6, mu=sc.mu, fs=sc.fs),
+            "default pad, 2 threads": lambda sc: FemPad(6, mu=sc.mu, fs=sc.fs, threads=2),
+            f"FemPad.realtime() ({REALTIME_CONTACT_MESH_SIZE * 1e3:g} mm, 2 threads)":
+                lambda sc: FemPad.realtime(6, mu=sc.mu, fs=sc.fs),
+            f"FemPad.realtime(threads=1)": lambda sc: FemPad.realtime(6, mu=sc.mu, fs=sc.fs, threads=1)}
+    rows = []
+    for v in (0.005, 0.02):
+        sc = LoopScene(seed=REPORT_PATHS.first_seed, duration=duration, fs=1000.0, plant="fem",
+                       trajectory=REPORT_PATHS.trajectory(v))
+        finger = scene_finger(sc)
+        ref = None
+        for name, make in pads.items():
+            plant = make(sc)
+            n = finger.size
+            dt, lr, fy, sf = np.empty(n), np.empty((n, 6)), np.empty(n), np.empty((n, 6))
+            for k in range(n):
+                t0 = time.perf_counter()
+                st = plant.advance(float(finger[k]))
+                dt[k] = time.perf_counter() - t0
+                lr[k] = st.stress[:, 0] - st.stress[:, 1]
+                fy[k], sf[k] = st.force_y, st.slip_fraction
+            if ref is None:
+                ref = (lr, fy)
+            e_lr = np.sqrt(np.mean((lr - ref[0]) ** 2)) / np.max(np.abs(ref[0]))
+            e_fy = np.sqrt(np.mean((fy - ref[1]) ** 2)) / np.max(np.abs(ref[1]))
+            rows.append([f"{v * 1e3:g} mm/s", name, plant.pad.solvers[0].model.n_nodes,
+                         f"{np.median(dt) * 1e6:.0f} / {np.percentile(dt, 99) * 1e6:.0f} / {dt.max() * 1e6:.0f}",
+                         f"{np.mean(dt) * 1e6:.0f}", gross_slip_events(sf.T),
+                         "-" if name.startswith("reference") else f"{100 * e_lr:.1f} %",
+                         "-" if name.startswith("reference") else f"{100 * e_fy:.2f} %"])
+    table(f"The FEM pad's contact resolution against its cost, open loop (finger over a still pad), report paths, "
+          f"6 ridges, {duration:g} s, the plant stepped as fast as possible (errors: rms over all ticks and ridges, "
+          "relative to the reference's peak)",
+          ["path", "pad", "contact nodes a ridge", "plant tick p50 / p99 / max [us]", "mean [us]", "gross slips",
+           "L - R stress error", "F_y error"], rows)
 
 
 def bench_fig6():
@@ -505,7 +553,8 @@ def main(argv=None):
                    help="only the compiled-against-Python solver table and the paced loop")
     p.add_argument("--stepping-only", action="store_true",
                    help="only the 'every' against 'auto' stepping tables (compiled and Python solvers)")
-    p.add_argument("--realtime-only", action="store_true", help="only the paced loop")
+    p.add_argument("--realtime-only", action="store_true",
+                   help="only the paced loop and the real-time pad's accuracy")
     args = p.parse_args(argv)
     print(f"CPU: {cpu_model()} ({os.cpu_count()} logical cores)")
     if args.stepping_only:
@@ -514,9 +563,11 @@ def main(argv=None):
         return
     if args.realtime_only:
         bench_realtime(1.5 if args.quick else 3.0)
+        bench_realtime_accuracy(1.5 if args.quick else 3.0)
         return
     bench_backends(args.quick)
     bench_realtime(1.5 if args.quick else 3.0)
+    bench_realtime_accuracy(1.5 if args.quick else 3.0)
     bench_cpp_events(args.quick)
     if args.solver_only:
         return
