@@ -669,7 +669,9 @@ public:
         vcache_ = vec(kColCache * n2_); ccol_.resize(kColCache);
         obrow_.resize(kMaxBorder); obcol_.resize(kMaxBorder); orcoef_ = vec(kMaxBorder); occoef_ = vec(kMaxBorder);
         Wt2_ = vec(kMaxBorder * n2_); S0_ = vec(kMaxBorder * kMaxBorder); S1_ = vec(kMaxBorder * kMaxBorder);
-        rmap_.assign(kMaxBorder, -1); cmap_.assign(kMaxBorder, -1); trow_.resize(kMaxBorder); tcol_.resize(kMaxBorder);
+        rmap_.assign(kMaxBorder, -1); cmap_.assign(kMaxBorder, -1);
+        row_head_.assign(n, -1); col_head_.assign(n, -1); chain_next_.assign(kMaxBorder, -1);
+        cache_next_.assign(kColCache, -1); trow_.resize(kMaxBorder); tcol_.resize(kMaxBorder);
         rhs_in_ = vec(n2_); rhs_out_ = vec(n2_);
         aff_lam_ = vec(n2_); aff_u_ = vec(n2_); aff_lz_ = vec(n2_); aff_uz_ = vec(n2_); aff_ly_ = vec(n2_);
         aff_uy_ = vec(n2_); aff_v_ = vec(n);
@@ -1906,6 +1908,23 @@ private:
         return bkind_[k] ? coef_lt(r, i) : coef_ln(r, i, base_coef_[i]);
     }
 
+    // Per-node chains over entries e[0, count) (border rows, border columns, cached
+    // columns: anything with a .node): head[node] is the first entry of that node, next[q]
+    // the one after q (-1: none), in increasing order. unlink_chains resets the heads it
+    // set, so the heads are all -1 between uses (O(count), not O(n)).
+    template <class E>
+    void link_chains(const E* e, std::size_t count, long* head, long* next) noexcept {
+        if (!next) next = chain_next_.data();
+        for (std::size_t q = count; q-- > 0;) {
+            next[q] = head[e[q].node];
+            head[e[q].node] = static_cast<long>(q);
+        }
+    }
+    template <class E>
+    static void unlink_chains(const E* e, std::size_t count, long* head) noexcept {
+        for (std::size_t q = 0; q < count; ++q) head[e[q].node] = -1;
+    }
+
     // Border the base for the piece (state, slip_coef_); false if it needs more than
     // kMaxBorder borders or its Schur complement is singular (then refactor).
     bool update_piece(const std::int8_t* state) noexcept {
@@ -1947,14 +1966,22 @@ private:
         auto col_coef = [&](const BorderCol& bc) { return bc.kind == kAddLn ? slip_coef_[bc.node] : 0.0; };
         // where a border row (column) of this piece was one of the last piece's, with the
         // same coefficient: its entries are kept (-1: new)
-        auto kept = [&](const auto& b, double coef, const auto& old, const auto& old_coef) -> long {
-            for (std::size_t q = 0; q < onb_; ++q)
-                if (old[q].kind == b.kind && old[q].node == b.node && old[q].pos == b.pos && old_coef[q] == coef)
-                    return static_cast<long>(q);
+        // (found through per-node chains of the old entries: a node has at most two
+        // border rows and two columns, so a lookup is a step or two instead of a scan
+        // of the last border; the scans were a fifth of a bordered update's own time)
+        auto kept = [&](const auto& b, double coef, const auto& old, const auto& old_coef, long* head) -> long {
+            for (long q = head[b.node]; q >= 0; q = chain_next_[static_cast<std::size_t>(q)])
+                if (old[q].kind == b.kind && old[q].pos == b.pos && old_coef[q] == coef) return q;
             return -1;
         };
-        for (std::size_t r = 0; r < nb; ++r) rmap_[r] = kept(brow_[r], row_coef(brow_[r]), obrow_, orcoef_);
-        for (std::size_t c = 0; c < nb; ++c) cmap_[c] = kept(bcol_[c], col_coef(bcol_[c]), obcol_, occoef_);
+        link_chains(obrow_.data(), onb_, row_head_.data(), nullptr);
+        for (std::size_t r = 0; r < nb; ++r)
+            rmap_[r] = kept(brow_[r], row_coef(brow_[r]), obrow_, orcoef_, row_head_.data());
+        unlink_chains(obrow_.data(), onb_, row_head_.data());
+        link_chains(obcol_.data(), onb_, col_head_.data(), nullptr);
+        for (std::size_t c = 0; c < nb; ++c)
+            cmap_[c] = kept(bcol_[c], col_coef(bcol_[c]), obcol_, occoef_, col_head_.data());
+        unlink_chains(obcol_.data(), onb_, col_head_.data());
         // (the rows of the force laws are read at their one or two entries only,
         // border_row_dot: the others are not written)
         // when every row and column of the last border is kept (nodes added to the
@@ -1986,13 +2013,14 @@ private:
         // the front of vnew_ and solved together (one pass over the factors for all)
         std::size_t nnew = 0;
         for (std::size_t q = 0; q < kColCache; ++q) slot_used_[q] = 0;
+        link_chains(ccol_.data(), n_cached_, col_head_.data(), cache_next_.data());
         for (std::size_t c = 0; c < nb; ++c) {
             const BorderCol& bc = bcol_[c];
             const double coef = col_coef(bc);
             std::size_t hit = kColCache;
-            for (std::size_t q = 0; q < n_cached_; ++q) {
-                const CachedCol& cc = ccol_[q];
-                if (cc.kind == bc.kind && cc.node == bc.node && cc.pos == bc.pos && cc.coef == coef) { hit = q; break; }
+            for (long q = col_head_[bc.node]; q >= 0; q = cache_next_[static_cast<std::size_t>(q)]) {
+                const CachedCol& cc = ccol_[static_cast<std::size_t>(q)];
+                if (cc.kind == bc.kind && cc.pos == bc.pos && cc.coef == coef) { hit = static_cast<std::size_t>(q); break; }
             }
             if (hit < kColCache) {  // the border reads the cached column in place
                 vcol_[c] = vcache_.data() + hit * n2_;
@@ -2008,6 +2036,7 @@ private:
             }
             new_col_[nnew++] = c;
         }
+        unlink_chains(ccol_.data(), n_cached_, col_head_.data());
         if (nnew > 0) lu_solve(M_.data(), m, n2_, piv_.data(), vnew_.data(), n2_, nnew);
         // the new columns go to free slots of the cache, or replace columns this border
         // does not use (kColCache >= 2 kMaxBorder: there is always one)
@@ -2045,9 +2074,16 @@ private:
         // so only the new rows and columns cost dot products over the base. The entries
         // are the same bits as computed afresh.
         const double law = 1.0 / r_;
-        for (std::size_t r = 0; r < nb; ++r) {
+        // Extended (every entry of the last border kept, in its place): its W^T rows and
+        // the leading onb_ x onb_ block of S stay where they are, only the new rows of
+        // W^T and the new rows and columns of S are written. Else both are rebuilt into
+        // the spare buffers, the kept entries copied from their old places.
+        const std::size_t r0 = extend ? onb_ : 0;
+        double* wt = extend ? Wt_.data() : Wt2_.data();
+        double* sb = extend ? S0_.data() : S1_.data();
+        for (std::size_t r = r0; r < nb; ++r) {
             const BorderRow& br = brow_[r];
-            double* w = Wt2_.data() + r * n2_;
+            double* w = wt + r * n2_;
             if (br.kind == kFix) {
                 w[br.pos] = law;
             } else if (br.kind == kSlipRow) {  // lt_i - mu s ln_i (ln_i has slip coefficient 0 in the base)
@@ -2060,12 +2096,12 @@ private:
                 for (std::size_t k = 0; k < m; ++k) w[k] = base_coef(row, k);
             }
         }
-        Wt_.swap(Wt2_);
+        if (!extend) Wt_.swap(Wt2_);
         for (std::size_t r = 0; r < nb; ++r) {
             const BorderRow& br = brow_[r];
-            double* srow = S1_.data() + r * K;
+            double* srow = sb + r * K;
             const double* orow = rmap_[r] >= 0 ? S0_.data() + static_cast<std::size_t>(rmap_[r]) * K : nullptr;
-            for (std::size_t c = 0; c < nb; ++c) {
+            for (std::size_t c = r < r0 ? r0 : 0; c < nb; ++c) {
                 if (orow && cmap_[c] >= 0) {
                     srow[c] = orow[cmap_[c]];
                     continue;
@@ -2079,7 +2115,7 @@ private:
                 srow[c] = z - border_row_dot(r, vcol_[c]);
             }
         }
-        S0_.swap(S1_);
+        if (!extend) S0_.swap(S1_);
         const std::size_t nb0 = onb_;
         for (std::size_t r = 0; r < nb; ++r) {
             obrow_[r] = brow_[r];
@@ -2321,6 +2357,8 @@ private:
     std::vector<BorderCol> obcol_;
     std::vector<double> orcoef_, occoef_, Wt2_, S0_, S1_;
     std::vector<long> rmap_, cmap_;
+    std::vector<long> row_head_, col_head_;  // per node: the first entry of its chain (-1 between uses)
+    std::vector<long> chain_next_, cache_next_;  // the chains of the last border's entries, of the cached columns
     std::size_t onb_ = 0;
     bool s_lu_ok_ = false;  // S_ holds the factors of the last border's S (extend_s may extend them)
     std::vector<BorderRow> trow_;
