@@ -135,3 +135,64 @@ def test_shared_list_under_sanitizers(tmp_path, sanitizers):
     assert out.returncode == 0, out.stdout + out.stderr[-5000:]
     assert "ok: 0 failures" in out.stdout
     assert "ThreadSanitizer" not in out.stderr
+
+
+def test_contact_kernel_under_sanitizers(tmp_path):
+    # The contact kernel (contact_solver.hpp) on fig6 with a coarse contact mesh (41
+    # nodes) up to 0.125 s after gross slip: the press, partial slip (the first
+    # breakaway at sample 554), the breakaway cascades and the gross slip at 1475,
+    # sliding. Against the compiled module's follow (every and auto) and per-sample
+    # step (auto), with the same configuration ContactSolver gives the module; the
+    # rejected non-finite positions, cascades failing without iterations and restore()
+    # leave the history unchanged (tests/cpp/test_contact.cpp).
+    from tactile_mirror import scenes
+    from tactile_mirror.contact import ContactSolver, RidgeGeometry, ridge_model
+
+    try:
+        exe = build(tmp_path, "test_contact.cpp")
+    except subprocess.CalledProcessError as exc:
+        raise AssertionError(f"building tests/cpp/test_contact.cpp with sanitizers failed:\n{exc.stderr}") from exc
+    scene = scenes.paper("fig6", geometry=RidgeGeometry(contact_mesh_size=0.2e-3))
+    model = ridge_model(scene.geometry)
+    y, indent = scene.plate_motion()
+    N, n = 1600, model.n_nodes
+    y = np.ascontiguousarray(y[:N])
+    z = np.ascontiguousarray(model.geometry.height - indent[:N])
+
+    def solver():
+        return ContactSolver(model, scene.friction, mu_kinetic=scene.friction * scene.kinetic_ratio, backend="cpp")
+
+    s = solver()
+    p = s._params
+    runs = []
+    for every in (True, False):
+        k = solver()._kernel
+        lam, state = np.empty((N, 2 * n)), np.empty((N, n), dtype=np.int8)
+        assert k.follow(y, z, every, lam, None, state)[0] == 0
+        runs.append((lam, state, k))
+    k = solver()._kernel
+    lam, state = np.empty((N, 2 * n)), np.empty((N, n), dtype=np.int8)
+    for t in range(N):
+        status, f, _, st, _, _ = k.step(y[t], z[t], False)
+        assert status == 0
+        lam[t] = np.concatenate([f[:n], -f[n:]])
+        state[t] = st
+    runs.append((lam, state, k))
+    # the path holds what the test is about: bordered updates, breakaways, gross slip
+    st = runs[0][1]
+    assert runs[0][2].updates > 0 and np.any((st[:-1] == 1) & (st[1:] == 2))
+    assert np.any(np.any(st != 0, axis=1) & ~np.any(st == 1, axis=1))
+    data = tmp_path / "contact.bin"
+    with open(data, "wb") as fh:
+        np.array([n, N, p["max_iter"], p["max_active_set_iter"]], dtype=np.uint64).tofile(fh)
+        np.array([s._r, s._w_tol, p["mu"], p["mu_kinetic"], p["tol"], s._g_tol, s._f_tol, s._evt_tol[0, 0],
+                  s._evt_tol[1, 0]], dtype=np.float64).tofile(fh)
+        for a in (model.compliance, model.node_z, model.weights, y, z):
+            np.ascontiguousarray(a, dtype=np.float64).tofile(fh)
+        for lam, state, k in runs:
+            lam.tofile(fh)
+            state.tofile(fh)
+            np.array([k.solves, k.events, k.factorizations, k.updates], dtype=np.int64).tofile(fh)
+    out = subprocess.run([str(exe), str(data)], check=False, capture_output=True, text=True, timeout=120)
+    assert out.returncode == 0, out.stdout + out.stderr
+    assert "ok: 0 failures" in out.stdout
