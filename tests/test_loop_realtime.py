@@ -58,15 +58,15 @@ def test_realtime_pad_is_the_fem_pad_at_coarser_contact_elements():
     assert g_rt.contact_mesh_size == REALTIME_CONTACT_MESH_SIZE > g_def.contact_mesh_size
     # only the contact zone is coarser: the strips sit in the same mesh
     assert (g_rt.mesh_size, g_rt.strip_mesh_size) == (g_def.mesh_size, g_def.strip_mesh_size)
-    assert rt.pad.model.n_nodes < default.pad.model.n_nodes and rt.pad.threads == 2
+    assert rt.pad.model.n_nodes < default.pad.model.n_nodes and rt.pad.threads == 1
     # a geometry or thread count given wins; the keyword arguments reach FemPad
-    own = FemPad.realtime(1, mu=0.6, geometry=RidgeGeometry(contact_mesh_size=0.1e-3), threads=1)
-    assert own.pad.model.geometry.contact_mesh_size == 0.1e-3 and own.pad.threads == 1 and own.mu == 0.6
+    own = FemPad.realtime(1, mu=0.6, geometry=RidgeGeometry(contact_mesh_size=0.1e-3), threads=2)
+    assert own.pad.model.geometry.contact_mesh_size == 0.1e-3 and own.pad.threads == 2 and own.mu == 0.6
     with pytest.raises(ValueError, match="threads"):
         FemPad(1, threads=0)
     # the same press and slide: the same load within the resolution, two threads or one
     finger = np.concatenate([np.zeros(40), np.linspace(0.0, 40e-6, 60)])
-    runs = [[p.advance(float(d)) for d in finger] for p in (rt, default, FemPad.realtime(2, threads=1))]
+    runs = [[p.advance(float(d)) for d in finger] for p in (rt, default, FemPad.realtime(2, threads=2))]
     fy = np.array([[s.force_y for s in r] for r in runs])
     fz = np.array([[s.force_z for s in r] for r in runs])
     np.testing.assert_array_equal(fy[0], fy[2])  # threads do not change a bit

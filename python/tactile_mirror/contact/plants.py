@@ -138,24 +138,31 @@ class FemPad:
     @classmethod
     def realtime(cls, n_ridges: int = 6, **kwargs) -> FemPad:
         """The FEM pad for a loop paced at 1 kHz: contact elements of
-        :data:`REALTIME_CONTACT_MESH_SIZE` (41 contact nodes a ridge instead of 161; the
-        rest of the mesh, and so the strips' stress, as the default) and two threads.
+        :data:`REALTIME_CONTACT_MESH_SIZE` (41 contact nodes a ridge instead of 161); the
+        rest of the mesh, and so the strips' stress, as the default.
 
         The worst case of the paced loop is the open loop: the finger slides over a pad
-        that stands still, and the contact goes through breakaway cascades at every tick
-        (``bench/bench_contact.py --realtime-only``). On the report paths at 5 and 20 mm/s,
-        6 ridges, one run on an Intel Xeon (2 cores): a tick of the default pad takes
-        3.5 / 5.0 ms at p99 (0.8-1.2 ms mean over the slips' ticks), this one 0.23 / 0.34 ms
-        (one thread; max 0.6 / 0.8 ms). Against a pad with contact elements of 0.025 mm on
-        the same paths, the strips' L - R stress of the default pad is off by 1.0 / 0.7 % of
-        its peak (rms), this one's by 2.9 / 2.3 %, the tangential force by 0.3 / 0.2 %
-        (default 0.1 / 0.0 %); the gross slips are the same (6 / 8). Other keyword
-        arguments go to :class:`FemPad` (a ``geometry`` given there wins).
+        that stands still, and the contact goes through breakaway cascades at every tick.
+        Measured with ``python bench/bench_contact.py --realtime-only`` (one run, Intel
+        Xeon, 2 cores), 6 ridges, the report paths at 5 / 20 mm/s, paced at 1 kHz:
+
+        * open loop: tick p99 236 / 274 us, 1-2 overruns in 3000 ticks; the default pad
+          3.2 / 4.7 ms and 785 / 1200 overruns (2.7 / 3.6 ms with ``threads=2``);
+        * closed loop, the default law: 0 gross slips, tick p99 116 / 124 us, no overrun
+          (the default pad: 295 / 334 us).
+
+        What it gives up, against a pad with contact elements of 0.025 mm on the same
+        open-loop paths (rms over the ticks and ridges, relative to the reference's peak):
+        the strips' L - R stress 2.9 / 2.3 % (the default pad 1.0 / 0.7 %), the tangential
+        force 0.31 / 0.20 % (0.06 / 0.05 %); the gross slips are the same (6 / 8). A
+        second thread did not shorten its ticks (p99 195 against 198 us and 264 against
+        298 us, the plant alone; its three computing ridges take 20 us at the median), so
+        it runs on one. Keyword arguments go to :class:`FemPad` (a ``geometry`` given
+        there wins).
         """
         from .geometry import RidgeGeometry
 
         kwargs.setdefault("geometry", RidgeGeometry(contact_mesh_size=REALTIME_CONTACT_MESH_SIZE))
-        kwargs.setdefault("threads", 2)
         return cls(n_ridges, **kwargs)
 
     def reset(self) -> None:
