@@ -125,3 +125,30 @@ def test_module_command_maps_the_bank_options(monkeypatch, tmp_path):
 def test_bad_bank_is_named():
     with pytest.raises(ValueError, match="lp_taus"):
         BuildOptions(kind="jordan_bank", bank={"lp_taus": [], "abs_taus": [], "load_tau": 0.5, "peak_tau": 2.0})
+
+
+def test_calibrate_condition_reaches_the_recalibration(monkeypatch, tmp_path, capsys):
+    """--calibrate-condition calibrates for the named sensor conditions only (a net for a
+    sensor whose noise is known); unknown names, bad rates and the mix with
+    --calibrate-goals are refused by name."""
+    calls = []
+
+    def fake_recalibrate(weights_path, out_path, conditions, n_validation, n_test, cache_dir):
+        calls.append((weights_path, out_path, conditions, n_validation, n_test, cache_dir))
+        return None, {"threshold": 0.5}
+
+    monkeypatch.setattr(build, "recalibrate", fake_recalibrate)
+    out = str(tmp_path / "w.npz")
+    build.main(["--out", out, "--recalibrate", "in.npz", "--calibrate-condition", "1 mV rms white", "0.025",
+                "--n-validation", "480"])
+    assert calls == [("in.npz", out, {"1 mV rms white": 0.025}, 480, 200, None)]
+    build.main(["--out", out, "--recalibrate", "in.npz", "--calibrate-goals", "0.015", "0.025"])
+    assert calls[-1][2] == {"noise-free": 0.015, "1 mV rms white": 0.025, "thermal + 2 mV 50 Hz hum, notch": 0.025}
+    for bad, match in ((["--calibrate-condition", "2 mV", "0.02"], "unknown condition"),
+                       (["--calibrate-condition", "noise-free", "low"], "must be a number"),
+                       (["--calibrate-condition", "noise-free", "0.02", "--calibrate-goals", "0.01", "0.02"],
+                        "exclude each other")):
+        with pytest.raises(SystemExit):
+            build.main(["--out", out, "--recalibrate", "in.npz", *bad])
+        assert match in capsys.readouterr().err
+    assert len(calls) == 2

@@ -747,6 +747,10 @@ def main(argv=None):
                     help="instead: the decision point that keeps the validation scenes within FA_CLEAN false alarms "
                          "noise-free and FA_NOISY with 1 mV rms white noise and with the thermal floor + 2 mV hum "
                          "(notched), e.g. 0.015 0.025")
+    ap.add_argument("--calibrate-condition", nargs=2, action="append", default=None, metavar=("CONDITION", "FA"),
+                    help="instead: the decision point for the named sensor condition(s) only (repeatable; one of "
+                         "detector.evaluate.NOISE_CONDITIONS, e.g. '1 mV rms white' 0.025): a net for a sensor whose "
+                         "noise is known, not bound by the other conditions' false alarms")
     ap.add_argument("--n-validation", type=int, default=120,
                     help=f"validation scenes (seed {VALIDATION_SEED}) for the choice among candidates and the calibration")
     ap.add_argument("--noise-range", type=float, nargs=2, default=list(NOISE_RANGE), metavar=("LOW", "HIGH"),
@@ -762,14 +766,27 @@ def main(argv=None):
         if args.abs_taus is not None:
             bank["abs_taus"] = list(args.abs_taus)
     goals = None
+    if args.calibrate_goals is not None and args.calibrate_condition:
+        ap.error("--calibrate-goals and --calibrate-condition exclude each other")
     if args.calibrate_goals is not None:
         from .evaluate import NOISE_CONDITIONS
 
         clean_fa, noisy_fa = args.calibrate_goals
         goals = {name: (clean_fa if name == "noise-free" else noisy_fa) for name in NOISE_CONDITIONS}
+    if args.calibrate_condition:
+        from .evaluate import NOISE_CONDITIONS
+
+        goals = {}
+        for name, fa in args.calibrate_condition:
+            if name not in NOISE_CONDITIONS:
+                ap.error(f"--calibrate-condition: unknown condition {name!r}; known: {sorted(NOISE_CONDITIONS)}")
+            try:
+                goals[name] = float(fa)
+            except ValueError:
+                ap.error(f"--calibrate-condition {name!r}: the false-alarm rate must be a number, got {fa!r}")
     if args.recalibrate is not None:
         if goals is None:
-            ap.error("--recalibrate needs --calibrate-goals")
+            ap.error("--recalibrate needs --calibrate-goals or --calibrate-condition")
         _w, info = recalibrate(args.recalibrate, args.out, goals, _positive_int("n_validation", args.n_validation),
                                _positive_int("n_test", args.n_test), args.cache)
         print(json.dumps(info, indent=1))
