@@ -15,6 +15,11 @@ Two measurements on the 6-ridge FEM pad, the finger held still (no relative moti
 2. The same drop from 1.75 s, finger at rest for the whole 3 s, open loop and with the
    default law (``design_loop``, the envelope's stage): gross slips and the stage's
    largest excursion.
+3. (``--common-mode``) The strips' common mode L + R as a second channel: its response per um
+   of stuck relative displacement and per um of indent, and how much of the phantom of
+   measurement 1 (the mean L - R change over ridges 0-2, in um of displacement) a linear
+   prediction from the four combinations free of both (the ridges' differences of L - R and
+   of L + R) leaves, fitted on the drops to the first ``--mu`` and applied to the others.
 
 The shear offsets, the ramp and the friction values here are the envelope's sweat
 conditions (mu 0.45 and 0.40) and not a tuning set: nothing is chosen from this output.
@@ -34,6 +39,7 @@ def main(argv=None) -> None:
     ap.add_argument("--mu", default="0.45,0.40", help="friction after the drop (comma separated)")
     ap.add_argument("--offsets", default="0,10,20,40,-20", help="shear offsets held during the drop, um")
     ap.add_argument("--figure", help="also write the figure (PNG): the signal's moves and the still finger's runs")
+    ap.add_argument("--common-mode", action="store_true", help="also measurement 3 (L + R as a second channel)")
     args = ap.parse_args(argv)
     from tactile_mirror.loop.envelope import _laws
     from tactile_mirror.loop.experiment import _weights_dict, default_weights, still_pad_features
@@ -86,6 +92,52 @@ def main(argv=None) -> None:
           ["friction", "law", "gross slips", "stage's largest excursion (um)"], rows)
     if args.figure:
         figure(args.figure, fs, traces, runs, mus)
+    if args.common_mode:
+        common_mode(mus, offsets)
+
+
+def _strip_changes(n=1500, d=0.0, mu=None, move=0.0, dind=0.0):
+    """Per tick from 0.99 s: the change of (L - R, L + R) of ridges 0-2 (their mirror
+    images are equal), the FEM pad's finger pressed (0.5 s), moved to ``d`` (0.1 s), then
+    from 1.0 s over 0.2 s: friction to ``mu``, or the finger by ``move``, or the indent by
+    ``dind``."""
+    from tactile_mirror.contact.plants import FemPad
+
+    p = FemPad(6, fs=1000.0)
+    indent0, mu0 = p.indent, p.mu
+    out = np.empty((n, 3, 2))
+    for k in range(n):
+        ramp = min(1.0, max(0.0, (k - 1000) / 200))
+        y = 0.0 if k < 500 else (d * min(1.0, (k - 500) / 100) + (move * ramp if k >= 1000 else 0.0))
+        if mu is not None and 1000 <= k <= 1200:
+            p.set_mu(mu0 + (mu - mu0) * ramp)
+        if dind and k >= 1000:
+            p.indent = indent0 + dind * ramp
+        out[k] = p.advance(y).stress[:3]
+    a = np.concatenate([out[..., 0] - out[..., 1], out[..., 0] + out[..., 1]], axis=1)
+    return a[990:] - a[990]
+
+
+def common_mode(mus, offsets) -> None:
+    g = _strip_changes(move=5e-6)[-1] / 5.0        # per um of relative displacement
+    h = _strip_changes(dind=3e-6)[-1] / 3.0        # per um of indent
+    table("The strips' response per um (ridges 0-2; Pa)", ["what", "L - R", "L + R"],
+          [[name, " / ".join(f"{v:.1f}" for v in r[:3]), " / ".join(f"{v:.1f}" for v in r[3:])]
+           for name, r in (("relative displacement, stuck", g), ("indent", h))])
+
+    def feats(a):
+        D, S = a[:, :3], a[:, 3:]
+        X = np.stack([D[:, 0] - D[:, 1], D[:, 1] - D[:, 2], S[:, 0] - S[:, 1], S[:, 1] - S[:, 2]], axis=1)
+        return X, D.mean(axis=1) / g[:3].mean()    # the phantom in um of displacement
+
+    ph = {(mu, d): feats(_strip_changes(d=d, mu=mu)) for mu in mus for d in offsets}
+    fit = [v for (mu, _), v in ph.items() if mu == mus[0]]
+    beta = np.linalg.lstsq(np.concatenate([X for X, _ in fit]), np.concatenate([y for _, y in fit]), rcond=None)[0]
+    rows = [[f"{mu:.2f}" + (" (fitted)" if mu == mus[0] else ""), f"{d * 1e6:+.0f}", f"{np.abs(y).max():.0f}",
+             f"{np.abs(y - X @ beta).max():.0f}"] for (mu, d), (X, y) in ph.items()]
+    table("The phantom (um of displacement, largest over the ramp and 0.3 s after) and what a linear prediction "
+          "from the combinations free of displacement and indent leaves",
+          ["mu after", "offset d (um)", "phantom", "left after the prediction"], rows)
 
 
 def figure(path, fs, traces, runs, mus) -> None:
