@@ -9,7 +9,8 @@ AVX2+FMA; fig6 end to end, wall and CPU time; the 6-ridge pad step; the paced lo
 of the same steps, cost against the outputs a scene asks for, mesh size against
 strip-stress error and run time, and the event-driven stepping ("auto") against the
 per-sample one ("every"): time against error on the paper's scenes, the 6-ridge pad and
-random scenes, with solves and events, and the stepping's goals; writes Figs. 6-8 as PNG into DIR. The CPU model is
+random scenes, with solves and events, and the stepping's goals; writes Figs. 6-8 and
+realtime_pad.png (the pad's contact resolution: tick time against error) as PNG into DIR. The CPU model is
 printed first; every ratio is between runs of this one process.
 """
 from __future__ import annotations
@@ -161,28 +162,36 @@ def bench_realtime(duration):
            "overruns", "late starts"], rows)
 
 
-def bench_realtime_accuracy(duration):
+def bench_realtime_accuracy(duration, figure_path=None):
     """What the real-time pad gives up: the open-loop report paths (finger over a still
-    pad, 6 ridges) stepped as fast as possible through the default pad, FemPad.realtime()
-    and a reference pad with contact elements of 0.025 mm, their strips' L - R stress and
-    tangential force compared, with the plant's own time per tick."""
+    pad, 6 ridges) stepped as fast as possible through pads whose contact elements are
+    0.2 (FemPad.realtime(); the largest the default mesh allows: 41 contact nodes), 0.1
+    (81) and 0.05 mm (the default, 161; also on two threads; sizes in between give one of
+    these meshes)
+    against a reference pad with contact elements of 0.025 mm: their strips' L - R stress
+    and tangential force compared, with the plant's own time per tick. ``figure_path``:
+    also the figure of error and tick time against the contact nodes."""
     from tactile_mirror.contact.plants import REALTIME_CONTACT_MESH_SIZE, FemPad
     from tactile_mirror.loop.envelope import REPORT_PATHS
     from tactile_mirror.loop.scene import LoopScene, gross_slip_events, scene_finger
 
-    fine = RidgeGeometry(contact_mesh_size=0.025e-3)
-    pads = {"reference (contact elements 0.025 mm)": lambda sc: FemPad(6, mu=sc.mu, fs=sc.fs, geometry=fine),
-            "default pad (0.05 mm)": lambda sc: FemPad(6, mu=sc.mu, fs=sc.fs),
-            "default pad, 2 threads": lambda sc: FemPad(6, mu=sc.mu, fs=sc.fs, threads=2),
-            f"FemPad.realtime() ({REALTIME_CONTACT_MESH_SIZE * 1e3:g} mm)": lambda sc: FemPad.realtime(6, mu=sc.mu, fs=sc.fs),
-            "FemPad.realtime(threads=2)": lambda sc: FemPad.realtime(6, mu=sc.mu, fs=sc.fs, threads=2)}
-    rows = []
+    def sized(h, **kw):
+        return lambda sc: FemPad(6, mu=sc.mu, fs=sc.fs, geometry=RidgeGeometry(contact_mesh_size=h), **kw)
+
+    default_h = RidgeGeometry().contact_mesh_size
+    pads = {"reference (0.025 mm)": (0.025e-3, 1, sized(0.025e-3))}
+    for h in (REALTIME_CONTACT_MESH_SIZE, 0.1e-3, default_h):
+        label = ("FemPad.realtime()" if h == REALTIME_CONTACT_MESH_SIZE else
+                 "default pad" if h == default_h else "contact elements") + f" ({h * 1e3:g} mm)"
+        pads[label] = (h, 1, sized(h))
+    pads[f"default pad ({default_h * 1e3:g} mm), 2 threads"] = (default_h, 2, sized(default_h, threads=2))
+    rows, points = [], []
     for v in (0.005, 0.02):
         sc = LoopScene(seed=REPORT_PATHS.first_seed, duration=duration, fs=1000.0, plant="fem",
                        trajectory=REPORT_PATHS.trajectory(v))
         finger = scene_finger(sc)
         ref = None
-        for name, make in pads.items():
+        for name, (h, threads, make) in pads.items():
             plant = make(sc)
             n = finger.size
             dt, lr, fy, sf = np.empty(n), np.empty((n, 6)), np.empty(n), np.empty((n, 6))
@@ -196,16 +205,71 @@ def bench_realtime_accuracy(duration):
                 ref = (lr, fy)
             e_lr = np.sqrt(np.mean((lr - ref[0]) ** 2)) / np.max(np.abs(ref[0]))
             e_fy = np.sqrt(np.mean((fy - ref[1]) ** 2)) / np.max(np.abs(ref[1]))
-            rows.append([f"{v * 1e3:g} mm/s", name, plant.pad.solvers[0].model.n_nodes,
+            nodes = plant.pad.solvers[0].model.n_nodes
+            is_ref = name.startswith("reference")
+            rows.append([f"{v * 1e3:g} mm/s", name, nodes,
                          f"{np.median(dt) * 1e6:.0f} / {np.percentile(dt, 99) * 1e6:.0f} / {dt.max() * 1e6:.0f}",
                          f"{np.mean(dt) * 1e6:.0f}", gross_slip_events(sf.T),
-                         "-" if name.startswith("reference") else f"{100 * e_lr:.1f} %",
-                         "-" if name.startswith("reference") else f"{100 * e_fy:.2f} %"])
+                         "-" if is_ref else f"{100 * e_lr:.1f} %", "-" if is_ref else f"{100 * e_fy:.2f} %"])
+            points.append({"v": v, "h": h, "threads": threads, "nodes": nodes, "p99": np.percentile(dt, 99),
+                           "max": dt.max(), "lr": None if is_ref else e_lr})
     table(f"The FEM pad's contact resolution against its cost, open loop (finger over a still pad), report paths, "
           f"6 ridges, {duration:g} s, the plant stepped as fast as possible (errors: rms over all ticks and ridges, "
           "relative to the reference's peak)",
           ["path", "pad", "contact nodes a ridge", "plant tick p50 / p99 / max [us]", "mean [us]", "gross slips",
            "L - R stress error", "F_y error"], rows)
+    if figure_path:
+        realtime_figure(points, figure_path, default_h, REALTIME_CONTACT_MESH_SIZE)
+        import json
+
+        from tactile_mirror.measure import environment
+
+        with open(os.path.splitext(figure_path)[0] + ".json", "w") as f:
+            json.dump({"environment": environment(), "duration_s": duration, "default_contact_mesh_size": default_h,
+                       "realtime_contact_mesh_size": REALTIME_CONTACT_MESH_SIZE,
+                       "rows": [{k: (float(v) if isinstance(v, (float, np.floating)) else v) for k, v in p.items()}
+                                for p in points]}, f, indent=1)
+
+
+def realtime_figure(points, path, default_h, realtime_h):
+    """Left: the plant's tick p99 against the contact nodes a ridge, the 1 kHz tick marked;
+    right: the strips' L - R error against the same, per report path (one thread)."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    fig, (ax_t, ax_e) = plt.subplots(1, 2, figsize=(11, 4.2))
+    for v, marker in ((0.005, "o"), (0.02, "s")):
+        pts = sorted((p for p in points if p["v"] == v and p["threads"] == 1), key=lambda p: p["nodes"])
+        nodes = [p["nodes"] for p in pts]
+        ax_t.semilogy(nodes, [p["p99"] * 1e3 for p in pts], marker + "-", label=f"p99, {v * 1e3:g} mm/s path")
+        ax_t.semilogy(nodes, [p["max"] * 1e3 for p in pts], marker + ":", color="0.6", ms=4,
+                      label=f"max, {v * 1e3:g} mm/s path")
+        err = [(p["nodes"], p["lr"] * 100) for p in pts if p["lr"] is not None]
+        ax_e.plot(*zip(*err), marker + "-", label=f"{v * 1e3:g} mm/s path")
+    for ax in (ax_t, ax_e):
+        for h, text in ((default_h, "default"), (realtime_h, "FemPad.realtime()")):
+            n = next(p["nodes"] for p in points if p["h"] == h)
+            ax.axvline(n, color="0.8", lw=3, zorder=0)
+            ax.annotate(text, (n, 0.03), xycoords=("data", "axes fraction"), ha="left", va="bottom", fontsize=8,
+                        rotation=90, xytext=(3, 0), textcoords="offset points")
+        ax.set_xlabel("contact nodes a ridge")
+        ax.grid(True, which="both", alpha=0.3)
+    ax_t.axhline(1.0, color="r", lw=1)
+    ax_t.annotate("one tick at 1 kHz", (ax_t.get_xlim()[0], 1.0), va="bottom", fontsize=8, color="r")
+    ax_t.set(ylabel="plant tick, ms (6 ridges, one thread)", title="Open loop: the slowest ticks")
+    ax_e.set(ylabel="rms error of the strips' L - R, % of peak", ylim=(0, None),
+             title="Against contact elements of 0.025 mm")
+    ax_t.legend(fontsize=7)
+    ax_e.legend(fontsize=7)
+    fig.suptitle("The FEM pad's contact resolution: real time against accuracy (finger over a still pad)",
+                 fontsize=10)
+    fig.tight_layout()
+    os.makedirs(os.path.dirname(path) or ".", exist_ok=True)
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+    print(f"\nFigure written to {path}")
 
 
 def bench_fig6():
@@ -547,7 +611,8 @@ def bench_cpp_events(quick):
 def main(argv=None):
     p = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("--quick", action="store_true", help="fewer mesh sizes and steps")
-    p.add_argument("--figures", default=None, help="folder for the Fig. 6-8 PNGs (default: none)")
+    p.add_argument("--figures", default=None,
+                   help="folder for the Fig. 6-8 PNGs and realtime_pad.png (default: none)")
     p.add_argument("--solver-only", action="store_true",
                    help="only the compiled-against-Python solver table and the paced loop")
     p.add_argument("--stepping-only", action="store_true",
@@ -560,13 +625,14 @@ def main(argv=None):
         bench_cpp_events(args.quick)
         bench_stepping(args.quick)
         return
+    rt_figure = os.path.join(args.figures, "realtime_pad.png") if args.figures else None
     if args.realtime_only:
         bench_realtime(1.5 if args.quick else 3.0)
-        bench_realtime_accuracy(1.5 if args.quick else 3.0)
+        bench_realtime_accuracy(1.5 if args.quick else 3.0, rt_figure)
         return
     bench_backends(args.quick)
     bench_realtime(1.5 if args.quick else 3.0)
-    bench_realtime_accuracy(1.5 if args.quick else 3.0)
+    bench_realtime_accuracy(1.5 if args.quick else 3.0, rt_figure)
     bench_cpp_events(args.quick)
     if args.solver_only:
         return

@@ -143,22 +143,26 @@ class FemPad:
 
         The worst case of the paced loop is the open loop: the finger slides over a pad
         that stands still, and the contact goes through breakaway cascades at every tick.
-        Measured with ``python bench/bench_contact.py --realtime-only`` (one run, Intel
-        Xeon, 2 cores), 6 ridges, the report paths at 5 / 20 mm/s, paced at 1 kHz:
+        Measured with ``python bench/bench_contact.py --realtime-only`` (two runs, Intel
+        Xeon, 2 cores), 6 ridges, the report paths at 5 / 20 mm/s, paced at 1 kHz, 3000
+        ticks:
 
-        * open loop: tick p99 236 / 274 us, 1-2 overruns in 3000 ticks; the default pad
-          3.2 / 4.7 ms and 785 / 1200 overruns (2.7 / 3.6 ms with ``threads=2``);
-        * closed loop, the default law: 0 gross slips, tick p99 116 / 124 us, no overrun
-          (the default pad: 295 / 334 us).
+        * open loop: tick p99 202-236 / 274-298 us, 0-2 overruns; the default pad
+          3.1-3.3 / 4.5-4.7 ms and 757-1200 overruns (2.7-2.8 / 3.5-3.6 ms with
+          ``threads=2``);
+        * closed loop, the default law: 0 gross slips, tick p99 78-116 / 79-130 us, no
+          overrun (the default pad: 281-295 / 270-342 us, 7-10 overruns).
 
         What it gives up, against a pad with contact elements of 0.025 mm on the same
         open-loop paths (rms over the ticks and ridges, relative to the reference's peak):
-        the strips' L - R stress 2.9 / 2.3 % (the default pad 1.0 / 0.7 %), the tangential
-        force 0.31 / 0.20 % (0.06 / 0.05 %); the gross slips are the same (6 / 8). A
-        second thread did not shorten its ticks (p99 195 against 198 us and 264 against
-        298 us, the plant alone; its three computing ridges take 20 us at the median), so
-        it runs on one. Keyword arguments go to :class:`FemPad` (a ``geometry`` given
-        there wins).
+        the strips' L - R stress 2.9 / 2.3 % (contact elements of 0.1 mm, 81 nodes: 1.9 /
+        1.6 %; the default pad 1.0 / 0.7 %), the tangential force 0.31 / 0.20 % (0.15 /
+        0.09 %; 0.06 / 0.05 %); the gross slips are the same (6 / 8). The plant alone at
+        0.1 mm still takes 0.8 / 1.3 ms at p99 (``docs/figures/realtime_pad.png``). A
+        second thread did not shorten this pad's ticks (p99 195 against 198 us and 264
+        against 298 us, the plant alone; its three computing ridges take 20 us at the
+        median), so it runs on one. Keyword arguments go to :class:`FemPad` (a
+        ``geometry`` given there wins).
         """
         from .geometry import RidgeGeometry
 
