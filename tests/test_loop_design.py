@@ -238,6 +238,9 @@ def test_c_abi_carries_the_new_parameters_with_its_version_bumped():
     (["loop", "envelope", "--laws", "pid"], "comma-separated list"),
     (["loop", "design", "--v-max", "-3"], "positive"),
     (["loop"], "loop_command"),
+    (["loop", "realtime", "--threads", "3"], "invalid choice"),
+    (["loop", "realtime", "--pad", "fine"], "invalid choice"),
+    (["loop", "realtime", "--speed", "0"], "positive"),
 ])
 def test_loop_command_rejects_bad_options(argv, match, capsys):
     from tactile_mirror.cli import main
@@ -427,3 +430,28 @@ def test_planner_decel_is_checked_and_carried_by_the_c_abi():
     bad = {**pipe.config, "controller": {**pipe.config["controller"], "planner_decel": -5.0}}
     with pytest.raises(CAPIError, match="planner_decel"):
         CPipeline(bad)
+
+
+def test_loop_realtime_command_paces_the_pad_and_writes_its_record(tmp_path, capsys):
+    """`tactile-mirror loop realtime`: the open loop paced at 1 kHz against the real-time
+    pad; the JSON, figure and recording agree with the run (timing is measured in
+    bench/bench_contact.py, never asserted here)."""
+    import json
+
+    from tactile_mirror.cli import main
+    from tactile_mirror.loop.recording import Recording
+
+    assert main(["loop", "realtime", "--law", "open loop", "--duration", "0.6", "--speed", "20",
+                 "--out", str(tmp_path)]) == 0
+    out = capsys.readouterr().out
+    summary = json.loads((tmp_path / "realtime.json").read_text())
+    assert summary["ticks"] == 600 and summary["pad"] == "realtime" and summary["contact_nodes"] == 41
+    assert summary["law"] == "open loop" and summary["environment"]["cpu_model"]
+    tick = summary["tick_us"]
+    assert 0 < tick["p50"] <= tick["p99"] <= tick["max"] and 0 <= summary["overruns"] <= 600
+    assert summary["tracking_rms_mm"] > 0.1  # the stage held still while the finger slid away
+    rec = Recording.load(tmp_path / "realtime_recording.npz")
+    assert rec.samples.shape[0] == 600 and np.all(rec.stage_position == 0.0)
+    assert rec.metadata["tick_us"]["p99"] == pytest.approx(tick["p99"])
+    assert (tmp_path / "realtime.png").stat().st_size > 10_000
+    assert "p99" in out and "realtime.json" in out

@@ -349,6 +349,103 @@ def cmd_loop_envelope(args) -> int:
     return 0
 
 
+def cmd_loop_realtime(args) -> int:
+    """Hardware in the loop without the hardware: the loop paced by the wall clock against
+    a simulated finger on the 6-ridge FEM pad; can this machine hold the rate?"""
+    import json
+
+    import numpy as np
+
+    from .circuit import PVDFCircuit
+    from .contact.plants import FemPad
+    from .loop.controller import NoController
+    from .loop.envelope import REPORT_PATHS, _laws
+    from .loop.runner import LoopRunner
+    from .loop.scene import LoopScene, PlantSource, gross_slip_events, loop_pipeline, scene_finger
+    from .loop.stage import SimulatedStage
+    from .measure import environment
+
+    fs, limits = args.fs, _stage_from_args(args)
+    weights = _loop_weights(args.weights, fs)
+    seed = REPORT_PATHS.first_seed if args.seed is None else args.seed
+    scene = LoopScene(seed=seed, duration=args.duration, fs=fs, plant="fem",
+                      trajectory=REPORT_PATHS.trajectory(args.speed * 1e-3))
+    finger = scene_finger(scene)
+    make = FemPad.realtime if args.pad == "realtime" else FemPad
+    plant = make(6, fs=fs, threads=args.threads)
+    if args.law == "default":
+        _, design = _laws(weights, fs, limits, args.delay * 1e-3, args.lag * 1e-3, 6, "fem")
+        controller, shear_weights = design.controller, design.shear_weights
+    else:
+        controller, shear_weights = NoController(), None
+    pipe = loop_pipeline(weights, fs, controller, 6, shear_weights)
+    source = PlantSource(scene, plant, PVDFCircuit(), finger)
+    stage = SimulatedStage(limits, delay=args.delay * 1e-3, lag=args.lag * 1e-3)
+    print(f"pacing {finger.size} ticks at {fs:g} Hz: {args.pad} pad ({plant.pad.model.n_nodes} contact nodes a ridge, "
+          f"{args.threads} thread{'s' if args.threads > 1 else ''}), law {args.law}, finger up to "
+          f"{args.speed:g} mm/s (seed {seed})", flush=True)
+    res = LoopRunner(pipe, stage, source, realtime=True, command=args.law != "open loop").run(
+        n_ticks=finger.size, x0=0.0)
+    n = res.t.size
+    sf = source.log["slip_fraction"][:, :n]
+    slips = gross_slip_events(sf)
+    tracking = float(np.sqrt(np.mean((finger[:n] - source.log["pad"][:n]) ** 2)))
+    tick, lat = res.tick_percentiles(), res.latency_percentiles()
+    summary = {"environment": environment(), "fs_hz": fs, "ticks": int(n), "pad": args.pad,
+               "contact_nodes": int(plant.pad.model.n_nodes), "threads": args.threads, "law": args.law,
+               "finger_peak_speed_mm_s": args.speed, "seed": seed, "tick_us": tick, "latency_us": lat,
+               "overruns": int(res.overruns), "late_starts": int(res.late_starts), "gross_slips": int(slips),
+               "tracking_rms_mm": tracking * 1e3}
+    out = pathlib.Path(args.out)
+    out.mkdir(parents=True, exist_ok=True)
+    (out / "realtime.json").write_text(json.dumps(summary, indent=1, default=float))
+    res.to_recording(pipe.config, {"pad": args.pad, "law": args.law}).save(out / "realtime_recording.npz")
+    _realtime_figure(res, sf, fs, str(out / "realtime.png"),
+                     f"{args.pad} pad, law {args.law}, finger up to {args.speed:g} mm/s")
+    period = 1e6 / fs
+    held = "held" if tick["p99"] < period else "NOT held"
+    print(f"tick p50 / p99 / max {tick['p50']:.0f} / {tick['p99']:.0f} / {tick['max']:.0f} us (one tick {period:.0f} us: "
+          f"p99 {held}); {res.overruns} overruns, {res.late_starts} late starts; {slips} gross slips, tracking rms "
+          f"{tracking * 1e3:.4f} mm")
+    print(f"wrote {out / 'realtime.json'}, {out / 'realtime.png'}, {out / 'realtime_recording.npz'}")
+    return 0
+
+
+def _loop_weights(path, fs):
+    from .loop.experiment import default_weights
+
+    return default_weights("fem", fs) if path is None else _load_detector(path).weights
+
+
+def _realtime_figure(res, slip_fraction, fs, path, title) -> None:
+    """Each tick's work against time with the deadline, gross slips marked; its histogram."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+    import numpy as np
+
+    from .loop.scene import gross_slip_starts
+
+    us = res.tick_ns / 1e3
+    period = 1e6 / fs
+    fig, (ax_t, ax_h) = plt.subplots(1, 2, figsize=(11, 3.8), gridspec_kw={"width_ratios": [2.2, 1]})
+    ax_t.plot(res.t, us, lw=0.6)
+    ax_t.axhline(period, color="r", lw=1, label=f"one tick ({period:.0f} us)")
+    starts = gross_slip_starts(slip_fraction)
+    if starts.size:
+        ax_t.plot(res.t[starts], us[starts], "kx", ms=7, label="gross slip starts")
+    ax_t.set(xlabel="time (s)", ylabel="tick: plant + pipeline + stage (us)", yscale="log", title=title)
+    ax_t.legend(fontsize=8)
+    ax_h.hist(us, bins=np.logspace(np.log10(max(us.min(), 1.0)), np.log10(us.max() * 1.01), 40))
+    ax_h.axvline(period, color="r", lw=1)
+    ax_h.set(xscale="log", xlabel="tick (us)", ylabel="ticks",
+             title=f"p99 {np.percentile(us, 99):.0f} us; {res.overruns} overruns, {res.late_starts} late starts")
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+
+
 # ---------------------------------------------------------------- parser
 def build_parser() -> argparse.ArgumentParser:
     from .scenes import DEFAULT_FRICTION
@@ -433,15 +530,19 @@ def build_parser() -> argparse.ArgumentParser:
                    help="comma-separated subset of filters,estimator,detector,contact (default: all)")
     p.set_defaults(func=cmd_bench)
 
-    p = sub.add_parser("loop", help="the closed loop: design the default law, measure its envelope",
+    p = sub.add_parser("loop", help="the closed loop: design the default law, measure its envelope, pace it",
                        description="The stage loop on the 6-ridge FEM pad. 'design': the default law from the "
                                    "stage's data sheet, the pad's shear calibration and the sample rate (Bode "
                                    "plot, margins). 'envelope': gross slips and tracking error against peak finger "
                                    "speed for open loop, the paper's law and the default law (JSON + plot; an "
-                                   "interrupted run resumes).")
+                                   "interrupted run resumes). 'realtime': the loop paced by the wall clock against a "
+                                   "simulated finger on the pad (hardware in the loop without the hardware): tick "
+                                   "times, overruns, gross slips (JSON, plot, recording).")
     lsub = p.add_subparsers(dest="loop_command", required=True, metavar="loop_command")
     for name, helptext, func in (("design", "design the default law and plot its loop", cmd_loop_design),
-                                 ("envelope", "run the envelope (seeded paths per speed class)", cmd_loop_envelope)):
+                                 ("envelope", "run the envelope (seeded paths per speed class)", cmd_loop_envelope),
+                                 ("realtime", "pace the loop by the wall clock against the simulated pad",
+                                  cmd_loop_realtime)):
         q = lsub.add_parser(name, help=helptext)
         q.add_argument("--out", default="loop-output", help="output folder (default: %(default)s)")
         q.add_argument("--v-max", type=_positive(float), default=30.0, help="stage speed limit, mm/s (default: 30)")
@@ -459,6 +560,21 @@ def build_parser() -> argparse.ArgumentParser:
             q.add_argument("--streaming", action="store_true",
                            help="the stage follows streamed set points (default: its move command plans a braking "
                                 "move to each target at --a-max, and the command leads by the braking distance)")
+        elif name == "realtime":
+            q.add_argument("--fs", type=_positive(float), default=1000.0, help="tick rate, Hz (default: 1000)")
+            q.add_argument("--pad", choices=["realtime", "default"], default="realtime",
+                           help="FemPad.realtime() (contact elements of 0.2 mm) or the default FEM pad "
+                                "(default: %(default)s)")
+            q.add_argument("--threads", type=int, choices=[1, 2], default=1, help="threads stepping the ridges "
+                           "(default: 1)")
+            q.add_argument("--law", choices=["default", "open loop"], default="default",
+                           help="the default law, or the stage held still (the pad's worst case) "
+                                "(default: %(default)s)")
+            q.add_argument("--speed", type=_positive(float), default=5.0,
+                           help="the finger's peak speed, mm/s (a report path; default: 5)")
+            q.add_argument("--seed", type=int, default=None, help="finger path seed (default: the first report seed)")
+            q.add_argument("--duration", type=_positive(float), default=3.0, help="seconds, 0.5 s press included "
+                           "(default: 3)")
         else:
             from .loop.envelope import _LAWS, CONDITIONS
 
