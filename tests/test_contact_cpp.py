@@ -241,6 +241,42 @@ def test_pad_commits_all_ridges_or_none(stepping, threads):
         pad.advance(y[i], np.inf)
 
 
+@pytest.mark.parametrize("stepping", ["auto", "every"])
+def test_first_failing_ridge_does_not_depend_on_threads(stepping):
+    # ridges 2 and 3 (the inner pair, whose first cascades come first, at the same step)
+    # cannot solve a breakaway cascade; ridge 3's tolerance differs a little so that it is
+    # not ridge 2's shadow. The tick that fails reports ridge 2 and leaves every ridge's
+    # history as it was, on one thread and on two, where the worker takes the ridges from
+    # the back and may meet ridge 3's failure before the caller reaches ridge 2 (the
+    # ridges before the first failure in ridge order still run; whether the worker gets
+    # there first is timing: tests/cpp/test_shared_list.cpp checks the rule on lists
+    # built to meet it)
+    scene = tm.scenes.paper("fig6", n_ridges=6)
+    y, ind = scene.plate_motion()
+
+    def first_failure(threads):
+        pad = Pad.from_scene(scene, stepping=stepping)
+        for k in (2, 3):
+            pad.solvers[k].max_iter, pad.solvers[k].max_active_set_iter = 0, 0
+        pad.solvers[3].tol = 1.01e-10
+        H = pad.model.geometry.height
+        for i in range(y.size):
+            z = np.ascontiguousarray(H - (ind[i] - pad.indent_offset))
+            before = [s.get_state() for s in pad.solvers]
+            status, bad = pad._stepper.step(float(y[i]), z, stepping == "every", threads)[:2]
+            if status:
+                assert pad._stepper.sources[2:4] == (2, 3)  # both compute
+                for s, b in zip(pad.solvers, before):
+                    same_history(b, s.get_state())
+                return i, bad, status
+        pytest.fail("no cascade met")
+
+    ref = first_failure(1)
+    assert ref[:2] == (153, 2)
+    for _ in range(5):
+        assert first_failure(2) == ref
+
+
 def test_backend_argument_is_checked(ridge):
     with pytest.raises(ValueError, match="backend"):
         ContactSolver(ridge, 0.5, backend="fortran")

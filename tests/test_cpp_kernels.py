@@ -120,17 +120,19 @@ def _thread_sanitizer_runs(tmp_path) -> bool:
 
 @pytest.mark.parametrize("sanitizers", ["thread", "address,undefined"])
 def test_shared_list_under_sanitizers(tmp_path, sanitizers):
-    # the two threads of a pad (Pad.threads = 2) sharing its ridges: 20000 lists of
-    # random cost, failures, pauses that put the second thread to sleep; every item runs
-    # once, the per-item data is ordered between the threads (ThreadSanitizer), and the
-    # second thread takes part
+    # the work sharing behind a pad's two threads (Pad.threads = 2), on synthetic items:
+    # 20000 lists of random cost, failing items, pauses that put the second thread to
+    # sleep; every item runs once, every item before the first failure runs (so the
+    # failure reported does not depend on timing), the second thread wakes up after every
+    # pause, the per-item data is ordered between the threads (ThreadSanitizer), and no
+    # stack object is read late (AddressSanitizer)
     if sanitizers == "thread" and not _thread_sanitizer_runs(tmp_path):
         pytest.skip("the compiler cannot build or run ThreadSanitizer programs here")
     try:
         exe = build(tmp_path, "test_shared_list.cpp", sanitizers=sanitizers)
     except subprocess.CalledProcessError as exc:
         raise AssertionError(f"building tests/cpp/test_shared_list.cpp with {sanitizers} failed:\n{exc.stderr}") from exc
-    env = {**os.environ, "TSAN_OPTIONS": "halt_on_error=1"}
+    env = {**os.environ, "TSAN_OPTIONS": "halt_on_error=1", "ASAN_OPTIONS": "detect_stack_use_after_return=1"}
     out = subprocess.run([str(exe)], check=False, capture_output=True, text=True, timeout=300, env=env)
     assert out.returncode == 0, out.stdout + out.stderr[-5000:]
     assert "ok: 0 failures" in out.stdout

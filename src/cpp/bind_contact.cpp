@@ -337,7 +337,7 @@ void tm_bind_contact(py::module_& m) {
         std::vector<std::size_t> src;  // src[k]: the ridge whose results ridge k gets (k itself if it computes)
         std::vector<long> solved;      // step: the solves of each ridge in this call
         std::vector<ContactStatus> status;  // step: the status of each computing ridge
-        std::vector<char> ran;         // step: the ridges stepped in this call (a failure stops the others)
+        std::vector<char> ran;         // step: the ridges stepped in this call (those after a failure may not be)
         std::vector<std::size_t> own;  // the computing ridges (src[k] == k), in order
         // threads = 2: the computing ridges shared with a second thread kept by the pad
         tactile::SharedList workers;
@@ -435,7 +435,7 @@ void tm_bind_contact(py::module_& m) {
                  p.own.clear();  // (capacity R after the first call: no allocation)
                  for (std::size_t k = 0; k < R; ++k)
                      if (p.src[k] == k) p.own.push_back(k);
-                 auto step_ridge = [&](std::size_t k) -> bool {
+                 auto step_ridge = [&](std::size_t k) noexcept -> bool {
                      ContactSolverKernel& s = p.ridges[k]->k;
                      const long s0 = s.solves();
                      double y = plate_y;
@@ -455,9 +455,9 @@ void tm_bind_contact(py::module_& m) {
                          p.ran[k] = 0;
                      }
                      p.workers.run(p.own.data(), p.own.size(), step_ridge, threads >= 2);
-                     // the first failing ridge; every other ridge that stepped steps back (a
-                     // failure stops the ridges not yet started): the pad keeps the tick only
-                     // if every ridge succeeded
+                     // the first failing ridge (every ridge before it ran, on either thread;
+                     // those after it may not have); every other ridge that stepped steps back:
+                     // the pad keeps the tick only if every ridge succeeded
                      for (std::size_t k = 0; k < R && bad == R; ++k)
                          if (p.ran[k] && p.status[k] != ContactStatus::ok) bad = k;
                      if (bad < R) {
@@ -536,11 +536,11 @@ void tm_bind_contact(py::module_& m) {
                  for (std::size_t t = 0; t < T; ++t)
                      for (std::size_t k : own) zr[k * T + t] = z.data()[t * R + k];
                  std::vector<ContactStatus> st(R, ContactStatus::ok);
-                 std::vector<char> ran(R, 0);  // a failure stops the ridges not yet started
+                 std::vector<char> ran(R, 0);  // the ridges after a failure may not run
                  long s0 = 0, e0 = 0;
                  for (auto& r : p.ridges) { s0 += r->view().solves(); e0 += r->view().events(); }
                  const double* yp = y.data();
-                 auto ridge = [&](std::size_t k) -> bool {
+                 auto ridge = [&](std::size_t k) noexcept -> bool {
                      ContactSolverKernel& s = p.ridges[k]->k;
                      ContactSolverKernel::Extra ex;
                      ex.proj = pop ? pop + k * q : nullptr;
