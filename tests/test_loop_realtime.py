@@ -53,7 +53,7 @@ def test_realtime_pad_is_the_fem_pad_at_coarser_contact_elements():
     from tactile_mirror.contact import RidgeGeometry
     from tactile_mirror.contact.plants import REALTIME_CONTACT_MESH_SIZE
 
-    rt, default = FemPad.realtime(2, fs=1000.0), FemPad(2, fs=1000.0)
+    rt, default = FemPad.realtime(3, fs=1000.0), FemPad(3, fs=1000.0)
     g_rt, g_def = rt.pad.model.geometry, default.pad.model.geometry
     assert g_rt.contact_mesh_size == REALTIME_CONTACT_MESH_SIZE > g_def.contact_mesh_size
     # only the contact zone is coarser: the strips sit in the same mesh
@@ -65,8 +65,11 @@ def test_realtime_pad_is_the_fem_pad_at_coarser_contact_elements():
     with pytest.raises(ValueError, match="threads"):
         FemPad(1, threads=0)
     # the same press and slide: the same load within the resolution, two threads or one
+    # (3 ridges: the outer two are mirror images, so two of them compute)
     finger = np.concatenate([np.zeros(40), np.linspace(0.0, 40e-6, 60)])
-    runs = [[p.advance(float(d)) for d in finger] for p in (rt, default, FemPad.realtime(2, threads=2))]
+    two = FemPad.realtime(3, threads=2)
+    runs = [[p.advance(float(d)) for d in finger] for p in (rt, default, two)]
+    assert len(set(two.pad._stepper.sources)) == 2
     fy = np.array([[s.force_y for s in r] for r in runs])
     fz = np.array([[s.force_z for s in r] for r in runs])
     np.testing.assert_array_equal(fy[0], fy[2])  # threads do not change a bit

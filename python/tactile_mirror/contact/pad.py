@@ -96,12 +96,13 @@ class Pad:
     threads : int
         Threads of the compiled :meth:`follow` and :meth:`advance` (1 or 2): the ridges are
         independent, so with 2 they are shared with a second thread the pad keeps, one ridge
-        at a time (same results, bit for bit). The calling thread never waits for that
-        thread to wake up, and after a call it polls for the next for 2 ms before it sleeps:
-        a pad stepped tick by tick at 500 Hz or more keeps the second core busy. On the
-        6-ridge FEM pad's open-loop paths the p99 of a tick is 25 % shorter with 2 (a tick is
-        as long as its slowest ridge's breakaway cascade). A plain attribute; the Python
-        backend ignores it.
+        at a time (same results, bit for bit; on a failure the ridge reported is the first
+        failing one in ridge order, as with 1). The calling thread never waits for the second
+        one to wake up, and after a call the second thread polls for the next for 2 ms before
+        it sleeps: a pad stepped tick by tick at 500 Hz or more keeps the second core busy.
+        On the 6-ridge FEM pad's open-loop paths the p99 of a tick is 13-25 % shorter with 2
+        (a tick is as long as its slowest ridge's breakaway cascade). More than 2 count as 2.
+        A plain attribute; the Python backend ignores it.
     """
 
     def __init__(self, model: RidgeModel, mu: float, n_ridges: int = 1, pitch: float | None = None,

@@ -112,9 +112,10 @@ class FemPad:
     geometry : RidgeGeometry, optional
         Ridge geometry and mesh (default ``RidgeGeometry()``, the one the bundled detector
         and the loop's calibration were made with).
-    threads : {1, 2}
-        Threads that step the ridges (:attr:`Pad.threads <tactile_mirror.contact.Pad>`):
-        with 2 the ridges of a tick are shared with a second thread (the same results).
+    threads : int
+        Threads that step the ridges (:attr:`Pad.threads <tactile_mirror.contact.Pad>`; 1 or
+        2, more count as 2): with 2 the ridges of a tick are shared with a second thread
+        (the same results).
     """
 
     pad: Pad
@@ -162,11 +163,12 @@ class FemPad:
         second thread did not shorten this pad's ticks (p99 195 against 198 us and 264
         against 298 us, the plant alone; its three computing ridges take 20 us at the
         median), so it runs on one. Keyword arguments go to :class:`FemPad` (a
-        ``geometry`` given there wins).
+        ``geometry`` given there wins; None is this one's).
         """
         from .geometry import RidgeGeometry
 
-        kwargs.setdefault("geometry", RidgeGeometry(contact_mesh_size=REALTIME_CONTACT_MESH_SIZE))
+        if kwargs.get("geometry") is None:
+            kwargs["geometry"] = RidgeGeometry(contact_mesh_size=REALTIME_CONTACT_MESH_SIZE)
         return cls(n_ridges, **kwargs)
 
     def reset(self) -> None:
