@@ -146,6 +146,12 @@ def test_calibrate_condition_reaches_the_recalibration(monkeypatch, tmp_path, ca
     assert calls[-1][2] == {"noise-free": 0.015, "1 mV rms white": 0.025, "thermal + 2 mV 50 Hz hum, notch": 0.025}
     for bad, match in ((["--calibrate-condition", "2 mV", "0.02"], "unknown condition"),
                        (["--calibrate-condition", "noise-free", "low"], "must be a number"),
+                       (["--calibrate-condition", "noise-free", "1.5"], "must be a number in [0, 1)"),
+                       (["--calibrate-condition", "noise-free", "nan"], "must be a number in [0, 1)"),
+                       (["--calibrate-condition", "noise-free", "0.02", "--calibrate-condition", "noise-free",
+                         "0.03"], "given twice"),
+                       (["--calibrate-condition", "noise-free", "0.02", "--calibrate-fa", "0.02"],
+                        "exclude each other"),
                        (["--calibrate-condition", "noise-free", "0.02", "--calibrate-goals", "0.01", "0.02"],
                         "exclude each other")):
         with pytest.raises(SystemExit):

@@ -768,6 +768,8 @@ def main(argv=None):
     goals = None
     if args.calibrate_goals is not None and args.calibrate_condition:
         ap.error("--calibrate-goals and --calibrate-condition exclude each other")
+    if args.calibrate_fa is not None and args.calibrate_condition:
+        ap.error("--calibrate-fa and --calibrate-condition exclude each other")
     if args.calibrate_goals is not None:
         from .evaluate import NOISE_CONDITIONS
 
@@ -780,10 +782,15 @@ def main(argv=None):
         for name, fa in args.calibrate_condition:
             if name not in NOISE_CONDITIONS:
                 ap.error(f"--calibrate-condition: unknown condition {name!r}; known: {sorted(NOISE_CONDITIONS)}")
+            if name in goals:
+                ap.error(f"--calibrate-condition: {name!r} given twice")
             try:
-                goals[name] = float(fa)
+                rate = float(fa)
             except ValueError:
-                ap.error(f"--calibrate-condition {name!r}: the false-alarm rate must be a number, got {fa!r}")
+                rate = float("nan")
+            if not 0.0 <= rate < 1.0:
+                ap.error(f"--calibrate-condition {name!r}: the false-alarm rate must be a number in [0, 1), got {fa!r}")
+            goals[name] = rate
     if args.recalibrate is not None:
         if goals is None:
             ap.error("--recalibrate needs --calibrate-goals or --calibrate-condition")
