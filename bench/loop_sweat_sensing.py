@@ -18,8 +18,10 @@ Two measurements on the 6-ridge FEM pad, the finger held still (no relative moti
 3. (``--common-mode``) The strips' common mode L + R as a second channel: its response per um
    of stuck relative displacement and per um of indent, and how much of the phantom of
    measurement 1 (the mean L - R change over ridges 0-2, in um of displacement) a linear
-   prediction from the four combinations free of both (the ridges' differences of L - R and
-   of L + R) leaves, fitted on the drops to the first ``--mu`` and applied to the others.
+   prediction from the four combinations that a stuck displacement and the indent leave
+   unmoved (the ridges' differences of L - R and of L + R: the printed sensitivities are
+   equal from ridge to ridge) leaves, fitted on the drops to the first ``--mu`` and
+   applied to the others.
 
 The shear offsets, the ramp and the friction values here are the envelope's sweat
 conditions (mu 0.45 and 0.40) and not a tuning set: nothing is chosen from this output.
@@ -136,7 +138,7 @@ def common_mode(mus, offsets) -> None:
     rows = [[f"{mu:.2f}" + (" (fitted)" if mu == mus[0] else ""), f"{d * 1e6:+.0f}", f"{np.abs(y).max():.0f}",
              f"{np.abs(y - X @ beta).max():.0f}"] for (mu, d), (X, y) in ph.items()]
     table("The phantom (um of displacement, largest over the ramp and 0.3 s after) and what a linear prediction "
-          "from the combinations free of displacement and indent leaves",
+          "from the combinations that a stuck displacement and the indent leave unmoved leaves",
           ["mu after", "offset d (um)", "phantom", "left after the prediction"], rows)
 
 

@@ -1967,8 +1967,8 @@ private:
         // where a border row (column) of this piece was one of the last piece's, with the
         // same coefficient: its entries are kept (-1: new)
         // (found through per-node chains of the old entries: a node has at most two
-        // border rows and two columns, so a lookup is a step or two instead of a scan
-        // of the last border; the scans were a fifth of a bordered update's own time)
+        // border rows and two columns, so a lookup is a step or two; a scan of the last
+        // border costs a fifth of a bordered update's own time on the open-loop paths)
         auto kept = [&](const auto& b, double coef, const auto& old, const auto& old_coef, long* head) -> long {
             for (long q = head[b.node]; q >= 0; q = chain_next_[static_cast<std::size_t>(q)])
                 if (old[q].kind == b.kind && old[q].pos == b.pos && old_coef[q] == coef) return q;
