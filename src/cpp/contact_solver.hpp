@@ -837,6 +837,9 @@ public:
     // Times the base was extended by the nodes a piece added (extend_base) instead of
     // refactored.
     long extensions() const noexcept { return n_extensions_; }
+    // Bordered updates that kept every border row and column of the last one and added to
+    // it (the border's W^T rows and Schur complement extended in place, extend_s).
+    long border_extensions() const noexcept { return n_border_ext_; }
     // Piece solves served by the affine response of an unchanged piece (O(n) each).
     long affine_steps() const noexcept { return n_affine_; }
     // Base solves of a load's right-hand side served by the last one (same base, same
@@ -2079,6 +2082,7 @@ private:
         // W^T and the new rows and columns of S are written. Else both are rebuilt into
         // the spare buffers, the kept entries copied from their old places.
         const std::size_t r0 = extend ? onb_ : 0;
+        n_border_ext_ += extend;
         double* wt = extend ? Wt_.data() : Wt2_.data();
         double* sb = extend ? S0_.data() : S1_.data();
         for (std::size_t r = r0; r < nb; ++r) {
@@ -2339,6 +2343,7 @@ private:
     std::vector<std::uint8_t> bkind_;
     std::size_t mB_ = 0;
     long n_extensions_ = 0;
+    long n_border_ext_ = 0;
     // base piece and its border
     std::vector<long> pos_ln_, pos_lt_;
     std::vector<std::int8_t> base_state_;

@@ -182,10 +182,12 @@ static std::vector<double> run_follow(const Setup& S, const Ref& ref, bool every
           "%s: %ld factorizations, %ld bordered updates; module %ld, %ld", what, k.factorizations(), k.updates(),
           ref.factorizations, ref.updates);
     CHECK(k.updates() > 0, "%s: no bordered update", what);
+    CHECK(k.border_extensions() > 0, "%s: no bordered update extended the last border in place", what);
     std::printf("%s: max |lam - module| %.3g N/m (%.3g of the peak %.4g), status mismatches %ld; solves %ld, events %ld, "
-                "factorizations %ld, bordered updates %ld, extensions %ld, affine steps %ld, rhs reuses %ld\n",
+                "factorizations %ld, bordered updates %ld (%ld extending the last border), extensions %ld, affine steps "
+                "%ld, rhs reuses %ld\n",
                 what, dev, dev / ref.peak, ref.peak, mismatch, k.solves(), k.events(), k.factorizations(), k.updates(),
-                k.extensions(), k.affine_steps(), k.rhs_reuses());
+                k.border_extensions(), k.extensions(), k.affine_steps(), k.rhs_reuses());
     return lam;
 }
 
