@@ -160,10 +160,11 @@ class FemPad:
         1.6 %; the default pad 1.0 / 0.7 %), the tangential force 0.31 / 0.20 % (0.15 /
         0.09 %; 0.06 / 0.05 %); the gross slips are the same (6 / 8). The plant alone at
         0.1 mm still takes 0.8 / 1.3 ms at p99 (``docs/figures/realtime_pad.png``). A
-        second thread did not shorten this pad's ticks (p99 195 against 198 us and 264
-        against 298 us, the plant alone; its three computing ridges take 20 us at the
-        median), so it runs on one. Keyword arguments go to :class:`FemPad` (a
-        ``geometry`` given there wins; None is this one's).
+        second thread shortens this pad's slowest ticks by about a tenth (the plant alone,
+        one run: p99 202 -> 183 us and 261 -> 235 us; its three computing ridges take
+        20 us at the median) and keeps the second core busy while it polls, so by default
+        it runs on one (``threads=2`` to use both). Keyword arguments go to :class:`FemPad`
+        (a ``geometry`` given there wins; None is this one's).
         """
         from .geometry import RidgeGeometry
 
