@@ -144,12 +144,12 @@ class FemPad:
 
         The worst case of the paced loop is the open loop: the finger slides over a pad
         that stands still, and the contact goes through breakaway cascades at every tick.
-        Measured with ``python bench/bench_contact.py --realtime-only`` (two runs, Intel
+        Measured with ``python bench/bench_contact.py --realtime-only`` (three runs, Intel
         Xeon, 2 cores), 6 ridges, the report paths at 5 / 20 mm/s, paced at 1 kHz, 3000
         ticks:
 
         * open loop: tick p99 202-236 / 274-298 us, 0-2 overruns; the default pad
-          3.1-3.3 / 4.5-4.7 ms and 757-1200 overruns (2.7-2.8 / 3.5-3.6 ms with
+          3.1-3.3 / 4.5-4.7 ms and 757-1200 overruns (2.5-2.8 / 3.4-3.6 ms with
           ``threads=2``);
         * closed loop, the default law: 0 gross slips, tick p99 78-116 / 79-130 us, no
           overrun (the default pad: 281-295 / 270-342 us, 7-10 overruns).
