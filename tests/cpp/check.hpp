@@ -3,6 +3,8 @@
 #pragma once
 
 #include <cstdio>
+#include <cstdlib>
+#include <vector>
 
 static int failures = 0;
 #define CHECK(cond, ...)                                              \
@@ -14,3 +16,15 @@ static int failures = 0;
             ++failures;                                               \
         }                                                             \
     } while (0)
+
+// n values of type T from a reference file written by the Python side (numpy tofile);
+// a short file ends the program with status 2
+template <typename T>
+static std::vector<T> read(std::FILE* f, std::size_t n) {
+    std::vector<T> v(n);
+    if (n && std::fread(v.data(), sizeof(T), n, f) != n) {
+        std::fprintf(stderr, "short read\n");
+        std::exit(2);
+    }
+    return v;
+}

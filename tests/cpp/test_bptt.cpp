@@ -15,16 +15,6 @@
 #include "jordan_bptt.hpp"
 #include "check.hpp"
 
-template <typename T>
-static std::vector<T> read(std::FILE* f, std::size_t n) {
-    std::vector<T> v(n);
-    if (n && std::fread(v.data(), sizeof(T), n, f) != n) {
-        std::fprintf(stderr, "short read\n");
-        std::exit(2);
-    }
-    return v;
-}
-
 int main(int argc, char** argv) {
     if (argc != 2) return 2;
     std::FILE* f = std::fopen(argv[1], "rb");

@@ -31,16 +31,6 @@
 using tactile::ContactSolverKernel;
 using tactile::ContactStatus;
 
-template <typename T>
-static std::vector<T> read(std::FILE* f, std::size_t n) {
-    std::vector<T> v(n);
-    if (n && std::fread(v.data(), sizeof(T), n, f) != n) {
-        std::fprintf(stderr, "short read\n");
-        std::exit(2);
-    }
-    return v;
-}
-
 struct Ref {
     std::vector<double> lam;       // (N, 2n) (lt, ln)
     std::vector<std::int8_t> state;  // (N, n)
