@@ -144,15 +144,15 @@ class FemPad:
 
         The worst case of the paced loop is the open loop: the finger slides over a pad
         that stands still, and the contact goes through breakaway cascades at every tick.
-        Measured with ``python bench/bench_contact.py --realtime-only`` (three runs, Intel
+        Measured with ``python bench/bench_contact.py --realtime-only`` (four runs, Intel
         Xeon, 2 cores), 6 ridges, the report paths at 5 / 20 mm/s, paced at 1 kHz, 3000
         ticks:
 
-        * open loop: tick p99 202-236 / 274-298 us, 0-2 overruns; the default pad
+        * open loop: tick p99 202-236 / 274-314 us, 0-2 overruns; the default pad
           3.1-3.3 / 4.5-4.7 ms and 757-1200 overruns (2.5-2.8 / 3.4-3.6 ms with
           ``threads=2``);
-        * closed loop, the default law: 0 gross slips, tick p99 78-116 / 79-130 us, no
-          overrun (the default pad: 281-295 / 270-342 us, 7-10 overruns).
+        * closed loop, the default law: 0 gross slips, tick p99 78-119 / 78-130 us, no
+          overrun (the default pad: 270-295 / 270-342 us, 5-10 overruns).
 
         What it gives up, against a pad with contact elements of 0.025 mm on the same
         open-loop paths (rms over the ticks and ridges, relative to the reference's peak):
@@ -160,11 +160,11 @@ class FemPad:
         1.6 %; the default pad 1.0 / 0.7 %), the tangential force 0.31 / 0.20 % (0.15 /
         0.09 %; 0.06 / 0.05 %); the gross slips are the same (6 / 8). The plant alone at
         0.1 mm still takes 0.8 / 1.3 ms at p99 (``docs/figures/realtime_pad.png``). A
-        second thread shortens this pad's slowest ticks by about a tenth (the plant alone,
-        one run: p99 202 -> 183 us and 261 -> 235 us; its three computing ridges take
-        20 us at the median) and keeps the second core busy while it polls, so by default
-        it runs on one (``threads=2`` to use both). Keyword arguments go to :class:`FemPad`
-        (a ``geometry`` given there wins; None is this one's).
+        second thread shortens this pad's slowest ticks by a sixth to a fifth (the plant
+        alone, one run: p99 199 -> 165 us and 289 -> 232 us) but keeps the second core
+        busy while it polls, so by default it runs on one (``threads=2`` to use both).
+        Keyword arguments go to :class:`FemPad` (a ``geometry`` given there wins; None is
+        this one's).
         """
         from .geometry import RidgeGeometry
 
