@@ -65,6 +65,17 @@ def test_finger_trajectory_within_limits_and_seeded():
     assert not np.array_equal(y, finger_trajectory(4, 2.0, FS, v_max=0.01, a_max=0.2))
 
 
+def test_finger_paths_too_short_are_refused_by_name():
+    # a path of fewer than two samples, or one that ends before the press does, has no
+    # movement to scale: a clear error instead of an IndexError deep inside
+    for duration, fs in ((0.0, FS), (0.5 / FS, FS), (np.nan, FS), (1.0, 0.0)):
+        with pytest.raises(ValueError, match="duration|fs"):
+            finger_trajectory(0, duration, fs)
+    with pytest.raises(ValueError, match="longer than the press"):
+        pressed_finger_path(0, 0.2, FS, press=0.5)
+    assert pressed_finger_path(0, 0.6, FS, press=0.5).size == round(0.6 * FS)
+
+
 def test_gross_slip_events():
     sf = np.zeros((2, 100))
     sf[:, 10:20] = 1.0

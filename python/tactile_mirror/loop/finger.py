@@ -19,8 +19,12 @@ def finger_trajectory(seed, duration: float, fs: float, amplitude: float = 3e-3,
     that its speed and acceleration stay within ``v_max`` and ``a_max`` (a stage with those
     limits can follow it).
     """
+    if not (np.isfinite(fs) and fs > 0):
+        raise ValueError(f"fs must be a positive number, got {fs!r}")
+    n = round(duration * fs) if np.isfinite(duration) else 0
+    if n < 2:
+        raise ValueError(f"duration must last at least two samples at fs = {fs:g} Hz, got {duration!r} s")
     rng = np.random.default_rng(seed)
-    n = round(duration * fs)
     pad = int(fs * 2)
     w = rng.standard_normal(n + 2 * pad)
     sos = scipy.signal.butter(4, bandwidth, fs=fs, output="sos")
@@ -44,6 +48,8 @@ def pressed_finger_path(seed, duration: float, fs: float, press: float = 0.0, **
     """
     if press <= 0:
         return finger_trajectory(seed, duration, fs, **trajectory)
+    if not duration > press:
+        raise ValueError(f"duration must be longer than the press ({press:g} s), got {duration!r} s")
     n0 = round(press * fs)
     rest = finger_trajectory(seed, duration - press, fs, **trajectory)
     return np.concatenate([np.zeros(n0), rest])
