@@ -670,7 +670,7 @@ public:
         obrow_.resize(kMaxBorder); obcol_.resize(kMaxBorder); orcoef_ = vec(kMaxBorder); occoef_ = vec(kMaxBorder);
         Wt2_ = vec(kMaxBorder * n2_); S0_ = vec(kMaxBorder * kMaxBorder); S1_ = vec(kMaxBorder * kMaxBorder);
         rmap_.assign(kMaxBorder, -1); cmap_.assign(kMaxBorder, -1);
-        row_head_.assign(n, -1); col_head_.assign(n, -1); chain_next_.assign(kMaxBorder, -1);
+        node_head_.assign(n, -1); chain_next_.assign(kMaxBorder, -1);
         cache_next_.assign(kColCache, -1); trow_.resize(kMaxBorder); tcol_.resize(kMaxBorder);
         rhs_in_ = vec(n2_); rhs_out_ = vec(n2_);
         aff_lam_ = vec(n2_); aff_u_ = vec(n2_); aff_lz_ = vec(n2_); aff_uz_ = vec(n2_); aff_ly_ = vec(n2_);
@@ -1914,10 +1914,10 @@ private:
     // Per-node chains over entries e[0, count) (border rows, border columns, cached
     // columns: anything with a .node): head[node] is the first entry of that node, next[q]
     // the one after q (-1: none), in increasing order. unlink_chains resets the heads it
-    // set, so the heads are all -1 between uses (O(count), not O(n)).
+    // set, so the heads are all -1 between uses (O(count), not O(n)) and one head array
+    // serves every chain in turn.
     template <class E>
-    void link_chains(const E* e, std::size_t count, long* head, long* next) noexcept {
-        if (!next) next = chain_next_.data();
+    static void link_chains(const E* e, std::size_t count, long* head, long* next) noexcept {
         for (std::size_t q = count; q-- > 0;) {
             next[q] = head[e[q].node];
             head[e[q].node] = static_cast<long>(q);
@@ -1972,19 +1972,18 @@ private:
         // (found through per-node chains of the old entries: a node has at most two
         // border rows and two columns, so a lookup is a step or two; a scan of the last
         // border costs a fifth of a bordered update's own time on the open-loop paths)
-        auto kept = [&](const auto& b, double coef, const auto& old, const auto& old_coef, long* head) -> long {
+        long* head = node_head_.data();
+        auto kept = [&](const auto& b, double coef, const auto& old, const auto& old_coef) -> long {
             for (long q = head[b.node]; q >= 0; q = chain_next_[static_cast<std::size_t>(q)])
                 if (old[q].kind == b.kind && old[q].pos == b.pos && old_coef[q] == coef) return q;
             return -1;
         };
-        link_chains(obrow_.data(), onb_, row_head_.data(), nullptr);
-        for (std::size_t r = 0; r < nb; ++r)
-            rmap_[r] = kept(brow_[r], row_coef(brow_[r]), obrow_, orcoef_, row_head_.data());
-        unlink_chains(obrow_.data(), onb_, row_head_.data());
-        link_chains(obcol_.data(), onb_, col_head_.data(), nullptr);
-        for (std::size_t c = 0; c < nb; ++c)
-            cmap_[c] = kept(bcol_[c], col_coef(bcol_[c]), obcol_, occoef_, col_head_.data());
-        unlink_chains(obcol_.data(), onb_, col_head_.data());
+        link_chains(obrow_.data(), onb_, head, chain_next_.data());
+        for (std::size_t r = 0; r < nb; ++r) rmap_[r] = kept(brow_[r], row_coef(brow_[r]), obrow_, orcoef_);
+        unlink_chains(obrow_.data(), onb_, head);
+        link_chains(obcol_.data(), onb_, head, chain_next_.data());
+        for (std::size_t c = 0; c < nb; ++c) cmap_[c] = kept(bcol_[c], col_coef(bcol_[c]), obcol_, occoef_);
+        unlink_chains(obcol_.data(), onb_, head);
         // (the rows of the force laws are read at their one or two entries only,
         // border_row_dot: the others are not written)
         // when every row and column of the last border is kept (nodes added to the
@@ -1994,7 +1993,7 @@ private:
         std::size_t kept_r = 0, kept_c = 0;
         for (std::size_t r = 0; r < nb; ++r) kept_r += rmap_[r] >= 0;
         for (std::size_t c = 0; c < nb; ++c) kept_c += cmap_[c] >= 0;
-        const bool extend = s_lu_ok_ && onb_ > 0 && kept_r == onb_ && kept_c == onb_ && nb >= onb_;
+        const bool extend = s_lu_ok_ && onb_ > 0 && kept_r == onb_ && kept_c == onb_;  // (so nb >= onb_)
         if (extend) {
             std::size_t qr = onb_, qc = onb_;
             for (std::size_t r = 0; r < nb; ++r) {
@@ -2016,12 +2015,12 @@ private:
         // the front of vnew_ and solved together (one pass over the factors for all)
         std::size_t nnew = 0;
         for (std::size_t q = 0; q < kColCache; ++q) slot_used_[q] = 0;
-        link_chains(ccol_.data(), n_cached_, col_head_.data(), cache_next_.data());
+        link_chains(ccol_.data(), n_cached_, head, cache_next_.data());
         for (std::size_t c = 0; c < nb; ++c) {
             const BorderCol& bc = bcol_[c];
             const double coef = col_coef(bc);
             std::size_t hit = kColCache;
-            for (long q = col_head_[bc.node]; q >= 0; q = cache_next_[static_cast<std::size_t>(q)]) {
+            for (long q = head[bc.node]; q >= 0; q = cache_next_[static_cast<std::size_t>(q)]) {
                 const CachedCol& cc = ccol_[static_cast<std::size_t>(q)];
                 if (cc.kind == bc.kind && cc.pos == bc.pos && cc.coef == coef) { hit = static_cast<std::size_t>(q); break; }
             }
@@ -2039,7 +2038,7 @@ private:
             }
             new_col_[nnew++] = c;
         }
-        unlink_chains(ccol_.data(), n_cached_, col_head_.data());
+        unlink_chains(ccol_.data(), n_cached_, head);
         if (nnew > 0) lu_solve(M_.data(), m, n2_, piv_.data(), vnew_.data(), n2_, nnew);
         // the new columns go to free slots of the cache, or replace columns this border
         // does not use (kColCache >= 2 kMaxBorder: there is always one)
@@ -2362,7 +2361,7 @@ private:
     std::vector<BorderCol> obcol_;
     std::vector<double> orcoef_, occoef_, Wt2_, S0_, S1_;
     std::vector<long> rmap_, cmap_;
-    std::vector<long> row_head_, col_head_;  // per node: the first entry of its chain (-1 between uses)
+    std::vector<long> node_head_;  // per node: the first entry of its chain (-1 between uses)
     std::vector<long> chain_next_, cache_next_;  // the chains of the last border's entries, of the cached columns
     std::size_t onb_ = 0;
     bool s_lu_ok_ = false;  // S_ holds the factors of the last border's S (extend_s may extend them)
