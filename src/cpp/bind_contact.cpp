@@ -450,10 +450,7 @@ void tm_bind_contact(py::module_& m) {
                  };
                  {
                      py::gil_scoped_release nogil;
-                     for (std::size_t k = 0; k < R; ++k) {
-                         p.status[k] = ContactStatus::ok;
-                         p.ran[k] = 0;
-                     }
+                     for (std::size_t k = 0; k < R; ++k) p.ran[k] = 0;  // (status[k] is read only where ran[k])
                      p.workers.run(p.own.data(), p.own.size(), step_ridge, threads >= 2);
                      // the first failing ridge (every ridge before it ran, on either thread;
                      // those after it may not have); every other ridge that stepped steps back:
