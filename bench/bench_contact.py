@@ -113,46 +113,39 @@ def bench_realtime(duration):
     contact) and closed loop with the default law (what hardware in the loop runs); the
     default pad on one and two threads, and :meth:`FemPad.realtime` (coarser contact
     elements)."""
-    from tactile_mirror.circuit import PVDFCircuit
     from tactile_mirror.contact.plants import FemPad
-    from tactile_mirror.loop.controller import NoController
     from tactile_mirror.loop.envelope import REPORT_PATHS, _laws
     from tactile_mirror.loop.experiment import PLANTS, default_weights
-    from tactile_mirror.loop.runner import LoopRunner
-    from tactile_mirror.loop.scene import LoopScene, PlantSource, gross_slip_events, loop_pipeline, scene_finger
-    from tactile_mirror.loop.stage import SimulatedStage, StageLimits
+    from tactile_mirror.loop.scene import LoopScene, run_scene
+    from tactile_mirror.loop.stage import StageLimits
 
     rows = []
+    weights = default_weights("fem", 1000.0)
+    limits = StageLimits(-0.02, 0.02, 0.03, 1.0)
 
-    def run(label, sc, pad_plant, controller, pipe, stage, command):
-        finger = scene_finger(sc)
-        source = PlantSource(sc, pad_plant, PVDFCircuit(), finger)
-        res = LoopRunner(pipe, stage, source, realtime=True, command=command).run(n_ticks=finger.size, x0=0.0)
+    def run(label, sc, plant, controller=None, shear_weights=None):
+        r = run_scene(sc, weights, controller, limits, n_ridges=plant.n_ridges, shear_weights=shear_weights,
+                      plant=plant, realtime=True)
+        res = r.run
         tp, lp = res.tick_percentiles(), res.latency_percentiles()
-        slips = gross_slip_events(source.log["slip_fraction"][:, : len(res.t)])
-        rows.append([label, len(res.t), slips, f"{tp['p50']:.0f} / {tp['p99']:.0f} / {tp['max']:.0f}",
+        rows.append([label, len(res.t), r.gross_slips, f"{tp['p50']:.0f} / {tp['p99']:.0f} / {tp['max']:.0f}",
                      f"{lp['p50']:.0f} / {lp['p99']:.0f}", res.overruns, res.late_starts])
 
     pads = {"default pad": lambda sc: FemPad(6, mu=sc.mu, fs=sc.fs),
             "default pad, 2 threads": lambda sc: FemPad(6, mu=sc.mu, fs=sc.fs, threads=2),
             "FemPad.realtime()": lambda sc: FemPad.realtime(6, mu=sc.mu, fs=sc.fs)}
-    weights = default_weights("fem", 1000.0)
     for n_ridges in (1, 6):
         sc = LoopScene(seed=0, duration=duration, press=0.5, plant="fem", trajectory=PLANTS["fem"]["trajectory"])
-        pipe = loop_pipeline(weights, sc.fs, NoController(), n_ridges)
         run(f"open loop, {n_ridges} ridge{'s' if n_ridges > 1 else ''}, experiment path, default pad", sc,
-            FemPad(n_ridges, fs=sc.fs), None, pipe, SimulatedStage(), False)
-    limits = StageLimits(-0.02, 0.02, 0.03, 1.0)
+            FemPad(n_ridges, fs=sc.fs))
     laws, design = _laws(weights, 1000.0, limits, 0.001, 0.002, 6, "fem")
     for law, pad_names in (("open loop", list(pads)), ("default", ["default pad", "FemPad.realtime()"])):
         for pad_name in pad_names:
             for v in (0.005, 0.02):
                 sc = LoopScene(seed=REPORT_PATHS.first_seed, duration=duration, fs=1000.0, plant="fem",
                                trajectory=REPORT_PATHS.trajectory(v))
-                controller = laws[law] or NoController()
-                pipe = loop_pipeline(weights, sc.fs, controller, 6, design.shear_weights)
-                run(f"{law}, 6 ridges, report path {v * 1e3:g} mm/s, {pad_name}", sc, pads[pad_name](sc), controller,
-                    pipe, SimulatedStage(limits, delay=0.001, lag=0.002), law != "open loop")
+                run(f"{law}, 6 ridges, report path {v * 1e3:g} mm/s, {pad_name}", sc, pads[pad_name](sc), laws[law],
+                    design.shear_weights)
     table(f"Paced loop (realtime=True) at 1 kHz against the simulated FEM pad, {duration:g} s "
           "(tick: plant + pipeline + stage; goal: p99 below one tick, 1000 us). Open loop the finger slips "
           "over the still pad: every gross slip is a breakaway cascade over the whole contact, several "

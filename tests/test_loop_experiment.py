@@ -174,6 +174,14 @@ def test_run_scene_takes_a_given_finger_path():
     for bad in (np.zeros((2, 5)), np.array([]), np.array([0.0, np.nan])):
         with pytest.raises(ValueError, match="finger"):
             run_scene(sc, weights(), None, finger=bad)
+    # a plant of its own replaces the scene's; one with another ridge count is refused
+    from tactile_mirror.contact.brush import BrushRidges
+
+    slippery = [run_scene(sc, weights(), None, finger=path, plant=BrushRidges(6, mu=0.3)) for _ in range(2)]
+    np.testing.assert_array_equal(slippery[0].log["force_y"], slippery[1].log["force_y"])
+    assert not np.array_equal(slippery[0].log["force_y"], run_scene(sc, weights(), None, finger=path).log["force_y"])
+    with pytest.raises(ValueError, match="n_ridges"):
+        run_scene(sc, weights(), None, finger=path, plant=make_plant(sc, 3))
 
 
 def test_pressed_finger_path_rests_then_follows_the_trajectory():

@@ -298,12 +298,11 @@ def cmd_loop_design(args) -> int:
     import numpy as np
 
     from .loop.design import design_loop
-    from .loop.experiment import calibrate_shear, calibrate_shear_weights, default_weights
+    from .loop.experiment import calibrate_shear, calibrate_shear_weights
     from .loop.figures import design_figure
 
     limits = _stage_from_args(args)
-    weights = default_weights("fem", args.fs) if args.weights is None else _load_detector(args.weights).weights
-    w = _weights(weights)
+    w = _weights(_loop_weights(args.weights, args.fs))
     sw = calibrate_shear_weights(w, args.fs, 6, plant="fem")
     cal = calibrate_shear(w, args.fs, 6, plant="fem", shear_weights=sw)
     d = design_loop(limits, cal, args.fs, stage_delay=args.delay * 1e-3, stage_lag=args.lag * 1e-3, shear_weights=sw,
@@ -354,59 +353,44 @@ def cmd_loop_realtime(args) -> int:
     a simulated finger on the 6-ridge FEM pad; can this machine hold the rate?"""
     import json
 
-    import numpy as np
-
-    from .circuit import PVDFCircuit
     from .contact.plants import FemPad
-    from .loop.controller import NoController
     from .loop.envelope import REPORT_PATHS, _laws
-    from .loop.runner import LoopRunner
-    from .loop.scene import LoopScene, PlantSource, gross_slip_events, loop_pipeline, scene_finger
-    from .loop.stage import SimulatedStage
+    from .loop.scene import LoopScene, run_scene
     from .measure import environment
 
     fs, limits = args.fs, _stage_from_args(args)
     weights = _loop_weights(args.weights, fs)
     seed = REPORT_PATHS.first_seed if args.seed is None else args.seed
-    scene = LoopScene(seed=seed, duration=args.duration, fs=fs, plant="fem",
-                      trajectory=REPORT_PATHS.trajectory(args.speed * 1e-3))
-    finger = scene_finger(scene)
+    scene = LoopScene(seed=seed, duration=args.duration, fs=fs, plant="fem", stage_delay=args.delay * 1e-3,
+                      stage_lag=args.lag * 1e-3, trajectory=REPORT_PATHS.trajectory(args.speed * 1e-3))
     make = FemPad.realtime if args.pad == "realtime" else FemPad
     plant = make(6, fs=fs, threads=args.threads)
+    controller, shear_weights = None, None
     if args.law == "default":
-        _, design = _laws(weights, fs, limits, args.delay * 1e-3, args.lag * 1e-3, 6, "fem")
+        _, design = _laws(weights, fs, limits, scene.stage_delay, scene.stage_lag, 6, "fem")
         controller, shear_weights = design.controller, design.shear_weights
-    else:
-        controller, shear_weights = NoController(), None
-    pipe = loop_pipeline(weights, fs, controller, 6, shear_weights)
-    source = PlantSource(scene, plant, PVDFCircuit(), finger)
-    stage = SimulatedStage(limits, delay=args.delay * 1e-3, lag=args.lag * 1e-3)
-    print(f"pacing {finger.size} ticks at {fs:g} Hz: {args.pad} pad ({plant.pad.model.n_nodes} contact nodes a ridge, "
-          f"{args.threads} thread{'s' if args.threads > 1 else ''}), law {args.law}, finger up to "
+    print(f"pacing {args.duration:g} s at {fs:g} Hz: {args.pad} pad ({plant.pad.model.n_nodes} contact "
+          f"nodes a ridge, {args.threads} thread{'s' if args.threads > 1 else ''}), law {args.law}, finger up to "
           f"{args.speed:g} mm/s (seed {seed})", flush=True)
-    res = LoopRunner(pipe, stage, source, realtime=True, command=args.law != "open loop").run(
-        n_ticks=finger.size, x0=0.0)
-    n = res.t.size
-    sf = source.log["slip_fraction"][:, :n]
-    slips = gross_slip_events(sf)
-    tracking = float(np.sqrt(np.mean((finger[:n] - source.log["pad"][:n]) ** 2)))
+    r = run_scene(scene, weights, controller, limits, shear_weights=shear_weights, plant=plant, realtime=True)
+    res = r.run
     tick, lat = res.tick_percentiles(), res.latency_percentiles()
-    summary = {"environment": environment(), "fs_hz": fs, "ticks": int(n), "pad": args.pad,
+    summary = {"environment": environment(), "fs_hz": fs, "ticks": int(r.t.size), "pad": args.pad,
                "contact_nodes": int(plant.pad.model.n_nodes), "threads": args.threads, "law": args.law,
                "finger_peak_speed_mm_s": args.speed, "seed": seed, "tick_us": tick, "latency_us": lat,
-               "overruns": int(res.overruns), "late_starts": int(res.late_starts), "gross_slips": int(slips),
-               "tracking_rms_mm": tracking * 1e3}
+               "overruns": int(res.overruns), "late_starts": int(res.late_starts), "gross_slips": int(r.gross_slips),
+               "tracking_rms_mm": r.tracking_rms * 1e3}
     out = pathlib.Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
     (out / "realtime.json").write_text(json.dumps(summary, indent=1, default=float))
-    res.to_recording(pipe.config, {"pad": args.pad, "law": args.law}).save(out / "realtime_recording.npz")
-    _realtime_figure(res, sf, fs, str(out / "realtime.png"),
+    res.to_recording(r.config, {"pad": args.pad, "law": args.law}).save(out / "realtime_recording.npz")
+    _realtime_figure(res, r.log["slip_fraction"][:, : r.t.size], fs, str(out / "realtime.png"),
                      f"{args.pad} pad, law {args.law}, finger up to {args.speed:g} mm/s")
     period = 1e6 / fs
     held = "held" if tick["p99"] < period else "NOT held"
     print(f"tick p50 / p99 / max {tick['p50']:.0f} / {tick['p99']:.0f} / {tick['max']:.0f} us (one tick {period:.0f} us: "
-          f"p99 {held}); {res.overruns} overruns, {res.late_starts} late starts; {slips} gross slips, tracking rms "
-          f"{tracking * 1e3:.4f} mm")
+          f"p99 {held}); {res.overruns} overruns, {res.late_starts} late starts; {r.gross_slips} gross slips, "
+          f"tracking rms {r.tracking_rms * 1e3:.4f} mm")
     print(f"wrote {out / 'realtime.json'}, {out / 'realtime.png'}, {out / 'realtime_recording.npz'}")
     return 0
 

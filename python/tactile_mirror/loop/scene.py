@@ -183,6 +183,7 @@ class SceneResult:
     tracking_max: float
     status: dict
     run: Any = None  # the LoopResult
+    config: Any = None  # the pipeline's config (LoopResult.to_recording)
 
     def summary(self) -> dict:
         n = self.t.size
@@ -207,11 +208,15 @@ def loop_pipeline(weights, fs: float, controller: Controller, n_ridges: int, she
 
 
 def run_scene(scene: LoopScene, weights, controller: Controller | None, limits: StageLimits | None = None,
-              n_ridges: int = 6, shear_weights=None, finger=None) -> SceneResult:
+              n_ridges: int = 6, shear_weights=None, finger=None, plant: ContactPlant | None = None,
+              realtime: bool = False) -> SceneResult:
     """Run one scene, open loop (``controller`` None or :class:`NoController`) or closed loop;
     ``shear_weights`` go to the pipeline (:func:`loop_pipeline`). ``finger`` (m, one value
     per tick; for the FEM pad at rest during the press) replaces the scene's generated path,
-    e.g. a recorded one or a finger held still; the run lasts as many ticks."""
+    e.g. a recorded one or a finger held still; the run lasts as many ticks. ``plant``
+    replaces the scene's own (:func:`make_plant`), e.g. :meth:`FemPad.realtime
+    <tactile_mirror.contact.plants.FemPad.realtime>`; ``realtime`` paces the ticks by the
+    wall clock (:class:`LoopRunner`; ``result.run`` has the tick times and overruns)."""
     controller = controller or NoController()
     limits = limits or StageLimits(-0.02, 0.02, 0.03, 1.0)
     if finger is None:
@@ -221,12 +226,15 @@ def run_scene(scene: LoopScene, weights, controller: Controller | None, limits: 
         if finger.ndim != 1 or finger.size == 0 or not np.all(np.isfinite(finger)):
             raise ValueError(f"finger must be a non-empty 1-D array of finite positions (m), got shape "
                              f"{finger.shape}")
-    plant = make_plant(scene, n_ridges)
+    if plant is None:
+        plant = make_plant(scene, n_ridges)
+    elif plant.n_ridges != n_ridges:
+        raise ValueError(f"plant must have n_ridges = {n_ridges} ridges, got {plant.n_ridges}")
     source = PlantSource(scene, plant, PVDFCircuit(), finger)
     stage = SimulatedStage(limits, delay=scene.stage_delay, lag=scene.stage_lag)
     pipe = loop_pipeline(weights, scene.fs, controller, n_ridges, shear_weights)
     closed = controller.kind != "none"
-    res = LoopRunner(pipe, stage, source, command=closed).run(n_ticks=finger.size, x0=0.0)
+    res = LoopRunner(pipe, stage, source, realtime=realtime, command=closed).run(n_ticks=finger.size, x0=0.0)
     log = source.log
     rel = finger[: len(res.t)] - log["pad"][: len(res.t)]
     sf = log["slip_fraction"][:, : len(res.t)]
@@ -234,4 +242,4 @@ def run_scene(scene: LoopScene, weights, controller: Controller | None, limits: 
     return SceneResult(scene=scene, controller=controller.kind, t=res.t, finger=finger[: len(res.t)],
                        stage=res.stage_position, outputs=res.outputs, log=log, gross_slips=gross_slip_events(sf),
                        ridge_gross_slips=ridge, tracking_rms=float(np.sqrt(np.mean(rel**2))),
-                       tracking_max=float(np.abs(rel).max()), status=res.status, run=res)
+                       tracking_max=float(np.abs(rel).max()), status=res.status, run=res, config=pipe.config)
