@@ -144,15 +144,15 @@ class FemPad:
 
         The worst case of the paced loop is the open loop: the finger slides over a pad
         that stands still, and the contact goes through breakaway cascades at every tick.
-        Measured with ``python bench/bench_contact.py --realtime-only`` (four runs, Intel
+        Measured with ``python bench/bench_contact.py --realtime-only`` (nine runs, Intel
         Xeon, 2 cores), 6 ridges, the report paths at 5 / 20 mm/s, paced at 1 kHz, 3000
         ticks:
 
-        * open loop: tick p99 202-236 / 274-314 us, 0-2 overruns; the default pad
-          3.1-3.3 / 4.5-4.7 ms and 757-1200 overruns (2.5-2.8 / 3.4-3.6 ms with
+        * open loop: tick p99 202-257 / 274-332 us, 0-2 overruns; the default pad
+          3.1-4.1 / 4.5-5.0 ms and 757-1241 overruns (2.5-2.8 / 3.4-3.7 ms with
           ``threads=2``);
-        * closed loop, the default law: 0 gross slips, tick p99 78-119 / 78-130 us, no
-          overrun (the default pad: 270-295 / 270-342 us, 5-10 overruns).
+        * closed loop, the default law: 0 gross slips, tick p99 77-119 / 78-130 us, no
+          overrun (the default pad: 270-353 / 270-379 us, 5-11 overruns).
 
         What it gives up, against a pad with contact elements of 0.025 mm on the same
         open-loop paths (rms over the ticks and ridges, relative to the reference's peak):
