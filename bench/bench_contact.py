@@ -580,7 +580,7 @@ def bench_cpp_events(quick):
                  f"{best2.mean() * 1e3:.3f} / {np.median(best2) * 1e3:.3f} / {np.percentile(best2, 99) * 1e3:.3f} / "
                  f"{best2.max() * 1e3:.2f} ms", "", pad.solves, pad.events, "worker thread kept by the pad"])
     table("6-ridge pad over fig6 (2000 samples), compiled event stepping: the ridges are independent, threads=2 "
-          "steps half of them on a second thread; a ridge with the path of an earlier one (its mirror image) "
+          "shares them with a second thread, one at a time; a ridge with the path of an earlier one (its mirror image) "
           "shares its computation (goal: a pad step <= 0.5 ms)",
           ["stepping", "threads", "whole trajectory", "per sample", "solves", "events", "notes"], rows)
 
