@@ -129,6 +129,63 @@ def test_cpp_bank_step_equals_run_and_blocks_continue(dtype):
                                atol=1e-6 * np.abs(st).max())
 
 
+def _paths():
+    return ["generic"] + (["avx2+fma"] if _core.detector_cpu_has_avx2_fma() else [])
+
+
+@pytest.mark.parametrize("dtype", [np.float64, np.float32])
+@pytest.mark.parametrize("bank", [None, SMALL_BANK])
+@pytest.mark.parametrize("n_r,n", [(1, 150), (5, 7), (6, 150), (9, 131), (17, 64)])
+def test_cpp_bank_block_features_in_lanes_equal_step(dtype, bank, n_r, n):
+    """The block path's feature pass puts the ridges in SIMD lanes (ghost lanes past the
+    last ridge, a scalar tail after the last whole vector of ticks): on every code path,
+    ridge count and block length, the same bits as the tick-by-tick path, and the same
+    filter states afterwards."""
+    w = _bank_weights(bank=bank)
+    x = _signals(n_r=n_r, n=n, seed=n_r).astype(dtype)
+    for path in _paths():
+        blk = SlipDetector(w, dtype=dtype)
+        blk.kernel(n_r).set_simd_path(path)
+        ys, _, yp = blk.run(x)
+        one = SlipDetector(w, dtype=dtype)
+        one.kernel(n_r).set_simd_path(path)
+        steps = np.stack([one.step(x[:, :, t]) for t in range(n)], axis=-1)
+        np.testing.assert_array_equal(steps[:, 0], ys, err_msg=path)
+        np.testing.assert_array_equal(steps[:, 2], yp, err_msg=path)
+        for a, b in zip(blk.kernel(n_r).state, one.kernel(n_r).state):
+            np.testing.assert_array_equal(a, b, err_msg=path)
+    assert np.ptp(ys) > 0.01  # the outputs move: a real comparison
+
+
+@pytest.mark.parametrize("dtype", [np.float64, np.float32])
+@pytest.mark.parametrize("where", [(2, 3, 5), (0, 0, 130), (5, 2, 149), (3, 1, 0)])
+@pytest.mark.parametrize("value", [np.nan, np.inf, -np.inf])
+def test_bank_block_refuses_nonfinite_in_any_channel_and_keeps_the_state(dtype, where, value):
+    """The block run checks its inputs inside the feature pass (whole vectors of ticks and
+    the scalar tail, every channel, u_R too, which feeds the net only): a non-finite
+    value is refused by name and the state before the call is back, also with reset=True."""
+    w = _bank_weights()
+    x = _signals(n=220).astype(dtype)
+    det = SlipDetector(w, dtype=dtype)
+    det.run(x[..., :70])
+    k = det.kernel(6)
+    before = tuple(np.copy(s) for s in k.state)
+    assert np.abs(before[1]).max() > 0
+    bad = x[..., 70:].copy()
+    r, c, t = where
+    bad[r, c, t] = value
+    if t + 1 < bad.shape[2]:
+        bad[4, 3, t + 1] = np.nan  # a later one is not the one named
+    for reset in (False, True):
+        with pytest.raises(ValueError, match=f"ridge {r}, channel {c}, sample {t} "):
+            det.run(bad, reset=reset)
+        for a, b in zip(before, k.state):
+            np.testing.assert_array_equal(a, b)
+    ref = SlipDetector(w, dtype=dtype)
+    ref.run(x[..., :70])
+    np.testing.assert_array_equal(det.run(x[..., 70:], reset=False)[0], ref.run(x[..., 70:], reset=False)[0])
+
+
 def test_numpy_backend_continues_like_cpp():
     w = _bank_weights()
     x = _signals(n=200)

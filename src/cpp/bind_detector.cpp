@@ -24,6 +24,8 @@
 #include <memory>
 #include <sstream>
 #include <string>
+#include <type_traits>
+#include <vector>
 
 #include "detector_bank.hpp"
 #include "detector_memory.hpp"
@@ -133,6 +135,10 @@ private:
 // Non-finite features would come out as a confident number (the sigmoid clamps),
 // so they are refused, naming the first one: x[r * sr + i * si + t * st].
 template <typename T>
+void throw_first_nonfinite(const T* x, std::ptrdiff_t n_inst, std::ptrdiff_t n_in, std::ptrdiff_t n,
+                           std::ptrdiff_t sr, std::ptrdiff_t si, std::ptrdiff_t st);
+
+template <typename T>
 void check_features(const T* x, std::ptrdiff_t n_inst, std::ptrdiff_t n_in, std::ptrdiff_t n, std::ptrdiff_t sr,
                     std::ptrdiff_t si, std::ptrdiff_t st) {
     // x * 0 is +-0 for a finite x and NaN for Inf or NaN, so a sum of them is NaN iff
@@ -159,7 +165,14 @@ void check_features(const T* x, std::ptrdiff_t n_inst, std::ptrdiff_t n_in, std:
     const V a = (acc[0] + acc[1]) + (acc[2] + acc[3]);
     for (int q = 0; q < NL; ++q) sacc += a[q];
     if (sacc == T(0)) return;
-    // Earliest by sample, then ridge, then channel.
+    throw_first_nonfinite(x, n_inst, n_in, n, sr, si, st);
+}
+
+// The ValueError for the earliest non-finite feature (by sample, then ridge, then
+// channel); returns if there is none.
+template <typename T>
+void throw_first_nonfinite(const T* x, std::ptrdiff_t n_inst, std::ptrdiff_t n_in, std::ptrdiff_t n,
+                           std::ptrdiff_t sr, std::ptrdiff_t si, std::ptrdiff_t st) {
     for (std::ptrdiff_t t = 0; t < n; ++t)
         for (std::ptrdiff_t r = 0; r < n_inst; ++r)
             for (std::ptrdiff_t i = 0; i < n_in; ++i) {
@@ -411,8 +424,24 @@ void def_staged_net_calls(py::class_<PM>& cls, const char* state_name, const cha
                 T* o = out.mutable_data();
                 const T* xd = a.data();
                 const std::ptrdiff_t N = p.n_r;
-                check_features(xd, N, 4, n, 4 * n, n, 1);
-                {
+                using Run = decltype(p.k->run(xd, 0, 0, 0, 0, o, o, o, 0));
+                if constexpr (std::is_same<Run, bool>::value) {
+                    // The kernel checks the inputs in its feature pass (BankJordan::run):
+                    // on a non-finite one, the state of before the call is put back.
+                    std::vector<T> yp(static_cast<std::size_t>(N)), filt(static_cast<std::size_t>(N * p.k->n_state()));
+                    bool finite;
+                    {
+                        Claim claim(p.owner);
+                        py::gil_scoped_release release;
+                        p.k->get_state(yp.data(), filt.data());
+                        if (reset) p.k->reset();
+                        tactile::DenormalGuard ftz;
+                        finite = p.k->run(xd, 4 * n, n, 1, n, o, o + N * n, o + 2 * N * n, n);
+                        if (!finite) p.k->set_state(yp.data(), filt.data());
+                    }
+                    if (!finite) throw_first_nonfinite(xd, N, 4, n, 4 * n, n, 1);
+                } else {
+                    check_features(xd, N, 4, n, 4 * n, n, 1);
                     Claim claim(p.owner);
                     py::gil_scoped_release release;
                     if (reset) p.k->reset();

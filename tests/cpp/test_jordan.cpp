@@ -9,6 +9,7 @@
 #include <cmath>
 #include <cstdint>
 #include <cstdio>
+#include <limits>
 #include <vector>
 
 #include "check.hpp"
@@ -92,17 +93,21 @@ void check_mlp(int nin, int R, det::Activation act, simd::Isa isa, Rng& g) {
     for (int r = 0; r < R; ++r) CHECK(st[r] == yp[std::size_t(r) * n + n - 1], "state after the block");
 }
 
+// The bank's block run (ridges in SIMD lanes, a scalar tail) against step(), bit for
+// bit, with a bank of n_lp low-passes and n_abs |d| filters (4 and 2: the bundled
+// net's, compiled with fixed counts; others: the run-time counts); and run()'s
+// finiteness flag.
 template <typename T>
-void check_bank(int R, simd::Isa isa, Rng& g) {
-    const double lp[3] = {0.005, 0.02, 0.08}, ab[4] = {0.003, 0.01, 0.03, 0.1};
-    const int nin = det::BankJordan<T>::feature_count(3, 4), H = 16, n = 150;
+void check_bank(int R, simd::Isa isa, Rng& g, int n_lp, int n_abs) {
+    const double lp[4] = {0.005, 0.02, 0.08, 0.3}, ab[4] = {0.003, 0.01, 0.03, 0.1};
+    const int nin = det::BankJordan<T>::feature_count(n_lp, n_abs), H = 16, n = 150;
     Weights w(nin, H, g);
     for (auto& m : w.mean) m *= 1e3;  // features in Pa/s and Pa
     for (auto& s : w.gain) s *= 1e-3;
     det::BankJordan<T> blk(H, R, w.w1.data(), w.b1.data(), w.w2.data(), w.b2.data(), w.mean.data(), w.gain.data(),
-                           1000.0, 3, lp, 4, ab, 0.5, 0.2);
+                           1000.0, n_lp, lp, n_abs, ab, 0.5, 0.2);
     det::BankJordan<T> stp(H, R, w.w1.data(), w.b1.data(), w.w2.data(), w.b2.data(), w.mean.data(), w.gain.data(),
-                           1000.0, 3, lp, 4, ab, 0.5, 0.2);
+                           1000.0, n_lp, lp, n_abs, ab, 0.5, 0.2);
     if (!blk.net().set_isa(isa) || !stp.net().set_isa(isa)) return;
     std::vector<T> x(std::size_t(R) * 4 * n);
     double acc = 0.0;
@@ -111,7 +116,8 @@ void check_bank(int R, simd::Isa isa, Rng& g) {
         x[k] = T(acc + 500.0 * g.next());
     }
     std::vector<T> ys(std::size_t(R) * n), yn(ys.size()), yp(ys.size());
-    blk.run(x.data(), std::ptrdiff_t(4) * n, n, 1, n, ys.data(), yn.data(), yp.data(), n);
+    CHECK(blk.run(x.data(), std::ptrdiff_t(4) * n, n, 1, n, ys.data(), yn.data(), yp.data(), n),
+          "bank: finite inputs reported as non-finite");
     std::vector<T> ss(ys.size()), sp(ys.size()), in(std::size_t(R) * 4), out(std::size_t(R) * 3);
     for (int t = 0; t < n; ++t) {
         for (int r = 0; r < R; ++r)
@@ -122,8 +128,17 @@ void check_bank(int R, simd::Isa isa, Rng& g) {
             sp[std::size_t(r) * n + t] = out[3 * r + 2];
         }
     }
-    CHECK(bits_differ(ys, ss) == 0 && bits_differ(yp, sp) == 0, "bank %s %s, %d instances: block != step",
-          sizeof(T) == 4 ? "float" : "double", simd::isa_name(isa), R);
+    CHECK(bits_differ(ys, ss) == 0 && bits_differ(yp, sp) == 0, "bank %s %s, %d instances, %d/%d filters: block != step",
+          sizeof(T) == 4 ? "float" : "double", simd::isa_name(isa), R, n_lp, n_abs);
+    // A NaN or an Inf anywhere (a whole vector of ticks or the tail, any channel) is reported.
+    for (std::size_t at : {std::size_t(0), x.size() / 2 + 3, x.size() - 1}) {
+        for (T bad : {std::numeric_limits<T>::quiet_NaN(), -std::numeric_limits<T>::infinity()}) {
+            std::vector<T> xb = x;
+            xb[at] = bad;
+            CHECK(!blk.run(xb.data(), std::ptrdiff_t(4) * n, n, 1, n, ys.data(), yn.data(), yp.data(), n),
+                  "bank: a non-finite input at %zu not reported", at);
+        }
+    }
 }
 
 }  // namespace
@@ -141,10 +156,11 @@ int main() {
                     check_mlp<float>(nin, R, act, isa, g);
                     check_mlp<double>(nin, R, act, isa, g);
                 }
-        for (int R : {1, 6, 7}) {
-            check_bank<float>(R, isa, g);
-            check_bank<double>(R, isa, g);
-        }
+        for (int R : {1, 6, 7, 9})
+            for (int lp_abs : {0x34, 0x42}) {
+                check_bank<float>(R, isa, g, lp_abs >> 4, lp_abs & 15);
+                check_bank<double>(R, isa, g, lp_abs >> 4, lp_abs & 15);
+            }
     }
     std::printf("%d code variants\nok: %d failures\n", variants, failures);
     return failures ? 1 : 0;
