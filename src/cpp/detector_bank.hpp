@@ -77,14 +77,19 @@ public:
         b_ = static_cast<T>(leak(load_tau));
         c_ = static_cast<T>(leak(peak_tau));
         inv_fs_ = static_cast<T>(1.0 / fs);
-        const std::size_t count = std::size_t(n_r_) * ns_ + std::size_t(n_r_) * nf_ + 16;
+        // Ridge stride of the lane-major state and the step's feature-major features:
+        // whole vectors of the widest path, and room for the net's ghost instances
+        // (JordanMLP::step_feature_major).
+        constexpr int L = 32 / int(sizeof(T));
+        rs_ = ((std::size_t(n_r_) + L / 2 + L - 1) / L) * L;
+        const std::size_t count = rs_ * (std::size_t(ns_) + std::size_t(nf_)) + 16;
         void* mem = std::aligned_alloc(64, ((count * sizeof(T) + 63) / 64) * 64);
         if (!mem) throw std::bad_alloc();
         buf_.reset(mem);
         std::memset(mem, 0, count * sizeof(T));
         T* p = static_cast<T*>(mem);
         st_ = p;
-        p += std::size_t(n_r_) * ns_;
+        p += rs_ * ns_;
         feat_ = p;
     }
 
@@ -100,28 +105,38 @@ public:
     /// in feature order after the four rates.
     void get_state(T* y_pred, T* filt) const noexcept {
         net_.get_state(y_pred);
-        for (std::size_t k = 0; k < std::size_t(n_r_) * ns_; ++k) filt[k] = st_[k];
+        for (int r = 0; r < n_r_; ++r)
+            for (int j = 0; j < ns_; ++j) filt[std::size_t(r) * ns_ + j] = st_[j * rs_ + r];
     }
     void set_state(const T* y_pred, const T* filt) noexcept {
         net_.set_state(y_pred);
-        for (std::size_t k = 0; k < std::size_t(n_r_) * ns_; ++k) st_[k] = filt[k];
+        for (int r = 0; r < n_r_; ++r)
+            for (int j = 0; j < ns_; ++j) st_[j * rs_ + r] = filt[std::size_t(r) * ns_ + j];
     }
-    /// The filter states themselves, (n_ridges, n_state) row-major (the pipeline's
-    /// overflow guard reads and restores them in place).
+    /// The filter states as stored (the pipeline's overflow guard reads, checks and
+    /// restores them whole): lane-major, state j of ridge r at [j * stride + r], the
+    /// lanes from n_ridges on zero. get_state() gives them per ridge.
     const T* filter_state() const noexcept { return st_; }
-    std::size_t filter_state_size() const noexcept { return std::size_t(n_r_) * ns_; }
+    std::size_t filter_state_size() const noexcept { return rs_ * ns_; }
     void load_filter_state(const T* filt) noexcept {
-        for (std::size_t k = 0; k < std::size_t(n_r_) * ns_; ++k) st_[k] = filt[k];
+        for (std::size_t k = 0; k < rs_ * ns_; ++k) st_[k] = filt[k];
     }
     void reset() noexcept {
         net_.reset();
-        for (std::size_t k = 0; k < std::size_t(n_r_) * ns_; ++k) st_[k] = T(0);
+        for (std::size_t k = 0; k < rs_ * ns_; ++k) st_[k] = T(0);
     }
 
     /// One tick. in: (n_ridges, 4) row-major [v_L, v_R, u_L, u_R]; out: (n_ridges, 3) row-major.
+    /// The features are computed a vector of ridges at a time into feature-major rows,
+    /// which the net normalises in place (JordanMLP::step_feature_major).
     void step(const T* in, T* out) noexcept {
-        features(in, 4, 1, feat_, nf_, 1);
-        net_.step(feat_, out);
+#if TM_HAVE_DISPATCH
+        if (net_.isa() == simd::Isa::avx2_fma)
+            features_tick_avx2(in);
+        else
+#endif
+            features_tick_base(in);
+        net_.step_feature_major(feat_, std::ptrdiff_t(rs_), out);
     }
 
     /// n ticks: channel i of ridge r at tick t is x[r * sr + i * si + t * st]; outputs
@@ -174,17 +189,10 @@ private:
         return feature_count(n_lp, n_abs);
     }
 
-    // One tick of features: raw channel i of ridge r at in[r * sr + i * si]; feature j of
-    // ridge r written to out[r * orow + j * ocol]. Updates the filter states.
-    void features(const T* in, std::ptrdiff_t sr, std::ptrdiff_t si, T* out, std::ptrdiff_t orow,
-                  std::ptrdiff_t ocol) noexcept {
-        for (int r = 0; r < n_r_; ++r)
-            ridge_tick(in + r * sr, si, st_ + std::size_t(r) * ns_, out + r * orow, ocol);
-    }
-
     // One tick of one ridge: raw channel i at x[i * si]; updates its filter states z and
-    // writes the ridge's features to o[j * ocol]. The one definition of the bank's
-    // recurrences (detector.bank, the specification).
+    // writes the ridge's features to o[j * ocol]. The scalar definition of the bank's
+    // recurrences (detector.bank, the specification); the vector passes below
+    // (features_tick, features_chunk_lanes) do the same arithmetic lane by lane.
     __attribute__((always_inline)) inline void ridge_tick(const T* x, std::ptrdiff_t si, T* __restrict z,
                                                           T* __restrict o, std::ptrdiff_t ocol) const noexcept {
         const T vl = x[0], vr = x[si], ul = x[2 * si], ur = x[3 * si];
@@ -226,6 +234,72 @@ private:
     }
 #endif
 
+    // One tick of the bank for a vector of ridges: z[0 .. n_state) their states,
+    // updated from the rates vl, vr: ridge_tick's arithmetic, lane by lane (multiplies
+    // and adds, compiled without FMA so that the roundings are the same). NLP, NABS:
+    // the filter counts when known at compile time, else -1.
+    template <int B, int NLP, int NABS>
+    __attribute__((always_inline)) inline void lanes_tick(typename simd::Vec<T, B>::type* z,
+                                                          typename simd::Vec<T, B>::type vl,
+                                                          typename simd::Vec<T, B>::type vr) const noexcept {
+        typedef typename simd::Vec<T, B>::type V;
+        typedef typename simd::Vec<T, B>::itype IV;
+        typedef typename std::remove_reference<decltype(IV{}[0])>::type IT;
+        const IV nosign = IV{} + ~(IT(1) << (8 * sizeof(T) - 1));
+        const int nlp = NLP >= 0 ? NLP : n_lp_, nab = NABS >= 0 ? NABS : n_abs_;
+        const V d = vl - vr, s = vl + vr, ad = (V)((IV)d & nosign);
+        int j = 0;
+        _Pragma("GCC unroll 8") for (int i = 0; i < nlp; ++i, j += 2) {
+            z[j] = a_lp_[i] * z[j] + g_lp_[i] * d;
+            z[j + 1] = a_lp_[i] * z[j + 1] + g_lp_[i] * s;
+        }
+        _Pragma("GCC unroll 8") for (int i = 0; i < nab; ++i, ++j) z[j] = a_abs_[i] * z[j] + g_abs_[i] * ad;
+        z[j] = b_ * z[j] + d * inv_fs_;
+        z[j + 1] = b_ * z[j + 1] + s * inv_fs_;
+        const V held = c_ * z[j + 2], now = (V)((IV)z[j] & nosign);
+        z[j + 2] = now > held ? now : held;
+    }
+
+    // One tick of features for step(): feat_ (nf, rs_) feature-major, every lane written
+    // (the net normalises the rows in place, so lanes past the last ridge are zeroed
+    // again each tick); the states in st_ updated a vector of ridges at a time.
+    void features_tick_base(const T* in) noexcept {
+        if (n_lp_ == 4 && n_abs_ == 2) return features_tick<simd::kBaseBytes, 4, 2>(in);
+        features_tick<simd::kBaseBytes, -1, -1>(in);
+    }
+#if TM_HAVE_DISPATCH
+    // AVX2 without FMA, as features_chunk_avx2.
+    __attribute__((target("avx2"), noinline)) void features_tick_avx2(const T* in) noexcept {
+        if (n_lp_ == 4 && n_abs_ == 2) return features_tick<32, 4, 2>(in);
+        features_tick<32, -1, -1>(in);
+    }
+#endif
+    template <int B, int NLP, int NABS>
+    __attribute__((always_inline)) inline void features_tick(const T* in) noexcept {
+        typedef typename simd::Vec<T, B>::type V;
+        constexpr int NL = simd::Vec<T, B>::lanes;
+        constexpr int NSM = NLP >= 0 ? 2 * NLP + NABS + 3 : 2 * kMaxTaus + kMaxTaus + 3;
+        const int ns = NLP >= 0 ? NSM : ns_;
+        const std::ptrdiff_t rs = std::ptrdiff_t(rs_);
+        T* __restrict f = feat_;
+        for (std::ptrdiff_t r0 = 0; r0 < rs; r0 += NL) {
+            if (r0 >= n_r_) {
+                for (int j = 0; j < nf_; ++j) simd::store(f + j * rs + r0, V{});
+                continue;
+            }
+            // The four rates of the vector's ridges, gathered into their feature rows.
+            for (int c = 0; c < n_raw; ++c)
+                for (int l = 0; l < NL; ++l) f[c * rs + r0 + l] = r0 + l < n_r_ ? in[(r0 + l) * n_raw + c] : T(0);
+            V z[NSM] = {};
+            _Pragma("GCC unroll 32") for (int j = 0; j < ns; ++j) z[j] = simd::load<V>(st_ + j * rs + r0);
+            lanes_tick<B, NLP, NABS>(z, simd::load<V>(f + r0), simd::load<V>(f + rs + r0));
+            _Pragma("GCC unroll 32") for (int j = 0; j < ns; ++j) {
+                simd::store(st_ + j * rs + r0, z[j]);
+                simd::store(f + (n_raw + j) * rs + r0, z[j]);
+            }
+        }
+    }
+
     // Ticks t0 .. m - 1 ridge by ridge (scalar ridge_tick), for strided input and the
     // ticks after the last whole vector of them.
     T features_chunk_scalar(const T* x0, std::ptrdiff_t sr, std::ptrdiff_t si, std::ptrdiff_t st, int t0,
@@ -235,8 +309,7 @@ private:
         T* out = net_.staging();
         T bad = 0;
         for (int r = 0; r < n_r_; ++r) {
-            T* zs = st_ + std::size_t(r) * ns_;
-            for (int k = 0; k < ns_; ++k) z[k] = zs[k];
+            for (int k = 0; k < ns_; ++k) z[k] = st_[k * rs_ + r];
             T* o = out + std::size_t(r) * nf_ * K;
             const T* xr = x0 + r * sr;
             for (int t = t0; t < m; ++t) {
@@ -244,7 +317,7 @@ private:
                 bad += ((xt[0] * T(0) + xt[si] * T(0)) + (xt[2 * si] * T(0) + xt[3 * si] * T(0)));
                 ridge_tick(xt, si, z, o + t, K);
             }
-            for (int k = 0; k < ns_; ++k) zs[k] = z[k];
+            for (int k = 0; k < ns_; ++k) st_[k * rs_ + r] = z[k];
         }
         return bad;
     }
@@ -264,33 +337,18 @@ private:
     __attribute__((always_inline)) inline T features_chunk_lanes(const T* x0, std::ptrdiff_t sr, std::ptrdiff_t si,
                                                                  int m) noexcept {
         typedef typename simd::Vec<T, B>::type V;
-        typedef typename simd::Vec<T, B>::itype IV;
         constexpr int NL = simd::Vec<T, B>::lanes;
         constexpr int K = JordanMLP<T>::chunk_ticks();
         constexpr int NSM = NLP >= 0 ? 2 * NLP + NABS + 3 : 2 * kMaxTaus + kMaxTaus + 3;
         const int mv = m - m % NL;  // ticks in whole vectors
         if (mv == 0) return features_chunk_scalar(x0, sr, si, 1, 0, m);
-        typedef typename std::remove_reference<decltype(IV{}[0])>::type IT;
-        const IV nosign = IV{} + ~(IT(1) << (8 * sizeof(T) - 1));
         T* out = net_.staging();
-        const int nlp = NLP >= 0 ? NLP : n_lp_, nab = NABS >= 0 ? NABS : n_abs_, ns = NLP >= 0 ? NSM : ns_;
-        // The coefficients as local vectors: the staging stores cannot alias them.
-        V alp[kMaxTaus], glp[kMaxTaus], aab[kMaxTaus], gab[kMaxTaus];
-        for (int k = 0; k < nlp; ++k) {
-            alp[k] = V{} + a_lp_[k];
-            glp[k] = V{} + g_lp_[k];
-        }
-        for (int k = 0; k < nab; ++k) {
-            aab[k] = V{} + a_abs_[k];
-            gab[k] = V{} + g_abs_[k];
-        }
-        const V bv = V{} + b_, cv = V{} + c_, fv = V{} + inv_fs_;
+        const int ns = NLP >= 0 ? NSM : ns_;
         V bad{};
         for (int r0 = 0; r0 < n_r_; r0 += NL) {
             const int nr = n_r_ - r0 < NL ? n_r_ - r0 : NL;  // real ridges in the lanes
-            V z[NSM];
-            for (int j = 0; j < ns; ++j)
-                for (int l = 0; l < NL; ++l) z[j][l] = l < nr ? st_[std::size_t(r0 + l) * ns + j] : T(0);
+            V z[NSM] = {};
+            for (int j = 0; j < ns; ++j) z[j] = simd::load<V>(st_ + j * rs_ + r0);  // ghost lanes: zero
             for (int t = 0; t < mv; t += NL) {
                 V x[4][NL];
                 _Pragma("GCC unroll 4") for (int c = 0; c < 4; ++c) {
@@ -311,18 +369,7 @@ private:
                 }
                 V f[NSM][NL];  // filter j at tick t + q, a vector of ridges
                 _Pragma("GCC unroll 16") for (int q = 0; q < NL; ++q) {
-                    const V vl = x[0][q], vr = x[1][q];
-                    const V d = vl - vr, s = vl + vr, ad = (V)((IV)d & nosign);
-                    int j = 0;
-                    _Pragma("GCC unroll 8") for (int k = 0; k < nlp; ++k, j += 2) {
-                        z[j] = alp[k] * z[j] + glp[k] * d;
-                        z[j + 1] = alp[k] * z[j + 1] + glp[k] * s;
-                    }
-                    _Pragma("GCC unroll 8") for (int k = 0; k < nab; ++k, ++j) z[j] = aab[k] * z[j] + gab[k] * ad;
-                    z[j] = bv * z[j] + d * fv;
-                    z[j + 1] = bv * z[j + 1] + s * fv;
-                    const V held = cv * z[j + 2], now = (V)((IV)z[j] & nosign);
-                    z[j + 2] = now > held ? now : held;
+                    lanes_tick<B, NLP, NABS>(z, x[0][q], x[1][q]);
                     _Pragma("GCC unroll 32") for (int k = 0; k < ns; ++k) f[k][q] = z[k];
                 }
                 _Pragma("GCC unroll 32") for (int k = 0; k < ns; ++k) {
@@ -330,8 +377,7 @@ private:
                     for (int l = 0; l < nr; ++l) simd::store(out + (std::size_t(r0 + l) * nf_ + 4 + k) * K + t, f[k][l]);
                 }
             }
-            for (int j = 0; j < ns; ++j)
-                for (int l = 0; l < nr; ++l) st_[std::size_t(r0 + l) * ns + j] = z[j][l];
+            for (int j = 0; j < ns; ++j) simd::store(st_ + j * rs_ + r0, z[j]);  // ghost lanes stay zero
         }
         T b = 0;
         for (int l = 0; l < NL; ++l) b += bad[l];
@@ -343,9 +389,10 @@ private:
     int n_r_, n_lp_, n_abs_, nf_, ns_;
     T a_lp_[kMaxTaus] = {}, g_lp_[kMaxTaus] = {}, a_abs_[kMaxTaus] = {}, g_abs_[kMaxTaus] = {};
     T b_ = 0, c_ = 0, inv_fs_ = 0;
+    std::size_t rs_ = 0;  // ridge stride of st_ and feat_ (a multiple of 32 bytes of T)
     std::unique_ptr<void, detail::AlignedFree> buf_;
-    T* st_ = nullptr;
-    T* feat_ = nullptr;
+    T* st_ = nullptr;    // filter states, (ns_, rs_) lane-major, ghost lanes zero
+    T* feat_ = nullptr;  // step()'s features, (nf_, rs_) feature-major
 };
 
 }  // namespace detector

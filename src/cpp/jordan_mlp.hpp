@@ -223,6 +223,20 @@ public:
     /// out: (n_instances, 3) row-major [y_slip, y_non, y_pred].
     void step(const T* in, T* out) noexcept { run(in, n_in_, 1, 0, 1, out, out + 1, out + 2, 3); }
 
+    /// One tick from raw features stored feature-major in the caller's buffer, which is
+    /// normalised in place: feature i of instance r at x[i * rs + r]. rs must be a
+    /// multiple of 32 bytes of values and at least n_instances + lanes / 2 (the
+    /// instances from n_instances on are ghosts a tick's groups may read: any finite
+    /// values, rewritten before every call, since normalising twice changes them).
+    /// out: (n_instances, 3) as step(); the same bits as step() on the same features.
+    /// For a front end that computes its features a vector of instances at a time
+    /// (detector_bank.hpp): the normalisation then goes a vector at a time too.
+    void step_feature_major(T* x, std::ptrdiff_t rs, T* out) noexcept {
+        Io io{x, 1, rs, 0, 1, out, out + 1, out + 2, 3};
+        io.in_place = true;
+        dispatch(io);
+    }
+
     /// One tick of one instance (scalar code). in: n_inputs values; out: 3 values.
     void step_one(int instance, const T* in, T* out) noexcept {
         const int r = instance;
@@ -305,6 +319,7 @@ private:
         std::ptrdiff_t sr, si, st, n;
         T *ys, *yn, *yp;
         std::ptrdiff_t ld;
+        bool in_place = false;  // one feature-major tick, normalised in x itself (step_feature_major)
     };
 
     // The compiled variant for the code path and activation in use.
@@ -376,13 +391,33 @@ private:
     template <int B, Activation A, int NIN, int NV>
     __attribute__((always_inline)) inline void run_impl(const Io& io) noexcept {
         const int nin = NIN > 0 ? NIN : n_in_;
-        if (io.n == 1 && io.si == 1 && io.sr == nin) {
-            // One tick of contiguous features (step()): normalise into xs_.
+        if (io.n == 1 && (io.in_place || (io.si == 1 && io.sr == nin))) {
             const int ni = n_inst_;
-            const T* __restrict xin = io.x;
             T* __restrict xs = xs_;
-            if (NIN == 4) {
-                // One 4-lane vector per instance.
+            const T* tin = xs_;  // the tick's normalised features, instance r feature i at tin[r * xr + i * xi]
+            std::ptrdiff_t xr = nin, xi = 1;
+            if (io.in_place) {
+                // One feature-major tick (step_feature_major): normalised where it is,
+                // a vector of instances at a time.
+                typedef typename simd::Vec<T, B>::type V;
+                constexpr int NL = simd::Vec<T, B>::lanes;
+                T* x = const_cast<T*>(io.x);
+                tin = x;
+                xr = 1;
+                xi = io.si;
+                for (int i = 0; i < nin; ++i) {
+                    T* row = x + i * xi;
+                    const T mu = mean_[i], g = gain_[i];
+                    for (std::ptrdiff_t r = 0; r < xi; r += NL) {
+                        V v = simd::load<V>(row + r);
+                        v = (v - mu) * g;
+                        simd::store(row + r, v);
+                    }
+                }
+            } else if (NIN == 4) {
+                // One tick of contiguous features (step()): normalise into xs_,
+                // one 4-lane vector per instance.
+                const T* __restrict xin = io.x;
                 typedef typename simd::Vec<T, 4 * sizeof(T)>::type V4;
                 V4 mu, g;
                 std::memcpy(&mu, mean_, sizeof mu);
@@ -394,12 +429,13 @@ private:
                     std::memcpy(xs + 4 * r, &v, sizeof v);
                 }
             } else {
+                const T* __restrict xin = io.x;
                 const T* __restrict mu = mean_;
                 const T* __restrict g = gain_;
                 for (int r = 0; r < ni; ++r)
                     for (int i = 0; i < nin; ++i) xs[r * nin + i] = (xin[r * nin + i] - mu[i]) * g[i];
             }
-            tick_impl<B, A, NIN, NV>(xs_, nin, 1, 0, 1, ych_);
+            tick_impl<B, A, NIN, NV>(tin, xr, xi, 0, 1, ych_);
             const T* __restrict u = ych_;
             T* __restrict pv = prev_;
             T* __restrict ys = io.ys;
