@@ -14,7 +14,12 @@ the held-out seed the nets are reported on:
 * ``lags (bound)``: the bound study's 45 lag and integral inputs;
 * ``bank``: the rates plus the filter bank of ``detector.bank`` (:data:`DEFAULT_BANK`);
 * ``bank, no peak`` and ``bank, no |d|``: the bank without one of its parts;
-* ``lean bank``: :data:`LEAN_BANK`, three low-passes and no ``|d|`` (13 inputs, a cheaper kernel).
+* ``lean bank``: :data:`LEAN_BANK`, three low-passes and no ``|d|`` (13 inputs, a cheaper kernel);
+* ``bank + u envelopes``: the bank plus low-passes (8 and 32 ms) of ``|u_L - u_R|`` and ``|u_L + u_R|``,
+  the envelopes of the second-order rates (21 inputs): do the flickers of the ridge edges that
+  slide before a creeping slip show in the u channels, which the bank passes through raw?
+* ``bank + fast-shear envelope``: the bank plus low-passes (8 and 32 ms) of ``|d - lp_4ms(d)|``, the envelope of
+  the shear rate's fast part (19 inputs), the same question asked of v.
 
 ``--only NAME ...`` runs some of the sets.
 
@@ -48,7 +53,18 @@ def feature_sets(x, fs):
     from tactile_mirror.detector.bank import DEFAULT_BANK, bank_features
     from tactile_mirror.detector.memory import memory_features
 
+    from scipy.signal import lfilter
+
+    def lp(y, tau):
+        a = np.exp(-1.0 / (fs * tau))
+        return lfilter([1.0 - a], [1.0, -a], y)
+
     bank = bank_features(x[None], fs)[0]
+    du, su = np.abs(x[2] - x[3]), np.abs(x[2] + x[3])
+    d = x[0] - x[1]
+    hf = np.abs(d - lp(d, 0.004))
+    u_env = np.vstack([lp(du, 0.008), lp(du, 0.032), lp(su, 0.008), lp(su, 0.032)])
+    hf_env = np.vstack([lp(hf, 0.008), lp(hf, 0.032)])
     n_lp, n_abs = len(DEFAULT_BANK["lp_taus"]), len(DEFAULT_BANK["abs_taus"])
     peak = 4 + 2 * n_lp + n_abs + 2
     keep_no_abs = [i for i in range(bank.shape[0]) if not (4 + 2 * n_lp <= i < 4 + 2 * n_lp + n_abs)]
@@ -60,6 +76,8 @@ def feature_sets(x, fs):
         "bank, no peak": np.delete(bank, peak, axis=0).T,
         "bank, no |d|": bank[keep_no_abs].T,
         "lean bank": bank_features(x[None], fs, LEAN_BANK)[0].T,
+        "bank + u envelopes": np.vstack([bank, u_env]).T,
+        "bank + fast-shear envelope": np.vstack([bank, hf_env]).T,
     }
 
 
