@@ -439,7 +439,11 @@ void def_staged_net_calls(py::class_<PM>& cls, const char* state_name, const cha
                         finite = p.k->run(xd, 4 * n, n, 1, n, o, o + N * n, o + 2 * N * n, n);
                         if (!finite) p.k->set_state(yp.data(), filt.data());
                     }
-                    if (!finite) throw_first_nonfinite(xd, N, 4, n, 4 * n, n, 1);
+                    if (!finite) {
+                        throw_first_nonfinite(xd, N, 4, n, 4 * n, n, 1);
+                        // (all finite now: another thread rewrote x during the run)
+                        throw py::value_error("features must be finite: x changed while the run read it");
+                    }
                 } else {
                     check_features(xd, N, 4, n, 4 * n, n, 1);
                     Claim claim(p.owner);

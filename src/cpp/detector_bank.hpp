@@ -78,10 +78,9 @@ public:
         c_ = static_cast<T>(leak(peak_tau));
         inv_fs_ = static_cast<T>(1.0 / fs);
         // Ridge stride of the lane-major state and the step's feature-major features:
-        // whole vectors of the widest path, and room for the net's ghost instances
-        // (JordanMLP::step_feature_major).
-        constexpr int L = 32 / int(sizeof(T));
-        rs_ = ((std::size_t(n_r_) + L / 2 + L - 1) / L) * L;
+        // the net's (JordanMLP::step_feature_major), whole vectors of the widest path
+        // with room for its ghost instances.
+        rs_ = std::size_t(net_.feature_major_stride());
         const std::size_t count = rs_ * (std::size_t(ns_) + std::size_t(nf_)) + 16;
         void* mem = std::aligned_alloc(64, ((count * sizeof(T) + 63) / 64) * 64);
         if (!mem) throw std::bad_alloc();
@@ -136,7 +135,7 @@ public:
         else
 #endif
             features_tick_base(in);
-        net_.step_feature_major(feat_, std::ptrdiff_t(rs_), out);
+        net_.step_feature_major(feat_, out);
     }
 
     /// n ticks: channel i of ridge r at tick t is x[r * sr + i * si + t * st]; outputs
@@ -154,7 +153,7 @@ public:
         T bad = 0;  // a sum of x * 0: +-0 while every x is finite, NaN after an Inf or a NaN
         for (std::ptrdiff_t t0 = 0; t0 < n; t0 += K) {
             const int m = int(n - t0 < K ? n - t0 : K);
-            bad += features_chunk(x + t0 * st, sr, si, st, m);
+            bad += features_chunk(x + t0 * st, sr, si, st, m, n - t0);
             net_.run_staged(m, y_slip + t0, y_non + t0, y_pred + t0, ld);
         }
         return bad == T(0);
@@ -216,21 +215,23 @@ private:
 
     // m <= K ticks of features into the net's staging rows, (n_ridges, nf, K), time
     // contiguous; returns the sum of every input value times 0 (see run()).
-    T features_chunk(const T* x0, std::ptrdiff_t sr, std::ptrdiff_t si, std::ptrdiff_t st, int m) noexcept {
+    // avail: ticks of input from x0 on (the next chunk's are prefetched, never beyond).
+    T features_chunk(const T* x0, std::ptrdiff_t sr, std::ptrdiff_t si, std::ptrdiff_t st, int m,
+                     std::ptrdiff_t avail) noexcept {
         if (st != 1) return features_chunk_scalar(x0, sr, si, st, 0, m);
 #if TM_HAVE_DISPATCH
-        if (net_.isa() == simd::Isa::avx2_fma) return features_chunk_avx2(x0, sr, si, m);
+        if (net_.isa() == simd::Isa::avx2_fma) return features_chunk_avx2(x0, sr, si, m, avail);
 #endif
-        if (n_lp_ == 4 && n_abs_ == 2) return features_chunk_lanes<simd::kBaseBytes, 4, 2>(x0, sr, si, m);
-        return features_chunk_lanes<simd::kBaseBytes, -1, -1>(x0, sr, si, m);
+        if (n_lp_ == 4 && n_abs_ == 2) return features_chunk_lanes<simd::kBaseBytes, 4, 2>(x0, sr, si, m, avail);
+        return features_chunk_lanes<simd::kBaseBytes, -1, -1>(x0, sr, si, m, avail);
     }
 #if TM_HAVE_DISPATCH
     // AVX2 without FMA: the bank's a z + g d must round as ridge_tick's multiplies and
     // add do, so that step() and run() agree bit for bit; a fused multiply-add would not.
     __attribute__((target("avx2"), noinline)) T features_chunk_avx2(const T* x0, std::ptrdiff_t sr,
-                                                                     std::ptrdiff_t si, int m) noexcept {
-        if (n_lp_ == 4 && n_abs_ == 2) return features_chunk_lanes<32, 4, 2>(x0, sr, si, m);
-        return features_chunk_lanes<32, -1, -1>(x0, sr, si, m);
+                                                                     std::ptrdiff_t si, int m, std::ptrdiff_t avail) noexcept {
+        if (n_lp_ == 4 && n_abs_ == 2) return features_chunk_lanes<32, 4, 2>(x0, sr, si, m, avail);
+        return features_chunk_lanes<32, -1, -1>(x0, sr, si, m, avail);
     }
 #endif
 
@@ -335,7 +336,7 @@ private:
     // the states then stay in registers), else -1.
     template <int B, int NLP, int NABS>
     __attribute__((always_inline)) inline T features_chunk_lanes(const T* x0, std::ptrdiff_t sr, std::ptrdiff_t si,
-                                                                 int m) noexcept {
+                                                                 int m, std::ptrdiff_t avail) noexcept {
         typedef typename simd::Vec<T, B>::type V;
         constexpr int NL = simd::Vec<T, B>::lanes;
         constexpr int K = JordanMLP<T>::chunk_ticks();
@@ -357,7 +358,7 @@ private:
                             const T* row = x0 + (r0 + l) * sr + c * si;
                             // The next chunk's cache line: with 4 rows per ridge and the
                             // outputs' rows, more streams than the hardware prefetcher follows.
-                            if ((t * int(sizeof(T))) % 64 == 0) __builtin_prefetch(row + t + K, 0, 3);
+                            if (t + K < avail && (t * int(sizeof(T))) % 64 == 0) __builtin_prefetch(row + t + K, 0, 3);
                             x[c][l] = simd::load<V>(row + t);
                             simd::store(out + (std::size_t(r0 + l) * nf_ + c) * K + t, x[c][l]);
                         } else {

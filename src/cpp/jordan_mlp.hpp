@@ -223,16 +223,22 @@ public:
     /// out: (n_instances, 3) row-major [y_slip, y_non, y_pred].
     void step(const T* in, T* out) noexcept { run(in, n_in_, 1, 0, 1, out, out + 1, out + 2, 3); }
 
+    /// The instance stride of step_feature_major()'s rows: n_instances plus room for the
+    /// ghost instances a tick's groups may read (lanes / 2), in whole vectors of the
+    /// widest path (32 bytes).
+    std::ptrdiff_t feature_major_stride() const noexcept {
+        return std::ptrdiff_t(((std::size_t(n_inst_) + L / 2 + L - 1) / L) * L);
+    }
+
     /// One tick from raw features stored feature-major in the caller's buffer, which is
-    /// normalised in place: feature i of instance r at x[i * rs + r]. rs must be a
-    /// multiple of 32 bytes of values and at least n_instances + lanes / 2 (the
-    /// instances from n_instances on are ghosts a tick's groups may read: any finite
-    /// values, rewritten before every call, since normalising twice changes them).
-    /// out: (n_instances, 3) as step(); the same bits as step() on the same features.
-    /// For a front end that computes its features a vector of instances at a time
-    /// (detector_bank.hpp): the normalisation then goes a vector at a time too.
-    void step_feature_major(T* x, std::ptrdiff_t rs, T* out) noexcept {
-        Io io{x, 1, rs, 0, 1, out, out + 1, out + 2, 3};
+    /// normalised in place: feature i of instance r at x[i * feature_major_stride() + r]
+    /// (n_inputs rows). The instances from n_instances on are ghosts a tick's groups may
+    /// read: any finite values, rewritten before every call (normalising twice changes
+    /// them). out: (n_instances, 3) as step(); the same bits as step() on the same
+    /// features. For a front end that computes its features a vector of instances at a
+    /// time (detector_bank.hpp): the normalisation then goes a vector at a time too.
+    void step_feature_major(T* x, T* out) noexcept {
+        Io io{x, 1, feature_major_stride(), 0, 1, out, out + 1, out + 2, 3};
         io.in_place = true;
         dispatch(io);
     }

@@ -95,12 +95,15 @@ void check_mlp(int nin, int R, det::Activation act, simd::Isa isa, Rng& g) {
 
 // The bank's block run (ridges in SIMD lanes, a scalar tail) against step(), bit for
 // bit, with a bank of n_lp low-passes and n_abs |d| filters (4 and 2: the bundled
-// net's, compiled with fixed counts; others: the run-time counts); and run()'s
-// finiteness flag.
+// net's, compiled with fixed counts; others: the run-time counts; 2 and 1 give 12
+// features, the net's generic path), over n ticks (fewer than a vector of them: the
+// scalar path alone), channel-major or, strided, time-major input (the scalar path);
+// the filter states afterwards, the ghost lanes of the stored states (zero), and
+// run()'s finiteness flag.
 template <typename T>
-void check_bank(int R, simd::Isa isa, Rng& g, int n_lp, int n_abs) {
+void check_bank(int R, simd::Isa isa, Rng& g, int n_lp, int n_abs, int n, bool time_major) {
     const double lp[4] = {0.005, 0.02, 0.08, 0.3}, ab[4] = {0.003, 0.01, 0.03, 0.1};
-    const int nin = det::BankJordan<T>::feature_count(n_lp, n_abs), H = 16, n = 150;
+    const int nin = det::BankJordan<T>::feature_count(n_lp, n_abs), H = 16;
     Weights w(nin, H, g);
     for (auto& m : w.mean) m *= 1e3;  // features in Pa/s and Pa
     for (auto& s : w.gain) s *= 1e-3;
@@ -109,6 +112,9 @@ void check_bank(int R, simd::Isa isa, Rng& g, int n_lp, int n_abs) {
     det::BankJordan<T> stp(H, R, w.w1.data(), w.b1.data(), w.w2.data(), w.b2.data(), w.mean.data(), w.gain.data(),
                            1000.0, n_lp, lp, n_abs, ab, 0.5, 0.2);
     if (!blk.net().set_isa(isa) || !stp.net().set_isa(isa)) return;
+    // Channel i of ridge r at tick t: x[r * sr + i * si + t * st].
+    const std::ptrdiff_t sr = time_major ? 4 : std::ptrdiff_t(4) * n, si = time_major ? 1 : n,
+                         st = time_major ? std::ptrdiff_t(4) * R : 1;
     std::vector<T> x(std::size_t(R) * 4 * n);
     double acc = 0.0;
     for (std::size_t k = 0; k < x.size(); ++k) {
@@ -116,26 +122,41 @@ void check_bank(int R, simd::Isa isa, Rng& g, int n_lp, int n_abs) {
         x[k] = T(acc + 500.0 * g.next());
     }
     std::vector<T> ys(std::size_t(R) * n), yn(ys.size()), yp(ys.size());
-    CHECK(blk.run(x.data(), std::ptrdiff_t(4) * n, n, 1, n, ys.data(), yn.data(), yp.data(), n),
+    CHECK(blk.run(x.data(), sr, si, st, n, ys.data(), yn.data(), yp.data(), n),
           "bank: finite inputs reported as non-finite");
     std::vector<T> ss(ys.size()), sp(ys.size()), in(std::size_t(R) * 4), out(std::size_t(R) * 3);
     for (int t = 0; t < n; ++t) {
         for (int r = 0; r < R; ++r)
-            for (int i = 0; i < 4; ++i) in[std::size_t(r) * 4 + i] = x[(std::size_t(r) * 4 + i) * n + t];
+            for (int i = 0; i < 4; ++i) in[std::size_t(r) * 4 + i] = x[r * sr + i * si + t * st];
         stp.step(in.data(), out.data());
         for (int r = 0; r < R; ++r) {
             ss[std::size_t(r) * n + t] = out[3 * r];
             sp[std::size_t(r) * n + t] = out[3 * r + 2];
         }
     }
-    CHECK(bits_differ(ys, ss) == 0 && bits_differ(yp, sp) == 0, "bank %s %s, %d instances, %d/%d filters: block != step",
-          sizeof(T) == 4 ? "float" : "double", simd::isa_name(isa), R, n_lp, n_abs);
+    CHECK(bits_differ(ys, ss) == 0 && bits_differ(yp, sp) == 0,
+          "bank %s %s, %d instances, %d/%d filters, %d ticks%s: block != step", sizeof(T) == 4 ? "float" : "double",
+          simd::isa_name(isa), R, n_lp, n_abs, n, time_major ? " (time-major)" : "");
+    const int ns = blk.n_state();
+    std::vector<T> pb(static_cast<std::size_t>(R)), ps(pb.size()), fb(static_cast<std::size_t>(R * ns)), fs(fb.size());
+    blk.get_state(pb.data(), fb.data());
+    stp.get_state(ps.data(), fs.data());
+    CHECK(bits_differ(pb, ps) == 0 && bits_differ(fb, fs) == 0, "bank: states after block != after steps (%d ridges)",
+          R);
+    for (const auto* k : {&blk, &stp}) {
+        const std::size_t stride = k->filter_state_size() / std::size_t(ns);
+        int ghosts = 0;
+        for (int j = 0; j < ns; ++j)
+            for (std::size_t r = std::size_t(R); r < stride; ++r) ghosts += k->filter_state()[j * stride + r] != T(0);
+        CHECK(stride >= std::size_t(R) && ghosts == 0, "bank: %d ghost lanes of the stored states are not zero",
+              ghosts);
+    }
     // A NaN or an Inf anywhere (a whole vector of ticks or the tail, any channel) is reported.
     for (std::size_t at : {std::size_t(0), x.size() / 2 + 3, x.size() - 1}) {
         for (T bad : {std::numeric_limits<T>::quiet_NaN(), -std::numeric_limits<T>::infinity()}) {
             std::vector<T> xb = x;
             xb[at] = bad;
-            CHECK(!blk.run(xb.data(), std::ptrdiff_t(4) * n, n, 1, n, ys.data(), yn.data(), yp.data(), n),
+            CHECK(!blk.run(xb.data(), sr, si, st, n, ys.data(), yn.data(), yp.data(), n),
                   "bank: a non-finite input at %zu not reported", at);
         }
     }
@@ -157,10 +178,13 @@ int main() {
                     check_mlp<double>(nin, R, act, isa, g);
                 }
         for (int R : {1, 6, 7, 9})
-            for (int lp_abs : {0x34, 0x42}) {
-                check_bank<float>(R, isa, g, lp_abs >> 4, lp_abs & 15);
-                check_bank<double>(R, isa, g, lp_abs >> 4, lp_abs & 15);
-            }
+            for (int lp_abs : {0x34, 0x42, 0x21})
+                for (int n : {3, 7, 65, 150})
+                    for (bool time_major : {false, true}) {
+                        if (time_major && n != 65) continue;
+                        check_bank<float>(R, isa, g, lp_abs >> 4, lp_abs & 15, n, time_major);
+                        check_bank<double>(R, isa, g, lp_abs >> 4, lp_abs & 15, n, time_major);
+                    }
     }
     std::printf("%d code variants\nok: %d failures\n", variants, failures);
     return failures ? 1 : 0;
