@@ -191,12 +191,13 @@ private:
         }
     }
     // the second thread is running (started now if needed); false if it cannot be
+    // In a child of fork() the parent's thread is not here, and its mutex may have been
+    // copied locked: its worker is left as it is (not joined, not freed).
+    void forget_inherited() noexcept {
+        if (w_ && w_->pid != TM_SHARED_LIST_PID()) (void)w_.release();
+    }
     bool start() noexcept {
-        if (w_ && w_->pid != TM_SHARED_LIST_PID()) {
-            // a child of fork(): the parent's thread is not here, and its mutex may have
-            // been copied locked. Its worker is left as it is (not joined, not freed).
-            (void)w_.release();
-        }
+        forget_inherited();
         if (w_) return true;
         try {
             auto w = std::make_unique<Worker>();
@@ -239,11 +240,8 @@ private:
         }
     }
     void stop() noexcept {
+        forget_inherited();
         if (!w_) return;
-        if (w_->pid != TM_SHARED_LIST_PID()) {  // the parent's (see start)
-            (void)w_.release();
-            return;
-        }
         {
             std::lock_guard<std::mutex> lk(w_->mu);
             w_->quit.store(true);
