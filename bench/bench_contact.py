@@ -216,15 +216,14 @@ def bench_realtime_accuracy(duration, figure_path=None):
            "L - R stress error", "F_y error"], rows)
     if figure_path:
         realtime_figure(points, figure_path, default_h, REALTIME_CONTACT_MESH_SIZE)
-        import json
-
+        from tactile_mirror._io import write_json
         from tactile_mirror.measure import environment
 
-        with open(os.path.splitext(figure_path)[0] + ".json", "w") as f:
-            json.dump({"environment": environment(), "duration_s": duration, "default_contact_mesh_size": default_h,
-                       "realtime_contact_mesh_size": REALTIME_CONTACT_MESH_SIZE,
-                       "rows": [{k: (float(v) if isinstance(v, (float, np.floating)) else v) for k, v in p.items()}
-                                for p in points]}, f, indent=1)
+        write_json(os.path.splitext(figure_path)[0] + ".json",
+                   {"environment": environment(), "duration_s": duration, "default_contact_mesh_size": default_h,
+                    "realtime_contact_mesh_size": REALTIME_CONTACT_MESH_SIZE,
+                    "rows": [{k: (float(v) if isinstance(v, (float, np.floating)) else v) for k, v in p.items()}
+                             for p in points]}, indent=1)
 
 
 def realtime_figure(points, path, default_h, realtime_h):
@@ -263,8 +262,12 @@ def realtime_figure(points, path, default_h, realtime_h):
                  fontsize=10)
     fig.tight_layout()
     os.makedirs(os.path.dirname(path) or ".", exist_ok=True)
-    fig.savefig(path, dpi=110)
-    plt.close(fig)
+    from tactile_mirror._io import save_figure
+
+    try:
+        save_figure(fig, path, dpi=110)
+    finally:
+        plt.close(fig)
     print(f"\nFigure written to {path}")
 
 

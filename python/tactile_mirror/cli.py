@@ -293,10 +293,9 @@ def _stage_from_args(args):
 
 
 def cmd_loop_design(args) -> int:
-    import json
-
     import numpy as np
 
+    from ._io import write_json
     from .loop.design import design_loop
     from .loop.experiment import calibrate_shear, calibrate_shear_weights
     from .loop.figures import design_figure
@@ -310,7 +309,7 @@ def cmd_loop_design(args) -> int:
     out = pathlib.Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
     design_figure(d, str(out / "loop_design.png"))
-    (out / "loop_design.json").write_text(json.dumps(d.summary(), indent=1))
+    write_json(out / "loop_design.json", d.summary(), indent=1)
     print(f"calibration: shear weights (L, R per ridge) {np.round(sw, 3).tolist()}, direction_sign {cal[0]:+g}, "
           f"shear signal {cal[1]:.4g} per m")
     print(f"crossover {d.crossover_hz:.1f} Hz, phase margin {d.phase_margin_deg:.1f} deg, gain margin "
@@ -351,10 +350,10 @@ def cmd_loop_envelope(args) -> int:
 def cmd_loop_realtime(args) -> int:
     """Hardware in the loop without the hardware: the loop paced by the wall clock against
     a simulated finger on the 6-ridge FEM pad; can this machine hold the rate?"""
-    import json
-
+    from ._io import write_json
     from .contact.plants import FemPad
     from .loop.envelope import REPORT_PATHS, _laws
+    from .loop.figures import paced_figure
     from .loop.scene import LoopScene, run_scene
     from .measure import environment
 
@@ -382,10 +381,10 @@ def cmd_loop_realtime(args) -> int:
                "tracking_rms_mm": r.tracking_rms * 1e3}
     out = pathlib.Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
-    (out / "realtime.json").write_text(json.dumps(summary, indent=1, default=float))
+    write_json(out / "realtime.json", summary, indent=1, default=float)
     res.to_recording(r.config, {"pad": args.pad, "law": args.law}).save(out / "realtime_recording.npz")
-    _realtime_figure(res, r.log["slip_fraction"][:, : r.t.size], fs, str(out / "realtime.png"),
-                     f"{args.pad} pad, law {args.law}, finger up to {args.speed:g} mm/s")
+    paced_figure(res, r.log["slip_fraction"][:, : r.t.size], fs, out / "realtime.png",
+                 f"{args.pad} pad, law {args.law}, finger up to {args.speed:g} mm/s")
     period = 1e6 / fs
     held = "held" if tick["p99"] < period else "NOT held"
     print(f"tick p50 / p99 / max {tick['p50']:.0f} / {tick['p99']:.0f} / {tick['max']:.0f} us (one tick {period:.0f} us: "
@@ -399,35 +398,6 @@ def _loop_weights(path, fs):
     from .loop.experiment import default_weights
 
     return default_weights("fem", fs) if path is None else _load_detector(path).weights
-
-
-def _realtime_figure(res, slip_fraction, fs, path, title) -> None:
-    """Each tick's work against time with the deadline, gross slips marked; its histogram."""
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-    import numpy as np
-
-    from .loop.scene import gross_slip_starts
-
-    us = res.tick_ns / 1e3
-    period = 1e6 / fs
-    fig, (ax_t, ax_h) = plt.subplots(1, 2, figsize=(11, 3.8), gridspec_kw={"width_ratios": [2.2, 1]})
-    ax_t.plot(res.t, us, lw=0.6)
-    ax_t.axhline(period, color="r", lw=1, label=f"one tick ({period:.0f} us)")
-    starts = gross_slip_starts(slip_fraction)
-    if starts.size:
-        ax_t.plot(res.t[starts], us[starts], "kx", ms=7, label="gross slip starts")
-    ax_t.set(xlabel="time (s)", ylabel="tick: plant + pipeline + stage (us)", yscale="log", title=title)
-    ax_t.legend(fontsize=8)
-    ax_h.hist(us, bins=np.logspace(np.log10(max(us.min(), 1.0)), np.log10(us.max() * 1.01), 40))
-    ax_h.axvline(period, color="r", lw=1)
-    ax_h.set(xscale="log", xlabel="tick (us)", ylabel="ticks",
-             title=f"p99 {np.percentile(us, 99):.0f} us; {res.overruns} overruns, {res.late_starts} late starts")
-    fig.tight_layout()
-    fig.savefig(path, dpi=110)
-    plt.close(fig)
 
 
 # ---------------------------------------------------------------- parser

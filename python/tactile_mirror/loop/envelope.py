@@ -27,6 +27,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from .._io import save_figure
 from .stage import StageLimits
 
 __all__ = ["CONDITIONS", "PATH_SETS", "REPORT_FAST_PATHS", "REPORT_PATHS", "TUNING_FAST_PATHS", "TUNING_PATHS", "PathSet", "envelope_figure", "envelope_table",
@@ -279,5 +280,7 @@ def envelope_figure(data, path: str, paths: str = "report") -> None:
                  f"mm/s, {st.get('a_max', 0):g} m/s^2, {st.get('delay_s', 0) * 1e3:g} ms delay, "
                  f"{st.get('lag_s', 0) * 1e3:g} ms lag", fontsize=9)
     fig.tight_layout()
-    fig.savefig(path, dpi=110)
-    plt.close(fig)
+    try:
+        save_figure(fig, path, dpi=110)
+    finally:
+        plt.close(fig)

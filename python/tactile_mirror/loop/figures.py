@@ -10,7 +10,7 @@ from .._io import save_figure
 if TYPE_CHECKING:
     from .scene import SceneResult
 
-__all__ = ["design_figure", "loop_figure"]
+__all__ = ["design_figure", "loop_figure", "paced_figure"]
 
 #: What the figures call each law of :func:`tactile_mirror.loop.experiment.make_laws`.
 LAW_TITLES = {"paper": "paper's law", "velocity": "shear loop with y_pred gain scheduling",
@@ -115,3 +115,35 @@ def design_figure(design, path) -> None:
     fig.tight_layout()
     save_figure(fig, path)
     plt.close(fig)
+
+
+def paced_figure(res, slip_fraction, fs: float, path, title: str) -> None:
+    """A loop paced by the wall clock (``LoopRunner(realtime=True)``'s result ``res``):
+    each tick's work against time with the deadline, gross slips (from ``slip_fraction``,
+    (n_ridges, n)) marked; and the ticks' histogram."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    from .scene import gross_slip_starts
+
+    us = res.tick_ns / 1e3
+    period = 1e6 / fs
+    fig, (ax_t, ax_h) = plt.subplots(1, 2, figsize=(11, 3.8), gridspec_kw={"width_ratios": [2.2, 1]})
+    ax_t.plot(res.t, us, lw=0.6)
+    ax_t.axhline(period, color="r", lw=1, label=f"one tick ({period:.0f} us)")
+    starts = gross_slip_starts(slip_fraction)
+    if starts.size:
+        ax_t.plot(res.t[starts], us[starts], "kx", ms=7, label="gross slip starts")
+    ax_t.set(xlabel="time (s)", ylabel="tick: plant + pipeline + stage (us)", yscale="log", title=title)
+    ax_t.legend(fontsize=8)
+    ax_h.hist(us, bins=np.logspace(np.log10(max(us.min(), 1.0)), np.log10(us.max() * 1.01), 40))
+    ax_h.axvline(period, color="r", lw=1)
+    ax_h.set(xscale="log", xlabel="tick (us)", ylabel="ticks",
+             title=f"p99 {np.percentile(us, 99):.0f} us; {res.overruns} overruns, {res.late_starts} late starts")
+    fig.tight_layout()
+    try:
+        save_figure(fig, path, dpi=110)
+    finally:
+        plt.close(fig)
