@@ -394,21 +394,6 @@ private:
             run_impl<B, A, 0, 0>(io);
     }
 
-    // dst[k] = (src[k] - mu) * g for the whole vectors of k < n (src may be dst); returns
-    // how many values that was (the caller does the rest).
-    template <typename V>
-    static __attribute__((always_inline)) inline std::ptrdiff_t normalise_vectors(const T* src, T* dst, std::ptrdiff_t n,
-                                                                                  T mu, T g) noexcept {
-        constexpr int NL = int(sizeof(V) / sizeof(T));
-        std::ptrdiff_t k = 0;
-        for (; k + NL <= n; k += NL) {
-            V v = simd::load<V>(src + k);
-            v = (v - mu) * g;
-            simd::store(dst + k, v);
-        }
-        return k;
-    }
-
     template <int B, Activation A, int NIN, int NV>
     __attribute__((always_inline)) inline void run_impl(const Io& io) noexcept {
         const int nin = NIN > 0 ? NIN : n_in_;
@@ -421,11 +406,20 @@ private:
                 // One feature-major tick (step_feature_major): normalised where it is,
                 // a vector of instances at a time.
                 typedef typename simd::Vec<T, B>::type V;
+                constexpr int NL = simd::Vec<T, B>::lanes;
                 T* x = const_cast<T*>(io.x);
                 tin = x;
                 xr = 1;
                 xi = io.si;
-                for (int i = 0; i < nin; ++i) normalise_vectors<V>(x + i * xi, x + i * xi, xi, mean_[i], gain_[i]);
+                for (int i = 0; i < nin; ++i) {
+                    T* row = x + i * xi;
+                    const T mu = mean_[i], g = gain_[i];
+                    for (std::ptrdiff_t r = 0; r < xi; r += NL) {
+                        V v = simd::load<V>(row + r);
+                        v = (v - mu) * g;
+                        simd::store(row + r, v);
+                    }
+                }
             } else if (NIN == 4) {
                 // One tick of contiguous features (step()): normalise into xs_,
                 // one 4-lane vector per instance.
@@ -490,7 +484,11 @@ private:
                     if (io.st == 1) {
                         if (more)
                             for (int c = 0; c < kChunk; c += CL) __builtin_prefetch(src + kChunk + c, 0, 3);
-                        k = int(normalise_vectors<V>(src, dst, m, mu, g));
+                        for (; k + NL <= m; k += NL) {
+                            V v = simd::load<V>(src + k);
+                            v = (v - mu) * g;
+                            std::memcpy(dst + k, &v, sizeof v);
+                        }
                     }
                     for (; k < m; ++k) dst[k] = (src[k * io.st] - mu) * g;
                 }
