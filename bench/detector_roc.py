@@ -54,6 +54,7 @@ os.environ.setdefault("OMP_NUM_THREADS", "1")
 os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
 
 import numpy as np
+from tactile_mirror._io import atomic_write
 from tactile_mirror.detector.evaluate import NOISE_CONDITIONS, condition_estimator, with_noise
 
 #: Seed of the held-out scenes of this study (disjoint from every seed the build uses).
@@ -89,10 +90,8 @@ def simulated(n_test: int, n_train: int, cache: str | None):
     test, train = res[:n_test], res[n_test:]
     if cache:
         os.makedirs(os.path.dirname(os.path.abspath(cache)), exist_ok=True)
-        tmp = cache + ".tmp"
-        with open(tmp, "wb") as fh:
-            pickle.dump({"key": key, "test": test, "train": train}, fh)
-        os.replace(tmp, cache)
+        with atomic_write(cache, "wb") as fh:
+            pickle.dump({"key": key, "test": test, "train": train}, fh, protocol=pickle.HIGHEST_PROTOCOL)
     return test, train
 
 
@@ -182,10 +181,8 @@ def bound_extra(n: int, cache: str | None):
     res = build.simulate_scenes(scenes, progress=True)
     print(f"simulated {len(res)} extra training scenes in {time.perf_counter() - t0:.0f} s", flush=True)
     if path:
-        tmp = path + ".tmp"
-        with open(tmp, "wb") as fh:
-            pickle.dump({"key": key, "results": res}, fh)
-        os.replace(tmp, path)
+        with atomic_write(path, "wb") as fh:
+            pickle.dump({"key": key, "results": res}, fh, protocol=pickle.HIGHEST_PROTOCOL)
     return res
 
 

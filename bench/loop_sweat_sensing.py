@@ -174,7 +174,9 @@ def figure(path, fs, traces, runs, mus) -> None:
     ax2.set(xlabel="time (s)", ylabel="stage position (um)", title="Finger held still: the loop follows the phantom")
     ax2.legend(fontsize=8)
     fig.tight_layout()
-    fig.savefig(path, dpi=110)
+    from tactile_mirror._io import save_figure
+
+    save_figure(fig, path, dpi=110)
     plt.close(fig)
 
 
