@@ -1,0 +1,152 @@
+"""Does a teacher's soft target lift the filter-bank net's curve? A study on validation scenes.
+
+The boosted trees on the filter bank's 17 inputs reach further along the threshold sweep
+than the net trained on the same inputs (``bench/detector_bank_study.py``): the net's
+target ``y_slip`` is a step at the onset of gross slip, which the signals of a creeping
+slip cannot show at once. This study trains the net, by the build's recipe
+(``detector.build``, kind ``"jordan_bank"``), on the teacher's probability instead:
+
+1. the build's training set (its 64 scenes plus the extra scenes from the held-out ranges,
+   noise and gain augmentation);
+2. trees (scikit-learn ``HistGradientBoostingClassifier``) *cross-fitted* on it: each
+   scene's samples are scored by trees fitted on the other folds' scenes, so the teacher's
+   probability is never its own training label;
+3. the net's ``y_slip`` target becomes ``blend * hard + (1 - blend) * p_teacher``; the
+   loss weights still come from the hard classes (slip / no slip).
+
+Candidates (seeds and checkpoints) are kept by the build's rule (detection at the
+calibration's false-alarm rate on the validation scenes in their own noise), and the
+kept nets and the bundled one are scored along the threshold sweep on the build's
+validation scenes (seed ``build.VALIDATION_SEED``) noise-free and with 1 mV rms: never
+the held-out seed.
+
+Run: ``python bench/detector_distill.py --cache out/scenes [--blend 0 0.5] [--seeds 2]``.
+"""
+from __future__ import annotations
+
+import argparse
+import os
+import sys
+import time
+
+os.environ.setdefault("OMP_NUM_THREADS", "2")
+os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
+
+import numpy as np
+
+
+def teacher_targets(ts, groups, folds: int = 4, stride: int = 2, seed: int = 0):
+    """Cross-fitted tree probabilities of slip for every sample of ``ts`` (0 on padding)."""
+    from sklearn.ensemble import HistGradientBoostingClassifier
+
+    n_seq, n_ch, n = ts.x.shape
+    fold = np.random.default_rng(seed).permutation(np.max(groups) + 1) % folds
+    fold = fold[groups]
+    p = np.zeros((n_seq, n))
+    for k in range(folds):
+        tr, te = np.flatnonzero(fold != k), np.flatnonzero(fold == k)
+        m = ts.mask[tr][:, ::stride]
+        X = np.moveaxis(ts.x[tr][:, :, ::stride], 1, 2)[m]
+        Y = (ts.y_slip[tr][:, ::stride] >= 0.5)[m].astype(np.float64)
+        w = np.where(Y > 0.5, 0.5 / max(Y.sum(), 1.0), 5.0 / max(Y.size - Y.sum(), 1.0)) * Y.size
+        clf = HistGradientBoostingClassifier(max_iter=300, random_state=seed).fit(X, Y, sample_weight=w)
+        for i in te:
+            p[i] = clf.predict_proba(ts.x[i].T)[:, 1] * ts.mask[i]
+        print(f"  teacher fold {k + 1}/{folds}: {X.shape[0]} samples", flush=True)
+    return p
+
+
+def main(argv=None):
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--cache", default="out/scenes")
+    ap.add_argument("--extra", type=int, default=240)
+    ap.add_argument("--n-validation", type=int, default=480)
+    ap.add_argument("--blend", type=float, nargs="+", default=[0.0, 0.5],
+                    help="weights of the hard target in the net's y_slip target")
+    ap.add_argument("--seeds", type=int, default=2, help="initial seeds per variant")
+    ap.add_argument("--maxiter", type=int, default=300)
+    ap.add_argument("--negative-weight", type=float, default=30.0)
+    ap.add_argument("--select-fa", type=float, default=0.015)
+    ap.add_argument("--save", default=None, help="directory to keep each variant's selected weights in")
+    args = ap.parse_args(argv)
+    sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
+
+    import tactile_mirror.detector.training as training
+    from tactile_mirror.detector import SlipDetector, build
+    from tactile_mirror.detector.data_prep import features_from_result
+    from tactile_mirror.detector.evaluate import noise_free, onset_kinds, roc, with_noise
+    from tactile_mirror.detector.training import (TrainingSet, augment_gains, augment_noise, make_training_set)
+    from tactile_mirror.measure import cpu_model
+
+    t0 = time.perf_counter()
+    train = build.simulate_cached(64, build.TRAIN_SEED, build.TRAIN_KWARGS, args.cache)
+    train += build.simulate_cached(args.extra, build.EXTRA_TRAIN_SEED, build.TEST_KWARGS, args.cache)
+    val = build.simulate_cached(args.n_validation, build.VALIDATION_SEED, build.TEST_KWARGS, args.cache)
+    kinds = onset_kinds(val)
+    print(f"# CPU: {cpu_model()}; {len(train)} training scenes, {len(val)} validation scenes "
+          f"(seed {build.VALIDATION_SEED}): {kinds.count('release')} release, {kinds.count('gradual')} gradual")
+
+    # The build's training set for kind "jordan_bank" (one ridge per scene, noise copies, gains).
+    seqs = augment_noise(train, build.NOISE_COPIES, build.NOISE_RANGE, seed=2)
+    groups = np.repeat(np.arange(len(train)), build.NOISE_COPIES)
+    ts = augment_gains(make_training_set(seqs, "stress_rate_bank"), (0.6, 1.7), seed=1)
+    assert ts.n_seq == groups.size
+    print(f"# {ts.n_seq} training sequences, {int(ts.mask.sum())} samples", flush=True)
+    p = teacher_targets(ts, groups)
+    hard = ts.y_slip
+
+    # The loss weights come from the hard classes whatever the target (the soft target near
+    # an onset is below 0.5 where the hard one is 1).
+    hard_weights = training._loss_weights
+
+    def weights_from_hard(data, *a, **k):
+        return hard_weights(TrainingSet(data.x, hard, data.y_pred, data.mask,
+                                        data.fs, data.features, data.estimator, data.targets, data.load_tau,
+                                        data.bank), *a, **k)
+
+    training._loss_weights = weights_from_hard
+
+    clean_val = noise_free(val)
+    noisy_val = with_noise(clean_val, "1 mV rms white", seed=4001)
+
+    def curves(det):
+        out = {}
+        for name, res in (("noise-free", clean_val), ("1 mV rms", noisy_val)):
+            scores = [det.run(features_from_result(r, det.features, estimator=det.metadata.get("estimator")),
+                              fs=r.fs)[0] for r in res]
+            out[name] = roc(scores, val, kinds)
+        return out
+
+    def cell(c, fa):
+        q = c.at_false_alarm(fa)
+        return f"{100 * q['detection_rate']:.1f} ({100 * q['detection_gradual']:.1f})"
+
+    rows = [("bundled net", curves(SlipDetector.default()))]
+    scorer = build.ValidationScorer(val, at_false_alarm=args.select_fa)
+    opts = {"negative_weight": args.negative_weight, "normalisation": "rms", "pred_weight": 4.0}
+    for blend in args.blend:
+        target = blend * hard + (1.0 - blend) * p
+        ts_b = TrainingSet(ts.x, target, ts.y_pred, ts.mask, ts.fs, ts.features, ts.estimator,
+                           {**ts.targets, "y_slip_teacher": "cross-fitted boosted trees on the bank inputs",
+                            "y_slip_blend": blend}, ts.load_tau, ts.bank)
+        t1 = time.perf_counter()
+        w, k, scores = build.train_selected(ts_b, 16, args.maxiter, 0, args.seeds, 25, scorer, True, True,
+                                            {"kind": "jordan_bank", "distill_blend": blend}, **opts)
+        tr = w.metadata["training"]
+        print(f"# blend {blend}: kept seed {tr['seed']} at {tr['iterations']} iterations, "
+              f"score {scores[k]['score']:.3f} ({time.perf_counter() - t1:.0f} s)", flush=True)
+        if args.save:
+            os.makedirs(args.save, exist_ok=True)
+            w.save(os.path.join(args.save, f"distill_{blend:g}.npz"))
+        rows.append((f"soft target, blend {blend:g}", curves(SlipDetector(w))))
+
+    print("\n| validation, detection at 1 / 2 / 3 % false alarms, all (gradual) | noise-free | 1 mV rms |")
+    print("|---|---|---|")
+    for name, c in rows:
+        cells = [" / ".join(cell(c[cond], fa) for fa in (0.01, 0.02, 0.03)) for cond in ("noise-free", "1 mV rms")]
+        print(f"| {name} | " + " | ".join(cells) + " |")
+    print(f"\n({time.perf_counter() - t0:.0f} s)")
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,207 @@
+"""Can the Jordan net itself use the pad? A filter-bank net with the pad's mean bank, on 6-ridge scenes.
+
+``bench/detector_pad_study.py`` shows that boosted trees reading a ridge's 17 filter-bank
+inputs *and their mean over the pad's six ridges* find nearly every slip at 1-2 % false
+alarms on pad scenes, the gradual onsets too, within a few ms. This study asks the same
+of the net: the Jordan kernel (H = 16, trained by the C++ BPTT path, L-BFGS-B, the
+build's loss options: negative weight 30, ``y_pred`` weight 4) on
+
+* ``pad-trained net, ridge``: the ridge's own 17 inputs (the bundled net's inputs);
+* ``pad-trained net, ridge + pad mean``: plus the pad's mean of the 17 (34 inputs).
+
+Scenes: the build's held-out ranges (``build.TEST_KWARGS``) with six ridges. Training
+seed ``PAD_TRAIN_SEED`` (two noise copies of each scene, 0-5 mV rms, and a random gain
+per copy, as the build); the candidates (2 initial seeds, checkpoints every 25
+iterations) are chosen, and ``y_slip``'s decision point calibrated (at most 1.5 % false
+alarms noise-free), on the validation seed ``PAD_VALIDATION_SEED``; the rows are
+measured on a third seed, ``PAD_TEST_SEED``, which chose nothing. Rates over ridges 0-2
+(the pad is mirror-symmetric). The nets run here through the numpy recurrence
+(``detector.network.forward``, the C++ kernel's specification): the C++ bank has no pad
+channels yet.
+
+Run: ``python bench/detector_pad_net.py --cache out/scenes`` (about 10 min on 2 cores).
+"""
+from __future__ import annotations
+
+import argparse
+import os
+import sys
+import time
+from types import SimpleNamespace
+
+os.environ.setdefault("OMP_NUM_THREADS", "1")
+os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
+
+import numpy as np
+
+PAD_TEST_SEED = 60603
+
+
+def pad_inputs(result, with_mean: bool) -> np.ndarray:
+    """(n_ridges, 17 or 34, n): a pad result's filter-bank inputs, with the pad mean appended."""
+    from tactile_mirror.detector.data_prep import features_from_result
+
+    x = features_from_result(result, "stress_rate_bank")
+    if not with_mean:
+        return x
+    return np.concatenate([x, np.broadcast_to(x.mean(axis=0, keepdims=True), x.shape)], axis=1)
+
+
+def stack(results, with_mean: bool, gains=None):
+    """Padded (n_seq, n_in, n) inputs, targets and mask of the results' ridges."""
+    from tactile_mirror.detector.data_prep import targets_from_result
+
+    xs, ys, ps = [], [], []
+    for k, r in enumerate(results):
+        x = pad_inputs(r, with_mean)
+        if gains is not None:
+            x = x * gains[k]
+        s, p = targets_from_result(r)
+        xs.append(x)
+        ys.append(s)
+        ps.append(p)
+    n = max(x.shape[2] for x in xs)
+    n_seq = sum(x.shape[0] for x in xs)
+    X = np.zeros((n_seq, xs[0].shape[1], n))
+    S, P, M = np.zeros((n_seq, n)), np.zeros((n_seq, n)), np.zeros((n_seq, n), dtype=bool)
+    i = 0
+    for x, s, p in zip(xs, ys, ps):
+        m, L = x.shape[0], x.shape[2]
+        X[i:i + m, :, :L], S[i:i + m, :L], P[i:i + m, :L], M[i:i + m, :L] = x, s, p, True
+        i += m
+    return X, S, P, M
+
+
+def main(argv=None):
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--cache", default="out/scenes")
+    ap.add_argument("--n-train", type=int, default=160)
+    ap.add_argument("--n-validation", type=int, default=160)
+    ap.add_argument("--n-test", type=int, default=160)
+    ap.add_argument("--maxiter", type=int, default=300)
+    ap.add_argument("--seeds", type=int, default=2)
+    ap.add_argument("--calibrate-fa", type=float, default=0.015)
+    args = ap.parse_args(argv)
+    sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
+    import scipy.optimize
+    from detector_pad_study import N_RIDGES, PAD_TRAIN_SEED, PAD_VALIDATION_SEED, SCORED, latency_at
+    from tactile_mirror.detector import SlipDetector, build
+    from tactile_mirror.detector.data_prep import features_from_result, targets_from_result
+    from tactile_mirror.detector.evaluate import noise_free, onset_kinds, roc, with_noise
+    from tactile_mirror.detector.network import Params, forward, init_params
+    from tactile_mirror.detector.training import _cpp_loss, _loss_weights, augment_noise, fit_normalisation
+    from tactile_mirror.measure import cpu_model
+
+    t0 = time.perf_counter()
+    kw = {**build.TEST_KWARGS, "n_ridges": N_RIDGES}
+    train = build.simulate_cached(args.n_train, PAD_TRAIN_SEED, kw, args.cache)
+    val = build.simulate_cached(args.n_validation, PAD_VALIDATION_SEED, kw, args.cache)
+    test = build.simulate_cached(args.n_test, PAD_TEST_SEED, kw, args.cache)
+    kinds = {name: [k for i, k in enumerate(onset_kinds(res)) if i % N_RIDGES in SCORED]
+             for name, res in (("val", val), ("test", test))}
+    print(f"# CPU: {cpu_model()}; pad scenes ({N_RIDGES} ridges): {len(train)} training (seed {PAD_TRAIN_SEED}), "
+          f"{len(val)} validation (seed {PAD_VALIDATION_SEED}), {len(test)} test (seed {PAD_TEST_SEED}: "
+          f"{kinds['test'].count('release')} release, {kinds['test'].count('gradual')} gradual onsets on ridges "
+          f"{SCORED})", flush=True)
+    seqs = augment_noise(train, build.NOISE_COPIES, build.NOISE_RANGE, seed=2)
+    gains = np.exp(np.random.default_rng(1).uniform(np.log(0.6), np.log(1.7), len(seqs)))
+    conditions = {"noise-free": noise_free(test)}
+    conditions["1 mV rms white"] = with_noise(conditions["noise-free"], "1 mV rms white", seed=9001)
+    val_clean = noise_free(val)
+
+    def ridge_scores(y, results):
+        """Per-result (n_ridges, n) rows of a (n_seq, n) output."""
+        out, i = [], 0
+        for r in results:
+            n = np.asarray(r.t).size
+            out.append(y[i:i + N_RIDGES, :n])
+            i += N_RIDGES
+        return out
+
+    def curve(scores, results, kind_list):
+        return roc([s[list(SCORED)] for s in scores], results, kind_list)
+
+    def row(name, scores, results, thr):
+        c = curve(scores, results, kinds["test"])
+        q = c.at_threshold(thr)
+        p2 = c.at_false_alarm(0.02)
+        lat = []
+        for s, r in zip(scores, results):
+            g, _ = targets_from_result(r)
+            lat += [latency_at(r.t, s[i], g[i], thr, 1) for i in SCORED]
+        lat = np.array(lat)
+        glat = lat[np.array([k == "gradual" for k in kinds["test"]]) & np.isfinite(lat)]
+        rlat = lat[np.array([k == "release" for k in kinds["test"]]) & np.isfinite(lat)]
+        return (f"| {name} | {100 * q['detection_rate']:.1f} % | {100 * q['false_alarm_rate']:.1f} % | "
+                f"{100 * q['detection_release']:.1f} % | {100 * q['detection_gradual']:.1f} % | "
+                f"{1e3 * rlat.mean():.1f} / {1e3 * glat.mean():.1f} ms | "
+                f"{100 * p2['detection_rate']:.1f} ({100 * p2['detection_gradual']:.1f}) % |")
+
+    rows = {c: [] for c in conditions}
+    net = SlipDetector.default()
+    for cond, res in conditions.items():
+        sc = [net.run(features_from_result(r, net.features, estimator=net.metadata.get("estimator")), fs=r.fs)[0]
+              for r in res]
+        rows[cond].append(row("bundled filter-bank net (single-ridge training)", sc, res, 0.8))
+
+    for with_mean in (False, True):
+        name = "pad-trained net, ridge + pad mean" if with_mean else "pad-trained net, ridge"
+        X, S, P, M = stack(seqs, with_mean, gains)
+        mean, scale = fit_normalisation(X, M, "rms")
+        xn = X / scale[None, :, None] * M[:, None, :]
+        data = SimpleNamespace(x=X, y_slip=S, y_pred=P, mask=M, fs=float(train[0].fs))
+        w_slip, w_pred = _loss_weights(data, 4.0, 30.0)
+        n_in = X.shape[1]
+        fun = _cpp_loss(xn, data, w_slip, w_pred, 16, 1e-4, True, 2)
+        Xv, _, _, _ = stack(val, with_mean)
+        xv = Xv / scale[None, :, None]
+
+        def val_curve(theta):
+            ys, _ = forward(Params.unpack(theta, n_in, 16), xv)
+            return curve(ridge_scores(ys, val), val, kinds["val"])
+
+        best = (-1.0, None)
+        t1 = time.perf_counter()
+        for seed in range(args.seeds):
+            count = [0]
+            cands = []
+
+            def cb(xk):
+                count[0] += 1
+                if count[0] % 25 == 0:
+                    cands.append((count[0], np.array(xk)))
+
+            res = scipy.optimize.minimize(fun, init_params(n_in, 16, seed).pack(), jac=True, method="L-BFGS-B",
+                                          callback=cb, options={"maxiter": args.maxiter, "maxfun": 2 * args.maxiter,
+                                                                "gtol": 1e-9, "ftol": 1e-12})
+            cands.append((int(res.nit), res.x))
+            for it, theta in cands:
+                score = val_curve(theta).at_false_alarm(args.calibrate_fa)["detection_rate"]
+                if score > best[0]:
+                    best = (score, theta, seed, it)
+        _, theta, seed, it = best
+        # The decision point: the lowest threshold with at most calibrate_fa false alarms on the
+        # noise-free validation scenes (the build's calibration, applied as a threshold here).
+        ys, _ = forward(Params.unpack(theta, n_in, 16), stack(val_clean, with_mean)[0] / scale[None, :, None])
+        thr = float(curve(ridge_scores(ys, val_clean), val_clean, kinds["val"]).at_false_alarm(args.calibrate_fa)[
+            "threshold"])
+        print(f"# {name}: {n_in} inputs, kept seed {seed} at {it} iterations (validation detection at "
+              f"{100 * args.calibrate_fa:g} % false alarms {100 * best[0]:.1f} %), threshold {thr:.3f} "
+              f"({time.perf_counter() - t1:.0f} s)", flush=True)
+        for cond, res in conditions.items():
+            Xt, _, _, _ = stack(res, with_mean)
+            yt, _ = forward(Params.unpack(theta, n_in, 16), Xt / scale[None, :, None])
+            rows[cond].append(row(name, ridge_scores(yt, res), res, thr))
+
+    print("\n| pad test scenes, ridges 0-2 | detection | false alarms | release | gradual | latency release / "
+          "gradual | at 2 % false alarms: all (gradual) |")
+    print("|---|---|---|---|---|---|---|")
+    for cond, rs in rows.items():
+        print(f"| **{cond}** | | | | | | |")
+        for r in rs:
+            print(r)
+    print(f"\n({time.perf_counter() - t0:.0f} s)")
+
+
+if __name__ == "__main__":
+    sys.exit(main())
