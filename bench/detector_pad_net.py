@@ -50,26 +50,16 @@ def pad_inputs(result, with_mean: bool) -> np.ndarray:
 def stack(results, with_mean: bool, gains=None):
     """Padded (n_seq, n_in, n) inputs, targets and mask of the results' ridges."""
     from tactile_mirror.detector.data_prep import targets_from_result
+    from tactile_mirror.detector.training import pad_sequences
 
     xs, ys, ps = [], [], []
     for k, r in enumerate(results):
         x = pad_inputs(r, with_mean)
-        if gains is not None:
-            x = x * gains[k]
         s, p = targets_from_result(r)
-        xs.append(x)
+        xs.append(x if gains is None else x * gains[k])
         ys.append(s)
         ps.append(p)
-    n = max(x.shape[2] for x in xs)
-    n_seq = sum(x.shape[0] for x in xs)
-    X = np.zeros((n_seq, xs[0].shape[1], n))
-    S, P, M = np.zeros((n_seq, n)), np.zeros((n_seq, n)), np.zeros((n_seq, n), dtype=bool)
-    i = 0
-    for x, s, p in zip(xs, ys, ps):
-        m, L = x.shape[0], x.shape[2]
-        X[i:i + m, :, :L], S[i:i + m, :L], P[i:i + m, :L], M[i:i + m, :L] = x, s, p, True
-        i += m
-    return X, S, P, M
+    return pad_sequences(xs, ys, ps)
 
 
 def main(argv=None):

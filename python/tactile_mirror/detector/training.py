@@ -78,6 +78,27 @@ class TrainingSet:
         return self.x.shape[1]
 
 
+def pad_sequences(xs, y_slips, y_preds):
+    """Stack per-result features ``(n_ridges, n_in, n_k)`` and targets ``(n_ridges, n_k)``
+    into zero-padded arrays: ``x (n_seq, n_in, n)``, ``y_slip``, ``y_pred`` and the
+    ``mask`` of real samples, ``(n_seq, n)``, with ``n`` the longest result."""
+    n = max(x.shape[2] for x in xs)
+    n_seq = sum(x.shape[0] for x in xs)
+    X = np.zeros((n_seq, xs[0].shape[1], n))
+    S = np.zeros((n_seq, n))
+    P = np.zeros((n_seq, n))
+    M = np.zeros((n_seq, n), dtype=bool)
+    i = 0
+    for x, ys, yp in zip(xs, y_slips, y_preds):
+        m, L = x.shape[0], x.shape[2]
+        X[i:i + m, :, :L] = x
+        S[i:i + m, :L] = ys
+        P[i:i + m, :L] = yp
+        M[i:i + m, :L] = True
+        i += m
+    return X, S, P, M
+
+
 def make_training_set(results, features: str = "stress_rate", circuit=None, estimator=None,
                       gross_level: float = 0.999, pred_scale: float = 0.8,
                       pred_target: str = "load_ratio", load_tau: float | None = None,
@@ -103,20 +124,7 @@ def make_training_set(results, features: str = "stress_rate", circuit=None, esti
         xs.append(x)
         ss.append(ys)
         ps.append(yp)
-    n = max(x.shape[2] for x in xs)
-    n_seq = sum(x.shape[0] for x in xs)
-    X = np.zeros((n_seq, xs[0].shape[1], n))
-    S = np.zeros((n_seq, n))
-    Pp = np.zeros((n_seq, n))
-    M = np.zeros((n_seq, n), dtype=bool)
-    i = 0
-    for x, ys, yp in zip(xs, ss, ps):
-        m, L = x.shape[0], x.shape[2]
-        X[i:i + m, :, :L] = x
-        S[i:i + m, :L] = ys
-        Pp[i:i + m, :L] = yp
-        M[i:i + m, :L] = True
-        i += m
+    X, S, Pp, M = pad_sequences(xs, ss, ps)
     return TrainingSet(X, S, Pp, M, fs, features, estimator,
                        {"gross_level": float(gross_level), "pred_scale": float(pred_scale),
                         "pred_target": pred_target}, load_tau, bank)
