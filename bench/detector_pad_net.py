@@ -19,7 +19,7 @@ measured on a third seed, ``PAD_TEST_SEED``, which chose nothing. Rates over rid
 (``detector.network.forward``, the C++ kernel's specification): the C++ bank has no pad
 channels yet.
 
-Run: ``python bench/detector_pad_net.py --cache out/scenes`` (about 10 min on 2 cores).
+Run: ``python bench/detector_pad_net.py --cache out/scenes`` (14 min on 2 cores with the scenes cached).
 """
 from __future__ import annotations
 

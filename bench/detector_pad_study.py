@@ -23,7 +23,7 @@ The pad is symmetric (ridge ``r`` and ``5 - r`` see the same contact, with their
 noise), so the rates count ridges 0-2 of each scene only.
 
 Run: ``python bench/detector_pad_study.py --cache out/scenes [--n-train 160] [--n-validation 160]``
-(about 6 min on 2 cores with the scenes cached).
+(3.5 min on 2 cores with the scenes cached).
 """
 from __future__ import annotations
 
