@@ -78,11 +78,17 @@ def main(argv=None):
     ap.add_argument("--cache", default="out/scenes")
     ap.add_argument("--n-train", type=int, default=160)
     ap.add_argument("--n-validation", type=int, default=160)
+    ap.add_argument("--train-noise", type=float, nargs=2, default=None, metavar=("LOW", "HIGH"),
+                    help="train the trees as the build trains its nets: two copies of every training scene "
+                         "with sensor noise drawn from LOW-HIGH V rms (default: the condition's own noise)")
+    ap.add_argument("--gains", action="store_true",
+                    help="and scale every training copy by a random gain (0.6-1.7), as the build")
     args = ap.parse_args(argv)
     from sklearn.ensemble import HistGradientBoostingClassifier
     from tactile_mirror.detector import SlipDetector, build
     from tactile_mirror.detector.data_prep import features_from_result, targets_from_result
     from tactile_mirror.detector.evaluate import noise_free, onset_kinds, roc, with_noise
+    from tactile_mirror.detector.training import augment_noise
     from tactile_mirror.measure import cpu_model
 
     t0 = time.perf_counter()
@@ -106,6 +112,9 @@ def main(argv=None):
               f"the outer ridge 0 in the first 40 validation scenes where both slip")
     net = SlipDetector.default()
     thr_net = float(net.metadata.get("slip_threshold", 0.8))
+    if args.train_noise is not None or args.gains:
+        print(f"# trees trained on two copies of every training scene in every condition, noise "
+              f"{args.train_noise or 'of the condition'} V rms, gains {'0.6-1.7' if args.gains else 'none'}")
     print("\n| condition | detector | inputs | detection at 1 / 2 / 3 % false alarms: all (gradual) "
           "| gradual latency at 2 % (mean, ms) | at y_slip >= 0.8: detection (gradual) / false alarms |")
     print("|---|---|---|---|---|---|")
@@ -114,7 +123,11 @@ def main(argv=None):
         if white:
             tr = with_noise(tr, cond, seed=7000 + ci)
             va = with_noise(va, cond, seed=8000 + ci)
-        ftr = [pad_feature_sets(features_from_result(r, "stress_rate_bank")) for r in tr]
+        if args.train_noise is not None:
+            tr = augment_noise(train, 2, tuple(args.train_noise), seed=2)
+        gains = (np.exp(np.random.default_rng(1).uniform(np.log(0.6), np.log(1.7), len(tr))) if args.gains
+                 else np.ones(len(tr)))
+        ftr = [pad_feature_sets(g * features_from_result(r, "stress_rate_bank")) for r, g in zip(tr, gains)]
         fva = [pad_feature_sets(features_from_result(r, "stress_rate_bank")) for r in va]
         Y = np.concatenate([targets_from_result(r)[0][:, ::2].ravel() for r in tr])
         w = np.where(Y > 0.5, 0.5 / max(Y.sum(), 1.0), 5.0 / max(Y.size - Y.sum(), 1.0)) * Y.size
