@@ -77,6 +77,8 @@ def main(argv=None):
     ap.add_argument("--noise-range", type=float, nargs=2, default=list(NOISE_RANGE), metavar=("LOW", "HIGH"),
                     help="sensor noise of the training copies, V rms (the build's: 0-5 mV)")
     ap.add_argument("--negative-weight", type=float, default=30.0)
+    ap.add_argument("--select-clean", action="store_true",
+                    help="keep the candidate by the noise-free validation scenes (default: their own noise)")
     ap.add_argument("--inputs", nargs="+", default=["ridge", "mean"], choices=["ridge", "mean"],
                     help="input sets: the ridge's bank alone, or with the pad's mean bank")
     args = ap.parse_args(argv)
@@ -154,12 +156,12 @@ def main(argv=None):
         w_slip, w_pred = _loss_weights(data, 4.0, args.negative_weight)
         n_in = X.shape[1]
         fun = _cpp_loss(xn, data, w_slip, w_pred, H, 1e-4, True, 2)
-        Xv, _, _, _ = stack(val, with_mean)
-        xv = Xv / scale[None, :, None]
+        sel = val_clean if args.select_clean else val
+        xv = stack(sel, with_mean)[0] / scale[None, :, None]
 
         def val_curve(theta):
             ys, _ = forward(Params.unpack(theta, n_in, H), xv)
-            return curve(ridge_scores(ys, val), val, kinds["val"])
+            return curve(ridge_scores(ys, sel), sel, kinds["val"])
 
         best = (-1.0, None)
         t1 = time.perf_counter()
