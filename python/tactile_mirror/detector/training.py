@@ -13,7 +13,8 @@ from .memory import DEFAULT_LOAD_TAU
 from .network import Params, init_params, loss_and_grad
 from .weights import FEATURE_KINDS, DetectorWeights, feature_channels, feature_units
 
-__all__ = ["TrainingSet", "augment_noise", "fit_normalisation", "make_training_set", "train_detector"]
+__all__ = ["TrainingSet", "augment_noise", "fit_normalisation", "make_training_set", "pad_sequences",
+           "train_detector"]
 
 
 def load_tau_of(features: str, load_tau: float | None) -> float | None:
