@@ -190,12 +190,12 @@ private:
             lk.unlock();
         }
     }
-    // the second thread is running (started now if needed); false if it cannot be
     // In a child of fork() the parent's thread is not here, and its mutex may have been
     // copied locked: its worker is left as it is (not joined, not freed).
     void forget_inherited() noexcept {
         if (w_ && w_->pid != TM_SHARED_LIST_PID()) (void)w_.release();
     }
+    // the second thread is running (started now if needed); false if it cannot be
     bool start() noexcept {
         forget_inherited();
         if (w_) return true;
