@@ -90,10 +90,9 @@ def main(argv=None):
     ap.add_argument("--only", nargs="*", help="input sets to run (default: all)")
     args = ap.parse_args(argv)
     sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
-    from _common import study_training_scenes
+    from _common import fit_bound_classifier, study_training_scenes
     from tactile_mirror.detector.evaluate import noise_free as clean
     from tactile_mirror.detector.evaluate import with_noise
-    from sklearn.ensemble import HistGradientBoostingClassifier
     from tactile_mirror.detector import build
     from tactile_mirror.detector.data_prep import features_from_result, targets_from_result
     from tactile_mirror.detector.evaluate import onset_kinds, roc
@@ -117,12 +116,11 @@ def main(argv=None):
         ftr = [feature_sets(features_from_result(r)[0], r.fs) for r in tr]
         fva = [feature_sets(features_from_result(r)[0], r.fs) for r in va]
         Y = np.concatenate([targets_from_result(r)[0][0][::2] for r in tr])
-        w = np.where(Y > 0.5, 0.5 / max(Y.sum(), 1.0), 5.0 / max(Y.size - Y.sum(), 1.0)) * Y.size
         for name in ftr[0]:
             if args.only and name not in args.only:
                 continue
             X = np.vstack([f[name][::2] for f in ftr])
-            clf = HistGradientBoostingClassifier(max_iter=300, random_state=0).fit(X, Y, sample_weight=w)
+            clf = fit_bound_classifier(X, Y)
             probs = [clf.predict_proba(f[name])[:, 1][None] for f in fva]
             curve = roc(probs, val, kinds, consecutive=3)
             cells = []

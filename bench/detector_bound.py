@@ -80,7 +80,7 @@ def main(argv=None):
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--quick", action="store_true", help="fewer scenes (a smoke run, not the figures)")
     args = ap.parse_args(argv)
-    from sklearn.ensemble import HistGradientBoostingClassifier
+    from _common import fit_bound_classifier
 
     n_train, n_extra, n_test = (16, 16, 20) if args.quick else (64, 240, 200)
     t0 = time.perf_counter()
@@ -108,8 +108,7 @@ def main(argv=None):
             X.append(f)
             Y.append(targets_from_result(r)[0][0][::2])
         X, Y = np.vstack(X), np.concatenate(Y)
-        w = np.where(Y > 0.5, 0.5 / max(Y.sum(), 1.0), 5.0 / max(Y.size - Y.sum(), 1.0)) * Y.size
-        clf = HistGradientBoostingClassifier(max_iter=300, random_state=0).fit(X, Y, sample_weight=w)
+        clf = fit_bound_classifier(X, Y)
         probs = [clf.predict_proba(window_features(r, noisy))[:, 1] for r in test]
         for thr in (0.8, 0.9, 0.97, 0.99):
             seqs = [analyse_sequence(r.t, debounce(p >= thr).astype(float), np.zeros_like(p),

@@ -37,7 +37,7 @@ import numpy as np
 
 def teacher_targets(ts, groups, folds: int = 4, stride: int = 2, seed: int = 0):
     """Cross-fitted tree probabilities of slip for every sample of ``ts`` (0 on padding)."""
-    from sklearn.ensemble import HistGradientBoostingClassifier
+    from _common import fit_bound_classifier
 
     n_seq, n_ch, n = ts.x.shape
     fold = np.random.default_rng(seed).permutation(np.max(groups) + 1) % folds
@@ -48,8 +48,7 @@ def teacher_targets(ts, groups, folds: int = 4, stride: int = 2, seed: int = 0):
         m = ts.mask[tr][:, ::stride]
         X = np.moveaxis(ts.x[tr][:, :, ::stride], 1, 2)[m]
         Y = (ts.y_slip[tr][:, ::stride] >= 0.5)[m].astype(np.float64)
-        w = np.where(Y > 0.5, 0.5 / max(Y.sum(), 1.0), 5.0 / max(Y.size - Y.sum(), 1.0)) * Y.size
-        clf = HistGradientBoostingClassifier(max_iter=300, random_state=seed).fit(X, Y, sample_weight=w)
+        clf = fit_bound_classifier(X, Y, seed)
         for i in te:
             p[i] = clf.predict_proba(ts.x[i].T)[:, 1] * ts.mask[i]
         print(f"  teacher fold {k + 1}/{folds}: {X.shape[0]} samples", flush=True)
@@ -72,6 +71,7 @@ def main(argv=None):
     sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
 
     import tactile_mirror.detector.training as training
+    from _common import study_training_scenes
     from tactile_mirror.detector import SlipDetector, build
     from tactile_mirror.detector.data_prep import features_from_result
     from tactile_mirror.detector.evaluate import noise_free, onset_kinds, roc, with_noise
@@ -79,8 +79,7 @@ def main(argv=None):
     from tactile_mirror.measure import cpu_model
 
     t0 = time.perf_counter()
-    train = build.simulate_cached(64, build.TRAIN_SEED, build.TRAIN_KWARGS, args.cache)
-    train += build.simulate_cached(args.extra, build.EXTRA_TRAIN_SEED, build.TEST_KWARGS, args.cache)
+    train = study_training_scenes(args.cache, args.extra)
     val = build.simulate_cached(args.n_validation, build.VALIDATION_SEED, build.TEST_KWARGS, args.cache)
     kinds = onset_kinds(val)
     print(f"# CPU: {cpu_model()}; {len(train)} training scenes, {len(val)} validation scenes "

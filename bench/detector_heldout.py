@@ -65,7 +65,7 @@ def table_rows(name, scores_pred, results, kinds, cond):
 
 def bank_tree_scores(train, test, notch=None) -> list:
     """Probabilities of the bound study's boosted trees on the filter bank's inputs (ridge 0)."""
-    from sklearn.ensemble import HistGradientBoostingClassifier
+    from _common import fit_bound_classifier
     from tactile_mirror.detector.data_prep import DEFAULT_ESTIMATOR, features_from_result, targets_from_result
 
     est = dict(DEFAULT_ESTIMATOR, **({} if notch is None else {"notch": notch}))
@@ -75,8 +75,7 @@ def bank_tree_scores(train, test, notch=None) -> list:
 
     X = np.vstack([feats(r)[::2] for r in train])
     Y = np.concatenate([targets_from_result(r)[0][0][::2] for r in train])
-    w = np.where(Y > 0.5, 0.5 / max(Y.sum(), 1.0), 5.0 / max(Y.size - Y.sum(), 1.0)) * Y.size
-    clf = HistGradientBoostingClassifier(max_iter=300, random_state=0).fit(X, Y, sample_weight=w)
+    clf = fit_bound_classifier(X, Y)
     return [clf.predict_proba(feats(r))[:, 1] for r in test]
 
 

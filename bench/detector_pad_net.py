@@ -157,7 +157,8 @@ def main(argv=None):
         n_in = X.shape[1]
         fun = _cpp_loss(xn, data, w_slip, w_pred, H, 1e-4, True, 2)
         sel = val_clean if args.select_clean else val
-        xv = stack(sel, with_mean)[0] / scale[None, :, None]
+        xv_clean = stack(val_clean, with_mean)[0] / scale[None, :, None]
+        xv = xv_clean if args.select_clean else stack(val, with_mean)[0] / scale[None, :, None]
 
         def val_curve(theta):
             ys, _ = forward(Params.unpack(theta, n_in, H), xv)
@@ -185,7 +186,7 @@ def main(argv=None):
         _, theta, seed, it = best
         # The decision point: the lowest threshold with at most calibrate_fa false alarms on the
         # noise-free validation scenes (the build's calibration, applied as a threshold here).
-        ys, _ = forward(Params.unpack(theta, n_in, H), stack(val_clean, with_mean)[0] / scale[None, :, None])
+        ys, _ = forward(Params.unpack(theta, n_in, H), xv_clean)
         thr = float(curve(ridge_scores(ys, val_clean), val_clean, kinds["val"]).at_false_alarm(args.calibrate_fa)[
             "threshold"])
         print(f"# {name}: {n_in} inputs, H = {H}, negative weight {args.negative_weight:g}, training noise "

@@ -84,7 +84,7 @@ def main(argv=None):
     ap.add_argument("--gains", action="store_true",
                     help="and scale every training copy by a random gain (0.6-1.7), as the build")
     args = ap.parse_args(argv)
-    from sklearn.ensemble import HistGradientBoostingClassifier
+    from _common import fit_bound_classifier
     from tactile_mirror.detector import SlipDetector, build
     from tactile_mirror.detector.data_prep import features_from_result, targets_from_result
     from tactile_mirror.detector.evaluate import noise_free, onset_kinds, roc, with_noise
@@ -130,7 +130,6 @@ def main(argv=None):
         ftr = [pad_feature_sets(g * features_from_result(r, "stress_rate_bank")) for r, g in zip(tr, gains)]
         fva = [pad_feature_sets(features_from_result(r, "stress_rate_bank")) for r in va]
         Y = np.concatenate([targets_from_result(r)[0][:, ::2].ravel() for r in tr])
-        w = np.where(Y > 0.5, 0.5 / max(Y.sum(), 1.0), 5.0 / max(Y.size - Y.sum(), 1.0)) * Y.size
 
         def report(name, n_in, scores, consecutive, at_08=None):
             sc = [s[list(SCORED)] for s in scores]
@@ -162,7 +161,7 @@ def main(argv=None):
                         fs=r.fs)[0] for r in va], 1, thr_net)
         for name in ftr[0]:
             X = np.concatenate([f[name][:, ::2].reshape(-1, f[name].shape[2]) for f in ftr])
-            clf = HistGradientBoostingClassifier(max_iter=300, random_state=0).fit(X, Y, sample_weight=w)
+            clf = fit_bound_classifier(X, Y)
             probs = [clf.predict_proba(f[name].reshape(-1, f[name].shape[2]))[:, 1].reshape(N_RIDGES, -1)
                      for f in fva]
             report(f"trees: {name}", X.shape[1], probs, 3)

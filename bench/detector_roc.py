@@ -145,13 +145,12 @@ def bound_features(results, condition: str):
 
 def bound_scores(train, test, condition: str) -> list:
     """Probabilities of the bound study's classifier, trained on ``train`` with the condition's noise."""
-    from sklearn.ensemble import HistGradientBoostingClassifier
+    from _common import fit_bound_classifier
     from tactile_mirror.detector.data_prep import targets_from_result
 
     X = np.vstack([f[::2] for f in bound_features(train, condition)])
     Y = np.concatenate([targets_from_result(r)[0][0][::2] for r in train])
-    w = np.where(Y > 0.5, 0.5 / max(Y.sum(), 1.0), 5.0 / max(Y.size - Y.sum(), 1.0)) * Y.size
-    clf = HistGradientBoostingClassifier(max_iter=300, random_state=0).fit(X, Y, sample_weight=w)
+    clf = fit_bound_classifier(X, Y)
     return [clf.predict_proba(f)[:, 1] for f in bound_features(test, condition)]
 
 
