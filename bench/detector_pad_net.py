@@ -79,6 +79,9 @@ def main(argv=None):
     ap.add_argument("--negative-weight", type=float, default=30.0)
     ap.add_argument("--select-clean", action="store_true",
                     help="keep the candidate by the noise-free validation scenes (default: their own noise)")
+    ap.add_argument("--compress", choices=["none", "asinh"], default="none",
+                    help="pass every input through asinh(x / k), k its median |x| over the training samples "
+                         "(bench/detector_input_study.py), before the rms normalisation")
     ap.add_argument("--inputs", nargs="+", default=["ridge", "mean"], choices=["ridge", "mean"],
                     help="input sets: the ridge's bank alone, or with the pad's mean bank")
     args = ap.parse_args(argv)
@@ -150,6 +153,12 @@ def main(argv=None):
     for with_mean in [name == "mean" for name in args.inputs]:
         name = "pad-trained net, ridge + pad mean" if with_mean else "pad-trained net, ridge"
         X, S, P, M = stack(seqs, with_mean, gains)
+        knee = fit_normalisation(X, M, "median")[1][None, :, None]
+
+        def compressed(A):
+            return np.arcsinh(A / knee) if args.compress == "asinh" else A
+
+        X = compressed(X)
         mean, scale = fit_normalisation(X, M, "rms")
         xn = X / scale[None, :, None] * M[:, None, :]
         data = SimpleNamespace(x=X, y_slip=S, y_pred=P, mask=M, fs=float(train[0].fs))
@@ -157,8 +166,8 @@ def main(argv=None):
         n_in = X.shape[1]
         fun = _cpp_loss(xn, data, w_slip, w_pred, H, 1e-4, True, 2)
         sel = val_clean if args.select_clean else val
-        xv_clean = stack(val_clean, with_mean)[0] / scale[None, :, None]
-        xv = xv_clean if args.select_clean else stack(val, with_mean)[0] / scale[None, :, None]
+        xv_clean = compressed(stack(val_clean, with_mean)[0]) / scale[None, :, None]
+        xv = xv_clean if args.select_clean else compressed(stack(val, with_mean)[0]) / scale[None, :, None]
 
         def val_curve(theta):
             ys, _ = forward(Params.unpack(theta, n_in, H), xv)
@@ -189,13 +198,13 @@ def main(argv=None):
         ys, _ = forward(Params.unpack(theta, n_in, H), xv_clean)
         thr = float(curve(ridge_scores(ys, val_clean), val_clean, kinds["val"]).at_false_alarm(args.calibrate_fa)[
             "threshold"])
-        print(f"# {name}: {n_in} inputs, H = {H}, negative weight {args.negative_weight:g}, training noise "
+        print(f"# {name}: {n_in} inputs{', asinh-compressed' if args.compress == 'asinh' else ''}, H = {H}, negative weight {args.negative_weight:g}, training noise "
               f"{1e3 * args.noise_range[0]:g}-{1e3 * args.noise_range[1]:g} mV, kept seed {seed} at {it} iterations (validation detection at "
               f"{100 * args.calibrate_fa:g} % false alarms {100 * best[0]:.1f} %), threshold {thr:.3f} "
               f"({time.perf_counter() - t1:.0f} s)", flush=True)
         for cond, res in conditions.items():
             Xt, _, _, _ = stack(res, with_mean)
-            yt, _ = forward(Params.unpack(theta, n_in, H), Xt / scale[None, :, None])
+            yt, _ = forward(Params.unpack(theta, n_in, H), compressed(Xt) / scale[None, :, None])
             rows[cond].append(row(name, ridge_scores(yt, res), res, thr))
 
     print("\n| pad test scenes, ridges 0-2 | detection | false alarms | release | gradual | latency release / "
