@@ -6,6 +6,9 @@ import math
 
 import numpy as np
 import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+from hypothesis.extra.numpy import arrays
 from tactile_mirror import _core
 from tactile_mirror.detector import SlipDetector
 from tactile_mirror.detector.bank import (
@@ -15,6 +18,8 @@ from tactile_mirror.detector.bank import (
     bank_features,
     bank_state_size,
     bank_units,
+    fit_knees,
+    log_compress,
 )
 from tactile_mirror.detector.core import reference_run
 from tactile_mirror.detector.network import init_params, loss_and_grad
@@ -37,7 +42,15 @@ def _signals(n_r=6, n=700, seed=0):
     return x
 
 
+def _with_knees(bank):
+    """The bank with knees fitted on the test signals' features (a compressed bank)."""
+    b = bank_config(bank)
+    return {**b, "knee": [float(k) for k in fit_knees(bank_features(_signals(), FS, b))]}
+
+
 def _bank_weights(seed=3, n_hidden=16, bank=None):
+    if isinstance(bank, str):  # "default+knee", "small+knee": that bank, compressed
+        bank = _with_knees(SMALL_BANK if bank.startswith("small") else None)
     bank = bank_config(bank)
     nf = len(bank_channels(bank))
     p = init_params(nf, n_hidden, seed)
@@ -88,13 +101,78 @@ def test_bank_config_refuses_bad_banks(bad):
         bank_config({**DEFAULT_BANK, **bad})
 
 
+@settings(max_examples=60, deadline=None)
+@given(arrays(np.float64, st.integers(1, 400), elements=st.floats(-1e30, 1e30, allow_nan=False)),
+       st.floats(1e-6, 1e6))
+def test_log_compress_is_an_odd_increasing_log1p(x, knee):
+    """Odd, monotonic, within 0.0056 of log(1 + |x| / knee); the float32 twin within float32's
+    rounding of it."""
+    f = log_compress(x[None], [knee], axis=0)[0]
+    z = np.abs(x * (1.0 / knee))
+    assert np.all(np.abs(np.abs(f) - np.log1p(z)) <= 0.0056 + 1e-12 * np.log1p(z))
+    np.testing.assert_array_equal(log_compress(-x[None], [knee], axis=0)[0], -f)
+    order = np.argsort(x, kind="stable")
+    assert np.all(np.diff(f[order]) >= 0)
+    small = np.abs(x) <= 1e30  # float32's range
+    f32 = log_compress(x[None].astype(np.float32), [knee], axis=0, dtype=np.float32)[0]
+    assert f32.dtype == np.float32
+    np.testing.assert_allclose(f32[small], f[small], rtol=2e-6, atol=2e-6)
+
+
+def test_log_compress_exact_points_and_no_subnormals():
+    x = np.array([0.0, 1.0, 3.0, 7.0, -1.0, 1e-310, 5e-324, 1e300])
+    f = log_compress(x[None], [1.0], axis=0)[0]
+    np.testing.assert_array_equal(f[:5], np.log1p(np.abs(x[:5])) * np.sign(x[:5]))  # |z| = 2^k - 1: exact
+    assert np.all((f == 0) | (np.abs(f) >= np.finfo(np.float64).tiny))
+    with pytest.raises(ValueError, match="knee"):
+        log_compress(x[None], [1.0, 2.0], axis=0)
+
+
+def test_compressed_bank_is_the_bank_compressed():
+    """A bank with knees gives log_compress of the plain bank's features; its filter state
+    (what the next block continues from) is the plain bank's."""
+    x = _signals(n_r=3, n=300)
+    kb = _with_knees(None)
+    plain, st = bank_features(x, FS, return_state=True)
+    comp, st2 = bank_features(x, FS, kb, return_state=True)
+    np.testing.assert_array_equal(comp, log_compress(plain, kb["knee"]))
+    np.testing.assert_array_equal(st2, st)
+    assert np.abs(comp).max() < 0.1 * np.abs(plain).max()
+
+
+@pytest.mark.parametrize("knee", [[1.0] * 16, [1.0] * 18, [1.0] * 16 + [0.0], [1.0] * 16 + [float("nan")],
+                                  [1.0] * 16 + [-2.0], "x"])
+def test_bank_config_and_kernel_refuse_bad_knees(knee):
+    with pytest.raises(ValueError, match="knee"):
+        bank_config({**DEFAULT_BANK, "knee": knee})
+    if isinstance(knee, str):
+        return
+    w = _bank_weights()
+    p = w.params
+    with pytest.raises(ValueError, match="knee"):
+        _core.BankJordanf64(p.w1, p.b1, p.w2, p.b2, w.input_mean, w.input_gain, 2, FS,
+                            np.array(DEFAULT_BANK["lp_taus"]), np.array(DEFAULT_BANK["abs_taus"]),
+                            DEFAULT_BANK["load_tau"], DEFAULT_BANK["peak_tau"], "exact", knee)
+
+
+def test_weights_with_knees_roundtrip_and_run_compressed(tmp_path):
+    w = _bank_weights(bank="default+knee")
+    w.save(tmp_path / "k.npz")
+    w2 = DetectorWeights.load(tmp_path / "k.npz")
+    assert w2.bank["knee"] == w.bank["knee"]
+    x = _signals(seed=9)
+    det = SlipDetector(w2)
+    assert det.kernel(6).compressed and not SlipDetector(_bank_weights()).kernel(6).compressed
+    np.testing.assert_array_equal(det.run(x)[0], SlipDetector(w).run(x)[0])
+
+
 def test_bank_channels_and_units_agree():
     assert len(bank_channels()) == len(bank_units()) == 4 + bank_state_size()
     assert bank_channels()[-3:] == ("load", "press", "load_peak")
 
 
 @pytest.mark.parametrize("dtype,tol", [(np.float64, 1e-12), (np.float32, 2e-5)])
-@pytest.mark.parametrize("bank", [None, SMALL_BANK])
+@pytest.mark.parametrize("bank", [None, SMALL_BANK, "default+knee", "small+knee"])
 def test_cpp_bank_kernel_matches_numpy(dtype, tol, bank):
     w = _bank_weights(bank=bank)
     x = _signals(seed=5)
@@ -134,7 +212,7 @@ def _paths():
 
 
 @pytest.mark.parametrize("dtype", [np.float64, np.float32])
-@pytest.mark.parametrize("bank", [None, SMALL_BANK])
+@pytest.mark.parametrize("bank", [None, SMALL_BANK, "default+knee", "small+knee"])
 @pytest.mark.parametrize("n_r,n", [(1, 150), (5, 7), (6, 150), (9, 131), (17, 64)])
 def test_cpp_bank_block_features_in_lanes_equal_step(dtype, bank, n_r, n):
     """The block path's feature pass puts the ridges in SIMD lanes (ghost lanes past the

@@ -39,7 +39,21 @@ def small_bank_weights(seed=5, n_hidden=8):
     return DetectorWeights(p, rng.normal(size=nf) * 0.01, scale, FS, {"features": "stress_rate_bank", "bank": bank})
 
 
-DETECTORS = {"bundled": lambda: SlipDetector.bank(), "small": lambda: SlipDetector(small_bank_weights())}
+def knee_bank_weights(seed=6, n_hidden=8):
+    """The small bank with compressed inputs (knees near the test signals' levels)."""
+    nf = len(bank_channels(SMALL_BANK))
+    rng = np.random.default_rng(seed)
+    knee = np.concatenate([[1e2, 1e2, 1e4, 1e4], np.full(nf - 7, 1e2), [0.3, 0.3, 0.3]]) * rng.uniform(0.5, 2.0, nf)
+    knee[1], knee[3] = knee[0], knee[2]
+    bank = bank_config({**SMALL_BANK, "knee": [float(k) for k in knee]})
+    p = init_params(nf, n_hidden, seed)
+    p.b2[:] = [0.3, -0.2]
+    return DetectorWeights(p, rng.normal(size=nf) * 0.01, rng.uniform(0.5, 2.0, nf), FS,
+                           {"features": "stress_rate_bank", "bank": bank})
+
+
+DETECTORS = {"bundled": lambda: SlipDetector.bank(), "small": lambda: SlipDetector(small_bank_weights()),
+             "compressed": lambda: SlipDetector(knee_bank_weights())}
 
 
 def signals(n, ni, seed=1, scale=0.05):
@@ -138,6 +152,13 @@ def test_c_abi_refuses_a_bad_bank_naming_the_field():
     with pytest.raises(CAPIError) as e:
         CPipeline(cfg)
     assert e.value.code == -3 and "bank_n_lp" in str(e.value)
+    cfg = make("compressed").config
+    cfg["bank"] = dict(cfg["bank"], knee=[1.0] * 11 + [float("nan")])
+    with pytest.raises(CAPIError) as e:
+        CPipeline(cfg)
+    assert e.value.code == -3 and "bank_knee" in str(e.value)
+    with pytest.raises(ValueError, match="knee"):  # and from Python, before any C++
+        MirrorPipeline.from_config(cfg)
 
 
 def test_python_refuses_inconsistent_bank_weights():

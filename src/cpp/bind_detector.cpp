@@ -536,7 +536,7 @@ void bind_bank(py::module_& m, const char* cls) {
                        .c_str())
         .def(py::init([](py::handle w1, py::handle b1, py::handle w2, py::handle b2, py::handle input_mean,
                          py::handle input_gain, int n_ridges, double fs, py::handle lp_taus, py::handle abs_taus,
-                         double load_tau, double peak_tau, const std::string& activation) {
+                         double load_tau, double peak_tau, const std::string& activation, py::handle knee) {
                  auto lp = py::array_t<double, py::array::c_style | py::array::forcecast>::ensure(lp_taus);
                  auto ab = py::array_t<double, py::array::c_style | py::array::forcecast>::ensure(abs_taus);
                  if (!lp || lp.ndim() != 1 || lp.shape(0) < 1 || lp.shape(0) > BankJordan<T>::kMaxTaus)
@@ -571,17 +571,26 @@ void bind_bank(py::module_& m, const char* cls) {
                  auto cb2 = weight(b2, "b2", {2});
                  auto cm = weight(input_mean, "input_mean", {NF});
                  auto cg = weight(input_gain, "input_gain", {NF});
+                 py::array_t<double, py::array::c_style | py::array::forcecast> ck;
+                 if (!knee.is_none()) {
+                     ck = weight(knee, "knee", {NF});
+                     for (py::ssize_t i = 0; i < NF; ++i)
+                         if (!(std::isfinite(ck.data()[i]) && ck.data()[i] > 0))
+                             throw py::value_error("knee must be positive finite numbers (one per input)");
+                 }
                  auto p = std::make_unique<PM>();
                  p->k = std::make_unique<BankJordan<T>>(int(h), n_ridges, cw1.data(), cb1.data(), cw2.data(),
                                                         cb2.data(), cm.data(), cg.data(), fs, n_lp, lp.data(),
-                                                        n_abs, ab.data(), load_tau, peak_tau, act);
+                                                        n_abs, ab.data(), load_tau, peak_tau, act,
+                                                        knee.is_none() ? nullptr : ck.data());
                  p->n_r = n_ridges;
                  return p;
              }),
              py::arg("w1"), py::arg("b1"), py::arg("w2"), py::arg("b2"), py::arg("input_mean"),
              py::arg("input_gain"), py::arg("n_ridges"), py::arg("fs"), py::arg("lp_taus"), py::arg("abs_taus"),
-             py::arg("load_tau"), py::arg("peak_tau"), py::arg("activation") = "exact")
-        .def_property_readonly("n_features", [](const PM& p) { return p.k->n_features(); });
+             py::arg("load_tau"), py::arg("peak_tau"), py::arg("activation") = "exact", py::arg("knee") = py::none())
+        .def_property_readonly("n_features", [](const PM& p) { return p.k->n_features(); })
+        .def_property_readonly("compressed", [](const PM& p) { return p.k->compressed(); });
     def_staged_net_calls<T>(cls_, "filters",
                             "(y_pred(t-1) per ridge, filter states (n_ridges, n_state)): the recurrent state.",
                             "Set the feedback and filter states to zero.",

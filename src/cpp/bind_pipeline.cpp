@@ -190,7 +190,7 @@ void bind_one(py::module_& m, const char* cls) {
                  c.sos_diff = c.n_sos_diff ? sd.data() : nullptr;
                  c.v_limit = v_limit;
                  c.u_limit = u_limit;
-                 F64 lp, ab;
+                 F64 lp, ab, kn;
                  if (!bank.is_none()) {
                      if (!py::isinstance<py::dict>(bank))
                          throw py::type_error("bank must be None or a dict of the filter bank's time constants");
@@ -208,6 +208,14 @@ void bind_one(py::module_& m, const char* cls) {
                      c.bank_abs_taus = ab.shape(0) ? ab.data() : nullptr;
                      c.bank_load_tau = b["load_tau"].cast<double>();
                      c.bank_peak_tau = b["peak_tau"].cast<double>();
+                     if (b.contains("knee") && !b["knee"].is_none()) {
+                         kn = real_array(b["knee"], "bank['knee']");
+                         const auto nk = tactile::detector::BankJordan<double>::feature_count(c.bank_n_lp, c.bank_n_abs);
+                         if (kn.ndim() != 1 || kn.shape(0) != nk)
+                             throw py::value_error("bank['knee'] must hold " + std::to_string(nk) +
+                                                   " numbers, one per detector input");
+                         c.bank_knee = kn.data();
+                     }
                      if (c.bank_n_lp < 1 || c.bank_n_lp > 8 || c.bank_n_abs > 8)
                          throw py::value_error("bank: lp_taus must hold 1 to 8 and abs_taus 0 to 8 time constants");
                  }

@@ -13,7 +13,9 @@
 //     peak  = max(|load|, c peak),                           c = a(peak_tau)  (Pa)
 //
 // and runs the Jordan net on [v_L, v_R, u_L, u_R, lpd_1, lps_1, ..., lpa_1, ...,
-// load, press, peak]. Ridges are independent.
+// load, press, peak]. Ridges are independent. With knees (one per feature), every
+// feature x is first compressed to sign(x) log(1 + |x| / knee) (simd::log_compress,
+// bit for bit the python's detector.bank.log_compress): the features are heavy-tailed.
 //
 // RTNeural-like: sizes fixed at construction (which may throw); step(), run(), the
 // state accessors allocate nothing and throw nothing. Block runs go in chunks of the
@@ -46,6 +48,7 @@ public:
     static constexpr int n_raw = 4;
     static constexpr int kMaxTaus = 8;
     static constexpr int n_outputs = 3;
+    static constexpr int kMaxFeatures = n_raw + 3 * kMaxTaus + 3;
 
     /// Features: 4 + 2 n_lp + n_abs + 3. Weights as JordanMLP with that many inputs.
     static int feature_count(int n_lp, int n_abs) noexcept { return n_raw + 2 * n_lp + n_abs + 3; }
@@ -53,7 +56,7 @@ public:
     BankJordan(int n_hidden, int n_ridges, const double* w1, const double* b1, const double* w2, const double* b2,
                const double* input_mean, const double* input_gain, double fs, int n_lp, const double* lp_taus,
                int n_abs, const double* abs_taus, double load_tau, double peak_tau,
-               Activation activation = Activation::exact)
+               Activation activation = Activation::exact, const double* knee = nullptr)
         : net_(checked_features(n_lp, n_abs), n_hidden, n_ridges, w1, b1, w2, b2, input_mean, input_gain,
                activation),
           n_r_(n_ridges),
@@ -73,6 +76,13 @@ public:
         for (int k = 0; k < n_abs; ++k) {
             a_abs_[k] = static_cast<T>(leak(abs_taus[k]));
             g_abs_[k] = static_cast<T>(1.0 - leak(abs_taus[k]));
+        }
+        if (knee) {
+            for (int j = 0; j < nf_; ++j) {
+                if (!(std::isfinite(knee[j]) && knee[j] > 0)) throw std::invalid_argument("knee must be positive numbers");
+                ik_[j] = static_cast<T>(1.0 / knee[j]);  // as the python: 1 / knee in double, then T
+            }
+            compress_ = true;
         }
         b_ = static_cast<T>(leak(load_tau));
         c_ = static_cast<T>(leak(peak_tau));
@@ -97,6 +107,8 @@ public:
     int n_features() const noexcept { return nf_; }
     /// Filter states per ridge (2 n_lp + n_abs + 3).
     int n_state() const noexcept { return ns_; }
+    /// Whether the features are compressed (knees given).
+    bool compressed() const noexcept { return compress_; }
     JordanMLP<T>& net() noexcept { return net_; }
     const JordanMLP<T>& net() const noexcept { return net_; }
 
@@ -218,12 +230,43 @@ private:
     // avail: ticks of input from x0 on (the next chunk's are prefetched, never beyond).
     T features_chunk(const T* x0, std::ptrdiff_t sr, std::ptrdiff_t si, std::ptrdiff_t st, int m,
                      std::ptrdiff_t avail) noexcept {
+        const T bad = features_chunk_raw(x0, sr, si, st, m, avail);
+        if (compress_) {
+#if TM_HAVE_DISPATCH
+            if (net_.isa() == simd::Isa::avx2_fma)
+                compress_staging_avx2(m);
+            else
+#endif
+                compress_rows<simd::kBaseBytes>(net_.staging(), JordanMLP<T>::chunk_ticks(), n_r_ * nf_, m);
+        }
+        return bad;
+    }
+    T features_chunk_raw(const T* x0, std::ptrdiff_t sr, std::ptrdiff_t si, std::ptrdiff_t st, int m,
+                         std::ptrdiff_t avail) noexcept {
         if (st != 1) return features_chunk_scalar(x0, sr, si, st, 0, m);
 #if TM_HAVE_DISPATCH
         if (net_.isa() == simd::Isa::avx2_fma) return features_chunk_avx2(x0, sr, si, m, avail);
 #endif
         if (n_lp_ == 4 && n_abs_ == 2) return features_chunk_lanes<simd::kBaseBytes, 4, 2>(x0, sr, si, m, avail);
         return features_chunk_lanes<simd::kBaseBytes, -1, -1>(x0, sr, si, m, avail);
+    }
+
+    // The compression of n_rows rows of features, row k at p + k * stride holding
+    // feature k % nf_ (the staging rows of a chunk: (n_ridges, nf, K); step()'s
+    // feature-major rows: (nf, rs_)), its first n values rounded up to whole vectors
+    // (within the stride, a multiple of the vector). Element-wise, so a step() over a
+    // vector of ridges and a run() over a vector of ticks give the same bits.
+    template <int B>
+    __attribute__((always_inline)) inline void compress_rows(T* p, std::ptrdiff_t stride, int n_rows,
+                                                             std::ptrdiff_t n) const noexcept {
+        typedef typename simd::Vec<T, B>::type V;
+        constexpr int NL = simd::Vec<T, B>::lanes;
+        for (int k = 0; k < n_rows; ++k) {
+            const V ik = V{} + ik_[k % nf_];
+            T* row = p + k * stride;
+            for (std::ptrdiff_t t = 0; t < n; t += NL)
+                simd::store(row + t, simd::log_compress<T, B>(simd::load<V>(row + t), ik));
+        }
     }
 #if TM_HAVE_DISPATCH
     // AVX2 without FMA: the bank's a z + g d must round as ridge_tick's multiplies and
@@ -269,6 +312,10 @@ private:
         features_tick<simd::kBaseBytes, -1, -1>(in);
     }
 #if TM_HAVE_DISPATCH
+    // AVX2 without FMA, as features_chunk_avx2 (log_compress must round as the python's).
+    __attribute__((target("avx2"), noinline)) void compress_staging_avx2(int m) noexcept {
+        compress_rows<32>(net_.staging(), JordanMLP<T>::chunk_ticks(), n_r_ * nf_, m);
+    }
     // AVX2 without FMA, as features_chunk_avx2.
     __attribute__((target("avx2"), noinline)) void features_tick_avx2(const T* in) noexcept {
         if (n_lp_ == 4 && n_abs_ == 2) return features_tick<32, 4, 2>(in);
@@ -299,6 +346,7 @@ private:
                 simd::store(f + (n_raw + j) * rs + r0, z[j]);
             }
         }
+        if (compress_) compress_rows<B>(f, rs, nf_, std::min<std::ptrdiff_t>(rs, n_r_));
     }
 
     // Ticks t0 .. m - 1 ridge by ridge (scalar ridge_tick), for strided input and the
@@ -390,6 +438,8 @@ private:
     int n_r_, n_lp_, n_abs_, nf_, ns_;
     T a_lp_[kMaxTaus] = {}, g_lp_[kMaxTaus] = {}, a_abs_[kMaxTaus] = {}, g_abs_[kMaxTaus] = {};
     T b_ = 0, c_ = 0, inv_fs_ = 0;
+    T ik_[kMaxFeatures] = {};  // 1 / knee per feature
+    bool compress_ = false;
     std::size_t rs_ = 0;  // ridge stride of st_ and feat_ (a multiple of 32 bytes of T)
     std::unique_ptr<void, detail::AlignedFree> buf_;
     T* st_ = nullptr;    // filter states, (ns_, rs_) lane-major, ghost lanes zero

@@ -218,6 +218,9 @@ struct PipelineConfig {
     const double* bank_abs_taus = nullptr;  // (bank_n_abs), 0..8
     double bank_load_tau = 0.0;
     double bank_peak_tau = 0.0;
+    // (nf) or null: the bank's features compressed to sign(x) log(1 + |x| / knee)
+    // before the net reads them (detector_bank.hpp); null: as they are.
+    const double* bank_knee = nullptr;
     double weights_fs = 0.0;       // Hz the weights were trained for; must equal fs
     int activation = 0;            // 0 exact, 1 fast
     double slip_threshold = 0.8;
@@ -422,6 +425,12 @@ inline void validate_config(const PipelineConfig& c) {
         taus_ok(c.bank_abs_taus, c.bank_n_abs, "bank_abs_taus");
         taus_ok(&c.bank_load_tau, 1, "bank_load_tau");
         taus_ok(&c.bank_peak_tau, 1, "bank_peak_tau");
+        if (c.bank_knee) {
+            const int nf = detector::BankJordan<double>::feature_count(c.bank_n_lp, c.bank_n_abs);
+            for (int k = 0; k < nf; ++k)
+                if (!(std::isfinite(c.bank_knee[k]) && c.bank_knee[k] > 0.0))
+                    bad("bank_knee must be positive finite numbers, one per detector input");
+        }
     }
     const std::size_t h = std::size_t(c.n_hidden), nf = std::size_t(detector_input_count(c));
     const double* arrs[] = {c.w1, c.b1, c.w2, c.b2, c.input_mean, c.input_gain};
@@ -654,7 +663,7 @@ public:
         if (c.detector_kind == 1) {
             bank_ = std::make_unique<Bank>(c.n_hidden, R_, c.w1, c.b1, c.w2, c.b2, c.input_mean, c.input_gain,
                                            c.fs, c.bank_n_lp, c.bank_lp_taus, c.bank_n_abs, c.bank_abs_taus,
-                                           c.bank_load_tau, c.bank_peak_tau, act);
+                                           c.bank_load_tau, c.bank_peak_tau, act, c.bank_knee);
             mlp_ = &bank_->net();
             undo_bank_.resize(bank_->filter_state_size());
         } else {

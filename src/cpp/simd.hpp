@@ -391,6 +391,41 @@ TM_ALWAYS_INLINE Vec<double, 32>::type clamp_sym(Vec<double, 32>::type a, double
 }
 #endif
 
+// sign(x) log(1 + |x ik|), cheaply (python: tactile_mirror.detector.bank.log_compress,
+// the specification, which it matches bit for bit): with 1 + |x ik| = 2^E (1 + t),
+// E and t read off the exponent and mantissa bits (both exact), log2(1 + t) is taken as
+// t (1 + c (1 - t)), c = 11/32 (within 0.0056 of log(1 + |z|) after the ln 2).
+// Every step is exact or one rounding; a caller compiled with fused multiply-adds
+// would round differently (the bank's stage is compiled without them). E becomes a
+// float by the magic-number trick: its bits or'ed into the mantissa of 2^mant (no
+// integer-to-float conversion, which AVX2 lacks for 64-bit lanes).
+template <typename T, int B>
+TM_ALWAYS_INLINE typename Vec<T, B>::type log_compress(typename Vec<T, B>::type x, typename Vec<T, B>::type ik) {
+    typedef Vec<T, B> VT;
+    typedef typename VT::type V;
+    typedef typename VT::itype IV;
+    typedef typename std::remove_reference<decltype(IV{}[0])>::type IT;
+    constexpr int M = VT::mant;
+    constexpr IT bias = (IT(1) << (8 * int(sizeof(T)) - M - 2)) - 1;  // 127, 1023
+    const IV sign = IV{} + (IT(1) << (8 * sizeof(T) - 1));
+    const IV mant = IV{} + ((IT(1) << M) - 1);
+    const IV one_bits = IV{} + (bias << M);              // the bits of 1.0
+    const T magic = T(IT(1) << M);                        // 2^mant: its ulp is 1
+    IV magic_bits;
+    {
+        const V mv = V{} + magic;
+        magic_bits = (IV)mv;
+    }
+    const V z = x * ik;
+    const V y = T(1) + (V)((IV)z & ~sign);                // >= 1: the sign bit is 0
+    const IV b = (IV)y;
+    const V e = (V)((b >> M) | magic_bits) - magic;        // biased exponent, exact
+    const V t = (V)((b & mant) | one_bits) - T(1);         // exact
+    const V q = t * (T(1) + T(0.34375) * (T(1) - t));
+    const V g = ((e - T(bias)) + q) * T(0.6931471805599453);
+    return (V)((IV)g | ((IV)x & sign));
+}
+
 // 1/d for d >= 1. Exact division by default; for float on x86 the hardware
 // reciprocal estimate refined by one Newton step (relative error < 2.5e-7 after
 // rounding), which removes the divider from the fast path.

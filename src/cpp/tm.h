@@ -77,8 +77,9 @@ extern "C" {
  * 5: slip_confirm, slip_min_asym, shear_weights. 6: the filter-bank detector
  * (detector_kind and the bank's time constants, appended to tm_config). 7: the
  * controller's planner_decel (appended to tm_config: tm_controller_params is no longer
- * its last member), and the command leads a planning stage's target when it is > 0. */
-#define TM_ABI_VERSION 7
+ * its last member), and the command leads a planning stage's target when it is > 0.
+ * 8: bank_knee (appended to tm_config): the filter-bank net's compressed inputs. */
+#define TM_ABI_VERSION 8
 
 typedef enum tm_status_code {
     TM_OK = 0,
@@ -176,6 +177,10 @@ typedef struct tm_config {
                               * command then leads the law's position by the braking distance
                               * v^2 / (2 planner_decel) - |v| / (2 fs), so that the planned set point moves at the
                               * law's speed. 0 (default): the stage follows the command (streamed set points) */
+    /* ABI 8 (appended) */
+    const double* bank_knee; /* (nf) or NULL (default): with detector_kind 1, every bank input x is first
+                              * compressed to sign(x) log(1 + |x| / knee) (the weights file of kind
+                              * "jordan_bank" holds the knees in its bank's "knee", when it has them) */
 } tm_config;
 
 typedef struct tm_pipeline_status {

@@ -27,6 +27,15 @@ a small recurrent net can read it. Per ridge, from ``d = v_L - v_R`` (the shear 
 The net (the Jordan kernel, ``jordan_mlp.hpp``) then reads the four stress rates and
 these channels, :func:`bank_channels` in order. This module is the specification of the
 C++ feature stage ``detector_bank.hpp``. Ridges are independent (no pad channels).
+
+Optionally every channel is compressed before the net reads it (a bank with a ``knee``,
+one per channel: :func:`log_compress`): ``sign(x) log(1 + |x| / knee)``, linear below the
+knee and logarithmic above. The channels are heavy-tailed: a release of stored shear or a
+stop moves the rates and their low-passes tens of times further than a slip that creeps in,
+and a linear scale fitted to all of them (the net's normalisation) squeezes the range a
+creeping onset lives in next to zero (``bench/detector_input_study.py`` measures what the
+compression gives the net). The logarithm is a cheap one whose every step is exact or one
+rounding, so that this module and the C++ stage give the same bits in float64.
 """
 from __future__ import annotations
 
@@ -34,13 +43,16 @@ import math
 
 import numpy as np
 
-__all__ = ["DEFAULT_BANK", "bank_channels", "bank_config", "bank_features", "bank_state_size", "bank_units"]
+__all__ = ["DEFAULT_BANK", "bank_channels", "bank_config", "bank_features", "bank_state_size", "bank_units",
+           "fit_knees", "log_compress"]
 
 #: The bank of the bundled filter-bank net: time constants in s.
 DEFAULT_BANK = {"lp_taus": [0.004, 0.016, 0.064, 0.256], "abs_taus": [0.016, 0.064], "load_tau": 0.5,
                 "peak_tau": 2.0}
 #: Bounds of a bank (the C++ stage's limits).
 MAX_TAUS = 8
+#: The quadratic's curvature in :func:`log_compress` (11/32, exact in float32 and float64).
+COMPRESS_CURVATURE = 0.34375
 
 
 def _tau(name, value) -> float:
@@ -54,14 +66,16 @@ def bank_config(bank=None) -> dict:
     """A checked copy of a bank description (``DEFAULT_BANK`` when None).
 
     Keys ``lp_taus`` (1-8 time constants), ``abs_taus`` (0-8), ``load_tau``, ``peak_tau``
-    (s, positive and finite). Raises ``ValueError`` naming the key.
+    (s, positive and finite), and optionally ``knee``: one positive finite number per
+    channel (:func:`bank_channels`, in their units), the compression's knees
+    (:func:`log_compress`). Raises ``ValueError`` naming the key.
     """
     if bank is not None and not isinstance(bank, dict):
         raise ValueError(f"bank must be a dict, got {type(bank).__name__}")
     b = dict(DEFAULT_BANK if bank is None else bank)
-    unknown = set(b) - set(DEFAULT_BANK)
+    unknown = set(b) - set(DEFAULT_BANK) - {"knee"}
     if unknown:
-        raise ValueError(f"unknown bank keys {sorted(unknown)}; expected {sorted(DEFAULT_BANK)}")
+        raise ValueError(f"unknown bank keys {sorted(unknown)}; expected {sorted(DEFAULT_BANK)} and optionally 'knee'")
     out = {}
     for key, lo in (("lp_taus", 1), ("abs_taus", 0)):
         v = b.get(key)
@@ -70,7 +84,73 @@ def bank_config(bank=None) -> dict:
         out[key] = [_tau(f"bank['{key}']", t) for t in v]
     for key in ("load_tau", "peak_tau"):
         out[key] = _tau(f"bank['{key}']", b.get(key))
+    if b.get("knee") is not None:
+        n_ch = 4 + 2 * len(out["lp_taus"]) + len(out["abs_taus"]) + 3
+        k = b["knee"]
+        try:
+            kv = np.asarray(k, dtype=np.float64)
+        except (TypeError, ValueError):
+            kv = None
+        if kv is None or kv.shape != (n_ch,) or not np.all(np.isfinite(kv)) or not np.all(kv > 0):
+            raise ValueError(f"bank['knee'] must be {n_ch} positive finite numbers (one per channel), got {k!r}")
+        out["knee"] = [float(v) for v in kv]
     return out
+
+
+def log_compress(x, knee, axis: int = -2, dtype=np.float64):
+    """``sign(x) log(1 + |x| / knee)``, computed as the C++ bank computes it.
+
+    With ``z = x * (1 / knee)`` and ``1 + |z| = 2^E (1 + t)`` (``E`` an integer, ``0 <= t < 1``,
+    read off the floating-point exponent and mantissa), ``log2(1 + t)`` is taken as
+    ``t (1 + c (1 - t))`` with ``c = 11/32``: the result is
+    ``sign(x) ln 2 (E + t (1 + c (1 - t)))``. Continuous, odd, strictly increasing, slope 1
+    at 0; within 0.0056 of ``log(1 + |z|)`` everywhere (exact where ``|z| = 2^k - 1``; ``c``
+    minimises that bound); never subnormal. Every step is exact or one rounding, in this order in the C++ stage
+    too (compiled without fused multiply-adds), so both give the same bits.
+
+    Parameters
+    ----------
+    x : array_like
+        Values; channels along ``axis``.
+    knee : array_like, shape (n_channels,)
+        Positive knee per channel (:func:`fit_knees`).
+    axis : int
+        The channel axis of ``x``. Default -2 (``(..., n_channels, n)``).
+    dtype : numpy float dtype
+        Arithmetic precision (float64, or float32 as the float32 kernel).
+    """
+    dtype = np.dtype(dtype)
+    x = np.asarray(x, dtype=dtype)
+    knee = np.asarray(knee, dtype=np.float64)
+    if knee.ndim != 1 or knee.size != x.shape[axis]:
+        raise ValueError(f"knee must have one entry per channel ({x.shape[axis]} along axis {axis}), "
+                         f"got shape {knee.shape}")
+    shape = [1] * x.ndim
+    shape[axis] = knee.size
+    ik = (1.0 / knee).astype(dtype).reshape(shape)
+    one = dtype.type(1.0)
+    y = one + np.abs(x * ik)
+    m, e = np.frexp(y)  # y = m 2^e, 0.5 <= m < 1: E = e - 1, 1 + t = 2 m (exact)
+    t = dtype.type(2.0) * m - one
+    q = t * (one + dtype.type(COMPRESS_CURVATURE) * (one - t))
+    g = ((e - 1).astype(dtype) + q) * dtype.type(math.log(2.0))
+    return np.copysign(g, x)
+
+
+def fit_knees(x, mask=None) -> np.ndarray:
+    """Knees for :func:`log_compress`: the median ``|x|`` per channel over the samples.
+
+    ``x`` has shape (n_seq, n_channels, n) (a training set's inputs, ``mask`` its real
+    samples), or (n_channels, n). The L and R strips (and u_L, u_R) share a knee, as they
+    share a normalisation scale (:func:`~tactile_mirror.detector.training.fit_normalisation`),
+    which keeps the pad's mirror symmetry. A channel that is zero throughout gets knee 1.
+    """
+    from .training import fit_normalisation
+
+    x = np.asarray(x, dtype=np.float64)
+    if x.ndim == 2:
+        x = x[None]
+    return fit_normalisation(x, mask, "median")[1]
 
 
 def bank_channels(bank=None) -> tuple:
@@ -116,6 +196,8 @@ def bank_features(x, fs: float, bank=None, state=None, return_state: bool = Fals
     Returns
     -------
     ndarray, shape (n_ridges, 4 + bank_state_size, n), float64 (and the state)
+        Compressed by :func:`log_compress` when the bank has a ``knee``; the state is the
+        filters' own (uncompressed).
     """
     from scipy.signal import lfilter
 
@@ -160,7 +242,9 @@ def bank_features(x, fs: float, bank=None, state=None, return_state: bool = Fals
     for t in range(n):
         p = np.maximum(load[:, t], c * p)
         peak[:, t] = p
+    end = out[:, 4:, -1].copy() if n else s0  # the filters' state: before any compression
+    if b.get("knee") is not None:
+        out = log_compress(out, b["knee"])
     if return_state:
-        end = out[:, 4:, -1].copy() if n else s0
         return out, end
     return out

@@ -223,6 +223,8 @@ class CPipeline:
             cfg.bank_abs_taus, cfg.bank_n_abs = arr(np.asarray(bank["abs_taus"], dtype=np.float64))
             cfg.bank_load_tau = float(bank["load_tau"])
             cfg.bank_peak_tau = float(bank["peak_tau"])
+            if bank.get("knee") is not None:
+                cfg.bank_knee = arr(np.asarray(bank["knee"], dtype=np.float64))[0]
         ctrl = c["controller"]
         cfg.controller.kind = _CTRL_KINDS[ctrl["kind"]]
         for k, v in ctrl.items():
