@@ -410,6 +410,38 @@ def test_training_bank_kind_from_results_records_bank():
     np.testing.assert_allclose(ys, reference_run(w, x)[0], atol=1e-11)
 
 
+def test_compressed_training_set_trains_a_net_that_runs_compressed():
+    """compress_training_set gives the compressed bank inputs (padding zero) and a bank with
+    the fitted knees; the net trained on it carries them, and the C++ kernel it runs in
+    reads its inputs compressed (as the numpy reference of the compressed bank)."""
+    from types import SimpleNamespace
+
+    from tactile_mirror.detector.build import BuildOptions
+    from tactile_mirror.detector.training import compress_training_set, make_training_set, train_detector
+
+    x = _signals(n_r=2, n=300)
+    frac = np.zeros((2, 300))
+    frac[:, 200:] = 1.0
+    res = [SimpleNamespace(features=x[..., :n], fs=FS, t=np.arange(n) / FS, slip_fraction=frac[:, :n],
+                           v_out=np.zeros((2, 2, n))) for n in (300, 250)]
+    ts = make_training_set(res, features="stress_rate_bank", bank=SMALL_BANK)
+    tc = compress_training_set(ts)
+    knee = fit_knees(ts.x, ts.mask)
+    assert tc.bank["knee"] == [float(k) for k in knee]
+    np.testing.assert_array_equal(tc.x[0], log_compress(ts.x[0], knee))
+    assert np.all(tc.x[~np.broadcast_to(tc.mask[:, None, :], tc.x.shape)] == 0)
+    with pytest.raises(ValueError, match="compressed already"):
+        compress_training_set(tc)
+    w = train_detector(tc, n_hidden=3, maxiter=3, progress=False)
+    assert w.bank["knee"] == tc.bank["knee"]
+    ys = SlipDetector(w).run(x)[0]
+    np.testing.assert_allclose(ys, reference_run(w, x)[0], atol=1e-11)
+    plain = DetectorWeights(w.params, w.input_mean, w.input_scale, FS, {**w.metadata, "bank": bank_config(SMALL_BANK)})
+    assert np.abs(SlipDetector(plain).run(x)[0] - ys).max() > 1e-3
+    with pytest.raises(ValueError, match="jordan_bank"):
+        BuildOptions(kind="jordan", compress=True)
+
+
 def test_paper_net_is_unchanged_by_the_bank_kind():
     det = SlipDetector.paper()
     assert det.kind == "jordan" and det.weights.bank is None and det.n_channels == 4

@@ -24,7 +24,8 @@ from .._legacy import legacy_arguments
 from .core import SlipDetector
 from .evaluate import ForceRatioDetector, evaluate
 from .memory import DEFAULT_LOAD_TAU
-from .training import TrainingSet, augment_gains, augment_noise, make_training_set, train_detector
+from .training import (TrainingSet, augment_gains, augment_noise, compress_training_set, make_training_set,
+                       train_detector)
 from .weights import KINDS
 
 __all__ = [
@@ -445,6 +446,11 @@ class BuildOptions:
         After the selection, move ``y_slip``'s decision point so that ``y_slip >= 0.8``
         gives at most this false-alarm rate on the validation scenes
         (:func:`calibrate_slip`); None (default): no calibration.
+    compress : bool
+        ``"jordan_bank"`` only: train on the bank's inputs compressed to
+        ``sign(x) log(1 + |x| / knee)`` (:func:`~tactile_mirror.detector.bank.log_compress`),
+        the knees the median ``|x|`` of the training inputs (after the gains), kept in the
+        weights' bank. Default False.
     calibrate_conditions : dict, optional
         Instead of ``calibrate_fa``: false-alarm bounds per sensor condition (keys of
         :data:`~tactile_mirror.detector.evaluate.NOISE_CONDITIONS`); the decision point is
@@ -480,6 +486,7 @@ class BuildOptions:
     bank: dict | None = None
     calibrate_fa: float | None = None
     calibrate_conditions: dict | None = None
+    compress: bool = False
 
     def __post_init__(self) -> None:
         def put(name, value):
@@ -491,6 +498,10 @@ class BuildOptions:
                 or not (np.isfinite(self.load_tau) and self.load_tau > 0):
             raise ValueError(f"load_tau must be a positive number of seconds, got {self.load_tau!r}")
         put("load_tau", float(self.load_tau))
+        if not isinstance(self.compress, bool):
+            raise TypeError(f"compress must be True or False, got {self.compress!r}")
+        if self.compress and self.kind != "jordan_bank":
+            raise ValueError(f"compress is for kind 'jordan_bank' (its bank's inputs), not {self.kind!r}")
         if self.bank is not None:
             from .bank import bank_config
 
@@ -643,6 +654,8 @@ def _build(out_path, options: BuildOptions, report_path, figure_path, results, c
                 ridges_per_scene, n_ridges)
     if gain_range is not None:
         ts = augment_gains(ts, gain_range, seed=1)
+    if o.compress:
+        ts = compress_training_set(ts)
     report = {"n_train_scenes": n_train, "n_test_scenes": n_test, "train_seed": TRAIN_SEED,
               "test_seed": TEST_SEED, "simulation_seconds": round(t_sim, 1), "n_sequences": ts.n_seq,
               "train_kwargs": train_kwargs, "test_kwargs": test_kwargs, "train_options": opts,
@@ -755,6 +768,9 @@ def main(argv=None):
                     help=f"validation scenes (seed {VALIDATION_SEED}) for the choice among candidates and the calibration")
     ap.add_argument("--noise-range", type=float, nargs=2, default=list(NOISE_RANGE), metavar=("LOW", "HIGH"),
                     help="range of the training noise copies' sensor noise, V rms")
+    ap.add_argument("--compress", action="store_true",
+                    help="jordan_bank: compress the bank's inputs to sign(x) log(1 + |x| / knee), the knees fitted "
+                         "on the training inputs")
     args = ap.parse_args(argv)
     bank = None
     if args.lp_taus is not None or args.abs_taus is not None:
@@ -802,7 +818,7 @@ def main(argv=None):
                            bank=bank, study_sizes=args.study or None, kind=args.kind, candidates=args.candidates,
                            n_extra_train=args.extra_train, checkpoint_every=args.checkpoint_every,
                            noise_range=tuple(args.noise_range), calibrate_fa=args.calibrate_fa,
-                           calibrate_conditions=goals, n_validation=args.n_validation,
+                           calibrate_conditions=goals, n_validation=args.n_validation, compress=args.compress,
                            train_options={"negative_weight": args.negative_weight, "pred_weight": args.pred_weight,
                                           "normalisation": args.normalisation,
                                           **({"onset_weight": args.onset_weight} if args.onset_weight else {})})

@@ -13,8 +13,8 @@ from .memory import DEFAULT_LOAD_TAU
 from .network import Params, init_params, loss_and_grad
 from .weights import FEATURE_KINDS, DetectorWeights, feature_channels, feature_units
 
-__all__ = ["TrainingSet", "augment_noise", "fit_normalisation", "make_training_set", "pad_sequences",
-           "train_detector"]
+__all__ = ["TrainingSet", "augment_noise", "compress_training_set", "fit_normalisation", "make_training_set",
+           "pad_sequences", "train_detector"]
 
 
 def load_tau_of(features: str, load_tau: float | None) -> float | None:
@@ -183,6 +183,27 @@ def augment_gains(ts: TrainingSet, gain_range=(0.6, 1.7), seed=0) -> TrainingSet
     g = np.exp(rng.uniform(np.log(lo), np.log(hi), ts.n_seq))
     return TrainingSet(ts.x * g[:, None, None], ts.y_slip, ts.y_pred, ts.mask, ts.fs, ts.features, ts.estimator,
                        {**ts.targets, "gain_range": [lo, hi], "gain_seed": int(seed)}, ts.load_tau, ts.bank)
+
+
+def compress_training_set(ts: TrainingSet, knee=None) -> TrainingSet:
+    """The filter-bank inputs of ``ts`` compressed (:func:`~.bank.log_compress`), their bank
+    given the knees: a net trained on the result reads compressed inputs wherever it runs.
+
+    ``knee`` (one per input) defaults to :func:`~.bank.fit_knees` of ``ts``'s real samples.
+    Apply it after any gain augmentation (gains scale the rates, which the compression
+    does not commute with). Padding stays zero.
+    """
+    from .bank import fit_knees, log_compress
+
+    if ts.features != "stress_rate_bank":
+        raise ValueError(f"only filter-bank inputs ('stress_rate_bank') are compressed, got {ts.features!r}")
+    if ts.bank.get("knee") is not None:
+        raise ValueError("ts is compressed already (its bank has knees)")
+    knee = fit_knees(ts.x, ts.mask) if knee is None else np.asarray(knee, dtype=np.float64)
+    bank = bank_config({**ts.bank, "knee": [float(k) for k in knee]})
+    x = log_compress(ts.x, bank["knee"], axis=1) * ts.mask[:, None, :]
+    return TrainingSet(x, ts.y_slip, ts.y_pred, ts.mask, ts.fs, ts.features, ts.estimator, ts.targets,
+                       ts.load_tau, bank)
 
 
 def fit_normalisation(x, mask=None, method: str = "rms"):
