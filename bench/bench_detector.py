@@ -13,7 +13,9 @@
    four rates and their filter bank): one tick of 6 ridges inside C++ (goal
    <= 250 ns float32) and its block API against its numpy reference
    (``detector.core.reference_run``: ``bank_features`` + the numpy recurrence; goal
-   >= 50x).
+   >= 50x); then the same net with its inputs compressed (a bank with knees,
+   ``detector.bank.log_compress``; knees fitted on the bench's own signals): what the
+   compression costs per tick.
 4. Training: one loss-and-gradient evaluation (exact BPTT) of the C++ kernel
    (``_core.jordan_loss_grad``, 1 and 2 threads) against the numpy specification
    (``network.loss_and_grad``) on the same padded training batch, with the
@@ -66,28 +68,34 @@ def numpy_tick_loop(w, x):
 
 
 def bank_net(n_iter, n_block):
+    from tactile_mirror.detector.bank import bank_features, fit_knees
     from tactile_mirror.detector.core import reference_run
 
     bank = SlipDetector.bank()
-    print("\n5) the bundled filter-bank net (kind 'jordan_bank', 17 inputs + y_pred, H = 16), 6 ridges")
-    print(f"   {'dtype':<8} {'sigmoid':<7} {'step() ns/tick':>15}")
-    for dtype in (np.float32, np.float64):
-        for act in ("exact", "fast"):
-            k = SlipDetector(bank.weights, dtype=dtype, activation=act).kernel(6)
-            print(f"   {np.dtype(dtype).name:<8} {act:<7} {k.time_step_ns(n_iter, 5):>15.1f}")
     rng = np.random.default_rng(3)
     x = np.cumsum(rng.normal(size=(6, 4, n_block)), axis=-1) * 2e3 + rng.normal(size=(6, 4, n_block)) * 1e3
     x[:, 2:] *= 30.0  # second-order rates: larger
-    t_ref = best_time(lambda: reference_run(bank.weights, x), 3) / n_block
-    print(f"   numpy reference (bank_features + forward): {t_ref * 1e6:8.3f} us/tick")
-    ref = reference_run(bank.weights, x)
-    for dtype in (np.float64, np.float32):
-        det = SlipDetector(bank.weights, dtype=dtype)
-        xc = np.ascontiguousarray(x, dtype=dtype)
-        t_c = best_time(lambda: det.run(xc), 5) / n_block
-        err = max(float(np.max(np.abs(a - b))) for a, b in zip(det.run(xc), ref))
-        print(f"   C++ run() {np.dtype(dtype).name} ({det.simd_path}): {t_c * 1e6:8.3f} us/tick   "
-              f"{t_ref / t_c:6.0f}x numpy   max |dy| {err:.1e}")
+    w = bank.weights
+    knee = fit_knees(bank_features(x[..., :20000], w.fs, w.bank))
+    wk = DetectorWeights(w.params, w.input_mean, w.input_scale, w.fs,
+                         {**w.metadata, "bank": {**w.bank, "knee": [float(k) for k in knee]}})
+    for title, weights in (("the bundled filter-bank net", w), ("the same, inputs compressed (knees)", wk)):
+        print(f"\n5) {title} (kind 'jordan_bank', 17 inputs + y_pred, H = 16), 6 ridges")
+        print(f"   {'dtype':<8} {'sigmoid':<7} {'step() ns/tick':>15}")
+        for dtype in (np.float32, np.float64):
+            for act in ("exact", "fast"):
+                k = SlipDetector(weights, dtype=dtype, activation=act).kernel(6)
+                print(f"   {np.dtype(dtype).name:<8} {act:<7} {k.time_step_ns(n_iter, 5):>15.1f}")
+        t_ref = best_time(lambda: reference_run(weights, x), 3) / n_block
+        print(f"   numpy reference (bank_features + forward): {t_ref * 1e6:8.3f} us/tick")
+        ref = reference_run(weights, x)
+        for dtype in (np.float64, np.float32):
+            det = SlipDetector(weights, dtype=dtype)
+            xc = np.ascontiguousarray(x, dtype=dtype)
+            t_c = best_time(lambda: det.run(xc), 5) / n_block
+            err = max(float(np.max(np.abs(a - b))) for a, b in zip(det.run(xc), ref))
+            print(f"   C++ run() {np.dtype(dtype).name} ({det.simd_path}): {t_c * 1e6:8.3f} us/tick   "
+                  f"{t_ref / t_c:6.0f}x numpy   max |dy| {err:.1e}")
 
 
 def main(argv=None):

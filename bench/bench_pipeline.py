@@ -197,6 +197,19 @@ def table_bank(n_iter, n_ref):
     with CPipeline(base.config) as c:
         res["Python -> cffi -> tm_pipeline_step"] = python_step_ns(c, max(n_iter // 100, 1000))
     res["scipy sosfilt + numpy (ReferencePipeline.step)"] = reference_step_ns(base, n_ref)
+    # The same net with its inputs compressed (a bank with knees: detector.bank.log_compress);
+    # the knees' values do not change the work, the net's input scales serve.
+    from tactile_mirror.detector import DetectorWeights
+
+    w = det.weights
+    wk = DetectorWeights(w.params, w.input_mean, w.input_scale, w.fs,
+                         {**w.metadata, "bank": {**w.bank, "knee": [float(k) for k in w.input_scale]}})
+    for dt in (np.float64, np.float32):
+        est = StressRateEstimator(PVDFCircuit(), 1000.0, 12)
+        p = MirrorPipeline(SlipDetector(wk), 1000.0, 6, estimator=est,
+                           controller=VelocityController(v_max=0.02, a_max=1.0), dtype=dt, activation="fast",
+                           v_limit=10.0, u_limit=10.0)
+        res[f"C++ inside, {np.dtype(dt).name}, compressed bank inputs"] = p.time_step_ns(n_iter, 5)
     width = max(len(k) for k in res)
     for k, v in res.items():
         print(f"  {k:<{width}}  {v:>10.1f} ns")

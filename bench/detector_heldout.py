@@ -85,6 +85,11 @@ def main(argv=None):
     ap.add_argument("--n-test", type=int, default=200)
     ap.add_argument("--memory-weights", default=None, help="load-memory weights (default: bundled)")
     ap.add_argument("--bank-weights", default=None, help="filter-bank weights (default: bundled)")
+    ap.add_argument("--also-bank", action="append", default=[], metavar="WEIGHTS",
+                    help="a further filter-bank net to score beside it (repeatable; rows named by the file)")
+    ap.add_argument("--test-seed", type=int, default=None,
+                    help="seed of the held-out scenes (default: the build's, build.TEST_SEED); another seed "
+                         "gives scenes that chose nothing, for a comparison decided on the build's")
     ap.add_argument("--bound", action="store_true", help="also the bound study's classifier (scikit-learn)")
     ap.add_argument("--bound-extra", type=int, default=0, help="extra bound training scenes (seed 99)")
     ap.add_argument("--val-threshold", type=float, default=None, metavar="FA",
@@ -106,15 +111,18 @@ def main(argv=None):
     header("filter-bank and load-memory nets vs the paper's Jordan net on the build's held-out scenes")
     cache = args.cache or None
     t0 = time.perf_counter()
-    test = build.simulate_cached(args.n_test, build.TEST_SEED, build.TEST_KWARGS, cache)
+    test_seed = build.TEST_SEED if args.test_seed is None else args.test_seed
+    test = build.simulate_cached(args.n_test, test_seed, build.TEST_KWARGS, cache)
     kinds = onset_kinds(test)
-    print(f"{len(test)} held-out scenes (seed {build.TEST_SEED}): {kinds.count('release')} release, "
+    print(f"{len(test)} held-out scenes (seed {test_seed}): {kinds.count('release')} release, "
           f"{kinds.count('gradual')} gradual onsets, {kinds.count(None)} sequences without gross slip "
           f"({time.perf_counter() - t0:.0f} s)", flush=True)
     memory = SlipDetector.load(args.memory_weights) if args.memory_weights else SlipDetector.memory()
     paper = SlipDetector.paper()
     bank = SlipDetector.load(args.bank_weights) if args.bank_weights else SlipDetector.bank()
-    nets = (("filter-bank net", bank), ("load-memory net", memory), ("paper Jordan net", paper))
+    nets = (("filter-bank net", bank),) + tuple(
+        (f"filter-bank net {os.path.splitext(os.path.basename(p))[0]}", SlipDetector.load(p)) for p in args.also_bank) \
+        + (("load-memory net", memory), ("paper Jordan net", paper))
     train = []
     if args.bound:
         train = build.simulate_cached(64, build.TRAIN_SEED, build.TRAIN_KWARGS, cache)

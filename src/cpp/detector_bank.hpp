@@ -252,17 +252,17 @@ private:
     }
 
     // The compression of n_rows rows of features, row k at p + k * stride holding
-    // feature k % nf_ (the staging rows of a chunk: (n_ridges, nf, K); step()'s
-    // feature-major rows: (nf, rs_)), its first n values rounded up to whole vectors
-    // (within the stride, a multiple of the vector). Element-wise, so a step() over a
-    // vector of ridges and a run() over a vector of ticks give the same bits.
+    // feature k % nf_ (the staging rows of a chunk: (n_ridges, nf, K)), its first n
+    // values rounded up to whole vectors (within the stride, a multiple of the vector).
+    // Element-wise, so a run() over a vector of ticks gives the bits of step()'s
+    // compression over a vector of ridges (features_tick).
     template <int B>
     __attribute__((always_inline)) inline void compress_rows(T* p, std::ptrdiff_t stride, int n_rows,
                                                              std::ptrdiff_t n) const noexcept {
         typedef typename simd::Vec<T, B>::type V;
         constexpr int NL = simd::Vec<T, B>::lanes;
-        for (int k = 0; k < n_rows; ++k) {
-            const V ik = V{} + ik_[k % nf_];
+        for (int k = 0, i = 0; k < n_rows; ++k, i = i + 1 == nf_ ? 0 : i + 1) {
+            const V ik = V{} + ik_[i];
             T* row = p + k * stride;
             for (std::ptrdiff_t t = 0; t < n; t += NL)
                 simd::store(row + t, simd::log_compress<T, B>(simd::load<V>(row + t), ik));
@@ -341,12 +341,21 @@ private:
             V z[NSM] = {};
             _Pragma("GCC unroll 32") for (int j = 0; j < ns; ++j) z[j] = simd::load<V>(st_ + j * rs + r0);
             lanes_tick<B, NLP, NABS>(z, simd::load<V>(f + r0), simd::load<V>(f + rs + r0));
-            _Pragma("GCC unroll 32") for (int j = 0; j < ns; ++j) {
-                simd::store(st_ + j * rs + r0, z[j]);
-                simd::store(f + (n_raw + j) * rs + r0, z[j]);
+            if (compress_) {
+                // compressed as they are stored (the states themselves stay as they are)
+                _Pragma("GCC unroll 4") for (int c = 0; c < n_raw; ++c) simd::store(
+                    f + c * rs + r0, simd::log_compress<T, B>(simd::load<V>(f + c * rs + r0), V{} + ik_[c]));
+                _Pragma("GCC unroll 32") for (int j = 0; j < ns; ++j) {
+                    simd::store(st_ + j * rs + r0, z[j]);
+                    simd::store(f + (n_raw + j) * rs + r0, simd::log_compress<T, B>(z[j], V{} + ik_[n_raw + j]));
+                }
+            } else {
+                _Pragma("GCC unroll 32") for (int j = 0; j < ns; ++j) {
+                    simd::store(st_ + j * rs + r0, z[j]);
+                    simd::store(f + (n_raw + j) * rs + r0, z[j]);
+                }
             }
         }
-        if (compress_) compress_rows<B>(f, rs, nf_, std::min<std::ptrdiff_t>(rs, n_r_));
     }
 
     // Ticks t0 .. m - 1 ridge by ridge (scalar ridge_tick), for strided input and the

@@ -419,10 +419,11 @@ TM_ALWAYS_INLINE typename Vec<T, B>::type log_compress(typename Vec<T, B>::type 
     const V z = x * ik;
     const V y = T(1) + (V)((IV)z & ~sign);                // >= 1: the sign bit is 0
     const IV b = (IV)y;
-    const V e = (V)((b >> M) | magic_bits) - magic;        // biased exponent, exact
+    // E = 2^mant + biased exponent - (2^mant + bias): exact (both are integers below 2^(mant+1))
+    const V e = (V)((b >> M) | magic_bits) - (magic + T(bias));
     const V t = (V)((b & mant) | one_bits) - T(1);         // exact
     const V q = t * (T(1) + T(0.34375) * (T(1) - t));
-    const V g = ((e - T(bias)) + q) * T(0.6931471805599453);
+    const V g = (e + q) * T(0.6931471805599453);
     return (V)((IV)g | ((IV)x & sign));
 }
 
