@@ -15,6 +15,8 @@ each, random gains), on the bank's inputs passed through
   training samples (linear below the typical level, logarithmic above);
 - ``asinh/rms``: the same with ``k`` the rms;
 - ``softsign/median``: ``x / (k + |x|)`` (one division; bounded);
+- ``log/median``: the library's ``sign(x) log(1 + |x| / k)`` (``detector.bank.log_compress``,
+  what a bank with knees computes; ``k`` the median, as ``build --compress``);
 - ``linear, median scale``: as they are, but normalised by the median ``|x|`` instead of
   the rms (``normalisation="median"``): the hidden units' sigmoids do the compressing;
 
@@ -38,7 +40,7 @@ os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
 
 import numpy as np
 
-VARIANTS = ("linear", "asinh/median", "asinh/rms", "softsign/median", "linear, median scale")
+VARIANTS = ("linear", "asinh/median", "asinh/rms", "softsign/median", "linear, median scale", "log/median")
 
 
 def compression(name: str, x, mask):
@@ -50,6 +52,10 @@ def compression(name: str, x, mask):
     kind, knee = name.split("/")
     _, k = fit_normalisation(x, mask, knee)
     kk = k[:, None]
+    if kind == "log":
+        from tactile_mirror.detector.bank import log_compress
+
+        return lambda v: log_compress(v, k, axis=-2)
 
     def f(v):
         v = np.asarray(v, dtype=np.float64)
@@ -90,8 +96,13 @@ def main(argv=None):
     from tactile_mirror.detector import SlipDetector, build
     from tactile_mirror.detector.data_prep import features_from_result
     from tactile_mirror.detector.evaluate import noise_free, onset_kinds, roc, with_noise
-    from tactile_mirror.detector.training import (TrainingSet, augment_gains, augment_noise, make_training_set,
-                                                  train_detector)
+    from tactile_mirror.detector.training import (
+        TrainingSet,
+        augment_gains,
+        augment_noise,
+        make_training_set,
+        train_detector,
+    )
     from tactile_mirror.measure import cpu_model
 
     t0 = time.perf_counter()

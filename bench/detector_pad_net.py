@@ -79,8 +79,9 @@ def main(argv=None):
     ap.add_argument("--negative-weight", type=float, default=30.0)
     ap.add_argument("--select-clean", action="store_true",
                     help="keep the candidate by the noise-free validation scenes (default: their own noise)")
-    ap.add_argument("--compress", choices=["none", "asinh"], default="none",
-                    help="pass every input through asinh(x / k), k its median |x| over the training samples "
+    ap.add_argument("--compress", choices=["none", "asinh", "log"], default="none",
+                    help="pass every input through asinh(x / k) or the library's sign(x) log(1 + |x| / k) "
+                         "(detector.bank.log_compress), k its median |x| over the training samples "
                          "(bench/detector_input_study.py), before the rms normalisation")
     ap.add_argument("--inputs", nargs="+", default=["ridge", "mean"], choices=["ridge", "mean"],
                     help="input sets: the ridge's bank alone, or with the pad's mean bank")
@@ -156,6 +157,10 @@ def main(argv=None):
         knee = fit_normalisation(X, M, "median")[1][None, :, None]
 
         def compressed(A):
+            if args.compress == "log":
+                from tactile_mirror.detector.bank import log_compress
+
+                return log_compress(A, knee.ravel(), axis=1)
             return np.arcsinh(A / knee) if args.compress == "asinh" else A
 
         X = compressed(X)
@@ -198,7 +203,7 @@ def main(argv=None):
         ys, _ = forward(Params.unpack(theta, n_in, H), xv_clean)
         thr = float(curve(ridge_scores(ys, val_clean), val_clean, kinds["val"]).at_false_alarm(args.calibrate_fa)[
             "threshold"])
-        print(f"# {name}: {n_in} inputs{', asinh-compressed' if args.compress == 'asinh' else ''}, H = {H}, negative weight {args.negative_weight:g}, training noise "
+        print(f"# {name}: {n_in} inputs{'' if args.compress == 'none' else ', compressed (' + args.compress + ')'}, H = {H}, negative weight {args.negative_weight:g}, training noise "
               f"{1e3 * args.noise_range[0]:g}-{1e3 * args.noise_range[1]:g} mV, kept seed {seed} at {it} iterations (validation detection at "
               f"{100 * args.calibrate_fa:g} % false alarms {100 * best[0]:.1f} %), threshold {thr:.3f} "
               f"({time.perf_counter() - t1:.0f} s)", flush=True)

@@ -411,11 +411,7 @@ TM_ALWAYS_INLINE typename Vec<T, B>::type log_compress(typename Vec<T, B>::type 
     const IV mant = IV{} + ((IT(1) << M) - 1);
     const IV one_bits = IV{} + (bias << M);              // the bits of 1.0
     const T magic = T(IT(1) << M);                        // 2^mant: its ulp is 1
-    IV magic_bits;
-    {
-        const V mv = V{} + magic;
-        magic_bits = (IV)mv;
-    }
+    const IV magic_bits = (IV)(V{} + magic);
     const V z = x * ik;
     const V y = T(1) + (V)((IV)z & ~sign);                // >= 1: the sign bit is 0
     const IV b = (IV)y;

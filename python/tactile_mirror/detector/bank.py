@@ -105,8 +105,9 @@ def log_compress(x, knee, axis: int = -2, dtype=np.float64):
     ``t (1 + c (1 - t))`` with ``c = 11/32``: the result is
     ``sign(x) ln 2 (E + t (1 + c (1 - t)))``. Continuous, odd, strictly increasing, slope 1
     at 0; within 0.0056 of ``log(1 + |z|)`` everywhere (exact where ``|z| = 2^k - 1``; ``c``
-    minimises that bound); never subnormal. Every step is exact or one rounding, in this order in the C++ stage
-    too (compiled without fused multiply-adds), so both give the same bits.
+    minimises that bound); never subnormal. Every step is exact or one rounding, in this
+    order in the C++ stage too (compiled without fused multiply-adds), so both give the same
+    bits.
 
     Parameters
     ----------

@@ -24,8 +24,14 @@ from .._legacy import legacy_arguments
 from .core import SlipDetector
 from .evaluate import ForceRatioDetector, evaluate
 from .memory import DEFAULT_LOAD_TAU
-from .training import (TrainingSet, augment_gains, augment_noise, compress_training_set, make_training_set,
-                       train_detector)
+from .training import (
+    TrainingSet,
+    augment_gains,
+    augment_noise,
+    compress_training_set,
+    make_training_set,
+    train_detector,
+)
 from .weights import KINDS
 
 __all__ = [
