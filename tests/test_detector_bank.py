@@ -345,6 +345,10 @@ def test_weights_bank_kind_needs_a_valid_bank(tmp_path):
     # a bank of another size than the weights' inputs
     with pytest.raises(WeightsError, match="channels"):
         DetectorWeights(w.params, w.input_mean, w.input_scale, w.fs, {**meta, "bank": SMALL_BANK})
+    # knees: one positive number per input
+    with pytest.raises(WeightsError, match="knee"):
+        DetectorWeights(w.params, w.input_mean, w.input_scale, w.fs,
+                        {**meta, "bank": {**DEFAULT_BANK, "knee": [1.0] * 16 + [-1.0]}})
     # the same in a file: a bank edited in the stored metadata is refused on load
     w.save(tmp_path / "b.npz")
     data = dict(np.load(tmp_path / "b.npz", allow_pickle=False))

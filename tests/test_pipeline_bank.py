@@ -179,8 +179,9 @@ def test_python_refuses_inconsistent_bank_weights():
                         "bank": SMALL_BANK}, FS, 6, estimator=est)
 
 
-def test_from_config_and_recording_replay_bit_for_bit(tmp_path):
-    pipe = make(controller=LAW)
+@pytest.mark.parametrize("det", ["bundled", "compressed"])
+def test_from_config_and_recording_replay_bit_for_bit(tmp_path, det):
+    pipe = make(det, controller=LAW)
     x = signals(600, pipe.n_inputs, seed=11)
     out, acc = pipe.process_block(x, accepted=True)
     again = MirrorPipeline.from_config(pipe.config)
