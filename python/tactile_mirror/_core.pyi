@@ -213,15 +213,20 @@ class _BankJordan(Generic[_F]):
         load_tau: float,
         peak_tau: float,
         activation: _Activation = "exact",
+        knee: npt.ArrayLike | None = None,
     ) -> None:
         """Weights of the Jordan net on the bank's 4 + 2 len(lp_taus) + len(abs_taus) + 3 inputs;
-        fs (Hz) and the time constants (s) set the filters."""
+        fs (Hz) and the time constants (s) set the filters; knee (one per input, or None): the
+        inputs compressed to sign(x) log(1 + |x| / knee) (detector.bank.log_compress)."""
     @property
     def n_instances(self) -> int: ...
     @property
     def n_inputs(self) -> int: ...
     @property
     def n_features(self) -> int: ...
+    @property
+    def compressed(self) -> bool:
+        """Whether the inputs are compressed (knees given)."""
     @property
     def n_hidden(self) -> int: ...
     @property

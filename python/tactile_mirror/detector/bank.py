@@ -66,7 +66,7 @@ def bank_config(bank=None) -> dict:
     """A checked copy of a bank description (``DEFAULT_BANK`` when None).
 
     Keys ``lp_taus`` (1-8 time constants), ``abs_taus`` (0-8), ``load_tau``, ``peak_tau``
-    (s, positive and finite), and optionally ``knee``: one positive finite number per
+    (s, positive and finite), and optionally ``knee``: one number in [1e-30, 1e30] per
     channel (:func:`bank_channels`, in their units), the compression's knees
     (:func:`log_compress`). Raises ``ValueError`` naming the key.
     """
@@ -91,8 +91,9 @@ def bank_config(bank=None) -> dict:
             kv = np.asarray(k, dtype=np.float64)
         except (TypeError, ValueError):
             kv = None
-        if kv is None or kv.shape != (n_ch,) or not np.all(np.isfinite(kv)) or not np.all(kv > 0):
-            raise ValueError(f"bank['knee'] must be {n_ch} positive finite numbers (one per channel), got {k!r}")
+        # [1e-30, 1e30]: a float32 kernel multiplies by 1 / knee, which must stay a normal float
+        if kv is None or kv.shape != (n_ch,) or not np.all((kv >= 1e-30) & (kv <= 1e30)):
+            raise ValueError(f"bank['knee'] must be {n_ch} numbers in [1e-30, 1e30] (one per channel), got {k!r}")
         out["knee"] = [float(v) for v in kv]
     return out
 
