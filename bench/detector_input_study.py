@@ -21,9 +21,10 @@ each, random gains), on the bank's inputs passed through
   the rms (``normalisation="median"``): the hidden units' sigmoids do the compressing;
 
 and keeps, per variant, the seed and checkpoint with the best detection at 2 % false
-alarms on the first half of the build's validation scenes (seed ``build.VALIDATION_SEED``;
-noise-free and 1 mV rms, averaged). It reports the curves on the *other* half, which
-chose nothing, next to the bundled net's. The held-out seed is not used.
+alarms on the first half (``--swap``: the second) of the build's validation scenes (seed
+``build.VALIDATION_SEED``; noise-free and 1 mV rms, averaged). It reports the curves on
+the *other* half, which chose nothing, next to the bundled net's. The held-out seed is
+not used.
 
 Run: ``python bench/detector_input_study.py --cache out/scenes [--variants linear asinh/median] [--seeds 2]``.
 """
