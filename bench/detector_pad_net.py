@@ -88,6 +88,7 @@ def main(argv=None):
     args = ap.parse_args(argv)
     sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
     import scipy.optimize
+    from detector_input_study import compression
     from detector_pad_study import N_RIDGES, PAD_TRAIN_SEED, PAD_VALIDATION_SEED, SCORED, latency_at
     from tactile_mirror.detector import SlipDetector, build
     from tactile_mirror.detector.data_prep import features_from_result, targets_from_result
@@ -154,15 +155,9 @@ def main(argv=None):
     for with_mean in [name == "mean" for name in args.inputs]:
         name = "pad-trained net, ridge + pad mean" if with_mean else "pad-trained net, ridge"
         X, S, P, M = stack(seqs, with_mean, gains)
-        knee = fit_normalisation(X, M, "median")[1][None, :, None]
-
-        def compressed(A):
-            if args.compress == "log":
-                from tactile_mirror.detector.bank import log_compress
-
-                return log_compress(A, knee.ravel(), axis=1)
-            return np.arcsinh(A / knee) if args.compress == "asinh" else A
-
+        # the input study's transforms, knees from these training inputs
+        compressed = compression({"none": "linear", "asinh": "asinh/median", "log": "log/median"}[args.compress],
+                                 X, M)
         X = compressed(X)
         mean, scale = fit_normalisation(X, M, "rms")
         xn = X / scale[None, :, None] * M[:, None, :]
@@ -203,8 +198,10 @@ def main(argv=None):
         ys, _ = forward(Params.unpack(theta, n_in, H), xv_clean)
         thr = float(curve(ridge_scores(ys, val_clean), val_clean, kinds["val"]).at_false_alarm(args.calibrate_fa)[
             "threshold"])
-        print(f"# {name}: {n_in} inputs{'' if args.compress == 'none' else ', compressed (' + args.compress + ')'}, H = {H}, negative weight {args.negative_weight:g}, training noise "
-              f"{1e3 * args.noise_range[0]:g}-{1e3 * args.noise_range[1]:g} mV, kept seed {seed} at {it} iterations (validation detection at "
+        how = "" if args.compress == "none" else f", compressed ({args.compress})"
+        print(f"# {name}: {n_in} inputs{how}, H = {H}, negative weight {args.negative_weight:g}, training noise "
+              f"{1e3 * args.noise_range[0]:g}-{1e3 * args.noise_range[1]:g} mV, kept seed {seed} at {it} "
+              f"iterations (validation detection at "
               f"{100 * args.calibrate_fa:g} % false alarms {100 * best[0]:.1f} %), threshold {thr:.3f} "
               f"({time.perf_counter() - t1:.0f} s)", flush=True)
         for cond, res in conditions.items():
