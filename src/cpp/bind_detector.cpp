@@ -571,13 +571,9 @@ void bind_bank(py::module_& m, const char* cls) {
                  auto cb2 = weight(b2, "b2", {2});
                  auto cm = weight(input_mean, "input_mean", {NF});
                  auto cg = weight(input_gain, "input_gain", {NF});
+                 // (the kernel checks the knees' values: std::invalid_argument, a ValueError here)
                  py::array_t<double, py::array::c_style | py::array::forcecast> ck;
-                 if (!knee.is_none()) {
-                     ck = weight(knee, "knee", {NF});
-                     for (py::ssize_t i = 0; i < NF; ++i)
-                         if (!(std::isfinite(ck.data()[i]) && ck.data()[i] > 0))
-                             throw py::value_error("knee must be positive finite numbers (one per input)");
-                 }
+                 if (!knee.is_none()) ck = weight(knee, "knee", {NF});
                  auto p = std::make_unique<PM>();
                  p->k = std::make_unique<BankJordan<T>>(int(h), n_ridges, cw1.data(), cb1.data(), cw2.data(),
                                                         cb2.data(), cm.data(), cg.data(), fs, n_lp, lp.data(),

@@ -79,7 +79,7 @@ public:
         }
         if (knee) {
             for (int j = 0; j < nf_; ++j) {
-                if (!(std::isfinite(knee[j]) && knee[j] > 0)) throw std::invalid_argument("knee must be positive numbers");
+                if (!(std::isfinite(knee[j]) && knee[j] > 0)) throw std::invalid_argument("knee must be positive finite numbers (one per input)");
                 ik_[j] = static_cast<T>(1.0 / knee[j]);  // as the python: 1 / knee in double, then T
                 if (!(std::isfinite(ik_[j]) && ik_[j] > 0))  // 0 * inf would make a NaN of a zero input
                     throw std::invalid_argument("knee must lie in [1e-30, 1e30] (its reciprocal a normal float)");
