@@ -180,6 +180,7 @@ public:
         if (n_r_ > cap || n_iter < 1) return std::numeric_limits<double>::quiet_NaN();
         T in[4 * cap], out[3 * cap], yp[cap], sv[cap * (2 * kMaxTaus + kMaxTaus + 3)];
         get_state(yp, sv);
+        DenormalGuard ftz;  // as the real-time callers run it (JordanMLP::time_step_ns)
         for (int k = 0; k < 4 * n_r_; ++k) in[k] = T(1e3) * T((k % 7) - 3);
         double best = std::numeric_limits<double>::infinity();
         volatile T sink = 0;

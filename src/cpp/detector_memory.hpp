@@ -118,6 +118,7 @@ public:
         if (n_r_ > cap / 4 || n_iter < 1) return std::numeric_limits<double>::quiet_NaN();
         T in[cap], out[3 * cap / 4], yp[cap / 4], ld[cap / 2];
         get_state(yp, ld);
+        DenormalGuard ftz;  // as the real-time callers run it (JordanMLP::time_step_ns)
         for (int k = 0; k < 4 * n_r_; ++k) in[k] = T(1e3) * T((k % 7) - 3);
         double best = std::numeric_limits<double>::infinity();
         volatile T sink = 0;
