@@ -22,6 +22,7 @@ from tactile_mirror.detector.bank import (
     log_compress,
 )
 from tactile_mirror.detector.core import reference_run
+from tactile_mirror.pipeline import MirrorPipeline
 from tactile_mirror.detector.network import init_params, loss_and_grad
 from tactile_mirror.detector.weights import DetectorWeights, WeightsError
 
@@ -49,8 +50,13 @@ def _with_knees(bank):
 
 
 def _bank_weights(seed=3, n_hidden=16, bank=None):
-    if isinstance(bank, str):  # "default+knee", "small+knee": that bank, compressed
-        bank = _with_knees(SMALL_BANK if bank.startswith("small") else None)
+    if isinstance(bank, str):  # "default+knee", "small+pad+knee", ...: that bank, with the pad's mean, compressed
+        name = bank
+        bank = dict(SMALL_BANK if name.startswith("small") else DEFAULT_BANK)
+        if "+pad" in name:
+            bank["pad_mean"] = True
+        if "+knee" in name:
+            bank = _with_knees(bank)
     bank = bank_config(bank)
     nf = len(bank_channels(bank))
     p = init_params(nf, n_hidden, seed)
@@ -174,7 +180,7 @@ def test_bank_channels_and_units_agree():
 
 
 @pytest.mark.parametrize("dtype,tol", [(np.float64, 1e-12), (np.float32, 2e-5)])
-@pytest.mark.parametrize("bank", [None, SMALL_BANK, "default+knee", "small+knee"])
+@pytest.mark.parametrize("bank", [None, SMALL_BANK, "default+knee", "small+knee", "default+pad", "small+pad+knee"])
 def test_cpp_bank_kernel_matches_numpy(dtype, tol, bank):
     w = _bank_weights(bank=bank)
     x = _signals(seed=5)
@@ -214,7 +220,7 @@ def _paths():
 
 
 @pytest.mark.parametrize("dtype", [np.float64, np.float32])
-@pytest.mark.parametrize("bank", [None, SMALL_BANK, "default+knee", "small+knee"])
+@pytest.mark.parametrize("bank", [None, SMALL_BANK, "default+knee", "small+knee", "default+pad", "small+pad+knee"])
 @pytest.mark.parametrize("n_r,n", [(1, 150), (5, 7), (6, 150), (9, 131), (17, 64)])
 def test_cpp_bank_block_features_in_lanes_equal_step(dtype, bank, n_r, n):
     """The block path's feature pass puts the ridges in SIMD lanes (ghost lanes past the
@@ -465,3 +471,79 @@ def test_bundled_bank_net_loads_and_runs_like_numpy():
     # default() is the filter-bank net (it won on the held-out set)
     assert SlipDetector.default().kind == "jordan_bank"
     np.testing.assert_array_equal(SlipDetector.default().weights.params.w1, det.weights.params.w1)
+
+
+def test_pad_mean_bank_appends_the_mean_of_the_ridges():
+    """With ``pad_mean`` every ridge's inputs are its own channels, then their mean over the
+    ridges (summed in ridge order, divided by the count), the same for every ridge;
+    compression comes after the mean, with one knee per input."""
+    x = _signals(n_r=5)
+    plain = bank_features(x, FS)
+    pm = {**DEFAULT_BANK, "pad_mean": True}
+    feat, st = bank_features(x, FS, pm, return_state=True)
+    nf = plain.shape[1]
+    assert feat.shape == (5, 2 * nf, x.shape[2])
+    assert len(bank_channels(pm)) == len(bank_units(pm)) == 2 * nf
+    assert bank_channels(pm)[nf:] == tuple(f"pad_mean_{c}" for c in bank_channels())
+    np.testing.assert_array_equal(feat[:, :nf], plain)
+    total = plain[0] + plain[1] + plain[2] + plain[3] + plain[4]
+    for r in range(5):
+        np.testing.assert_array_equal(feat[r, nf:], total / 5)
+    np.testing.assert_array_equal(st, bank_features(x, FS, return_state=True)[1])  # the mean has no state
+    kb = _with_knees(pm)
+    assert len(kb["knee"]) == 2 * nf
+    np.testing.assert_array_equal(bank_features(x, FS, kb), log_compress(feat, kb["knee"]))
+    with pytest.raises(ValueError, match="knee"):  # one knee per ridge channel is not enough
+        bank_config({**pm, "knee": [1.0] * nf})
+    with pytest.raises(ValueError, match="pad_mean"):
+        bank_config({**DEFAULT_BANK, "pad_mean": "yes"})
+    assert "pad_mean" not in bank_config({**DEFAULT_BANK, "pad_mean": False})  # files without it unchanged
+
+
+@settings(max_examples=25, deadline=None)
+@given(st.permutations(range(6)), st.sampled_from(["default+pad", "small+pad+knee"]))
+def test_pad_mean_net_follows_its_ridge_when_the_ridges_are_permuted(perm, bank):
+    """The pad's mean does not depend on the ridges' order, so each ridge's outputs follow
+    that ridge (to round-off: the mean's sum runs in another order)."""
+    w = _pad_weights(bank)
+    x = _signals(n_r=6, n=300, seed=11)
+    a = SlipDetector(w).run(x)
+    b = SlipDetector(w).run(x[list(perm)])
+    for ya, yb in zip(a, b):
+        np.testing.assert_allclose(yb, ya[list(perm)], atol=1e-12)
+    # and the mean is read: the ridge's outputs change with its neighbours'
+    x2 = x.copy()
+    x2[1:] *= 0.25
+    assert np.max(np.abs(SlipDetector(w).run(x2)[0][0] - a[0][0])) > 1e-3
+
+
+_PAD_WEIGHTS = {}
+
+
+def _pad_weights(bank):
+    if bank not in _PAD_WEIGHTS:
+        _PAD_WEIGHTS[bank] = _bank_weights(bank=bank)
+    return _PAD_WEIGHTS[bank]
+
+
+def test_pad_mean_weights_roundtrip_and_the_pipeline_refuses_them(tmp_path):
+    w = _bank_weights(bank="default+pad+knee")
+    w.save(tmp_path / "pad.npz")
+    w2 = DetectorWeights.load(tmp_path / "pad.npz")
+    assert w2.bank["pad_mean"] is True and w2.bank["knee"] == w.bank["knee"]
+    x = _signals(n_r=6, n=200)
+    for a, b in zip(SlipDetector(w).run(x), SlipDetector(w2).run(x)):
+        np.testing.assert_array_equal(a, b)
+    with pytest.raises(ValueError, match="pad_mean"):
+        MirrorPipeline(SlipDetector(w), FS, 6)
+    # the kernel wants the weights of twice the inputs
+    kb = _core.BankJordanf64
+    p = w.params
+    with pytest.raises(ValueError, match="pad's mean"):
+        kb(p.w1[:, 17:], p.b1, p.w2, p.b2, w.input_mean[:17], w.input_gain[:17], 6, FS,
+           np.array(DEFAULT_BANK["lp_taus"]), np.array(DEFAULT_BANK["abs_taus"]), DEFAULT_BANK["load_tau"],
+           DEFAULT_BANK["peak_tau"], "exact", None, True)
+    k = kb(p.w1, p.b1, p.w2, p.b2, w.input_mean, w.input_gain, 6, FS, np.array(DEFAULT_BANK["lp_taus"]),
+           np.array(DEFAULT_BANK["abs_taus"]), DEFAULT_BANK["load_tau"], DEFAULT_BANK["peak_tau"], "exact",
+           w.bank["knee"], True)
+    assert (k.pad_mean, k.n_features, k.net_inputs, k.compressed) == (True, 17, 34, True)

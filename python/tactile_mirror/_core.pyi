@@ -214,16 +214,24 @@ class _BankJordan(Generic[_F]):
         peak_tau: float,
         activation: _Activation = "exact",
         knee: npt.ArrayLike | None = None,
+        pad_mean: bool = False,
     ) -> None:
-        """Weights of the Jordan net on the bank's 4 + 2 len(lp_taus) + len(abs_taus) + 3 inputs;
-        fs (Hz) and the time constants (s) set the filters; knee (one per input, or None): the
-        inputs compressed to sign(x) log(1 + |x| / knee) (detector.bank.log_compress)."""
+        """Weights of the Jordan net on the bank's 4 + 2 len(lp_taus) + len(abs_taus) + 3 features
+        per ridge (twice that with pad_mean: then also their mean over the ridges); fs (Hz) and
+        the time constants (s) set the filters; knee (one per net input, or None): the inputs
+        compressed to sign(x) log(1 + |x| / knee) (detector.bank.log_compress)."""
     @property
     def n_instances(self) -> int: ...
     @property
     def n_inputs(self) -> int: ...
     @property
     def n_features(self) -> int: ...
+    @property
+    def net_inputs(self) -> int:
+        """The net's inputs per ridge: n_features, twice that with the pad's mean."""
+    @property
+    def pad_mean(self) -> bool:
+        """Whether the net also reads the pad's mean of the features."""
     @property
     def compressed(self) -> bool:
         """Whether the inputs are compressed (knees given)."""

@@ -536,7 +536,8 @@ void bind_bank(py::module_& m, const char* cls) {
                        .c_str())
         .def(py::init([](py::handle w1, py::handle b1, py::handle w2, py::handle b2, py::handle input_mean,
                          py::handle input_gain, int n_ridges, double fs, py::handle lp_taus, py::handle abs_taus,
-                         double load_tau, double peak_tau, const std::string& activation, py::handle knee) {
+                         double load_tau, double peak_tau, const std::string& activation, py::handle knee,
+                         bool pad_mean) {
                  auto lp = py::array_t<double, py::array::c_style | py::array::forcecast>::ensure(lp_taus);
                  auto ab = py::array_t<double, py::array::c_style | py::array::forcecast>::ensure(abs_taus);
                  if (!lp || lp.ndim() != 1 || lp.shape(0) < 1 || lp.shape(0) > BankJordan<T>::kMaxTaus)
@@ -550,11 +551,12 @@ void bind_bank(py::module_& m, const char* cls) {
                      if (!(std::isfinite(ab.data()[i]) && ab.data()[i] > 0))
                          throw py::value_error("abs_taus must be positive numbers of s");
                  const int n_lp = int(lp.shape(0)), n_abs = int(ab.shape(0));
-                 const py::ssize_t NF = BankJordan<T>::feature_count(n_lp, n_abs);
+                 const py::ssize_t NF = BankJordan<T>::input_count(n_lp, n_abs, pad_mean);
                  py::array a1 = py::array::ensure(w1);
                  if (!a1 || a1.ndim() != 2 || a1.shape(1) != NF + 1)
                      throw py::value_error("w1 must have shape (n_hidden, " + std::to_string(NF + 1) +
-                                           "): the bank's " + std::to_string(NF) + " inputs and the feedback");
+                                           "): the bank's " + std::to_string(NF) + " inputs" +
+                                           (pad_mean ? " (with the pad's mean)" : "") + " and the feedback");
                  const py::ssize_t h = a1.shape(0);
                  if (h < 1 || h > 1024) throw py::value_error("w1 must have 1 to 1024 rows (n_hidden)");
                  if (n_ridges < 1 || n_ridges > 65536)
@@ -578,14 +580,17 @@ void bind_bank(py::module_& m, const char* cls) {
                  p->k = std::make_unique<BankJordan<T>>(int(h), n_ridges, cw1.data(), cb1.data(), cw2.data(),
                                                         cb2.data(), cm.data(), cg.data(), fs, n_lp, lp.data(),
                                                         n_abs, ab.data(), load_tau, peak_tau, act,
-                                                        knee.is_none() ? nullptr : ck.data());
+                                                        knee.is_none() ? nullptr : ck.data(), pad_mean);
                  p->n_r = n_ridges;
                  return p;
              }),
              py::arg("w1"), py::arg("b1"), py::arg("w2"), py::arg("b2"), py::arg("input_mean"),
              py::arg("input_gain"), py::arg("n_ridges"), py::arg("fs"), py::arg("lp_taus"), py::arg("abs_taus"),
-             py::arg("load_tau"), py::arg("peak_tau"), py::arg("activation") = "exact", py::arg("knee") = py::none())
+             py::arg("load_tau"), py::arg("peak_tau"), py::arg("activation") = "exact", py::arg("knee") = py::none(),
+             py::arg("pad_mean") = false)
         .def_property_readonly("n_features", [](const PM& p) { return p.k->n_features(); })
+        .def_property_readonly("net_inputs", [](const PM& p) { return p.k->n_inputs(); })
+        .def_property_readonly("pad_mean", [](const PM& p) { return p.k->pad_mean(); })
         .def_property_readonly("compressed", [](const PM& p) { return p.k->compressed(); });
     def_staged_net_calls<T>(cls_, "filters",
                             "(y_pred(t-1) per ridge, filter states (n_ridges, n_state)): the recurrent state.",

@@ -13,9 +13,13 @@
 //     peak  = max(|load|, c peak),                           c = a(peak_tau)  (Pa)
 //
 // and runs the Jordan net on [v_L, v_R, u_L, u_R, lpd_1, lps_1, ..., lpa_1, ...,
-// load, press, peak]. Ridges are independent. With knees (one per feature), every
-// feature x is first compressed to sign(x) log(1 + |x| / knee) (simd::log_compress,
-// bit for bit the python's detector.bank.log_compress): the features are heavy-tailed.
+// load, press, peak]. Ridges are independent, unless the bank has the pad's mean: then
+// the net also reads, after a ridge's own features, their mean over the pad's ridges
+// (summed in ridge order, then divided by their count, as the python), the same for
+// every ridge (a stop stills every ridge at once, a creeping slip reaches them one
+// after another). With knees (one per input), every input x is then compressed to
+// sign(x) log(1 + |x| / knee) (simd::log_compress, bit for bit the python's
+// detector.bank.log_compress): the features are heavy-tailed.
 //
 // RTNeural-like: sizes fixed at construction (which may throw); step(), run(), the
 // state accessors allocate nothing and throw nothing. Block runs go in chunks of the
@@ -49,21 +53,29 @@ public:
     static constexpr int kMaxTaus = 8;
     static constexpr int n_outputs = 3;
     static constexpr int kMaxFeatures = n_raw + 3 * kMaxTaus + 3;
+    static constexpr int kMaxInputs = 2 * kMaxFeatures;
 
-    /// Features: 4 + 2 n_lp + n_abs + 3. Weights as JordanMLP with that many inputs.
+    /// Features of a ridge: 4 + 2 n_lp + n_abs + 3.
     static int feature_count(int n_lp, int n_abs) noexcept { return n_raw + 2 * n_lp + n_abs + 3; }
+    /// The net's inputs: the features, and as many again with the pad's mean. Weights
+    /// as JordanMLP with that many inputs.
+    static int input_count(int n_lp, int n_abs, bool pad_mean) noexcept {
+        return (pad_mean ? 2 : 1) * feature_count(n_lp, n_abs);
+    }
 
     BankJordan(int n_hidden, int n_ridges, const double* w1, const double* b1, const double* w2, const double* b2,
                const double* input_mean, const double* input_gain, double fs, int n_lp, const double* lp_taus,
                int n_abs, const double* abs_taus, double load_tau, double peak_tau,
-               Activation activation = Activation::exact, const double* knee = nullptr)
-        : net_(checked_features(n_lp, n_abs), n_hidden, n_ridges, w1, b1, w2, b2, input_mean, input_gain,
-               activation),
+               Activation activation = Activation::exact, const double* knee = nullptr, bool pad_mean = false)
+        : net_((pad_mean ? 2 : 1) * checked_features(n_lp, n_abs), n_hidden, n_ridges, w1, b1, w2, b2, input_mean,
+               input_gain, activation),
           n_r_(n_ridges),
           n_lp_(n_lp),
           n_abs_(n_abs),
           nf_(feature_count(n_lp, n_abs)),
-          ns_(2 * n_lp + n_abs + 3) {
+          ni_(input_count(n_lp, n_abs, pad_mean)),
+          ns_(2 * n_lp + n_abs + 3),
+          pad_mean_(pad_mean) {
         if (!(std::isfinite(fs) && fs > 0)) throw std::invalid_argument("fs must be a positive number of Hz");
         auto leak = [fs](double tau) {
             if (!(std::isfinite(tau) && tau > 0)) throw std::invalid_argument("time constants must be positive s");
@@ -78,7 +90,7 @@ public:
             g_abs_[k] = static_cast<T>(1.0 - leak(abs_taus[k]));
         }
         if (knee) {
-            for (int j = 0; j < nf_; ++j) {
+            for (int j = 0; j < ni_; ++j) {
                 if (!(std::isfinite(knee[j]) && knee[j] > 0)) throw std::invalid_argument("knee must be positive finite numbers (one per input)");
                 ik_[j] = static_cast<T>(1.0 / knee[j]);  // as the python: 1 / knee in double, then T
                 if (!(std::isfinite(ik_[j]) && ik_[j] > 0))  // 0 * inf would make a NaN of a zero input
@@ -86,6 +98,9 @@ public:
             }
             compress_ = true;
         }
+        // The pad's mean is the same for every ridge: its share of the net's input
+        // projection is computed once per tick (JordanMLP::set_shared_inputs).
+        if (pad_mean) net_.set_shared_inputs(nf_);
         b_ = static_cast<T>(leak(load_tau));
         c_ = static_cast<T>(leak(peak_tau));
         inv_fs_ = static_cast<T>(1.0 / fs);
@@ -93,7 +108,7 @@ public:
         // the net's (JordanMLP::step_feature_major), whole vectors of the widest path
         // with room for its ghost instances.
         rs_ = std::size_t(net_.feature_major_stride());
-        const std::size_t count = rs_ * (std::size_t(ns_) + std::size_t(nf_)) + 16;
+        const std::size_t count = rs_ * (std::size_t(ns_) + std::size_t(ni_)) + 16;
         void* mem = std::aligned_alloc(64, ((count * sizeof(T) + 63) / 64) * 64);
         if (!mem) throw std::bad_alloc();
         buf_.reset(mem);
@@ -107,6 +122,10 @@ public:
     int n_hidden() const noexcept { return net_.n_hidden(); }
     int n_ridges() const noexcept { return n_r_; }
     int n_features() const noexcept { return nf_; }
+    /// The net's inputs: n_features(), twice that with the pad's mean.
+    int n_inputs() const noexcept { return ni_; }
+    /// Whether the net also reads the pad's mean of the features.
+    bool pad_mean() const noexcept { return pad_mean_; }
     /// Filter states per ridge (2 n_lp + n_abs + 3).
     int n_state() const noexcept { return ns_; }
     /// Whether the features are compressed (knees given).
@@ -233,14 +252,16 @@ private:
     // avail: ticks of input from x0 on (the next chunk's are prefetched, never beyond).
     T features_chunk(const T* x0, std::ptrdiff_t sr, std::ptrdiff_t si, std::ptrdiff_t st, int m,
                      std::ptrdiff_t avail) noexcept {
+        constexpr int K = JordanMLP<T>::chunk_ticks();
         const T bad = features_chunk_raw(x0, sr, si, st, m, avail);
+        if (pad_mean_) pad_mean_rows(net_.staging(), K, std::ptrdiff_t(ni_) * K, m);
         if (compress_) {
 #if TM_HAVE_DISPATCH
             if (net_.isa() == simd::Isa::avx2_fma)
                 compress_staging_avx2(m);
             else
 #endif
-                compress_rows<simd::kBaseBytes>(net_.staging(), JordanMLP<T>::chunk_ticks(), n_r_ * nf_, m);
+                compress_rows<simd::kBaseBytes>(net_.staging(), K, n_r_ * ni_, m);
         }
         return bad;
     }
@@ -254,8 +275,32 @@ private:
         return features_chunk_lanes<simd::kBaseBytes, -1, -1>(x0, sr, si, m, avail);
     }
 
-    // The compression of n_rows rows of features, row k at p + k * stride holding
-    // feature k % nf_ (the staging rows of a chunk: (n_ridges, nf, K)), its first n
+    // The pad's mean rows of a chunk's staging rows (feature i of ridge r at
+    // p[r * rr + i * fr + t], t < n, time contiguous): rows nf_ + i of every ridge get
+    // sum_r x_i(r) / n_ridges, summed in ridge order (the python's
+    // detector.bank.bank_features; features_tick adds and divides the same way, so
+    // step() and run() agree bit for bit).
+    // A vector of ticks at a time, n rounded up to whole vectors (within the rows'
+    // chunk_ticks(), a multiple of the vector; the values past n are never read).
+    void pad_mean_rows(T* p, std::ptrdiff_t fr, std::ptrdiff_t rr, std::ptrdiff_t n) const noexcept {
+        typedef typename simd::Vec<T, simd::kBaseBytes>::type V;
+        constexpr int NL = simd::Vec<T, simd::kBaseBytes>::lanes;
+        static_assert(JordanMLP<T>::chunk_ticks() % NL == 0, "staging rows hold whole vectors");
+        const T nr = T(n_r_);
+        for (int i = 0; i < nf_; ++i) {
+            const T* src = p + i * fr;
+            T* dst = p + (nf_ + i) * fr;
+            for (std::ptrdiff_t t = 0; t < n; t += NL) {
+                V acc = simd::load<V>(src + t);
+                for (int r = 1; r < n_r_; ++r) acc += simd::load<V>(src + r * rr + t);
+                const V mean = acc / nr;
+                for (int r = 0; r < n_r_; ++r) simd::store(dst + r * rr + t, mean);
+            }
+        }
+    }
+
+    // The compression of n_rows rows of inputs, row k at p + k * stride holding
+    // input k % ni_ (the staging rows of a chunk: (n_ridges, ni, K)), its first n
     // values rounded up to whole vectors (within the stride, a multiple of the vector).
     // Element-wise, so a run() over a vector of ticks gives the bits of step()'s
     // compression over a vector of ridges (features_tick).
@@ -264,7 +309,7 @@ private:
                                                              std::ptrdiff_t n) const noexcept {
         typedef typename simd::Vec<T, B>::type V;
         constexpr int NL = simd::Vec<T, B>::lanes;
-        for (int k = 0, i = 0; k < n_rows; ++k, i = i + 1 == nf_ ? 0 : i + 1) {
+        for (int k = 0, i = 0; k < n_rows; ++k, i = i + 1 == ni_ ? 0 : i + 1) {
             const V ik = V{} + ik_[i];
             T* row = p + k * stride;
             for (std::ptrdiff_t t = 0; t < n; t += NL)
@@ -317,7 +362,7 @@ private:
 #if TM_HAVE_DISPATCH
     // AVX2 without FMA, as features_chunk_avx2 (log_compress must round as the python's).
     __attribute__((target("avx2"), noinline)) void compress_staging_avx2(int m) noexcept {
-        compress_rows<32>(net_.staging(), JordanMLP<T>::chunk_ticks(), n_r_ * nf_, m);
+        compress_rows<32>(net_.staging(), JordanMLP<T>::chunk_ticks(), n_r_ * ni_, m);
     }
     // AVX2 without FMA, as features_chunk_avx2.
     __attribute__((target("avx2"), noinline)) void features_tick_avx2(const T* in) noexcept {
@@ -338,13 +383,14 @@ private:
                 for (int j = 0; j < nf_; ++j) simd::store(f + j * rs + r0, V{});
                 continue;
             }
+            const bool compress_now = compress_ && !pad_mean_;  // (else after the mean)
             // The four rates of the vector's ridges, gathered into their feature rows.
             for (int c = 0; c < n_raw; ++c)
                 for (int l = 0; l < NL; ++l) f[c * rs + r0 + l] = r0 + l < n_r_ ? in[(r0 + l) * n_raw + c] : T(0);
             V z[NSM] = {};
             _Pragma("GCC unroll 32") for (int j = 0; j < ns; ++j) z[j] = simd::load<V>(st_ + j * rs + r0);
             lanes_tick<B, NLP, NABS>(z, simd::load<V>(f + r0), simd::load<V>(f + rs + r0));
-            if (compress_) {
+            if (compress_now) {
                 // compressed as they are stored (the states themselves stay as they are)
                 _Pragma("GCC unroll 4") for (int c = 0; c < n_raw; ++c) simd::store(
                     f + c * rs + r0, simd::log_compress<T, B>(simd::load<V>(f + c * rs + r0), V{} + ik_[c]));
@@ -359,6 +405,38 @@ private:
                 }
             }
         }
+        if (pad_mean_) {
+            // The pad's mean of the raw features (summed and divided as pad_mean_rows),
+            // then the ridges' rows and the means compressed element by element (as
+            // run() compresses its staging rows: the same bits), the means written to
+            // every lane of their rows (ghosts too: any finite value will do there).
+            constexpr int NMAX = ((kMaxFeatures + NL - 1) / NL) * NL;
+            T mean[NMAX];
+            const T nr = T(n_r_);
+            for (int i = 0; i < nf_; ++i) {
+                const T* row = f + i * rs;
+                T acc = row[0];
+                for (int r = 1; r < n_r_; ++r) acc += row[r];
+                mean[i] = acc;
+            }
+            for (int i = nf_; i < NMAX; ++i) mean[i] = T(0);
+            for (int i = 0; i < nf_; i += NL) simd::store(mean + i, simd::load<V>(mean + i) / nr);  // (one vector divide)
+            if (compress_) {
+                for (int i = 0; i < nf_; i += NL) {
+                    V ik{};
+                    for (int l = 0; l < NL && i + l < nf_; ++l) ik[l] = ik_[nf_ + i + l];
+                    simd::store(mean + i, simd::log_compress<T, B>(simd::load<V>(mean + i), ik));
+                }
+                for (int j = 0; j < nf_; ++j)
+                    for (std::ptrdiff_t r0 = 0; r0 < n_r_; r0 += NL)
+                        simd::store(f + j * rs + r0, simd::log_compress<T, B>(simd::load<V>(f + j * rs + r0), V{} + ik_[j]));
+            }
+            for (int i = 0; i < nf_; ++i) {
+                const V m = V{} + mean[i];
+                T* dst = f + (nf_ + i) * rs;
+                for (std::ptrdiff_t r0 = 0; r0 < rs; r0 += NL) simd::store(dst + r0, m);
+            }
+        }
     }
 
     // Ticks t0 .. m - 1 ridge by ridge (scalar ridge_tick), for strided input and the
@@ -371,7 +449,7 @@ private:
         T bad = 0;
         for (int r = 0; r < n_r_; ++r) {
             for (int k = 0; k < ns_; ++k) z[k] = st_[k * rs_ + r];
-            T* o = out + std::size_t(r) * nf_ * K;
+            T* o = out + std::size_t(r) * ni_ * K;
             const T* xr = x0 + r * sr;
             for (int t = t0; t < m; ++t) {
                 const T* xt = xr + t * st;
@@ -420,7 +498,7 @@ private:
                             // outputs' rows, more streams than the hardware prefetcher follows.
                             if (t + K < avail && (t * int(sizeof(T))) % 64 == 0) __builtin_prefetch(row + t + K, 0, 3);
                             x[c][l] = simd::load<V>(row + t);
-                            simd::store(out + (std::size_t(r0 + l) * nf_ + c) * K + t, x[c][l]);
+                            simd::store(out + (std::size_t(r0 + l) * ni_ + c) * K + t, x[c][l]);
                         } else {
                             x[c][l] = V{};
                         }
@@ -435,7 +513,7 @@ private:
                 }
                 _Pragma("GCC unroll 32") for (int k = 0; k < ns; ++k) {
                     simd::transpose(f[k]);
-                    for (int l = 0; l < nr; ++l) simd::store(out + (std::size_t(r0 + l) * nf_ + 4 + k) * K + t, f[k][l]);
+                    for (int l = 0; l < nr; ++l) simd::store(out + (std::size_t(r0 + l) * ni_ + 4 + k) * K + t, f[k][l]);
                 }
             }
             for (int j = 0; j < ns; ++j) simd::store(st_ + j * rs_ + r0, z[j]);  // ghost lanes stay zero
@@ -447,10 +525,11 @@ private:
     }
 
     JordanMLP<T> net_;
-    int n_r_, n_lp_, n_abs_, nf_, ns_;
+    int n_r_, n_lp_, n_abs_, nf_, ni_, ns_;
+    bool pad_mean_ = false;
     T a_lp_[kMaxTaus] = {}, g_lp_[kMaxTaus] = {}, a_abs_[kMaxTaus] = {}, g_abs_[kMaxTaus] = {};
     T b_ = 0, c_ = 0, inv_fs_ = 0;
-    T ik_[kMaxFeatures] = {};  // 1 / knee per feature
+    T ik_[kMaxInputs] = {};  // 1 / knee per input
     bool compress_ = false;
     std::size_t rs_ = 0;  // ridge stride of st_ and feat_ (a multiple of 32 bytes of T)
     std::unique_ptr<void, detail::AlignedFree> buf_;

@@ -42,7 +42,7 @@
 // AVX2 machine (Zen 3): about 0.7x the time of the previous instances-in-lanes
 // kernel in float, 0.6x in double.
 //
-// Block runs (run() over many ticks, 8 or 17 inputs, two or more groups): the input
+// Block runs (run() over many ticks, 8, 17 or 34 inputs, two or more groups): the input
 // part of the hidden pre-activations, b1 + W1[:, :n_in] xn, does not depend on the
 // feedback, so a chunk's projections are computed first (project(): eight
 // accumulators share each weight load, where the tick loads a weight and a broadcast
@@ -129,8 +129,9 @@ public:
         // 1 MiB (else the block path computes them inside the recurrence, as step()).
         nslot_ = n_slot;
         const std::size_t n_proj = std::size_t(kChunk) * n_slot * hp_;
-        const bool proj = hp_ == 16 && (n_in_ == 8 || n_in_ == 17) && n_proj * sizeof(T) <= (std::size_t(1) << 20);
-        const std::size_t count = 2 * n_col + n_w + n_state + (proj ? n_proj : 0) + 64;
+        const bool proj = hp_ == 16 && (n_in_ == 8 || n_in_ == 17 || n_in_ == 34) && n_proj * sizeof(T) <= (std::size_t(1) << 20);
+        const std::size_t n_shb = std::size_t(kChunk) * hp_;
+        const std::size_t count = 2 * n_col + n_w + n_state + (proj ? n_proj + n_shb : 0) + 64;
         void* mem = std::aligned_alloc(64, ((count * sizeof(T) + 63) / 64) * 64);
         if (!mem) throw std::bad_alloc();
         buf_.reset(mem);
@@ -143,6 +144,8 @@ public:
         if (proj) {
             pch_ = p;
             p += n_proj;
+            shb_ = p;
+            p += n_shb;
         }
         ych_ = p;
         p += std::size_t(kChunk) * urec_;
@@ -207,6 +210,19 @@ public:
         isa_ = isa;
         return true;
     }
+
+    /// Declare that the last n inputs hold the same value for every instance at each tick
+    /// (a pad's mean, detector_bank.hpp): their share of the hidden pre-activations is then
+    /// computed once per tick, not per instance (the unrolled 34-input net with n = 17;
+    /// other sizes run as before). The sums change order (b1, the shared inputs, then
+    /// each instance's own): round-off only; step() and run() still agree bit for bit.
+    /// Returns false (and changes nothing) for n outside [0, n_inputs]. Not real-time.
+    bool set_shared_inputs(int n) noexcept {
+        if (n < 0 || n > n_in_) return false;
+        n_shared_ = n;
+        return true;
+    }
+    int shared_inputs() const noexcept { return n_shared_; }
 
     /// Recurrent state: y_pred(t-1) of every instance (n_instances values).
     void get_state(T* out) const noexcept {
@@ -384,22 +400,26 @@ private:
 
     // The paper's network (4 inputs, 16 hidden units), the load-memory net (8
     // inputs, detector_memory.hpp) and the default filter-bank net (17 inputs,
-    // detector_bank.hpp) are unrolled at compile time: the generic path (sizes at
+    // detector_bank.hpp; 34 with the pad's mean) are unrolled at compile time: the generic path (sizes at
     // run time) took 2.5x as long per tick for the bank net.
     template <int B, Activation A>
     __attribute__((always_inline)) inline void run_dispatch(const Io& io) noexcept {
         constexpr int NL = simd::Vec<T, B>::lanes;
         if (n_in_ == 4 && hp_ == 16)
-            run_impl<B, A, 4, 16 / NL>(io);
+            run_impl<B, A, 4, 0, 16 / NL>(io);
         else if (n_in_ == 8 && hp_ == 16)
-            run_impl<B, A, 8, 16 / NL>(io);
+            run_impl<B, A, 8, 0, 16 / NL>(io);
         else if (n_in_ == 17 && hp_ == 16)
-            run_impl<B, A, 17, 16 / NL>(io);
+            run_impl<B, A, 17, 0, 16 / NL>(io);
+        else if (n_in_ == 34 && hp_ == 16 && n_shared_ == 17)
+            run_impl<B, A, 34, 17, 16 / NL>(io);
+        else if (n_in_ == 34 && hp_ == 16)
+            run_impl<B, A, 34, 0, 16 / NL>(io);
         else
-            run_impl<B, A, 0, 0>(io);
+            run_impl<B, A, 0, 0, 0>(io);  // (shares nothing: the same sums, another order)
     }
 
-    template <int B, Activation A, int NIN, int NV>
+    template <int B, Activation A, int NIN, int NS, int NV>
     __attribute__((always_inline)) inline void run_impl(const Io& io) noexcept {
         const int nin = NIN > 0 ? NIN : n_in_;
         if (io.n == 1 && (io.in_place || (io.si == 1 && io.sr == nin))) {
@@ -446,7 +466,7 @@ private:
                 for (int r = 0; r < ni; ++r)
                     for (int i = 0; i < nin; ++i) xs[r * nin + i] = (xin[r * nin + i] - mu[i]) * g[i];
             }
-            tick_impl<B, A, NIN, NV>(tin, xr, xi, 0, 1, ych_);
+            tick_impl<B, A, NIN, NS, NV>(tin, xr, xi, 0, 1, ych_);
             const T* __restrict u = ych_;
             T* __restrict pv = prev_;
             T* __restrict ys = io.ys;
@@ -498,7 +518,7 @@ private:
                     for (; k < m; ++k) dst[k] = (src[k * io.st] - mu) * g;
                 }
             const bool projected = NV > 0 && NIN > 0 && pch_ && ng > 1;
-            tick_impl<B, A, NIN, NV>(xch_, std::ptrdiff_t(nin) * kChunk, kChunk, 1, m, ych_, projected);
+            tick_impl<B, A, NIN, NS, NV>(xch_, std::ptrdiff_t(nin) * kChunk, kChunk, 1, m, ych_, projected);
             for (int r0 = 0; r0 < ni; r0 += gsz) {
                 const int gr = ni - r0 < gsz ? ni - r0 : gsz;  // real instances of the group
                 T* ys = io.ys + r0 * ld + t0;
@@ -546,7 +566,7 @@ private:
     // feedback of the first tick comes from prev_, of the others from the previous
     // tick's outputs; prev_ itself is not updated here. Instances go in ng groups
     // of G <= lanes / 2 (the last one padded with ghost instances if needed).
-    template <int B, Activation A, int NIN, int NV>
+    template <int B, Activation A, int NIN, int NS, int NV>
     __attribute__((always_inline)) inline void tick_impl(const T* xs, std::ptrdiff_t xr, std::ptrdiff_t xi,
                                                          std::ptrdiff_t xk, int m, T* u,
                                                          bool projected = false) noexcept {
@@ -557,15 +577,15 @@ private:
         const Ticks t{xs, xr, xi, xk, m, u, ng, projected};
         // g <= GM <= 4; each size is instantiated once.
         if constexpr (GM >= 4) {
-            if (g == 4) return tick_groups<B, A, NIN, NV, 4>(t);
+            if (g == 4) return tick_groups<B, A, NIN, NS, NV, 4>(t);
         }
         if constexpr (GM >= 3) {
-            if (g == 3) return tick_groups<B, A, NIN, NV, 3>(t);
+            if (g == 3) return tick_groups<B, A, NIN, NS, NV, 3>(t);
         }
         if constexpr (GM >= 2) {
-            if (g == 2) return tick_groups<B, A, NIN, NV, 2>(t);
+            if (g == 2) return tick_groups<B, A, NIN, NS, NV, 2>(t);
         }
-        tick_groups<B, A, NIN, NV, 1>(t);
+        tick_groups<B, A, NIN, NS, NV, 1>(t);
     }
 
     struct Ticks {
@@ -577,14 +597,14 @@ private:
         bool projected;  // the input projections of the m ticks are in pch_ (project())
     };
 
-    template <int B, Activation A, int NIN, int NV, int G>
+    template <int B, Activation A, int NIN, int NS, int NV, int G>
     __attribute__((always_inline)) inline void tick_groups(const Ticks& t) noexcept {
         if constexpr (NV > 0) {
             if (t.ng > 1) {
                 if (t.projected)
-                    tick_pipelined<B, A, NIN, NV, G, true>(t);
+                    tick_pipelined<B, A, NIN, NS, NV, G, true>(t);
                 else
-                    tick_pipelined<B, A, NIN, NV, G, false>(t);
+                    tick_pipelined<B, A, NIN, NS, NV, G, false>(t);
                 return;
             }
         }
@@ -595,7 +615,7 @@ private:
             const T* pk = k == 0 ? prev_ : uk - urec_ + 1;
             const std::ptrdiff_t ps = k == 0 ? 1 : 2;
             for (int g = 0, r0 = 0; g < t.ng; ++g, r0 += G)
-                group<B, A, NIN, NV, G>(xk + r0 * t.xr, t.xr, t.xi, pk + r0 * ps, ps, uk + 2 * r0);
+                group<B, A, NIN, NS, NV, G>(xk + r0 * t.xr, t.xr, t.xi, pk + r0 * ps, ps, uk + 2 * r0);
         }
     }
 
@@ -606,7 +626,7 @@ private:
     // the out-of-order window does not reach far enough to overlap consecutive
     // groups by itself (measured: groups ran almost one after the other); placing
     // independent work next to it in program order does.
-    template <int B, Activation A, int NIN, int NV, int G, bool PROJ>
+    template <int B, Activation A, int NIN, int NS, int NV, int G, bool PROJ>
     __attribute__((always_inline)) inline void tick_pipelined(const Ticks& t) noexcept {
         typedef typename simd::Vec<T, B>::type V;
         constexpr int NL = simd::Vec<T, B>::lanes;
@@ -615,16 +635,19 @@ private:
         T* od = nullptr;  // and where their sigmoids go
         // The input projections (PROJ) of all m ticks first, in one pass (measured
         // faster than placing them between the ticks, next to the serial chain).
-        if constexpr (PROJ) project<B, A, NIN, NV>(t.m, t.ng * G);
+        if constexpr (PROJ) project<B, A, NIN, NS, NV>(t.m, t.ng * G);
         for (int k = 0; k < t.m; ++k) {
             const T* xk = t.xs + k * t.xk;
             T* uk = t.u + std::size_t(k) * urec_;
             const T* pk = k == 0 ? prev_ : uk - urec_ + 1;
             const std::ptrdiff_t ps = k == 0 ? 1 : 2;
+            V c[NV];  // the tick's shared part (NS inputs), once for all groups
+            if constexpr (NS > 0 && !PROJ) shared_part<B, A, NIN, NS, NV>(xk, t.xi, c);
             for (int g = 0, r0 = 0; g < t.ng; ++g, r0 += G) {
                 V a[KH];
-                hidden_pre<B, A, NIN, NV, G, PROJ>(xk + r0 * t.xr, t.xr, t.xi, pk + r0 * ps, ps, a,
-                                                   PROJ ? pch_ + (std::size_t(k) * nslot_ + r0) * (NV * NL) : nullptr);
+                hidden_pre<B, A, NIN, NS, NV, G, PROJ>(xk + r0 * t.xr, t.xr, t.xi, pk + r0 * ps, ps, a,
+                                                   PROJ ? pch_ + (std::size_t(k) * nslot_ + r0) * (NV * NL) : nullptr,
+                                                   c);
                 sigmoid_batch<B, A, KH>(a);
                 if (od) {
                     simd::sigmoid_k<T, B, A, 1, A == Activation::fast>(&o);
@@ -660,11 +683,12 @@ private:
     // Pre-activations of the G * NV hidden vectors of a group (a[v * G + j]). PROJ: the
     // input part comes from the group's projections at pr (project()), and only the
     // feedback term is added, the same last FMA as without.
-    template <int B, Activation A, int NIN, int NV, int G, bool PROJ = false>
+    template <int B, Activation A, int NIN, int NS, int NV, int G, bool PROJ = false>
     __attribute__((always_inline)) inline void hidden_pre(const T* xg, std::ptrdiff_t xr, std::ptrdiff_t xi,
                                                           const T* pg, std::ptrdiff_t ps,
                                                           typename simd::Vec<T, B>::type* a,
-                                                          const T* pr = nullptr) const noexcept {
+                                                          const T* pr = nullptr,
+                                                          const typename simd::Vec<T, B>::type* c = nullptr) const noexcept {
         typedef typename simd::Vec<T, B>::type V;
         constexpr int NL = simd::Vec<T, B>::lanes;
         constexpr std::size_t cs = std::size_t(NV * NL);
@@ -678,12 +702,32 @@ private:
                 if constexpr (PROJ) {
                     acc = simd::load<V>(pr + j * cs + v * NL);
                 } else {
-                    acc = simd::load<V>(w);
-                    _Pragma("GCC unroll 8") for (int i = 0; i < NIN; ++i)
+                    acc = NS > 0 ? c[v] : simd::load<V>(w);
+                    _Pragma("GCC unroll 8") for (int i = 0; i < NIN - NS; ++i)
                         acc += simd::load<V>(w + (1 + i) * cs) * simd::bcast<T, B>(xg + j * xr + i * xi);
                 }
                 a[v * G + j] = acc + simd::load<V>(w + (1 + NIN) * cs) * pb[j];
             }
+        }
+    }
+
+    // The part of the hidden pre-activations that every instance shares at a tick: b1
+    // plus the last NS inputs' terms (a pad's mean, the same for every ridge: read off
+    // the first instance, xg[i * xi]), summed from b1 in input order; each instance then
+    // adds its own NIN - NS inputs (hidden_pre, group, project_ticks: the same order
+    // everywhere, so step() and run() agree bit for bit).
+    template <int B, Activation A, int NIN, int NS, int NV>
+    __attribute__((always_inline)) inline void shared_part(const T* xg, std::ptrdiff_t xi,
+                                                           typename simd::Vec<T, B>::type* c) const noexcept {
+        typedef typename simd::Vec<T, B>::type V;
+        constexpr int NL = simd::Vec<T, B>::lanes;
+        constexpr std::size_t cs = std::size_t(NV * NL);
+        const T* __restrict wc = wcol_[A == Activation::fast ? 1 : 0];
+        _Pragma("GCC unroll 8") for (int v = 0; v < NV; ++v) {
+            V acc = simd::load<V>(wc + v * NL);
+            _Pragma("GCC unroll 32") for (int i = NIN - NS; i < NIN; ++i)
+                acc += simd::load<V>(wc + (1 + i) * cs + v * NL) * simd::bcast<T, B>(xg + i * xi);
+            c[v] = acc;
         }
     }
 
@@ -694,18 +738,28 @@ private:
     // gives the bits of hidden_pre without. They do not depend on the feedback, so they
     // leave the recurrence's serial chain: here KT ticks share each weight load
     // (8 accumulators), where hidden_pre loads a weight and a broadcast per FMA.
-    template <int B, Activation A, int NIN, int NV>
+    template <int B, Activation A, int NIN, int NS, int NV>
     __attribute__((always_inline)) inline void project(int m, int nslots) noexcept {
         constexpr int KT = NV >= 8 ? 1 : 8 / NV;
+        if constexpr (NS > 0) {
+            // the shared parts of the m ticks, from the first slot's rows
+            typedef typename simd::Vec<T, B>::type V;
+            constexpr int NL = simd::Vec<T, B>::lanes;
+            for (int k = 0; k < m; ++k) {
+                V c[NV];
+                shared_part<B, A, NIN, NS, NV>(xch_ + k, kChunk, c);
+                std::memcpy(shb_ + std::size_t(k) * NV * NL, c, sizeof c);
+            }
+        }
         for (int r = 0; r < nslots; ++r) {
             int k = 0;
-            for (; k + KT <= m; k += KT) project_ticks<B, A, NIN, NV, KT>(r, k);
-            for (; k < m; ++k) project_ticks<B, A, NIN, NV, 1>(r, k);
+            for (; k + KT <= m; k += KT) project_ticks<B, A, NIN, NS, NV, KT>(r, k);
+            for (; k < m; ++k) project_ticks<B, A, NIN, NS, NV, 1>(r, k);
         }
     }
 
     // project() for ticks k to k + KT - 1 of slot r.
-    template <int B, Activation A, int NIN, int NV, int KT>
+    template <int B, Activation A, int NIN, int NS, int NV, int KT>
     __attribute__((always_inline)) inline void project_ticks(int r, int k) noexcept {
         typedef typename simd::Vec<T, B>::type V;
         constexpr int NL = simd::Vec<T, B>::lanes;
@@ -715,9 +769,10 @@ private:
         V acc[NV * KT];
         _Pragma("GCC unroll 8") for (int v = 0; v < NV; ++v) {
             const V b = simd::load<V>(wc + v * NL);
-            _Pragma("GCC unroll 8") for (int q = 0; q < KT; ++q) acc[v * KT + q] = b;
+            _Pragma("GCC unroll 8") for (int q = 0; q < KT; ++q)
+                acc[v * KT + q] = NS > 0 ? simd::load<V>(shb_ + std::size_t(k + q) * cs + v * NL) : b;
         }
-        _Pragma("GCC unroll 32") for (int i = 0; i < NIN; ++i) {
+        _Pragma("GCC unroll 32") for (int i = 0; i < NIN - NS; ++i) {
             V x[KT];
             _Pragma("GCC unroll 8") for (int q = 0; q < KT; ++q)
                 x[q] = simd::bcast<T, B>(xr + std::size_t(i) * kChunk + q);
@@ -763,7 +818,7 @@ private:
     // at compile time; then all G * NV hidden sigmoids of the group go through one
     // interleaved pass (measured faster than a pass per hidden vector, and than one
     // pass over all groups, which spills too much).
-    template <int B, Activation A, int NIN, int NV, int G>
+    template <int B, Activation A, int NIN, int NS, int NV, int G>
     __attribute__((always_inline)) inline void group(const T* xg, std::ptrdiff_t xr, std::ptrdiff_t xi, const T* pg,
                                                      std::ptrdiff_t ps, T* ug) const noexcept {
         typedef typename simd::Vec<T, B>::type V;
@@ -775,6 +830,8 @@ private:
         const std::size_t cs = NV > 0 ? std::size_t(NV * NL) : std::size_t(hp_);  // column stride
         const T* __restrict wc = wcol_[S ? 1 : 0];
         const T* b2v = wc + (nin + 4) * cs;
+        V c[NV > 0 ? NV : 1];  // the shared part (NS > 0: NV > 0, KB = NV, one pass)
+        if constexpr (NS > 0) shared_part<B, A, NIN, NS, NV>(xg, xi, c);
         V pb[G], s0[G], s1[G];
         _Pragma("GCC unroll 4") for (int j = 0; j < G; ++j) {
             pb[j] = simd::bcast<T, B>(pg + j * ps);
@@ -786,8 +843,8 @@ private:
             _Pragma("GCC unroll 8") for (int v = 0; v < KB; ++v) {
                 const T* w = wc + std::size_t(v0 + v) * NL;
                 _Pragma("GCC unroll 4") for (int j = 0; j < G; ++j) {
-                    V acc = simd::load<V>(w);
-                    _Pragma("GCC unroll 8") for (int i = 0; i < nin; ++i)
+                    V acc = NS > 0 ? c[v0 + v] : simd::load<V>(w);
+                    _Pragma("GCC unroll 8") for (int i = 0; i < nin - NS; ++i)
                         acc += simd::load<V>(w + (1 + i) * cs) * simd::bcast<T, B>(xg + j * xr + i * xi);
                     a[v * G + j] = acc + simd::load<V>(w + (1 + nin) * cs) * pb[j];
                 }
@@ -822,6 +879,8 @@ private:
     T* xch_ = nullptr;
     T* ych_ = nullptr;
     T* pch_ = nullptr;  // input projections of the block path (nullptr: not used)
+    T* shb_ = nullptr;  // the shared parts of a chunk's ticks (set_shared_inputs), kChunk x hp_
+    int n_shared_ = 0;
     T* prev_ = nullptr;
     T* w1_ = nullptr;
     T* b1_ = nullptr;

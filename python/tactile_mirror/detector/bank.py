@@ -26,7 +26,12 @@ a small recurrent net can read it. Per ridge, from ``d = v_L - v_R`` (the shear 
 
 The net (the Jordan kernel, ``jordan_mlp.hpp``) then reads the four stress rates and
 these channels, :func:`bank_channels` in order. This module is the specification of the
-C++ feature stage ``detector_bank.hpp``. Ridges are independent (no pad channels).
+C++ feature stage ``detector_bank.hpp``. Ridges are independent, unless the bank has
+``pad_mean``: then the net also reads, after a ridge's own channels, their mean over the
+pad's ridges (the same for every ridge). A stop stills every ridge at once; a slip that
+creeps in reaches the ridges one after another, in order of their normal load, so a ridge
+creeping while the pad's mean still carries load is what the mean shows
+(``bench/detector_pad_net.py`` measures what it gives the net on 6-ridge pads).
 
 Optionally every channel is compressed before the net reads it (a bank with a ``knee``,
 one per channel: :func:`log_compress`): ``sign(x) log(1 + |x| / knee)``, linear below the
@@ -66,16 +71,18 @@ def bank_config(bank=None) -> dict:
     """A checked copy of a bank description (``DEFAULT_BANK`` when None).
 
     Keys ``lp_taus`` (1-8 time constants), ``abs_taus`` (0-8), ``load_tau``, ``peak_tau``
-    (s, positive and finite), and optionally ``knee``: one number in [1e-30, 1e30] per
-    channel (:func:`bank_channels`, in their units), the compression's knees
-    (:func:`log_compress`). Raises ``ValueError`` naming the key.
+    (s, positive and finite), optionally ``pad_mean`` (bool, default False: the pad's mean
+    of the channels as more inputs) and ``knee``: one number in [1e-30, 1e30] per channel
+    (:func:`bank_channels`, in their units, the pad's mean included), the compression's
+    knees (:func:`log_compress`). Raises ``ValueError`` naming the key.
     """
     if bank is not None and not isinstance(bank, dict):
         raise ValueError(f"bank must be a dict, got {type(bank).__name__}")
     b = dict(DEFAULT_BANK if bank is None else bank)
-    unknown = set(b) - set(DEFAULT_BANK) - {"knee"}
+    unknown = set(b) - set(DEFAULT_BANK) - {"knee", "pad_mean"}
     if unknown:
-        raise ValueError(f"unknown bank keys {sorted(unknown)}; expected {sorted(DEFAULT_BANK)} and optionally 'knee'")
+        raise ValueError(f"unknown bank keys {sorted(unknown)}; expected {sorted(DEFAULT_BANK)} and optionally "
+                         "'pad_mean' and 'knee'")
     out = {}
     for key, lo in (("lp_taus", 1), ("abs_taus", 0)):
         v = b.get(key)
@@ -84,8 +91,13 @@ def bank_config(bank=None) -> dict:
         out[key] = [_tau(f"bank['{key}']", t) for t in v]
     for key in ("load_tau", "peak_tau"):
         out[key] = _tau(f"bank['{key}']", b.get(key))
+    pad_mean = b.get("pad_mean", False)
+    if not isinstance(pad_mean, (bool, np.bool_)):
+        raise ValueError(f"bank['pad_mean'] must be True or False, got {pad_mean!r}")
+    if pad_mean:
+        out["pad_mean"] = True  # (absent when False: the files of banks without it stay as they were)
     if b.get("knee") is not None:
-        n_ch = 4 + 2 * len(out["lp_taus"]) + len(out["abs_taus"]) + 3
+        n_ch = (2 if pad_mean else 1) * (4 + 2 * len(out["lp_taus"]) + len(out["abs_taus"]) + 3)
         k = b["knee"]
         try:
             kv = np.asarray(k, dtype=np.float64)
@@ -156,20 +168,25 @@ def fit_knees(x, mask=None) -> np.ndarray:
 
 
 def bank_channels(bank=None) -> tuple:
-    """Names of the filter-bank net's input channels, in order."""
+    """Names of the filter-bank net's input channels, in order (with ``pad_mean``, the
+    ridge's own, then ``pad_mean_<name>`` for each)."""
     b = bank_config(bank)
     names = ["v_L", "v_R", "u_L", "u_R"]
     for t in b["lp_taus"]:
         names += [f"shear_lp_{1e3 * t:g}ms", f"normal_lp_{1e3 * t:g}ms"]
     names += [f"shear_abs_{1e3 * t:g}ms" for t in b["abs_taus"]]
-    return tuple(names + ["load", "press", "load_peak"])
+    names += ["load", "press", "load_peak"]
+    if b.get("pad_mean"):
+        names += [f"pad_mean_{n}" for n in names]
+    return tuple(names)
 
 
 def bank_units(bank=None) -> tuple:
     """Units of :func:`bank_channels` (stress-rate features)."""
     b = bank_config(bank)
-    return ("Pa/s", "Pa/s", "Pa/s^2", "Pa/s^2") + ("Pa/s",) * (2 * len(b["lp_taus"]) + len(b["abs_taus"])) \
+    own = ("Pa/s", "Pa/s", "Pa/s^2", "Pa/s^2") + ("Pa/s",) * (2 * len(b["lp_taus"]) + len(b["abs_taus"])) \
         + ("Pa", "Pa", "Pa")
+    return own * (2 if b.get("pad_mean") else 1)
 
 
 def bank_state_size(bank=None) -> int:
@@ -197,9 +214,11 @@ def bank_features(x, fs: float, bank=None, state=None, return_state: bool = Fals
 
     Returns
     -------
-    ndarray, shape (n_ridges, 4 + bank_state_size, n), float64 (and the state)
-        Compressed by :func:`log_compress` when the bank has a ``knee``; the state is the
-        filters' own (uncompressed).
+    ndarray, shape (n_ridges, n_channels, n), float64 (and the state)
+        :func:`bank_channels`: ``4 + bank_state_size`` per ridge, then with ``pad_mean``
+        their mean over the ridges (summed in ridge order, then divided by ``n_ridges``,
+        as the C++ stage). Compressed by :func:`log_compress` when the bank has a
+        ``knee``; the state is the filters' own (uncompressed).
     """
     from scipy.signal import lfilter
 
@@ -245,6 +264,11 @@ def bank_features(x, fs: float, bank=None, state=None, return_state: bool = Fals
         p = np.maximum(load[:, t], c * p)
         peak[:, t] = p
     end = out[:, 4:, -1].copy() if n else s0  # the filters' state: before any compression
+    if b.get("pad_mean"):
+        total = out[0].copy()
+        for r in range(1, n_r):
+            total += out[r]
+        out = np.concatenate([out, np.broadcast_to(total / n_r, out.shape)], axis=1)
     if b.get("knee") is not None:
         out = log_compress(out, b["knee"])
     if return_state:

@@ -199,7 +199,7 @@ class SlipDetector:
                 cls = getattr(_core(), _BANK_DTYPES[self.dtype])
                 k = cls(p.w1, p.b1, p.w2, p.b2, w.input_mean, w.input_gain, n_ridges, w.fs,
                         np.asarray(b["lp_taus"], dtype=np.float64), np.asarray(b["abs_taus"], dtype=np.float64),
-                        b["load_tau"], b["peak_tau"], self.activation, b.get("knee"))
+                        b["load_tau"], b["peak_tau"], self.activation, b.get("knee"), bool(b.get("pad_mean")))
             else:
                 cls = getattr(_core(), _DTYPES[self.dtype])
                 k = cls(p.w1, p.b1, p.w2, p.b2, w.input_mean, w.input_gain, n_ridges, self.activation)
