@@ -16,14 +16,21 @@ iterations) are chosen, and ``y_slip``'s decision point calibrated (at most 1.5 
 alarms noise-free), on the validation seed ``PAD_VALIDATION_SEED``; the rows are
 measured on a third seed, ``PAD_TEST_SEED``, which chose nothing. Rates over ridges 0-2
 (the pad is mirror-symmetric). The nets run here through the numpy recurrence
-(``detector.network.forward``, the C++ kernel's specification): the C++ bank has no pad
-channels yet.
+(``detector.network.forward``, the C++ kernel's specification).
+
+``--save PATH`` (with ``--inputs mean --compress log``): the kept net as a weights file of
+kind ``"jordan_bank"`` whose bank has the pad's mean and the knees
+(``bank["pad_mean"]``, ``bank["knee"]``), its output bias shifted so that ``y_slip >= 0.8``
+is the decision point (the build's rule, ``build.calibrate_slip``); it is then loaded
+and run by ``SlipDetector`` (the C++ kernel, from the stress rates) on the test scenes,
+one more row per condition.
 
 Run: ``python bench/detector_pad_net.py --cache out/scenes`` (14 min on 2 cores with the scenes cached).
 """
 from __future__ import annotations
 
 import argparse
+import math
 import os
 import sys
 import time
@@ -85,12 +92,17 @@ def main(argv=None):
                          "(bench/detector_input_study.py), before the rms normalisation")
     ap.add_argument("--inputs", nargs="+", default=["ridge", "mean"], choices=["ridge", "mean"],
                     help="input sets: the ridge's bank alone, or with the pad's mean bank")
+    ap.add_argument("--save", default=None, metavar="PATH",
+                    help="save the pad-mean net as weights (needs --compress log) and run it through SlipDetector")
     args = ap.parse_args(argv)
+    if args.save and (args.compress != "log" or "mean" not in args.inputs):
+        ap.error("--save needs --compress log and --inputs mean (the library's compressed pad-mean bank)")
     sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
     import scipy.optimize
     from detector_input_study import compression
     from detector_pad_study import N_RIDGES, PAD_TRAIN_SEED, PAD_VALIDATION_SEED, SCORED, latency_at
-    from tactile_mirror.detector import SlipDetector, build
+    from tactile_mirror.detector import DetectorWeights, SlipDetector, build
+    from tactile_mirror.detector.bank import DEFAULT_BANK, fit_knees
     from tactile_mirror.detector.data_prep import features_from_result, targets_from_result
     from tactile_mirror.detector.evaluate import noise_free, onset_kinds, roc, with_noise
     from tactile_mirror.detector.network import Params, forward, init_params
@@ -155,6 +167,7 @@ def main(argv=None):
     for with_mean in [name == "mean" for name in args.inputs]:
         name = "pad-trained net, ridge + pad mean" if with_mean else "pad-trained net, ridge"
         X, S, P, M = stack(seqs, with_mean, gains)
+        knees = fit_knees(X, M)  # what compression() fits for "log/median" (the same function)
         # the input study's transforms, knees from these training inputs
         compressed = compression({"none": "linear", "asinh": "asinh/median", "log": "log/median"}[args.compress],
                                  X, M)
@@ -208,6 +221,23 @@ def main(argv=None):
             Xt, _, _, _ = stack(res, with_mean)
             yt, _ = forward(Params.unpack(theta, n_in, H), compressed(Xt) / scale[None, :, None])
             rows[cond].append(row(name, ridge_scores(yt, res), res, thr))
+        if args.save and with_mean:
+            # The library's pad-mean bank with these knees: the same inputs (the mean summed in
+            # ridge order instead of numpy's mean: round-off), y_slip >= 0.8 at the decision point.
+            params = Params.unpack(theta, n_in, H)
+            params.b2[0] += math.log(0.8 / 0.2) - math.log(thr / (1.0 - thr))
+            bank = {**DEFAULT_BANK, "pad_mean": True, "knee": [float(k) for k in knees]}
+            w = DetectorWeights(params, np.zeros(n_in), scale, float(train[0].fs),
+                                {"features": "stress_rate_bank", "bank": bank,
+                                 "trained_on": f"pad scenes seed {PAD_TRAIN_SEED} (bench/detector_pad_net.py)",
+                                 "slip_calibration": {"threshold": thr, "validation": f"seed {PAD_VALIDATION_SEED}"}})
+            w.save(args.save)
+            det = SlipDetector.load(args.save)
+            print(f"# saved {args.save}; run by SlipDetector ({det.simd_path}, float64) from the stress rates",
+                  flush=True)
+            for cond, res in conditions.items():
+                sc = [det.run(features_from_result(r, "stress_rate"), fs=r.fs)[0] for r in res]
+                rows[cond].append(row(f"{name}, saved, run by SlipDetector (C++)", sc, res, 0.8))
 
     print("\n| pad test scenes, ridges 0-2 | detection | false alarms | release | gradual | latency release / "
           "gradual | at 2 % false alarms: all (gradual) | the same, 3 in a row |")

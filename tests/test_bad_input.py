@@ -261,6 +261,7 @@ def test_config_init_writes_exactly_the_callers_struct():
     struct; sizes outside the accepted range write nothing."""
     ffi, lib = load()
     full = ffi.sizeof("tm_config")
+    abi8 = ffi.offsetof("tm_config", "bank_pad_mean")
     abi7 = ffi.offsetof("tm_config", "bank_knee")
     abi6 = ffi.offsetof("tm_config", "planner_decel")
     abi4 = ffi.offsetof("tm_config", "controller") + ffi.offsetof("tm_controller_params", "slip_confirm")
@@ -271,7 +272,8 @@ def test_config_init_writes_exactly_the_callers_struct():
         ffi.memmove(buf, b"\xab" * (full + 16), full + 16)
         return buf, ffi.cast("tm_config*", buf)
 
-    for size, abi, call in [(full, 8, lambda c: lib.tm_config_init_sized(c, full)),
+    for size, abi, call in [(full, 9, lambda c: lib.tm_config_init_sized(c, full)),
+                            (abi8, 8, lambda c: lib.tm_config_init_sized(c, abi8)),
                             (abi7, 7, lambda c: lib.tm_config_init_sized(c, abi7)),
                             (abi6, 6, lambda c: lib.tm_config_init(c)),
                             (abi4, 4, lambda c: lib.tm_config_init_sized(c, abi4)),
@@ -375,4 +377,4 @@ def test_version_string_and_struct_sizes():
     cfg.struct_size = abi3 - 8
     assert lib.tm_pipeline_create(cfg, h) == -6
     assert b"accepts" in ffi.string(lib.tm_last_error())
-    assert lib.tm_config_init_sized(cfg, ffi.sizeof("tm_config")) == 0 and cfg.abi_version == 8 and cfg.v_limit == 15.0
+    assert lib.tm_config_init_sized(cfg, ffi.sizeof("tm_config")) == 0 and cfg.abi_version == 9 and cfg.v_limit == 15.0

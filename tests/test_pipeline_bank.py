@@ -13,7 +13,7 @@ import numpy as np
 import pytest
 from tactile_mirror.circuit import PVDFCircuit
 from tactile_mirror.detector import SlipDetector
-from tactile_mirror.detector.bank import bank_channels, bank_config, bank_features
+from tactile_mirror.detector.bank import DEFAULT_BANK, bank_channels, bank_config, bank_features
 from tactile_mirror.detector.network import init_params
 from tactile_mirror.detector.weights import DetectorWeights
 from tactile_mirror.estimator import StressRateEstimator
@@ -52,8 +52,22 @@ def knee_bank_weights(seed=6, n_hidden=8):
                            {"features": "stress_rate_bank", "bank": bank})
 
 
+def pad_bank_weights(seed=7, n_hidden=16):
+    """The default bank with the pad's mean (34 inputs: the kernel's unrolled net with the
+    mean's share computed once per tick), compressed."""
+    nf = len(bank_channels())
+    rng = np.random.default_rng(seed)
+    own = np.concatenate([[1e2, 1e2, 1e4, 1e4], np.full(nf - 7, 1e2), [0.3, 0.3, 0.3]])
+    knee = np.concatenate([own, own]) * rng.uniform(0.5, 2.0, 2 * nf)
+    bank = bank_config({**DEFAULT_BANK, "pad_mean": True, "knee": [float(k) for k in knee]})
+    p = init_params(2 * nf, n_hidden, seed)
+    p.b2[:] = [0.3, -0.2]
+    return DetectorWeights(p, rng.normal(size=2 * nf) * 0.01, rng.uniform(0.5, 2.0, 2 * nf), FS,
+                           {"features": "stress_rate_bank", "bank": bank})
+
+
 DETECTORS = {"bundled": lambda: SlipDetector.bank(), "small": lambda: SlipDetector(small_bank_weights()),
-             "compressed": lambda: SlipDetector(knee_bank_weights())}
+             "compressed": lambda: SlipDetector(knee_bank_weights()), "pad": lambda: SlipDetector(pad_bank_weights())}
 
 
 def signals(n, ni, seed=1, scale=0.05):
@@ -179,7 +193,7 @@ def test_python_refuses_inconsistent_bank_weights():
                         "bank": SMALL_BANK}, FS, 6, estimator=est)
 
 
-@pytest.mark.parametrize("det", ["bundled", "compressed"])
+@pytest.mark.parametrize("det", ["bundled", "compressed", "pad"])
 def test_from_config_and_recording_replay_bit_for_bit(tmp_path, det):
     pipe = make(det, controller=LAW)
     x = signals(600, pipe.n_inputs, seed=11)

@@ -110,9 +110,6 @@ def pipeline_config(detector, fs, n_ridges: int = 6, *, estimator=None, sos_v=No
         from .detector.bank import bank_channels, bank_config
 
         bank = bank_config(w.get("bank"))
-        if bank.get("pad_mean"):
-            raise ValueError("bank['pad_mean']: the pipeline does not run a filter-bank net with the pad's mean "
-                             "yet; SlipDetector does")
         if features != "stress_rate":
             raise ValueError("the filter-bank detector takes stress-rate features")
     elif w.get("bank") is not None:

@@ -208,9 +208,15 @@ void bind_one(py::module_& m, const char* cls) {
                      c.bank_abs_taus = ab.shape(0) ? ab.data() : nullptr;
                      c.bank_load_tau = b["load_tau"].cast<double>();
                      c.bank_peak_tau = b["peak_tau"].cast<double>();
+                     if (b.contains("pad_mean") && !b["pad_mean"].is_none()) {
+                         if (!py::isinstance<py::bool_>(b["pad_mean"]))
+                             throw py::type_error("bank['pad_mean'] must be True or False");
+                         c.bank_pad_mean = b["pad_mean"].cast<bool>() ? 1 : 0;
+                     }
                      if (b.contains("knee") && !b["knee"].is_none()) {
                          kn = real_array(b["knee"], "bank['knee']");
-                         const auto nk = tactile::detector::BankJordan<double>::feature_count(c.bank_n_lp, c.bank_n_abs);
+                         const auto nk = tactile::detector::BankJordan<double>::input_count(c.bank_n_lp, c.bank_n_abs,
+                                                                                            c.bank_pad_mean == 1);
                          if (kn.ndim() != 1 || kn.shape(0) != nk)
                              throw py::value_error("bank['knee'] must hold " + std::to_string(nk) +
                                                    " numbers, one per detector input");

@@ -221,6 +221,9 @@ struct PipelineConfig {
     // (nf) or null: the bank's features compressed to sign(x) log(1 + |x| / knee)
     // before the net reads them (detector_bank.hpp); null: as they are.
     const double* bank_knee = nullptr;
+    // 0 or 1: the net also reads the pad's mean of the bank's features (their mean over
+    // the ridges, detector_bank.hpp); nf is then twice the features (bank_knee too).
+    int bank_pad_mean = 0;
     double weights_fs = 0.0;       // Hz the weights were trained for; must equal fs
     int activation = 0;            // 0 exact, 1 fast
     double slip_threshold = 0.8;
@@ -379,7 +382,8 @@ inline void validate_controller(const ControllerParams& c) {
 // The detector's inputs per ridge (without the fed-back y_pred); 0 for an unknown kind.
 inline int detector_input_count(const PipelineConfig& c) noexcept {
     if (c.detector_kind == 0) return 4;
-    if (c.detector_kind == 1) return detector::BankJordan<double>::feature_count(c.bank_n_lp, c.bank_n_abs);
+    if (c.detector_kind == 1)
+        return detector::BankJordan<double>::input_count(c.bank_n_lp, c.bank_n_abs, c.bank_pad_mean == 1);
     return 0;
 }
 
@@ -425,8 +429,10 @@ inline void validate_config(const PipelineConfig& c) {
         taus_ok(c.bank_abs_taus, c.bank_n_abs, "bank_abs_taus");
         taus_ok(&c.bank_load_tau, 1, "bank_load_tau");
         taus_ok(&c.bank_peak_tau, 1, "bank_peak_tau");
+        if (c.bank_pad_mean != 0 && c.bank_pad_mean != 1)
+            bad("bank_pad_mean must be 0 or 1, got " + std::to_string(c.bank_pad_mean));
         if (c.bank_knee) {
-            const int nf = detector::BankJordan<double>::feature_count(c.bank_n_lp, c.bank_n_abs);
+            const int nf = detector_input_count(c);
             for (int k = 0; k < nf; ++k)
                 if (!(std::isfinite(c.bank_knee[k]) && c.bank_knee[k] > 0.0))
                     bad("bank_knee must be positive finite numbers, one per detector input");
@@ -663,7 +669,7 @@ public:
         if (c.detector_kind == 1) {
             bank_ = std::make_unique<Bank>(c.n_hidden, R_, c.w1, c.b1, c.w2, c.b2, c.input_mean, c.input_gain,
                                            c.fs, c.bank_n_lp, c.bank_lp_taus, c.bank_n_abs, c.bank_abs_taus,
-                                           c.bank_load_tau, c.bank_peak_tau, act, c.bank_knee);
+                                           c.bank_load_tau, c.bank_peak_tau, act, c.bank_knee, c.bank_pad_mean == 1);
             mlp_ = &bank_->net();
             undo_bank_.resize(bank_->filter_state_size());
         } else {
@@ -706,8 +712,9 @@ public:
     bool has_rate2_filter() const noexcept { return bool(rate2_f_); }
     // 0: the paper's net; 1: the filter-bank net.
     int detector_kind() const noexcept { return bank_ ? 1 : 0; }
-    // The detector's inputs per ridge (4, or the bank's feature count).
-    int n_detector_inputs() const noexcept { return bank_ ? bank_->n_features() : kFeatures; }
+    // The detector's inputs per ridge (4, or the bank's: its features, twice that with
+    // the pad's mean).
+    int n_detector_inputs() const noexcept { return bank_ ? bank_->n_inputs() : kFeatures; }
     ControllerKind controller_kind() const noexcept { return ctrl_kind_; }
     const StageController& controller() const noexcept { return ctrl_; }
     const PipelineStatus& status() const noexcept { return st_; }

@@ -78,8 +78,9 @@ extern "C" {
  * (detector_kind and the bank's time constants, appended to tm_config). 7: the
  * controller's planner_decel (appended to tm_config: tm_controller_params is no longer
  * its last member), and the command leads a planning stage's target when it is > 0.
- * 8: bank_knee (appended to tm_config): the filter-bank net's compressed inputs. */
-#define TM_ABI_VERSION 8
+ * 8: bank_knee (appended to tm_config): the filter-bank net's compressed inputs.
+ * 9: bank_pad_mean (appended to tm_config): the filter-bank net that also reads the pad's mean. */
+#define TM_ABI_VERSION 9
 
 typedef enum tm_status_code {
     TM_OK = 0,
@@ -181,6 +182,11 @@ typedef struct tm_config {
     const double* bank_knee; /* (nf) or NULL (default): with detector_kind 1, every bank input x is first
                               * compressed to sign(x) log(1 + |x| / knee) (the weights file of kind
                               * "jordan_bank" holds the knees in its bank's "knee", when it has them) */
+    /* ABI 9 (appended) */
+    int32_t bank_pad_mean;   /* 0 (default) or 1: with detector_kind 1, the net also reads the mean of the bank's
+                              * features over the ridges (the same for every ridge), after each ridge's own: its
+                              * inputs (w1's columns, input_mean, input_gain, bank_knee) are twice the features
+                              * (the bank's "pad_mean" in a weights file of kind "jordan_bank") */
 } tm_config;
 
 typedef struct tm_pipeline_status {

@@ -220,17 +220,19 @@ int32_t tm_controller_defaults(int32_t kind, tm_controller_params* params) {
 // shear_integral and rate_gain at the end of the controller, the end of tm_config;
 // ABI 5: slip_confirm at the end of the controller, shear_weights after it; ABI 6:
 // detector_kind and the filter bank's time constants; ABI 7: planner_decel, a controller
-// parameter kept in tm_config's tail, TM_CONTROLLER_TAIL_FIELDS; ABI 8: bank_knee). A
-// struct of ABI 4 ends where slip_confirm begins, one of ABI 5 where detector_kind begins,
-// one of ABI 6 where planner_decel begins, one of ABI 7 where bank_knee begins.
+// parameter kept in tm_config's tail, TM_CONTROLLER_TAIL_FIELDS; ABI 8: bank_knee; ABI 9:
+// bank_pad_mean). A struct of ABI 4 ends where slip_confirm begins, one of ABI 5 where
+// detector_kind begins, one of ABI 6 where planner_decel begins, one of ABI 7 where
+// bank_knee begins, one of ABI 8 where bank_pad_mean begins.
 constexpr std::size_t kConfigSizeAbi2 = offsetof(tm_config, controller) + offsetof(tm_controller_params, shear_integral);
 constexpr std::size_t kConfigSizeAbi4 = offsetof(tm_config, controller) + offsetof(tm_controller_params, slip_confirm);
 constexpr std::size_t kConfigSizeAbi5 = offsetof(tm_config, detector_kind);
 constexpr std::size_t kConfigSizeAbi6 = offsetof(tm_config, planner_decel);
 constexpr std::size_t kConfigSizeAbi7 = offsetof(tm_config, bank_knee);
+constexpr std::size_t kConfigSizeAbi8 = offsetof(tm_config, bank_pad_mean);
 static_assert(kConfigSizeAbi2 < kConfigSizeAbi4 && kConfigSizeAbi4 < kConfigSizeAbi5 &&
               kConfigSizeAbi5 < kConfigSizeAbi6 && kConfigSizeAbi6 < kConfigSizeAbi7 &&
-              kConfigSizeAbi7 < sizeof(tm_config), "tm_config only grows");
+              kConfigSizeAbi7 < kConfigSizeAbi8 && kConfigSizeAbi8 < sizeof(tm_config), "tm_config only grows");
 
 static void config_defaults(tm_config* cfg) noexcept {
     std::memset(cfg, 0, sizeof *cfg);
@@ -257,6 +259,7 @@ static void config_defaults(tm_config* cfg) noexcept {
 // The newest ABI whose tm_config fits in `size` bytes (sizes of the accepted range).
 static uint32_t abi_for_size(std::size_t size) noexcept {
     if (size >= sizeof(tm_config)) return TM_ABI_VERSION;
+    if (size >= kConfigSizeAbi8) return 8;
     if (size >= kConfigSizeAbi7) return 7;
     if (size >= kConfigSizeAbi6) return 6;
     if (size >= kConfigSizeAbi5) return 5;
@@ -344,6 +347,7 @@ int32_t tm_pipeline_create(const tm_config* user_cfg, tm_pipeline* out) {
     c.bank_load_tau = cfg->bank_load_tau;
     c.bank_peak_tau = cfg->bank_peak_tau;
     c.bank_knee = cfg->bank_knee;  // NULL (its default) in a struct of ABI 7 or earlier
+    c.bank_pad_mean = cfg->bank_pad_mean;  // 0 (its default) in a struct of ABI 8 or earlier
     // The sample-rate check first, with its own code.
     if (std::isfinite(c.fs) && c.fs > 0 && std::isfinite(c.weights_fs) && c.weights_fs > 0 &&
         std::fabs(c.fs - c.weights_fs) > 1e-9 * c.fs)

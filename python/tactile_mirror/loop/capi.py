@@ -225,6 +225,7 @@ class CPipeline:
             cfg.bank_peak_tau = float(bank["peak_tau"])
             if bank.get("knee") is not None:
                 cfg.bank_knee = arr(np.asarray(bank["knee"], dtype=np.float64))[0]
+            cfg.bank_pad_mean = 1 if bank.get("pad_mean") else 0
         ctrl = c["controller"]
         cfg.controller.kind = _CTRL_KINDS[ctrl["kind"]]
         for k, v in ctrl.items():
