@@ -15,9 +15,9 @@
    (``detector.core.reference_run``: ``bank_features`` + the numpy recurrence; goal
    >= 50x); then the same net with its inputs compressed (a bank with knees,
    ``detector.bank.log_compress``; knees fitted on the bench's own signals): what the
-   compression costs per tick; and a net that also reads the pad's mean of the bank
-   (``bank["pad_mean"]``, 34 inputs, compressed; the bundled weights with the mean's
-   columns half the ridge's): what the pad's mean costs.
+   compression costs per tick; and the bundled pad net (``SlipDetector.pad()``: it also
+   reads the pad's mean of the bank, ``bank["pad_mean"]``, 34 inputs, compressed): what the
+   pad's mean costs.
 4. Training: one loss-and-gradient evaluation (exact BPTT) of the C++ kernel
    (``_core.jordan_loss_grad``, 1 and 2 threads) against the numpy specification
    (``network.loss_and_grad``) on the same padded training batch, with the
@@ -81,16 +81,9 @@ def bank_net(n_iter, n_block):
     knee = fit_knees(bank_features(x[..., :20000], w.fs, w.bank))
     wk = DetectorWeights(w.params, w.input_mean, w.input_scale, w.fs,
                          {**w.metadata, "bank": {**w.bank, "knee": [float(k) for k in knee]}})
-    pad_bank = {**w.bank, "pad_mean": True}
-    pad_knee = fit_knees(bank_features(x[..., :20000], w.fs, pad_bank))
-    p = w.params
-    nf = p.w1.shape[1] - 1
-    wp = DetectorWeights(Params(np.concatenate([p.w1[:, :nf], 0.5 * p.w1[:, :nf], p.w1[:, nf:]], axis=1), p.b1,
-                                p.w2, p.b2),
-                         np.concatenate([w.input_mean] * 2), np.concatenate([w.input_scale] * 2), w.fs,
-                         {**w.metadata, "bank": {**pad_bank, "knee": [float(k) for k in pad_knee]}})
+    wp = SlipDetector.pad().weights
     for title, weights in (("the bundled filter-bank net", w), ("the same, inputs compressed (knees)", wk),
-                           ("with the pad's mean too (34 inputs), compressed", wp)):
+                           ("the bundled pad net (SlipDetector.pad(): + the pad's mean, compressed)", wp)):
         print(f"\n5) {title} (kind 'jordan_bank', {weights.params.w1.shape[1] - 1} inputs + y_pred, H = 16), "
               "6 ridges")
         print(f"   {'dtype':<8} {'sigmoid':<7} {'step() ns/tick':>15}")

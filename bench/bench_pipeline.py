@@ -18,7 +18,8 @@ Tables (one run, same machine, same configuration):
 4. ``filter-bank detector``: the same 6-ridge tick with the bundled filter-bank net
    (kind ``"jordan_bank"``: the rates plus 13 filter states per ridge in front of the
    net) inside C++ in each arithmetic, through the C ABI, and its scipy + numpy
-   reference; goal <= 500 ns float64 inside C++.
+   reference; goal <= 500 ns float64 inside C++; then with its inputs compressed, and the
+   bundled pad net (``SlipDetector.pad()``, the pad's mean of the bank too).
 
 Run: ``python bench/bench_pipeline.py`` (``--quick``: shorter runs, 1 s latency run;
 ``--latency-seconds``). Goals: <= 300 ns per 6-ridge tick in C++ and through the C
@@ -210,6 +211,13 @@ def table_bank(n_iter, n_ref):
                            controller=VelocityController(v_max=0.02, a_max=1.0), dtype=dt, activation="fast",
                            v_limit=10.0, u_limit=10.0)
         res[f"C++ inside, {np.dtype(dt).name}, compressed bank inputs"] = p.time_step_ns(n_iter, 5)
+    # The bundled pad net (the pad's mean of the bank too, compressed: 34 inputs).
+    for dt in (np.float64, np.float32):
+        est = StressRateEstimator(PVDFCircuit(), 1000.0, 12)
+        p = MirrorPipeline(SlipDetector.pad(), 1000.0, 6, estimator=est,
+                           controller=VelocityController(v_max=0.02, a_max=1.0), dtype=dt, activation="fast",
+                           v_limit=10.0, u_limit=10.0)
+        res[f"C++ inside, {np.dtype(dt).name}, the pad net (SlipDetector.pad())"] = p.time_step_ns(n_iter, 5)
     width = max(len(k) for k in res)
     for k, v in res.items():
         print(f"  {k:<{width}}  {v:>10.1f} ns")

@@ -25,6 +25,10 @@ is the decision point (the build's rule, ``build.calibrate_slip``); it is then l
 and run by ``SlipDetector`` (the C++ kernel, from the stress rates) on the test scenes,
 one more row per condition.
 
+``--weights PATH [--test-seed SEED]``: no training; the bundled net and the given weights
+file (run by ``SlipDetector``) on the test scenes of ``SEED`` (default ``PAD_TEST_SEED``;
+a seed no choice has seen, e.g. to measure a net whose design was chosen on this one).
+
 Run: ``python bench/detector_pad_net.py --cache out/scenes`` (14 min on 2 cores with the scenes cached).
 """
 from __future__ import annotations
@@ -94,6 +98,9 @@ def main(argv=None):
                     help="input sets: the ridge's bank alone, or with the pad's mean bank")
     ap.add_argument("--save", default=None, metavar="PATH",
                     help="save the pad-mean net as weights (needs --compress log) and run it through SlipDetector")
+    ap.add_argument("--weights", default=None, metavar="PATH",
+                    help="train nothing: measure this weights file (and the bundled net) on the test scenes")
+    ap.add_argument("--test-seed", type=int, default=PAD_TEST_SEED, help="seed of the test scenes")
     args = ap.parse_args(argv)
     if args.save and (args.compress != "log" or "mean" not in args.inputs):
         ap.error("--save needs --compress log and --inputs mean (the library's compressed pad-mean bank)")
@@ -111,17 +118,22 @@ def main(argv=None):
 
     t0 = time.perf_counter()
     kw = {**build.TEST_KWARGS, "n_ridges": N_RIDGES}
-    train = build.simulate_cached(args.n_train, PAD_TRAIN_SEED, kw, args.cache)
-    val = build.simulate_cached(args.n_validation, PAD_VALIDATION_SEED, kw, args.cache)
-    test = build.simulate_cached(args.n_test, PAD_TEST_SEED, kw, args.cache)
+    if args.weights:  # nothing is trained or chosen: only the test scenes are needed
+        args.inputs, train, val = [], None, []
+    else:
+        train = build.simulate_cached(args.n_train, PAD_TRAIN_SEED, kw, args.cache)
+        val = build.simulate_cached(args.n_validation, PAD_VALIDATION_SEED, kw, args.cache)
+    test = build.simulate_cached(args.n_test, args.test_seed, kw, args.cache)
     kinds = {name: [k for i, k in enumerate(onset_kinds(res)) if i % N_RIDGES in SCORED]
              for name, res in (("val", val), ("test", test))}
-    print(f"# CPU: {cpu_model()}; pad scenes ({N_RIDGES} ridges): {len(train)} training (seed {PAD_TRAIN_SEED}), "
-          f"{len(val)} validation (seed {PAD_VALIDATION_SEED}), {len(test)} test (seed {PAD_TEST_SEED}: "
+    print(f"# CPU: {cpu_model()}; pad scenes ({N_RIDGES} ridges): {len(train or [])} training (seed "
+          f"{PAD_TRAIN_SEED}), {len(val)} validation (seed {PAD_VALIDATION_SEED}), {len(test)} test (seed "
+          f"{args.test_seed}: "
           f"{kinds['test'].count('release')} release, {kinds['test'].count('gradual')} gradual onsets on ridges "
           f"{SCORED})", flush=True)
-    seqs = augment_noise(train, build.NOISE_COPIES, tuple(args.noise_range), seed=2)
-    gains = np.exp(np.random.default_rng(1).uniform(np.log(0.6), np.log(1.7), len(seqs)))
+    if train is not None:
+        seqs = augment_noise(train, build.NOISE_COPIES, tuple(args.noise_range), seed=2)
+        gains = np.exp(np.random.default_rng(1).uniform(np.log(0.6), np.log(1.7), len(seqs)))
     conditions = {"noise-free": noise_free(test)}
     conditions["1 mV rms white"] = with_noise(conditions["noise-free"], "1 mV rms white", seed=9001)
     val_clean = noise_free(val)
@@ -162,6 +174,11 @@ def main(argv=None):
         sc = [net.run(features_from_result(r, net.features, estimator=net.metadata.get("estimator")), fs=r.fs)[0]
               for r in res]
         rows[cond].append(row("bundled filter-bank net (single-ridge training)", sc, res, 0.8))
+    if args.weights:
+        det = SlipDetector.load(args.weights)
+        for cond, res in conditions.items():
+            sc = [det.run(features_from_result(r, "stress_rate"), fs=r.fs)[0] for r in res]
+            rows[cond].append(row(f"{os.path.basename(args.weights)} (SlipDetector, C++)", sc, res, 0.8))
 
     H = args.hidden
     for with_mean in [name == "mean" for name in args.inputs]:

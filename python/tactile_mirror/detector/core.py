@@ -21,6 +21,9 @@ PAPER_WEIGHTS = "paper_detector.npz"
 MEMORY_WEIGHTS = "memory_detector.npz"
 #: File name of the bundled filter-bank net (kind ``"jordan_bank"``).
 BANK_WEIGHTS = "bank_detector.npz"
+#: File name of the bundled pad net: the filter-bank net that also reads the pad's mean
+#: (kind ``"jordan_bank"``, ``bank["pad_mean"]``, compressed inputs), trained on 6-ridge pads.
+PAD_WEIGHTS = "pad_detector.npz"
 #: File name of the default weights inside ``tactile_mirror.detector.data``: the filter-bank
 #: net, which beats the paper's net on the build's held-out scenes (seed 777, 200 scenes:
 #: 89.1 % detection at 2.0 % false alarms against 60.7 % at 12.5 %; bench/detector_heldout.py).
@@ -123,6 +126,22 @@ class SlipDetector:
     def bank(cls, **kwargs) -> SlipDetector:
         """The filter-bank net (kind ``"jordan_bank"``), bundled weights."""
         return cls._bundled(BANK_WEIGHTS, **kwargs)
+
+    @classmethod
+    def pad(cls, **kwargs) -> SlipDetector:
+        """The pad net, bundled weights: the filter-bank net that also reads the mean of the
+        bank over the pad's ridges (``bank["pad_mean"]``), its inputs compressed
+        (``bank["knee"]``), trained and calibrated on six-ridge pads. Run it on all six
+        ridges of a pad at once: each ridge's outputs depend on the others' signals.
+
+        On 320 pad scenes no choice has seen (seed 60604; ridges 0-2: 541 release, 340 gradual
+        onsets; ``bench/detector_pad_net.py --weights``), at ``y_slip >= 0.8`` noise-free:
+        87.9 % detection at 0.9 % false alarms, 73.8 % of the gradual onsets found 15 ms after
+        the onset (:meth:`default` on the same pads: 86.4 % at 1.5 %, 70.9 %, 24 ms); at 2 %
+        false alarms along its curve 95.3 % (90.3 % of the gradual onsets). With 1 mV rms of
+        noise: 88.4 % at 1.6 %. On a single ridge (or a pad of another size) its pad channels
+        read what it was not trained on: use :meth:`default` there."""
+        return cls._bundled(PAD_WEIGHTS, **kwargs)
 
     @classmethod
     def _bundled(cls, name, **kwargs) -> SlipDetector:
