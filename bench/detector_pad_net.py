@@ -101,7 +101,11 @@ def main(argv=None):
     ap.add_argument("--weights", default=None, metavar="PATH",
                     help="train nothing: measure this weights file (and the bundled net) on the test scenes")
     ap.add_argument("--test-seed", type=int, default=PAD_TEST_SEED, help="seed of the test scenes")
+    ap.add_argument("--hum", action="store_true",
+                    help="(with --weights) also the thermal floor + 2 mV 50 Hz hum condition, the estimator notching it")
     args = ap.parse_args(argv)
+    if args.hum and not args.weights:
+        ap.error("--hum needs --weights (the study's own nets read the bank without the estimator's notch)")
     if args.save and (args.compress != "log" or "mean" not in args.inputs):
         ap.error("--save needs --compress log and --inputs mean (the library's compressed pad-mean bank)")
     sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
@@ -111,7 +115,7 @@ def main(argv=None):
     from tactile_mirror.detector import DetectorWeights, SlipDetector, build
     from tactile_mirror.detector.bank import DEFAULT_BANK, fit_knees
     from tactile_mirror.detector.data_prep import features_from_result, targets_from_result
-    from tactile_mirror.detector.evaluate import noise_free, onset_kinds, roc, with_noise
+    from tactile_mirror.detector.evaluate import condition_estimator, noise_free, onset_kinds, roc, with_noise
     from tactile_mirror.detector.network import Params, forward, init_params
     from tactile_mirror.detector.training import _cpp_loss, _loss_weights, augment_noise, fit_normalisation
     from tactile_mirror.measure import cpu_model
@@ -136,6 +140,9 @@ def main(argv=None):
         gains = np.exp(np.random.default_rng(1).uniform(np.log(0.6), np.log(1.7), len(seqs)))
     conditions = {"noise-free": noise_free(test)}
     conditions["1 mV rms white"] = with_noise(conditions["noise-free"], "1 mV rms white", seed=9001)
+    hum = "thermal + 2 mV 50 Hz hum, notch"
+    if args.hum:
+        conditions[hum] = with_noise(conditions["noise-free"], hum, seed=9002)
     val_clean = noise_free(val)
 
     def ridge_scores(y, results):
@@ -171,13 +178,14 @@ def main(argv=None):
     rows = {c: [] for c in conditions}
     net = SlipDetector.default()
     for cond, res in conditions.items():
-        sc = [net.run(features_from_result(r, net.features, estimator=net.metadata.get("estimator")), fs=r.fs)[0]
+        sc = [net.run(features_from_result(r, net.features, estimator=condition_estimator(net, cond)), fs=r.fs)[0]
               for r in res]
         rows[cond].append(row("bundled filter-bank net (single-ridge training)", sc, res, 0.8))
     if args.weights:
         det = SlipDetector.load(args.weights)
         for cond, res in conditions.items():
-            sc = [det.run(features_from_result(r, "stress_rate"), fs=r.fs)[0] for r in res]
+            sc = [det.run(features_from_result(r, "stress_rate", estimator=condition_estimator(det, cond)), fs=r.fs)[0]
+                  for r in res]
             rows[cond].append(row(f"{os.path.basename(args.weights)} (SlipDetector, C++)", sc, res, 0.8))
 
     H = args.hidden
