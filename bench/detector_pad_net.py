@@ -101,6 +101,8 @@ def main(argv=None):
     ap.add_argument("--weights", default=None, metavar="PATH",
                     help="train nothing: measure this weights file (and the bundled net) on the test scenes")
     ap.add_argument("--test-seed", type=int, default=PAD_TEST_SEED, help="seed of the test scenes")
+    ap.add_argument("--figure", default=None, metavar="PATH",
+                    help="also plot every row's threshold sweep per condition (detector_roc.py's figure)")
     ap.add_argument("--hum", action="store_true",
                     help="(with --weights) also the thermal floor + 2 mV 50 Hz hum condition, the estimator notching it")
     args = ap.parse_args(argv)
@@ -157,8 +159,12 @@ def main(argv=None):
     def curve(scores, results, kind_list, consecutive=1):
         return roc([s[list(SCORED)] for s in scores], results, kind_list, consecutive=consecutive)
 
+    curves = {}
+
     def row(name, scores, results, thr):
         c = curve(scores, results, kinds["test"])
+        cond = next(k for k, v in conditions.items() if v is results)
+        curves.setdefault(cond, {})[name] = c
         q = c.at_threshold(thr)
         p2 = c.at_false_alarm(0.02)
         p3 = curve(scores, results, kinds["test"], 3).at_false_alarm(0.02)
@@ -271,6 +277,12 @@ def main(argv=None):
         print(f"| **{cond}** | | | | | | | |")
         for r in rs:
             print(r)
+    if args.figure:
+        from detector_roc import figure
+        from tactile_mirror._io import save_figure
+
+        save_figure(figure(curves, len(test)), args.figure, dpi=110)
+        print(f"wrote {args.figure}")
     print(f"\n({time.perf_counter() - t0:.0f} s)")
 
 
