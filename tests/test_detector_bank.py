@@ -500,6 +500,8 @@ def test_pad_mean_bank_appends_the_mean_of_the_ridges():
     with pytest.raises(ValueError, match="pad_mean"):
         bank_config({**DEFAULT_BANK, "pad_mean": "yes"})
     assert "pad_mean" not in bank_config({**DEFAULT_BANK, "pad_mean": False})  # files without it unchanged
+    assert bank_config({**DEFAULT_BANK, "pad_mean": None}) == bank_config(DEFAULT_BANK)  # None: absent
+    assert bank_config({**DEFAULT_BANK, "pad_mean": np.True_})["pad_mean"] is True
 
 
 @settings(max_examples=25, deadline=None)

@@ -208,10 +208,12 @@ void bind_one(py::module_& m, const char* cls) {
                      c.bank_abs_taus = ab.shape(0) ? ab.data() : nullptr;
                      c.bank_load_tau = b["load_tau"].cast<double>();
                      c.bank_peak_tau = b["peak_tau"].cast<double>();
-                     if (b.contains("pad_mean") && !b["pad_mean"].is_none()) {
-                         if (!py::isinstance<py::bool_>(b["pad_mean"]))
-                             throw py::type_error("bank['pad_mean'] must be True or False");
-                         c.bank_pad_mean = b["pad_mean"].cast<bool>() ? 1 : 0;
+                     if (b.contains("pad_mean") && !b["pad_mean"].is_none()) {  // None: absent, as bank_config
+                         py::object pm = b["pad_mean"];
+                         if (!py::isinstance<py::bool_>(pm) &&
+                             !py::isinstance(pm, py::module_::import("numpy").attr("bool_")))
+                             throw py::value_error("bank['pad_mean'] must be True or False");
+                         c.bank_pad_mean = pm.cast<bool>() ? 1 : 0;
                      }
                      if (b.contains("knee") && !b["knee"].is_none()) {
                          kn = real_array(b["knee"], "bank['knee']");

@@ -247,8 +247,8 @@ private:
         for (int k = 0; k < ns_; ++k) o[(4 + k) * ocol] = z[k];
     }
 
-    // m <= K ticks of features into the net's staging rows, (n_ridges, nf, K), time
-    // contiguous; returns the sum of every input value times 0 (see run()).
+    // m <= K ticks of inputs into the net's staging rows, (n_ridges, ni, K), time
+    // contiguous (the features, then the pad's mean; compressed with knees); returns the sum of every input value times 0 (see run()).
     // avail: ticks of input from x0 on (the next chunk's are prefetched, never beyond).
     T features_chunk(const T* x0, std::ptrdiff_t sr, std::ptrdiff_t si, std::ptrdiff_t st, int m,
                      std::ptrdiff_t avail) noexcept {
@@ -352,7 +352,7 @@ private:
         z[j + 2] = now > held ? now : held;
     }
 
-    // One tick of features for step(): feat_ (nf, rs_) feature-major, every lane written
+    // One tick of inputs for step(): feat_ (ni, rs_) feature-major, every lane written
     // (the net normalises the rows in place, so lanes past the last ridge are zeroed
     // again each tick); the states in st_ updated a vector of ridges at a time.
     void features_tick_base(const T* in) noexcept {
@@ -534,7 +534,7 @@ private:
     std::size_t rs_ = 0;  // ridge stride of st_ and feat_ (a multiple of 32 bytes of T)
     std::unique_ptr<void, detail::AlignedFree> buf_;
     T* st_ = nullptr;    // filter states, (ns_, rs_) lane-major, ghost lanes zero
-    T* feat_ = nullptr;  // step()'s features, (nf_, rs_) feature-major
+    T* feat_ = nullptr;  // step()'s inputs, (ni_, rs_) feature-major
 };
 
 }  // namespace detector

@@ -91,7 +91,8 @@ def bank_config(bank=None) -> dict:
         out[key] = [_tau(f"bank['{key}']", t) for t in v]
     for key in ("load_tau", "peak_tau"):
         out[key] = _tau(f"bank['{key}']", b.get(key))
-    pad_mean = b.get("pad_mean", False)
+    pad_mean = b.get("pad_mean")
+    pad_mean = False if pad_mean is None else pad_mean  # (None: absent, as a knee of None)
     if not isinstance(pad_mean, (bool, np.bool_)):
         raise ValueError(f"bank['pad_mean'] must be True or False, got {pad_mean!r}")
     if pad_mean:
