@@ -86,7 +86,7 @@ def run_thread(build_dir: Path | None = None, keep: bool = False) -> int:
             return SKIP
         src = ROOT / "src" / "cpp"
         lib = build_dir / "libtactile_mirror_c_tsan.so"
-        flags = ["-O1", "-g", "-fsanitize=thread", "-fno-omit-frame-pointer"]
+        flags = ["-O1", "-g", "-fsanitize=thread", "-fno-omit-frame-pointer", "-DTM_LEAN_UNROLL"]
         subprocess.run([cxx, "-std=c++17", *flags, "-fPIC", "-shared", "-Wno-psabi", "-I", str(src),
                         str(src / "tm_capi.cpp"), "-o", str(lib), "-lpthread"], check=True)
         exe = build_dir / "close_while_stepping"

@@ -19,7 +19,7 @@ def build(tmp_path, source, sanitize=True, opt="-O1", sanitizers="address,undefi
     flags = ["-std=c++17", opt, *(["-g"] if debug else []), "-Wall", "-Wextra", "-Wno-psabi", "-ffp-contract=fast",
              "-pthread"]
     if sanitize:
-        flags += [f"-fsanitize={sanitizers}", "-fno-omit-frame-pointer"]
+        flags += [f"-fsanitize={sanitizers}", "-fno-omit-frame-pointer", "-DTM_LEAN_UNROLL"]
         if "undefined" in sanitizers:
             flags += ["-fno-sanitize-recover=undefined"]
     cmd = [CXX, *flags, f"-I{ROOT / 'src' / 'cpp'}", str(ROOT / "tests" / "cpp" / source), "-o", str(exe)]
