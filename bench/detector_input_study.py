@@ -45,24 +45,31 @@ VARIANTS = ("linear", "asinh/median", "asinh/rms", "softsign/median", "linear, m
 
 
 def compression(name: str, x, mask):
-    """The transform ``f(x)`` of variant ``name``, its knees fitted on ``x`` (n_seq, n_ch, n)."""
+    """The transform ``f(x)`` of variant ``name``, its knees fitted on ``x`` (n_seq, n_ch, n) and
+    kept as ``f.knee`` (None for the linear variants)."""
     from tactile_mirror.detector.training import fit_normalisation
 
     if name.startswith("linear"):
-        return lambda v: v
+        def f(v):
+            return v
+        f.knee = None
+        return f
     kind, knee = name.split("/")
     _, k = fit_normalisation(x, mask, knee)
     kk = k[:, None]
+
     if kind == "log":
         from tactile_mirror.detector.bank import log_compress
 
-        return lambda v: log_compress(v, k, axis=-2)
+        def f(v):
+            return log_compress(v, k, axis=-2)
+    else:
+        def f(v):
+            v = np.asarray(v, dtype=np.float64)
+            z = v / (kk if v.ndim == 2 else kk[None])
+            return np.arcsinh(z) if kind == "asinh" else z / (1.0 + np.abs(z))
 
-    def f(v):
-        v = np.asarray(v, dtype=np.float64)
-        z = v / (kk if v.ndim == 2 else kk[None])
-        return np.arcsinh(z) if kind == "asinh" else z / (1.0 + np.abs(z))
-
+    f.knee = k
     return f
 
 

@@ -115,7 +115,7 @@ def main(argv=None):
     from detector_input_study import compression
     from detector_pad_study import N_RIDGES, PAD_TRAIN_SEED, PAD_VALIDATION_SEED, SCORED, latency_at
     from tactile_mirror.detector import DetectorWeights, SlipDetector, build
-    from tactile_mirror.detector.bank import DEFAULT_BANK, fit_knees
+    from tactile_mirror.detector.bank import DEFAULT_BANK
     from tactile_mirror.detector.data_prep import features_from_result, targets_from_result
     from tactile_mirror.detector.evaluate import condition_estimator, noise_free, onset_kinds, roc, with_noise
     from tactile_mirror.detector.network import Params, forward, init_params
@@ -161,9 +161,9 @@ def main(argv=None):
 
     curves = {}
 
-    def row(name, scores, results, thr):
+    def row(cond, name, scores, thr):
+        results = conditions[cond]
         c = curve(scores, results, kinds["test"])
-        cond = next(k for k, v in conditions.items() if v is results)
         curves.setdefault(cond, {})[name] = c
         q = c.at_threshold(thr)
         p2 = c.at_false_alarm(0.02)
@@ -186,19 +186,18 @@ def main(argv=None):
     for cond, res in conditions.items():
         sc = [net.run(features_from_result(r, net.features, estimator=condition_estimator(net, cond)), fs=r.fs)[0]
               for r in res]
-        rows[cond].append(row("bundled filter-bank net (single-ridge training)", sc, res, 0.8))
+        rows[cond].append(row(cond, "bundled filter-bank net (single-ridge training)", sc, 0.8))
     if args.weights:
         det = SlipDetector.load(args.weights)
         for cond, res in conditions.items():
             sc = [det.run(features_from_result(r, "stress_rate", estimator=condition_estimator(det, cond)), fs=r.fs)[0]
                   for r in res]
-            rows[cond].append(row(f"{os.path.basename(args.weights)} (SlipDetector, C++)", sc, res, 0.8))
+            rows[cond].append(row(cond, f"{os.path.basename(args.weights)} (SlipDetector, C++)", sc, 0.8))
 
     H = args.hidden
     for with_mean in [name == "mean" for name in args.inputs]:
         name = "pad-trained net, ridge + pad mean" if with_mean else "pad-trained net, ridge"
         X, S, P, M = stack(seqs, with_mean, gains)
-        knees = fit_knees(X, M)  # what compression() fits for "log/median" (the same function)
         # the input study's transforms, knees from these training inputs
         compressed = compression({"none": "linear", "asinh": "asinh/median", "log": "log/median"}[args.compress],
                                  X, M)
@@ -251,13 +250,13 @@ def main(argv=None):
         for cond, res in conditions.items():
             Xt, _, _, _ = stack(res, with_mean)
             yt, _ = forward(Params.unpack(theta, n_in, H), compressed(Xt) / scale[None, :, None])
-            rows[cond].append(row(name, ridge_scores(yt, res), res, thr))
+            rows[cond].append(row(cond, name, ridge_scores(yt, res), thr))
         if args.save and with_mean:
             # The library's pad-mean bank with these knees: the same inputs (the mean summed in
             # ridge order instead of numpy's mean: round-off), y_slip >= 0.8 at the decision point.
             params = Params.unpack(theta, n_in, H)
             params.b2[0] += math.log(0.8 / 0.2) - math.log(thr / (1.0 - thr))
-            bank = {**DEFAULT_BANK, "pad_mean": True, "knee": [float(k) for k in knees]}
+            bank = {**DEFAULT_BANK, "pad_mean": True, "knee": [float(k) for k in compressed.knee]}
             w = DetectorWeights(params, np.zeros(n_in), scale, float(train[0].fs),
                                 {"features": "stress_rate_bank", "bank": bank,
                                  "trained_on": f"pad scenes seed {PAD_TRAIN_SEED} (bench/detector_pad_net.py)",
@@ -268,7 +267,7 @@ def main(argv=None):
                   flush=True)
             for cond, res in conditions.items():
                 sc = [det.run(features_from_result(r, "stress_rate"), fs=r.fs)[0] for r in res]
-                rows[cond].append(row(f"{name}, saved, run by SlipDetector (C++)", sc, res, 0.8))
+                rows[cond].append(row(cond, f"{name}, saved, run by SlipDetector (C++)", sc, 0.8))
 
     print("\n| pad test scenes, ridges 0-2 | detection | false alarms | release | gradual | latency release / "
           "gradual | at 2 % false alarms: all (gradual) | the same, 3 in a row |")
