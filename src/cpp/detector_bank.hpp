@@ -427,9 +427,7 @@ private:
                     for (int l = 0; l < NL && i + l < nf_; ++l) ik[l] = ik_[nf_ + i + l];
                     simd::store(mean + i, simd::log_compress<T, B>(simd::load<V>(mean + i), ik));
                 }
-                for (int j = 0; j < nf_; ++j)
-                    for (std::ptrdiff_t r0 = 0; r0 < n_r_; r0 += NL)
-                        simd::store(f + j * rs + r0, simd::log_compress<T, B>(simd::load<V>(f + j * rs + r0), V{} + ik_[j]));
+                compress_rows<B>(f, rs, nf_, n_r_);  // the ridges' own rows (the vectors holding ridges)
             }
             for (int i = 0; i < nf_; ++i) {
                 const V m = V{} + mean[i];
