@@ -108,7 +108,9 @@ public:
         // the net's (JordanMLP::step_feature_major), whole vectors of the widest path
         // with room for its ghost instances.
         rs_ = std::size_t(net_.feature_major_stride());
-        const std::size_t count = rs_ * (std::size_t(ns_) + std::size_t(ni_)) + 16;
+        // (+ nf_ rows of raw features for a compressed bank with the pad's mean)
+        const std::size_t n_raw_rows = pad_mean && compress_ ? std::size_t(nf_) : 0;
+        const std::size_t count = rs_ * (std::size_t(ns_) + std::size_t(ni_) + n_raw_rows) + 16;
         void* mem = std::aligned_alloc(64, ((count * sizeof(T) + 63) / 64) * 64);
         if (!mem) throw std::bad_alloc();
         buf_.reset(mem);
@@ -117,6 +119,8 @@ public:
         st_ = p;
         p += rs_ * ns_;
         feat_ = p;
+        p += rs_ * std::size_t(ni_);
+        raw_ = n_raw_rows ? p : nullptr;
     }
 
     int n_hidden() const noexcept { return net_.n_hidden(); }
@@ -352,6 +356,43 @@ private:
         z[j + 2] = now > held ? now : held;
     }
 
+    // The rates of nl (<= lanes) ridges, in: (nl, 4) row-major, to the feature rows
+    // f[c * rs + lane], lanes from nl on zero. Transposed in registers: written lane by
+    // lane and read back as vectors (lanes_tick's inputs), they stalled on store
+    // forwarding.
+    template <int B>
+    __attribute__((always_inline)) inline void gather_rates(const T* in, int nl, T* f,
+                                                            std::ptrdiff_t rs) const noexcept {
+        typedef typename simd::Vec<T, B>::type V;
+        constexpr int NL = simd::Vec<T, B>::lanes;
+        static_assert(n_raw == 4, "four rates per ridge");
+        if constexpr (NL == 4) {  // one ridge per vector, a 4 x 4 transpose
+            V v[4];
+            _Pragma("GCC unroll 4") for (int l = 0; l < 4; ++l) v[l] = l < nl ? simd::load<V>(in + 4 * l) : V{};
+            simd::transpose(v);
+            _Pragma("GCC unroll 4") for (int c = 0; c < 4; ++c) simd::store(f + c * rs, v[c]);
+        } else if constexpr (NL == 8) {  // two ridges per vector: [l, l + 4] in 128-bit halves, then 4 x 4 in each
+            typedef typename simd::Vec<T, B / 2>::type H;
+            H h[8];
+            _Pragma("GCC unroll 8") for (int l = 0; l < 8; ++l) h[l] = l < nl ? simd::load<H>(in + 4 * l) : H{};
+            V v[4];
+            _Pragma("GCC unroll 4") for (int l = 0; l < 4; ++l) v[l] = TM_SHUFFLE(h[l], h[l + 4], 0, 1, 2, 3, 4, 5, 6, 7);
+            V t[4];
+            t[0] = TM_SHUFFLE(v[0], v[1], 0, 8, 1, 9, 4, 12, 5, 13);
+            t[1] = TM_SHUFFLE(v[0], v[1], 2, 10, 3, 11, 6, 14, 7, 15);
+            t[2] = TM_SHUFFLE(v[2], v[3], 0, 8, 1, 9, 4, 12, 5, 13);
+            t[3] = TM_SHUFFLE(v[2], v[3], 2, 10, 3, 11, 6, 14, 7, 15);
+            // lane order now [ridges 0-3 | ridges 4-7] per channel
+            simd::store(f + 0 * rs, V(TM_SHUFFLE(t[0], t[2], 0, 1, 8, 9, 4, 5, 12, 13)));
+            simd::store(f + 1 * rs, V(TM_SHUFFLE(t[0], t[2], 2, 3, 10, 11, 6, 7, 14, 15)));
+            simd::store(f + 2 * rs, V(TM_SHUFFLE(t[1], t[3], 0, 1, 8, 9, 4, 5, 12, 13)));
+            simd::store(f + 3 * rs, V(TM_SHUFFLE(t[1], t[3], 2, 3, 10, 11, 6, 7, 14, 15)));
+        } else {
+            for (int c = 0; c < n_raw; ++c)
+                for (int l = 0; l < NL; ++l) f[c * rs + l] = l < nl ? in[l * n_raw + c] : T(0);
+        }
+    }
+
     // One tick of inputs for step(): feat_ (ni, rs_) feature-major, every lane written
     // (the net normalises the rows in place, so lanes past the last ridge are zeroed
     // again each tick); the states in st_ updated a vector of ridges at a time.
@@ -383,19 +424,23 @@ private:
                 for (int j = 0; j < nf_; ++j) simd::store(f + j * rs + r0, V{});
                 continue;
             }
-            const bool compress_now = compress_ && !pad_mean_;  // (else after the mean)
             // The four rates of the vector's ridges, gathered into their feature rows.
-            for (int c = 0; c < n_raw; ++c)
-                for (int l = 0; l < NL; ++l) f[c * rs + r0 + l] = r0 + l < n_r_ ? in[(r0 + l) * n_raw + c] : T(0);
+            gather_rates<B>(in + r0 * n_raw, n_r_ - r0 < NL ? int(n_r_ - r0) : NL, f + r0, rs);
             V z[NSM] = {};
             _Pragma("GCC unroll 32") for (int j = 0; j < ns; ++j) z[j] = simd::load<V>(st_ + j * rs + r0);
             lanes_tick<B, NLP, NABS>(z, simd::load<V>(f + r0), simd::load<V>(f + rs + r0));
-            if (compress_now) {
-                // compressed as they are stored (the states themselves stay as they are)
-                _Pragma("GCC unroll 4") for (int c = 0; c < n_raw; ++c) simd::store(
-                    f + c * rs + r0, simd::log_compress<T, B>(simd::load<V>(f + c * rs + r0), V{} + ik_[c]));
+            if (compress_) {
+                // compressed as they are stored (the states themselves stay as they are);
+                // with the pad's mean, the raw values kept for it in raw_
+                T* __restrict raw = raw_;
+                _Pragma("GCC unroll 4") for (int c = 0; c < n_raw; ++c) {
+                    const V x = simd::load<V>(f + c * rs + r0);
+                    if (raw) simd::store(raw + c * rs + r0, x);
+                    simd::store(f + c * rs + r0, simd::log_compress<T, B>(x, V{} + ik_[c]));
+                }
                 _Pragma("GCC unroll 32") for (int j = 0; j < ns; ++j) {
                     simd::store(st_ + j * rs + r0, z[j]);
+                    if (raw) simd::store(raw + (n_raw + j) * rs + r0, z[j]);
                     simd::store(f + (n_raw + j) * rs + r0, simd::log_compress<T, B>(z[j], V{} + ik_[n_raw + j]));
                 }
             } else {
@@ -406,33 +451,39 @@ private:
             }
         }
         if (pad_mean_) {
-            // The pad's mean of the raw features (summed and divided as pad_mean_rows),
-            // then the ridges' rows and the means compressed element by element (as
-            // run() compresses its staging rows: the same bits), the means written to
-            // every lane of their rows (ghosts too: any finite value will do there).
-            constexpr int NMAX = ((kMaxFeatures + NL - 1) / NL) * NL;
-            T mean[NMAX];
-            const T nr = T(n_r_);
-            for (int i = 0; i < nf_; ++i) {
-                const T* row = f + i * rs;
-                T acc = row[0];
-                for (int r = 1; r < n_r_; ++r) acc += row[r];
-                mean[i] = acc;
-            }
-            for (int i = nf_; i < NMAX; ++i) mean[i] = T(0);
-            for (int i = 0; i < nf_; i += NL) simd::store(mean + i, simd::load<V>(mean + i) / nr);  // (one vector divide)
-            if (compress_) {
-                for (int i = 0; i < nf_; i += NL) {
-                    V ik{};
-                    for (int l = 0; l < NL && i + l < nf_; ++l) ik[l] = ik_[nf_ + i + l];
-                    simd::store(mean + i, simd::log_compress<T, B>(simd::load<V>(mean + i), ik));
+            // The pad's mean of the raw features, NL features at a time: a tile of NL
+            // feature rows x NL ridges transposed in registers holds one ridge's NL
+            // features per vector, and the vectors are added in ridge order and divided
+            // (pad_mean_rows' additions and division, element by element: the same bits;
+            // a scalar sum per feature, stored lane by lane and reloaded as a vector,
+            // stalled on store forwarding). The terms are the raw features (raw_ when the
+            // ridges' rows were compressed above); the means are compressed element by
+            // element as run() compresses its staging rows (the same bits) and written
+            // to every lane of their rows (ghosts too: any finite value will do there).
+            const T* __restrict src = compress_ ? raw_ : f;
+            const V nr = V{} + T(n_r_);
+            for (int i0 = 0; i0 < nf_; i0 += NL) {
+                V acc{};
+                for (std::ptrdiff_t r0 = 0; r0 < n_r_; r0 += NL) {
+                    V v[NL];
+                    _Pragma("GCC unroll 8") for (int k = 0; k < NL; ++k) v[k] =
+                        i0 + k < nf_ ? simd::load<V>(src + (i0 + k) * rs + r0) : V{};
+                    simd::transpose(v);  // lane k of v[q]: feature i0 + k of ridge r0 + q
+                    const int nq = n_r_ - r0 < NL ? int(n_r_ - r0) : NL;
+                    acc = r0 == 0 ? v[0] : acc + v[0];
+                    for (int q = 1; q < nq; ++q) acc += v[q];
                 }
-                compress_rows<B>(f, rs, nf_, n_r_);  // the ridges' own rows (the vectors holding ridges)
-            }
-            for (int i = 0; i < nf_; ++i) {
-                const V m = V{} + mean[i];
-                T* dst = f + (nf_ + i) * rs;
-                for (std::ptrdiff_t r0 = 0; r0 < rs; r0 += NL) simd::store(dst + r0, m);
+                V m = acc / nr;
+                if (compress_) {
+                    V ik{};
+                    for (int l = 0; l < NL && i0 + l < nf_; ++l) ik[l] = ik_[nf_ + i0 + l];
+                    m = simd::log_compress<T, B>(m, ik);
+                }
+                for (int k = 0; k < NL && i0 + k < nf_; ++k) {
+                    const V b = V{} + m[k];
+                    T* dst = f + (nf_ + i0 + k) * rs;
+                    for (std::ptrdiff_t r0 = 0; r0 < rs; r0 += NL) simd::store(dst + r0, b);
+                }
             }
         }
     }
@@ -533,6 +584,7 @@ private:
     std::unique_ptr<void, detail::AlignedFree> buf_;
     T* st_ = nullptr;    // filter states, (ns_, rs_) lane-major, ghost lanes zero
     T* feat_ = nullptr;  // step()'s inputs, (ni_, rs_) feature-major
+    T* raw_ = nullptr;   // a compressed pad-mean bank's raw features, (nf_, rs_): the mean's terms
 };
 
 }  // namespace detector

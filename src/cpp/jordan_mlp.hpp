@@ -438,13 +438,22 @@ private:
                 tin = x;
                 xr = 1;
                 xi = io.si;
-                for (int i = 0; i < nin; ++i) {
-                    T* row = x + i * xi;
-                    const T mu = mean_[i], g = gain_[i];
-                    for (std::ptrdiff_t r = 0; r < xi; r += NL) {
-                        V v = simd::load<V>(row + r);
-                        v = (v - mu) * g;
-                        simd::store(row + r, v);
+                // Only the vectors holding instances: the ghost lanes past them keep the
+                // finite values the caller wrote, which is all the groups need of them.
+                const T* __restrict mu = mean_;
+                const T* __restrict g = gain_;
+                const std::ptrdiff_t nl = ((n_inst_ + NL - 1) / NL) * NL;
+                if (nl == NL) {
+                    // one vector of instances per row: no inner loop
+                    _Pragma("GCC unroll 64") for (int i = 0; i < nin; ++i) {
+                        T* row = x + i * xi;
+                        simd::store(row, (simd::load<V>(row) - mu[i]) * g[i]);
+                    }
+                } else {
+                    for (int i = 0; i < nin; ++i) {
+                        T* row = x + i * xi;
+                        const T mi = mu[i], gi = g[i];
+                        for (std::ptrdiff_t r = 0; r < nl; r += NL) simd::store(row + r, (simd::load<V>(row + r) - mi) * gi);
                     }
                 }
             } else if (NIN == 4) {
