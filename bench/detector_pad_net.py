@@ -204,7 +204,7 @@ def main(argv=None):
         compressed = compression({"none": "linear", "asinh": "asinh/median", "log": "log/median"}[args.compress],
                                  X, M)
         X = compressed(X)
-        mean, scale = fit_normalisation(X, M, "rms")
+        _mean, scale = fit_normalisation(X, M, "rms")
         xn = X / scale[None, :, None] * M[:, None, :]
         data = SimpleNamespace(x=X, y_slip=S, y_pred=P, mask=M, fs=float(train[0].fs))
         w_slip, w_pred = _loss_weights(data, 4.0, args.negative_weight)
