@@ -107,10 +107,17 @@ def main(argv=None):
                     help="also plot every row's threshold sweep per condition (detector_roc.py's figure)")
     ap.add_argument("--hum", action="store_true",
                     help="(with --weights) also the thermal floor + 2 mV 50 Hz hum condition, the estimator notching it")
+    ap.add_argument("--recalibrate-goals", type=float, nargs=2, default=None, metavar=("NOISE_FREE", "NOISY"),
+                    help="(with --weights and --save) set the net's decision point anew on --n-validation validation "
+                         "pads, as the build's --calibrate-goals: the lowest threshold with at most NOISE_FREE false "
+                         "alarms noise-free and NOISY with 1 mV rms white noise and with the hum condition; save it "
+                         "to --save and measure it")
     args = ap.parse_args(argv)
+    if args.recalibrate_goals and not (args.weights and args.save):
+        ap.error("--recalibrate-goals needs --weights (the net) and --save (where the recalibrated net goes)")
     if args.hum and not args.weights:
         ap.error("--hum needs --weights (the study's own nets read the bank without the estimator's notch)")
-    if args.save and (args.compress != "log" or "mean" not in args.inputs):
+    if args.save and not args.recalibrate_goals and (args.compress != "log" or "mean" not in args.inputs):
         ap.error("--save needs --compress log and --inputs mean (the library's compressed pad-mean bank)")
     sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
     import scipy.optimize
@@ -131,6 +138,19 @@ def main(argv=None):
     else:
         train = build.simulate_cached(args.n_train, PAD_TRAIN_SEED, kw, args.cache)
         val = build.simulate_cached(args.n_validation, PAD_VALIDATION_SEED, kw, args.cache)
+    if args.recalibrate_goals:
+        # the decision point anew, on validation pads only (the test pads choose nothing)
+        val = build.simulate_cached(args.n_validation, PAD_VALIDATION_SEED, kw, args.cache)
+        nf, noisy = args.recalibrate_goals
+        goals = {"noise-free": nf, "1 mV rms white": noisy, "thermal + 2 mV 50 Hz hum, notch": noisy}
+        w, info = build.calibrate_slip(build.uncalibrate(SlipDetector.load(args.weights).weights), val, None,
+                                       scenes=f"seed {PAD_VALIDATION_SEED}, {len(val)} pads", conditions=goals)
+        w.save(args.save)
+        print(f"# recalibrated {args.weights} on {len(val)} validation pads: threshold {info['threshold']:.3f} of "
+              "the net as trained; validation " + ", ".join(
+                  f"{c} {100 * v['validation_detection']:.1f} % at {100 * v['validation_false_alarm']:.1f} %"
+                  for c, v in info["conditions"].items()) + f"; saved {args.save}", flush=True)
+        args.weights = args.save
     test = build.simulate_cached(args.n_test, args.test_seed, kw, args.cache)
     kinds = {name: [k for i, k in enumerate(onset_kinds(res)) if i % N_RIDGES in SCORED]
              for name, res in (("val", val), ("test", test))}

@@ -446,3 +446,34 @@ def test_scorer_at_false_alarm_scores_the_curve_not_the_threshold(synthetic_dete
     for bad in (1.0, -0.1, True, "0.02"):
         with pytest.raises(ValueError, match="at_false_alarm"):
             ValidationScorer(val, at_false_alarm=bad)
+
+
+def test_uncalibrate_undoes_a_threshold_only_record():
+    """The pad net records only the threshold its y_slip >= 0.8 stands for: uncalibrate
+    shifts b2[0] back so that the raw net's y_slip crosses that threshold where the bundled
+    net crosses 0.8; a record with neither field, or a threshold outside (0, 1), is refused."""
+    import copy
+
+    import tactile_mirror as tm
+    from tactile_mirror.detector.build import uncalibrate
+    from tactile_mirror.detector.data_prep import features_from_result
+
+    pad = SlipDetector.pad()
+    t = pad.weights.metadata["slip_calibration"]["threshold"]
+    assert "b2_shift" not in pad.weights.metadata["slip_calibration"]
+    raw = uncalibrate(pad.weights)
+    assert "slip_calibration" not in raw.metadata
+    res = tm.simulate(tm.scenes.paper("fig6"))
+    f = features_from_result(res)
+    ys_cal = pad.run(f, fs=res.fs)[0]
+    ys_raw = SlipDetector(raw).run(f, fs=res.fs)[0]
+    # logit(y_raw) + shift == logit(y_cal): the raw net at t is the calibrated one at 0.8
+    np.testing.assert_allclose(np.log(ys_raw / (1 - ys_raw)) + np.log(4.0) - np.log(t / (1 - t)),
+                               np.log(ys_cal / (1 - ys_cal)), atol=1e-9)
+    bad = copy.deepcopy(pad.weights)
+    bad.metadata["slip_calibration"] = {"validation": "x"}
+    with pytest.raises(ValueError, match="neither"):
+        uncalibrate(bad)
+    bad.metadata["slip_calibration"] = {"threshold": 1.5}
+    with pytest.raises(ValueError, match="threshold"):
+        uncalibrate(bad)

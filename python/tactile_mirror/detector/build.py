@@ -334,15 +334,27 @@ def calibrate_slip(weights, validation, false_alarm: float | None, slip_threshol
     return w, info
 
 
-def uncalibrate(weights):
+def uncalibrate(weights, slip_threshold: float = 0.8):
     """A copy of ``weights`` without the decision-point shift :func:`calibrate_slip` recorded
-    in ``metadata["slip_calibration"]`` (the net as trained), to calibrate it anew."""
+    in ``metadata["slip_calibration"]`` (the net as trained), to calibrate it anew. A record
+    with only the ``threshold`` that was moved to ``slip_threshold`` (as
+    ``bench/detector_pad_net.py --save`` writes it) is undone by the same shift."""
     import copy
+    import math
 
     w = copy.deepcopy(weights)
     info = w.metadata.pop("slip_calibration", None)
     if info is not None:
-        w.params.b2[0] -= float(info["b2_shift"])
+        if "b2_shift" in info:
+            shift = float(info["b2_shift"])
+        elif "threshold" in info:
+            t = float(info["threshold"])
+            if not 0 < t < 1:
+                raise ValueError(f"weights: slip_calibration threshold must lie in (0, 1), got {t!r}")
+            shift = math.log(slip_threshold / (1 - slip_threshold)) - math.log(t / (1 - t))
+        else:
+            raise ValueError("weights: slip_calibration records neither b2_shift nor threshold")
+        w.params.b2[0] -= shift
     return w
 
 
