@@ -60,6 +60,27 @@ def VelocityControllerOld():
                               x_max=0.02, arm_delay=0.5)
 
 
+def _windows(data, conditions, paths: str, duration: float) -> None:
+    """Gross slips per time window of the runs, for conditions with a friction change: before it,
+    its first 1.25 s, and the rest in two halves (does the loop settle on the new contact?)."""
+    from tactile_mirror.loop.envelope import CONDITIONS
+
+    print("\n| condition | law | peak speed mm/s | paths | gross slips per window (s) | paths still slipping in "
+          "the last window |\n|---|---|---|---|---|---|")
+    for c in conditions:
+        t0 = CONDITIONS[c].get("mu_change", (0.5,))[0]
+        mid = t0 + 1.25 + 0.5 * max(0.0, duration - t0 - 1.25)
+        edges = [0.0, t0, t0 + 1.25, mid, duration]
+        rows = [r for r in data["rows"] if r["condition"] == c and r["paths"] == paths and "gross_slip_starts_s" in r]
+        for law, v in sorted({(r["law"], r["speed"]) for r in rows}):
+            sel = [r for r in rows if r["law"] == law and r["speed"] == v]
+            counts = [sum(sum(a <= t < b for t in r["gross_slip_starts_s"]) for r in sel)
+                      for a, b in zip(edges[:-1], edges[1:])]
+            late = sum(any(edges[-2] <= t for t in r["gross_slip_starts_s"]) for r in sel)
+            win = ", ".join(f"[{a:g}, {b:g}): {n}" for a, b, n in zip(edges[:-1], edges[1:], counts))
+            print(f"| {c} | {law} | {v * 1e3:g} | {len(sel)} | {win} | {late} |")
+
+
 def main(argv=None):
     from tactile_mirror.loop.envelope import (
         _LAWS,
@@ -80,6 +101,10 @@ def main(argv=None):
     ap.add_argument("--robustness-seeds", type=int, default=None, help="paths per class (default: --seeds)")
     ap.add_argument("--paths", choices=sorted(PATH_SETS), default="report")
     ap.add_argument("--tick", action="store_true", help="only the tick cost table")
+    ap.add_argument("--conditions", default=None,
+                    help="comma-separated conditions to run instead of nominal (+ --robustness), e.g. "
+                         "'sweat mu 0.45'; with --duration, the slips are also counted per window after the change")
+    ap.add_argument("--duration", type=float, default=3.0, help="s of each run (the finger moves from 0.5 s)")
     args = ap.parse_args(argv)
     if args.tick:
         t = tick_table()
@@ -91,12 +116,19 @@ def main(argv=None):
     out = os.path.join(args.out, "loop_envelope.json")
     paths = PATH_SETS[args.paths]
     speeds = [float(v) * 1e-3 for v in args.speeds.split(",")]
+    if args.conditions:
+        conds = tuple(c.strip() for c in args.conditions.split(","))
+        data = run_envelope(out, speeds=speeds, n_seeds=args.seeds, conditions=conds,
+                            laws=tuple(args.laws.split(",")), paths=paths, duration=args.duration)
+        print(f"CPU: {cpu_model()}; paths: {paths}; {args.duration:g} s per run")
+        _windows(data, conds, paths.name, args.duration)
+        return 0
     data = run_envelope(out, speeds=speeds, n_seeds=args.seeds, conditions=("nominal",),
-                        laws=tuple(args.laws.split(",")), paths=paths)
+                        laws=tuple(args.laws.split(",")), paths=paths, duration=args.duration)
     if args.robustness:
         conds = tuple(c for c in CONDITIONS if c != "nominal")
         data = run_envelope(out, speeds=speeds, n_seeds=args.robustness_seeds or args.seeds, conditions=conds,
-                            laws=tuple(args.robustness_laws.split(",")), paths=paths)
+                            laws=tuple(args.robustness_laws.split(",")), paths=paths, duration=args.duration)
     envelope_figure(data, os.path.join(args.out, "loop_envelope.png"), paths=paths.name)
     print(f"CPU: {cpu_model()}; paths: {paths}")
     print("\n| condition | law | peak speed mm/s | paths | gross slips | runs with slip | tracking rms mm mean / max "

@@ -455,3 +455,18 @@ def test_loop_realtime_command_paces_the_pad_and_writes_its_record(tmp_path, cap
     assert rec.metadata["tick_us"]["p99"] == pytest.approx(tick["p99"])
     assert (tmp_path / "realtime.png").stat().st_size > 10_000
     assert "p99" in out and "realtime.json" in out
+
+
+def test_envelope_rows_record_when_each_gross_slip_starts(tmp_path):
+    """run_envelope's rows carry the start time of every gross slip they count (what the
+    sweat study's windows are counted from): as many as gross_slips, in order, on whole ticks,
+    after the press (the finger rests for the first 0.5 s) and within the run."""
+    from tactile_mirror.loop.envelope import REPORT_PATHS, run_envelope
+
+    data = run_envelope(str(tmp_path / "env.json"), speeds=(0.02,), n_seeds=1, laws=("open loop",),
+                        paths=REPORT_PATHS, duration=1.5, progress=False)
+    (row,) = data["rows"]
+    starts = row["gross_slip_starts_s"]
+    assert row["gross_slips"] >= 1 and len(starts) == row["gross_slips"]
+    assert starts == sorted(starts) and 0.5 <= starts[0] and starts[-1] < 1.5
+    assert all(abs(t * 1000.0 - round(t * 1000.0)) < 1e-9 for t in starts)  # whole ticks at 1 kHz

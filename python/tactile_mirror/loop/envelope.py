@@ -145,7 +145,7 @@ def run_envelope(out: str, speeds: Sequence[float] = (0.002, 0.005, 0.01, 0.02),
     Returns the results dict (as written).
     """
     from .experiment import _weights_dict, default_weights
-    from .scene import LoopScene, run_scene
+    from .scene import LoopScene, gross_slip_starts, run_scene
 
     for c in conditions:
         if c not in CONDITIONS:
@@ -185,6 +185,7 @@ def run_envelope(out: str, speeds: Sequence[float] = (0.002, 0.005, 0.01, 0.02),
         fv = np.gradient(res.finger, 1.0 / fs)
         row = {"condition": c, "law": name, "speed": v, "seed": s, "paths": paths.name,
                "gross_slips": sm["gross_slips"], "gross_slip_time_s": sm["gross_slip_time_s"],
+               "gross_slip_starts_s": [float(k / fs) for k in gross_slip_starts(res.log["slip_fraction"][:, : res.t.size])],
                "tracking_rms_mm": sm["tracking_rms_mm"], "tracking_max_mm": sm["tracking_max_mm"],
                "finger_peak_speed": float(np.abs(fv).max()),
                "finger_peak_acceleration": float(np.abs(np.gradient(fv, 1.0 / fs)).max()),
