@@ -393,9 +393,10 @@ private:
         }
     }
 
-    // One tick of inputs for step(): feat_ (ni, rs_) feature-major, every lane written
-    // (the net normalises the rows in place, so lanes past the last ridge are zeroed
-    // again each tick); the states in st_ updated a vector of ridges at a time.
+    // One tick of inputs for step(): feat_ (ni, rs_) feature-major, every lane of the
+    // vectors holding ridges written (the net normalises those in place; the lanes in
+    // them past the last ridge get zero rates and states), the pad's means in every lane;
+    // the states in st_ updated a vector of ridges at a time.
     void features_tick_base(const T* in) noexcept {
         if (n_lp_ == 4 && n_abs_ == 2) return features_tick<simd::kBaseBytes, 4, 2>(in);
         features_tick<simd::kBaseBytes, -1, -1>(in);
@@ -419,11 +420,10 @@ private:
         const int ns = NLP >= 0 ? NSM : ns_;
         const std::ptrdiff_t rs = std::ptrdiff_t(rs_);
         T* __restrict f = feat_;
-        for (std::ptrdiff_t r0 = 0; r0 < rs; r0 += NL) {
-            if (r0 >= n_r_) {
-                for (int j = 0; j < nf_; ++j) simd::store(f + j * rs + r0, V{});
-                continue;
-            }
+        // The vectors holding ridges only: the ghost vectors past them keep the zeros they
+        // were allocated with (the net normalises only the vectors holding instances too, and
+        // reads the ghosts as any finite values).
+        for (std::ptrdiff_t r0 = 0; r0 < n_r_; r0 += NL) {
             // The four rates of the vector's ridges, gathered into their feature rows.
             gather_rates<B>(in + r0 * n_raw, n_r_ - r0 < NL ? int(n_r_ - r0) : NL, f + r0, rs);
             V z[NSM] = {};
@@ -459,7 +459,8 @@ private:
             // stalled on store forwarding). The terms are the raw features (raw_ when the
             // ridges' rows were compressed above); the means are compressed element by
             // element as run() compresses its staging rows (the same bits) and written
-            // to every lane of their rows (ghosts too: any finite value will do there).
+            // to every lane of their rows (ghosts too: measured, 6 ridges, leaving the
+            // ghost vectors as they were made the float step 8 ns slower, not faster).
             const T* __restrict src = compress_ ? raw_ : f;
             const V nr = V{} + T(n_r_);
             for (int i0 = 0; i0 < nf_; i0 += NL) {
@@ -474,11 +475,9 @@ private:
                     for (int q = 1; q < nq; ++q) acc += v[q];
                 }
                 V m = acc / nr;
-                if (compress_) {
-                    V ik{};
-                    for (int l = 0; l < NL && i0 + l < nf_; ++l) ik[l] = ik_[nf_ + i0 + l];
-                    m = simd::log_compress<T, B>(m, ik);
-                }
+                // (the knees as one vector load: lane by lane they stalled on store forwarding;
+                // the lanes past the last input read zeros and are never stored)
+                if (compress_) m = simd::log_compress<T, B>(m, simd::load<V>(ik_ + nf_ + i0));
                 for (int k = 0; k < NL && i0 + k < nf_; ++k) {
                     const V b = V{} + m[k];
                     T* dst = f + (nf_ + i0 + k) * rs;
@@ -578,7 +577,9 @@ private:
     bool pad_mean_ = false;
     T a_lp_[kMaxTaus] = {}, g_lp_[kMaxTaus] = {}, a_abs_[kMaxTaus] = {}, g_abs_[kMaxTaus] = {};
     T b_ = 0, c_ = 0, inv_fs_ = 0;
-    T ik_[kMaxInputs] = {};  // 1 / knee per input
+    // 1 / knee per input, zero past the last (read a whole vector at a time from any input
+    // on: features_tick's pad means)
+    T ik_[kMaxInputs + 16] = {};
     bool compress_ = false;
     std::size_t rs_ = 0;  // ridge stride of st_ and feat_ (a multiple of 32 bytes of T)
     std::unique_ptr<void, detail::AlignedFree> buf_;
