@@ -248,9 +248,10 @@ public:
 
     /// One tick from raw features stored feature-major in the caller's buffer, which is
     /// normalised in place: feature i of instance r at x[i * feature_major_stride() + r]
-    /// (n_inputs rows). The instances from n_instances on are ghosts a tick's groups may
-    /// read: any finite values, rewritten before every call (normalising twice changes
-    /// them). out: (n_instances, 3) as step(); the same bits as step() on the same
+    /// (n_inputs rows). Only the SIMD vectors holding instances are normalised, so the
+    /// caller rewrites those before every call (normalising twice changes them); the
+    /// instances from n_instances on are ghosts a tick's groups may read: any finite
+    /// values. out: (n_instances, 3) as step(); the same bits as step() on the same
     /// features. For a front end that computes its features a vector of instances at a
     /// time (detector_bank.hpp): the normalisation then goes a vector at a time too.
     void step_feature_major(T* x, T* out) noexcept {
