@@ -59,6 +59,29 @@ def test_figure10_and_evaluate(tmp_path, capsys):
     assert "detect %" in out and "false %" in out and "detection by how gross slip starts" in out
 
 
+@pytest.mark.parametrize("name", ["default", "paper", "bank", "pad", "memory"])
+def test_weights_takes_the_bundled_nets_by_name(name):
+    """--weights NAME is SlipDetector.NAME(): the same weights; a path is a file."""
+    from tactile_mirror.cli import BUNDLED_NETS, _load_detector
+    from tactile_mirror.detector import SlipDetector
+
+    assert name in BUNDLED_NETS
+    got, want = _load_detector(name).weights, getattr(SlipDetector, name)().weights
+    assert got.kind == want.kind and got.metadata == want.metadata
+    np.testing.assert_array_equal(got.params.pack(), want.params.pack())
+
+
+def test_weights_by_name_runs_the_command(capsys):
+    assert main(["evaluate", "--weights", "paper", "--scenes", "1", "--seed", "5"]) == 0
+    assert "detect %" in capsys.readouterr().out
+
+
+def test_a_file_named_like_a_bundled_net_is_given_as_a_path(tmp_path, capsys, monkeypatch):
+    monkeypatch.chdir(tmp_path)
+    assert main(["evaluate", "--weights", "./pad", "--scenes", "1"]) == 1  # no such file here
+    assert capsys.readouterr().err.startswith("error:")
+
+
 def test_missing_weights_file_is_an_error(tmp_path, capsys):
     assert main(["evaluate", "--weights", str(tmp_path / "none.npz"), "--scenes", "1"]) == 1
     assert capsys.readouterr().err.startswith("error:")

@@ -457,6 +457,21 @@ def test_loop_realtime_command_paces_the_pad_and_writes_its_record(tmp_path, cap
     assert "p99" in out and "realtime.json" in out
 
 
+def test_loop_realtime_runs_a_bundled_net_by_name(tmp_path, capsys):
+    """`--weights pad` puts the pad net in the loop: the recording's pipeline ran a bank with
+    the pad's mean, and the JSON says which detector ran."""
+    import json
+
+    from tactile_mirror.cli import main
+    from tactile_mirror.loop.recording import Recording
+
+    assert main(["loop", "realtime", "--weights", "pad", "--duration", "0.6", "--out", str(tmp_path)]) == 0
+    capsys.readouterr()
+    assert json.loads((tmp_path / "realtime.json").read_text())["detector"] == "pad"
+    cfg = Recording.load(tmp_path / "realtime_recording.npz").config
+    assert cfg["detector_kind"] == "jordan_bank" and cfg["bank"]["pad_mean"] is True
+
+
 def test_envelope_rows_record_when_each_gross_slip_starts(tmp_path):
     """run_envelope's rows carry the start time of every gross slip they count (what the
     sweat study's windows are counted from): as many as gross_slips, in order, on whole ticks,

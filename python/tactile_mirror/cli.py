@@ -144,10 +144,20 @@ def cmd_demo(args) -> int:
     return 0
 
 
+#: Names ``--weights`` takes for the bundled nets (``SlipDetector.<name>()``); a weights file
+#: of one of these names is given as a path, e.g. ``./pad``.
+BUNDLED_NETS = ("default", "paper", "bank", "pad", "memory")
+_WEIGHTS_HELP = ("detector weights file, or a bundled net: " + ", ".join(BUNDLED_NETS) + " (default: %s)")
+
+
 def _load_detector(path):
     from .detector import SlipDetector
 
-    return SlipDetector.default() if path is None else SlipDetector.load(path)
+    if path is None:
+        return SlipDetector.default()
+    if path in BUNDLED_NETS:
+        return getattr(SlipDetector, path)()
+    return SlipDetector.load(path)
 
 
 def build_options_from_args(args):
@@ -376,6 +386,7 @@ def cmd_loop_realtime(args) -> int:
     tick, lat = res.tick_percentiles(), res.latency_percentiles()
     summary = {"environment": environment(), "fs_hz": fs, "ticks": int(r.t.size), "pad": args.pad,
                "contact_nodes": int(plant.pad.model.n_nodes), "threads": args.threads, "law": args.law,
+               "detector": args.weights or "paper",
                "finger_peak_speed_mm_s": args.speed, "seed": seed, "tick_us": tick, "latency_us": lat,
                "overruns": int(res.overruns), "late_starts": int(res.late_starts), "gross_slips": int(r.gross_slips),
                "tracking_rms_mm": r.tracking_rms * 1e3}
@@ -439,7 +450,7 @@ def build_parser() -> argparse.ArgumentParser:
                                    "finger on the 6-ridge pad, open loop) or 13 (the same finger, closed loop).")
     p.add_argument("number", type=int, choices=[6, 7, 8, 10, 12, 13], help="figure number")
     p.add_argument("--out", default="figures", help="output folder (default: %(default)s)")
-    p.add_argument("--weights", default=None, help="detector weights file (default: the bundled ones)")
+    p.add_argument("--weights", default=None, help=_WEIGHTS_HELP % "default; figures 12, 13: paper, the loop experiment's")
     p.add_argument("--seed", type=int, default=0, help="figures 12, 13: finger path seed (default: 0)")
     p.add_argument("--law", default="velocity",
                    choices=["velocity", "paper", "velocity, y_pred ramp", "velocity, shear only"],
@@ -467,7 +478,7 @@ def build_parser() -> argparse.ArgumentParser:
     p = sub.add_parser("evaluate", help="evaluate a slip detector on held-out scenes",
                        description="Simulate randomized held-out scenes and report detection rate, false "
                                    "alarms, latency and y_pred lead.")
-    p.add_argument("--weights", default=None, help="detector weights file (default: the bundled ones)")
+    p.add_argument("--weights", default=None, help=_WEIGHTS_HELP % "default")
     p.add_argument("--scenes", type=_positive(int), default=20, help="held-out scenes (default: 20)")
     p.add_argument("--seed", type=int, default=None, help="scene seed (default: the held-out seed)")
     p.set_defaults(func=cmd_evaluate)
@@ -507,7 +518,7 @@ def build_parser() -> argparse.ArgumentParser:
                        help="stage command dead time, ms (default: 1)")
         q.add_argument("--lag", type=_positive(float, allow_zero=True), default=2.0,
                        help="stage servo time constant, ms (default: 2)")
-        q.add_argument("--weights", default=None, help="detector weights file (default: the bundled ones)")
+        q.add_argument("--weights", default=None, help=_WEIGHTS_HELP % "paper, the loop experiment's")
         q.set_defaults(func=func)
         if name == "design":
             q.add_argument("--fs", type=_positive(float), default=1000.0, help="tick rate, Hz (default: 1000)")
