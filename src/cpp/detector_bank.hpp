@@ -420,9 +420,10 @@ private:
         const int ns = NLP >= 0 ? NSM : ns_;
         const std::ptrdiff_t rs = std::ptrdiff_t(rs_);
         T* __restrict f = feat_;
-        // The vectors holding ridges only: the ghost vectors past them keep the zeros they
-        // were allocated with (the net normalises only the vectors holding instances too, and
-        // reads the ghosts as any finite values).
+        // The vectors holding ridges only: the ghost vectors past them keep whatever finite
+        // values they hold (the zeros they were allocated with, or after a switch from a wider
+        // SIMD path its last normalised values); the net normalises only the vectors holding
+        // instances too, and its groups never read past them.
         for (std::ptrdiff_t r0 = 0; r0 < n_r_; r0 += NL) {
             // The four rates of the vector's ridges, gathered into their feature rows.
             gather_rates<B>(in + r0 * n_raw, n_r_ - r0 < NL ? int(n_r_ - r0) : NL, f + r0, rs);
@@ -461,7 +462,7 @@ private:
             // element as run() compresses its staging rows (the same bits) and written
             // to every lane of their rows (ghosts too: measured, 6 ridges, leaving the
             // ghost vectors as they were made the float step 8 ns slower, not faster).
-            const T* __restrict src = compress_ ? raw_ : f;
+            const T* src = compress_ ? raw_ : f;  // (f itself without knees: rows < nf_ read, rows >= nf_ written)
             const V nr = V{} + T(n_r_);
             for (int i0 = 0; i0 < nf_; i0 += NL) {
                 V acc{};

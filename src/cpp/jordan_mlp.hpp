@@ -439,8 +439,9 @@ private:
                 tin = x;
                 xr = 1;
                 xi = io.si;
-                // Only the vectors holding instances: the ghost lanes past them keep the
-                // finite values the caller wrote, which is all the groups need of them.
+                // Only the vectors holding instances (their ghost lanes too): the vectors
+                // past them keep the finite values the caller left there, and the groups
+                // never read them.
                 const T* __restrict mu = mean_;
                 const T* __restrict g = gain_;
                 const std::ptrdiff_t nl = ((n_inst_ + NL - 1) / NL) * NL;

@@ -5,7 +5,8 @@
 // path's projections) and 5 inputs (the generic path), 1 to 13 instances (groups
 // padded with ghost instances), a block run over several chunks must give the bits of
 // the same ticks stepped one at a time, and agree with the scalar step_one(). The
-// sanitizer checks every buffer the block path indexes. No input file.
+// sanitizer checks every buffer the block path indexes. Also: step_feature_major's
+// ghost lanes change nothing, and a bank with the pad's mean and knees. No input file.
 #include <cmath>
 #include <cstdint>
 #include <cstdio>
@@ -93,6 +94,41 @@ void check_mlp(int nin, int R, det::Activation act, simd::Isa isa, Rng& g) {
     for (int r = 0; r < R; ++r) CHECK(st[r] == yp[std::size_t(r) * n + n - 1], "state after the block");
 }
 
+// step_feature_major's contract: the caller rewrites the vectors holding instances
+// before every call; every other lane of its buffer (the ghosts past the last
+// instance, in its last vector and in the vectors past it) may hold any finite value
+// and changes nothing: the bits of step() on the same features, every tick.
+template <typename T>
+void check_feature_major(int nin, int R, simd::Isa isa, Rng& g) {
+    const int H = 16, n = 40;
+    Weights w(nin, H, g);
+    det::JordanMLP<T> fm(nin, H, R, w.w1.data(), w.b1.data(), w.w2.data(), w.b2.data(), w.mean.data(),
+                         w.gain.data(), det::Activation::exact);
+    det::JordanMLP<T> stp(nin, H, R, w.w1.data(), w.b1.data(), w.w2.data(), w.b2.data(), w.mean.data(),
+                          w.gain.data(), det::Activation::exact);
+    if (!fm.set_isa(isa) || !stp.set_isa(isa)) return;
+    const std::ptrdiff_t rs = fm.feature_major_stride();
+    const int lanes = int(simd::Vec<T, 32>::lanes);  // the widest path's vector
+    const std::ptrdiff_t held = ((R + lanes - 1) / lanes) * lanes;  // lanes any path rewrites
+    std::vector<T> buf(std::size_t(nin) * std::size_t(rs)), in(std::size_t(R) * nin), o1(std::size_t(R) * 3),
+        o2(o1.size());
+    for (auto& v : buf) v = T(1e4 * g.next());  // finite garbage everywhere to start with
+    int differ = 0;
+    for (int t = 0; t < n; ++t) {
+        for (int i = 0; i < nin; ++i)
+            for (std::ptrdiff_t r = 0; r < held; ++r) {
+                const T v = T(2.0 * g.next());
+                if (r < R) in[std::size_t(r) * nin + i] = v;
+                buf[std::size_t(i) * rs + r] = r < R ? v : T(1e3 * g.next());  // ghosts: anything finite
+            }
+        fm.step_feature_major(buf.data(), o1.data());
+        stp.step(in.data(), o2.data());
+        differ += bits_differ(o1, o2);
+    }
+    CHECK(differ == 0, "%s %s, %d inputs, %d instances: step_feature_major != step (%d values)",
+          sizeof(T) == 4 ? "float" : "double", simd::isa_name(isa), nin, R, differ);
+}
+
 // The bank's block run (ridges in SIMD lanes, a scalar tail) against step(), bit for
 // bit, with a bank of n_lp low-passes and n_abs |d| filters (4 and 2: the bundled
 // net's, compiled with fixed counts; others: the run-time counts; 2 and 1 give 12
@@ -101,16 +137,24 @@ void check_mlp(int nin, int R, det::Activation act, simd::Isa isa, Rng& g) {
 // the filter states afterwards, the ghost lanes of the stored states (zero), and
 // run()'s finiteness flag.
 template <typename T>
-void check_bank(int R, simd::Isa isa, Rng& g, int n_lp, int n_abs, int n, bool time_major) {
+void check_bank(int R, simd::Isa isa, Rng& g, int n_lp, int n_abs, int n, bool time_major, bool pad = false) {
     const double lp[4] = {0.005, 0.02, 0.08, 0.3}, ab[4] = {0.003, 0.01, 0.03, 0.1};
-    const int nin = det::BankJordan<T>::feature_count(n_lp, n_abs), H = 16;
+    const int nin = det::BankJordan<T>::input_count(n_lp, n_abs, pad), H = 16;
     Weights w(nin, H, g);
     for (auto& m : w.mean) m *= 1e3;  // features in Pa/s and Pa
     for (auto& s : w.gain) s *= 1e-3;
+    // pad: the pad's mean and compressed inputs (knees, the compression's 1 / knee, 1e-3-ish)
+    std::vector<double> knee(static_cast<std::size_t>(nin));
+    for (auto& k : knee) k = 300.0 * (1.5 + g.next());
+    const double* kn = pad ? knee.data() : nullptr;
+    if (pad) {
+        for (auto& m : w.mean) m *= 1e-3;
+        for (auto& s : w.gain) s *= 1e3;
+    }
     det::BankJordan<T> blk(H, R, w.w1.data(), w.b1.data(), w.w2.data(), w.b2.data(), w.mean.data(), w.gain.data(),
-                           1000.0, n_lp, lp, n_abs, ab, 0.5, 0.2);
+                           1000.0, n_lp, lp, n_abs, ab, 0.5, 0.2, det::Activation::exact, kn, pad);
     det::BankJordan<T> stp(H, R, w.w1.data(), w.b1.data(), w.w2.data(), w.b2.data(), w.mean.data(), w.gain.data(),
-                           1000.0, n_lp, lp, n_abs, ab, 0.5, 0.2);
+                           1000.0, n_lp, lp, n_abs, ab, 0.5, 0.2, det::Activation::exact, kn, pad);
     if (!blk.net().set_isa(isa) || !stp.net().set_isa(isa)) return;
     // Channel i of ridge r at tick t: x[r * sr + i * si + t * st].
     const std::ptrdiff_t sr = time_major ? 4 : std::ptrdiff_t(4) * n, si = time_major ? 1 : n,
@@ -135,8 +179,8 @@ void check_bank(int R, simd::Isa isa, Rng& g, int n_lp, int n_abs, int n, bool t
         }
     }
     CHECK(bits_differ(ys, ss) == 0 && bits_differ(yp, sp) == 0,
-          "bank %s %s, %d instances, %d/%d filters, %d ticks%s: block != step", sizeof(T) == 4 ? "float" : "double",
-          simd::isa_name(isa), R, n_lp, n_abs, n, time_major ? " (time-major)" : "");
+          "bank %s %s, %d instances, %d/%d filters, %d ticks%s%s: block != step", sizeof(T) == 4 ? "float" : "double",
+          simd::isa_name(isa), R, n_lp, n_abs, n, time_major ? " (time-major)" : "", pad ? ", pad mean + knees" : "");
     const int ns = blk.n_state();
     std::vector<T> pb(static_cast<std::size_t>(R)), ps(pb.size()), fb(static_cast<std::size_t>(R * ns)), fs(fb.size());
     blk.get_state(pb.data(), fb.data());
@@ -177,6 +221,16 @@ int main() {
                     check_mlp<float>(nin, R, act, isa, g);
                     check_mlp<double>(nin, R, act, isa, g);
                 }
+        for (int nin : {5, 17})
+            for (int R : {1, 6, 7, 9, 13}) {
+                check_feature_major<float>(nin, R, isa, g);
+                check_feature_major<double>(nin, R, isa, g);
+            }
+        for (int R : {1, 6, 9})
+            for (int n : {7, 65}) {
+                check_bank<float>(R, isa, g, 4, 2, n, false, true);
+                check_bank<double>(R, isa, g, 4, 2, n, false, true);
+            }
         for (int R : {1, 6, 7, 9})
             for (int lp_abs : {0x34, 0x42, 0x21})
                 for (int n : {3, 7, 65, 150})
