@@ -446,7 +446,8 @@ private:
                 const T* __restrict g = gain_;
                 const std::ptrdiff_t nl = ((n_inst_ + NL - 1) / NL) * NL;
                 if (nl == NL) {
-                    // one vector of instances per row: no inner loop
+                    // one vector of instances per row: no inner loop (measured, 6 ridges in
+                    // float: the pad net's step 288 -> 262 ns, the bank net's 166 -> 159)
                     _Pragma("GCC unroll 64") for (int i = 0; i < nin; ++i) {
                         T* row = x + i * xi;
                         simd::store(row, (simd::load<V>(row) - mu[i]) * g[i]);
