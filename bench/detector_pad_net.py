@@ -36,7 +36,6 @@ Run: ``python bench/detector_pad_net.py --cache out/scenes`` (14 min on 2 cores 
 from __future__ import annotations
 
 import argparse
-import math
 import os
 import sys
 import time
@@ -277,7 +276,7 @@ def main(argv=None):
             # The library's pad-mean bank with these knees: the same inputs (the mean summed in
             # ridge order instead of numpy's mean: round-off), y_slip >= 0.8 at the decision point.
             params = Params.unpack(theta, n_in, H)
-            params.b2[0] += math.log(0.8 / 0.2) - math.log(thr / (1.0 - thr))
+            params.b2[0] += build.bias_shift(thr)
             bank = {**DEFAULT_BANK, "pad_mean": True, "knee": [float(k) for k in compressed.knee]}
             w = DetectorWeights(params, np.zeros(n_in), scale, float(train[0].fs),
                                 {"features": "stress_rate_bank", "bank": bank,

@@ -257,6 +257,15 @@ def select_candidate(candidates, validation, fa_cost: float = 10.0):
     return candidates[best], best, scores
 
 
+def bias_shift(threshold: float, slip_threshold: float = 0.8) -> float:
+    """What to add to ``y_slip``'s output bias ``b2[0]`` so that the net's ``y_slip >=
+    threshold`` becomes ``y_slip >= slip_threshold``, exactly (``y_slip`` is not fed back):
+    ``logit(slip_threshold) - logit(threshold)``."""
+    import math
+
+    return math.log(slip_threshold / (1 - slip_threshold)) - math.log(threshold / (1 - threshold))
+
+
 def calibrate_slip(weights, validation, false_alarm: float | None, slip_threshold: float = 0.8, scenes: str = "",
                    conditions=None, seed: int = 5000):
     """Weights whose ``y_slip >= slip_threshold`` alarms at most ``false_alarm`` of the
@@ -284,7 +293,6 @@ def calibrate_slip(weights, validation, false_alarm: float | None, slip_threshol
     ``metadata["slip_calibration"]``.
     """
     import copy
-    import math
 
     from .data_prep import features_from_result
     from .evaluate import NOISE_CONDITIONS, condition_estimator, noise_free, onset_kinds, roc, with_noise
@@ -315,7 +323,7 @@ def calibrate_slip(weights, validation, false_alarm: float | None, slip_threshol
         curves[name] = roc(scores, validation, kinds)
         t = max(t, float(curves[name].at_false_alarm(fa)["threshold"]))
     t = min(max(t, 1e-6), 1 - 1e-6)
-    shift = math.log(slip_threshold / (1 - slip_threshold)) - math.log(t / (1 - t))
+    shift = bias_shift(t, slip_threshold)
     w = copy.deepcopy(weights)
     w.params.b2[0] += shift
     at = {name: c.at_threshold(t) for name, c in curves.items()}
@@ -340,7 +348,6 @@ def uncalibrate(weights, slip_threshold: float = 0.8):
     with only the ``threshold`` that was moved to ``slip_threshold`` (as
     ``bench/detector_pad_net.py --save`` writes it) is undone by the same shift."""
     import copy
-    import math
 
     w = copy.deepcopy(weights)
     info = w.metadata.pop("slip_calibration", None)
@@ -351,7 +358,7 @@ def uncalibrate(weights, slip_threshold: float = 0.8):
             t = float(info["threshold"])
             if not 0 < t < 1:
                 raise ValueError(f"weights: slip_calibration threshold must lie in (0, 1), got {t!r}")
-            shift = math.log(slip_threshold / (1 - slip_threshold)) - math.log(t / (1 - t))
+            shift = bias_shift(t, slip_threshold)
         else:
             raise ValueError("weights: slip_calibration records neither b2_shift nor threshold")
         w.params.b2[0] -= shift
