@@ -303,27 +303,17 @@ def main(argv=None):
         print("\n| pad test scenes, ridges 0-2, noise-free | onset kind | slips | y_pred in 0.8 +- 0.1: last "
               "sample before the onset | at the onset sample | median before / at | 10-90 % before |")
         print("|---|---|---:|---:|---:|---:|---:|")
+        from detector_pred_bound import pred_at_onsets, pred_table_rows
+
         for name, d, feats in (("`SlipDetector.default()`", net, net.features),
                                (os.path.basename(args.weights), det, "stress_rate")):
-            vals = {"release": ([], []), "gradual": ([], [])}
-            i = 0
+            rows = []
             for r in conditions["noise-free"]:
                 yp = d.run(features_from_result(r, feats), fs=r.fs)[2]
                 g, _ = targets_from_result(r)
-                for k in SCORED:
-                    on = np.flatnonzero(g[k] >= 0.5)
-                    if on.size and kinds["test"][i] in vals:
-                        o = int(on[0])
-                        vals[kinds["test"][i]][0].append(yp[k, max(o - 1, 0)])
-                        vals[kinds["test"][i]][1].append(yp[k, o])
-                    i += 1
-            both = (np.concatenate([vals[k][0] for k in vals]), np.concatenate([vals[k][1] for k in vals]))
-            for kind, (b, a) in list(vals.items()) + [("all", both)]:
-                b, a = np.asarray(b), np.asarray(a)
-                if b.size:
-                    print(f"| {name} | {kind} | {b.size} | {100 * np.mean(np.abs(b - 0.8) <= 0.1):.0f} % | "
-                          f"{100 * np.mean(np.abs(a - 0.8) <= 0.1):.0f} % | {np.median(b):.2f} / {np.median(a):.2f} | "
-                          f"{np.quantile(b, 0.1):.2f}-{np.quantile(b, 0.9):.2f} |")
+                rows += [(yp[k], g[k]) for k in SCORED]
+            for line in pred_table_rows(name, pred_at_onsets((y, g, kind) for (y, g), kind in zip(rows, kinds["test"]))):
+                print(line)
     if args.figure:
         from detector_roc import figure
         from tactile_mirror._io import save_figure

@@ -58,6 +58,32 @@ def onsets(gross_row):
     return int(on[0]) if on.size else None
 
 
+def pred_at_onsets(rows) -> dict:
+    """``y_pred`` at the onsets of gross slip, per onset kind: ``rows`` yields (``y_pred`` row,
+    gross-slip row, onset kind) per sequence; returns {kind: (values at the last sample before
+    the onset, values at the onset sample)} for the release and gradual onsets."""
+    vals = {"release": ([], []), "gradual": ([], [])}
+    for yp, gross, kind in rows:
+        o = onsets(gross)
+        if o is not None and kind in vals:
+            vals[kind][0].append(yp[max(o - 1, 0)])
+            vals[kind][1].append(yp[o])
+    return {k: (np.asarray(b), np.asarray(a)) for k, (b, a) in vals.items()}
+
+
+def pred_table_rows(name: str, vals: dict) -> list:
+    """Markdown rows of :func:`pred_at_onsets`' values per kind and for all: slips, share in
+    0.8 +- BAND before and at the onset, medians, 10-90 % before."""
+    both = (np.concatenate([vals[k][0] for k in vals]), np.concatenate([vals[k][1] for k in vals]))
+    out = []
+    for kind, (b, a) in list(vals.items()) + [("all", both)]:
+        if b.size:
+            out.append(f"| {name} | {kind} | {b.size} | {100 * np.mean(np.abs(b - 0.8) <= BAND):.0f} % "
+                       f"| {100 * np.mean(np.abs(a - 0.8) <= BAND):.0f} % | {np.median(b):.2f} / {np.median(a):.2f} "
+                       f"| {np.quantile(b, 0.1):.2f}-{np.quantile(b, 0.9):.2f} |")
+    return out
+
+
 def main(argv=None):
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--cache", default="out/scenes", help="directory of cached simulated scenes ('' for none)")
@@ -96,29 +122,14 @@ def main(argv=None):
                        for f, _, _ in te]
         print(f"  {name}: {X.shape[0]} samples, {ncol} inputs, fit {time.perf_counter() - t1:.0f} s")
 
-    # kinds are per ridge, in the order of onset_kinds (scene by scene, ridge by ridge)
     print(f"\n| estimator | onset kind | slips | y_pred in 0.8 +- {BAND}: last sample before the onset | at the onset "
           f"sample | median before / at | 10-90 % before |")
     print("|---|---|---:|---:|---:|---:|---:|")
     for name, p in preds.items():
-        vals = {"release": ([], []), "gradual": ([], [])}
-        i = 0
-        for yp, (_, _, gross) in zip(p, te):
-            for k in range(yp.shape[0]):
-                o = onsets(gross[k])
-                if o is not None and kinds[i] in vals:
-                    vals[kinds[i]][0].append(yp[k, max(o - 1, 0)])
-                    vals[kinds[i]][1].append(yp[k, o])
-                i += 1
-        allb = np.concatenate([vals[k][0] for k in vals])
-        alla = np.concatenate([vals[k][1] for k in vals])
-        for kind, (b, a) in list(vals.items()) + [("all", (allb, alla))]:
-            b, a = np.asarray(b), np.asarray(a)
-            if not b.size:
-                continue
-            print(f"| {name} | {kind} | {b.size} | {100 * np.mean(np.abs(b - 0.8) <= BAND):.0f} % "
-                  f"| {100 * np.mean(np.abs(a - 0.8) <= BAND):.0f} % | {np.median(b):.2f} / {np.median(a):.2f} "
-                  f"| {np.quantile(b, 0.1):.2f}-{np.quantile(b, 0.9):.2f} |")
+        # kinds are per sequence in the order of onset_kinds: scene by scene, ridge by ridge
+        rows = ((yp[k], gross[k]) for yp, (_, _, gross) in zip(p, te) for k in range(yp.shape[0]))
+        for line in pred_table_rows(name, pred_at_onsets((y, g, kind) for (y, g), kind in zip(rows, kinds))):
+            print(line)
     print(f"\ntotal {time.perf_counter() - t0:.0f} s")
 
 
