@@ -141,16 +141,13 @@ void check_bank(int R, simd::Isa isa, Rng& g, int n_lp, int n_abs, int n, bool t
     const double lp[4] = {0.005, 0.02, 0.08, 0.3}, ab[4] = {0.003, 0.01, 0.03, 0.1};
     const int nin = det::BankJordan<T>::input_count(n_lp, n_abs, pad), H = 16;
     Weights w(nin, H, g);
-    for (auto& m : w.mean) m *= 1e3;  // features in Pa/s and Pa
-    for (auto& s : w.gain) s *= 1e-3;
-    // pad: the pad's mean and compressed inputs (knees, the compression's 1 / knee, 1e-3-ish)
+    if (!pad) {  // features in Pa/s and Pa (compressed, with the pad's mean: of order 1)
+        for (auto& m : w.mean) m *= 1e3;
+        for (auto& s : w.gain) s *= 1e-3;
+    }
     std::vector<double> knee(static_cast<std::size_t>(nin));
     for (auto& k : knee) k = 300.0 * (1.5 + g.next());
     const double* kn = pad ? knee.data() : nullptr;
-    if (pad) {
-        for (auto& m : w.mean) m *= 1e-3;
-        for (auto& s : w.gain) s *= 1e3;
-    }
     det::BankJordan<T> blk(H, R, w.w1.data(), w.b1.data(), w.w2.data(), w.b2.data(), w.mean.data(), w.gain.data(),
                            1000.0, n_lp, lp, n_abs, ab, 0.5, 0.2, det::Activation::exact, kn, pad);
     det::BankJordan<T> stp(H, R, w.w1.data(), w.b1.data(), w.w2.data(), w.b2.data(), w.mean.data(), w.gain.data(),
