@@ -214,8 +214,9 @@ public:
     /// Declare that the last n inputs hold the same value for every instance at each tick
     /// (a pad's mean, detector_bank.hpp): their share of the hidden pre-activations is then
     /// computed once per tick, not per instance (the unrolled 34-input net with n = 17;
-    /// other sizes, and a 34-input net that shares nothing, run the generic path). The sums change order (b1, the shared inputs, then
-    /// each instance's own): round-off only; step() and run() still agree bit for bit.
+    /// other sizes, a 34-input net that shares nothing and the TM_LEAN_UNROLL builds run
+    /// the generic path). The sums change order (b1, the shared inputs, then each
+    /// instance's own): round-off only; step() and run() still agree bit for bit.
     /// Returns false (and changes nothing) for n outside [0, n_inputs]. Not real-time.
     bool set_shared_inputs(int n) noexcept {
         if (n < 0 || n > n_in_) return false;
