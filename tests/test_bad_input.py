@@ -378,3 +378,40 @@ def test_version_string_and_struct_sizes():
     assert lib.tm_pipeline_create(cfg, h) == -6
     assert b"accepts" in ffi.string(lib.tm_last_error())
     assert lib.tm_config_init_sized(cfg, ffi.sizeof("tm_config")) == 0 and cfg.abi_version == 9 and cfg.v_limit == 15.0
+
+
+# -- one wording for numeric arguments ---------------------------------------------------
+
+def _numeric_constructors():
+    from tactile_mirror.estimator import notch_sos
+    from tactile_mirror.loop import SimulatedStage, StageLimits
+    from tactile_mirror.loop.design import design_loop
+    from tactile_mirror.noise import SensorNoise
+
+    limits = StageLimits(-0.02, 0.02, 0.03, 1.0)
+    return [
+        ("Cf", 2.2e-12, lambda v: PVDFCircuit(Cf=v)),
+        ("fs", FS, lambda v: StressRateEstimator(PVDFCircuit(), v, 2)),
+        ("notch_q", 30.0, lambda v: notch_sos(FS, 50.0, notch_q=v)),
+        ("temperature", 300.0, lambda v: SensorNoise(temperature=v)),
+        ("v_max", 0.03, lambda v: StageLimits(-0.02, 0.02, v, 1.0)),
+        ("lag", 0.002, lambda v: SimulatedStage(limits, lag=v)),
+        ("fs", FS, lambda v: design_loop(limits, (1.0, 1e7), v, stage_delay=0.001, stage_lag=0.002)),
+        ("slip_threshold", 0.8, lambda v: make(slip_threshold=v)),
+        ("gain", 1.0, lambda v: PaperController(gain=v)),
+    ]
+
+
+@pytest.mark.parametrize("case", range(9))
+def test_numeric_arguments_are_checked_alike(case):
+    # Every constructor takes its numbers through one check (tactile_mirror._checks): a
+    # non-number is a TypeError, a NaN / Inf or out-of-range number a ValueError, and both
+    # name the argument; the same arguments pass with a good value.
+    name, good, build = _numeric_constructors()[case]
+    build(good)
+    for bad in ("1.0", None, True, [1.0]):
+        with pytest.raises(TypeError, match=f"^{name} must be a real number"):
+            build(bad)
+    for bad in (float("nan"), float("inf"), -float("inf")):
+        with pytest.raises(ValueError, match=f"^{name} must be .*finite"):
+            build(bad)

@@ -110,6 +110,7 @@ import numpy.typing as npt
 import scipy.optimize
 import scipy.signal
 
+from ._checks import real_number
 from .filters import SosFilter
 
 __all__ = ["EPSILON_0", "SLOPE_BAND", "CircuitStream", "PVDFCircuit", "fit_circuit"]
@@ -133,12 +134,7 @@ def _check_output(output) -> str:
 
 
 def _check_fs(fs) -> float:
-    if isinstance(fs, bool) or not isinstance(fs, numbers.Real):
-        raise TypeError(f"fs must be a real number (Hz), got {type(fs).__name__}")
-    fs = float(fs)
-    if not math.isfinite(fs) or fs <= 0:
-        raise ValueError(f"fs must be positive and finite (Hz), got {fs}")
-    return fs
+    return real_number(fs, "fs", unit="Hz", positive=True)
 
 
 def _real_array(x, name: str) -> np.ndarray:
@@ -210,14 +206,7 @@ class PVDFCircuit:
 
     def __post_init__(self) -> None:
         for name in _POSITIVE_FIELDS + _FINITE_FIELDS:
-            value = getattr(self, name)
-            if isinstance(value, bool) or not isinstance(value, numbers.Real):
-                raise TypeError(f"{name} must be a real number, got {type(value).__name__}")
-            value = float(value)
-            if not math.isfinite(value):
-                raise ValueError(f"{name} must be finite, got {value}")
-            if name in _POSITIVE_FIELDS and value <= 0:
-                raise ValueError(f"{name} must be positive, got {value}")
+            value = real_number(getattr(self, name), name, positive=name in _POSITIVE_FIELDS)
             object.__setattr__(self, name, value)
         try:
             load = tuple(float(v) for v in self.load)

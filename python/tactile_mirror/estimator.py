@@ -48,6 +48,7 @@ import numpy as np
 import numpy.typing as npt
 import scipy.signal
 
+from ._checks import real_number
 from .circuit import PVDFCircuit, _check_fs
 from .filters import SosFilter, sosfilt
 
@@ -74,10 +75,8 @@ def _check_order(order, minimum: int, name: str = "order") -> int:
 
 
 def _check_bandwidth(bandwidth, fs: float, name: str = "bandwidth") -> float:
-    if isinstance(bandwidth, bool) or not isinstance(bandwidth, numbers.Real):
-        raise TypeError(f"{name} must be a real number (Hz), got {type(bandwidth).__name__}")
-    bw = float(bandwidth)
-    if not (math.isfinite(bw) and 0 < bw < fs / 2):
+    bw = real_number(bandwidth, name, unit="Hz")
+    if not 0 < bw < fs / 2:
         raise ValueError(f"{name} must lie in (0, fs/2) = (0, {fs / 2}) Hz, got {bandwidth}")
     return bw
 
@@ -191,12 +190,7 @@ def _notch_freqs(notch, fs: float) -> tuple[float, ...]:
 
 
 def _check_notch_q(q) -> float:
-    if isinstance(q, bool) or not isinstance(q, numbers.Real):
-        raise TypeError(f"notch_q must be a real number, got {type(q).__name__}")
-    q = float(q)
-    if not (math.isfinite(q) and q > 0):
-        raise ValueError(f"notch_q must be positive and finite, got {q}")
-    return q
+    return real_number(q, "notch_q", positive=True)
 
 
 def notch_sos(fs: float, notch, notch_q: float = 30.0) -> np.ndarray:

@@ -63,7 +63,6 @@ at ``u_out`` (see :meth:`SensorNoise.rms`). A 50 Hz line of 2 mV rms at ``v_out`
 from __future__ import annotations
 
 import math
-import numbers
 from collections.abc import Sequence
 from dataclasses import dataclass, field
 
@@ -71,6 +70,7 @@ import numpy as np
 import numpy.typing as npt
 import scipy.signal
 
+from ._checks import real_number
 from .circuit import PVDFCircuit, _check_channels, _check_fs
 
 __all__ = ["BOLTZMANN", "NOISE_SOURCES", "SensorNoise"]
@@ -82,15 +82,6 @@ BOLTZMANN = 1.380649e-23
 NOISE_SOURCES = ("Rf", "i_n1", "e_n1", "Rs", "Rd", "i_n2", "e_n2")
 
 _OUTPUTS = ("v", "u")
-
-
-def _nonneg(name: str, value, positive: bool = False) -> float:
-    if isinstance(value, bool) or not isinstance(value, numbers.Real):
-        raise TypeError(f"{name} must be a real number, got {type(value).__name__}")
-    v = float(value)
-    if not math.isfinite(v) or v < 0 or (positive and v == 0):
-        raise ValueError(f"{name} must be {'positive' if positive else 'non-negative'} and finite, got {value!r}")
-    return v
 
 
 @dataclass(frozen=True)
@@ -163,10 +154,10 @@ class SensorNoise:
     def __post_init__(self) -> None:
         if not isinstance(self.circuit, PVDFCircuit):
             raise TypeError(f"circuit must be a PVDFCircuit, got {type(self.circuit).__name__}")
-        object.__setattr__(self, "temperature", _nonneg("temperature", self.temperature, positive=True))
+        object.__setattr__(self, "temperature", real_number(self.temperature, "temperature", unit="K", positive=True))
         for name in ("e_n", "i_n", "cable_capacitance", "hum"):
-            object.__setattr__(self, name, _nonneg(name, getattr(self, name)))
-        mains = _nonneg("mains", self.mains, positive=True)
+            object.__setattr__(self, name, real_number(getattr(self, name), name, nonnegative=True))
+        mains = real_number(self.mains, "mains", unit="Hz", positive=True)
         if mains not in (50.0, 60.0):
             raise ValueError(f"mains must be 50 or 60 (Hz), got {self.mains!r}")
         object.__setattr__(self, "mains", mains)

@@ -27,6 +27,7 @@ import numpy as np
 import scipy.signal
 
 from . import _core
+from ._checks import real_number
 from .filters import validate_sos
 from .loop.controller import Controller, controller_from_dict
 
@@ -66,21 +67,11 @@ def _weights_of(detector):
 
 
 def _positive(value, name: str) -> float:
-    if isinstance(value, bool) or not isinstance(value, numbers.Real):
-        raise TypeError(f"{name} must be a real number, got {type(value).__name__}")
-    v = float(value)
-    if not (math.isfinite(v) and v > 0):
-        raise ValueError(f"{name} must be a positive finite number, got {value!r}")
-    return v
+    return real_number(value, name, positive=True)
 
 
 def _position(value, name: str) -> float:
-    if isinstance(value, bool) or not isinstance(value, numbers.Real):
-        raise TypeError(f"{name} must be a real number (m), got {type(value).__name__}")
-    v = float(value)
-    if not math.isfinite(v):
-        raise ValueError(f"{name} must be a finite position in m, got {value!r}")
-    return v
+    return real_number(value, name, unit="m")
 
 
 def pipeline_config(detector, fs, n_ridges: int = 6, *, estimator=None, sos_v=None, sos_u=None, sos_diff=None,

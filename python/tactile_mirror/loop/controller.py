@@ -51,12 +51,12 @@ Arming (both laws)
 from __future__ import annotations
 
 import math
-import numbers
 from dataclasses import asdict, dataclass
 
 import numpy as np
 
 from .. import _core
+from .._checks import real_number
 
 __all__ = ["Controller", "NoController", "PaperController", "VelocityController", "controller_fields",
            "controller_from_dict"]
@@ -99,15 +99,6 @@ class _LawState:
 
     def restore(self, s: tuple) -> None:
         self.x, self.v, self.a, self.dir, self.w, self.ticks, self.hold_left, self.slip_run = s
-
-
-def _real(value, name: str) -> float:
-    if isinstance(value, bool) or not isinstance(value, numbers.Real):
-        raise TypeError(f"{name} must be a real number, got {type(value).__name__}")
-    v = float(value)
-    if not math.isfinite(v):
-        raise ValueError(f"{name} must be finite, got {value!r}")
-    return v
 
 
 @dataclass(frozen=True)
@@ -170,7 +161,7 @@ class Controller:
     def __post_init__(self):
         for name in ("threshold", "x_min", "x_max", "direction_sign", "asym_tau", "asym_deadband", "arm_delay",
                      "slip_hold", "slip_confirm", "slip_min_asym", "planner_decel"):
-            object.__setattr__(self, name, _real(getattr(self, name), name))
+            object.__setattr__(self, name, real_number(getattr(self, name), name))
         if not 0.0 <= self.threshold < 1.0:
             raise ValueError(f"threshold must lie in [0, 1), got {self.threshold}")
         if not self.x_min < self.x_max:
@@ -233,7 +224,7 @@ class Controller:
         sl = np.zeros(y.shape, dtype=bool) if slip is None else np.asarray(slip, dtype=bool)
         if sl.shape != y.shape:
             raise ValueError(f"slip must have the shape of y_pred {y.shape}, got {sl.shape}")
-        fs = _real(fs, "fs")
+        fs = real_number(fs, "fs")
         if fs <= 0:
             raise ValueError(f"fs must be > 0 Hz, got {fs}")
         st = self._start(x0)
@@ -327,7 +318,7 @@ class PaperController(Controller):
 
     def __post_init__(self):
         super().__post_init__()
-        object.__setattr__(self, "gain", _real(self.gain, "gain"))
+        object.__setattr__(self, "gain", real_number(self.gain, "gain"))
         if self.gain < 0:
             raise ValueError(f"gain must be >= 0 m/s, got {self.gain}")
 
@@ -407,7 +398,7 @@ class VelocityController(Controller):
         super().__post_init__()
         for name in ("y_full", "v_max", "a_max", "shear_gain", "ramp_gain", "pred_boost", "shear_integral",
                      "rate_gain"):
-            object.__setattr__(self, name, _real(getattr(self, name), name))
+            object.__setattr__(self, name, real_number(getattr(self, name), name))
         if not self.threshold < self.y_full <= 1.0:
             raise ValueError(f"y_full must lie in (threshold, 1] = ({self.threshold}, 1], got {self.y_full}")
         if not self.v_max > 0:

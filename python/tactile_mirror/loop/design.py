@@ -86,12 +86,12 @@ The numbers of the nominal design (FEM pad, 1 kHz, 2nd-order 100 Hz estimator, s
 from __future__ import annotations
 
 import math
-import numbers
 from dataclasses import dataclass, field
 
 import numpy as np
 import scipy.signal
 
+from .._checks import real_number
 from ..circuit import PVDFCircuit
 from ..estimator import equalizer_sos
 from .controller import VelocityController
@@ -101,12 +101,7 @@ __all__ = ["LoopDesign", "design_loop", "loop_response"]
 
 
 def _positive(value, name: str, allow_zero: bool = False) -> float:
-    if isinstance(value, bool) or not isinstance(value, numbers.Real) or not math.isfinite(float(value)):
-        raise ValueError(f"{name} must be a finite number, got {value!r}")
-    v = float(value)
-    if v < 0 or (v == 0 and not allow_zero):
-        raise ValueError(f"{name} must be {'>= 0' if allow_zero else '> 0'}, got {value!r}")
-    return v
+    return real_number(value, name, positive=not allow_zero, nonnegative=allow_zero)
 
 
 def loop_response(f, kp: float, z: float, kv: float, fs: float, delay: float, lag: float,

@@ -27,7 +27,6 @@ import from here, with a ``DeprecationWarning`` naming their new home.
 from __future__ import annotations
 
 import argparse
-import math
 import numbers
 import os
 import warnings
@@ -37,6 +36,7 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
+from .._checks import real_number
 from .._io import write_json
 from .._legacy import legacy_arguments
 from ..circuit import PVDFCircuit
@@ -348,12 +348,7 @@ class ExperimentOptions:
             raise TypeError(f"seeds must be ints, got {seeds!r}")
         object.__setattr__(self, "seeds", tuple(int(s) for s in seeds))
         for name in ("duration", "fs"):
-            v = getattr(self, name)
-            if isinstance(v, bool) or not isinstance(v, numbers.Real):
-                raise TypeError(f"{name} must be a real number, got {v!r}")
-            if not (math.isfinite(float(v)) and float(v) > 0):
-                raise ValueError(f"{name} must be positive and finite, got {v!r}")
-            object.__setattr__(self, name, float(v))
+            object.__setattr__(self, name, real_number(getattr(self, name), name, positive=True))
         if self.plant not in PLANTS:
             raise ValueError(f"plant must be one of {sorted(PLANTS)}, got {self.plant!r}")
         rs = self.robustness_seeds

@@ -9,9 +9,10 @@ from __future__ import annotations
 
 import collections
 import math
-import numbers
 from dataclasses import dataclass
 from typing import Protocol, runtime_checkable
+
+from .._checks import real_number
 
 __all__ = ["SimulatedStage", "Stage", "StageLimits"]
 
@@ -27,10 +28,7 @@ class StageLimits:
 
     def __post_init__(self):
         for name in ("x_min", "x_max", "v_max", "a_max"):
-            v = getattr(self, name)
-            if isinstance(v, bool) or not isinstance(v, numbers.Real) or not math.isfinite(v):
-                raise ValueError(f"{name} must be a finite number, got {v!r}")
-            object.__setattr__(self, name, float(v))
+            object.__setattr__(self, name, real_number(getattr(self, name), name))
         if not self.x_min < self.x_max:
             raise ValueError(f"x_max must be greater than x_min, got [{self.x_min}, {self.x_max}]")
         if not self.v_max > 0:
@@ -91,18 +89,14 @@ class SimulatedStage:
         self._limits = limits if limits is not None else StageLimits(-0.05, 0.05, 0.05, 2.0)
         if not isinstance(self._limits, StageLimits):
             raise TypeError(f"limits must be StageLimits, got {type(limits).__name__}")
-        for name, v in (("delay", delay), ("lag", lag), ("x0", x0)):
-            if isinstance(v, bool) or not isinstance(v, numbers.Real) or not math.isfinite(v):
-                raise ValueError(f"{name} must be a finite number, got {v!r}")
-        if delay < 0:
-            raise ValueError(f"delay must be >= 0 s, got {delay}")
-        if lag < 0:
-            raise ValueError(f"lag must be >= 0 s, got {lag}")
+        delay = real_number(delay, "delay", unit="s", nonnegative=True)
+        lag = real_number(lag, "lag", unit="s", nonnegative=True)
+        x0 = real_number(x0, "x0", unit="m")
         if not self._limits.x_min <= x0 <= self._limits.x_max:
             raise ValueError(f"x0={x0} lies outside the travel [{self._limits.x_min}, {self._limits.x_max}]")
-        self.delay = float(delay)
-        self.lag = float(lag)
-        self.reset(float(x0))
+        self.delay = delay
+        self.lag = lag
+        self.reset(x0)
 
     def reset(self, x0: float = 0.0) -> None:
         self.t = 0.0

@@ -1,0 +1,29 @@
+"""Argument checks shared by the library's constructors and functions, so that every
+"must be a real number" error has one wording and one behaviour: TypeError for what is not
+a real number (bools included), ValueError for a number out of range; both name the
+argument, and its unit where one is given."""
+from __future__ import annotations
+
+import math
+import numbers
+
+__all__ = ["real_number"]
+
+
+def real_number(value, name: str, *, unit: str | None = None, positive: bool = False,
+                nonnegative: bool = False) -> float:
+    """``value`` as a float, checked to be a finite real number (``> 0`` if ``positive``,
+    ``>= 0`` if ``nonnegative``).
+
+    Raises TypeError if ``value`` is not a real number (a bool is not), ValueError if it is
+    NaN, infinite or out of the asked range. ``name`` and ``unit`` go into the message, e.g.
+    ``fs must be positive and finite (Hz), got 0.0``.
+    """
+    u = f" ({unit})" if unit else ""
+    if isinstance(value, bool) or not isinstance(value, numbers.Real):
+        raise TypeError(f"{name} must be a real number{u}, got {type(value).__name__}")
+    v = float(value)
+    if not math.isfinite(v) or (positive and v <= 0) or (nonnegative and v < 0):
+        sign = "positive and " if positive else ("non-negative and " if nonnegative else "")
+        raise ValueError(f"{name} must be {sign}finite{u}, got {value!r}")
+    return v
