@@ -36,6 +36,8 @@ def sos_test_exe(tmp_path_factory):
         raise AssertionError(f"building tests/cpp/test_sos.cpp with sanitizers failed:\n{exc.stderr}") from exc
 
 
+# (one worker runs them all, so that the module's build of the program is made once)
+@pytest.mark.xdist_group("sos_sanitizer_build")
 @pytest.mark.parametrize("channels,n", [(1, 37), (5, 500), (12, 1000), (70, 129)])
 def test_sos_kernel_under_sanitizers(tmp_path, sos_test_exe, channels, n):
     exe = sos_test_exe

@@ -23,7 +23,6 @@
 // lanes, ridges in groups) is unchanged.
 #pragma once
 
-#include <chrono>
 #include <cmath>
 #include <cstddef>
 #include <cstdlib>
@@ -118,18 +117,8 @@ public:
         if (n_r_ > cap / 4 || n_iter < 1) return std::numeric_limits<double>::quiet_NaN();
         T in[cap], out[3 * cap / 4], yp[cap / 4], ld[cap / 2];
         get_state(yp, ld);
-        DenormalGuard ftz;  // as the real-time callers run it (JordanMLP::time_step_ns)
         for (int k = 0; k < 4 * n_r_; ++k) in[k] = T(1e3) * T((k % 7) - 3);
-        double best = std::numeric_limits<double>::infinity();
-        volatile T sink = 0;
-        for (int rep = 0; rep < repeats; ++rep) {
-            const auto t0 = std::chrono::steady_clock::now();
-            for (long it = 0; it < n_iter; ++it) step(in, out);
-            const auto t1 = std::chrono::steady_clock::now();
-            sink = sink + out[0];
-            const double ns = std::chrono::duration<double, std::nano>(t1 - t0).count() / double(n_iter);
-            if (ns < best) best = ns;
-        }
+        const double best = best_time_ns(n_iter, repeats, [&](long) { step(in, out); });
         set_state(yp, ld);
         return best;
     }

@@ -55,7 +55,6 @@
 // uses std::exp for exact.
 #pragma once
 
-#include <chrono>
 #include <cmath>
 #include <cstddef>
 #include <cstdint>
@@ -317,27 +316,11 @@ public:
         T out[3 * cap];
         T saved[cap];
         get_state(saved);
-        // Under flush-to-zero, as every real-time caller runs the kernel (the pipeline's
-        // tick, the Python step and block calls): a filter state decaying toward zero (a
-        // channel that reads exactly 0) otherwise times subnormal arithmetic, not the
-        // kernel (measured, filter-bank net after a block run: 545 ns a tick, not 345).
-        DenormalGuard ftz;
         for (int k = 0; k < n_inst_ * n_in_; ++k) in[k] = mean_[k % n_in_] + T(0.25) * T((k % 7) - 3);
-        double best = std::numeric_limits<double>::infinity();
-        volatile T sink = 0;
-        for (int rep = 0; rep < repeats; ++rep) {
-            const auto t0 = std::chrono::steady_clock::now();
-            if (scalar) {
-                for (long it = 0; it < n_iter; ++it)
-                    for (int r = 0; r < n_inst_; ++r) step_one(r, in + r * n_in_, out + 3 * r);
-            } else {
-                for (long it = 0; it < n_iter; ++it) step(in, out);  // ticks chained through the state
-            }
-            const auto t1 = std::chrono::steady_clock::now();
-            sink = sink + out[0];
-            const double ns = std::chrono::duration<double, std::nano>(t1 - t0).count() / double(n_iter);
-            if (ns < best) best = ns;
-        }
+        // (ticks chained through the state)
+        const double best = scalar ? best_time_ns(n_iter, repeats, [&](long) {
+            for (int r = 0; r < n_inst_; ++r) step_one(r, in + r * n_in_, out + 3 * r);
+        }) : best_time_ns(n_iter, repeats, [&](long) { step(in, out); });
         set_state(saved);
         return best;
     }

@@ -83,7 +83,6 @@
 #include <algorithm>
 #include <atomic>
 #include <cstring>
-#include <chrono>
 #include <cmath>
 #include <cstddef>
 #include <cstdint>
@@ -810,14 +809,9 @@ public:
             for (std::size_t c = 0; c < ni; ++c)
                 x[t * ni + c] = 1e-3 * std::sin(0.01 * double(t) * double(c + 1) + double(c));
         Snapshot snap = save();
-        double best = std::numeric_limits<double>::infinity();
-        DenormalGuard guard;
-        for (int r = 0; r < repeats; ++r) {
-            const auto t0 = std::chrono::steady_clock::now();
-            for (long i = 0; i < n_iter; ++i) step(x.data() + (std::size_t(i) % period) * ni, o.data());
-            const auto t1 = std::chrono::steady_clock::now();
-            best = std::min(best, std::chrono::duration<double, std::nano>(t1 - t0).count() / double(n_iter));
-        }
+        const double best = best_time_ns(n_iter, repeats, [&](long i) {
+            step(x.data() + (std::size_t(i) % period) * ni, o.data());
+        });
         restore(snap);
         unguarded_left_ = 0;
         publish_all();
