@@ -13,7 +13,9 @@ latency per onset kind, the share of slips whose ``y_pred`` at the onset lies in
 the threshold swept (``detector.evaluate.roc``). Then the kernels' tick time for 6 ridges
 (measured inside C++, float32 and float64, all nets in the same run).
 
-Run: ``python bench/detector_heldout.py [--cache out/scenes] [--bound] [--bound-extra 96] [--hum]``.
+Run: ``python bench/detector_heldout.py [--cache out/scenes] [--bound] [--bound-extra 96] [--hum]
+[--consecutive 2 3 5]`` (the last: the filter-bank net's curve when an alarm needs that many samples in a
+row over the threshold).
 """
 from __future__ import annotations
 
@@ -96,7 +98,12 @@ def main(argv=None):
                     help="also the filter-bank net at the lowest threshold of y_slip whose false-alarm rate on the "
                          "build's validation scenes (their own noise) is at most FA (e.g. 0.01)")
     ap.add_argument("--hum", action="store_true", help="also the thermal floor + 2 mV 50 Hz hum condition, notched")
+    ap.add_argument("--consecutive", type=int, nargs="+", default=[], metavar="K",
+                    help="also the filter-bank net's curve with an alarm only after K samples in a row at or above "
+                         "the threshold (detector.evaluate.roc's consecutive), for each K")
     args = ap.parse_args(argv)
+    if any(k < 1 for k in args.consecutive):
+        ap.error("--consecutive takes positive sample counts")
     sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
     from _common import header
     from detector_roc import bound_scores
@@ -152,6 +159,10 @@ def main(argv=None):
                 outs.append((ys, yp))
             rows.append(table_rows(name, outs, test, kinds, cond))
             curves.append((cond, name, roc([o[0] for o in outs], test, kinds)))
+            if det is bank:
+                for k in args.consecutive:
+                    curves.append((cond, f"{name}, {k} in a row", roc([o[0] for o in outs], test, kinds,
+                                                                       consecutive=k)))
             if thr is not None and det is bank:
                 # the alarm at the validation-chosen threshold, as a 0/1 statistic for the same analysis
                 rows.append(table_rows(f"filter-bank net, y_slip >= {thr:.3f}",
