@@ -224,9 +224,7 @@ class Controller:
         sl = np.zeros(y.shape, dtype=bool) if slip is None else np.asarray(slip, dtype=bool)
         if sl.shape != y.shape:
             raise ValueError(f"slip must have the shape of y_pred {y.shape}, got {sl.shape}")
-        fs = real_number(fs, "fs")
-        if fs <= 0:
-            raise ValueError(f"fs must be > 0 Hz, got {fs}")
+        fs = real_number(fs, "fs", unit="Hz", positive=True)
         st = self._start(x0)
         xs = np.empty_like(y)
         vs = np.empty_like(y)
@@ -318,9 +316,7 @@ class PaperController(Controller):
 
     def __post_init__(self):
         super().__post_init__()
-        object.__setattr__(self, "gain", real_number(self.gain, "gain"))
-        if self.gain < 0:
-            raise ValueError(f"gain must be >= 0 m/s, got {self.gain}")
+        object.__setattr__(self, "gain", real_number(self.gain, "gain", unit="m/s", nonnegative=True))
 
     def _move(self, x, v, y, dt, dirn, a=0.0):
         x0 = x
