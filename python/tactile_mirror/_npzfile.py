@@ -12,6 +12,7 @@ from __future__ import annotations
 import json
 import os
 import struct
+import tokenize
 import zipfile
 import zlib
 from dataclasses import dataclass
@@ -30,10 +31,11 @@ _MAX_HEADER = 10_000  # numpy's own limit for an npy header
 _CHUNK = 1 << 20
 _KIND_NAMES = {"f": "float", "i": "integer", "u": "integer", "b": "bool", "U": "text"}
 
-# exceptions that zipfile / zlib / numpy's header parser raise on malformed input
+# exceptions that zipfile / zlib / numpy's header parser raise on malformed input (the
+# parser tokenizes the header: an unbalanced bracket in it is a tokenize.TokenError)
 _MALFORMED = (zipfile.BadZipFile, zipfile.LargeZipFile, zlib.error, struct.error, OSError, ValueError,
               EOFError, KeyError, RuntimeError, NotImplementedError, OverflowError, SyntaxError,
-              TypeError, IndexError, UnicodeError, MemoryError, RecursionError)
+              TypeError, IndexError, UnicodeError, MemoryError, RecursionError, tokenize.TokenError)
 
 
 @dataclass(frozen=True)
