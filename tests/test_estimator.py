@@ -272,6 +272,39 @@ def test_bad_estimator_arguments():
         est.process(bad, np.zeros((2, 5)))
 
 
+@pytest.mark.parametrize("dtype", [np.float64, np.float32])
+@pytest.mark.parametrize("use_u", [True, False])
+def test_a_refused_call_leaves_the_estimator_as_it_was(dtype, use_u):
+    # Each call runs two filters; when the second refuses (a NaN in u, a block that
+    # overflows it, a u sample of the wrong shape) or another thread holds the
+    # estimator, the first one must not have moved: the next good call gives what a
+    # twin that never saw the bad call gives, bit for bit.
+    rng = np.random.default_rng(4)
+    v, u = rng.standard_normal((2, 2, 64))
+    est = StressRateEstimator(PVDFCircuit(), 1000.0, 2, use_u=use_u, dtype=dtype)
+    twin = StressRateEstimator(PVDFCircuit(), 1000.0, 2, use_u=use_u, dtype=dtype)
+    for e in (est, twin):
+        e.process(v, u if use_u else None)
+    nan_u = u.copy()
+    nan_u[1, 40] = np.nan
+    refused = [lambda: est.step(v[:, 0], u[:1, 0] if use_u else u[:, 0])]
+    if use_u:
+        refused += [lambda: est.process(v, nan_u), lambda: est.process(v, np.full_like(u, 1e308))]
+    else:
+        # the differentiator's block (the rate) is finite; a v that overflows the first
+        # filter is refused by it before the second runs
+        refused += [lambda: est.process(np.full_like(v, 1e308))]
+    for call in refused:
+        with np.errstate(over="ignore"), pytest.raises(ValueError):
+            call()
+    with est._claim(), pytest.raises(RuntimeError, match="another thread"):
+        est.step(v[:, 0], u[:, 0] if use_u else None)
+    for a, b in zip(est.process(v, u if use_u else None), twin.process(v, u if use_u else None)):
+        np.testing.assert_array_equal(a, b)
+    for a, b in zip(est.step(v[:, 5], u[:, 5] if use_u else None), twin.step(v[:, 5], u[:, 5] if use_u else None)):
+        np.testing.assert_array_equal(a, b)
+
+
 def test_bad_offline_arguments():
     c = PVDFCircuit()
     v = np.zeros((2, 50))

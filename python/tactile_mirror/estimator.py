@@ -41,8 +41,10 @@ recordings with :func:`tactile_mirror.sosfilt`.
 """
 from __future__ import annotations
 
+import contextlib
 import math
 import numbers
+import threading
 
 import numpy as np
 import numpy.typing as npt
@@ -260,6 +262,15 @@ def _block(x, name: str, channels: int) -> np.ndarray:
     return a
 
 
+def _sample(x, name: str, channels: int, dtype) -> np.ndarray:
+    a = np.asarray(x)
+    if a.dtype.kind not in "biuf":
+        raise TypeError(f"{name} must hold real numbers, got dtype {a.dtype}")
+    if a.shape != (channels,):
+        raise ValueError(f"{name} must have shape ({channels},), got {a.shape}")
+    return a.astype(dtype, copy=False)
+
+
 class StressRateEstimator:
     """Streaming estimator of stress rate and 2nd-order stress rate.
 
@@ -303,6 +314,9 @@ class StressRateEstimator:
     -----
     :meth:`process` and :meth:`step` can be mixed freely; any chunking of a
     signal gives the result of :func:`estimate_stress_rate` on the whole signal.
+    A call that raises leaves both filters as they were (a block refused by the
+    second filter, for a NaN in ``u`` or an overflow, undoes the first); one call
+    at a time: a second thread gets ``RuntimeError``.
     """
 
     def __init__(self, circuit: PVDFCircuit, fs: float, channels: int, order: int = 2, bandwidth: float = 100.0,
@@ -329,11 +343,25 @@ class StressRateEstimator:
         self._rate = SosFilter(self.sos_rate, self.channels, dtype=self.dtype)
         second = self.sos_rate2 if self.use_u else self.sos_diff
         self._rate2 = SosFilter(second, self.channels, dtype=self.dtype)
+        self._owner = threading.Lock()
+
+    @contextlib.contextmanager
+    def _claim(self):
+        # One call at a time: a call steps two filters, and a second thread between them
+        # would leave them a tick apart.
+        if not self._owner.acquire(blocking=False):
+            raise RuntimeError("this StressRateEstimator is being used by another thread (its state carries "
+                               "over between calls; give each thread its own estimator)")
+        try:
+            yield
+        finally:
+            self._owner.release()
 
     def reset(self) -> None:
         """Return to rest (zero state)."""
-        self._rate.reset()
-        self._rate2.reset()
+        with self._claim():
+            self._rate.reset()
+            self._rate2.reset()
 
     def _check_u(self, u):
         if self.use_u and u is None:
@@ -364,8 +392,16 @@ class StressRateEstimator:
             u = _block(u, "u", self.channels).astype(self.dtype, copy=False)
             if u.shape != v.shape:
                 raise ValueError(f"u must have the shape of v {v.shape}, got {u.shape}")
-        rate = self._rate.process(v)
-        rate2 = self._rate2.process(u if self.use_u else rate)
+        with self._claim():
+            before = self._rate._snapshot()
+            rate = self._rate.process(v)
+            try:
+                rate2 = self._rate2.process(u if self.use_u else rate)
+            except BaseException:
+                # the second filter refused the block (a NaN/Inf in u, an overflow): the first
+                # one goes back to where it was, so the estimator is as before the call
+                self._rate._restore(before)
+                raise
         return rate, rate2
 
     def step(self, v_sample: npt.ArrayLike,
@@ -388,17 +424,12 @@ class StressRateEstimator:
         loop; :meth:`process` raises instead.
         """
         self._check_u(u_sample)
-        v = np.asarray(v_sample)
-        if v.shape != (self.channels,):
-            raise ValueError(f"v_sample must have shape ({self.channels},), got {v.shape}")
-        rate = self._rate.step(v.astype(self.dtype, copy=False))
-        if self.use_u:
-            u = np.asarray(u_sample)
-            if u.shape != (self.channels,):
-                raise ValueError(f"u_sample must have shape ({self.channels},), got {u.shape}")
-            rate2 = self._rate2.step(u.astype(self.dtype, copy=False))
-        else:
-            rate2 = self._rate2.step(rate)
+        # both samples checked and converted before either filter moves
+        v = _sample(v_sample, "v_sample", self.channels, self.dtype)
+        u = _sample(u_sample, "u_sample", self.channels, self.dtype) if self.use_u else None
+        with self._claim():
+            rate = self._rate.step(v)
+            rate2 = self._rate2.step(u if self.use_u else rate)
         return rate, rate2
 
 

@@ -407,6 +407,15 @@ class SosFilter:
         """
         return self._core.step(sample)
 
+    def _snapshot(self):
+        """What :meth:`process` changes (the state and the output ``step`` holds), bit for bit,
+        for a caller that undoes a successful :meth:`process` with :meth:`_restore` (``zi``
+        goes through scipy's layout, which the delta-operator sections do not keep exactly)."""
+        return self._core._snapshot()
+
+    def _restore(self, snapshot) -> None:
+        self._core._restore(*snapshot)
+
     def reset(self, zi: npt.ArrayLike | None = None) -> None:
         """Zero the state, or set it to ``zi`` (shape ``(n_sections, channels, 2)``)."""
         if zi is None:

@@ -163,6 +163,30 @@ void bind_cascade(py::module_& m, const char* name) {
             },
             py::arg("x"), py::arg("guard_state") = false)
         .def(
+            "_snapshot",
+            [](C& c) {
+                py::array_t<T> s(static_cast<py::ssize_t>(c.k.raw_state_size()));
+                py::array_t<T> h(static_cast<py::ssize_t>(c.k.channels()));
+                BusyLock<T> lock(c);
+                std::copy(c.k.raw_state(), c.k.raw_state() + c.k.raw_state_size(), s.mutable_data());
+                std::copy(c.k.held_output(), c.k.held_output() + c.k.channels(), h.mutable_data());
+                return py::make_tuple(s, h);
+            },
+            "The raw state and the held output, bit for bit (internal layout): what process() changes, "
+            "for a caller that undoes a process() call with _restore().")
+        .def(
+            "_restore",
+            [](C& c, py::array_t<T, py::array::c_style | py::array::forcecast> s,
+               py::array_t<T, py::array::c_style | py::array::forcecast> h) {
+                if (s.ndim() != 1 || static_cast<std::size_t>(s.shape(0)) != c.k.raw_state_size() || h.ndim() != 1 ||
+                    static_cast<std::size_t>(h.shape(0)) != c.k.channels())
+                    throw py::value_error("not a snapshot of this filter");
+                BusyLock<T> lock(c);
+                c.k.load_raw_state(s.data());
+                c.k.load_held_output(h.data());
+            },
+            py::arg("state"), py::arg("held"), "Load what _snapshot() returned.")
+        .def(
             "step",
             [](C& c, py::handle sample) {
                 auto x = as_sample<T>(sample, c.k.channels(), "sample");

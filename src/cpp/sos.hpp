@@ -116,6 +116,10 @@ public:
     std::size_t raw_state_size() const noexcept { return state_.size(); }
     const T* raw_state() const noexcept { return state_.data(); }
     void load_raw_state(const T* s) noexcept { std::copy(s, s + state_.size(), state_.data()); }
+    // The output step() holds for a rejected sample (channels() values): a block call
+    // moves it too, so an undo of a whole process() call restores it with the raw state.
+    const T* held_output() const noexcept { return last_y_.data(); }
+    void load_held_output(const T* y) noexcept { std::copy(y, y + channels_, last_y_.data()); }
 
     // Filter n samples. x[c * xs_c + t * xs_t] and y[c * ys_c + t * ys_t] with
     // strides in elements; x and y may be the same memory (in-place). Returns true
