@@ -87,6 +87,23 @@ def test_missing_weights_file_is_an_error(tmp_path, capsys):
     assert capsys.readouterr().err.startswith("error:")
 
 
+@pytest.mark.parametrize("command, fs", [("design", "1e9"), ("realtime", "2000")])
+def test_loop_rate_other_than_the_detectors_is_refused_before_any_simulation(tmp_path, capsys, monkeypatch, command,
+                                                                            fs):
+    # The pad was calibrated (simulated) at --fs before the pipeline refused the rate;
+    # at --fs 1e9 that exhausted the machine's memory. Now nothing is simulated first.
+    import tactile_mirror.loop.experiment as experiment
+
+    def must_not_run(*a, **k):
+        raise AssertionError("the pad was simulated before --fs was checked")
+
+    monkeypatch.setattr(experiment, "calibrate_shear_weights", must_not_run)
+    assert main(["loop", command, "--fs", fs, "--out", str(tmp_path / "o")]) == 1
+    err = capsys.readouterr().err
+    assert f"--fs {float(fs):g} Hz does not match the 1000 Hz" in err and "Traceback" not in err
+    assert not (tmp_path / "o").exists()
+
+
 def test_parser_lists_the_subcommands():
     text = build_parser().format_help()
     for name in ("demo", "simulate", "figure", "train", "evaluate"):

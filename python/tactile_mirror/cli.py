@@ -408,7 +408,12 @@ def cmd_loop_realtime(args) -> int:
 def _loop_weights(path, fs):
     from .loop.experiment import default_weights
 
-    return default_weights("fem", fs) if path is None else _load_detector(path).weights
+    w = default_weights("fem", fs) if path is None else _load_detector(path).weights
+    # checked here, before the pad is calibrated and simulated at --fs (which the
+    # pipeline would refuse only afterwards, and which at MHz rates exhausts memory)
+    if float(w.fs) != float(fs):
+        raise CommandError(f"--fs {fs:g} Hz does not match the {float(w.fs):g} Hz the detector was trained for")
+    return w
 
 
 # ---------------------------------------------------------------- parser
