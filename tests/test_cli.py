@@ -92,7 +92,7 @@ def test_loop_rate_other_than_the_detectors_is_refused_before_any_simulation(tmp
                                                                             fs):
     # The pad was calibrated (simulated) at --fs before the pipeline refused the rate;
     # at --fs 1e9 that exhausted the machine's memory. Now nothing is simulated first.
-    import tactile_mirror.loop.experiment as experiment
+    from tactile_mirror.loop import experiment
 
     def must_not_run(*a, **k):
         raise AssertionError("the pad was simulated before --fs was checked")
