@@ -285,6 +285,15 @@ def test_step_equals_run_and_state_carries_over():
     np.testing.assert_allclose(k.state, yp[:, -1], atol=1e-15)
     k.reset()
     assert np.all(k.state == 0)
+    # a complex sample is refused as run() refuses complex features (numpy would drop its
+    # imaginary part with only a warning), and the state stays
+    for backend in ("cpp", "numpy"):
+        d = SlipDetector(w, backend=backend)
+        before = d.step(x[:, :, 0])
+        with pytest.raises(TypeError, match="sample must hold real numbers"):
+            d.step(x[:, :, 1] * (1 + 1j))
+        np.testing.assert_allclose(d.step(x[:, :, 1]), out[:, :, 1], atol=1e-13)
+        assert before.shape == (6, 3)
 
 
 @pytest.mark.parametrize("dtype", [np.float64, np.float32])

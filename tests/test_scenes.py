@@ -46,6 +46,25 @@ def test_bad_arguments_are_named(kw, name):
         tm.Scene(**kw)
 
 
+@pytest.mark.parametrize("kw, error, name", [
+    ({"finger_radius": 0.0, "n_ridges": 6}, ValueError, "finger_radius"),
+    ({"finger_radius": np.nan}, ValueError, "finger_radius"),
+    ({"field_times": (0.5, np.nan)}, ValueError, r"field_times\[1\]"),
+    ({"trajectory": (np.ones(5) * 1j, np.zeros(5))}, TypeError, "trajectory"),
+    ({"friction": "0.5"}, TypeError, "friction"),
+    ({"kinetic_ratio": None}, TypeError, "kinetic_ratio"),
+    ({"fs": True}, TypeError, "fs"),
+    ({"stop_after_slip": np.nan}, ValueError, "stop_after_slip"),
+])
+def test_what_simulate_would_fail_on_is_refused_at_construction(kw, error, name):
+    # (these reached simulate() and failed there, or a complex trajectory lost its
+    # imaginary part with only a warning)
+    with pytest.raises(error, match=f"^{name}"):
+        tm.Scene(**kw)
+    # a flat finger (infinite radius) is a scene
+    assert tm.Scene(finger_radius=np.inf, n_ridges=6).finger_radius == np.inf
+
+
 def test_random_scenes_stay_in_their_ranges_and_take_overrides():
     scenes = tm.scenes.random(20, seed=1, friction=(0.5, 0.6), n_ridges=6, stop_probability=1.0)
     assert len(scenes) == 20

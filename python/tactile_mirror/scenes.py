@@ -10,11 +10,13 @@ before slip). ``random(n, seed, ...)`` draws training and test scenes.
 """
 from __future__ import annotations
 
+import numbers
 from dataclasses import dataclass, field, replace
 from typing import Any
 
 import numpy as np
 
+from ._checks import real_number
 from .circuit import PVDFCircuit
 from .contact.geometry import RidgeGeometry
 from .noise import SensorNoise
@@ -129,22 +131,24 @@ class Scene:
     noise_model: SensorNoise | None = None
 
     def __post_init__(self) -> None:
-        for name in ("duration", "fs", "indent_duration"):
-            v = getattr(self, name)
-            if not (np.isfinite(v) and v > 0):
-                raise ValueError(f"{name} must be a positive number, got {v!r}")
-        for name in ("indent_speed", "slide_speed", "noise"):
-            v = getattr(self, name)
-            if not (np.isfinite(v) and v >= 0):
-                raise ValueError(f"{name} must be a non-negative number, got {v!r}")
+        # (checked, not converted: the fields keep the caller's values)
+        for name, unit in (("duration", "s"), ("fs", "Hz"), ("indent_duration", "s"), ("friction", None)):
+            real_number(getattr(self, name), name, unit=unit, positive=True)
+        for name, unit in (("indent_speed", "m/s"), ("slide_speed", "m/s"), ("noise", "V rms")):
+            real_number(getattr(self, name), name, unit=unit, nonnegative=True)
+        radius = self.finger_radius
+        if isinstance(radius, bool) or not isinstance(radius, numbers.Real):
+            raise TypeError(f"finger_radius must be a real number (m), got {type(radius).__name__}")
+        if not radius > 0:
+            raise ValueError(f"finger_radius must be positive (m; inf for a flat finger), got {radius!r}")
+        for k, ft in enumerate(self.field_times):
+            real_number(ft, f"field_times[{k}]", unit="s", nonnegative=True)
         if not self.noise < MAX_NOISE:
             raise ValueError(f"noise must be below {MAX_NOISE:g} V rms (MAX_NOISE: the front end swings a few "
                              f"volts), got {self.noise!r}")
         if isinstance(self.seed, (bool, np.bool_)) or not isinstance(self.seed, (int, np.integer)) or self.seed < 0:
             raise ValueError(f"seed must be a non-negative integer (a numpy random seed), got {self.seed!r}")
-        if not (np.isfinite(self.friction) and self.friction > 0):
-            raise ValueError(f"friction must be a positive number, got {self.friction!r}")
-        if not (0 < self.kinetic_ratio <= 1):
+        if not (0 < real_number(self.kinetic_ratio, "kinetic_ratio") <= 1):
             raise ValueError(f"kinetic_ratio must be in (0, 1], got {self.kinetic_ratio!r}")
         if int(self.n_ridges) != self.n_ridges or self.n_ridges < 1:
             raise ValueError(f"n_ridges must be a positive integer, got {self.n_ridges!r}")
@@ -159,7 +163,10 @@ class Scene:
             raise ValueError(f"outputs: unknown {sorted(unknown)}; choose from {sorted(OUTPUTS)}")
         object.__setattr__(self, "outputs", outs)
         if self.trajectory is not None:
-            y, z = (np.asarray(a, dtype=float) for a in self.trajectory)
+            y, z = (np.asarray(a) for a in self.trajectory)
+            if y.dtype.kind not in "biuf" or z.dtype.kind not in "biuf":
+                raise TypeError(f"trajectory must hold real numbers (m), got dtypes {y.dtype}, {z.dtype}")
+            y, z = y.astype(float), z.astype(float)
             if y.ndim != 1 or y.shape != z.shape or y.size < 2:
                 raise ValueError("trajectory must be two 1-D arrays (plate_y, indent) of the same length >= 2")
             if not (np.all(np.isfinite(y)) and np.all(np.isfinite(z))):
@@ -167,8 +174,8 @@ class Scene:
             y.setflags(write=False)
             z.setflags(write=False)
             object.__setattr__(self, "trajectory", (y, z))
-        if self.stop_after_slip is not None and not (self.stop_after_slip >= 0):
-            raise ValueError(f"stop_after_slip must be >= 0, got {self.stop_after_slip!r}")
+        if self.stop_after_slip is not None:
+            real_number(self.stop_after_slip, "stop_after_slip", unit="s", nonnegative=True)
         if self.n_samples < 2:
             raise ValueError(f"duration x fs must give at least 2 samples, got {self.n_samples} "
                              f"(duration={self.duration!r} s, fs={self.fs!r} Hz)")

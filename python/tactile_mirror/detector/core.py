@@ -320,6 +320,8 @@ class SlipDetector:
     def step(self, sample):
         """One tick: ``sample`` (n_ridges, 4) -> array (n_ridges, 3) [y_slip, y_non, y_pred]."""
         s = np.asarray(sample)
+        if s.dtype.kind not in "biuf":  # (a complex sample would lose its imaginary part unseen)
+            raise TypeError(f"sample must hold real numbers, got dtype {s.dtype}")
         if s.ndim != 2 or s.shape[1] != self.n_channels:
             raise ValueError(f"sample must have shape (n_ridges, {self.n_channels}), got {s.shape}")
         if self.backend == "numpy":
