@@ -285,6 +285,9 @@ def test_step_equals_run_and_state_carries_over():
     np.testing.assert_allclose(k.state, yp[:, -1], atol=1e-15)
     k.reset()
     assert np.all(k.state == 0)
+    for n in (0, 2**40, 2.0, True):
+        with pytest.raises(ValueError, match=r"n_ridges must be an integer in \[1, 65536\]"):
+            det.kernel(n)
     # a complex sample is refused as run() refuses complex features (numpy would drop its
     # imaginary part with only a warning), and the state stays
     for backend in ("cpp", "numpy"):

@@ -256,6 +256,14 @@ def test_bad_sos_shapes_and_values():
         tm.sosfilt([[1, 0, 0, 0, 0, 0]], x)
     with pytest.raises(ValueError, match="non-finite"):
         tm.sosfilt([[1, np.nan, 0, 1, 0, 0]], x)
+    # an a0 so small that the normalised section overflows (it came back as inf, or as
+    # numpy's LinAlgError from the pole check)
+    for sos in ([[1, 0, 0, 1e-320, 0, 0]], [[1, 0, 0, 1e-300, 1e300, 0]]):
+        with pytest.raises(ValueError, match=r"sos\[0\] divided by its a0"):
+            tm.validate_sos(sos, allow_unstable=True)
+    for axis in (1.0, None, True):
+        with pytest.raises(TypeError, match="axis must be an integer"):
+            tm.sosfilt([[1, 0, 0, 1, 0, 0]], x, axis=axis)
     with pytest.raises(ValueError, match="unit circle"):
         tm.SosFilter([[1, 0, 0, 1, 0, 1.2]], 1)
     with pytest.raises(TypeError, match="sos"):

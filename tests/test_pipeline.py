@@ -187,6 +187,7 @@ def test_weights_for_another_rate_are_refused():
     ({"v_limit": -1.0}, "v_limit"),
     ({"slip_threshold": 1.5}, "slip_threshold"),
     ({"max_hold_ticks": -3}, "max_hold_ticks"),
+    ({"max_hold_ticks": 2**70}, "max_hold_ticks"),
     ({"activation": "slow"}, "activation"),
 ])
 def test_bad_configuration_names_the_argument(kwargs, match):
@@ -290,3 +291,6 @@ def test_from_config_round_trip():
     assert np.array_equal(pipe.process_block(x)[0], other.process_block(x)[0])
     assert "MirrorPipeline(n_ridges=3" in repr(other)
     assert "filters" in other.simd_path
+    partial = {k: v for k, v in pipe.config.items() if k != "w1"}
+    with pytest.raises(ValueError, match="config lacks w1"):
+        MirrorPipeline.from_config(partial)

@@ -102,8 +102,8 @@ def validate_sos(sos: npt.ArrayLike, *, allow_unstable: bool = False, name: str 
     TypeError
         Non-numeric or complex coefficients.
     ValueError
-        Wrong shape, no sections, non-finite values, ``a0 == 0``, or (unless
-        allowed) a pole of magnitude > 1.
+        Wrong shape, no sections, non-finite values, ``a0 == 0`` or so small that
+        the normalised section overflows, or (unless allowed) a pole of magnitude > 1.
     """
     arr = np.asarray(sos)
     _real_numeric(arr, name)
@@ -119,7 +119,12 @@ def validate_sos(sos: npt.ArrayLike, *, allow_unstable: bool = False, name: str 
     if np.any(a0 == 0):
         bad = int(np.flatnonzero(a0 == 0)[0])
         raise ValueError(f"{name}[{bad}, 3] (a0) is zero: the section has no defined output")
-    arr = arr / a0[:, None]
+    with np.errstate(over="ignore"):
+        arr = arr / a0[:, None]
+    if not np.all(np.isfinite(arr)):
+        bad = int(np.flatnonzero(~np.all(np.isfinite(arr), axis=1))[0])
+        raise ValueError(f"{name}[{bad}] divided by its a0 ({float(a0[bad]):g}) has non-finite coefficients: the "
+                         f"section cannot be normalised; scale it")
     if not allow_unstable:
         bad = _first_outside(arr)
         if bad is not None:
@@ -221,6 +226,9 @@ def sosfilt(sos: npt.ArrayLike, x: npt.ArrayLike, axis: int = -1, zi: npt.ArrayL
     sos_arr = np.asarray(sos)
     if sos_arr.dtype.kind not in "biufcO":
         raise TypeError(f"sos must hold numbers, got dtype {sos_arr.dtype}")
+    if isinstance(axis, (bool, np.bool_)) or not isinstance(axis, (int, np.integer)):
+        raise TypeError(f"axis must be an integer, got {type(axis).__name__}")
+    axis = int(axis)
     inputs = [np.atleast_2d(sos_arr), x_arr]
     zi_arr = None
     if zi is not None:

@@ -150,8 +150,9 @@ def pipeline_config(detector, fs, n_ridges: int = 6, *, estimator=None, sos_v=No
     slip_threshold = _positive(slip_threshold, "slip_threshold")
     if not slip_threshold < 1:
         raise ValueError(f"slip_threshold must lie in (0, 1), got {slip_threshold}")
-    if isinstance(max_hold_ticks, bool) or not isinstance(max_hold_ticks, numbers.Integral) or max_hold_ticks < 0:
-        raise ValueError(f"max_hold_ticks must be a non-negative integer, got {max_hold_ticks!r}")
+    if isinstance(max_hold_ticks, bool) or not isinstance(max_hold_ticks, numbers.Integral) \
+            or not 0 <= max_hold_ticks <= 2**31 - 1:
+        raise ValueError(f"max_hold_ticks must be an integer in [0, 2**31 - 1], got {max_hold_ticks!r}")
     if shear_weights is not None:
         sw = np.asarray(shear_weights, dtype=np.float64)
         if sw.shape != (n_ridges, 2):
@@ -264,6 +265,10 @@ class MirrorPipeline:
     def from_config(cls, config: dict) -> MirrorPipeline:
         """Rebuild a pipeline from :attr:`config` (e.g. stored in a recording)."""
         cfg = dict(config)
+        missing = [k for k in ("w1", "b1", "w2", "b2", "input_mean", "input_gain", "weights_fs", "fs", "n_ridges")
+                   if k not in cfg]
+        if missing:
+            raise ValueError(f"config lacks {', '.join(missing)}: not a MirrorPipeline.config")
         weights = {k: cfg[k] for k in ("w1", "b1", "w2", "b2", "input_mean", "input_gain")}
         weights["fs"] = cfg["weights_fs"]
         weights["features"] = cfg.get("features", "stress_rate")

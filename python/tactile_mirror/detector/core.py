@@ -32,6 +32,8 @@ DEFAULT_WEIGHTS = BANK_WEIGHTS
 _DTYPES = {np.dtype(np.float32): "JordanMLPf32", np.dtype(np.float64): "JordanMLPf64"}
 _MEMORY_DTYPES = {np.dtype(np.float32): "MemoryJordanf32", np.dtype(np.float64): "MemoryJordanf64"}
 _BANK_DTYPES = {np.dtype(np.float32): "BankJordanf32", np.dtype(np.float64): "BankJordanf64"}
+#: The most ridges (instances) one kernel runs (the C++ kernels' bound).
+MAX_RIDGES = 65536
 #: Kinds whose kernel derives its inputs from the four stress rates itself.
 _DERIVED = ("jordan_memory", "jordan_bank")
 
@@ -207,6 +209,10 @@ class SlipDetector:
     def _kernel(self, n_ridges: int):
         k = self._kernels.get(n_ridges)
         if k is None:
+            if isinstance(n_ridges, (bool, np.bool_)) or not isinstance(n_ridges, (int, np.integer)) \
+                    or not 1 <= n_ridges <= MAX_RIDGES:
+                raise ValueError(f"n_ridges must be an integer in [1, {MAX_RIDGES}], got {n_ridges!r}")
+            n_ridges = int(n_ridges)
             w = self.weights
             p = w.params
             if w.kind == "jordan_memory":
