@@ -51,8 +51,10 @@ def test_default_limits_are_the_front_end_swing_and_infinite_limits_are_refused(
             make(v_limit=bad)
     cfg = make().config
     cfg["v_limit"] = np.inf
+    with pytest.raises(ValueError, match="v_limit"):
+        CPipeline(cfg)  # checked in Python first
     with pytest.raises(CAPIError) as e:
-        CPipeline(cfg)
+        CPipeline(cfg, check=False)  # and by the C ABI itself
     assert e.value.code == -3 and "v_limit" in str(e.value)
 
 
@@ -415,3 +417,43 @@ def test_numeric_arguments_are_checked_alike(case):
     for bad in (float("nan"), float("inf"), -float("inf")):
         with pytest.raises(ValueError, match=f"^{name} must be .*finite"):
             build(bad)
+
+
+# -- the closed loop's simulation pieces -------------------------------------------------
+
+def test_loop_simulation_pieces_refuse_what_they_cannot_mean():
+    # Each of these ran and gave numbers (NaN positions, a clock stuck at inf, a mirrored
+    # or NaN finger path, negative friction or stiffness, a drop rate over 1).
+    from tactile_mirror.contact.brush import BrushRidges
+    from tactile_mirror.loop import ArraySource, LoopRunner, SimulatedStage
+    from tactile_mirror.loop.finger import finger_trajectory
+    from tactile_mirror.loop.scene import LoopScene
+
+    stage = SimulatedStage()
+    stage.advance(0.001)
+    for bad, error in ((float("nan"), ValueError), (float("inf"), ValueError), (1.0, ValueError), ("0", TypeError)):
+        with pytest.raises(error, match="x0"):
+            stage.reset(bad)
+    for bad, error in ((float("inf"), ValueError), (0.0, ValueError), (True, TypeError)):
+        with pytest.raises(error, match="dt"):
+            stage.advance(bad)
+    assert stage.t == 0.001 and np.isfinite(stage.position())
+    runner = LoopRunner(make(), stage, ArraySource(np.zeros((5, make().n_inputs))))
+    for bad, match in ((float("inf"), "duration"), (1e-9, "at least one tick")):
+        with pytest.raises(ValueError, match=match):
+            runner.run(duration=bad)
+    for kw in ({"amplitude": -1e-3}, {"v_max": -0.01}, {"ramp": 0.0}, {"amplitude": float("nan")}):
+        with pytest.raises(ValueError, match=next(iter(kw))):
+            finger_trajectory(0, 1.0, 1000.0, **kw)
+    for kw, match in (({"drop_rate": 1.5}, "drop_rate"), ({"mount_stiffness": -1.0}, "mount_stiffness"),
+                      ({"mu_change": (0.1, -5.0)}, "mu_change mu"), ({"mu_change": (0.1,)}, "mu_change"),
+                      ({"plant": "glass"}, "plant"), ({"seed": -1}, "seed")):
+        with pytest.raises(ValueError, match=match):
+            LoopScene(**kw)
+    assert LoopScene(mu_change=[1.75, 0.45]).mu_change == (1.75, 0.45)
+    with pytest.raises(ValueError, match="mu"):
+        BrushRidges(6, mu=float("nan"))
+    brush = BrushRidges(6)
+    with pytest.raises(ValueError, match="mu"):
+        brush.set_mu(-5.0)
+    assert np.all(brush.mu == 1.0)

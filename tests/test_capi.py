@@ -109,18 +109,30 @@ def test_error_codes():
     assert ffi.string(lib.tm_status_name(lib.TM_ERR_FS)) == b"TM_ERR_FS"
 
 
+@pytest.mark.parametrize("key, value, match", [("b1", np.zeros(2), "b1"), ("w2", np.zeros((1, 8)), "w2"),
+                                                ("input_mean", np.zeros(1), "input_mean"),
+                                                ("shear_weights", np.zeros(3), "shear_weights"),
+                                                ("n_ridges", 2**31, "n_ridges")])
+def test_short_config_arrays_are_refused_before_the_c_abi_reads_them(key, value, match):
+    # tm_pipeline_create takes bare pointers and reads as many values as the sizes say: a
+    # short b1 was read past its end (finite garbage out). CPipeline checks the config as
+    # MirrorPipeline.from_config does before handing it over.
+    with pytest.raises(ValueError, match=match):
+        CPipeline(dict(make().config, **{key: value}))
+
+
 def test_create_errors_name_the_field():
     cfg = make().config
     bad_fs = dict(cfg, weights_fs=2000.0)
     with pytest.raises(CAPIError, match="TM_ERR_FS.*another sample rate") as e:
-        CPipeline(bad_fs)
+        CPipeline(bad_fs, check=False)
     assert e.value.code == -5
     with pytest.raises(CAPIError, match="TM_ERR_ARGUMENT.*v_max"):
-        CPipeline(dict(cfg, controller=dict(cfg["controller"], kind="velocity", v_max=0.0)))
+        CPipeline(dict(cfg, controller=dict(cfg["controller"], kind="velocity", v_max=0.0)), check=False)
     with pytest.raises(CAPIError, match="n_ridges"):
-        CPipeline(dict(cfg, n_ridges=0))
+        CPipeline(dict(cfg, n_ridges=0), check=False)
     with pytest.raises(CAPIError, match="sos_u must be empty"):
-        CPipeline(dict(cfg, use_u=False))
+        CPipeline(dict(cfg, use_u=False), check=False)
     ffi, lib = load()
     c = new_config(ffi, lib)
     c.abi_version = 99

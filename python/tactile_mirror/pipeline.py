@@ -74,12 +74,38 @@ def _position(value, name: str) -> float:
     return real_number(value, name, unit="m")
 
 
+def validated_config(config: dict) -> dict:
+    """A :attr:`MirrorPipeline.config` (e.g. read from a recording, or written by hand for
+    the C ABI) checked and normalised as :func:`pipeline_config` checks its arguments:
+    every array's shape against the sizes it implies, every limit and parameter. Raises
+    ValueError / TypeError naming the entry."""
+    cfg = dict(config)
+    missing = [k for k in ("w1", "b1", "w2", "b2", "input_mean", "input_gain", "weights_fs", "fs", "n_ridges")
+               if k not in cfg]
+    if missing:
+        raise ValueError(f"config lacks {', '.join(missing)}: not a MirrorPipeline.config")
+    weights = {k: cfg[k] for k in ("w1", "b1", "w2", "b2", "input_mean", "input_gain")}
+    weights["fs"] = cfg["weights_fs"]
+    weights["features"] = cfg.get("features", "stress_rate")
+    weights["detector_kind"] = cfg.get("detector_kind") or "jordan"
+    weights["bank"] = cfg.get("bank")
+    kw = {k: cfg.get(k) for k in ("sos_v", "sos_u", "sos_diff", "use_u", "v_limit", "u_limit",
+                                   "controller", "dtype", "detector_dtype", "activation", "slip_threshold",
+                                   "max_hold_ticks", "ridges", "shear_weights")}
+    n_ridges = cfg["n_ridges"]
+    if isinstance(n_ridges, bool) or not isinstance(n_ridges, numbers.Integral):
+        raise TypeError(f"n_ridges must be an integer, got {type(n_ridges).__name__}")
+    return pipeline_config(weights, cfg["fs"], int(n_ridges), **kw)
+
+
 def pipeline_config(detector, fs, n_ridges: int = 6, *, estimator=None, sos_v=None, sos_u=None, sos_diff=None,
                     use_u: bool | None = None, v_limit=None, u_limit=None, controller=None,
                     dtype=np.float64, detector_dtype=None, activation: str = "fast", slip_threshold: float = 0.8,
                     max_hold_ticks: int = 100, ridges=None, shear_weights=None) -> dict:
     """Validate and assemble a pipeline configuration (see :class:`MirrorPipeline`)."""
     fs = _positive(fs, "fs")
+    if fs < 1.0:  # (the laws divide by fs: a denormal rate made every command NaN; as pipeline.hpp)
+        raise ValueError(f"fs must be at least 1 Hz, got {fs!r}")
     if isinstance(n_ridges, bool) or not isinstance(n_ridges, numbers.Integral) or not 1 <= n_ridges <= 64:
         raise ValueError(f"n_ridges must be an integer in [1, 64], got {n_ridges!r}")
     n_ridges = int(n_ridges)
@@ -264,21 +290,8 @@ class MirrorPipeline:
     @classmethod
     def from_config(cls, config: dict) -> MirrorPipeline:
         """Rebuild a pipeline from :attr:`config` (e.g. stored in a recording)."""
-        cfg = dict(config)
-        missing = [k for k in ("w1", "b1", "w2", "b2", "input_mean", "input_gain", "weights_fs", "fs", "n_ridges")
-                   if k not in cfg]
-        if missing:
-            raise ValueError(f"config lacks {', '.join(missing)}: not a MirrorPipeline.config")
-        weights = {k: cfg[k] for k in ("w1", "b1", "w2", "b2", "input_mean", "input_gain")}
-        weights["fs"] = cfg["weights_fs"]
-        weights["features"] = cfg.get("features", "stress_rate")
-        weights["detector_kind"] = cfg.get("detector_kind") or "jordan"
-        weights["bank"] = cfg.get("bank")
-        kw = {k: cfg.get(k) for k in ("sos_v", "sos_u", "sos_diff", "use_u", "v_limit", "u_limit",
-                                       "controller", "dtype", "detector_dtype", "activation", "slip_threshold",
-                                       "max_hold_ticks", "ridges", "shear_weights")}
         self = cls.__new__(cls)
-        self._init_from_config(pipeline_config(weights, cfg["fs"], int(cfg["n_ridges"]), **kw))
+        self._init_from_config(validated_config(config))
         return self
 
     def _init_from_config(self, cfg):

@@ -389,7 +389,8 @@ inline int detector_input_count(const PipelineConfig& c) noexcept {
 inline void validate_config(const PipelineConfig& c) {
     auto bad = [](const std::string& m) { throw std::invalid_argument(m); };
     if (c.n_ridges < 1 || c.n_ridges > 64) bad("n_ridges must lie in [1, 64], got " + std::to_string(c.n_ridges));
-    if (!std::isfinite(c.fs) || !(c.fs > 0.0)) bad("fs must be a positive finite number of Hz");
+    // (at least 1 Hz: the laws divide by fs, and a denormal rate made every command NaN)
+    if (!std::isfinite(c.fs) || !(c.fs >= 1.0)) bad("fs must be a finite number of Hz, at least 1");
     if (!std::isfinite(c.weights_fs) || !(c.weights_fs > 0.0))
         bad("weights_fs must be the positive sample rate (Hz) the detector was trained for");
     if (std::fabs(c.fs - c.weights_fs) > 1e-9 * c.fs)

@@ -46,9 +46,7 @@ class BrushRidges:
                  n_points: int = 24, strip_area: float = 1e-5, bending: float = 0.6, edge: float = 0.8,
                  normal: float = 0.3):
         self.n_ridges = int(n_ridges)
-        self.mu = np.broadcast_to(np.asarray(mu, dtype=np.float64), (self.n_ridges,)).copy()
-        if np.any(self.mu <= 0):
-            raise ValueError("mu must be positive")
+        self.set_mu(mu)
         self.P = float(normal_load)
         x = np.linspace(-1, 1, int(n_points) + 2)[1:-1]
         kw = 1.0 / np.sqrt(1.0 - x**2 + 0.02)
@@ -65,8 +63,11 @@ class BrushRidges:
         self.s = np.zeros((self.n_ridges, self.k.size))   # slid offsets of the points, m
 
     def set_mu(self, mu: npt.ArrayLike) -> None:
-        """Set the friction coefficient (one value, or one per ridge)."""
-        self.mu = np.broadcast_to(np.asarray(mu, dtype=np.float64), (self.n_ridges,)).copy()
+        """Set the friction coefficient (one value, or one per ridge; positive and finite)."""
+        m = np.broadcast_to(np.asarray(mu, dtype=np.float64), (self.n_ridges,)).copy()
+        if not np.all(np.isfinite(m) & (m > 0)):  # (NaN passed a plain `mu <= 0` check)
+            raise ValueError(f"mu must be positive and finite, got {mu!r}")
+        self.mu = m
 
     def advance(self, dy: float) -> ContactState:
         """Relative displacement finger - pad (m) -> contact state."""

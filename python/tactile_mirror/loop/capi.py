@@ -172,17 +172,25 @@ def _tick_vector(a, n: int, name: str, writable: bool) -> np.ndarray:
 
 
 class CPipeline:
-    """A pipeline driven through the C ABI, built from a :attr:`MirrorPipeline.config`.
+    """A pipeline driven through the C ABI, built from a :attr:`MirrorPipeline.config`
+    (checked first as :meth:`MirrorPipeline.from_config` checks it, unless ``check=False``).
 
     Same tick semantics as :class:`tactile_mirror.MirrorPipeline` (``step``,
     ``process_block``, ``reset``, ``set_position``, ``status``); every call goes
     through ``tm.h``.
     """
 
-    def __init__(self, config: dict, path: str | None = None):
+    def __init__(self, config: dict, path: str | None = None, *, check: bool = True):
+        from ..pipeline import MirrorPipeline
+
+        # Checked by building it as MirrorPipeline.from_config builds it (every array's
+        # shape against the sizes it implies): the C ABI takes bare pointers and reads as
+        # many values as the sizes say, so a short array here would be read past its end.
+        # check=False hands the config to tm_pipeline_create as it is, for testing the C
+        # side's own checks (its arrays must then have the sizes the config implies).
+        c = MirrorPipeline.from_config(config).config if check else config
         ffi, lib = load(path)
         self.ffi, self.lib = ffi, lib
-        c = config
         cfg = new_config(ffi, lib)
         self._keep = []
 

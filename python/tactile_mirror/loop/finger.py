@@ -7,6 +7,8 @@ from __future__ import annotations
 import numpy as np
 import scipy.signal
 
+from .._checks import real_number
+
 __all__ = ["finger_trajectory", "pressed_finger_path"]
 
 
@@ -19,9 +21,13 @@ def finger_trajectory(seed, duration: float, fs: float, amplitude: float = 3e-3,
     that its speed and acceleration stay within ``v_max`` and ``a_max`` (a stage with those
     limits can follow it).
     """
-    if not (np.isfinite(fs) and fs > 0):
-        raise ValueError(f"fs must be a positive number, got {fs!r}")
-    n = round(duration * fs) if np.isfinite(duration) else 0
+    fs = real_number(fs, "fs", unit="Hz", positive=True)
+    duration = real_number(duration, "duration", unit="s", positive=True)
+    # (a negative amplitude or limit mirrored the path; a zero ramp divided 0 by 0)
+    for name, value in (("amplitude", amplitude), ("bandwidth", bandwidth), ("v_max", v_max), ("a_max", a_max),
+                        ("ramp", ramp)):
+        real_number(value, name, positive=True)
+    n = round(duration * fs)
     if n < 2:
         raise ValueError(f"duration must last at least two samples at fs = {fs:g} Hz, got {duration!r} s")
     rng = np.random.default_rng(seed)

@@ -28,6 +28,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from .._checks import real_number
 from .recording import Recording
 
 __all__ = ["ArraySource", "LoopResult", "LoopRunner"]
@@ -172,9 +173,10 @@ class LoopRunner:
         if (n_ticks is None) == (duration is None):
             raise ValueError("give exactly one of n_ticks and duration")
         if duration is not None:
-            if not (isinstance(duration, numbers.Real) and duration > 0):
-                raise ValueError(f"duration must be > 0 s, got {duration!r}")
+            duration = real_number(duration, "duration", unit="s", positive=True)
             n_ticks = round(duration * fs)
+            if n_ticks < 1:
+                raise ValueError(f"duration must last at least one tick (1 / {fs:g} s), got {duration!r} s")
         if isinstance(n_ticks, bool) or not isinstance(n_ticks, numbers.Integral) or n_ticks < 1:
             raise ValueError(f"n_ticks must be a positive integer, got {n_ticks!r}")
         n = int(n_ticks)

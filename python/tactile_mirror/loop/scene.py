@@ -13,11 +13,13 @@ the stage; closed loop (Fig. 13) does.
 """
 from __future__ import annotations
 
+import numbers
 from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
 
+from .._checks import real_number
 from ..circuit import PVDFCircuit
 from ..contact.brush import BrushRidges
 from ..contact.plants import ContactPlant, FemPad
@@ -58,6 +60,32 @@ class LoopScene:
     trajectory: dict = field(default_factory=dict)
     plant: str = "brush"                 # "brush" (BrushRidges) or "fem" (tactile_mirror.contact.Pad)
     press: float = 0.5                   # fem: the finger presses in for this long before moving, s
+
+    def __post_init__(self) -> None:
+        # (a negative friction or stiffness, or a drop rate above 1, ran and gave numbers)
+        if isinstance(self.seed, bool) or not isinstance(self.seed, numbers.Integral) or self.seed < 0:
+            raise ValueError(f"seed must be a non-negative integer, got {self.seed!r}")
+        real_number(self.duration, "duration", unit="s", positive=True)
+        real_number(self.fs, "fs", unit="Hz", positive=True)
+        for name in ("noise", "stage_delay", "stage_lag", "press"):
+            real_number(getattr(self, name), name, nonnegative=True)
+        if not 0 <= real_number(self.drop_rate, "drop_rate") < 1:
+            raise ValueError(f"drop_rate must lie in [0, 1), got {self.drop_rate!r}")
+        if self.mu is not None:
+            real_number(self.mu, "mu", positive=True)
+        if self.mount_stiffness is not None:
+            real_number(self.mount_stiffness, "mount_stiffness", unit="N/m", positive=True)
+        if self.mu_change is not None:
+            mc = tuple(self.mu_change) if isinstance(self.mu_change, (tuple, list)) else ()
+            if len(mc) not in (2, 3):
+                raise ValueError(f"mu_change must be (time s, new mu) or (time s, new mu, ramp s), "
+                                 f"got {self.mu_change!r}")
+            mc = (real_number(mc[0], "mu_change time", unit="s", nonnegative=True),
+                  real_number(mc[1], "mu_change mu", positive=True)) + \
+                ((real_number(mc[2], "mu_change ramp", unit="s", nonnegative=True),) if len(mc) == 3 else ())
+            self.mu_change = mc
+        if self.plant not in PLANT_KINDS:
+            raise ValueError(f"plant must be one of {PLANT_KINDS}, got {self.plant!r}")
 
 
 def make_plant(scene: LoopScene, n_ridges: int = 6) -> ContactPlant:

@@ -91,14 +91,15 @@ class SimulatedStage:
             raise TypeError(f"limits must be StageLimits, got {type(limits).__name__}")
         delay = real_number(delay, "delay", unit="s", nonnegative=True)
         lag = real_number(lag, "lag", unit="s", nonnegative=True)
+        self.delay = delay
+        self.lag = lag
+        self.reset(x0)  # (checks x0)
+
+    def reset(self, x0: float = 0.0) -> None:
+        """Back to rest at ``x0`` (m, within the travel), at time 0, nothing pending."""
         x0 = real_number(x0, "x0", unit="m")
         if not self._limits.x_min <= x0 <= self._limits.x_max:
             raise ValueError(f"x0={x0} lies outside the travel [{self._limits.x_min}, {self._limits.x_max}]")
-        self.delay = delay
-        self.lag = lag
-        self.reset(x0)
-
-    def reset(self, x0: float = 0.0) -> None:
         self.t = 0.0
         self._sp = x0          # trajectory set point
         self._sv = 0.0         # set point velocity
@@ -144,8 +145,7 @@ class SimulatedStage:
 
     def advance(self, dt: float) -> float:
         """Move the simulated time on by ``dt`` seconds; returns the position, m."""
-        if not dt > 0:
-            raise ValueError(f"dt must be > 0 s, got {dt}")
+        dt = real_number(dt, "dt", unit="s", positive=True)
         # A target takes effect at the first interval that starts at or after its due time
         # (sent at t with a dead time of one dt, it moves the carriage from t + dt on, not
         # over [t, t + dt]); dead times are thus whole ticks, rounded up.
