@@ -169,6 +169,13 @@ def test_errors_leave_the_solver_unchanged(ridge, backend):
     with pytest.raises(ValueError, match="finite"):
         s.step(np.nan, H - 30e-6)
     same_history(before, s.get_state())
+    # finite but absurd positions: 1e308 had overflowed the solve into NaN forces, kept
+    for y, z in ((1e308, H - 30e-6), (0.0, -1e308), (2.0, H - 30e-6)):
+        with pytest.raises(ValueError, match="within 1 m"):
+            s.step(y, z)
+        with pytest.raises(ValueError, match="within 1 m"):
+            s.follow([0.0, y], [H - 30e-6, z])
+        same_history(before, s.get_state())
     s.max_iter, s.max_active_set_iter = 0, 0
     with pytest.raises(ContactConvergenceError, match="did not converge in 0 iterations"):
         s.step(100e-6, H - 30e-6)
@@ -548,6 +555,16 @@ def test_follow_errors_leave_the_history_unchanged(backend):
         pad.follow(y[400:], bad)
     for s, b in zip(pad.solvers, before):
         same_history(b, s.get_state())
+    # finite but absurd: 1e308 had given NaN forces that stayed in every later step
+    for huge_y, huge_ind in ((1e308, ind[400]), (y[400], 1e308), (y[400], -1e308)):
+        with pytest.raises(ValueError, match="within 1 m"):
+            pad.advance(huge_y, huge_ind)
+        bad = ind[400:].copy()
+        bad[100] = huge_ind
+        with pytest.raises(ValueError, match="within 1 m"):
+            pad.follow(np.where(np.arange(bad.size) == 100, huge_y, y[400:]), bad)
+        for s, b in zip(pad.solvers, before):
+            same_history(b, s.get_state())
     # a breakaway cascade that cannot converge, on ridge 1 only
     pad.solvers[1].max_iter, pad.solvers[1].max_active_set_iter = 0, 0
     with pytest.raises(ContactConvergenceError, match="did not converge"):

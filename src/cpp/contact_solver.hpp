@@ -57,7 +57,7 @@ namespace tactile {
 
 enum class ContactStatus : int {
     ok = 0,
-    non_finite_position = 1,  // plate_y or plate_z is NaN or infinite
+    non_finite_position = 1,  // plate_y or plate_z is NaN, infinite or beyond kMaxPlatePosition
     singular_piece = 2,       // the active-set system has a zero pivot (info: its 1-based row)
     singular_jacobian = 3,    // the damped-Newton Jacobian has a zero pivot (info: Newton iteration)
     no_convergence = 4,       // max_iter damped-Newton iterations without reaching the tolerance
@@ -65,6 +65,11 @@ enum class ContactStatus : int {
 };
 
 enum : std::int8_t { kContactOpen = 0, kContactStick = 1, kContactSlip = 2 };
+
+// The largest plate coordinate a step takes, m (a 2 mm ridge): farther is no contact of
+// this model, and a finite 1e308 overflowed the solve into NaN forces that then stayed
+// in the history. Refused as a non-finite position is (solver.MAX_PLATE_POSITION).
+constexpr double kMaxPlatePosition = 1.0;
 
 // Solver parameters, read at every step (the caller may change them between steps).
 struct ContactParams {
@@ -896,7 +901,8 @@ public:
                          std::size_t out_stride1) noexcept {
         err_info_ = 0; err_residual_ = 0.0; err_atol_ = 0.0;
         for (std::size_t k = 0; k < N; ++k) {
-            if (!(std::isfinite(ys[k]) && std::isfinite(zs[k]))) {
+            // (NaN fails the comparison too)
+            if (!(std::fabs(ys[k]) <= kMaxPlatePosition && std::fabs(zs[k]) <= kMaxPlatePosition)) {
                 err_info_ = static_cast<long>(k);
                 return ContactStatus::non_finite_position;
             }

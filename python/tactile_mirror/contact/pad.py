@@ -13,14 +13,13 @@ default): the plane-strain model gives N/m.
 from __future__ import annotations
 
 import functools
-import math
 from dataclasses import dataclass, field
 from typing import TYPE_CHECKING
 
 import numpy as np
 
 from .model import RidgeModel
-from .solver import OPEN, SLIP, STEPPINGS, STICK, ContactSolver
+from .solver import MAX_PLATE_POSITION, OPEN, SLIP, STEPPINGS, STICK, ContactSolver, _position_error
 
 if TYPE_CHECKING:
     from ..scenes import Scene
@@ -193,9 +192,10 @@ class Pad:
         if ind.shape != y.shape:
             raise ValueError(f"plate_y and indent must have the same length, got {y.size} and {ind.size}")
         z = np.ascontiguousarray(m.geometry.height - (ind[:, None] - self.indent_offset[None, :]))
-        if not (np.all(np.isfinite(y)) and np.all(np.isfinite(z))):
-            k = int(np.flatnonzero(~(np.isfinite(y) & np.all(np.isfinite(z), axis=1)))[0])
-            raise ValueError(f"plate position must be finite, got y={y[k]!r}, indent={ind[k]!r}")
+        ok = (np.abs(y) <= MAX_PLATE_POSITION) & np.all(np.abs(z) <= MAX_PLATE_POSITION, axis=1)
+        if not np.all(ok):  # (NaN fails the comparison too)
+            k = int(np.flatnonzero(~ok)[0])
+            raise _position_error(y[k], ind[k], "indent")
         return stepping, y, z
 
     def follow(self, plate_y: np.ndarray, indent: np.ndarray, stepping: str | None = None,
@@ -312,9 +312,10 @@ class Pad:
     def _advance_compiled(self, plate_y: float, indent: float) -> PadState:
         m = self.model
         plate_y, indent = float(plate_y), float(indent)
-        if not (math.isfinite(plate_y) and math.isfinite(indent)):  # the ridges' offsets are finite
-            raise ValueError(f"plate position must be finite, got y={plate_y!r}, indent={indent!r}")
         plate_z = m.geometry.height - (indent - self.indent_offset)
+        # (the ridges' offsets are finite; NaN fails the comparison too)
+        if not (abs(plate_y) <= MAX_PLATE_POSITION and np.all(np.abs(plate_z) <= MAX_PLATE_POSITION)):
+            raise _position_error(plate_y, indent, "indent")
         (status, bad, its, forces, disp, states, frac, touch, gross, sum_t,
          sum_n) = self._stepper.step(plate_y, plate_z, self.stepping == "every", min(self.threads, 2))
         if status:

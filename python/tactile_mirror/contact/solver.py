@@ -111,7 +111,6 @@ contact history unchanged when a step fails.
 """
 from __future__ import annotations
 
-import math
 from dataclasses import dataclass
 
 import numpy as np
@@ -133,6 +132,21 @@ BACKENDS = ("cpp", "python")
 STEPPINGS = ("auto", "every")
 
 OPEN, STICK, SLIP = 0, 1, 2
+
+#: The largest plate coordinate (y, z) a step takes, m, a ridge being millimetres: farther
+#: is refused as a NaN is (``ValueError``, history unchanged). A finite 1e308 had
+#: overflowed the solve into NaN forces that then stayed in the history.
+MAX_PLATE_POSITION = 1.0
+
+
+def _positions_ok(y, z) -> bool:
+    """Every coordinate finite and within :data:`MAX_PLATE_POSITION` (NaN fails the test)."""
+    return bool(np.all(np.abs(y) <= MAX_PLATE_POSITION) and np.all(np.abs(z) <= MAX_PLATE_POSITION))
+
+
+def _position_error(y, z, zname: str = "z") -> ValueError:
+    return ValueError(f"plate position must be finite and within {MAX_PLATE_POSITION:g} m, got y={float(y)!r}, "
+                      f"{zname}={float(z)!r}")
 
 
 class ContactConvergenceError(RuntimeError):
@@ -348,10 +362,10 @@ class ContactSolver:
         converges.
         """
         y, z = float(plate_y), float(plate_z)
-        # math.isfinite on the floats: np.isfinite costs about 1 us a call, a tenth of
+        # plain float comparisons: np.isfinite costs about 1 us a call, a tenth of
         # the compiled step
-        if not (math.isfinite(y) and math.isfinite(z)):
-            raise ValueError(f"plate position must be finite, got y={plate_y!r}, z={plate_z!r}")
+        if not (abs(y) <= MAX_PLATE_POSITION and abs(z) <= MAX_PLATE_POSITION):  # (NaN fails too)
+            raise _position_error(plate_y, plate_z)
         if self._kernel is not None:
             status, f, u, state, frac, it = self._kernel.step(y, z)
             if status:
@@ -420,9 +434,9 @@ class ContactSolver:
         zs = np.asarray(plate_z, dtype=np.float64).ravel()
         if ys.shape != zs.shape:
             raise ValueError(f"plate_y and plate_z must have the same length, got {ys.size} and {zs.size}")
-        if not (np.all(np.isfinite(ys)) and np.all(np.isfinite(zs))):
-            k = int(np.flatnonzero(~(np.isfinite(ys) & np.isfinite(zs)))[0])
-            raise ValueError(f"plate position must be finite, got y={ys[k]!r}, z={zs[k]!r}")
+        if not _positions_ok(ys, zs):
+            k = int(np.flatnonzero(~((np.abs(ys) <= MAX_PLATE_POSITION) & (np.abs(zs) <= MAX_PLATE_POSITION)))[0])
+            raise _position_error(ys[k], zs[k])
         N, n = ys.size, self._n
         lam_out = np.empty((N, 2 * n)) if lam_out is None else lam_out
         if self._kernel is not None:
@@ -751,7 +765,7 @@ class ContactSolver:
         """The exception of the reference implementation for a kernel status."""
         info, residual, atol = self._kernel.error()
         if status == 1:
-            raise ValueError(f"plate position must be finite, got y={plate_y!r}, z={plate_z!r}")
+            raise _position_error(plate_y, plate_z)
         if status == 2:
             raise ContactConvergenceError(f"singular contact system (LU getrf info={info})")
         if status == 3:
