@@ -459,6 +459,24 @@ def test_metadata_of_the_wrong_type_is_a_weights_error(tmp_path):
             DetectorWeights.load(path)
 
 
+def test_a_recording_that_would_not_load_back_is_refused_when_made(tmp_path):
+    # these were accepted and saved, and then load() refused the file (or save() raised a
+    # bare TypeError from json)
+    rec = recording(5)
+    fields = dict(fs=rec.fs, samples=rec.samples, outputs=rec.outputs, accepted=rec.accepted,
+                  stage_position=rec.stage_position, config=rec.config, x0=rec.x0)
+    for key, value, match in (("samples", rec.samples.astype(int), "samples must be a float"),
+                              ("outputs", rec.outputs.astype(complex), "outputs must be a float"),
+                              ("stage_position", rec.stage_position.astype(object), "stage_position"),
+                              ("x0", float("nan"), "x0 must be a finite"),
+                              ("config", dict(rec.config, n_ridges=np.int64(1), extra=np.float32(2)),
+                               "config must be JSON")):
+        with pytest.raises(RecordingError, match=match):
+            Recording(**dict(fields, **{key: value}))
+    rec.save(tmp_path / "ok.npz")
+    assert Recording.load(tmp_path / "ok.npz").x0 == rec.x0
+
+
 def test_recording_config_of_the_wrong_type_is_a_recording_error(tmp_path):
     rec = recording(5)
     for key, value in (("n_ridges", "two"), ("n_ridges", 1e9), ("use_u", "yes"), ("fs", None)):

@@ -35,6 +35,7 @@ from __future__ import annotations
 
 import json
 import math
+import numbers
 import os
 from dataclasses import dataclass, field
 
@@ -150,6 +151,14 @@ class Recording:
                 raise RecordingError(f"{name} must have shape {shape} for {R} ridges, got {arrays[name].shape}")
         if self.accepted.dtype != bool:
             raise RecordingError(f"accepted must be a bool array, got {self.accepted.dtype}")
+        # what load() reads back (an int or complex array saved and then failed to load)
+        for name in ("samples", "outputs", "stage_position"):
+            if arrays[name].dtype.kind != "f" or arrays[name].dtype.itemsize > 8:
+                raise RecordingError(f"{name} must be a float array (at most 64-bit), got {arrays[name].dtype}")
+        if isinstance(self.x0, (bool, np.bool_)) or not isinstance(self.x0, numbers.Real) \
+                or not math.isfinite(self.x0):
+            raise RecordingError(f"x0 must be a finite position in m, got {self.x0!r}")
+        check_json({k: v for k, v in self.config.items() if k not in _CFG_ARRAYS}, "config", RecordingError)
         if self.samples.shape[0] > MAX_TICKS:
             raise RecordingError(f"{self.samples.shape[0]} ticks exceed MAX_TICKS = {MAX_TICKS}")
         if not math.isclose(float(self.config["fs"]), float(self.fs), rel_tol=1e-12):
