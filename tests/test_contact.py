@@ -310,6 +310,8 @@ def test_simulate_many_with_a_dask_executor():
     direct = [simulate(s) for s in scenes]
     for r, d in zip(res, direct):
         np.testing.assert_array_equal(r.force_z, d.force_z)
+    with pytest.raises(TypeError, match="executor must be"):  # (was an AttributeError on 'submit')
+        tm.simulate_many(scenes, executor=object(), progress=False)
 
 
 def test_own_worker_pool_runs_single_threaded_blas(monkeypatch):

@@ -210,6 +210,19 @@ def test_training_set_validation():
         TrainingSet(np.zeros((2, 4, 5)), np.zeros((2, 5)), np.zeros((2, 4)), np.ones((2, 5), bool), 1000.0)
     with pytest.raises(ValueError, match="n_hidden"):
         train_detector(small_set(1), n_hidden=0, progress=False)
+    # sets that trained on nothing, or reached the optimiser as "theta must be finite"
+    x, y, m = np.zeros((2, 4, 5)), np.zeros((2, 5)), np.ones((2, 5), bool)
+    with pytest.raises(ValueError, match="no real sample"):
+        TrainingSet(x, y, y, np.zeros((2, 5), bool), 1000.0)
+    with pytest.raises(ValueError, match="no real sample"):
+        TrainingSet(np.zeros((0, 4, 5)), np.zeros((0, 5)), np.zeros((0, 5)), np.zeros((0, 5), bool), 1000.0)
+    with pytest.raises(ValueError, match=r"y_slip targets must lie in \[0, 1\]"):
+        TrainingSet(x, np.full((2, 5), 5.0), y, m, 1000.0)
+    with pytest.raises(ValueError, match="y_pred targets"):
+        TrainingSet(x, y, np.full((2, 5), np.nan), m, 1000.0)
+    for kw in ({"l2": float("nan")}, {"pred_weight": -1.0}, {"negative_weight": float("inf")}):
+        with pytest.raises(ValueError, match=next(iter(kw))):
+            train_detector(small_set(1), progress=False, **kw)
 
 
 # -- C++ kernel parity ------------------------------------------------------------------------

@@ -277,6 +277,8 @@ def simulate_many(scenes: Iterable[Scene], executor: concurrent.futures.Executor
     if not scenes:
         return []
     own = executor is None
+    if not own and not callable(getattr(executor, "submit", None)):
+        raise TypeError(f"executor must be a concurrent.futures.Executor (with submit), got {type(executor).__name__}")
     if own:
         import multiprocessing
 

@@ -7,6 +7,7 @@ import time
 import numpy as np
 import scipy.optimize
 
+from .._checks import real_number
 from .bank import bank_config
 from .data_prep import DEFAULT_ESTIMATOR, features_from_result, targets_from_result
 from .memory import DEFAULT_LOAD_TAU
@@ -69,6 +70,14 @@ class TrainingSet:
                                  f"got {getattr(self, name).shape}")
         if not np.all(np.isfinite(self.x)):
             raise ValueError("x contains non-finite values")
+        # (an empty set trained and returned weights made of no data; targets outside [0, 1]
+        # or NaN reached the optimiser as "theta must be finite")
+        if not self.mask.any():
+            raise ValueError("the training set holds no real sample (mask is all False, or no sequence or sample)")
+        for name in ("y_slip", "y_pred"):
+            y = getattr(self, name)[self.mask]
+            if not np.all((y >= 0) & (y <= 1)):  # (NaN fails too)
+                raise ValueError(f"{name} targets must lie in [0, 1] on the real samples")
 
     @property
     def n_seq(self) -> int:
@@ -380,6 +389,10 @@ def train_detector(data, n_hidden: int = 16, feedback: bool = True, seed=0, maxi
         raise ValueError(f"n_hidden must be a positive integer, got {n_hidden!r}")
     if maxiter < 1:
         raise ValueError(f"maxiter must be >= 1, got {maxiter}")
+    # (a NaN here reached the optimiser as "theta must be finite"; a negative weight ran)
+    for name, value in (("l2", l2), ("pred_weight", pred_weight), ("negative_weight", negative_weight),
+                        ("onset_weight", onset_weight), ("onset_window", onset_window)):
+        real_number(value, name, nonnegative=True)
     if backend not in ("cpp", "numpy"):
         raise ValueError(f"backend must be 'cpp' or 'numpy', got {backend!r}")
     if n_threads is None:
