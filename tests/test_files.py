@@ -463,8 +463,8 @@ def test_a_recording_that_would_not_load_back_is_refused_when_made(tmp_path):
     # these were accepted and saved, and then load() refused the file (or save() raised a
     # bare TypeError from json)
     rec = recording(5)
-    fields = dict(fs=rec.fs, samples=rec.samples, outputs=rec.outputs, accepted=rec.accepted,
-                  stage_position=rec.stage_position, config=rec.config, x0=rec.x0)
+    fields = {"fs": rec.fs, "samples": rec.samples, "outputs": rec.outputs, "accepted": rec.accepted,
+              "stage_position": rec.stage_position, "config": rec.config, "x0": rec.x0}
     for key, value, match in (("samples", rec.samples.astype(int), "samples must be a float"),
                               ("outputs", rec.outputs.astype(complex), "outputs must be a float"),
                               ("stage_position", rec.stage_position.astype(object), "stage_position"),
