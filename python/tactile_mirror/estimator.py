@@ -41,7 +41,6 @@ recordings with :func:`tactile_mirror.sosfilt`.
 """
 from __future__ import annotations
 
-import contextlib
 import math
 import numbers
 import threading
@@ -51,6 +50,7 @@ import numpy.typing as npt
 import scipy.signal
 
 from ._checks import real_number
+from ._owner import claim
 from .circuit import PVDFCircuit, _check_fs
 from .filters import SosFilter, sosfilt
 
@@ -345,17 +345,10 @@ class StressRateEstimator:
         self._rate2 = SosFilter(second, self.channels, dtype=self.dtype)
         self._owner = threading.Lock()
 
-    @contextlib.contextmanager
     def _claim(self):
         # One call at a time: a call steps two filters, and a second thread between them
         # would leave them a tick apart.
-        if not self._owner.acquire(blocking=False):
-            raise RuntimeError("this StressRateEstimator is being used by another thread (its state carries "
-                               "over between calls; give each thread its own estimator)")
-        try:
-            yield
-        finally:
-            self._owner.release()
+        return claim(self._owner, "StressRateEstimator", "estimator")
 
     def reset(self) -> None:
         """Return to rest (zero state)."""

@@ -1,13 +1,13 @@
 """The :class:`SlipDetector`: trained weights + the C++ kernel."""
 from __future__ import annotations
 
-import contextlib
 import os
 import threading
 from importlib import resources
 
 import numpy as np
 
+from .._owner import claim
 from .bank import bank_features
 from .memory import memory_features
 from .network import forward
@@ -232,15 +232,8 @@ class SlipDetector:
         return k
 
     # -- running ------------------------------------------------------------------------
-    @contextlib.contextmanager
     def _claim(self):
-        if not self._owner.acquire(blocking=False):
-            raise RuntimeError("this SlipDetector is being used by another thread (its state carries over "
-                               "between calls; give each thread its own detector)")
-        try:
-            yield
-        finally:
-            self._owner.release()
+        return claim(self._owner, "SlipDetector", "detector")
 
     @staticmethod
     def _check_finite(x, name="features"):
