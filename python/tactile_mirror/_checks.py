@@ -19,11 +19,13 @@ def real_number(value, name: str, *, unit: str | None = None, positive: bool = F
     NaN, infinite or out of the asked range. ``name`` and ``unit`` go into the message, e.g.
     ``fs must be positive and finite (Hz), got 0.0``.
     """
-    u = f" ({unit})" if unit else ""
-    if isinstance(value, bool) or not isinstance(value, numbers.Real):
-        raise TypeError(f"{name} must be a real number{u}, got {type(value).__name__}")
-    v = float(value)
+    if type(value) is float:  # (the common case, without the ABC check: per-tick callers)
+        v = value
+    elif isinstance(value, bool) or not isinstance(value, numbers.Real):
+        raise TypeError(f"{name} must be a real number{f' ({unit})' if unit else ''}, got {type(value).__name__}")
+    else:
+        v = float(value)
     if not math.isfinite(v) or (positive and v <= 0) or (nonnegative and v < 0):
         sign = "positive and " if positive else ("non-negative and " if nonnegative else "")
-        raise ValueError(f"{name} must be {sign}finite{u}, got {value!r}")
+        raise ValueError(f"{name} must be {sign}finite{f' ({unit})' if unit else ''}, got {value!r}")
     return v
