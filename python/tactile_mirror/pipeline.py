@@ -74,11 +74,11 @@ def _position(value, name: str) -> float:
     return real_number(value, name, unit="m")
 
 
-def validated_config(config: dict) -> dict:
-    """A :attr:`MirrorPipeline.config` (e.g. read from a recording, or written by hand for
-    the C ABI) checked and normalised as :func:`pipeline_config` checks its arguments:
-    every array's shape against the sizes it implies, every limit and parameter. Raises
-    ValueError / TypeError naming the entry."""
+def _validated_config(config: dict) -> dict:
+    """A :attr:`MirrorPipeline.config` (e.g. read from a recording) through
+    :func:`pipeline_config` and its checks; the C++ constructor that
+    :meth:`MirrorPipeline.from_config` then builds checks every weight array's shape.
+    Raises ValueError / TypeError naming the entry."""
     cfg = dict(config)
     missing = [k for k in ("w1", "b1", "w2", "b2", "input_mean", "input_gain", "weights_fs", "fs", "n_ridges")
                if k not in cfg]
@@ -291,7 +291,7 @@ class MirrorPipeline:
     def from_config(cls, config: dict) -> MirrorPipeline:
         """Rebuild a pipeline from :attr:`config` (e.g. stored in a recording)."""
         self = cls.__new__(cls)
-        self._init_from_config(validated_config(config))
+        self._init_from_config(_validated_config(config))
         return self
 
     def _init_from_config(self, cfg):
