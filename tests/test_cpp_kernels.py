@@ -27,7 +27,9 @@ def build(tmp_path, source, sanitize=True, opt="-O1", sanitizers="address,undefi
     return exe
 
 
-@pytest.fixture(scope="module")
+# (session scope: a module fixture is torn down whenever its worker runs another module's
+# tests in between, as pytest-xdist interleaves them, and then built again)
+@pytest.fixture(scope="session")
 def sos_test_exe(tmp_path_factory):
     tmp = tmp_path_factory.mktemp("cpp")
     try:
@@ -36,7 +38,7 @@ def sos_test_exe(tmp_path_factory):
         raise AssertionError(f"building tests/cpp/test_sos.cpp with sanitizers failed:\n{exc.stderr}") from exc
 
 
-# (one worker runs them all, so that the module's build of the program is made once)
+# (one worker runs them all, so that the build of the program is made once)
 @pytest.mark.xdist_group("sos_sanitizer_build")
 @pytest.mark.parametrize("channels,n", [(1, 37), (5, 500), (12, 1000), (70, 129)])
 def test_sos_kernel_under_sanitizers(tmp_path, sos_test_exe, channels, n):
