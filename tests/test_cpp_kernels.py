@@ -27,34 +27,26 @@ def build(tmp_path, source, sanitize=True, opt="-O1", sanitizers="address,undefi
     return exe
 
 
-# (session scope: a module fixture is torn down whenever its worker runs another module's
-# tests in between, as pytest-xdist interleaves them, and then built again)
-@pytest.fixture(scope="session")
-def sos_test_exe(tmp_path_factory):
-    tmp = tmp_path_factory.mktemp("cpp")
+def test_sos_kernel_under_sanitizers(tmp_path):
+    # One test over the cases, so that one worker builds the program once (as separate
+    # parametrized tests, pytest-xdist ran them on both workers and each built it).
     try:
-        return build(tmp, "test_sos.cpp")
+        exe = build(tmp_path, "test_sos.cpp")
     except subprocess.CalledProcessError as exc:
         raise AssertionError(f"building tests/cpp/test_sos.cpp with sanitizers failed:\n{exc.stderr}") from exc
-
-
-# (one worker runs them all, so that the build of the program is made once)
-@pytest.mark.xdist_group("sos_sanitizer_build")
-@pytest.mark.parametrize("channels,n", [(1, 37), (5, 500), (12, 1000), (70, 129)])
-def test_sos_kernel_under_sanitizers(tmp_path, sos_test_exe, channels, n):
-    exe = sos_test_exe
     sos = ss.ellip(6, 0.5, 50, [0.02, 0.3], "bandpass", output="sos")
-    x = np.random.default_rng(channels).standard_normal((channels, n))
-    ref = ss.sosfilt(sos, x)
-    data = tmp_path / "ref.bin"
-    with open(data, "wb") as f:
-        np.array([sos.shape[0], channels, n], dtype=np.uint64).tofile(f)
-        sos.astype(np.float64).tofile(f)
-        x.tofile(f)
-        ref.tofile(f)
-    out = subprocess.run([str(exe), str(data)], check=False, capture_output=True, text=True, timeout=120)
-    assert out.returncode == 0, out.stdout + out.stderr
-    assert "ok: 0 failures" in out.stdout
+    for channels, n in [(1, 37), (5, 500), (12, 1000), (70, 129)]:
+        x = np.random.default_rng(channels).standard_normal((channels, n))
+        ref = ss.sosfilt(sos, x)
+        data = tmp_path / f"ref-{channels}-{n}.bin"
+        with open(data, "wb") as f:
+            np.array([sos.shape[0], channels, n], dtype=np.uint64).tofile(f)
+            sos.astype(np.float64).tofile(f)
+            x.tofile(f)
+            ref.tofile(f)
+        out = subprocess.run([str(exe), str(data)], check=False, capture_output=True, text=True, timeout=120)
+        assert out.returncode == 0, f"{channels} channels x {n}: " + out.stdout + out.stderr
+        assert "ok: 0 failures" in out.stdout
 
 
 def test_bptt_kernel_under_sanitizers(tmp_path):
