@@ -139,11 +139,6 @@ OPEN, STICK, SLIP = 0, 1, 2
 MAX_PLATE_POSITION = 1.0
 
 
-def _positions_ok(y, z) -> bool:
-    """Every coordinate finite and within :data:`MAX_PLATE_POSITION` (NaN fails the test)."""
-    return bool(np.all(np.abs(y) <= MAX_PLATE_POSITION) and np.all(np.abs(z) <= MAX_PLATE_POSITION))
-
-
 def _position_error(y, z, zname: str = "z") -> ValueError:
     return ValueError(f"plate position must be finite and within {MAX_PLATE_POSITION:g} m, got y={float(y)!r}, "
                       f"{zname}={float(z)!r}")
@@ -434,8 +429,9 @@ class ContactSolver:
         zs = np.asarray(plate_z, dtype=np.float64).ravel()
         if ys.shape != zs.shape:
             raise ValueError(f"plate_y and plate_z must have the same length, got {ys.size} and {zs.size}")
-        if not _positions_ok(ys, zs):
-            k = int(np.flatnonzero(~((np.abs(ys) <= MAX_PLATE_POSITION) & (np.abs(zs) <= MAX_PLATE_POSITION)))[0])
+        ok = (np.abs(ys) <= MAX_PLATE_POSITION) & (np.abs(zs) <= MAX_PLATE_POSITION)  # (NaN fails too)
+        if not np.all(ok):
+            k = int(np.flatnonzero(~ok)[0])
             raise _position_error(ys[k], zs[k])
         N, n = ys.size, self._n
         lam_out = np.empty((N, 2 * n)) if lam_out is None else lam_out
