@@ -92,10 +92,7 @@ def _validated_config(config: dict) -> dict:
     kw = {k: cfg.get(k) for k in ("sos_v", "sos_u", "sos_diff", "use_u", "v_limit", "u_limit",
                                    "controller", "dtype", "detector_dtype", "activation", "slip_threshold",
                                    "max_hold_ticks", "ridges", "shear_weights")}
-    n_ridges = cfg["n_ridges"]
-    if isinstance(n_ridges, bool) or not isinstance(n_ridges, numbers.Integral):
-        raise TypeError(f"n_ridges must be an integer, got {type(n_ridges).__name__}")
-    return pipeline_config(weights, cfg["fs"], int(n_ridges), **kw)
+    return pipeline_config(weights, cfg["fs"], cfg["n_ridges"], **kw)  # (which checks n_ridges)
 
 
 def pipeline_config(detector, fs, n_ridges: int = 6, *, estimator=None, sos_v=None, sos_u=None, sos_diff=None,
