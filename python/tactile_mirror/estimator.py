@@ -52,7 +52,7 @@ import scipy.signal
 from ._checks import real_number
 from ._owner import claim
 from .circuit import PVDFCircuit, _check_fs
-from .filters import SosFilter, sosfilt
+from .filters import SosFilter, _real_numeric, sosfilt
 
 __all__ = [
     "StressRateEstimator",
@@ -255,8 +255,7 @@ class _Design:
 
 def _block(x, name: str, channels: int) -> np.ndarray:
     a = np.asarray(x)
-    if a.dtype.kind not in "biuf":
-        raise TypeError(f"{name} must hold real numbers, got dtype {a.dtype}")
+    _real_numeric(a, name)
     if a.ndim != 2 or a.shape[0] != channels:
         raise ValueError(f"{name} must have shape (channels, n) = ({channels}, n), got {a.shape}")
     return a
@@ -264,8 +263,7 @@ def _block(x, name: str, channels: int) -> np.ndarray:
 
 def _sample(x, name: str, channels: int, dtype) -> np.ndarray:
     a = np.asarray(x)
-    if a.dtype.kind not in "biuf":
-        raise TypeError(f"{name} must hold real numbers, got dtype {a.dtype}")
+    _real_numeric(a, name)
     if a.shape != (channels,):
         raise ValueError(f"{name} must have shape ({channels},), got {a.shape}")
     return a.astype(dtype, copy=False)
