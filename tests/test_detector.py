@@ -2,6 +2,7 @@
 from __future__ import annotations
 
 import json
+import re
 import zipfile
 
 import numpy as np
@@ -564,3 +565,66 @@ def test_onset_weight_adds_the_window_as_a_class_of_its_own():
     for bad in ({"onset_weight": -1.0}, {"onset_weight": np.nan}, {"onset_window": 0.0}):
         with pytest.raises(ValueError, match=next(iter(bad))):
             train_detector(ts, n_hidden=3, maxiter=1, progress=False, **bad)
+
+
+def test_sample_weight_multiplies_the_slip_loss_and_is_checked():
+    ts = small_set(2)
+    w0 = train_detector(ts, n_hidden=3, maxiter=4, seed=1, progress=False)
+    ones = train_detector(ts, n_hidden=3, maxiter=4, seed=1, progress=False, sample_weight=np.ones(ts.mask.shape))
+    np.testing.assert_array_equal(ones.params.pack(), w0.params.pack())  # x 1 is no change, bit for bit
+    assert ones.metadata["training"]["sample_weight"] == "per-sample multipliers"
+    assert "sample_weight" not in w0.metadata["training"]
+    heavy = np.ones(ts.mask.shape)
+    heavy[0] = 50.0  # one sequence dominates
+    w1 = train_detector(ts, n_hidden=3, maxiter=4, seed=1, progress=False, sample_weight=heavy)
+    assert not np.allclose(w1.params.pack(), w0.params.pack())
+    for bad, msg in ((np.ones((1, 3)), "shape"), (-heavy, ">= 0"), (np.full(ts.mask.shape, np.nan), "finite"),
+                     (np.ones(ts.mask.shape, dtype=complex), "real array")):
+        with pytest.raises(ValueError, match=f"sample_weight.*{re.escape(msg)}"):
+            train_detector(ts, n_hidden=3, maxiter=1, progress=False, sample_weight=bad)
+
+
+def test_warm_start_continues_from_the_given_weights():
+    ts = small_set(2)
+    w = train_detector(ts, n_hidden=3, maxiter=10, seed=2, progress=False)
+    more = train_detector(ts, n_hidden=3, maxiter=5, seed=99, progress=False, init=w)
+    # L-BFGS-B never ends above where it started: the warm start's objective is w's own
+    assert more.metadata["training"]["loss"] <= w.metadata["training"]["loss"] * (1 + 1e-12)
+    assert more.metadata["training"]["warm_start"] is True
+    # the seed plays no part in a warm start
+    again = train_detector(ts, n_hidden=3, maxiter=5, seed=5, progress=False, init=w)
+    np.testing.assert_array_equal(again.params.pack(), more.params.pack())
+    with pytest.raises(ValueError, match="init has 3 hidden units"):
+        train_detector(ts, n_hidden=4, maxiter=1, progress=False, init=w)
+    with pytest.raises(ValueError, match="normalised differently"):
+        train_detector(small_set(2, seed=10), n_hidden=3, maxiter=1, progress=False, init=w)
+    with pytest.raises(TypeError, match="init must be DetectorWeights"):
+        train_detector(ts, n_hidden=3, maxiter=1, progress=False, init=w.params)
+
+
+def test_hard_example_weights_mark_near_false_alarms_and_missed_onsets():
+    from tactile_mirror.detector.training import hard_example_weights
+
+    y = np.array([[0, 0, 0, 1, 1, 1, 1, 0, 0, 0, 0, 0],
+                  [0, 0, 0, 0, 0, 0, 1, 1, 1, 1, 0, 0]], dtype=float)
+    mask = np.ones(y.shape, dtype=bool)
+    mask[1, 10:] = False
+    ts = TrainingSet(np.zeros((2, 4, 12)), y, y, mask, 1000.0)
+    out = np.array([[0.1, 0.6, 0.2, 0.3, 0.9, 0.9, 0.9, 0.1, 0.1, 0.5, 0.1, 0.1],   # onset found (0.9 within 3)
+                    [0.1, 0.1, 0.1, 0.1, 0.1, 0.1, 0.3, 0.7, 0.7, 0.95, 0.9, 0.9]])  # onset missed; padding high
+    m = hard_example_weights(out, ts, factor=3.0, negative_level=0.5, onset_window=0.003)
+    want = np.ones(y.shape)
+    want[0, 1] = want[0, 9] = 3.0           # near false alarms, at and above the level
+    want[1, 6:9] = 3.0                      # the missed onset's window (its first 3 samples)
+    np.testing.assert_array_equal(m, want)  # the found onset, its later samples and the padding stay 1
+    # examples that stay hard gain weight round after round
+    np.testing.assert_array_equal(hard_example_weights(out, ts, factor=3.0, onset_window=0.003, previous=m),
+                                  np.where(want > 1, 9.0, 1.0))
+    with pytest.raises(ValueError, match="y_slip_out"):
+        hard_example_weights(out[:, :5], ts)
+    with pytest.raises(ValueError, match="factor"):
+        hard_example_weights(out, ts, factor=0.5)
+    with pytest.raises(ValueError, match="negative_level"):
+        hard_example_weights(out, ts, negative_level=1.0)
+    with pytest.raises(ValueError, match="previous"):
+        hard_example_weights(out, ts, previous=np.ones(3))

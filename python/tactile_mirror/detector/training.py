@@ -14,8 +14,8 @@ from .memory import DEFAULT_LOAD_TAU
 from .network import Params, init_params, loss_and_grad
 from .weights import FEATURE_KINDS, DetectorWeights, feature_channels, feature_units
 
-__all__ = ["TrainingSet", "augment_noise", "compress_training_set", "fit_normalisation", "make_training_set",
-           "pad_sequences", "train_detector"]
+__all__ = ["TrainingSet", "augment_noise", "compress_training_set", "fit_normalisation", "hard_example_weights",
+           "make_training_set", "pad_sequences", "train_detector"]
 
 
 def load_tau_of(features: str, load_tau: float | None) -> float | None:
@@ -288,6 +288,80 @@ def _loss_weights(ts: TrainingSet, pred_weight: float, negative_weight: float = 
     return w_slip, w_pred
 
 
+def _warm_start(init, mean, scale, n_in: int, n_hidden: int) -> Params:
+    """The parameters of ``init`` (DetectorWeights) as a starting point, checked against this training."""
+    if not isinstance(init, DetectorWeights):
+        raise TypeError(f"init must be DetectorWeights, got {type(init).__name__}")
+    p = init.params
+    if p.w1.shape != (n_hidden, n_in + 1):
+        raise ValueError(f"init has {p.w1.shape[0]} hidden units and {p.w1.shape[1] - 1} inputs; this training "
+                         f"has n_hidden = {n_hidden} and {n_in} inputs")
+    if not (np.allclose(init.input_mean, mean, rtol=1e-12, atol=0.0)
+            and np.allclose(init.input_scale, scale, rtol=1e-12, atol=0.0)):
+        raise ValueError("init was normalised differently from this training's data (another training set or "
+                         "normalisation): its weights would read other inputs")
+    return Params(p.w1.copy(), p.b1.copy(), p.w2.copy(), p.b2.copy())
+
+
+def hard_example_weights(y_slip_out, ts: TrainingSet, factor: float = 4.0, negative_level: float = 0.5,
+                         onset_window: float = 0.05, previous=None) -> np.ndarray:
+    """Per-sample multipliers of the ``y_slip`` loss that weight a net's hard examples
+    (``train_detector(sample_weight=)``): hard-example mining.
+
+    The detector is judged per scene: one excursion over the threshold anywhere outside a
+    slip is a false alarm, a slip is missed when ``y_slip`` stays below it over the first
+    ``onset_window`` s. A per-sample loss spends most of its weight on samples that every
+    net gets right (quiet contact, steady sliding). Given the net's outputs on the training
+    set, this multiplies by ``factor``
+
+    - every no-slip sample where the output is at or above ``negative_level`` (the near and
+      actual false alarms), and
+    - the onset window of every slip whose output stays below 0.8 over that window (the
+      near misses),
+
+    on top of ``previous`` (the multipliers of the round before; default all 1), so that
+    examples that stay hard gain weight round after round.
+
+    Parameters
+    ----------
+    y_slip_out : ndarray, shape (n_seq, n)
+        The net's ``y_slip`` on the training set's inputs (padding ignored).
+    ts : TrainingSet
+    factor : float
+        >= 1.
+    negative_level : float
+        In (0, 1).
+    onset_window : float
+        s (> 0).
+    previous : ndarray, shape (n_seq, n), optional
+    """
+    y = np.asarray(y_slip_out, dtype=np.float64)
+    if y.shape != ts.mask.shape:
+        raise ValueError(f"y_slip_out must have the training set's shape {ts.mask.shape}, got {y.shape}")
+    if not real_number(factor, "factor") >= 1.0:
+        raise ValueError(f"factor must be >= 1, got {factor}")
+    if not 0.0 < real_number(negative_level, "negative_level") < 1.0:
+        raise ValueError(f"negative_level must lie in (0, 1), got {negative_level}")
+    m = np.ones(y.shape) if previous is None else np.array(previous, dtype=np.float64)
+    if m.shape != y.shape:
+        raise ValueError(f"previous must have shape {y.shape}, got {m.shape}")
+    pos = (ts.y_slip >= 0.5) & ts.mask
+    hard = ts.mask & ~pos & (y >= negative_level)
+    n_win = round(real_number(onset_window, "onset_window", unit="s", positive=True) * ts.fs)
+    win = onset_windows(ts.y_slip, ts.mask, n_win)
+    # one onset window per run: label the runs by their start's index, find the misses
+    start = win & ~np.concatenate([np.zeros((win.shape[0], 1), dtype=bool), win[:, :-1]], axis=1)
+    run_id = np.cumsum(start, axis=1) * win
+    for i in np.flatnonzero(start.any(axis=1)):
+        ids = run_id[i]
+        for r in range(1, int(ids.max()) + 1):
+            sel = ids == r
+            if y[i, sel].max() < 0.8:
+                hard[i, sel] = True
+    m[hard] *= factor
+    return m
+
+
 def _cpp_loss(xn, data, w_slip, w_pred, n_hidden, l2, feedback, n_threads):
     n_in = xn.shape[1]
     """``loss_and_grad`` for L-BFGS-B through the compiled kernel (same function, same packing)."""
@@ -325,7 +399,7 @@ def train_detector(data, n_hidden: int = 16, feedback: bool = True, seed=0, maxi
                    onset_weight: float = 0.0, onset_window: float = 0.05, features: str = "stress_rate",
                    estimator=None, circuit=None, progress: bool = True, metadata=None,
                    normalisation: str = "rms", backend: str = "cpp", n_threads=None, callback=None,
-                   callback_every: int = 25) -> DetectorWeights:
+                   callback_every: int = 25, sample_weight=None, init=None) -> DetectorWeights:
     """Train a Jordan slip detector by exact BPTT and L-BFGS-B.
 
     Parameters
@@ -380,6 +454,15 @@ def train_detector(data, n_hidden: int = 16, feedback: bool = True, seed=0, maxi
         early stopping on a validation set (what :func:`~tactile_mirror.detector.build.build_default`
         does; the training loss keeps falling after the validation false alarms
         have started to rise).
+    sample_weight : array_like, shape (n_seq, n), optional
+        Non-negative multipliers of the ``y_slip`` loss weights, per sample (after the class
+        balance, ``negative_weight`` and ``onset_weight``): e.g. the hard examples of
+        :func:`hard_example_weights`. Default: all 1.
+    init : DetectorWeights, optional
+        Start from these weights instead of a random draw of ``seed`` (a warm start: a
+        second round of training on re-weighted samples). Their input normalisation must be
+        the one this call fits on ``data`` (the same training set and ``normalisation``),
+        their sizes ``n_hidden`` and the data's inputs.
 
     Returns
     -------
@@ -415,12 +498,24 @@ def train_detector(data, n_hidden: int = 16, feedback: bool = True, seed=0, maxi
     if not (np.isfinite(onset_window) and onset_window > 0.0):
         raise ValueError(f"onset_window must be finite and > 0 s, got {onset_window!r}")
     w_slip, w_pred = _loss_weights(data, pred_weight, negative_weight, onset_weight, onset_window)
+    if sample_weight is not None:
+        sw = np.asarray(sample_weight)
+        if sw.shape != w_slip.shape or sw.dtype.kind not in "biuf":
+            raise ValueError(f"sample_weight must be a real array of shape {w_slip.shape} (n_seq, n), got "
+                             f"{sw.dtype} of shape {sw.shape}")
+        sw = sw.astype(np.float64)
+        if not np.all(np.isfinite(sw)) or np.any(sw < 0):
+            raise ValueError("sample_weight must be finite and >= 0")
+        w_slip = w_slip * sw
     n_in = data.n_inputs
     if len(feature_units(data.features, data.bank)) != n_in:
         raise ValueError(f"data.features {data.features!r} have {len(feature_units(data.features, data.bank))} "
                          f"channels, "
                          f"data.x has {n_in}")
-    p0 = init_params(n_in, int(n_hidden), seed)
+    if init is None:
+        p0 = init_params(n_in, int(n_hidden), seed)
+    else:
+        p0 = _warm_start(init, mean, scale, n_in, int(n_hidden))
     if not feedback:
         p0.w1[:, -1] = 0.0
     theta0 = p0.pack()
@@ -465,6 +560,8 @@ def train_detector(data, n_hidden: int = 16, feedback: bool = True, seed=0, maxi
                          "pred_weight": float(pred_weight), "negative_weight": float(negative_weight),
                          **({"onset_weight": float(onset_weight), "onset_window": float(onset_window)}
                             if onset_weight else {}),
+                         **({"sample_weight": "per-sample multipliers"} if sample_weight is not None else {}),
+                         **({"warm_start": True} if init is not None else {}),
                          "normalisation": normalisation, "backend": backend,
                          "optimizer": "scipy.optimize L-BFGS-B, exact BPTT gradient", **extra, **(metadata or {})},
         }
