@@ -22,6 +22,12 @@ Two measurements on the 6-ridge FEM pad, the finger held still (no relative moti
    unmoved (the ridges' differences of L - R and of L + R: the printed sensitivities are
    equal from ridge to ridge) leaves, fitted on the drops to the first ``--mu`` and
    applied to the others.
+4. (``--step-probe``) What the signal says of a real displacement after the drop: 0.4 s after
+   the ramp, the relative displacement is moved by +``step`` and, in a second run, by -``step``
+   (5 um over 50 ms, the pad moving, the finger still). Printed per um of the step: the part
+   of the signal's move that changes sign with the step (its sensitivity to displacement; 1
+   before the drop, by the calibration) and the part that does not (stored shear that any
+   motion releases).
 
 The shear offsets, the ramp and the friction values here are the envelope's sweat
 conditions (mu 0.45 and 0.40) and not a tuning set: nothing is chosen from this output.
@@ -42,6 +48,7 @@ def main(argv=None) -> None:
     ap.add_argument("--offsets", default="0,10,20,40,-20", help="shear offsets held during the drop, um")
     ap.add_argument("--figure", help="also write the figure (PNG): the signal's moves and the still finger's runs")
     ap.add_argument("--common-mode", action="store_true", help="also measurement 3 (L + R as a second channel)")
+    ap.add_argument("--step-probe", action="store_true", help="also measurement 4 (a small pad step after the drop)")
     args = ap.parse_args(argv)
     from tactile_mirror.loop.envelope import _laws
     from tactile_mirror.loop.experiment import _weights_dict, default_weights, still_pad_features
@@ -96,6 +103,8 @@ def main(argv=None) -> None:
         figure(args.figure, fs, traces, runs, mus)
     if args.common_mode:
         common_mode(mus, offsets)
+    if args.step_probe:
+        step_probe(mus, offsets, c, per_m)
 
 
 def _strip_changes(n=1500, d=0.0, mu=None, move=0.0, dind=0.0):
@@ -140,6 +149,36 @@ def common_mode(mus, offsets) -> None:
     table("The phantom (um of displacement, largest over the ramp and 0.3 s after) and what a linear prediction "
           "from the combinations that a stuck displacement and the indent leave unmoved leaves",
           ["mu after", "offset d (um)", "phantom", "left after the prediction"], rows)
+
+
+def step_probe(mus, offsets, c, per_m, step: float = 5e-6) -> None:
+    """Measurement 4: the calibrated signal's answer to a +-``step`` pad displacement 0.4 s
+    after the friction ramp (or at the same time with no drop)."""
+    from tactile_mirror.contact.plants import FemPad
+
+    def move(d, mu, sgn):
+        p = FemPad(6, fs=1000.0)
+        mu0 = p.mu
+        sig = np.empty(1700)
+        for k in range(sig.size):
+            y = 0.0 if k < 500 else d * min(1.0, (k - 500) / 100)
+            if mu is not None and 1000 <= k <= 1200:
+                p.set_mu(mu0 + (mu - mu0) * (k - 1000) / 200)
+            if k >= 1600:
+                y += sgn * step * min(1.0, (k - 1600) / 50)  # finger - pad moves by sgn * step
+            st = p.advance(y).stress
+            sig[k] = (st[:, 0] - st[:, 1]) @ c / per_m
+        return (sig[-1] - sig[1599]) / step
+
+    rows = []
+    for mu in [None] + mus:
+        for d in offsets:
+            up, down = move(d, mu, 1.0), move(d, mu, -1.0)
+            rows.append(["0.76 (no drop)" if mu is None else f"0.76 -> {mu:.2f}", f"{d * 1e6:+.0f}",
+                         f"{(up - down) / 2:+.2f}", f"{(up + down) / 2:+.2f}"])
+    table(f"A +-{step * 1e6:g} um relative displacement 0.4 s after the drop, finger still: the signal's move per um "
+          "of displacement (1 = the calibration's)", ["friction", "offset d (um)", "sensitivity (odd part)",
+                                                       "released by any move (even part)"], rows)
 
 
 def figure(path, fs, traces, runs, mus) -> None:
