@@ -1,6 +1,6 @@
 """The loop's envelope on the 6-ridge FEM pad, and the tick cost of the default law.
 
-    python bench/loop_envelope.py --out bench-out/loop            # nominal, 10 paths per class, 3 laws
+    python bench/loop_envelope.py --out bench-out/loop            # nominal, 10 paths per class, 4 laws
     python bench/loop_envelope.py --out bench-out/loop --robustness --robustness-laws default
     python bench/loop_envelope.py --tick                          # the tick cost only
 
@@ -15,6 +15,9 @@ developing the law used :data:`~tactile_mirror.loop.envelope.TUNING_PATHS` (seed
 3000.., 8 mm rms, 4 Hz): disjoint seeds and generator settings (``--paths tuning`` runs them).
 ``--paths report-fast`` (seeds 100.., 12 mm rms, 5 Hz band) reports paths whose acceleration
 limit binds (up to 0.5 m/s^2 at 20 mm/s).
+
+The laws: open loop, the paper's, the default law on the strips, and the same design on a
+load cell's force under the pad (``load cell``: ``MirrorPipeline(force_input=True)``).
 
 ``--tick``: ns per tick of the full 6-ridge float64 pipeline inside C++
 (``MirrorPipeline.time_step_ns``, best of 5) with the previous velocity law and with

@@ -263,6 +263,7 @@ def test_config_init_writes_exactly_the_callers_struct():
     struct; sizes outside the accepted range write nothing."""
     ffi, lib = load()
     full = ffi.sizeof("tm_config")
+    abi9 = ffi.offsetof("tm_config", "force_input")
     abi8 = ffi.offsetof("tm_config", "bank_pad_mean")
     abi7 = ffi.offsetof("tm_config", "bank_knee")
     abi6 = ffi.offsetof("tm_config", "planner_decel")
@@ -274,7 +275,8 @@ def test_config_init_writes_exactly_the_callers_struct():
         ffi.memmove(buf, b"\xab" * (full + 16), full + 16)
         return buf, ffi.cast("tm_config*", buf)
 
-    for size, abi, call in [(full, 9, lambda c: lib.tm_config_init_sized(c, full)),
+    for size, abi, call in [(full, 10, lambda c: lib.tm_config_init_sized(c, full)),
+                            (abi9, 9, lambda c: lib.tm_config_init_sized(c, abi9)),
                             (abi8, 8, lambda c: lib.tm_config_init_sized(c, abi8)),
                             (abi7, 7, lambda c: lib.tm_config_init_sized(c, abi7)),
                             (abi6, 6, lambda c: lib.tm_config_init(c)),
@@ -379,7 +381,7 @@ def test_version_string_and_struct_sizes():
     cfg.struct_size = abi3 - 8
     assert lib.tm_pipeline_create(cfg, h) == -6
     assert b"accepts" in ffi.string(lib.tm_last_error())
-    assert lib.tm_config_init_sized(cfg, ffi.sizeof("tm_config")) == 0 and cfg.abi_version == 9 and cfg.v_limit == 15.0
+    assert lib.tm_config_init_sized(cfg, ffi.sizeof("tm_config")) == 0 and cfg.abi_version == 10 and cfg.v_limit == 15.0
 
 
 # -- one wording for numeric arguments ---------------------------------------------------

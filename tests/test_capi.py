@@ -51,8 +51,8 @@ def test_library_and_header_are_installed():
     assert os.path.isfile(lib) and os.path.isabs(lib)
     assert os.path.isfile(header_path())
     ffi, c = load()
-    assert c.tm_abi_version() == 9
-    assert ffi.string(c.tm_version_string()).decode().startswith("tactile-mirror C ABI 9 ")
+    assert c.tm_abi_version() == 10
+    assert ffi.string(c.tm_version_string()).decode().startswith("tactile-mirror C ABI 10 ")
 
 
 @pytest.mark.parametrize("use_u", [True, False])

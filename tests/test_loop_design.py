@@ -425,7 +425,7 @@ def test_planner_decel_is_checked_and_carried_by_the_c_abi():
         assert np.array_equal(cp.process_block(x)[0].view(np.uint64), out.view(np.uint64))
     # (an ABI-6 program's struct, without planner_decel: tests/test_bad_input.py)
     cfg = new_config(ffi, lib)
-    assert cfg.planner_decel == 0.0 and cfg.abi_version == 9
+    assert cfg.planner_decel == 0.0 and cfg.abi_version == 10
     # through tm.h a bad value is refused, naming it
     bad = {**pipe.config, "controller": {**pipe.config["controller"], "planner_decel": -5.0}}
     with pytest.raises(CAPIError, match="planner_decel"):

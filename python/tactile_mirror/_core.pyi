@@ -347,13 +347,15 @@ class _PipelineDefaults(TypedDict):
     u_limit: float
     slip_threshold: float
     max_hold_ticks: int
+    force_limit: float
 
 def controller_fields() -> list[tuple[str, tuple[str, ...], str]]:
     """The controller parameters, in order: (name, laws that read it, meaning)."""
 def controller_defaults(kind: str) -> _ControllerParams:
     """Default parameters of a law ('none', 'paper' or 'velocity')."""
 def pipeline_defaults() -> _PipelineDefaults:
-    """Defaults shared with the C ABI (v_limit, u_limit: the front end's output swing, V)."""
+    """Defaults shared with the C ABI (v_limit, u_limit: the front end's output swing, V;
+    force_limit: a load cell's range, N)."""
 
 @type_check_only
 class _MirrorPipeline(Generic[_F, _FD]):
@@ -380,6 +382,8 @@ class _MirrorPipeline(Generic[_F, _FD]):
         controller: _ControllerParams,
         shear_weights: npt.ArrayLike | None = None,
         bank: dict[str, Any] | None = None,
+        force_input: bool = False,
+        force_limit: float = 100.0,
     ) -> None:
         """Build the pipeline; see tactile_mirror.pipeline.pipeline_config for the arguments.
         Filters (sos_*) are None or (n_sections, 6); w1 is (n_hidden, nf + 1) with nf = 4, or
@@ -395,6 +399,8 @@ class _MirrorPipeline(Generic[_F, _FD]):
     def fs(self) -> float: ...
     @property
     def use_u(self) -> bool: ...
+    @property
+    def force_input(self) -> bool: ...
     @property
     def detector_kind(self) -> int:
         """0: the paper's net; 1: the filter-bank net."""

@@ -546,15 +546,16 @@ def build_parser() -> argparse.ArgumentParser:
             q.add_argument("--duration", type=_positive(float), default=3.0, help="seconds, 0.5 s press included "
                            "(default: 3)")
         else:
-            from .loop.envelope import _LAWS, CONDITIONS
+            from .loop.envelope import _LAWS, CONDITIONS, DEFAULT_LAWS
 
             q.add_argument("--speeds", type=_speeds_mm_s, default=[2.0, 5.0, 10.0, 20.0],
                            help="peak finger speeds of the classes, mm/s (default: 2,5,10,20)")
             q.add_argument("--seeds", type=_positive(int), default=10, help="paths per class (default: 10)")
             q.add_argument("--conditions", type=_names(list(CONDITIONS)), default=["nominal"],
                            help=f"comma-separated subset of: {', '.join(CONDITIONS)} (default: nominal)")
-            q.add_argument("--laws", type=_names(list(_LAWS)), default=list(_LAWS),
-                           help="comma-separated subset of: open loop,paper,default (default: all)")
+            q.add_argument("--laws", type=_names(list(_LAWS)), default=list(DEFAULT_LAWS),
+                           help="comma-separated subset of: open loop,paper,default,load cell (the default law "
+                                "on a load cell under the pad) (default: open loop,paper,default)")
             q.add_argument("--paths", choices=["report", "tuning", "report-fast", "tuning-fast", "report-fast2",
                                               "tuning-fast2"], default="report",
                            help="path set: a reported one or a disjoint tuning one; the -fast sets reach 0.5 m/s^2 "

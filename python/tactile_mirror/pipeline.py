@@ -91,14 +91,16 @@ def _validated_config(config: dict) -> dict:
     weights["bank"] = cfg.get("bank")
     kw = {k: cfg.get(k) for k in ("sos_v", "sos_u", "sos_diff", "use_u", "v_limit", "u_limit",
                                    "controller", "dtype", "detector_dtype", "activation", "slip_threshold",
-                                   "max_hold_ticks", "ridges", "shear_weights")}
+                                   "max_hold_ticks", "ridges", "shear_weights", "force_limit")}
+    kw["force_input"] = cfg.get("force_input", False)  # (recordings made before the load cell have none)
     return pipeline_config(weights, cfg["fs"], cfg["n_ridges"], **kw)  # (which checks n_ridges)
 
 
 def pipeline_config(detector, fs, n_ridges: int = 6, *, estimator=None, sos_v=None, sos_u=None, sos_diff=None,
                     use_u: bool | None = None, v_limit=None, u_limit=None, controller=None,
                     dtype=np.float64, detector_dtype=None, activation: str = "fast", slip_threshold: float = 0.8,
-                    max_hold_ticks: int = 100, ridges=None, shear_weights=None) -> dict:
+                    max_hold_ticks: int = 100, ridges=None, shear_weights=None, force_input: bool = False,
+                    force_limit=None) -> dict:
     """Validate and assemble a pipeline configuration (see :class:`MirrorPipeline`)."""
     fs = _positive(fs, "fs")
     if fs < 1.0:  # (the laws divide by fs: a denormal rate made every command NaN; as pipeline.hpp)
@@ -183,6 +185,11 @@ def pipeline_config(detector, fs, n_ridges: int = 6, *, estimator=None, sos_v=No
         if not np.all(np.isfinite(sw)):
             raise ValueError("shear_weights must be finite")
         shear_weights = sw.copy()
+    if not isinstance(force_input, (bool, np.bool_)):
+        raise TypeError(f"force_input must be True or False, got {type(force_input).__name__}")
+    force_limit = float(_DEFAULTS["force_limit"]) if force_limit is None else _positive(force_limit, "force_limit")
+    if not math.isfinite(force_limit):
+        raise ValueError(f"force_limit must be a finite force (N), got {force_limit!r}")
     arrays = {}
     for k in ("w1", "b1", "w2", "b2", "input_mean", "input_gain"):
         a = np.asarray(w[k], dtype=np.float64)
@@ -204,6 +211,7 @@ def pipeline_config(detector, fs, n_ridges: int = 6, *, estimator=None, sos_v=No
         "max_hold_ticks": int(max_hold_ticks), "controller": ctrl.params(), "dtype": dt.name,
         "detector_dtype": ddt.name, "shear_weights": shear_weights,
         "detector_kind": detector_kind, "bank": bank,
+        "force_input": bool(force_input), "force_limit": force_limit,
     }
 
 
@@ -254,6 +262,18 @@ class MirrorPipeline:
         default ``(+1, -1)`` per ridge (the L-R stress-rate difference). A calibrated
         set (:func:`tactile_mirror.loop.experiment.calibrate_shear_weights`) stays monotonic in the
         shear where the L-R difference turns back as the ridge edges start to slide.
+    force_input : bool
+        One more input after the voltages: the pad's tangential force, N, from a load cell
+        under the pad (or the stage's force readout). The controller's shear signal is then
+        the force's change per tick times ``fs`` (N/s; the integrator holds the force since
+        the tare), not the strips' rates: the total force moves only with the relative
+        displacement, while the strips also see the tractions a friction change releases
+        inside the contact (docs/loop.md, sweat). The detector still reads the strips.
+        Calibrate with ``calibrate_shear(..., load_cell=True)`` and design with
+        ``design_loop(..., sensor="force")``. Default False.
+    force_limit : float
+        Largest valid ``|force|``, N (the load cell's range); a tick beyond it, or with a
+        NaN/Inf force, is rejected like a bad voltage. Default 100 N; must be finite.
 
     Notes
     -----
@@ -298,7 +318,9 @@ class MirrorPipeline:
                               cfg["sos_diff"], cfg["v_limit"], cfg["u_limit"], cfg["w1"], cfg["b1"],
                               cfg["w2"], cfg["b2"], cfg["input_mean"], cfg["input_gain"], cfg["weights_fs"],
                               cfg["activation"], cfg["slip_threshold"], cfg["max_hold_ticks"],
-                              dict(cfg["controller"]), cfg.get("shear_weights"), cfg.get("bank"))
+                              dict(cfg["controller"]), cfg.get("shear_weights"), cfg.get("bank"),
+                              bool(cfg.get("force_input", False)),
+                              float(cfg.get("force_limit", _DEFAULTS["force_limit"])))
         self._controller = controller_from_dict(cfg["controller"])
         # Bound C++ methods: calling them costs no Python frame.
         self.step = self._core.step
@@ -453,7 +475,9 @@ class ReferencePipeline:
         c = self.cfg
         self.R = int(c["n_ridges"])
         self.nch = 2 * self.R
-        self.n_inputs = self.nch * (2 if c["use_u"] else 1)
+        self.n_voltages = self.nch * (2 if c["use_u"] else 1)
+        self.force = bool(c.get("force_input", False))
+        self.n_inputs = self.n_voltages + (1 if self.force else 0)
         self.n_outputs = 2 + 3 * self.R
         self.ctrl = controller_from_dict(c["controller"])
         self.reset()
@@ -472,6 +496,7 @@ class ReferencePipeline:
         self.det = np.zeros((self.R, 3))
         self.feat = np.zeros((self.R, 4))
         self.law = self.ctrl._start(x0)
+        self.f_prev = None  # the last accepted force (force_input)
         self.x, self.v = self.law.x, 0.0
         self.slip = False
         self.consecutive = 0
@@ -484,9 +509,12 @@ class ReferencePipeline:
         c = self.cfg
         x = np.asarray(x, dtype=np.float64)
         nch = self.nch
+        nv = self.n_voltages
         ok = bool(np.all(np.abs(x[:nch]) <= c["v_limit"]))
         if c["use_u"]:
-            ok &= bool(np.all(np.abs(x[nch:]) <= c["u_limit"]))
+            ok &= bool(np.all(np.abs(x[nch:nv]) <= c["u_limit"]))
+        if self.force:
+            ok &= bool(abs(x[nv]) <= c["force_limit"])
         reason = "" if ok else ("nonfinite" if not np.all(np.isfinite(x)) else "out_of_range")
         if ok:
             with np.errstate(all="ignore"):  # an overflow is detected below
@@ -498,6 +526,8 @@ class ReferencePipeline:
             zv, z2, feat, p, det, bank_state = new
             sw = c.get("shear_weights")
             asym = float(np.sum(feat[:, 0] - feat[:, 1]) if sw is None else np.sum(sw * feat[:, :2]))
+            if self.force:  # the load cell's force change, as pipeline.hpp
+                asym = 0.0 if self.f_prev is None else (float(x[nv]) - self.f_prev) * c["fs"]
             slip = float(np.max(det[:, 0])) >= c["slip_threshold"]
             before = self.law.snapshot()
             if self.ctrl.kind != "none":
@@ -510,6 +540,8 @@ class ReferencePipeline:
             else:  # accepted: commit
                 self.zv, self.z2, self.feat, self.p, self.det = zv, z2, feat, p, det
                 self.bank_state = bank_state
+                if self.force:
+                    self.f_prev = float(x[nv])
                 self.out[2:] = det.ravel()
                 self.consecutive = 0
                 self.slip = slip
@@ -539,7 +571,7 @@ class ReferencePipeline:
         else:
             rate = v
         if c["use_u"]:
-            u = x[nch:, None]
+            u = x[nch:2 * nch, None]
             if z2 is not None:
                 rate2, z2 = scipy.signal.sosfilt(c["sos_u"], u, axis=-1, zi=z2)
             else:

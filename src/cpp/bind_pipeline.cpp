@@ -4,7 +4,9 @@
 // the filters and of the detector; inputs and outputs are float64 either way):
 //   __init__(n_ridges, fs, use_u, sos_v, sos_u, sos_diff, v_limit, u_limit, w1, b1, w2, b2,
 //            input_mean, input_gain, weights_fs, activation, slip_threshold, max_hold_ticks,
-//            controller, shear_weights=None, bank=None)
+//            controller, shear_weights=None, bank=None, force_input=False, force_limit=100.0)
+//   force_input: one more input after the voltages, the pad's tangential force (N), which
+//   then drives the controller's shear signal instead of the strips (pipeline.hpp)
 //   bank: None (the paper's net, w1 (H, 5)) or the filter-bank net's time constants
 //   {"lp_taus", "abs_taus", "load_tau", "peak_tau"} (w1 (H, nf + 1), nf of them)
 //   step(x, out=None) -> x_cmd     one tick; x float64 (n_inputs,), out float64 (n_outputs,)
@@ -177,7 +179,8 @@ void bind_one(py::module_& m, const char* cls) {
                          py::handle sos_diff, double v_limit, double u_limit, py::handle w1, py::handle b1,
                          py::handle w2, py::handle b2, py::handle input_mean, py::handle input_gain,
                          double weights_fs, const std::string& activation, double slip_threshold,
-                         long max_hold_ticks, py::dict controller, py::handle shear_weights, py::handle bank) {
+                         long max_hold_ticks, py::dict controller, py::handle shear_weights, py::handle bank,
+                         bool force_input, double force_limit) {
                  PipelineConfig c;
                  c.n_ridges = n_ridges;
                  c.fs = fs;
@@ -257,6 +260,8 @@ void bind_one(py::module_& m, const char* cls) {
                      c.shear_weights = asw.data();
                  }
                  c.controller = controller_from(controller);
+                 c.force_input = force_input ? 1 : 0;
+                 c.force_limit = force_limit;
                  auto pp = std::make_unique<PP>();
                  try {
                      pp->p = std::make_unique<MirrorPipeline<T, TD>>(c);
@@ -269,12 +274,14 @@ void bind_one(py::module_& m, const char* cls) {
              py::arg("sos_diff"), py::arg("v_limit"), py::arg("u_limit"), py::arg("w1"), py::arg("b1"),
              py::arg("w2"), py::arg("b2"), py::arg("input_mean"), py::arg("input_gain"), py::arg("weights_fs"),
              py::arg("activation"), py::arg("slip_threshold"), py::arg("max_hold_ticks"), py::arg("controller"),
-             py::arg("shear_weights") = py::none(), py::arg("bank") = py::none())
+             py::arg("shear_weights") = py::none(), py::arg("bank") = py::none(), py::arg("force_input") = false,
+             py::arg("force_limit") = 100.0)
         .def_property_readonly("n_ridges", [](const PP& s) { return s.p->n_ridges(); })
         .def_property_readonly("n_inputs", [](const PP& s) { return s.p->n_inputs(); })
         .def_property_readonly("n_outputs", [](const PP& s) { return s.p->n_outputs(); })
         .def_property_readonly("fs", [](const PP& s) { return s.p->fs(); })
         .def_property_readonly("use_u", [](const PP& s) { return s.p->use_u(); })
+        .def_property_readonly("force_input", [](const PP& s) { return s.p->force_input(); })
         .def_property_readonly("detector_kind", [](const PP& s) { return s.p->detector_kind(); })
         .def_property_readonly("n_detector_inputs", [](const PP& s) { return s.p->n_detector_inputs(); })
         .def_property_readonly("dtype", [](const PP&) { return py::dtype::of<T>(); })
@@ -428,10 +435,11 @@ void tm_bind_pipeline(py::module_& m) {
             d["u_limit"] = c.u_limit;
             d["slip_threshold"] = c.slip_threshold;
             d["max_hold_ticks"] = c.max_hold_ticks;
+            d["force_limit"] = c.force_limit;
             return d;
         },
         "Defaults of the pipeline configuration shared with the C ABI (v_limit, u_limit: the front end's "
-        "output swing, V).");
+        "output swing, V; force_limit: a load cell's range, N).");
     bind_one<double, double>(m, "_MirrorPipelineF64");
     bind_one<float, float>(m, "_MirrorPipelineF32");
     bind_one<double, float>(m, "_MirrorPipelineF64F32");

@@ -231,6 +231,12 @@ struct PipelineConfig {
     // nullptr: +1, -1 (the L-R stress-rate difference). (n_ridges, 2), finite.
     const double* shear_weights = nullptr;
     ControllerParams controller;
+    // 1: one more input after the voltages, the pad's tangential force (N) from a load
+    // cell under the pad (or the stage's force readout); the controller's shear signal is
+    // then its change per tick times fs (N/s), not the strips' rates. A tick whose force
+    // is NaN/Inf or beyond force_limit is rejected like a bad voltage. 0: no force input.
+    int force_input = 0;
+    double force_limit = 100.0;  // N, finite, > 0
 };
 
 struct PipelineStatus {
@@ -450,6 +456,8 @@ inline void validate_config(const PipelineConfig& c) {
     if (!(c.slip_threshold > 0.0 && c.slip_threshold < 1.0)) bad("slip_threshold must lie in (0, 1)");
     if (c.max_hold_ticks < 0) bad("max_hold_ticks must be >= 0");
     if (c.shear_weights) check_finite_array(c.shear_weights, std::size_t(2 * c.n_ridges), "shear_weights");
+    if (c.force_input != 0 && c.force_input != 1) bad("force_input must be 0 or 1, got " + std::to_string(c.force_input));
+    if (!std::isfinite(c.force_limit) || !(c.force_limit > 0.0)) bad("force_limit must be a positive finite force (N)");
     validate_controller(c.controller);
 }
 
@@ -658,6 +666,8 @@ public:
         use_u_ = c.use_u;
         v_limit_ = c.v_limit;
         u_limit_ = c.u_limit;
+        force_ = c.force_input == 1;
+        force_limit_ = c.force_limit;
         slip_threshold_ = c.slip_threshold;
         max_hold_ = c.max_hold_ticks;
         // Cascades run in the structure sosfilt would pick for T ("auto": delta
@@ -705,7 +715,11 @@ public:
     int n_ridges() const noexcept { return R_; }
     double fs() const noexcept { return fs_; }
     bool use_u() const noexcept { return use_u_; }
-    std::size_t n_inputs() const noexcept { return nch_ * (use_u_ ? 2 : 1); }
+    std::size_t n_inputs() const noexcept { return n_voltages() + (force_ ? 1 : 0); }
+    // The strips' voltages among the inputs (v_out, then u_out when sampled); the force,
+    // when there is one, follows them.
+    std::size_t n_voltages() const noexcept { return nch_ * (use_u_ ? 2 : 1); }
+    bool force_input() const noexcept { return force_; }
     std::size_t n_outputs() const noexcept { return 2 + 3 * std::size_t(R_); }
     std::size_t n_features() const noexcept { return std::size_t(R_) * kFeatures; }
     bool has_rate_filter() const noexcept { return bool(rate_f_); }
@@ -781,6 +795,8 @@ public:
         for (int r = 0; r < R_; ++r) {
             out_[2 + 3 * r + 1] = 1.0;
         }
+        f_prev_ = f_new_ = 0.0;
+        have_f_ = false;
         out_[0] = ctrl_.command();
         publish_all();
     }
@@ -806,6 +822,7 @@ public:
     double time_step_ns(long n_iter, int repeats = 5) {
         const std::size_t ni = n_inputs(), period = 1024;
         std::vector<double> x(period * ni), o(out_.size());
+        // (the force, if any, is the last input: the same smooth signal, in N)
         for (std::size_t t = 0; t < period; ++t)
             for (std::size_t c = 0; c < ni; ++c)
                 x[t * ni + c] = 1e-3 * std::sin(0.01 * double(t) * double(c + 1) + double(c));
@@ -835,6 +852,7 @@ private:
         for (std::size_t c = 0; c < nch_; ++c) ok &= std::fabs(x[c]) <= v_limit_;
         if (use_u_)
             for (std::size_t c = 0; c < nch_; ++c) ok &= std::fabs(x[nch_ + c]) <= u_limit_;
+        if (force_) ok &= std::fabs(x[n_voltages()]) <= force_limit_;
         return ok;
     }
 
@@ -844,7 +862,7 @@ private:
         bool nonfinite = false;
         int first = -1;
         for (std::size_t c = 0; c < ni; ++c) {
-            const double lim = c < nch_ ? v_limit_ : u_limit_;
+            const double lim = c < nch_ ? v_limit_ : (c < n_voltages() ? u_limit_ : force_limit_);
             const bool fin = is_finite(x[c]);
             if (!fin || std::fabs(x[c]) > lim) {
                 if (first < 0) first = int(c);
@@ -1003,7 +1021,9 @@ private:
                                : cascade(c.sos_diff, n2, std::size_t(n1), f1);
         double wsum = 0.0;  // |shear signal| <= sum |w| * (the rates' bound)
         for (int i = 0; i < 2 * c.n_ridges; ++i) wsum += c.shear_weights ? std::fabs(c.shear_weights[i]) : 1.0;
-        const Row arow = axpy(wsum / fs_ * kRoundingMargin, f1, unit(ia));
+        // With a load cell: |a'| <= |a| + |F - F_prev| <= |a| + 2 force_limit.
+        const Row arow = c.force_input == 1 ? axpy(2.0 * c.force_limit * kRoundingMargin, unit(ic), unit(ia))
+                                            : axpy(wsum / fs_ * kRoundingMargin, f1, unit(ia));
         std::copy(arow.begin(), arow.end(), m.begin() + std::ptrdiff_t(ia * d));
         if (bank_) {
             // Every bank state z is a low-pass (a z + (1 - a) x, a in [0, 1)), a leaky
@@ -1122,8 +1142,8 @@ private:
     }
     TM_ALWAYS_INLINE bool inputs_small(const double* x) const noexcept {
         if (inputs_bounded_) return true;  // the sample limits already bound them
-        bool ok = true;
-        for (std::size_t c = 0, n = n_inputs(); c < n; ++c) ok &= std::fabs(x[c]) <= input_bound_;
+        bool ok = true;  // (the voltages: a force enters the bounds by its own limit)
+        for (std::size_t c = 0, n = n_voltages(); c < n; ++c) ok &= std::fabs(x[c]) <= input_bound_;
         return ok;
     }
 
@@ -1138,6 +1158,10 @@ private:
             asym += shear_w_[2 * r] * double(feat_[kFeatures * r + 0]) +
                     shear_w_[2 * r + 1] * double(feat_[kFeatures * r + 1]);
         }
+        // With a load cell the shear signal is the force's change: (F - F_prev) fs, so
+        // that the integrator holds the force since the tare. Across rejected ticks
+        // F_prev is the last accepted force, and the integral stays whole.
+        if (force_) asym = have_f_ ? (f_new_ - f_prev_) * fs_ : 0.0;
         const bool slip = accepted ? ys >= slip_threshold_ : st_.slip;
         const bool fault = accepted ? false : st_.fault;
         *slip_now = slip;
@@ -1219,6 +1243,10 @@ private:
         return why == RejectReason::none;
     }
     TM_ALWAYS_INLINE void accept(bool slip) noexcept {
+        if (force_) {
+            f_prev_ = f_new_;
+            have_f_ = true;
+        }
         counters_changed_ |= st_.consecutive_rejected != 0;
         st_.consecutive_rejected = 0;
         st_.fault = false;
@@ -1253,6 +1281,7 @@ private:
 
     // Samples -> features (n_ridges, 4).
     TM_ALWAYS_INLINE void estimate(const double* x) noexcept {
+        if (force_) f_new_ = x[n_voltages()];
         const T* xv;
         const T* xu;
         if constexpr (std::is_same<T, double>::value) {
@@ -1295,6 +1324,8 @@ private:
         std::vector<double> out;
         StageController ctrl;
         PipelineStatus st;
+        double f_prev = 0.0;
+        bool have_f = false;
     };
     Snapshot save() const {
         Snapshot s;
@@ -1314,6 +1345,8 @@ private:
         s.out = out_;
         s.ctrl = ctrl_;
         s.st = st_;
+        s.f_prev = f_prev_;
+        s.have_f = have_f_;
         return s;
     }
     void restore(const Snapshot& s) noexcept {
@@ -1326,6 +1359,8 @@ private:
         out_ = s.out;
         ctrl_ = s.ctrl;
         st_ = s.st;
+        f_prev_ = s.f_prev;
+        have_f_ = s.have_f;
     }
 
     int R_ = 0;
@@ -1334,6 +1369,10 @@ private:
     bool use_u_ = true;
     double v_limit_ = 0.0, u_limit_ = 0.0, slip_threshold_ = 0.8;
     long max_hold_ = 0;
+    bool force_ = false;        // a load cell's force is the last input (force_input)
+    double force_limit_ = 0.0;  // N
+    double f_new_ = 0.0, f_prev_ = 0.0;  // this tick's force; the last accepted one
+    bool have_f_ = false;                // f_prev_ holds an accepted force
     std::unique_ptr<SosCascade<T>> rate_f_, rate2_f_;
     std::unique_ptr<Mlp> mlp_own_;  // the paper's net (detector_kind 0)
     std::unique_ptr<Bank> bank_;    // the filter-bank net (detector_kind 1)

@@ -3,7 +3,8 @@
  * One pipeline turns, once per tick, the sampled PVDF circuit outputs of the pad's
  * ridges into slip-detector outputs and a stage command:
  *
- *   x   = [v_L0, v_R0, v_L1, v_R1, ..., (u_L0, u_R0, ... when use_u)]   (n_inputs)
+ *   x   = [v_L0, v_R0, v_L1, v_R1, ..., (u_L0, u_R0, ... when use_u), (force, N, when force_input)]
+ *         (n_inputs)
  *   out = [x_cmd (m), v_cmd (m/s), y_slip_0, y_non_0, y_pred_0, y_slip_1, ...]
  *                                                          (n_outputs = 2 + 3 n_ridges)
  *
@@ -79,8 +80,10 @@ extern "C" {
  * controller's planner_decel (appended to tm_config: tm_controller_params is no longer
  * its last member), and the command leads a planning stage's target when it is > 0.
  * 8: bank_knee (appended to tm_config): the filter-bank net's compressed inputs.
- * 9: bank_pad_mean (appended to tm_config): the filter-bank net that also reads the pad's mean. */
-#define TM_ABI_VERSION 9
+ * 9: bank_pad_mean (appended to tm_config): the filter-bank net that also reads the pad's mean.
+ * 10: force_input, force_limit (appended to tm_config): a load cell's force as the last input,
+ * the controller's shear signal. */
+#define TM_ABI_VERSION 10
 
 typedef enum tm_status_code {
     TM_OK = 0,
@@ -187,6 +190,12 @@ typedef struct tm_config {
                               * features over the ridges (the same for every ridge), after each ridge's own: its
                               * inputs (w1's columns, input_mean, input_gain, bank_knee) are twice the features
                               * (the bank's "pad_mean" in a weights file of kind "jordan_bank") */
+    /* ABI 10 (appended) */
+    int32_t force_input;     /* 0 (default) or 1: one more input after the voltages, the pad's tangential force
+                              * in N (a load cell under the pad, or the stage's force readout); the controller's
+                              * shear signal is then the force's change per tick times fs (N/s), not the strips'
+                              * rates: a force has no partial-slip phantom (docs/loop.md). n_inputs grows by 1 */
+    double force_limit;      /* N, finite, > 0 (default 100): |force| above it rejects the tick, as a bad voltage */
 } tm_config;
 
 typedef struct tm_pipeline_status {

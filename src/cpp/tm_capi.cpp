@@ -221,18 +221,21 @@ int32_t tm_controller_defaults(int32_t kind, tm_controller_params* params) {
 // ABI 5: slip_confirm at the end of the controller, shear_weights after it; ABI 6:
 // detector_kind and the filter bank's time constants; ABI 7: planner_decel, a controller
 // parameter kept in tm_config's tail, TM_CONTROLLER_TAIL_FIELDS; ABI 8: bank_knee; ABI 9:
-// bank_pad_mean). A struct of ABI 4 ends where slip_confirm begins, one of ABI 5 where
-// detector_kind begins, one of ABI 6 where planner_decel begins, one of ABI 7 where
-// bank_knee begins, one of ABI 8 where bank_pad_mean begins.
+// bank_pad_mean; ABI 10: force_input, force_limit). A struct of ABI 4 ends where slip_confirm
+// begins, one of ABI 5 where detector_kind begins, one of ABI 6 where planner_decel begins,
+// one of ABI 7 where bank_knee begins, one of ABI 8 where bank_pad_mean begins, one of ABI 9
+// where force_input begins.
 constexpr std::size_t kConfigSizeAbi2 = offsetof(tm_config, controller) + offsetof(tm_controller_params, shear_integral);
 constexpr std::size_t kConfigSizeAbi4 = offsetof(tm_config, controller) + offsetof(tm_controller_params, slip_confirm);
 constexpr std::size_t kConfigSizeAbi5 = offsetof(tm_config, detector_kind);
 constexpr std::size_t kConfigSizeAbi6 = offsetof(tm_config, planner_decel);
 constexpr std::size_t kConfigSizeAbi7 = offsetof(tm_config, bank_knee);
 constexpr std::size_t kConfigSizeAbi8 = offsetof(tm_config, bank_pad_mean);
+constexpr std::size_t kConfigSizeAbi9 = offsetof(tm_config, force_input);
 static_assert(kConfigSizeAbi2 < kConfigSizeAbi4 && kConfigSizeAbi4 < kConfigSizeAbi5 &&
               kConfigSizeAbi5 < kConfigSizeAbi6 && kConfigSizeAbi6 < kConfigSizeAbi7 &&
-              kConfigSizeAbi7 < kConfigSizeAbi8 && kConfigSizeAbi8 < sizeof(tm_config), "tm_config only grows");
+              kConfigSizeAbi7 < kConfigSizeAbi8 && kConfigSizeAbi8 < kConfigSizeAbi9 &&
+              kConfigSizeAbi9 < sizeof(tm_config), "tm_config only grows");
 
 static void config_defaults(tm_config* cfg) noexcept {
     std::memset(cfg, 0, sizeof *cfg);
@@ -249,6 +252,8 @@ static void config_defaults(tm_config* cfg) noexcept {
     cfg->activation = 0;
     cfg->slip_threshold = d.slip_threshold;
     cfg->max_hold_ticks = d.max_hold_ticks;
+    cfg->force_input = d.force_input;
+    cfg->force_limit = d.force_limit;
     controller_to_c(tactile::default_controller(tactile::ControllerKind::none), &cfg->controller);
     const tactile::ControllerParams dc = tactile::default_controller(tactile::ControllerKind::none);
 #define TM_TAIL_DEFAULT(name, def, laws, doc) cfg->name = dc.name;
@@ -259,6 +264,7 @@ static void config_defaults(tm_config* cfg) noexcept {
 // The newest ABI whose tm_config fits in `size` bytes (sizes of the accepted range).
 static uint32_t abi_for_size(std::size_t size) noexcept {
     if (size >= sizeof(tm_config)) return TM_ABI_VERSION;
+    if (size >= kConfigSizeAbi9) return 9;
     if (size >= kConfigSizeAbi8) return 8;
     if (size >= kConfigSizeAbi7) return 7;
     if (size >= kConfigSizeAbi6) return 6;
@@ -348,6 +354,8 @@ int32_t tm_pipeline_create(const tm_config* user_cfg, tm_pipeline* out) {
     c.bank_peak_tau = cfg->bank_peak_tau;
     c.bank_knee = cfg->bank_knee;  // NULL (its default) in a struct of ABI 7 or earlier
     c.bank_pad_mean = cfg->bank_pad_mean;  // 0 (its default) in a struct of ABI 8 or earlier
+    c.force_input = cfg->force_input;      // 0 and 100 N (the defaults) in a struct of ABI 9 or earlier
+    c.force_limit = cfg->force_limit;
     // The sample-rate check first, with its own code.
     if (std::isfinite(c.fs) && c.fs > 0 && std::isfinite(c.weights_fs) && c.weights_fs > 0 &&
         std::fabs(c.fs - c.weights_fs) > 1e-9 * c.fs)

@@ -234,6 +234,9 @@ class CPipeline:
             if bank.get("knee") is not None:
                 cfg.bank_knee = arr(np.asarray(bank["knee"], dtype=np.float64))[0]
             cfg.bank_pad_mean = 1 if bank.get("pad_mean") else 0
+        cfg.force_input = 1 if c.get("force_input") else 0
+        if c.get("force_limit") is not None:
+            cfg.force_limit = float(c["force_limit"])
         ctrl = c["controller"]
         cfg.controller.kind = _CTRL_KINDS[ctrl["kind"]]
         for k, v in ctrl.items():

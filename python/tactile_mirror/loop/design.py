@@ -106,7 +106,7 @@ def _positive(value, name: str, allow_zero: bool = False) -> float:
 
 def loop_response(f, kp: float, z: float, kv: float, fs: float, delay: float, lag: float,
                   estimator_order: int = 2, estimator_bandwidth: float = 100.0, asym_tau: float = 20.0,
-                  circuit: PVDFCircuit | None = None) -> np.ndarray:
+                  circuit: PVDFCircuit | None = None, sensor: str = "strips") -> np.ndarray:
     """Open-loop frequency response ``L(j 2 pi f)`` of the shear loop (see the module docstring).
 
     Parameters
@@ -123,6 +123,10 @@ def loop_response(f, kp: float, z: float, kv: float, fs: float, delay: float, la
         The pipeline's stress-rate estimator (:class:`~tactile_mirror.estimator.StressRateEstimator`).
     asym_tau : float
         Leak of the asymmetry integrator, s.
+    sensor : {"strips", "force"}
+        What the shear signal is made of: the strips' stress rates through the circuit and
+        the estimator (default), or a load cell's force, whose change per tick (a backward
+        difference, ``(1 - z^-1) fs``) is the rate; the estimator's settings then play no part.
 
     Returns
     -------
@@ -133,10 +137,15 @@ def loop_response(f, kp: float, z: float, kv: float, fs: float, delay: float, la
     dt = 1.0 / fs
     w = 2 * np.pi * f
     zz = np.exp(1j * w * dt)
-    # stress -> v_out (analog circuit) -> rate (equaliser): k_a de/dt through the low-pass
-    sos = equalizer_sos(circuit, fs, "v", estimator_order, estimator_bandwidth)
-    _, eq = scipy.signal.sosfreqz(sos, worN=f, fs=fs)
-    rate = circuit.response(f, "v") * eq          # rate per unit stress, ~ j w at low f
+    if sensor == "force":
+        rate = (1.0 - 1.0 / zz) * fs               # the force's change per tick, ~ j w at low f
+    elif sensor == "strips":
+        # stress -> v_out (analog circuit) -> rate (equaliser): k_a de/dt through the low-pass
+        sos = equalizer_sos(circuit, fs, "v", estimator_order, estimator_bandwidth)
+        _, eq = scipy.signal.sosfreqz(sos, worN=f, fs=fs)
+        rate = circuit.response(f, "v") * eq          # rate per unit stress, ~ j w at low f
+    else:
+        raise ValueError(f"sensor must be 'strips' or 'force', got {sensor!r}")
     leak = math.exp(-dt / asym_tau)
     m = rate * dt * zz / (zz - leak)               # a / k_a per unit e
     integ = dt * zz / (zz - 1.0)                   # Euler integrator (w, and the position target)
@@ -183,6 +192,8 @@ class LoopDesign:
         lag, estimator group delay (at 1 Hz) and their sum.
     fs, stage_delay, stage_lag, estimator_order, estimator_bandwidth, asym_per_m : float
         What it was designed from.
+    sensor : str
+        ``"strips"`` or ``"force"`` (a load cell): what the shear signal is made of.
     """
 
     controller: VelocityController
@@ -202,11 +213,13 @@ class LoopDesign:
     asym_per_m: float
     limits: StageLimits = field(repr=False, default=StageLimits(-0.02, 0.02, 0.03, 1.0))
     shear_weights: np.ndarray | None = field(repr=False, compare=False, default=None)
+    sensor: str = "strips"
 
     def pipeline_kwargs(self) -> dict:
         """What :class:`~tactile_mirror.MirrorPipeline` takes from the design:
-        ``controller`` and ``shear_weights`` (the signal the gains were designed on)."""
-        return {"controller": self.controller, "shear_weights": self.shear_weights}
+        ``controller``, ``shear_weights`` and ``force_input`` (the signal the gains were designed on)."""
+        return {"controller": self.controller, "shear_weights": self.shear_weights,
+                "force_input": self.sensor == "force"}
 
     @property
     def acceleration_constant(self) -> float:
@@ -216,7 +229,8 @@ class LoopDesign:
     def loop(self, f) -> np.ndarray:
         """``L(j 2 pi f)`` (see :func:`loop_response`)."""
         return loop_response(f, self.kp, self.z, self.kv, self.fs, self.stage_delay, self.stage_lag,
-                             self.estimator_order, self.estimator_bandwidth, self.controller.asym_tau)
+                             self.estimator_order, self.estimator_bandwidth, self.controller.asym_tau,
+                             sensor=self.sensor)
 
     def sensitivity(self, f) -> np.ndarray:
         """``S = 1 / (1 + L)``: relative displacement per unit of finger motion."""
@@ -269,6 +283,7 @@ class LoopDesign:
                 "v_max": self.controller.v_max, "a_max": self.controller.a_max,
                 "planner_decel": self.controller.planner_decel,
                 "shear_weights": None if self.shear_weights is None else self.shear_weights.tolist(),
+                "sensor": self.sensor,
                 "error_mm_peak_sine": {f"{v * 1e3:g} mm/s, {a:g} m/s^2": e for (v, a), e in self.error_table().items()}}
 
 
@@ -293,7 +308,8 @@ def _estimator_group_delay(fs, order, bandwidth, f0=1.0):
 def design_loop(limits: StageLimits, calibration, fs: float, *, stage_delay: float, stage_lag: float,
                 estimator_order: int = 2, estimator_bandwidth: float = 100.0, arm_delay: float = 0.5,
                 phase_margin: float = 45.0, gain_margin: float = 6.0, max_sensitivity: float = 2.0,
-                asym_tau: float = 1.0, shear_weights=None, planner: bool = True) -> LoopDesign:
+                asym_tau: float = 1.0, shear_weights=None, planner: bool = True,
+                sensor: str = "strips") -> LoopDesign:
     """Design the default shear loop from the stage's data sheet, the calibration and the rate.
 
     Parameters
@@ -302,7 +318,9 @@ def design_loop(limits: StageLimits, calibration, fs: float, *, stage_delay: flo
         The stage's travel (m), speed (m/s) and acceleration (m/s^2) limits.
     calibration : tuple (direction_sign, asym_per_m)
         From :func:`tactile_mirror.loop.experiment.calibrate_shear`: the stage direction for
-        a positive asymmetry (+1/-1) and the asymmetry per metre of relative displacement (> 0).
+        a positive asymmetry (+1/-1) and the asymmetry per metre of relative displacement (> 0);
+        with ``sensor="force"``, ``calibrate_shear(..., load_cell=True)``: the force per metre
+        (the contact's tangential stiffness, N/m).
     fs : float
         Tick rate, Hz.
     stage_delay, stage_lag : float
@@ -331,6 +349,12 @@ def design_loop(limits: StageLimits, calibration, fs: float, *, stage_delay: flo
         stage controllers' point-to-point moves), so the law leads its command by the
         braking distance (``planner_decel = limits.a_max``; see the module docstring).
         False: the stage follows the command as a streamed set point (``planner_decel = 0``).
+    sensor : {"strips", "force"}
+        The shear signal the pipeline gives the law: the strips' (default) or a load cell's
+        force under the pad (``MirrorPipeline(force_input=True)``, :func:`loop_response`). The
+        force has no estimator delay (half a tick of backward difference instead of the
+        equaliser's group delay), and it holds through a friction change under load, where the
+        strips do not (module docstring).
 
     Returns
     -------
@@ -362,6 +386,8 @@ def design_loop(limits: StageLimits, calibration, fs: float, *, stage_delay: flo
         raise ValueError(f"limits must bracket 0 (the start position), got [{limits.x_min}, {limits.x_max}]")
     if not isinstance(planner, (bool, np.bool_)):
         raise TypeError(f"planner must be True or False, got {type(planner).__name__}")
+    if sensor not in ("strips", "force"):
+        raise ValueError(f"sensor must be 'strips' or 'force', got {sensor!r}")
 
     f = np.geomspace(0.05, 0.499 * fs, 1500)
     best = None
@@ -371,7 +397,7 @@ def design_loop(limits: StageLimits, calibration, fs: float, *, stage_delay: flo
             for _ in range(30):  # bisection on Kp (margins shrink with Kp past the optimum)
                 kp = math.sqrt(lo * hi)
                 L = loop_response(f, kp, ratio * kp, kv, fs, stage_delay, stage_lag, estimator_order,
-                                  estimator_bandwidth, asym_tau)
+                                  estimator_bandwidth, asym_tau, sensor=sensor)
                 fc, pm, gm, ms = _margins(f, L)
                 if pm >= phase_margin and gm >= gain_margin and ms <= max_sensitivity:
                     lo, ok = kp, (kp, fc, pm, gm, ms)
@@ -405,11 +431,12 @@ def design_loop(limits: StageLimits, calibration, fs: float, *, stage_delay: flo
                               slip_confirm=slip_confirm, slip_min_asym=slip_min_asym,
                               shear_gain=kp / a_per_m, ramp_gain=0.0, pred_boost=0.0, shear_integral=z,
                               rate_gain=kv / a_per_m, planner_decel=limits.a_max if planner else 0.0)
-    gd = _estimator_group_delay(fs, estimator_order, estimator_bandwidth)
+    gd = _estimator_group_delay(fs, estimator_order, estimator_bandwidth) if sensor == "strips" else 0.5 / fs
     delays = {"stage_dead_time": stage_delay, "command_tick": 1.0 / fs, "stage_lag": stage_lag,
               "estimator_group_delay": gd, "total": stage_delay + 1.0 / fs + stage_lag + gd}
     return LoopDesign(controller=ctrl, kp=kp, z=z, kv=kv, crossover_hz=fc, phase_margin_deg=pm,
                       gain_margin_db=gm, max_sensitivity=ms, delays=delays, fs=fs, stage_delay=stage_delay,
                       stage_lag=stage_lag, estimator_order=int(estimator_order),
                       estimator_bandwidth=float(estimator_bandwidth), asym_per_m=a_per_m, limits=limits,
-                      shear_weights=None if shear_weights is None else np.array(shear_weights, dtype=np.float64))
+                      shear_weights=None if shear_weights is None else np.array(shear_weights, dtype=np.float64),
+                      sensor=sensor)

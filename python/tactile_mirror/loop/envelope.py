@@ -77,7 +77,12 @@ CONDITIONS: dict[str, dict] = {
     "sweat mu 0.40": {"mu_change": (1.75, 0.40)},
 }
 
-_LAWS = ("open loop", "paper", "default")
+#: The laws an envelope can run: no loop, the paper's law, the default law on the strips, and the
+#: default law designed for and run on a load cell under the pad (the scene gets one:
+#: ``LoopScene.load_cell``; ``MirrorPipeline(force_input=True)``).
+_LAWS = ("open loop", "paper", "default", "load cell")
+#: What :func:`run_envelope` and ``tactile-mirror loop envelope`` run unless told otherwise.
+DEFAULT_LAWS = ("open loop", "paper", "default")
 
 
 def _key(row) -> tuple:
@@ -94,8 +99,12 @@ def _laws(weights, fs, limits, delay, lag, n_ridges, plant):
     cal = calibrate_shear(weights, fs, n_ridges, plant=plant, shear_weights=sw)
     design = design_loop(limits, cal, fs, stage_delay=delay, stage_lag=lag,
                          arm_delay=0.5 if plant == "fem" else 0.0, shear_weights=sw)
+    # The same design rules on a load cell's force (calibrated as the strips are: the finger
+    # pushed after the press; nothing from a finger path).
+    cell = design_loop(limits, calibrate_shear(weights, fs, n_ridges, plant=plant, load_cell=True), fs,
+                       stage_delay=delay, stage_lag=lag, arm_delay=0.5 if plant == "fem" else 0.0, sensor="force")
     paper = make_laws(weights, fs, plant, n_ridges)[0]["paper"]
-    return {"open loop": None, "paper": paper, "default": design.controller}, design
+    return {"open loop": None, "paper": paper, "default": design.controller, "load cell": cell.controller}, design
 
 
 def _settle_after_slips(res, fs, window: float = 0.1) -> dict:
@@ -119,7 +128,8 @@ def _settle_after_slips(res, fs, window: float = 0.1) -> dict:
 
 
 def run_envelope(out: str, speeds: Sequence[float] = (0.002, 0.005, 0.01, 0.02), n_seeds: int = 10,
-                 conditions: Sequence[str] = ("nominal",), laws: Sequence[str] = _LAWS, paths: PathSet = REPORT_PATHS,
+                 conditions: Sequence[str] = ("nominal",), laws: Sequence[str] = DEFAULT_LAWS,
+                 paths: PathSet = REPORT_PATHS,
                  plant: str = "fem", duration: float = 3.0, fs: float = 1000.0,
                  limits: StageLimits | None = None, stage_delay: float = 0.001, stage_lag: float = 0.002,
                  n_ridges: int = 6, weights=None, progress: bool = True) -> dict:
@@ -136,7 +146,8 @@ def run_envelope(out: str, speeds: Sequence[float] = (0.002, 0.005, 0.01, 0.02),
     conditions : sequence of str
         Keys of :data:`CONDITIONS`.
     laws : sequence of str
-        Among ``"open loop"``, ``"paper"``, ``"default"``.
+        Among ``"open loop"``, ``"paper"``, ``"default"`` (these three by default) and ``"load cell"``
+        (the default law's design on a load cell's force; its scenes get the cell).
     paths : PathSet
         :data:`REPORT_PATHS` (default) or :data:`TUNING_PATHS`.
     limits : StageLimits
@@ -178,7 +189,7 @@ def run_envelope(out: str, speeds: Sequence[float] = (0.002, 0.005, 0.01, 0.02),
     t0 = time.monotonic()
     for i, (c, v, s, name) in enumerate(todo):
         sc = LoopScene(seed=s, duration=duration, fs=fs, plant=plant, trajectory=paths.trajectory(v),
-                       label=c, **CONDITIONS[c])
+                       label=c, load_cell=name == "load cell", **CONDITIONS[c])
         res = run_scene(sc, w, law_objs[name], limits=limits, n_ridges=n_ridges,
                         shear_weights=design.shear_weights if name == "default" else None)
         sm = res.summary()
@@ -243,7 +254,8 @@ def envelope_figure(data, path: str, paths: str = "report") -> None:
 
     table = [t for t in envelope_table(data["rows"]) if t["paths"] == paths]
     fig, (ax1, ax2) = plt.subplots(1, 2, figsize=(11, 4.2))
-    styles = {"open loop": ("0.5", "o"), "paper": ("tab:orange", "s"), "default": ("tab:blue", "^")}
+    styles = {"open loop": ("0.5", "o"), "paper": ("tab:orange", "s"), "default": ("tab:blue", "^"),
+              "load cell": ("tab:green", "D")}
     conds = sorted({t["condition"] for t in table}, key=lambda c: list(CONDITIONS).index(c))
     for ci, c in enumerate(conds):
         for law in _LAWS:

@@ -101,20 +101,24 @@ PLANTS: dict[str, dict[str, Any]] = {
 }
 
 
-def calibrate_shear(weights, fs: float = 1000.0, n_ridges: int = 6, plant: str = "brush", shear_weights=None):
+def calibrate_shear(weights, fs: float = 1000.0, n_ridges: int = 6, plant: str = "brush", shear_weights=None,
+                    load_cell: bool = False):
     """Push the finger slowly to +y (after the press for the FEM pad) and read the
     pipeline's L/R asymmetry: returns ``(direction_sign, asymmetry per metre)``, the sign
     that makes the stage move to +y and the size of the shear signal per metre of
     relative displacement (to scale ``shear_gain``). With ``shear_weights`` the shear
-    signal is that weighted sum (:func:`calibrate_shear_weights`)."""
+    signal is that weighted sum (:func:`calibrate_shear_weights`); with ``load_cell`` it is
+    the load cell's force (:class:`~tactile_mirror.loop.scene.LoopScene`'s, with its noise),
+    and the size the contact's tangential stiffness, N/m."""
     push = 20e-6 if plant == "fem" else 2e-4
     n = int(0.2 * fs)
-    scene = LoopScene(duration=0.7 if plant == "fem" else 0.2, fs=fs, label="calibration", plant=plant)
+    scene = LoopScene(duration=0.7 if plant == "fem" else 0.2, fs=fs, label="calibration", plant=plant,
+                      load_cell=load_cell)
     n0 = round(scene.press * fs) if plant == "fem" else 0
     finger = np.concatenate([np.zeros(n0), np.linspace(0, push, n)])
     source = PlantSource(scene, _make_plant(scene, n_ridges), PVDFCircuit(), finger)
     ctrl = PaperController(threshold=0.99, gain=0.0, asym_tau=100.0)
-    pipe = loop_pipeline(weights, fs, ctrl, n_ridges, shear_weights)
+    pipe = loop_pipeline(weights, fs, ctrl, n_ridges, shear_weights, force_input=load_cell)
     runner = LoopRunner(pipe, SimulatedStage(), source, command=False)
     if n0:
         runner.run(n_ticks=n0)

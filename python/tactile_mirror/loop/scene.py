@@ -60,6 +60,13 @@ class LoopScene:
     trajectory: dict = field(default_factory=dict)
     plant: str = "brush"                 # "brush" (BrushRidges) or "fem" (tactile_mirror.contact.Pad)
     press: float = 0.5                   # fem: the finger presses in for this long before moving, s
+    # A load cell between stage and pad: its reading, the pad's tangential force (N), is one more
+    # sample after the voltages (MirrorPipeline(force_input=True)): the finger's force on the pad
+    # minus the pad's inertia (pad_mass times its acceleration), plus white noise (N rms; 2 mN:
+    # a 10 N miniature cell on a 24-bit bridge ADC at 1 kHz).
+    load_cell: bool = False
+    load_cell_noise: float = 2e-3
+    pad_mass: float = 0.02               # kg: pad and ridges on the cell
 
     def __post_init__(self) -> None:
         # (a negative friction or stiffness, or a drop rate above 1, ran and gave numbers)
@@ -67,8 +74,10 @@ class LoopScene:
             raise ValueError(f"seed must be a non-negative integer, got {self.seed!r}")
         real_number(self.duration, "duration", unit="s", positive=True)
         real_number(self.fs, "fs", unit="Hz", positive=True)
-        for name in ("noise", "stage_delay", "stage_lag", "press"):
+        for name in ("noise", "stage_delay", "stage_lag", "press", "load_cell_noise", "pad_mass"):
             real_number(getattr(self, name), name, nonnegative=True)
+        if not isinstance(self.load_cell, (bool, np.bool_)):
+            raise TypeError(f"load_cell must be True or False, got {type(self.load_cell).__name__}")
         if not 0 <= real_number(self.drop_rate, "drop_rate") < 1:
             raise ValueError(f"drop_rate must lie in [0, 1), got {self.drop_rate!r}")
         if self.mu is not None:
@@ -111,7 +120,8 @@ class PlantSource:
     the mount's give under ``force_y`` for a compliant mounting), feeds the strips'
     change of load since the first tick (the static normal preload is no change of
     stress) through the circuit's streaming form and returns ``[v_out, u_out]`` (V,
-    2 n_ridges each; NaN for a dropped tick). Everything is logged in :attr:`log`.
+    2 n_ridges each; NaN for a dropped tick), and with ``scene.load_cell`` the load
+    cell's force (N) after them. Everything is logged in :attr:`log`.
     """
 
     def __init__(self, scene: LoopScene, plant: ContactPlant, circuit: PVDFCircuit, finger: np.ndarray):
@@ -130,6 +140,11 @@ class PlantSource:
         self._stress0: np.ndarray | None = None
         self._mu0: float | np.ndarray | None = None
         self._mu_done = False
+        # the load cell's noise has its own generator: the other draws stay as without it
+        self._cell_rng = np.random.default_rng(20_000 + scene.seed) if scene.load_cell else None
+        self._pads = [0.0, 0.0]  # the pad's last two positions (its acceleration for the cell)
+        if scene.load_cell:
+            self.log["load_cell"] = np.zeros(n)
 
     def read(self, stage_position: float, t: float):
         k = self.k
@@ -166,6 +181,13 @@ class PlantSource:
         lg["u_out"][:, :, k] = u.reshape(-1, 2)
         self.k += 1
         x = np.concatenate([v, u])
+        if sc.load_cell:
+            # the cell carries the pad: it reads the finger's force minus the pad's inertia
+            acc = (pad - 2.0 * self._pads[1] + self._pads[0]) * sc.fs ** 2 if k >= 2 else 0.0
+            self._pads = [self._pads[1], pad]
+            f = st.force_y - sc.pad_mass * acc + sc.load_cell_noise * self._cell_rng.standard_normal()
+            lg["load_cell"][k] = f
+            x = np.append(x, f)
         if sc.drop_rate > 0 and self.rng.random() < sc.drop_rate:
             x[:] = np.nan
         return x
@@ -225,14 +247,16 @@ class SceneResult:
                 "rejected": int(self.status.get("rejected", 0))}
 
 
-def loop_pipeline(weights, fs: float, controller: Controller, n_ridges: int, shear_weights=None):
+def loop_pipeline(weights, fs: float, controller: Controller, n_ridges: int, shear_weights=None,
+                  force_input: bool = False):
     """The pipeline of the experiment: 2nd-order 100 Hz estimator, fast activation, 50-tick hold;
-    ``shear_weights`` (n_ridges, 2) for the controller's shear signal (default: L - R)."""
+    ``shear_weights`` (n_ridges, 2) for the controller's shear signal (default: L - R);
+    ``force_input``: a load cell's force drives it instead (``LoopScene.load_cell``)."""
     from ..pipeline import MirrorPipeline
 
     est = StressRateEstimator(PVDFCircuit(), fs, 2 * n_ridges, order=2, bandwidth=100.0)
     return MirrorPipeline(weights, fs, n_ridges, estimator=est, controller=controller, activation="fast",
-                          max_hold_ticks=50, shear_weights=shear_weights)
+                          max_hold_ticks=50, shear_weights=shear_weights, force_input=force_input)
 
 
 def run_scene(scene: LoopScene, weights, controller: Controller | None, limits: StageLimits | None = None,
@@ -260,7 +284,7 @@ def run_scene(scene: LoopScene, weights, controller: Controller | None, limits: 
         raise ValueError(f"plant must have n_ridges = {n_ridges} ridges, got {plant.n_ridges}")
     source = PlantSource(scene, plant, PVDFCircuit(), finger)
     stage = SimulatedStage(limits, delay=scene.stage_delay, lag=scene.stage_lag)
-    pipe = loop_pipeline(weights, scene.fs, controller, n_ridges, shear_weights)
+    pipe = loop_pipeline(weights, scene.fs, controller, n_ridges, shear_weights, force_input=scene.load_cell)
     closed = controller.kind != "none"
     res = LoopRunner(pipe, stage, source, realtime=realtime, command=closed).run(n_ticks=finger.size, x0=0.0)
     log = source.log
