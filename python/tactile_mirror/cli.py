@@ -552,7 +552,7 @@ def build_parser() -> argparse.ArgumentParser:
                            help="peak finger speeds of the classes, mm/s (default: 2,5,10,20)")
             q.add_argument("--seeds", type=_positive(int), default=10, help="paths per class (default: 10)")
             q.add_argument("--conditions", type=_names(list(CONDITIONS)), default=["nominal"],
-                           help=f"comma-separated subset of: {', '.join(CONDITIONS)} (default: nominal)")
+                           help=f"comma-separated subset of: {', '.join(CONDITIONS).replace('%', '%%')} (default: nominal)")
             q.add_argument("--laws", type=_names(list(_LAWS)), default=list(DEFAULT_LAWS),
                            help="comma-separated subset of: open loop,paper,default,load cell (the default law "
                                 "on a load cell under the pad) (default: open loop,paper,default)")
