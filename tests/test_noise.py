@@ -230,7 +230,22 @@ def test_notch_runs_in_the_streaming_sos_path():
 
 @pytest.mark.parametrize("kwargs, name", [({"notch": 600.0}, "notch"), ({"notch": 0.0}, "notch"),
                                           ({"notch": ()}, "notch"), ({"notch": "50"}, "notch"),
-                                          ({"notch": 50.0, "notch_q": 0.0}, "notch_q")])
+                                          ({"notch": 50.0, "notch_q": 0.0}, "notch_q"),
+                                          # a band reaching fs/2 (or beyond): scipy's sections ran and
+                                          # zeroed the whole output, or had poles on the unit circle
+                                          ({"notch": FS / 4, "notch_q": 0.5}, "notch_q"),
+                                          ({"notch": 50.0, "notch_q": 0.1}, "notch_q"),
+                                          ({"notch": (50.0, 100.0, 50.0)}, "notch names 50 Hz twice"),
+                                          ({"notch": list(range(1, 80))}, "notch: 79 notches")])
 def test_bad_notch_names_the_argument(kwargs, name):
     with pytest.raises((ValueError, TypeError), match=name):
         StressRateEstimator(PVDFCircuit(), FS, 1, **kwargs)
+    if "notch_q" in kwargs and kwargs["notch_q"] > 0:
+        with pytest.raises(ValueError, match="notch_q"):
+            notch_sos(FS, kwargs["notch"], kwargs["notch_q"])
+
+
+def test_notch_just_inside_its_bound_is_stable():
+    # the lowest legal Q at fs/4: its poles stay inside the unit circle
+    est = StressRateEstimator(PVDFCircuit(), FS, 1, notch=FS / 4, notch_q=0.51)
+    assert np.all(np.abs(np.roots(est.sos_notch[0, 3:])) < 1)

@@ -187,12 +187,22 @@ def _notch_freqs(notch, fs: float) -> tuple[float, ...]:
         f = float(f)
         if not (math.isfinite(f) and 0 < f < fs / 2):
             raise ValueError(f"notch frequencies must lie in (0, fs/2) = (0, {fs / 2}) Hz, got {notch!r}")
+        if f in out:
+            raise ValueError(f"notch names {f:g} Hz twice, got {notch!r}")
         out.append(f)
     return tuple(out)
 
 
-def _check_notch_q(q) -> float:
-    return real_number(q, "notch_q", positive=True)
+def _check_notch_q(q, freqs=(), fs=None) -> float:
+    q = real_number(q, "notch_q", positive=True)
+    for f0 in freqs:
+        # the notch's -3 dB band, f0 / q wide, must fit between 0 and fs/2: a wider one has
+        # its poles on the unit circle or beyond (scipy's iirnotch returns such sections,
+        # and one of them zeroes the whole output)
+        if not f0 / q < 2.0 * min(f0, fs / 2 - f0):
+            raise ValueError(f"notch_q = {q:g} makes the {f0:g} Hz notch {f0 / q:g} Hz wide: its band must fit "
+                             f"between 0 and fs/2 = {fs / 2:g} Hz (notch_q > {f0 / (2.0 * min(f0, fs / 2 - f0)):g})")
+    return q
 
 
 def notch_sos(fs: float, notch, notch_q: float = 30.0) -> np.ndarray:
@@ -206,7 +216,9 @@ def notch_sos(fs: float, notch, notch_q: float = 30.0) -> np.ndarray:
         Frequencies to remove, Hz, each in ``(0, fs/2)`` (e.g. 50, or 50 and its
         harmonics).
     notch_q : float
-        Quality factor ``f0 / bandwidth`` (-3 dB) of each notch. Default 30.
+        Quality factor ``f0 / bandwidth`` (-3 dB) of each notch. Default 30. Each notch's
+        band must fit between 0 and ``fs/2`` (``f0 / notch_q < 2 min(f0, fs/2 - f0)``);
+        frequencies are distinct.
 
     Returns
     -------
@@ -216,7 +228,7 @@ def notch_sos(fs: float, notch, notch_q: float = 30.0) -> np.ndarray:
     freqs = _notch_freqs(notch, fs)
     if not freqs:
         raise ValueError("notch must name at least one frequency (Hz)")
-    q = _check_notch_q(notch_q)
+    q = _check_notch_q(notch_q, freqs, fs)
     return np.vstack([scipy.signal.tf2sos(*scipy.signal.iirnotch(f0, q, fs=fs)) for f0 in freqs])
 
 
@@ -244,9 +256,13 @@ class _Design:
             self.sos_diff = differentiator_sos(self.fs, self.diff_order, self.diff_bandwidth, kind)
             self.sos_rate2 = None
         self.notch = _notch_freqs(notch, self.fs)
-        self.notch_q = _check_notch_q(notch_q)
+        self.notch_q = _check_notch_q(notch_q, self.notch, self.fs)
         self.sos_notch = notch_sos(self.fs, self.notch, self.notch_q) if self.notch else None
         if self.sos_notch is not None:
+            longest = max(self.sos_rate.shape[0], 0 if self.sos_rate2 is None else self.sos_rate2.shape[0])
+            if len(self.notch) + longest > 64:  # what a C++ cascade holds (pipeline.hpp)
+                raise ValueError(f"notch: {len(self.notch)} notches and the equaliser's {longest} section(s) exceed "
+                                 f"the 64 sections of a cascade")
             # in front of the equalisers: rate2 without u_out derives from the notched rate
             self.sos_rate = np.vstack([self.sos_notch, self.sos_rate])
             if self.sos_rate2 is not None:
@@ -298,7 +314,7 @@ class StressRateEstimator:
         Mains frequencies (Hz) to notch out of ``v_out`` and ``u_out`` before the
         equalisers (:func:`notch_sos`). Default None: no notch.
     notch_q : float
-        Quality factor of each notch. Default 30.
+        Quality factor of each notch. Default 30 (see :func:`notch_sos` for its bounds).
 
     Attributes
     ----------
