@@ -459,3 +459,56 @@ def test_loop_simulation_pieces_refuse_what_they_cannot_mean():
     with pytest.raises(ValueError, match="mu"):
         brush.set_mu(-5.0)
     assert np.all(brush.mu == 1.0)
+
+
+@pytest.mark.parametrize("make, exc, match", [
+    # a string was iterated character by character; a complex load lost its imaginary part
+    (lambda tm: tm.PVDFCircuit(load="123"), TypeError, "load must be a sequence of real numbers"),
+    (lambda tm: tm.PVDFCircuit(load=np.array([0.0, 0.0, 1 + 1j])), TypeError, "load"),
+    (lambda tm: tm.SensorNoise(harmonics="10"), TypeError, "harmonics"),
+    (lambda tm: tm.SensorNoise().apply(np.zeros(8) + 0j, np.zeros(8), 1e3), TypeError, "v_out"),
+    (lambda tm: tm.SensorNoise().apply(np.zeros(8), np.zeros(8, dtype=bool), 1e3), TypeError, "u_out"),
+])
+def test_strings_complex_and_bools_are_not_real_sequences(make, exc, match):
+    import tactile_mirror as tm
+
+    with pytest.raises(exc, match=match):
+        make(tm)
+
+
+def test_process_block_refuses_bool_samples_as_step_does():
+    import tactile_mirror as tm
+
+    est = tm.StressRateEstimator(tm.PVDFCircuit(), 1000.0, 4)
+    pipe = tm.MirrorPipeline(tm.SlipDetector.default(), 1000.0, 2, estimator=est)
+    x = np.zeros((5, pipe.n_inputs), dtype=bool)
+    with pytest.raises(TypeError, match="x must hold real numbers"):
+        pipe.process_block(x)
+    with pytest.raises(TypeError):
+        pipe.step(x[0])
+    assert pipe.status["ticks"] == 0
+
+
+def test_c_abi_refuses_bank_fields_out_of_range_or_for_the_papers_net():
+    """bank_pad_mean = 5, or a bank field on the paper's net, were ignored silently; and an
+    ABI-9 struct (ending before force_input) runs without a force input."""
+    w = weights()
+    est = StressRateEstimator(PVDFCircuit(), FS, 12, use_u=True)
+    keep = []
+    ffi, lib, cfg = _c_default_velocity_config(w, est, keep)
+    h = ffi.new("tm_pipeline*")
+    for field, value in (("bank_pad_mean", 5), ("bank_pad_mean", 1)):
+        setattr(cfg, field, value)
+        assert lib.tm_pipeline_create(cfg, h) == lib.TM_ERR_ARGUMENT and h[0] == 0
+        assert b"bank_pad_mean" in ffi.string(lib.tm_last_error())
+    cfg.bank_pad_mean = 0
+    cfg.force_input = 1  # 25 inputs
+    assert lib.tm_pipeline_create(cfg, h) == 0
+    ni, no = ffi.new("size_t*"), ffi.new("size_t*")
+    assert lib.tm_pipeline_sizes(h[0], ni, no) == 0 and ni[0] == 25
+    assert lib.tm_pipeline_destroy(h[0]) == 0
+    cfg.struct_size = ffi.offsetof("tm_config", "force_input")  # an ABI-9 program's struct
+    cfg.abi_version = 9
+    assert lib.tm_pipeline_create(cfg, h) == 0
+    assert lib.tm_pipeline_sizes(h[0], ni, no) == 0 and ni[0] == 24  # its force_input is the default, 0
+    assert lib.tm_pipeline_destroy(h[0]) == 0

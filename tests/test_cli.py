@@ -168,3 +168,13 @@ def test_train_maps_its_flags_onto_build_options():
     assert build_options_from_args(args) == BuildOptions(n_train=5, n_test=6, n_hidden=7, maxiter=8, candidates=2,
                                                          checkpoint_every=0, n_validation=3)
 
+
+
+@pytest.mark.parametrize("argv", [["simulate", "--duration", "0.05"], ["train", "--maxiter", "1"]])
+def test_an_unwritable_figure_format_fails_before_the_work(argv, tmp_path, capsys):
+    out = tmp_path / ("x.npz" if argv[0] == "simulate" else "w.npz")
+    rc = main([*argv, "--out", str(out), "--figure", str(tmp_path / "fig.xyz")])
+    assert rc != 0
+    err = capsys.readouterr().err
+    assert "'.xyz'" in err and "Traceback" not in err
+    assert not out.exists()  # nothing was computed and saved first

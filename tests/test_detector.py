@@ -628,3 +628,47 @@ def test_hard_example_weights_mark_near_false_alarms_and_missed_onsets():
         hard_example_weights(out, ts, negative_level=1.0)
     with pytest.raises(ValueError, match="previous"):
         hard_example_weights(out, ts, previous=np.ones(3))
+
+
+def test_mining_and_sample_weights_refuse_what_would_train_silently_wrong():
+    from tactile_mirror.detector.training import hard_example_weights
+
+    ts = small_set(2)
+    out = np.full(ts.mask.shape, 0.1)
+    # a diverged net's NaN outputs compare false both ways: no hard example at all
+    with pytest.raises(ValueError, match="y_slip_out must be finite"):
+        hard_example_weights(np.full(ts.mask.shape, np.nan), ts)
+    with pytest.raises(TypeError, match="y_slip_out must be a real numeric array"):
+        hard_example_weights(out + 0j, ts)
+    with pytest.raises(TypeError, match="previous"):
+        hard_example_weights(out, ts, previous=np.ones(ts.mask.shape, dtype=complex))
+    with pytest.raises(ValueError, match="previous must be finite"):
+        hard_example_weights(out, ts, previous=np.full(ts.mask.shape, -1.0))
+    with pytest.raises(ValueError, match="factor"):
+        hard_example_weights(out, ts, factor=1e308)
+    with pytest.raises(TypeError, match="ts must be a TrainingSet"):
+        hard_example_weights(out, None)
+    # a window shorter than one sample weighted nothing, silently
+    with pytest.raises(ValueError, match="onset_window .* shorter than one sample"):
+        hard_example_weights(out, ts, onset_window=4e-4)
+    with pytest.raises(ValueError, match="onset_window .* shorter than one sample"):
+        train_detector(ts, n_hidden=3, maxiter=1, progress=False, onset_weight=5.0, onset_window=4e-4)
+    with pytest.raises(ValueError, match="sample_weight must be at most"):
+        train_detector(ts, n_hidden=3, maxiter=1, progress=False, sample_weight=np.full(ts.mask.shape, 1e200))
+    with pytest.raises(ValueError, match="nothing to train on"):
+        train_detector(ts, n_hidden=3, maxiter=1, progress=False, sample_weight=np.zeros(ts.mask.shape),
+                       pred_weight=0.0)
+    with pytest.raises(ValueError, match="sample_weight"):
+        train_detector(ts, n_hidden=3, maxiter=1, progress=False, sample_weight=np.ones(ts.mask.shape, dtype=bool))
+
+
+def test_an_unpickled_training_set_trains_as_the_original():
+    """An unpickled float64 array has an equal but distinct dtype object: the kernel's
+    check compared them by identity and refused it ("must have dtype float64, got float64")."""
+    import pickle
+
+    ts = small_set(2)
+    ts2 = pickle.loads(pickle.dumps(ts))
+    w1 = train_detector(ts, n_hidden=3, maxiter=3, seed=4, progress=False)
+    w2 = train_detector(ts2, n_hidden=3, maxiter=3, seed=4, progress=False)
+    np.testing.assert_array_equal(w1.params.pack(), w2.params.pack())

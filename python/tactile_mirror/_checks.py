@@ -7,7 +7,7 @@ from __future__ import annotations
 import math
 import numbers
 
-__all__ = ["real_number"]
+__all__ = ["real_number", "real_sequence"]
 
 
 def real_number(value, name: str, *, unit: str | None = None, positive: bool = False,
@@ -29,3 +29,20 @@ def real_number(value, name: str, *, unit: str | None = None, positive: bool = F
         sign = "positive and " if positive else ("non-negative and " if nonnegative else "")
         raise ValueError(f"{name} must be {sign}finite{f' ({unit})' if unit else ''}, got {value!r}")
     return v
+
+
+def real_sequence(value, name: str) -> tuple[float, ...]:
+    """``value`` as a tuple of floats: a sequence (list, tuple, 1-D array) of real numbers.
+
+    Raises TypeError for a string (iterated, ``"123"`` became ``(1.0, 2.0, 3.0)``), a scalar,
+    or an entry that is not a real number (a bool or a complex number is not). Range checks
+    are the caller's.
+    """
+    if isinstance(value, (str, bytes)) or not hasattr(value, "__iter__"):
+        raise TypeError(f"{name} must be a sequence of real numbers, got {value!r}")
+    out = []
+    for v in value:
+        if isinstance(v, bool) or not isinstance(v, numbers.Real):
+            raise TypeError(f"{name} must be a sequence of real numbers, got {value!r}")
+        out.append(float(v))
+    return tuple(out)

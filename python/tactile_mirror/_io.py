@@ -188,6 +188,20 @@ def write_json(path, value, **dumps_kwargs) -> None:
     write_text(path, json.dumps(value, **dumps_kwargs) + "\n")
 
 
+def check_figure_path(path, *, make_folder: bool = False) -> None:
+    """:func:`check_writable`, and that matplotlib can write the format the suffix names
+    (raise ValueError now, not after the work the figure shows)."""
+    check_writable(path, make_folder=make_folder)
+    suffix = os.path.splitext(os.fspath(path))[1].lstrip(".").lower()
+    if suffix:
+        from matplotlib.backend_bases import FigureCanvasBase
+
+        formats = FigureCanvasBase.get_supported_filetypes()
+        if suffix not in formats:
+            raise ValueError(f"{os.fspath(path)!r}: matplotlib cannot write '.{suffix}' figures; use one of "
+                             f"{', '.join('.' + f for f in sorted(formats))}")
+
+
 def save_figure(fig, path, **savefig_kwargs) -> None:
     """``fig.savefig`` to ``path`` atomically; the format comes from the suffix (or ``format=``)."""
     fmt = savefig_kwargs.pop("format", None)

@@ -110,7 +110,7 @@ import numpy.typing as npt
 import scipy.optimize
 import scipy.signal
 
-from ._checks import real_number
+from ._checks import real_number, real_sequence
 from .filters import SosFilter
 
 __all__ = ["EPSILON_0", "SLOPE_BAND", "CircuitStream", "PVDFCircuit", "fit_circuit"]
@@ -208,10 +208,7 @@ class PVDFCircuit:
         for name in _POSITIVE_FIELDS + _FINITE_FIELDS:
             value = real_number(getattr(self, name), name, positive=name in _POSITIVE_FIELDS)
             object.__setattr__(self, name, value)
-        try:
-            load = tuple(float(v) for v in self.load)
-        except (TypeError, ValueError):
-            raise TypeError(f"load must be a sequence of 3 real numbers, got {self.load!r}") from None
+        load = real_sequence(self.load, "load")
         if len(load) != 3:
             raise ValueError(f"load must have 3 entries (s1, s2, s3), got {len(load)}")
         if not all(math.isfinite(v) for v in load):

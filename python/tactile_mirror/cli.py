@@ -66,13 +66,13 @@ def cmd_simulate(args) -> int:
     import numpy as np
 
     from . import simulate
-    from ._io import check_writable, save_npz
+    from ._io import check_figure_path, check_writable, save_npz
 
     scene = _scene_from_args(args)
     out = pathlib.Path(args.out)
     check_writable(out, make_folder=True)  # fail before the work, not after
     if args.figure:
-        check_writable(args.figure, make_folder=True)
+        check_figure_path(args.figure, make_folder=True)
     t0 = time.perf_counter()
     res = simulate(scene, progress=True, stepping=args.stepping)
     # written to exactly --out (no suffix added), atomically
@@ -170,14 +170,16 @@ def build_options_from_args(args):
 
 
 def cmd_train(args) -> int:
-    from ._io import check_writable
+    from ._io import check_figure_path, check_writable
     from .detector.build import build_default
 
     options = build_options_from_args(args)  # bad combinations fail before any work
     out = pathlib.Path(args.out)
-    for path in (out, args.report, args.figure):  # fail before training, not after
+    for path in (out, args.report):  # fail before training, not after
         if path is not None:
             check_writable(path, make_folder=True)
+    if args.figure is not None:
+        check_figure_path(args.figure, make_folder=True)
     _, report = build_default(out, options, report_path=args.report, figure_path=args.figure)
     print(report["evaluation_table"])
     print(f"wrote {out} ({report['total_seconds']:.0f} s)")

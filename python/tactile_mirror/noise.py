@@ -70,7 +70,7 @@ import numpy as np
 import numpy.typing as npt
 import scipy.signal
 
-from ._checks import real_number
+from ._checks import real_number, real_sequence
 from .circuit import PVDFCircuit, _check_channels, _check_fs
 
 __all__ = ["BOLTZMANN", "NOISE_SOURCES", "SensorNoise"]
@@ -161,10 +161,7 @@ class SensorNoise:
         if mains not in (50.0, 60.0):
             raise ValueError(f"mains must be 50 or 60 (Hz), got {self.mains!r}")
         object.__setattr__(self, "mains", mains)
-        try:
-            h = tuple(float(a) for a in self.harmonics)
-        except (TypeError, ValueError):
-            raise TypeError(f"harmonics must be a sequence of real numbers, got {self.harmonics!r}") from None
+        h = real_sequence(self.harmonics, "harmonics")
         if not h or h[0] != 1.0:
             raise ValueError(f"harmonics must start with 1.0 (the fundamental), got {self.harmonics!r}")
         if not all(math.isfinite(a) and a >= 0 for a in h):
@@ -355,6 +352,9 @@ class SensorNoise:
     def apply(self, v_out: npt.ArrayLike, u_out: npt.ArrayLike, fs: float,
               seed: int | Sequence[int] | np.random.Generator | None = None) -> tuple[np.ndarray, np.ndarray]:
         """``v_out``, ``u_out`` (V, time last, same shape) with drawn noise added."""
+        for name, a in (("v_out", v_out), ("u_out", u_out)):
+            if np.asarray(a).dtype.kind not in "iuf":
+                raise TypeError(f"{name} must be a real numeric array, got dtype {np.asarray(a).dtype}")
         v = np.asarray(v_out, dtype=np.float64)
         u = np.asarray(u_out, dtype=np.float64)
         if v.ndim < 1 or u.shape != v.shape:

@@ -103,12 +103,20 @@ const char* dtype_name<float>() { return "float32"; }
 template <>
 const char* dtype_name<double>() { return "float64"; }
 
+// dtype T in native byte order. By type number, not by object: a dtype unpickled or made by
+// another module is an equal but distinct object (an unpickled float64 array was refused as
+// "must have dtype float64, got float64").
+template <typename T>
+bool is_dtype(const py::dtype& d) {
+    return d.num() == py::dtype::of<T>().num() && d.byteorder() != '>';
+}
+
 // Checks dtype exactly (no silent conversion in the real-time binding).
 template <typename T>
 py::array_t<T, py::array::c_style> input(const py::handle& obj, const char* name) {
     if (!py::isinstance<py::array>(obj)) throw py::type_error(std::string(name) + " must be a numpy array");
     py::array a = py::reinterpret_borrow<py::array>(obj);
-    if (!a.dtype().is(py::dtype::of<T>()))
+    if (!is_dtype<T>(a.dtype()))
         throw py::type_error(std::string(name) + " must have dtype " + dtype_name<T>() + ", got " +
                              std::string(py::str(a.dtype())));
     return py::array_t<T, py::array::c_style>::ensure(a);  // copies only if not C-contiguous
@@ -615,13 +623,13 @@ void tm_bind_detector(py::module_& m) {
             const simd::Isa isa = parse_path(path);
             if (!py::isinstance<py::array>(a)) throw py::type_error("a must be a numpy array");
             py::array arr = py::reinterpret_borrow<py::array>(a);
-            if (arr.dtype().is(py::dtype::of<float>())) {
+            if (is_dtype<float>(arr.dtype())) {
                 auto c = py::array_t<float, py::array::c_style>::ensure(arr);
                 py::array_t<float> out(c.size());
                 simd::sigmoid_array<float>(c.data(), out.mutable_data(), std::size_t(c.size()), act, isa);
                 return py::array(out);
             }
-            if (arr.dtype().is(py::dtype::of<double>())) {
+            if (is_dtype<double>(arr.dtype())) {
                 auto c = py::array_t<double, py::array::c_style>::ensure(arr);
                 py::array_t<double> out(c.size());
                 simd::sigmoid_array<double>(c.data(), out.mutable_data(), std::size_t(c.size()), act, isa);

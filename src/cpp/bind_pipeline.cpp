@@ -43,7 +43,8 @@ F64 real_array(const py::handle& obj, const char* name) {
     py::array a = py::array::ensure(obj);
     if (!a) throw py::type_error(std::string(name) + " must be an array of real numbers");
     const char k = a.dtype().kind();
-    if (k != 'f' && k != 'i' && k != 'u' && k != 'b')
+    // (bool is refused as the tick's step() refuses it: True is not a voltage)
+    if (k != 'f' && k != 'i' && k != 'u')
         throw py::type_error(std::string(name) + " must hold real numbers, got dtype " +
                              std::string(py::str(a.dtype())));
     return F64::ensure(a);

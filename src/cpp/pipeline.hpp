@@ -421,6 +421,12 @@ inline void validate_config(const PipelineConfig& c) {
     if (c.n_hidden < 1 || c.n_hidden > 1024) bad("n_hidden must lie in [1, 1024]");
     if (c.detector_kind != 0 && c.detector_kind != 1)
         bad("detector_kind must be 0 (the paper's net) or 1 (filter bank), got " + std::to_string(c.detector_kind));
+    // (checked whatever the kind: a C caller's 5 here, or knees for the paper's net, were
+    // silently ignored)
+    if (c.bank_pad_mean != 0 && c.bank_pad_mean != 1)
+        bad("bank_pad_mean must be 0 or 1, got " + std::to_string(c.bank_pad_mean));
+    if (c.detector_kind != 1 && (c.bank_pad_mean != 0 || c.bank_knee))
+        bad("bank_pad_mean and bank_knee belong to the filter-bank net (detector_kind 1)");
     if (c.detector_kind == 1) {
         if (c.bank_n_lp < 1 || c.bank_n_lp > detector::BankJordan<double>::kMaxTaus)
             bad("bank_n_lp must lie in [1, 8]");
@@ -435,8 +441,6 @@ inline void validate_config(const PipelineConfig& c) {
         taus_ok(c.bank_abs_taus, c.bank_n_abs, "bank_abs_taus");
         taus_ok(&c.bank_load_tau, 1, "bank_load_tau");
         taus_ok(&c.bank_peak_tau, 1, "bank_peak_tau");
-        if (c.bank_pad_mean != 0 && c.bank_pad_mean != 1)
-            bad("bank_pad_mean must be 0 or 1, got " + std::to_string(c.bank_pad_mean));
         if (c.bank_knee) {
             const int nf = detector_input_count(c);
             for (int k = 0; k < nf; ++k)

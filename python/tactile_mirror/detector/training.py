@@ -282,7 +282,7 @@ def _loss_weights(ts: TrainingSet, pred_weight: float, negative_weight: float = 
         # Most positive samples are steady sliding, which any net gets right; whether a
         # slip is found is decided in the first samples after its onset, where a creeping
         # slip's signals are weakest. This term weights that window as a class of its own.
-        win = onset_windows(ts.y_slip, ts.mask, int(round(onset_window * ts.fs))).astype(np.float64)
+        win = onset_windows(ts.y_slip, ts.mask, _window_samples(onset_window, ts.fs)).astype(np.float64)
         w_slip = w_slip + 0.5 * onset_weight * win / max(win.sum(), 1.0)
     w_pred = pred_weight * m / max(m.sum(), 1.0)
     return w_slip, w_pred
@@ -335,19 +335,27 @@ def hard_example_weights(y_slip_out, ts: TrainingSet, factor: float = 4.0, negat
         s (> 0).
     previous : ndarray, shape (n_seq, n), optional
     """
-    y = np.asarray(y_slip_out, dtype=np.float64)
+    if not isinstance(ts, TrainingSet):
+        raise TypeError(f"ts must be a TrainingSet, got {type(ts).__name__}")
+    y = _real_array(y_slip_out, "y_slip_out")
     if y.shape != ts.mask.shape:
         raise ValueError(f"y_slip_out must have the training set's shape {ts.mask.shape}, got {y.shape}")
-    if not real_number(factor, "factor") >= 1.0:
-        raise ValueError(f"factor must be >= 1, got {factor}")
+    if not np.all(np.isfinite(y[ts.mask])):
+        # (NaN compares false both ways: a diverged net would have had no hard example at all)
+        raise ValueError("y_slip_out must be finite on the training samples (a diverged net?)")
+    factor = real_number(factor, "factor")
+    if not 1.0 <= factor <= 1e6:
+        raise ValueError(f"factor must lie in [1, 1e6], got {factor}")
     if not 0.0 < real_number(negative_level, "negative_level") < 1.0:
         raise ValueError(f"negative_level must lie in (0, 1), got {negative_level}")
-    m = np.ones(y.shape) if previous is None else np.array(previous, dtype=np.float64)
+    m = np.ones(y.shape) if previous is None else _real_array(previous, "previous").copy()
     if m.shape != y.shape:
         raise ValueError(f"previous must have shape {y.shape}, got {m.shape}")
+    if not (np.all(np.isfinite(m)) and np.all(m >= 0)):
+        raise ValueError("previous must be finite and >= 0")
     pos = (ts.y_slip >= 0.5) & ts.mask
     hard = ts.mask & ~pos & (y >= negative_level)
-    n_win = round(real_number(onset_window, "onset_window", unit="s", positive=True) * ts.fs)
+    n_win = _window_samples(onset_window, ts.fs)
     win = onset_windows(ts.y_slip, ts.mask, n_win)
     # one onset window per run: label the runs by their start's index, find the misses
     start = win & ~np.concatenate([np.zeros((win.shape[0], 1), dtype=bool), win[:, :-1]], axis=1)
@@ -359,7 +367,26 @@ def hard_example_weights(y_slip_out, ts: TrainingSet, factor: float = 4.0, negat
             if y[i, sel].max() < 0.8:
                 hard[i, sel] = True
     m[hard] *= factor
+    if not np.all(np.isfinite(m)):
+        raise ValueError("the multipliers overflow: factor compounded over too many rounds")
     return m
+
+
+def _real_array(a, name: str) -> np.ndarray:
+    """``a`` as float64, refusing complex, bool and non-numeric arrays (naming ``name``)."""
+    arr = np.asarray(a)
+    if arr.dtype.kind not in "iuf":
+        raise TypeError(f"{name} must be a real numeric array, got dtype {arr.dtype}")
+    return arr.astype(np.float64, copy=False)
+
+
+def _window_samples(onset_window, fs: float) -> int:
+    """``onset_window`` s in whole samples at ``fs``: at least one (a shorter window is empty)."""
+    w = real_number(onset_window, "onset_window", unit="s", positive=True)
+    n = round(w * fs)
+    if n < 1:
+        raise ValueError(f"onset_window = {w:g} s is shorter than one sample at {fs:g} Hz (it would weight nothing)")
+    return n
 
 
 def _cpp_loss(xn, data, w_slip, w_pred, n_hidden, l2, feedback, n_threads):
@@ -500,13 +527,17 @@ def train_detector(data, n_hidden: int = 16, feedback: bool = True, seed=0, maxi
     w_slip, w_pred = _loss_weights(data, pred_weight, negative_weight, onset_weight, onset_window)
     if sample_weight is not None:
         sw = np.asarray(sample_weight)
-        if sw.shape != w_slip.shape or sw.dtype.kind not in "biuf":
+        if sw.shape != w_slip.shape or sw.dtype.kind not in "iuf":
             raise ValueError(f"sample_weight must be a real array of shape {w_slip.shape} (n_seq, n), got "
                              f"{sw.dtype} of shape {sw.shape}")
         sw = sw.astype(np.float64)
         if not np.all(np.isfinite(sw)) or np.any(sw < 0):
             raise ValueError("sample_weight must be finite and >= 0")
+        if not np.max(sw, initial=0.0) <= 1e12:
+            raise ValueError(f"sample_weight must be at most 1e12 (the loss must stay finite), got up to {sw.max():g}")
         w_slip = w_slip * sw
+        if not np.any(w_slip > 0) and not pred_weight > 0:
+            raise ValueError("sample_weight leaves no sample of the y_slip loss and pred_weight is 0: nothing to train on")
     n_in = data.n_inputs
     if len(feature_units(data.features, data.bank)) != n_in:
         raise ValueError(f"data.features {data.features!r} have {len(feature_units(data.features, data.bank))} "
