@@ -20,8 +20,9 @@ The laws: open loop, the paper's, the default law on the strips, and the same de
 load cell's force under the pad (``load cell``: ``MirrorPipeline(force_input=True)``).
 
 ``--tick``: ns per tick of the full 6-ridge float64 pipeline inside C++
-(``MirrorPipeline.time_step_ns``, best of 5) with the previous velocity law and with
-the default (designed) law, in the same process.
+(``MirrorPipeline.time_step_ns``, best of 5) with the previous velocity law, with
+the default (designed) law, and with the default law's design on a load cell's force, in
+the same process.
 """
 from __future__ import annotations
 
@@ -45,11 +46,15 @@ def tick_table(n_iter: int = 200_000) -> dict:
     old = VelocityControllerOld()
     new = design_loop(StageLimits(-0.02, 0.02, 0.03, 1.0), (1.0, 4.78e7), 1000.0, stage_delay=0.001,
                       stage_lag=0.002).controller
+    cell = design_loop(StageLimits(-0.02, 0.02, 0.03, 1.0), (1.0, 7.6e4), 1000.0, stage_delay=0.001,
+                       stage_lag=0.002, sensor="force").controller
     res = {"cpu": cpu_model()}
-    for _ in range(2):  # interleaved, best of both rounds
-        for name, c in (("previous velocity law", old), ("default (designed) law", new)):
+    for _ in range(4):  # interleaved, best of four rounds (a VM's tick moves by tens of ns between runs)
+        for name, c, force in (("previous velocity law", old, False), ("default (designed) law", new, False),
+                               ("default law on a load cell (force_input)", cell, True)):
             est = StressRateEstimator(PVDFCircuit(), 1000.0, 12, order=2, bandwidth=100.0)
-            p = MirrorPipeline(w, 1000.0, 6, estimator=est, controller=c, activation="fast", max_hold_ticks=50)
+            p = MirrorPipeline(w, 1000.0, 6, estimator=est, controller=c, activation="fast", max_hold_ticks=50,
+                               force_input=force)
             ns = p.time_step_ns(n_iter, 5)
             res[name] = min(res.get(name, np.inf), ns)
     return res
@@ -125,6 +130,9 @@ def main(argv=None):
                             laws=tuple(args.laws.split(",")), paths=paths, duration=args.duration)
         print(f"CPU: {cpu_model()}; paths: {paths}; {args.duration:g} s per run")
         _windows(data, conds, paths.name, args.duration)
+        # the figure of these conditions alone (e.g. sweat: open loop, the default law, a load cell)
+        envelope_figure({**data, "rows": [r for r in data["rows"] if r["condition"] in conds]},
+                        os.path.join(args.out, "loop_envelope_conditions.png"), paths=paths.name)
         return 0
     data = run_envelope(out, speeds=speeds, n_seeds=args.seeds, conditions=("nominal",),
                         laws=tuple(args.laws.split(",")), paths=paths, duration=args.duration)

@@ -27,7 +27,9 @@ Two measurements on the 6-ridge FEM pad, the finger held still (no relative moti
    (5 um over 50 ms, the pad moving, the finger still). Printed per um of the step: the part
    of the signal's move that changes sign with the step (its sensitivity to displacement; 1
    before the drop, by the calibration) and the part that does not (stored shear that any
-   motion releases); then the same with the lower friction from the first contact on.
+   motion releases); then the same with the lower friction from the first contact on; and
+   the same two parts of the pad's total tangential force (what a load cell under the pad
+   reads), per um of displacement over the stuck contact's stiffness.
 
 The shear offsets, the ramp and the friction values here are the envelope's sweat
 conditions (mu 0.45 and 0.40) and not a tuning set: nothing is chosen from this output.
@@ -161,26 +163,33 @@ def step_probe(mus, offsets, c, per_m, step: float = 5e-6) -> None:
         mu0 = p.mu
         if start:  # this friction from the first contact on: no drop under load
             p.set_mu(mu)
-        sig = np.empty(1700)
+        sig, force = np.empty(1700), np.empty(1700)
         for k in range(sig.size):
             y = 0.0 if k < 500 else d * min(1.0, (k - 500) / 100)
             if mu is not None and not start and 1000 <= k <= 1200:
                 p.set_mu(mu0 + (mu - mu0) * (k - 1000) / 200)
             if k >= 1600:
                 y += sgn * step * min(1.0, (k - 1600) / 50)  # finger - pad moves by sgn * step
-            st = p.advance(y).stress
+            state = p.advance(y)
+            st = state.stress
             sig[k] = (st[:, 0] - st[:, 1]) @ c / per_m
-        return (sig[-1] - sig[1599]) / step
+            force[k] = state.force_y
+        return (sig[-1] - sig[1599]) / step, (force[-1] - force[1599]) / step
 
-    rows = []
+    rows, k_t = [], None
     for mu, start in [(None, False)] + [(m, False) for m in mus] + [(m, True) for m in mus]:
         for d in offsets:
-            up, down = move(d, mu, 1.0, start), move(d, mu, -1.0, start)
+            (up, f_up), (down, f_down) = move(d, mu, 1.0, start), move(d, mu, -1.0, start)
+            if k_t is None:
+                k_t = (f_up - f_down) / 2  # the stuck contact's tangential stiffness, N/m
             name = "0.76 (no drop)" if mu is None else (f"{mu:.2f} from the start" if start else f"0.76 -> {mu:.2f}")
-            rows.append([name, f"{d * 1e6:+.0f}", f"{(up - down) / 2:+.2f}", f"{(up + down) / 2:+.2f}"])
-    table(f"A +-{step * 1e6:g} um relative displacement 0.4 s after the drop, finger still: the signal's move per um "
-          "of displacement (1 = the calibration's)", ["friction", "offset d (um)", "sensitivity (odd part)",
-                                                       "released by any move (even part)"], rows)
+            rows.append([name, f"{d * 1e6:+.0f}", f"{(up - down) / 2:+.2f}", f"{(up + down) / 2:+.2f}",
+                         f"{(f_up - f_down) / 2 / k_t:+.2f}", f"{(f_up + f_down) / 2 / k_t:+.3f}"])
+    table(f"A +-{step * 1e6:g} um relative displacement 0.4 s after the drop, finger still: the shear signal's move "
+          "per um of displacement (1 = the calibration's), and the pad's tangential force's (a load cell's; 1 = the "
+          f"stuck contact's stiffness, {k_t / 1e3:.1f} N/mm)",
+          ["friction", "offset d (um)", "signal: sensitivity (odd part)", "signal: released by any move (even part)",
+           "force: sensitivity", "force: released"], rows)
 
 
 def figure(path, fs, traces, runs, mus) -> None:

@@ -78,6 +78,14 @@ What the design cannot hold: a change of friction under load (sweat)
     the drop open loop; this law follows the phantom into gross slip. Holding through a
     friction change needs a measurement that tells it from a displacement (a force sensor
     under the pad, the finger's position) or an observer of the partial slip.
+A load cell under the pad (``sensor="force"``)
+    The pad's total tangential force has no such phantom: the released tractions balance
+    inside the contact, and its sensitivity to a displacement stays within 0.94-1.00 of the
+    stuck stiffness through the same drops (``bench/loop_sweat_sensing.py --step-probe``).
+    ``MirrorPipeline(force_input=True)`` closes the loop on it (the force's change per tick
+    is the rate: a backward difference, half a tick of delay instead of the estimator's
+    group delay), with gains from the same rules; on the envelope's paths it makes no gross
+    slip under sweat (``docs/loop.md``).
 
 The numbers of the nominal design (FEM pad, 1 kHz, 2nd-order 100 Hz estimator, stage
 1 ms dead time, 2 ms lag) are given by :meth:`LoopDesign.summary`; the README and
