@@ -182,3 +182,25 @@ def test_a_load_cell_holds_the_contact_through_sweat(sweat_runs):
     # the cell reads the finger's force minus the pad's inertia, with its noise
     resid = cell.log["load_cell"] - cell.log["force_y"]
     assert 1e-3 < np.std(resid[600:]) < 5e-3
+
+
+def test_the_load_cell_design_predicts_its_closed_loop_error():
+    """The force design's linear prediction e = S x_finger against the FEM closed loop on a
+    load cell, within 30 % (as the strips' design is tested), on a path faster than any tuning
+    path (25 mm/s peak, seed 5000: in no tuning or reported set)."""
+    from tactile_mirror.loop.experiment import _weights_dict, calibrate_shear, default_weights
+    from tactile_mirror.loop.scene import LoopScene, run_scene
+
+    w = _weights_dict(default_weights("fem"))
+    d = design_loop(STAGE, calibrate_shear(w, FS, 6, plant="fem", load_cell=True), FS, stage_delay=0.001,
+                    stage_lag=0.002, sensor="force")
+    sc = LoopScene(seed=5000, duration=2.0, plant="fem", load_cell=True,
+                   trajectory={"amplitude": 10e-3, "bandwidth": 1.0, "v_max": 0.025, "a_max": 0.25})
+    r = run_scene(sc, w, d.controller, limits=STAGE)
+    assert r.gross_slips == 0
+    n0 = round(0.5 * FS)
+    e_sim = (r.finger - r.log["pad"][: r.t.size])[n0:]
+    e_pred = d.predict_error(r.finger[n0:])
+    rms_sim, rms_pred = np.sqrt(np.mean(e_sim**2)), np.sqrt(np.mean(e_pred**2))
+    assert rms_pred == pytest.approx(rms_sim, rel=0.3)
+    assert rms_sim < 0.01e-3
