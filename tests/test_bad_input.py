@@ -512,3 +512,24 @@ def test_c_abi_refuses_bank_fields_out_of_range_or_for_the_papers_net():
     assert lib.tm_pipeline_create(cfg, h) == 0
     assert lib.tm_pipeline_sizes(h[0], ni, no) == 0 and ni[0] == 24  # its force_input is the default, 0
     assert lib.tm_pipeline_destroy(h[0]) == 0
+
+
+@pytest.mark.parametrize("kw, match", [
+    ({"Rf": 1e-300}, r"Rf \* Cf"), ({"Rs": 1e-300}, r"Rs \* Cd"), ({"Cd": 1e20}, r"Rd \* Cd"),
+    ({"d33": -1e300}, "charge per pascal"), ({"load": (0.0, 0.0, 1e-300)}, "charge per pascal"),
+])
+def test_circuit_values_the_filters_cannot_represent_are_refused_at_construction(kw, match):
+    # (they passed, then failed inside scipy's filter design: a bare AssertionError or
+    # non-finite sections that named no field)
+    import tactile_mirror as tm
+
+    with pytest.raises(ValueError, match=match):
+        tm.PVDFCircuit(**kw)
+
+
+@pytest.mark.parametrize("kw", [{"e_n": 1e200}, {"i_n": 1e160}, {"cable_capacitance": 1e300}, {"hum": 1e200}])
+def test_noise_densities_beyond_any_part_are_refused(kw):
+    import tactile_mirror as tm
+
+    with pytest.raises(ValueError, match=f"{next(iter(kw))} must be at most"):
+        tm.SensorNoise(**kw)

@@ -187,7 +187,9 @@ class PVDFCircuit:
     ------
     ValueError
         A non-positive or non-finite size, permittivity or component, a non-finite
-        coefficient, or a load that makes no charge; the message names the field.
+        coefficient, a load that makes no charge, time constants ``Rf Cf``, ``Rd Cd``,
+        ``Rs Cd`` outside [1e-12, 1e9] s or a charge per pascal outside [1e-30, 1] C/Pa in
+        size; the message names the field.
     """
 
     length: float = 10e-3
@@ -216,6 +218,16 @@ class PVDFCircuit:
         object.__setattr__(self, "load", load)
         if self.charge_sensitivity == 0.0:
             raise ValueError("load makes no charge: d31*l1 + d32*l2 + d33*l3 == 0")
+        # What the filters can represent: time constants from a ps to 30 years, a charge
+        # sensitivity between 1e-30 and 1 C/Pa (past these the filter design broke inside
+        # scipy, with an AssertionError or non-finite sections that named no field).
+        for name, tau in (("Rf * Cf", self.Rf * self.Cf), ("Rd * Cd", self.Rd * self.Cd),
+                          ("Rs * Cd", self.Rs * self.Cd)):
+            if not 1e-12 <= tau <= 1e9:
+                raise ValueError(f"{name} = {tau:g} s must lie in [1e-12, 1e9] s")
+        if not 1e-30 <= abs(self.charge_sensitivity) <= 1.0:
+            raise ValueError(f"the load's charge per pascal, A (d31 l1 + d32 l2 + d33 l3) = "
+                             f"{self.charge_sensitivity:g} C/Pa, must lie within 1e-30 and 1 in size")
 
     # ------------------------------------------------------------------ derived
     @property

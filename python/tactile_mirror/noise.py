@@ -133,7 +133,8 @@ class SensorNoise:
     Raises
     ------
     TypeError, ValueError
-        A parameter of the wrong type or out of range; the message names it.
+        A parameter of the wrong type or out of range (``e_n`` <= 1e-3 V/sqrt(Hz), ``i_n`` <=
+        1e-6 A/sqrt(Hz), ``cable_capacitance`` <= 1e-6 F, ``hum`` <= 100 V); the message names it.
 
     Examples
     --------
@@ -155,8 +156,14 @@ class SensorNoise:
         if not isinstance(self.circuit, PVDFCircuit):
             raise TypeError(f"circuit must be a PVDFCircuit, got {type(self.circuit).__name__}")
         object.__setattr__(self, "temperature", real_number(self.temperature, "temperature", unit="K", positive=True))
-        for name in ("e_n", "i_n", "cable_capacitance", "hum"):
-            object.__setattr__(self, name, real_number(getattr(self, name), name, nonnegative=True))
+        # Upper bounds far beyond any part or cable (1 mV/sqrt(Hz), 1 uA/sqrt(Hz), 1 uF, 100 V):
+        # past them the draws overflowed or the warm-up length became infinite.
+        for name, unit, top in (("e_n", "V/sqrt(Hz)", 1e-3), ("i_n", "A/sqrt(Hz)", 1e-6),
+                                ("cable_capacitance", "F", 1e-6), ("hum", "V rms", 100.0)):
+            v = real_number(getattr(self, name), name, unit=unit, nonnegative=True)
+            if v > top:
+                raise ValueError(f"{name} must be at most {top:g} {unit}, got {v!r}")
+            object.__setattr__(self, name, v)
         mains = real_number(self.mains, "mains", unit="Hz", positive=True)
         if mains not in (50.0, 60.0):
             raise ValueError(f"mains must be 50 or 60 (Hz), got {self.mains!r}")
