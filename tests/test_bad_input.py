@@ -533,3 +533,24 @@ def test_noise_densities_beyond_any_part_are_refused(kw):
 
     with pytest.raises(ValueError, match=f"{next(iter(kw))} must be at most"):
         tm.SensorNoise(**kw)
+
+
+def test_seeds_iterations_and_save_folders_are_named_in_their_errors(tmp_path, capsys):
+    import tactile_mirror as tm
+    from tactile_mirror.cli import main
+    from tactile_mirror.detector.synthetic import synthetic_scene
+    from tactile_mirror.detector.training import make_training_set, train_detector
+
+    with pytest.raises(SystemExit):
+        main(["evaluate", "--seed", "-5"])
+    assert "argument --seed: must be non-negative" in capsys.readouterr().err
+    with pytest.raises(ValueError, match="seed must be a non-negative integer"):
+        tm.SensorNoise().draw(1000.0, 10, seed=-1)
+    ts = make_training_set([synthetic_scene(seed=0, n_ridges=1, duration=0.5)])
+    for kw, match in (({"seed": -1}, "seed"), ({"maxiter": "3"}, "maxiter"), ({"maxiter": float("nan")}, "maxiter")):
+        with pytest.raises(ValueError, match=match):
+            train_detector(ts, n_hidden=2, progress=False, **kw)
+    # the save's message names the file asked for, not the hidden temporary beside it
+    with pytest.raises(FileNotFoundError, match=r"cannot save .*w\.npz.*does not exist") as exc:
+        tm.SlipDetector.default().save(tmp_path / "no" / "sub" / "w.npz")
+    assert ".tmp" not in str(exc.value)

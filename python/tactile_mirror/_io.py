@@ -56,6 +56,10 @@ def _open_temporary(target: str) -> tuple[int, str]:
             return os.open(tmp, os.O_WRONLY | os.O_CREAT | os.O_EXCL | getattr(os, "O_BINARY", 0), 0o666), tmp
         except FileExistsError:
             continue
+        except (FileNotFoundError, NotADirectoryError) as exc:
+            # (the message named the hidden temporary, not the file the caller asked for)
+            raise type(exc)(exc.errno, f"cannot save {target!r}: its folder {folder!r} does not exist or is not a "
+                                       f"folder") from None
     raise FileExistsError(f"could not create a temporary file beside {target!r}")
 
 

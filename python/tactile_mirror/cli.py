@@ -37,6 +37,10 @@ def _positive(kind, allow_zero=False):
     return parse
 
 
+#: Seeds: non-negative integers (a negative one reached numpy as "expected non-negative integer").
+_nonnegative_int = _positive(int, allow_zero=True)
+
+
 def _scene_from_args(args):
     from . import scenes
 
@@ -442,7 +446,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--duration", type=_positive(float), default=None, help="seconds (default: 2.0)")
     p.add_argument("--ridges", type=_positive(int), default=1, help="ridges in the pad (default: 1)")
     p.add_argument("--noise", type=float, default=0.0, help="sensor noise, V rms (default: 0)")
-    p.add_argument("--seed", type=int, default=0, help="noise / random-scene seed (default: 0)")
+    p.add_argument("--seed", type=_nonnegative_int, default=0, help="noise / random-scene seed (default: 0)")
     p.add_argument("--out", default="scene.npz",
                    help="output file, npz format, written as named (default: %(default)s)")
     p.add_argument("--figure", default=None, help="also write the Figs. 6-8 style plot to this file")
@@ -458,7 +462,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("number", type=int, choices=[6, 7, 8, 10, 12, 13], help="figure number")
     p.add_argument("--out", default="figures", help="output folder (default: %(default)s)")
     p.add_argument("--weights", default=None, help=_WEIGHTS_HELP % "default; figures 12, 13: paper, the loop experiment's")
-    p.add_argument("--seed", type=int, default=0, help="figures 12, 13: finger path seed (default: 0)")
+    p.add_argument("--seed", type=_nonnegative_int, default=0, help="figures 12, 13: finger path seed (default: 0)")
     p.add_argument("--law", default="velocity",
                    choices=["velocity", "paper", "velocity, y_pred ramp", "velocity, shear only"],
                    help="figure 13: stage controller (default: %(default)s)")
@@ -487,7 +491,7 @@ def build_parser() -> argparse.ArgumentParser:
                                    "alarms, latency and y_pred lead.")
     p.add_argument("--weights", default=None, help=_WEIGHTS_HELP % "default")
     p.add_argument("--scenes", type=_positive(int), default=20, help="held-out scenes (default: 20)")
-    p.add_argument("--seed", type=int, default=None, help="scene seed (default: the held-out seed)")
+    p.add_argument("--seed", type=_nonnegative_int, default=None, help="scene seed (default: the held-out seed)")
     p.set_defaults(func=cmd_evaluate)
 
     p = sub.add_parser("bench", help="run time against error of every kernel: markdown table and Pareto plot",
@@ -544,7 +548,7 @@ def build_parser() -> argparse.ArgumentParser:
                                 "(default: %(default)s)")
             q.add_argument("--speed", type=_positive(float), default=5.0,
                            help="the finger's peak speed, mm/s (a report path; default: 5)")
-            q.add_argument("--seed", type=int, default=None, help="finger path seed (default: the first report seed)")
+            q.add_argument("--seed", type=_nonnegative_int, default=None, help="finger path seed (default: the first report seed)")
             q.add_argument("--duration", type=_positive(float), default=3.0, help="seconds, 0.5 s press included "
                            "(default: 3)")
         else:

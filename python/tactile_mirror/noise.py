@@ -329,6 +329,8 @@ class SensorNoise:
         if isinstance(n, bool) or not isinstance(n, (int, np.integer)) or n < 0:
             raise ValueError(f"n must be a non-negative integer (samples), got {n!r}")
         shape = _check_channels(channels)
+        if isinstance(seed, (int, np.integer)) and not isinstance(seed, bool) and seed < 0:
+            raise ValueError(f"seed must be a non-negative integer, got {seed!r}")  # (numpy's words named nothing)
         rng = seed if isinstance(seed, np.random.Generator) else np.random.default_rng(seed)
         m = int(np.prod(shape, dtype=np.int64))
         v = np.zeros((m, int(n)))

@@ -497,8 +497,10 @@ def train_detector(data, n_hidden: int = 16, feedback: bool = True, seed=0, maxi
     """
     if isinstance(n_hidden, bool) or not isinstance(n_hidden, (int, np.integer)) or n_hidden < 1:
         raise ValueError(f"n_hidden must be a positive integer, got {n_hidden!r}")
-    if maxiter < 1:
-        raise ValueError(f"maxiter must be >= 1, got {maxiter}")
+    if isinstance(maxiter, bool) or not isinstance(maxiter, (int, np.integer)) or maxiter < 1:
+        raise ValueError(f"maxiter must be a positive integer, got {maxiter!r}")
+    if isinstance(seed, (int, np.integer)) and not isinstance(seed, bool) and seed < 0:
+        raise ValueError(f"seed must be a non-negative integer, got {seed!r}")
     # (a NaN here reached the optimiser as "theta must be finite"; a negative weight ran)
     for name, value in (("l2", l2), ("pred_weight", pred_weight), ("negative_weight", negative_weight),
                         ("onset_weight", onset_weight), ("onset_window", onset_window)):
