@@ -183,7 +183,7 @@ def main(argv=None):
             rows.append(table_rows("bound classifier (p>=0.8, 3 in a row)", outs, test, kinds, cond))
             curves.append((cond, "bound classifier (3 in a row)", roc(probs, test, kinds, consecutive=3)))
             outs = []
-            tree_probs = bank_tree_scores(noisy_train, noisy, RC[cond][2])
+            tree_probs = bank_tree_scores(noisy_train, noisy, NOISE_CONDITIONS[cond][2])
             curves.append((cond, "trees on the bank inputs (3 in a row)", roc(tree_probs, test, kinds, consecutive=3)))
             for p in tree_probs:
                 a = debounce(p >= 0.8).astype(float)
