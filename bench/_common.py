@@ -42,3 +42,26 @@ def study_training_scenes(cache, extra: int, progress: bool = True) -> list:
     if extra:
         train = train + build.simulate_cached(extra, build.EXTRA_TRAIN_SEED, build.TEST_KWARGS, cache, progress)
     return train
+
+
+def bank_training_set(train):
+    """The detector studies' training set of the filter-bank net: the build's recipe (two noise
+    copies of every scene, ``build.NOISE_RANGE``, then random gains 0.6-1.7)."""
+    from tactile_mirror.detector import build
+    from tactile_mirror.detector.training import augment_gains, augment_noise, make_training_set
+
+    seqs = augment_noise(train, build.NOISE_COPIES, build.NOISE_RANGE, seed=2)
+    return augment_gains(make_training_set(seqs, "stress_rate_bank"), (0.6, 1.7), seed=1)
+
+
+def bank_validation_conditions(results, estimator) -> dict:
+    """``{"noise-free" | "1 mV rms": (bank features, results, onset kinds)}`` of validation
+    scenes: their own noise removed, and 1 mV rms of white noise added (seed 4001)."""
+    from tactile_mirror.detector.data_prep import features_from_result
+    from tactile_mirror.detector.evaluate import noise_free, onset_kinds, with_noise
+
+    clean = noise_free(results)
+    noisy = with_noise(clean, "1 mV rms white", seed=4001)
+    kinds = onset_kinds(results)
+    return {name: ([features_from_result(r, "stress_rate_bank", estimator=estimator) for r in rr], rr, kinds)
+            for name, rr in (("noise-free", clean), ("1 mV rms", noisy))}

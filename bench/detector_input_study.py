@@ -99,18 +99,11 @@ def main(argv=None):
     args = ap.parse_args(argv)
     sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
 
-    from _common import study_training_scenes
+    from _common import bank_training_set, bank_validation_conditions, study_training_scenes
     from tactile_mirror._io import write_json
     from tactile_mirror.detector import SlipDetector, build
-    from tactile_mirror.detector.data_prep import features_from_result
-    from tactile_mirror.detector.evaluate import noise_free, onset_kinds, roc, with_noise
-    from tactile_mirror.detector.training import (
-        TrainingSet,
-        augment_gains,
-        augment_noise,
-        make_training_set,
-        train_detector,
-    )
+    from tactile_mirror.detector.evaluate import roc
+    from tactile_mirror.detector.training import TrainingSet, train_detector
     from tactile_mirror.measure import cpu_model
 
     t0 = time.perf_counter()
@@ -124,19 +117,12 @@ def main(argv=None):
     print(f"# CPU: {cpu_model()}; {len(train)} training scenes; validation seed {build.VALIDATION_SEED}: "
           f"scenes {chosen} choose, {reported} report")
 
-    seqs = augment_noise(train, build.NOISE_COPIES, build.NOISE_RANGE, seed=2)
-    ts = augment_gains(make_training_set(seqs, "stress_rate_bank"), (0.6, 1.7), seed=1)
+    ts = bank_training_set(train)
     print(f"# {ts.n_seq} training sequences, {int(ts.mask.sum())} samples", flush=True)
 
     bundled = SlipDetector.default()
     est = bundled.metadata.get("estimator")
-    conds = {}
-    for part, res in (("select", sel_val), ("report", rep_val)):
-        clean = noise_free(res)
-        noisy = with_noise(clean, "1 mV rms white", seed=4001)
-        kinds = onset_kinds(res)
-        conds[part] = {name: ([features_from_result(r, "stress_rate_bank", estimator=est) for r in rr], rr, kinds)
-                       for name, rr in (("noise-free", clean), ("1 mV rms", noisy))}
+    conds = {part: bank_validation_conditions(res, est) for part, res in (("select", sel_val), ("report", rep_val))}
     kinds = conds["report"]["noise-free"][2]
     print(f"# report half: {kinds.count('release')} release, {kinds.count('gradual')} gradual onsets", flush=True)
 

@@ -68,18 +68,11 @@ def main(argv=None):
     args = ap.parse_args(argv)
     sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
 
-    from _common import study_training_scenes
+    from _common import bank_training_set, bank_validation_conditions, study_training_scenes
     from tactile_mirror._io import write_json
     from tactile_mirror.detector import SlipDetector, build
-    from tactile_mirror.detector.data_prep import features_from_result
-    from tactile_mirror.detector.evaluate import noise_free, onset_kinds, roc, with_noise
-    from tactile_mirror.detector.training import (
-        augment_gains,
-        augment_noise,
-        hard_example_weights,
-        make_training_set,
-        train_detector,
-    )
+    from tactile_mirror.detector.evaluate import roc
+    from tactile_mirror.detector.training import hard_example_weights, train_detector
     from tactile_mirror.measure import cpu_model
 
     t0 = time.perf_counter()
@@ -89,19 +82,12 @@ def main(argv=None):
     halves = {"A": (val[:half], f"1-{half}"), "B": (val[half:], f"{half + 1}-{len(val)}")}
     print(f"# CPU: {cpu_model()}; {len(train)} training scenes; validation seed {build.VALIDATION_SEED}, "
           f"halves A = scenes {halves['A'][1]}, B = {halves['B'][1]}")
-    seqs = augment_noise(train, build.NOISE_COPIES, build.NOISE_RANGE, seed=2)
-    ts = augment_gains(make_training_set(seqs, "stress_rate_bank"), (0.6, 1.7), seed=1)
+    ts = bank_training_set(train)
     print(f"# {ts.n_seq} training sequences, {int(ts.mask.sum())} samples", flush=True)
 
     bundled = SlipDetector.default()
     est = bundled.metadata.get("estimator")
-    conds = {}
-    for part, (res, _) in halves.items():
-        clean = noise_free(res)
-        noisy = with_noise(clean, "1 mV rms white", seed=4001)
-        kinds = onset_kinds(res)
-        conds[part] = {name: ([features_from_result(r, "stress_rate_bank", estimator=est) for r in rr], rr, kinds)
-                       for name, rr in (("noise-free", clean), ("1 mV rms", noisy))}
+    conds = {part: bank_validation_conditions(res, est) for part, (res, _) in halves.items()}
 
     def curves(part, w):
         return {name: roc(run_net(w, feats), rr, kinds) for name, (feats, rr, kinds) in conds[part].items()}

@@ -204,3 +204,18 @@ def test_the_load_cell_design_predicts_its_closed_loop_error():
     rms_sim, rms_pred = np.sqrt(np.mean(e_sim**2)), np.sqrt(np.mean(e_pred**2))
     assert rms_pred == pytest.approx(rms_sim, rel=0.3)
     assert rms_sim < 0.01e-3
+
+
+def test_loop_design_command_designs_for_a_load_cell(tmp_path, capsys):
+    import json
+
+    from tactile_mirror.cli import main
+
+    assert main(["loop", "design", "--load-cell", "--out", str(tmp_path)]) == 0
+    printed = capsys.readouterr().out
+    assert "load cell" in printed and "N/mm" in printed
+    summary = json.loads((tmp_path / "loop_design_load_cell.json").read_text())
+    assert summary["sensor"] == "force" and summary["delays_s"]["estimator_group_delay"] == pytest.approx(5e-4)
+    assert 70e3 < summary["asym_per_m"] < 85e3  # N/m: the FEM pad's stuck stiffness
+    assert (tmp_path / "loop_design_load_cell.png").stat().st_size > 0
+    assert not (tmp_path / "loop_design.json").exists()  # the strips' design is not overwritten

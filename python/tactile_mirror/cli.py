@@ -318,20 +318,29 @@ def cmd_loop_design(args) -> int:
 
     limits = _stage_from_args(args)
     w = _weights(_loop_weights(args.weights, args.fs))
-    sw = calibrate_shear_weights(w, args.fs, 6, plant="fem")
-    cal = calibrate_shear(w, args.fs, 6, plant="fem", shear_weights=sw)
-    d = design_loop(limits, cal, args.fs, stage_delay=args.delay * 1e-3, stage_lag=args.lag * 1e-3, shear_weights=sw,
-                    planner=not args.streaming)
     out = pathlib.Path(args.out)
+    stem = "loop_design_load_cell" if args.load_cell else "loop_design"
+    if args.load_cell:  # the pad's force from a load cell under it: no strip weights
+        cal = calibrate_shear(w, args.fs, 6, plant="fem", load_cell=True)
+        d = design_loop(limits, cal, args.fs, stage_delay=args.delay * 1e-3, stage_lag=args.lag * 1e-3,
+                        planner=not args.streaming, sensor="force")
+    else:
+        sw = calibrate_shear_weights(w, args.fs, 6, plant="fem")
+        cal = calibrate_shear(w, args.fs, 6, plant="fem", shear_weights=sw)
+        d = design_loop(limits, cal, args.fs, stage_delay=args.delay * 1e-3, stage_lag=args.lag * 1e-3,
+                        shear_weights=sw, planner=not args.streaming)
     out.mkdir(parents=True, exist_ok=True)
-    design_figure(d, str(out / "loop_design.png"))
-    write_json(out / "loop_design.json", d.summary(), indent=1)
-    print(f"calibration: shear weights (L, R per ridge) {np.round(sw, 3).tolist()}, direction_sign {cal[0]:+g}, "
-          f"shear signal {cal[1]:.4g} per m")
+    design_figure(d, str(out / f"{stem}.png"))
+    write_json(out / f"{stem}.json", d.summary(), indent=1)
+    if args.load_cell:
+        print(f"calibration: load cell, direction_sign {cal[0]:+g}, {cal[1] / 1e3:.4g} N/mm")
+    else:
+        print(f"calibration: shear weights (L, R per ridge) {np.round(sw, 3).tolist()}, direction_sign {cal[0]:+g}, "
+              f"shear signal {cal[1]:.4g} per m")
     print(f"crossover {d.crossover_hz:.1f} Hz, phase margin {d.phase_margin_deg:.1f} deg, gain margin "
           f"{d.gain_margin_db:.1f} dB, max |S| {d.max_sensitivity:.2f}; Kp {d.kp:.1f} 1/s, integral {d.z:.1f} 1/s, "
           f"Kv {d.kv:.2f}; loop delay {d.delays['total'] * 1e3:.2f} ms")
-    print(f"wrote {out / 'loop_design.png'}, {out / 'loop_design.json'}")
+    print(f"wrote {out / (stem + '.png')}, {out / (stem + '.json')}")
     return 0
 
 
@@ -536,6 +545,9 @@ def build_parser() -> argparse.ArgumentParser:
             q.add_argument("--streaming", action="store_true",
                            help="the stage follows streamed set points (default: its move command plans a braking "
                                 "move to each target at --a-max, and the command leads by the braking distance)")
+            q.add_argument("--load-cell", action="store_true",
+                           help="design for a load cell under the pad (MirrorPipeline(force_input=True)) instead of "
+                                "the strips' shear signal; writes loop_design_load_cell.png/.json")
         elif name == "realtime":
             q.add_argument("--fs", type=_positive(float), default=1000.0, help="tick rate, Hz (default: 1000)")
             q.add_argument("--pad", choices=["realtime", "default"], default="realtime",
