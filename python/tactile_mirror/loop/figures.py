@@ -100,7 +100,8 @@ def design_figure(design, path) -> None:
     ax.set_ylabel("phase of L (deg)")
     d = design.delays
     ax.set_title(f"PM {design.phase_margin_deg:.0f} deg; delays: stage {d['stage_dead_time'] * 1e3:g} + tick "
-                 f"{d['command_tick'] * 1e3:g} + lag {d['stage_lag'] * 1e3:g} + estimator "
+                 f"{d['command_tick'] * 1e3:g} + lag {d['stage_lag'] * 1e3:g} + "
+                 f"{'load cell difference' if design.sensor == 'force' else 'estimator'} "
                  f"{d['estimator_group_delay'] * 1e3:.2f} ms", fontsize=8)
     ax = axs[2]
     v = np.geomspace(1e-3, 3e-2, 40)
