@@ -554,3 +554,17 @@ def test_seeds_iterations_and_save_folders_are_named_in_their_errors(tmp_path, c
     with pytest.raises(FileNotFoundError, match=r"cannot save .*w\.npz.*does not exist") as exc:
         tm.SlipDetector.default().save(tmp_path / "no" / "sub" / "w.npz")
     assert ".tmp" not in str(exc.value)
+
+
+def test_pipeline_rates_beyond_10_mhz_are_refused_in_python_and_c():
+    import tactile_mirror as tm
+
+    w = dict(weights(), fs=2e7)
+    with pytest.raises(ValueError, match=r"fs must lie in \[1, 1e7\] Hz"):
+        tm.MirrorPipeline(w, 2e7, 6, sos_v=np.array([[1.0, 0, 0, 1, 0, 0]]), sos_u=np.array([[1.0, 0, 0, 1, 0, 0]]))
+    keep = []
+    ffi, lib, cfg = _c_default_velocity_config(weights(), StressRateEstimator(PVDFCircuit(), FS, 12, use_u=True), keep)
+    cfg.fs = cfg.weights_fs = 1e300
+    h = ffi.new("tm_pipeline*")
+    assert lib.tm_pipeline_create(cfg, h) == lib.TM_ERR_ARGUMENT and h[0] == 0
+    assert b"fs must lie in [1, 1e7] Hz" in ffi.string(lib.tm_last_error())

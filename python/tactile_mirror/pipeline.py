@@ -103,8 +103,8 @@ def pipeline_config(detector, fs, n_ridges: int = 6, *, estimator=None, sos_v=No
                     force_limit=None) -> dict:
     """Validate and assemble a pipeline configuration (see :class:`MirrorPipeline`)."""
     fs = _positive(fs, "fs")
-    if fs < 1.0:  # (the laws divide by fs: a denormal rate made every command NaN; as pipeline.hpp)
-        raise ValueError(f"fs must be at least 1 Hz, got {fs!r}")
+    if not 1.0 <= fs <= 1e7:  # (the laws divide by fs: a denormal rate made every command NaN; as pipeline.hpp)
+        raise ValueError(f"fs must lie in [1, 1e7] Hz, got {fs!r}")
     if isinstance(n_ridges, bool) or not isinstance(n_ridges, numbers.Integral) or not 1 <= n_ridges <= 64:
         raise ValueError(f"n_ridges must be an integer in [1, 64], got {n_ridges!r}")
     n_ridges = int(n_ridges)

@@ -396,7 +396,8 @@ inline void validate_config(const PipelineConfig& c) {
     auto bad = [](const std::string& m) { throw std::invalid_argument(m); };
     if (c.n_ridges < 1 || c.n_ridges > 64) bad("n_ridges must lie in [1, 64], got " + std::to_string(c.n_ridges));
     // (at least 1 Hz: the laws divide by fs, and a denormal rate made every command NaN)
-    if (!std::isfinite(c.fs) || !(c.fs >= 1.0)) bad("fs must be a finite number of Hz, at least 1");
+    // (and at most 10 MHz: a C caller's 1e300 Hz was accepted, its dt a denormal)
+    if (!std::isfinite(c.fs) || !(c.fs >= 1.0 && c.fs <= 1e7)) bad("fs must lie in [1, 1e7] Hz");
     if (!std::isfinite(c.weights_fs) || !(c.weights_fs > 0.0))
         bad("weights_fs must be the positive sample rate (Hz) the detector was trained for");
     if (std::fabs(c.fs - c.weights_fs) > 1e-9 * c.fs)
