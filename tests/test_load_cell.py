@@ -219,3 +219,33 @@ def test_loop_design_command_designs_for_a_load_cell(tmp_path, capsys):
     assert 70e3 < summary["asym_per_m"] < 85e3  # N/m: the FEM pad's stuck stiffness
     assert (tmp_path / "loop_design_load_cell.png").stat().st_size > 0
     assert not (tmp_path / "loop_design.json").exists()  # the strips' design is not overwritten
+
+
+def test_a_recording_with_the_force_replays_bit_for_bit(tmp_path):
+    from tactile_mirror.loop.recording import Recording, RecordingError
+    from tactile_mirror.loop.scene import LoopScene, run_scene
+
+    sc = LoopScene(seed=3, duration=0.3, plant="brush", load_cell=True, drop_rate=0.05,
+                   trajectory={"amplitude": 1e-3, "bandwidth": 2.0, "v_max": 0.005, "a_max": 0.5})
+    r = run_scene(sc, _weights(), _law(), limits=STAGE)
+    rec = r.run.to_recording(r.config)
+    assert rec.samples.shape[1] == 4 * 6 + 1 and np.isnan(rec.samples[:, -1]).any()  # dropped ticks lose the force
+    rec.save(tmp_path / "r.npz")
+    back = Recording.load(tmp_path / "r.npz")
+    assert back.config["force_input"] is True and back.verify()
+    with pytest.raises(RecordingError, match=r"samples must have shape \(300, 25\)"):
+        Recording(**{**vars(back), "samples": back.samples[:, :24]}).validate()
+
+
+def test_loop_realtime_runs_the_load_cell_law(tmp_path, capsys):
+    import json
+
+    from tactile_mirror.cli import main
+    from tactile_mirror.loop.recording import Recording
+
+    assert main(["loop", "realtime", "--law", "load cell", "--duration", "0.8", "--out", str(tmp_path)]) == 0
+    capsys.readouterr()
+    summary = json.loads((tmp_path / "realtime.json").read_text())
+    assert summary["law"] == "load cell" and summary["gross_slips"] == 0
+    rec = Recording.load(tmp_path / "realtime_recording.npz")
+    assert rec.config["force_input"] is True and rec.samples.shape == (800, 25) and rec.verify()

@@ -386,13 +386,15 @@ def cmd_loop_realtime(args) -> int:
     weights = _loop_weights(args.weights, fs)
     seed = REPORT_PATHS.first_seed if args.seed is None else args.seed
     scene = LoopScene(seed=seed, duration=args.duration, fs=fs, plant="fem", stage_delay=args.delay * 1e-3,
-                      stage_lag=args.lag * 1e-3, trajectory=REPORT_PATHS.trajectory(args.speed * 1e-3))
+                      stage_lag=args.lag * 1e-3, trajectory=REPORT_PATHS.trajectory(args.speed * 1e-3),
+                      load_cell=args.law == "load cell")
     make = FemPad.realtime if args.pad == "realtime" else FemPad
     plant = make(6, fs=fs, threads=args.threads)
     controller, shear_weights = None, None
-    if args.law == "default":
-        _, design = _laws(weights, fs, limits, scene.stage_delay, scene.stage_lag, 6, "fem")
-        controller, shear_weights = design.controller, design.shear_weights
+    if args.law != "open loop":
+        laws, design = _laws(weights, fs, limits, scene.stage_delay, scene.stage_lag, 6, "fem")
+        controller = laws[args.law]
+        shear_weights = design.shear_weights if args.law == "default" else None
     print(f"pacing {args.duration:g} s at {fs:g} Hz: {args.pad} pad ({plant.pad.model.n_nodes} contact "
           f"nodes a ridge, {args.threads} thread{'s' if args.threads > 1 else ''}), law {args.law}, finger up to "
           f"{args.speed:g} mm/s (seed {seed})", flush=True)
@@ -555,9 +557,9 @@ def build_parser() -> argparse.ArgumentParser:
                                 "(default: %(default)s)")
             q.add_argument("--threads", type=int, choices=[1, 2], default=1, help="threads stepping the ridges "
                            "(default: 1)")
-            q.add_argument("--law", choices=["default", "open loop"], default="default",
-                           help="the default law, or the stage held still (the pad's worst case) "
-                                "(default: %(default)s)")
+            q.add_argument("--law", choices=["default", "load cell", "open loop"], default="default",
+                           help="the default law, the same law on a load cell under the pad, or the stage held "
+                                "still (the pad's worst case) (default: %(default)s)")
             q.add_argument("--speed", type=_positive(float), default=5.0,
                            help="the finger's peak speed, mm/s (a report path; default: 5)")
             q.add_argument("--seed", type=_nonnegative_int, default=None, help="finger path seed (default: the first report seed)")

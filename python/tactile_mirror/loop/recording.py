@@ -15,7 +15,7 @@ key                 shape / type        meaning
 ``format_version``  int                 :data:`FORMAT_VERSION`
 ``fs``              float               tick rate, Hz
 ``x0``              float               controller start position, m
-``samples``         (n, n_inputs)       the pipeline's inputs, V
+``samples``         (n, n_inputs)       the pipeline's inputs, V (and N: a load cell's force, last)
 ``outputs``         (n, n_outputs)      ``x_cmd, v_cmd, y_slip_0, y_non_0, y_pred_0, ...``
 ``accepted``        (n,) bool           False for rejected ticks
 ``stage_position``  (n,)                measured stage position, m
@@ -137,7 +137,10 @@ class Recording:
         if isinstance(cfg_fs, (bool, np.bool_)) or not isinstance(cfg_fs, (int, float, np.integer, np.floating)):
             raise RecordingError(f"config['fs'] must be a number, got {cfg_fs!r}")
         R = int(R)
-        ni = 2 * R * (2 if use_u else 1)
+        force = self.config.get("force_input", False)  # (recordings made before the load cell have none)
+        if not isinstance(force, (bool, np.bool_)):
+            raise RecordingError(f"config['force_input'] must be a bool, got {force!r}")
+        ni = 2 * R * (2 if use_u else 1) + (1 if force else 0)
         no = 2 + 3 * R
         arrays = {"samples": self.samples, "outputs": self.outputs, "accepted": self.accepted,
                   "stage_position": self.stage_position}
