@@ -65,3 +65,12 @@ def bank_validation_conditions(results, estimator) -> dict:
     kinds = onset_kinds(results)
     return {name: ([features_from_result(r, "stress_rate_bank", estimator=estimator) for r in rr], rr, kinds)
             for name, rr in (("noise-free", clean), ("1 mV rms", noisy))}
+
+
+def study_scenes(cache, extra: int, n_validation: int) -> tuple[list, list]:
+    """The detector studies' training scenes (:func:`study_training_scenes`) and the build's
+    first ``n_validation`` validation scenes (``build.VALIDATION_SEED``), cached in ``cache``."""
+    from tactile_mirror.detector import build
+
+    train = study_training_scenes(cache, extra)
+    return train, build.simulate_cached(n_validation, build.VALIDATION_SEED, build.TEST_KWARGS, cache)

@@ -68,7 +68,7 @@ def main(argv=None):
     args = ap.parse_args(argv)
     sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
 
-    from _common import bank_training_set, bank_validation_conditions, study_training_scenes
+    from _common import bank_training_set, bank_validation_conditions, study_scenes
     from tactile_mirror._io import write_json
     from tactile_mirror.detector import SlipDetector, build
     from tactile_mirror.detector.evaluate import roc
@@ -76,8 +76,7 @@ def main(argv=None):
     from tactile_mirror.measure import cpu_model
 
     t0 = time.perf_counter()
-    train = study_training_scenes(args.cache, args.extra)
-    val = build.simulate_cached(args.n_validation, build.VALIDATION_SEED, build.TEST_KWARGS, args.cache)
+    train, val = study_scenes(args.cache, args.extra, args.n_validation)
     half = len(val) // 2
     halves = {"A": (val[:half], f"1-{half}"), "B": (val[half:], f"{half + 1}-{len(val)}")}
     print(f"# CPU: {cpu_model()}; {len(train)} training scenes; validation seed {build.VALIDATION_SEED}, "
