@@ -263,7 +263,7 @@ def test_config_init_writes_exactly_the_callers_struct():
     struct; sizes outside the accepted range write nothing."""
     ffi, lib = load()
     full = ffi.sizeof("tm_config")
-    abi9 = ffi.offsetof("tm_config", "force_input")
+    abi9 = ffi.offsetof("tm_config", "force_limit")
     abi8 = ffi.offsetof("tm_config", "bank_pad_mean")
     abi7 = ffi.offsetof("tm_config", "bank_knee")
     abi6 = ffi.offsetof("tm_config", "planner_decel")
@@ -507,10 +507,16 @@ def test_c_abi_refuses_bank_fields_out_of_range_or_for_the_papers_net():
     ni, no = ffi.new("size_t*"), ffi.new("size_t*")
     assert lib.tm_pipeline_sizes(h[0], ni, no) == 0 and ni[0] == 25
     assert lib.tm_pipeline_destroy(h[0]) == 0
-    cfg.struct_size = ffi.offsetof("tm_config", "force_input")  # an ABI-9 program's struct
+    # an ABI-9 program's struct: its size is the whole ABI-9 struct, with the 4 bytes of padding
+    # after bank_pad_mean; whatever those hold (1 here), its force_input is the default, 0
+    abi9 = ffi.offsetof("tm_config", "force_limit")
+    assert abi9 % 8 == 0 and abi9 - ffi.offsetof("tm_config", "bank_pad_mean") == 8
+    buf = ffi.buffer(cfg)
+    buf[abi9 - 4:abi9] = (1).to_bytes(4, "little")
+    cfg.struct_size = abi9
     cfg.abi_version = 9
     assert lib.tm_pipeline_create(cfg, h) == 0
-    assert lib.tm_pipeline_sizes(h[0], ni, no) == 0 and ni[0] == 24  # its force_input is the default, 0
+    assert lib.tm_pipeline_sizes(h[0], ni, no) == 0 and ni[0] == 24
     assert lib.tm_pipeline_destroy(h[0]) == 0
 
 

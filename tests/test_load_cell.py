@@ -116,6 +116,7 @@ def test_a_rejected_force_keeps_the_state():
     ({"force_input": 1}, TypeError, "force_input must be True or False"),
     ({"force_input": True, "force_limit": np.inf}, ValueError, "force_limit"),
     ({"force_input": True, "force_limit": -1.0}, ValueError, "force_limit"),
+    ({"force_input": True, "force_limit": 1e300}, ValueError, r"force_limit must lie in \(0, 1e6\] N"),
     ({"force_input": True, "force_limit": "5"}, TypeError, "force_limit"),
 ])
 def test_force_options_are_checked(kw, exc, match):
@@ -249,3 +250,46 @@ def test_loop_realtime_runs_the_load_cell_law(tmp_path, capsys):
     assert summary["law"] == "load cell" and summary["gross_slips"] == 0
     rec = Recording.load(tmp_path / "realtime_recording.npz")
     assert rec.config["force_input"] is True and rec.samples.shape == (800, 25) and rec.verify()
+
+
+
+def test_extreme_gains_cannot_slip_a_nan_command_through_the_unguarded_window():
+    """With gains of 1e303 the law's products overflow (inf - inf) long before |a| reaches
+    the window's bound: the tick must be refused as an overflow, as the reference refuses it."""
+    est = StressRateEstimator(PVDFCircuit(), FS, 4, bandwidth=100.0)
+    law = VelocityController(v_max=0.004, a_max=0.2, shear_gain=1e303, rate_gain=1e303, arm_delay=0.0)
+    pipe = MirrorPipeline(_weights(), FS, 2, estimator=est, controller=law, v_limit=5.0, u_limit=5.0,
+                          activation="exact", force_input=True, force_limit=1e6)
+    x = np.zeros((40, 9))
+    x[10:, 8] = 1e6
+    x[20:, 8] = 5e5
+    out = pipe.process_block(x)[0]
+    ref = ReferencePipeline(pipe.config)
+    ro = ref.process_block(x)
+    assert np.all(np.isfinite(out)) and pipe.status["overflow"] > 0
+    assert pipe.status["overflow"] == ref.rejected["overflow"]
+    np.testing.assert_allclose(out, ro, rtol=1e-9, atol=1e-13)
+
+
+def test_time_step_ns_leaves_a_float32_pipeline_as_it_was():
+    """The timing loop restores the state bit for bit (it went through the filters' scipy
+    layout, which float delta sections do not keep exactly)."""
+    def make():
+        return MirrorPipeline(_weights(), FS, 2, estimator=StressRateEstimator(PVDFCircuit(), FS, 4, bandwidth=100.0),
+                              controller=_law(), v_limit=5.0, u_limit=5.0, dtype=np.float32, force_input=True)
+
+    a, b = make(), make()
+    x = _signals(600)
+    a.process_block(x[:300])
+    b.process_block(x[:300])
+    a.time_step_ns(2000, 1)
+    assert np.array_equal(a.process_block(x[300:])[0].view(np.uint64), b.process_block(x[300:])[0].view(np.uint64))
+
+
+def test_a_reference_of_a_config_without_the_force_limit_uses_the_default():
+    cfg = {k: v for k, v in _pipe(_law()).config.items() if k != "force_limit"}
+    ref = ReferencePipeline(cfg)
+    x = _signals(50)
+    x[10, 8] = 150.0  # beyond the default 100 N
+    ref.process_block(x)
+    assert ref.rejected["out_of_range"] == 1

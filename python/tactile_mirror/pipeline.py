@@ -188,8 +188,8 @@ def pipeline_config(detector, fs, n_ridges: int = 6, *, estimator=None, sos_v=No
     if not isinstance(force_input, (bool, np.bool_)):
         raise TypeError(f"force_input must be True or False, got {type(force_input).__name__}")
     force_limit = float(_DEFAULTS["force_limit"]) if force_limit is None else _positive(force_limit, "force_limit")
-    if not math.isfinite(force_limit):
-        raise ValueError(f"force_limit must be a finite force (N), got {force_limit!r}")
+    if not force_limit <= 1e6:  # (as pipeline.hpp: the force's change times fs stays far from overflow)
+        raise ValueError(f"force_limit must lie in (0, 1e6] N, got {force_limit!r}")
     arrays = {}
     for k in ("w1", "b1", "w2", "b2", "input_mean", "input_gain"):
         a = np.asarray(w[k], dtype=np.float64)
@@ -273,7 +273,7 @@ class MirrorPipeline:
         ``design_loop(..., sensor="force")``. Default False.
     force_limit : float
         Largest valid ``|force|``, N (the load cell's range); a tick beyond it, or with a
-        NaN/Inf force, is rejected like a bad voltage. Default 100 N; must be finite.
+        NaN/Inf force, is rejected like a bad voltage. Default 100 N; at most 1e6 N.
 
     Notes
     -----
@@ -513,8 +513,8 @@ class ReferencePipeline:
         ok = bool(np.all(np.abs(x[:nch]) <= c["v_limit"]))
         if c["use_u"]:
             ok &= bool(np.all(np.abs(x[nch:nv]) <= c["u_limit"]))
-        if self.force:
-            ok &= bool(abs(x[nv]) <= c["force_limit"])
+        if self.force:  # (a config without force_limit has the default, as MirrorPipeline.from_config)
+            ok &= bool(abs(x[nv]) <= c.get("force_limit", _DEFAULTS["force_limit"]))
         reason = "" if ok else ("nonfinite" if not np.all(np.isfinite(x)) else "out_of_range")
         if ok:
             with np.errstate(all="ignore"):  # an overflow is detected below

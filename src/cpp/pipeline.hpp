@@ -236,7 +236,7 @@ struct PipelineConfig {
     // then its change per tick times fs (N/s), not the strips' rates. A tick whose force
     // is NaN/Inf or beyond force_limit is rejected like a bad voltage. 0: no force input.
     int force_input = 0;
-    double force_limit = 100.0;  // N, finite, > 0
+    double force_limit = 100.0;  // N, in (0, 1e6]
 };
 
 struct PipelineStatus {
@@ -462,7 +462,9 @@ inline void validate_config(const PipelineConfig& c) {
     if (c.max_hold_ticks < 0) bad("max_hold_ticks must be >= 0");
     if (c.shear_weights) check_finite_array(c.shear_weights, std::size_t(2 * c.n_ridges), "shear_weights");
     if (c.force_input != 0 && c.force_input != 1) bad("force_input must be 0 or 1, got " + std::to_string(c.force_input));
-    if (!std::isfinite(c.force_limit) || !(c.force_limit > 0.0)) bad("force_limit must be a positive finite force (N)");
+    // (at most 1 MN: the force's change times fs must stay far from overflow)
+    if (!std::isfinite(c.force_limit) || !(c.force_limit > 0.0 && c.force_limit <= 1e6))
+        bad("force_limit must lie in (0, 1e6] N");
     validate_controller(c.controller);
 }
 
@@ -1029,6 +1031,16 @@ private:
         // With a load cell: |a'| <= |a| + |F - F_prev| <= |a| + 2 force_limit.
         const Row arow = c.force_input == 1 ? axpy(2.0 * c.force_limit * kRoundingMargin, unit(ic), unit(ia))
                                             : axpy(wsum / fs_ * kRoundingMargin, f1, unit(ia));
+        // The velocity law multiplies a by its shear gain and the shear signal's input by
+        // rate_gain: with extreme gains those products overflow (inf - inf: a NaN command)
+        // before |a| reaches its limit. The window keeps g |a| below kAsymLimit, and is never
+        // opened when rate_gain times the input's bound could overflow.
+        const ControllerParams& law = c.controller;
+        const bool vel = law.kind == ControllerKind::velocity;
+        const double g_a = vel ? law.shear_gain * (1.0 + law.pred_boost) : 0.0;
+        const double in_max = c.force_input == 1 ? 2.0 * c.force_limit * fs_ : wsum * limit_;
+        if (vel && !(law.rate_gain * in_max < kAsymLimit)) return;
+        asym_limit_ = g_a > 1.0 ? kAsymLimit / g_a : kAsymLimit;
         std::copy(arow.begin(), arow.end(), m.begin() + std::ptrdiff_t(ia * d));
         if (bank_) {
             // Every bank state z is a low-pass (a z + (1 - a) x, a in [0, 1)), a leaky
@@ -1048,7 +1060,7 @@ private:
         std::copy(f1.begin(), f1.end(), lift_check_.begin() + std::ptrdiff_t(ia * d));
         lift_check_[ic * d + ia] = 1.0;
         lift_limit_[ia] = limit_;
-        lift_limit_[ic] = kAsymLimit;
+        lift_limit_[ic] = asym_limit_;
         std::copy(f2.begin(), f2.end(), lift_check_.begin() + std::ptrdiff_t(d * d));
         lift_limit_[d] = limit_;
         // M^(2^j) by squaring.
@@ -1293,7 +1305,7 @@ private:
             xv = x;
             xu = x + nch_;
         } else {
-            const std::size_t ni = n_inputs();
+            const std::size_t ni = n_voltages();  // (the force stays double: it may exceed float's range)
             for (std::size_t c = 0; c < ni; ++c) xin_[c] = T(x[c]);
             xv = xin_.data();
             xu = xin_.data() + nch_;
@@ -1334,14 +1346,10 @@ private:
     };
     Snapshot save() const {
         Snapshot s;
-        if (rate_f_) {
-            s.z1.resize(rate_f_->sections() * nch_ * 2);
-            rate_f_->get_state(s.z1.data());
-        }
-        if (rate2_f_) {
-            s.z2.resize(rate2_f_->sections() * nch_ * 2);
-            rate2_f_->get_state(s.z2.data());
-        }
+        // The raw states, bit for bit (get_state's scipy layout is not exact for float delta
+        // sections: time_step_ns changed a float32 pipeline's next outputs by 6e-8).
+        if (rate_f_) s.z1.assign(rate_f_->raw_state(), rate_f_->raw_state() + rate_f_->raw_state_size());
+        if (rate2_f_) s.z2.assign(rate2_f_->raw_state(), rate2_f_->raw_state() + rate2_f_->raw_state_size());
         s.mlp.resize(std::size_t(R_));
         mlp_->get_state(s.mlp.data());
         if (bank_) s.bank.assign(bank_->filter_state(), bank_->filter_state() + bank_->filter_state_size());
@@ -1355,8 +1363,8 @@ private:
         return s;
     }
     void restore(const Snapshot& s) noexcept {
-        if (rate_f_) rate_f_->set_state(s.z1.data());
-        if (rate2_f_) rate2_f_->set_state(s.z2.data());
+        if (rate_f_) rate_f_->load_raw_state(s.z1.data());
+        if (rate2_f_) rate2_f_->load_raw_state(s.z2.data());
         mlp_->set_state(s.mlp.data());
         if (bank_) bank_->load_filter_state(s.bank.data());
         std::copy(s.feat.begin(), s.feat.end(), feat_.data());
@@ -1395,6 +1403,7 @@ private:
     bool counters_changed_ = true;  // a counter of st_ changed since the last publication
     // Ticks that cannot overflow (setup_unguarded, renew_unguarded).
     double limit_ = 0.0, input_bound_ = kUnguardedInput;
+    double asym_limit_ = kAsymLimit;  // |a| within a window (kAsymLimit over the law's shear gain)
     bool inputs_bounded_ = false;
     std::uint32_t unguarded_left_ = 0;
     std::size_t lift_dim_ = 0;      // d: section bounds, (bank bound), |asymmetry|, 1; 0: always guarded

@@ -81,7 +81,7 @@ extern "C" {
  * its last member), and the command leads a planning stage's target when it is > 0.
  * 8: bank_knee (appended to tm_config): the filter-bank net's compressed inputs.
  * 9: bank_pad_mean (appended to tm_config): the filter-bank net that also reads the pad's mean.
- * 10: force_input, force_limit (appended to tm_config): a load cell's force as the last input,
+ * 10: force_limit, force_input (appended to tm_config): a load cell's force as the last input,
  * the controller's shear signal. */
 #define TM_ABI_VERSION 10
 
@@ -190,12 +190,13 @@ typedef struct tm_config {
                               * features over the ridges (the same for every ridge), after each ridge's own: its
                               * inputs (w1's columns, input_mean, input_gain, bank_knee) are twice the features
                               * (the bank's "pad_mean" in a weights file of kind "jordan_bank") */
-    /* ABI 10 (appended) */
+    /* ABI 10 (appended; force_limit first: an ABI-9 struct ends with 4 bytes of padding after
+     * bank_pad_mean, and no ABI-10 field may lie there) */
+    double force_limit;      /* N, in (0, 1e6] (default 100): |force| above it rejects the tick, as a bad voltage */
     int32_t force_input;     /* 0 (default) or 1: one more input after the voltages, the pad's tangential force
                               * in N (a load cell under the pad, or the stage's force readout); the controller's
                               * shear signal is then the force's change per tick times fs (N/s), not the strips'
                               * rates: a force has no partial-slip phantom (docs/loop.md). n_inputs grows by 1 */
-    double force_limit;      /* N, finite, > 0 (default 100): |force| above it rejects the tick, as a bad voltage */
 } tm_config;
 
 typedef struct tm_pipeline_status {

@@ -221,17 +221,18 @@ int32_t tm_controller_defaults(int32_t kind, tm_controller_params* params) {
 // ABI 5: slip_confirm at the end of the controller, shear_weights after it; ABI 6:
 // detector_kind and the filter bank's time constants; ABI 7: planner_decel, a controller
 // parameter kept in tm_config's tail, TM_CONTROLLER_TAIL_FIELDS; ABI 8: bank_knee; ABI 9:
-// bank_pad_mean; ABI 10: force_input, force_limit). A struct of ABI 4 ends where slip_confirm
+// bank_pad_mean; ABI 10: force_limit, force_input). A struct of ABI 4 ends where slip_confirm
 // begins, one of ABI 5 where detector_kind begins, one of ABI 6 where planner_decel begins,
 // one of ABI 7 where bank_knee begins, one of ABI 8 where bank_pad_mean begins, one of ABI 9
-// where force_input begins.
+// where force_limit begins.
 constexpr std::size_t kConfigSizeAbi2 = offsetof(tm_config, controller) + offsetof(tm_controller_params, shear_integral);
 constexpr std::size_t kConfigSizeAbi4 = offsetof(tm_config, controller) + offsetof(tm_controller_params, slip_confirm);
 constexpr std::size_t kConfigSizeAbi5 = offsetof(tm_config, detector_kind);
 constexpr std::size_t kConfigSizeAbi6 = offsetof(tm_config, planner_decel);
 constexpr std::size_t kConfigSizeAbi7 = offsetof(tm_config, bank_knee);
 constexpr std::size_t kConfigSizeAbi8 = offsetof(tm_config, bank_pad_mean);
-constexpr std::size_t kConfigSizeAbi9 = offsetof(tm_config, force_input);
+// (ABI 9's struct is 8-byte aligned: its size is where ABI 10's first field, a double, begins)
+constexpr std::size_t kConfigSizeAbi9 = offsetof(tm_config, force_limit);
 static_assert(kConfigSizeAbi2 < kConfigSizeAbi4 && kConfigSizeAbi4 < kConfigSizeAbi5 &&
               kConfigSizeAbi5 < kConfigSizeAbi6 && kConfigSizeAbi6 < kConfigSizeAbi7 &&
               kConfigSizeAbi7 < kConfigSizeAbi8 && kConfigSizeAbi8 < kConfigSizeAbi9 &&
