@@ -137,7 +137,9 @@ def main(argv=None):
     data = run_envelope(out, speeds=speeds, n_seeds=args.seeds, conditions=("nominal",),
                         laws=tuple(args.laws.split(",")), paths=paths, duration=args.duration)
     if args.robustness:
-        conds = tuple(c for c in CONDITIONS if c != "nominal")
+        laws_r = args.robustness_laws.split(",")
+        # (the cell's noise acts on the load cell's law alone: for the others it is the nominal run again)
+        conds = tuple(c for c in CONDITIONS if c != "nominal" and (not c.startswith("cell") or "load cell" in laws_r))
         data = run_envelope(out, speeds=speeds, n_seeds=args.robustness_seeds or args.seeds, conditions=conds,
                             laws=tuple(args.robustness_laws.split(",")), paths=paths, duration=args.duration)
     envelope_figure(data, os.path.join(args.out, "loop_envelope.png"), paths=paths.name)

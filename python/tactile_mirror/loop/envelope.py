@@ -75,6 +75,9 @@ CONDITIONS: dict[str, dict] = {
     "mount 500 kN/m": {"mount_stiffness": 5e5},
     "sweat mu 0.45": {"mu_change": (1.75, 0.45)},
     "sweat mu 0.40": {"mu_change": (1.75, 0.40)},
+    # the load cell's own noise, 50x the simulated cell's 2 mN (a stage's force estimated from its
+    # motor current rather than a cell): acts on the "load cell" law only
+    "cell noise 100 mN": {"load_cell_noise": 0.1},
 }
 
 #: The laws an envelope can run: no loop, the paper's law, the default law on the strips, and the
