@@ -574,3 +574,83 @@ def test_pipeline_rates_beyond_10_mhz_are_refused_in_python_and_c():
     h = ffi.new("tm_pipeline*")
     assert lib.tm_pipeline_create(cfg, h) == lib.TM_ERR_ARGUMENT and h[0] == 0
     assert b"fs must lie in [1, 1e7] Hz" in ffi.string(lib.tm_last_error())
+
+
+def test_random_scenes_from_the_cli_and_their_ranges():
+    """`simulate --scene random` always failed (its scalar --noise reached a (low, high) range)."""
+    from tactile_mirror import scenes
+    from tactile_mirror.cli import _scene_from_args, build_parser
+
+    args = build_parser().parse_args(["simulate", "--scene", "random", "--friction", "0.5", "--seed", "3"])
+    sc = _scene_from_args(args)
+    assert sc.friction == 0.5 and sc.noise == args.noise  # the options given are fixed values
+    assert repr(scenes.random(2, seed=7)) == repr(scenes.random(2, seed=7, friction=(0.45, 0.85)))  # as before
+    for kw, exc, match in (({"friction": (0.9, 0.4)}, ValueError, "friction"), ({"noise": "ab"}, TypeError, "noise"),
+                           ({"duration": 0.5}, ValueError, "duration must be at least 0.9 s"),
+                           ({"seed": 1.7}, ValueError, "seed"), ({"n": True}, ValueError, "n must be")):
+        n = kw.pop("n", 1)
+        with pytest.raises(exc, match=match):
+            scenes.random(n, **kw)
+
+
+@pytest.mark.parametrize("kw, exc, match", [
+    ({"stops": ("12",)}, TypeError, r"stops\[0\]"), ({"stops": "12"}, TypeError, "stops"),
+    ({"stops": ((True, 2.0),)}, TypeError, r"stops\[0\]"), ({"n_ridges": True}, TypeError, "n_ridges"),
+    ({"n_ridges": float("inf")}, TypeError, "n_ridges"), ({"n_ridges": None}, TypeError, "n_ridges"),
+    ({"seed": True}, TypeError, "seed"), ({"duration": 1e300, "fs": 1e300}, ValueError, "at most 1e"),
+    ({"circuit": None}, TypeError, "circuit"), ({"geometry": None}, TypeError, "geometry"),
+    ({"duration": 0.2, "outputs": {"fields"}, "field_times": (0.1, 0.2)}, ValueError, r"field_times\[1\]"),
+])
+def test_scene_fields_are_checked_at_construction(kw, exc, match):
+    import tactile_mirror as tm
+
+    with pytest.raises(exc, match=match):
+        tm.Scene(**kw)
+
+
+def test_a_field_time_after_the_last_sample_is_the_last_sample():
+    import tactile_mirror as tm
+
+    r = tm.simulate(tm.Scene(duration=0.2, outputs={"fields", "forces"}, field_times=(0.0, 0.1, 0.1999)))
+    assert sorted(r.fields) == [0.0, 0.1, 0.1999]  # (0.1999 rounded past the end and was dropped)
+
+
+def test_brush_ridges_refuse_what_they_cannot_mean_and_keep_their_state():
+    from tactile_mirror.contact.brush import BrushRidges
+
+    b, ref = BrushRidges(), BrushRidges()
+    for m in (b, ref):
+        m.advance(1e-4)
+        m.advance(2e-4)
+    for bad, exc in ((float("nan"), ValueError), (float("inf"), ValueError), (2.0, ValueError), ("0", TypeError)):
+        with pytest.raises(exc, match="dy"):
+            b.advance(bad)
+    assert b.advance(2e-4).force_y == ref.advance(2e-4).force_y  # (an inf was kept in the slid offsets)
+    for kw, exc in (({"normal_load": float("nan")}, ValueError), ({"normal_load": -1.0}, ValueError),
+                    ({"n_points": 0}, ValueError), ({"n_ridges": 2.7}, ValueError), ({"mu": "0.5"}, TypeError),
+                    ({"mu": True}, TypeError)):
+        with pytest.raises(exc, match=next(iter(kw))):
+            BrushRidges(**kw)
+
+
+def test_roundoff_bound_refuses_signals_it_cannot_bound():
+    import tactile_mirror as tm
+
+    sos = np.array([[1.0, 0, 0, 1, -0.9, 0]])
+    for x, kw, exc in (([1.0, np.nan], {}, ValueError), ([1.0, np.inf], {}, ValueError),
+                       (np.ones(3) + 1j, {}, TypeError), ("abc", {}, TypeError),
+                       (np.ones(3), {"impulse_length": 0}, ValueError), (np.ones(3), {"impulse_length": 1.5}, ValueError),
+                       (np.ones(3), {"impulse_length": True}, ValueError)):
+        with pytest.raises(exc, match="impulse_length" if kw else "x must"):
+            tm.roundoff_bound(sos, x, **kw)
+
+
+def test_commands_with_a_file_as_their_out_folder_fail_before_the_work(tmp_path, capsys):
+    from tactile_mirror.cli import main
+
+    f = tmp_path / "afile"
+    f.write_text("keep")
+    for argv in (["figure", "6"], ["demo"], ["bench", "--quick"]):
+        assert main([*argv, "--out", str(f)]) != 0
+        assert "exists and is not a folder" in capsys.readouterr().err
+    assert f.read_text() == "keep"

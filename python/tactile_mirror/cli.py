@@ -53,8 +53,23 @@ def _scene_from_args(args):
     kw["noise"] = args.noise
     kw["seed"] = args.seed
     if args.scene == "random":
-        return scenes.random(1, seed=args.seed, **{k: v for k, v in kw.items() if k not in ("seed", "friction")})[0]
+        # (the options given are fixed values of the random scene; the rest is drawn)
+        return scenes.random(1, seed=args.seed, **{k: v for k, v in kw.items() if k != "seed"})[0]
     return scenes.paper(args.scene, **kw)
+
+
+def _out_folder(path) -> pathlib.Path:
+    """``--out`` as a folder, made now: a file there, or a folder that cannot be written,
+    fails before the work, not after it."""
+    import os
+
+    out = pathlib.Path(path)
+    if out.exists() and not out.is_dir():
+        raise CommandError(f"--out {out} exists and is not a folder")
+    out.mkdir(parents=True, exist_ok=True)
+    if not os.access(out, os.W_OK):
+        raise CommandError(f"--out {out} is not writable")
+    return out
 
 
 def _contact_figure(result, name, path):
@@ -99,8 +114,7 @@ def cmd_demo(args) -> int:
 
     from . import scenes, simd_path, simulate_many
 
-    out = pathlib.Path(args.out)
-    out.mkdir(parents=True, exist_ok=True)  # fail before the work, not after
+    out = _out_folder(args.out)  # fail before the work, not after
     t_start = time.perf_counter()
     print(f"tactile-mirror demo: C++ kernels on the {simd_path()} path; output folder {out}/")
     names = list(PAPER_SCENES)
@@ -214,7 +228,7 @@ def cmd_evaluate(args) -> int:
 def cmd_figure(args) -> int:
     from . import scenes, simulate
 
-    out = pathlib.Path(args.out)
+    out = _out_folder(args.out)
     if args.number in (6, 7, 8):
         name = f"fig{args.number}"
         res = simulate(scenes.paper(name), progress=True)
@@ -261,16 +275,9 @@ def _bench_kernels(text):
 
 
 def cmd_bench(args) -> int:
-    import os
-
     from .benchmark import JSON_NAME, MD_NAME, PNG_NAME, bench_report
 
-    out = pathlib.Path(args.out)
-    if out.exists() and not out.is_dir():
-        raise CommandError(f"--out {out} exists and is not a folder")
-    out.mkdir(parents=True, exist_ok=True)  # fail before the work, not after
-    if not os.access(out, os.W_OK):
-        raise CommandError(f"--out {out} is not writable")
+    out = _out_folder(args.out)
     print(f"tactile-mirror bench: {', '.join(args.kernels)} ({'quick' if args.quick else 'full'} run); "
           f"output folder {out}/")
     report = bench_report(out, kernels=args.kernels, quick=args.quick, progress=True)

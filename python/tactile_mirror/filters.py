@@ -43,6 +43,7 @@ be non-zero. Complex, long-double and object inputs are passed to scipy itself.
 """
 from __future__ import annotations
 
+import numbers
 import warnings
 from typing import overload
 
@@ -484,9 +485,15 @@ def roundoff_bound(sos: npt.ArrayLike, x: npt.ArrayLike, dtype: npt.DTypeLike = 
         # the impulse response of a pole on the circle does not decay: no finite bound
         raise ValueError(f"sos section {bad} has a pole on the unit circle; the bound needs poles strictly "
                          f"inside it")
-    u = np.asarray(x, dtype=np.float64)
+    xa = np.asarray(x)
+    _real_numeric(xa, "x")
+    u = xa.astype(np.float64)
     if u.ndim != 1:
         raise ValueError(f"x must be 1-D, got shape {u.shape}")
+    if not np.all(np.isfinite(u)):  # (the bound came out NaN or inf)
+        raise ValueError("x must be finite")
+    if isinstance(impulse_length, bool) or not isinstance(impulse_length, numbers.Integral) or impulse_length < 1:
+        raise ValueError(f"impulse_length must be a positive integer (samples), got {impulse_length!r}")
     eps = float(np.finfo(np.dtype(dtype)).eps)
     impulse = np.zeros(int(impulse_length))
     impulse[0] = 1.0

@@ -10,19 +10,20 @@ before slip). ``random(n, seed, ...)`` draws training and test scenes.
 """
 from __future__ import annotations
 
+import math
 import numbers
 from dataclasses import dataclass, field, replace
 from typing import Any
 
 import numpy as np
 
-from ._checks import real_number
+from ._checks import real_number, real_sequence
 from .circuit import PVDFCircuit
 from .contact.geometry import RidgeGeometry
 from .noise import SensorNoise
 
-__all__ = ["DEFAULT_FRICTION", "DEFAULT_KINETIC_RATIO", "MAX_INDENT_STRAIN", "MAX_NOISE", "OUTPUTS", "Scene", "paper",
-           "random"]
+__all__ = ["DEFAULT_FRICTION", "DEFAULT_KINETIC_RATIO", "MAX_INDENT_STRAIN", "MAX_NOISE", "MAX_SAMPLES", "OUTPUTS", "Scene",
+           "paper", "random"]
 
 #: Coulomb friction between finger and ridge. Chosen so that the paper's fig6 scene
 #: (default ridge, kinetic ratio 0.85) reaches gross slip inside the 1.4-1.5 s the paper
@@ -53,6 +54,9 @@ MAX_INDENT_STRAIN = 0.10
 #: +-5 V swing in one sample of about 1.7 million, and beyond that the unclipped
 #: noise model describes no real circuit.
 MAX_NOISE = 1.0
+#: Samples a generated scene may have (duration x fs): 1e9, hours at the kHz rates of a pad
+#: (1e300 x 1e300 overflowed the sample count).
+MAX_SAMPLES = 1e9
 _DEFAULT_OUTPUTS = frozenset({"forces", "slip", "stress", "signals"})
 
 
@@ -146,13 +150,27 @@ class Scene:
         if not self.noise < MAX_NOISE:
             raise ValueError(f"noise must be below {MAX_NOISE:g} V rms (MAX_NOISE: the front end swings a few "
                              f"volts), got {self.noise!r}")
-        if isinstance(self.seed, (bool, np.bool_)) or not isinstance(self.seed, (int, np.integer)) or self.seed < 0:
+        if isinstance(self.seed, (bool, np.bool_)) or not isinstance(self.seed, numbers.Real):
+            raise TypeError(f"seed must be a non-negative integer (a numpy random seed), got {self.seed!r}")
+        if not isinstance(self.seed, (int, np.integer)) or self.seed < 0:
             raise ValueError(f"seed must be a non-negative integer (a numpy random seed), got {self.seed!r}")
         if not (0 < real_number(self.kinetic_ratio, "kinetic_ratio") <= 1):
             raise ValueError(f"kinetic_ratio must be in (0, 1], got {self.kinetic_ratio!r}")
-        if int(self.n_ridges) != self.n_ridges or self.n_ridges < 1:
-            raise ValueError(f"n_ridges must be a positive integer, got {self.n_ridges!r}")
-        stops = tuple((float(a), float(b)) for a, b in self.stops)
+        nr = self.n_ridges
+        if isinstance(nr, (bool, np.bool_)) or not isinstance(nr, numbers.Real) or not math.isfinite(nr):
+            raise TypeError(f"n_ridges must be a positive integer, got {nr!r}")
+        if int(nr) != nr or nr < 1:
+            raise ValueError(f"n_ridges must be a positive integer, got {nr!r}")
+        # (a string was iterated: ("12",) became ((1.0, 2.0),))
+        if isinstance(self.stops, (str, bytes)):
+            raise TypeError(f"stops must be a sequence of (start, end) pairs in s, got {self.stops!r}")
+        stops = []
+        for k, st in enumerate(self.stops):
+            pair = real_sequence(st, f"stops[{k}]")
+            if len(pair) != 2:
+                raise ValueError(f"stops[{k}] must be a (start, end) pair in s, got {st!r}")
+            stops.append(pair)
+        stops = tuple(stops)
         for a, b in stops:
             if not (0 <= a < b):
                 raise ValueError(f"stops must be (start, end) intervals with 0 <= start < end, got {(a, b)}")
@@ -176,9 +194,19 @@ class Scene:
             object.__setattr__(self, "trajectory", (y, z))
         if self.stop_after_slip is not None:
             real_number(self.stop_after_slip, "stop_after_slip", unit="s", nonnegative=True)
+        if self.trajectory is None and not self.duration * self.fs <= MAX_SAMPLES:
+            raise ValueError(f"duration x fs must give at most {MAX_SAMPLES:g} samples, got "
+                             f"{self.duration * self.fs:g} (duration={self.duration!r} s, fs={self.fs!r} Hz)")
         if self.n_samples < 2:
             raise ValueError(f"duration x fs must give at least 2 samples, got {self.n_samples} "
                              f"(duration={self.duration!r} s, fs={self.fs!r} Hz)")
+        end = self.n_samples / self.fs
+        for k, ft in enumerate(self.field_times):  # (times past the last sample were dropped silently)
+            if not ft < end:
+                raise ValueError(f"field_times[{k}] = {ft!r} s is not before the end of the run, {end:g} s")
+        for name, cls in (("circuit", PVDFCircuit), ("geometry", RidgeGeometry)):
+            if not isinstance(getattr(self, name), cls):  # (None failed later, inside simulate)
+                raise TypeError(f"{name} must be a {cls.__name__}, got {type(getattr(self, name)).__name__}")
         self._check_indent()
         if self.noise_model is not None:
             if not isinstance(self.noise_model, SensorNoise):
@@ -241,6 +269,18 @@ def paper(name: str, **overrides: Any) -> Scene:
     return Scene(**kw)
 
 
+def _range(value, name: str) -> tuple[float, float]:
+    """``(low, high)`` of a random scene parameter: a pair with ``low <= high``, or one
+    number (a fixed value)."""
+    if isinstance(value, numbers.Real) and not isinstance(value, bool):
+        v = real_number(value, name)
+        return v, v
+    pair = real_sequence(value, name)
+    if len(pair) != 2 or not pair[0] <= pair[1] or not all(math.isfinite(x) for x in pair):
+        raise ValueError(f"{name} must be a number or a finite range (low, high) with low <= high, got {value!r}")
+    return pair
+
+
 def random(n: int, seed: int = 0, *, friction: tuple[float, float] = (0.45, 0.85),
            indent: tuple[float, float] = (20e-6, 40e-6), slide_speed: tuple[float, float] = (0.1e-3, 0.4e-3),
            stop_probability: float = 0.5, stop_length: tuple[float, float] = (0.02, 0.1),
@@ -249,12 +289,22 @@ def random(n: int, seed: int = 0, *, friction: tuple[float, float] = (0.45, 0.85
 
     Each draws a friction coefficient, an indent depth (reached in 0.5 s), a slide
     speed, sensor noise (V rms) and, with ``stop_probability``, one stop of
-    ``stop_length`` s at a random time during the slide. Ranges are ``(low, high)``.
+    ``stop_length`` s at a random time during the slide. Ranges are ``(low, high)``
+    with ``low <= high``; a single number is a fixed value. A stop needs ``duration``
+    of at least 0.9 s (it starts between 0.6 s and 0.3 s before the end).
     """
-    if int(n) != n or n < 0:
+    if isinstance(n, bool) or not isinstance(n, numbers.Integral) or n < 0:
         raise ValueError(f"n must be a non-negative integer, got {n!r}")
-    if not (0.0 <= stop_probability <= 1.0):
+    if isinstance(seed, bool) or not isinstance(seed, numbers.Integral) or seed < 0:
+        raise ValueError(f"seed must be a non-negative integer, got {seed!r}")
+    if not (0.0 <= real_number(stop_probability, "stop_probability") <= 1.0):
         raise ValueError(f"stop_probability must be in [0, 1], got {stop_probability!r}")
+    friction, indent, slide_speed, stop_length, noise = (
+        _range(v, name) for v, name in ((friction, "friction"), (indent, "indent"), (slide_speed, "slide_speed"),
+                                        (stop_length, "stop_length"), (noise, "noise")))
+    duration = real_number(duration, "duration", unit="s", positive=True)
+    if stop_probability > 0 and duration < 0.9:
+        raise ValueError(f"duration must be at least 0.9 s when stops are drawn (stop_probability > 0), got {duration!r}")
     rng = np.random.default_rng(seed)
     scenes = []
     for i in range(int(n)):

@@ -14,9 +14,12 @@ displacements m, forces N, stiffnesses N/m, stresses Pa.
 """
 from __future__ import annotations
 
+import numbers
+
 import numpy as np
 import numpy.typing as npt
 
+from .._checks import real_number
 from .plants import ContactState
 
 __all__ = ["BrushRidges"]
@@ -45,9 +48,16 @@ class BrushRidges:
     def __init__(self, n_ridges: int = 6, mu=1.0, normal_load: float = 0.15, k_finger: float = 150.0,
                  n_points: int = 24, strip_area: float = 1e-5, bending: float = 0.6, edge: float = 0.8,
                  normal: float = 0.3):
+        for name, v in (("n_ridges", n_ridges), ("n_points", n_points)):
+            if isinstance(v, bool) or not isinstance(v, numbers.Integral) or not 1 <= v <= 10_000:
+                raise ValueError(f"{name} must be an integer in [1, 10000], got {v!r}")
         self.n_ridges = int(n_ridges)
         self.set_mu(mu)
-        self.P = float(normal_load)
+        self.P = real_number(normal_load, "normal_load", unit="N", positive=True)
+        k_finger = real_number(k_finger, "k_finger", unit="N/m", positive=True)
+        strip_area = real_number(strip_area, "strip_area", unit="m^2", positive=True)
+        for name, v in (("bending", bending), ("edge", edge), ("normal", normal)):
+            real_number(v, name)
         x = np.linspace(-1, 1, int(n_points) + 2)[1:-1]
         kw = 1.0 / np.sqrt(1.0 - x**2 + 0.02)
         self.k = k_finger * kw / kw.sum()                 # (n,) N/m per point
@@ -64,13 +74,25 @@ class BrushRidges:
 
     def set_mu(self, mu: npt.ArrayLike) -> None:
         """Set the friction coefficient (one value, or one per ridge; positive and finite)."""
-        m = np.broadcast_to(np.asarray(mu, dtype=np.float64), (self.n_ridges,)).copy()
+        a = np.asarray(mu)
+        if a.dtype.kind not in "iuf":  # (a string or a bool passed the float conversion)
+            raise TypeError(f"mu must be a real number or one per ridge, got {mu!r}")
+        m = np.broadcast_to(a.astype(np.float64), (self.n_ridges,)).copy()
         if not np.all(np.isfinite(m) & (m > 0)):  # (NaN passed a plain `mu <= 0` check)
             raise ValueError(f"mu must be positive and finite, got {mu!r}")
         self.mu = m
 
     def advance(self, dy: float) -> ContactState:
-        """Relative displacement finger - pad (m) -> contact state."""
+        """Relative displacement finger - pad (m) -> contact state.
+
+        Raises ValueError for a non-finite ``dy`` or one beyond 1 m
+        (:data:`~tactile_mirror.contact.solver.MAX_PLATE_POSITION`, as the FEM pad), the
+        state unchanged (an infinite one was taken into the slid offsets for good)."""
+        from .solver import MAX_PLATE_POSITION
+
+        dy = real_number(dy, "dy", unit="m")
+        if not abs(dy) <= MAX_PLATE_POSITION:
+            raise ValueError(f"dy must lie within {MAX_PLATE_POSITION:g} m, got {dy!r}")
         lim = self.mu[:, None] * self.p[None, :]           # (R, n) N
         q = self.k[None, :] * (dy - self.s)
         over = np.abs(q) > lim

@@ -121,7 +121,9 @@ def simulate(scene: Scene, progress: bool = False, backend: str = "cpp", steppin
     fz = np.empty(n_total)
     node_state = np.empty((R, N, n_total), dtype=np.int8) if want_state else None
     node_pos = np.empty((R, 2, N, n_total)) if want_state else None
-    field_idx = {round(tf * scene.fs): tf for tf in scene.field_times} if "fields" in outs else {}
+    # (the nearest sample; a time after the last sample, before the end of the run, is the last one)
+    field_idx = ({min(round(tf * scene.fs), scene.n_samples - 1): tf for tf in scene.field_times}
+                 if "fields" in outs else {})
     fields = {}
     ridge_slip = np.full(R, np.nan)
     slip_time = None
