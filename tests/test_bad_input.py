@@ -654,3 +654,25 @@ def test_commands_with_a_file_as_their_out_folder_fail_before_the_work(tmp_path,
         assert main([*argv, "--out", str(f)]) != 0
         assert "exists and is not a folder" in capsys.readouterr().err
     assert f.read_text() == "keep"
+
+
+def test_more_arguments_that_were_taken_silently():
+    import tactile_mirror as tm
+    from tactile_mirror.contact.model import ridge_model
+    from tactile_mirror.contact.pad import Pad
+    from tactile_mirror.measure import rel_max
+
+    with pytest.raises(TypeError, match="use_u must be True or False"):
+        tm.StressRateEstimator(PVDFCircuit(), FS, 2, use_u="False")  # (the string was truthy)
+    with pytest.raises(ValueError, match=r"fs must lie in \[1, 1e7\] Hz"):
+        tm.StressRateEstimator(PVDFCircuit(), 1e300, 2)
+    with pytest.raises(ValueError, match="max_workers"):
+        tm.simulate_many([tm.Scene(duration=0.01)] * 2, max_workers=0)  # (0 meant every core)
+    with pytest.raises(TypeError, match="y must be a real array"):
+        rel_max(np.ones(2) + 1j, np.ones(2))
+    model = ridge_model(tm.Scene().geometry)
+    for kw in ({"pitch": float("nan")}, {"pitch": float("inf")}, {"ridge_length": float("inf")}):
+        with pytest.raises(ValueError, match=next(iter(kw))):
+            Pad(model, 0.8, n_ridges=3, **kw)
+    with pytest.raises(TypeError, match="plate_y"):
+        Pad(model, 0.8).advance("0", 1e-5)

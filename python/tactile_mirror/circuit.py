@@ -134,7 +134,10 @@ def _check_output(output) -> str:
 
 
 def _check_fs(fs) -> float:
-    return real_number(fs, "fs", unit="Hz", positive=True)
+    fs = real_number(fs, "fs", unit="Hz", positive=True)
+    if not 1.0 <= fs <= 1e7:  # (as the pipeline: outside, the filter design failed naming its sections)
+        raise ValueError(f"fs must lie in [1, 1e7] Hz, got {fs!r}")
+    return fs
 
 
 def _real_array(x, name: str) -> np.ndarray:

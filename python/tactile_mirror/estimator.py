@@ -239,6 +239,8 @@ class _Design:
                  notch_q=30.0):
         self.circuit = _check_circuit(circuit)
         self.fs = _check_fs(fs)
+        if not isinstance(use_u, (bool, np.bool_)):  # (the string "False" was truthy)
+            raise TypeError(f"use_u must be True or False, got {use_u!r}")
         self.use_u = bool(use_u)
         self.order = _check_order(order, 2 if self.use_u else 1)
         self.bandwidth = _check_bandwidth(bandwidth, self.fs)

@@ -13,11 +13,13 @@ default): the plane-strain model gives N/m.
 from __future__ import annotations
 
 import functools
+import numbers
 from dataclasses import dataclass, field
 from typing import TYPE_CHECKING
 
 import numpy as np
 
+from .._checks import real_number
 from .model import RidgeModel
 from .solver import MAX_PLATE_POSITION, OPEN, SLIP, STEPPINGS, STICK, ContactSolver, _position_error
 
@@ -110,10 +112,12 @@ class Pad:
                  threads: int = 1) -> None:
         if int(n_ridges) != n_ridges or n_ridges < 1:
             raise ValueError(f"n_ridges must be a positive integer, got {n_ridges!r}")
-        if not (finger_radius > 0):
-            raise ValueError(f"finger_radius must be positive, got {finger_radius!r}")
-        if not (ridge_length > 0):
-            raise ValueError(f"ridge_length must be positive, got {ridge_length!r}")
+        if isinstance(finger_radius, bool) or not isinstance(finger_radius, numbers.Real) or not finger_radius > 0:
+            raise ValueError(f"finger_radius must be positive (m; inf for a flat finger), got {finger_radius!r}")
+        # (an inf length made an infinite force; a NaN or inf pitch put the ridges at NaN)
+        ridge_length = real_number(ridge_length, "ridge_length", unit="m", positive=True)
+        if pitch is not None:
+            pitch = real_number(pitch, "pitch", unit="m", positive=True)
         if stepping not in STEPPINGS:
             raise ValueError(f"stepping must be one of {STEPPINGS}, got {stepping!r}")
         self.stepping = stepping
@@ -281,6 +285,9 @@ class Pad:
         """Move the finger to ``plate_y`` (m, along the sliding direction) and ``indent``
         (m, depth of its face below the undeformed crowns at the pad centre) and solve
         the contact of every ridge; returns the new :class:`PadState`."""
+        for name, v in (("plate_y", plate_y), ("indent", indent)):  # (a string was taken as a number)
+            if isinstance(v, (bool, np.bool_)) or not isinstance(v, numbers.Real):
+                raise TypeError(f"{name} must be a real number (m), got {type(v).__name__}")
         m = self.model
         n = m.n_nodes
         # friction is part of the load: a change of it (Pad.mu, or a solver's own mu) is an

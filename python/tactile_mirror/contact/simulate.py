@@ -284,6 +284,9 @@ def simulate_many(scenes: Iterable[Scene], executor: concurrent.futures.Executor
     if own:
         import multiprocessing
 
+        if max_workers is not None and (isinstance(max_workers, bool) or not isinstance(max_workers, int)
+                                        or max_workers < 1):  # (0 meant every core)
+            raise ValueError(f"max_workers must be a positive integer or None, got {max_workers!r}")
         workers = max_workers or min(len(scenes), os.cpu_count() or 1)
         ctx = multiprocessing.get_context("spawn")  # safe with threads in the parent
         executor = concurrent.futures.ProcessPoolExecutor(max_workers=workers, mp_context=ctx)
