@@ -163,7 +163,7 @@ def sweat_runs():
     from tactile_mirror.loop.scene import LoopScene, run_scene
 
     w = _weights_dict(default_weights("fem"))
-    laws, design = _laws(w, FS, STAGE, 0.001, 0.002, 6, "fem")
+    laws, design = _laws(w, FS, STAGE, 0.001, 0.002, 6, "fem", load_cell=True)
     traj = {"amplitude": 10e-3, "bandwidth": 2.0, "v_max": 0.01, "a_max": 0.5}
     runs = {}
     for name in ("default", "load cell"):

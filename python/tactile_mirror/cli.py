@@ -319,31 +319,24 @@ def cmd_loop_design(args) -> int:
     import numpy as np
 
     from ._io import write_json
-    from .loop.design import design_loop
-    from .loop.experiment import calibrate_shear, calibrate_shear_weights
+    from .loop.envelope import _design
     from .loop.figures import design_figure
 
     limits = _stage_from_args(args)
     w = _weights(_loop_weights(args.weights, args.fs))
     out = pathlib.Path(args.out)
     stem = "loop_design_load_cell" if args.load_cell else "loop_design"
-    if args.load_cell:  # the pad's force from a load cell under it: no strip weights
-        cal = calibrate_shear(w, args.fs, 6, plant="fem", load_cell=True)
-        d = design_loop(limits, cal, args.fs, stage_delay=args.delay * 1e-3, stage_lag=args.lag * 1e-3,
-                        planner=not args.streaming, sensor="force")
-    else:
-        sw = calibrate_shear_weights(w, args.fs, 6, plant="fem")
-        cal = calibrate_shear(w, args.fs, 6, plant="fem", shear_weights=sw)
-        d = design_loop(limits, cal, args.fs, stage_delay=args.delay * 1e-3, stage_lag=args.lag * 1e-3,
-                        shear_weights=sw, planner=not args.streaming)
+    d = _design(w, args.fs, limits, args.delay * 1e-3, args.lag * 1e-3, 6, "fem",
+                sensor="force" if args.load_cell else "strips", planner=not args.streaming)
     out.mkdir(parents=True, exist_ok=True)
     design_figure(d, str(out / f"{stem}.png"))
     write_json(out / f"{stem}.json", d.summary(), indent=1)
+    sign = d.controller.direction_sign
     if args.load_cell:
-        print(f"calibration: load cell, direction_sign {cal[0]:+g}, {cal[1] / 1e3:.4g} N/mm")
+        print(f"calibration: load cell, direction_sign {sign:+g}, {d.asym_per_m / 1e3:.4g} N/mm")
     else:
-        print(f"calibration: shear weights (L, R per ridge) {np.round(sw, 3).tolist()}, direction_sign {cal[0]:+g}, "
-              f"shear signal {cal[1]:.4g} per m")
+        print(f"calibration: shear weights (L, R per ridge) {np.round(d.shear_weights, 3).tolist()}, direction_sign "
+              f"{sign:+g}, shear signal {d.asym_per_m:.4g} per m")
     print(f"crossover {d.crossover_hz:.1f} Hz, phase margin {d.phase_margin_deg:.1f} deg, gain margin "
           f"{d.gain_margin_db:.1f} dB, max |S| {d.max_sensitivity:.2f}; Kp {d.kp:.1f} 1/s, integral {d.z:.1f} 1/s, "
           f"Kv {d.kv:.2f}; loop delay {d.delays['total'] * 1e3:.2f} ms")
@@ -399,7 +392,8 @@ def cmd_loop_realtime(args) -> int:
     plant = make(6, fs=fs, threads=args.threads)
     controller, shear_weights = None, None
     if args.law != "open loop":
-        laws, design = _laws(weights, fs, limits, scene.stage_delay, scene.stage_lag, 6, "fem")
+        laws, design = _laws(weights, fs, limits, scene.stage_delay, scene.stage_lag, 6, "fem",
+                             load_cell=args.law == "load cell")
         controller = laws[args.law]
         shear_weights = design.shear_weights if args.law == "default" else None
     print(f"pacing {args.duration:g} s at {fs:g} Hz: {args.pad} pad ({plant.pad.model.n_nodes} contact "

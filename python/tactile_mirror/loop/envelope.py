@@ -92,22 +92,34 @@ def _key(row) -> tuple:
     return (row["condition"], row["law"], round(row["speed"] * 1e6), int(row["seed"]), row["paths"])
 
 
-def _laws(weights, fs, limits, delay, lag, n_ridges, plant):
+def _design(weights, fs, limits, delay, lag, n_ridges, plant, sensor: str = "strips", planner: bool = True):
+    """The default law's design for a pad: calibrated (after the press on the FEM pad, the
+    finger pushed; nothing from a finger path), then :func:`~tactile_mirror.loop.design.design_loop`."""
     from .design import design_loop
-    from .experiment import calibrate_shear, calibrate_shear_weights, make_laws
+    from .experiment import calibrate_shear, calibrate_shear_weights
 
-    # The default law acts on the calibrated shear signal (the FEM pad's ridges differ in load;
+    kw = {"stage_delay": delay, "stage_lag": lag, "arm_delay": 0.5 if plant == "fem" else 0.0, "planner": planner}
+    if sensor == "force":  # a load cell's force: no strip weights
+        cal = calibrate_shear(weights, fs, n_ridges, plant=plant, load_cell=True)
+        return design_loop(limits, cal, fs, sensor="force", **kw)
+    # The strips' law acts on the calibrated shear signal (the FEM pad's ridges differ in load;
     # the brush model's do not, and its plain L - R difference stays monotonic).
     sw = calibrate_shear_weights(weights, fs, n_ridges, plant=plant) if plant == "fem" else None
     cal = calibrate_shear(weights, fs, n_ridges, plant=plant, shear_weights=sw)
-    design = design_loop(limits, cal, fs, stage_delay=delay, stage_lag=lag,
-                         arm_delay=0.5 if plant == "fem" else 0.0, shear_weights=sw)
-    # The same design rules on a load cell's force (calibrated as the strips are: the finger
-    # pushed after the press; nothing from a finger path).
-    cell = design_loop(limits, calibrate_shear(weights, fs, n_ridges, plant=plant, load_cell=True), fs,
-                       stage_delay=delay, stage_lag=lag, arm_delay=0.5 if plant == "fem" else 0.0, sensor="force")
+    return design_loop(limits, cal, fs, shear_weights=sw, **kw)
+
+
+def _laws(weights, fs, limits, delay, lag, n_ridges, plant, load_cell: bool = False):
+    """The envelope's laws and the strips' design; ``"load cell"`` (its own calibration run)
+    only with ``load_cell``."""
+    from .experiment import make_laws
+
+    design = _design(weights, fs, limits, delay, lag, n_ridges, plant)
     paper = make_laws(weights, fs, plant, n_ridges)[0]["paper"]
-    return {"open loop": None, "paper": paper, "default": design.controller, "load cell": cell.controller}, design
+    laws = {"open loop": None, "paper": paper, "default": design.controller}
+    if load_cell:
+        laws["load cell"] = _design(weights, fs, limits, delay, lag, n_ridges, plant, sensor="force").controller
+    return laws, design
 
 
 def _settle_after_slips(res, fs, window: float = 0.1) -> dict:
@@ -175,7 +187,7 @@ def run_envelope(out: str, speeds: Sequence[float] = (0.002, 0.005, 0.01, 0.02),
     limits = limits or StageLimits(-0.02, 0.02, 0.03, 1.0)
     weights = default_weights(plant, fs) if weights is None else weights
     w = _weights_dict(weights) if not isinstance(weights, dict) else weights
-    law_objs, design = _laws(w, fs, limits, stage_delay, stage_lag, n_ridges, plant)
+    law_objs, design = _laws(w, fs, limits, stage_delay, stage_lag, n_ridges, plant, load_cell="load cell" in laws)
     data: dict = {"rows": []}
     if os.path.exists(out):
         with open(out) as fh:
