@@ -7,7 +7,7 @@ from __future__ import annotations
 import math
 import numbers
 
-__all__ = ["real_number", "real_sequence"]
+__all__ = ["real_array", "real_number", "real_sequence"]
 
 
 def real_number(value, name: str, *, unit: str | None = None, positive: bool = False,
@@ -46,3 +46,15 @@ def real_sequence(value, name: str) -> tuple[float, ...]:
             raise TypeError(f"{name} must be a sequence of real numbers, got {value!r}")
         out.append(float(v))
     return tuple(out)
+
+
+def real_array(value, name: str):
+    """``value`` as a float64 numpy array, refusing (TypeError naming ``name``) what is not
+    real numbers: complex (its imaginary part would be dropped with only a warning), bool,
+    strings, objects. Shape and range checks are the caller's."""
+    import numpy as np
+
+    arr = np.asarray(value)
+    if arr.dtype.kind not in "iuf":
+        raise TypeError(f"{name} must be a real numeric array, got dtype {arr.dtype}")
+    return arr.astype(np.float64, copy=False)

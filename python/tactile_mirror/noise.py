@@ -70,7 +70,7 @@ import numpy as np
 import numpy.typing as npt
 import scipy.signal
 
-from ._checks import real_number, real_sequence
+from ._checks import real_array, real_number, real_sequence
 from .circuit import PVDFCircuit, _check_channels, _check_fs
 
 __all__ = ["BOLTZMANN", "NOISE_SOURCES", "SensorNoise"]
@@ -361,11 +361,7 @@ class SensorNoise:
     def apply(self, v_out: npt.ArrayLike, u_out: npt.ArrayLike, fs: float,
               seed: int | Sequence[int] | np.random.Generator | None = None) -> tuple[np.ndarray, np.ndarray]:
         """``v_out``, ``u_out`` (V, time last, same shape) with drawn noise added."""
-        for name, a in (("v_out", v_out), ("u_out", u_out)):
-            if np.asarray(a).dtype.kind not in "iuf":
-                raise TypeError(f"{name} must be a real numeric array, got dtype {np.asarray(a).dtype}")
-        v = np.asarray(v_out, dtype=np.float64)
-        u = np.asarray(u_out, dtype=np.float64)
+        v, u = real_array(v_out, "v_out"), real_array(u_out, "u_out")
         if v.ndim < 1 or u.shape != v.shape:
             raise ValueError(f"u_out must have the shape of v_out {v.shape}, got {u.shape}")
         nv, nu = self.draw(fs, v.shape[-1], v.shape[:-1], seed)

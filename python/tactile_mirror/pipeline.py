@@ -28,6 +28,7 @@ import scipy.signal
 
 from . import _core
 from ._checks import real_number
+from .circuit import _check_fs
 from .filters import validate_sos
 from .loop.controller import Controller, controller_from_dict
 
@@ -102,9 +103,7 @@ def pipeline_config(detector, fs, n_ridges: int = 6, *, estimator=None, sos_v=No
                     max_hold_ticks: int = 100, ridges=None, shear_weights=None, force_input: bool = False,
                     force_limit=None) -> dict:
     """Validate and assemble a pipeline configuration (see :class:`MirrorPipeline`)."""
-    fs = _positive(fs, "fs")
-    if not 1.0 <= fs <= 1e7:  # (the laws divide by fs: a denormal rate made every command NaN; as pipeline.hpp)
-        raise ValueError(f"fs must lie in [1, 1e7] Hz, got {fs!r}")
+    fs = _check_fs(fs)  # [1, 1e7] Hz, as pipeline.hpp (the laws divide by fs: a denormal rate made commands NaN)
     if isinstance(n_ridges, bool) or not isinstance(n_ridges, numbers.Integral) or not 1 <= n_ridges <= 64:
         raise ValueError(f"n_ridges must be an integer in [1, 64], got {n_ridges!r}")
     n_ridges = int(n_ridges)

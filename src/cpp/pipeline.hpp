@@ -1172,13 +1172,17 @@ private:
             const TD* d = det_.data() + 3 * r;
             ys = std::max(ys, double(d[0]));
             y = std::max(y, double(d[2]));
-            asym += shear_w_[2 * r] * double(feat_[kFeatures * r + 0]) +
-                    shear_w_[2 * r + 1] * double(feat_[kFeatures * r + 1]);
         }
-        // With a load cell the shear signal is the force's change: (F - F_prev) fs, so
-        // that the integrator holds the force since the tare. Across rejected ticks
-        // F_prev is the last accepted force, and the integral stays whole.
-        if (force_) asym = have_f_ ? (f_new_ - f_prev_) * fs_ : 0.0;
+        if (force_) {
+            // With a load cell the shear signal is the force's change: (F - F_prev) fs, so
+            // that the integrator holds the force since the tare. Across rejected ticks
+            // F_prev is the last accepted force, and the integral stays whole.
+            asym = have_f_ ? (f_new_ - f_prev_) * fs_ : 0.0;
+        } else {
+            for (int r = 0; r < R_; ++r)
+                asym += shear_w_[2 * r] * double(feat_[kFeatures * r + 0]) +
+                        shear_w_[2 * r + 1] * double(feat_[kFeatures * r + 1]);
+        }
         const bool slip = accepted ? ys >= slip_threshold_ : st_.slip;
         const bool fault = accepted ? false : st_.fault;
         *slip_now = slip;

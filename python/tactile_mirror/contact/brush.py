@@ -19,7 +19,7 @@ import numbers
 import numpy as np
 import numpy.typing as npt
 
-from .._checks import real_number
+from .._checks import real_array, real_number
 from .plants import ContactState
 
 __all__ = ["BrushRidges"]
@@ -74,10 +74,8 @@ class BrushRidges:
 
     def set_mu(self, mu: npt.ArrayLike) -> None:
         """Set the friction coefficient (one value, or one per ridge; positive and finite)."""
-        a = np.asarray(mu)
-        if a.dtype.kind not in "iuf":  # (a string or a bool passed the float conversion)
-            raise TypeError(f"mu must be a real number or one per ridge, got {mu!r}")
-        m = np.broadcast_to(a.astype(np.float64), (self.n_ridges,)).copy()
+        # (a string or a bool passed the float conversion)
+        m = np.broadcast_to(real_array(mu, "mu"), (self.n_ridges,)).copy()
         if not np.all(np.isfinite(m) & (m > 0)):  # (NaN passed a plain `mu <= 0` check)
             raise ValueError(f"mu must be positive and finite, got {mu!r}")
         self.mu = m

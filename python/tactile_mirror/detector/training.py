@@ -7,7 +7,7 @@ import time
 import numpy as np
 import scipy.optimize
 
-from .._checks import real_number
+from .._checks import real_array, real_number
 from .bank import bank_config
 from .data_prep import DEFAULT_ESTIMATOR, features_from_result, targets_from_result
 from .memory import DEFAULT_LOAD_TAU
@@ -337,7 +337,7 @@ def hard_example_weights(y_slip_out, ts: TrainingSet, factor: float = 4.0, negat
     """
     if not isinstance(ts, TrainingSet):
         raise TypeError(f"ts must be a TrainingSet, got {type(ts).__name__}")
-    y = _real_array(y_slip_out, "y_slip_out")
+    y = real_array(y_slip_out, "y_slip_out")
     if y.shape != ts.mask.shape:
         raise ValueError(f"y_slip_out must have the training set's shape {ts.mask.shape}, got {y.shape}")
     if not np.all(np.isfinite(y[ts.mask])):
@@ -348,7 +348,7 @@ def hard_example_weights(y_slip_out, ts: TrainingSet, factor: float = 4.0, negat
         raise ValueError(f"factor must lie in [1, 1e6], got {factor}")
     if not 0.0 < real_number(negative_level, "negative_level") < 1.0:
         raise ValueError(f"negative_level must lie in (0, 1), got {negative_level}")
-    m = np.ones(y.shape) if previous is None else _real_array(previous, "previous").copy()
+    m = np.ones(y.shape) if previous is None else real_array(previous, "previous").copy()
     if m.shape != y.shape:
         raise ValueError(f"previous must have shape {y.shape}, got {m.shape}")
     if not (np.all(np.isfinite(m)) and np.all(m >= 0)):
@@ -370,14 +370,6 @@ def hard_example_weights(y_slip_out, ts: TrainingSet, factor: float = 4.0, negat
     if not np.all(np.isfinite(m)):
         raise ValueError("the multipliers overflow: factor compounded over too many rounds")
     return m
-
-
-def _real_array(a, name: str) -> np.ndarray:
-    """``a`` as float64, refusing complex, bool and non-numeric arrays (naming ``name``)."""
-    arr = np.asarray(a)
-    if arr.dtype.kind not in "iuf":
-        raise TypeError(f"{name} must be a real numeric array, got dtype {arr.dtype}")
-    return arr.astype(np.float64, copy=False)
 
 
 def _window_samples(onset_window, fs: float) -> int:
