@@ -489,6 +489,50 @@ def test_process_block_refuses_bool_samples_as_step_does():
     assert pipe.status["ticks"] == 0
 
 
+def test_signal_paths_refuse_bools_and_name_the_argument():
+    """SosFilter.process and the estimator took True/False samples while SosFilter.step
+    refused them; an axis of True was taken as axis 1. sosfilt, the drop-in for
+    scipy.signal.sosfilt, casts them as scipy does."""
+    import tactile_mirror as tm
+    from scipy import signal
+
+    sos = signal.butter(2, 0.1, output="sos")
+    flags = np.array([True, False, True, True])
+    assert np.allclose(tm.sosfilt(sos, flags), signal.sosfilt(sos, flags))
+    filt = SosFilter(sos)
+    with pytest.raises(TypeError, match="block"):
+        filt.process(flags)
+    assert np.all(filt.zi == 0)
+    est = StressRateEstimator(PVDFCircuit(), 1000.0, 2)
+    with pytest.raises(TypeError, match="^v must"):
+        est.process(np.ones((2, 5), bool), np.ones((2, 5)))
+    with pytest.raises(TypeError, match="^u must"):
+        est.process(np.ones((2, 5)), np.ones((2, 5), bool))
+    z = np.zeros((2, 50))
+    with pytest.raises(TypeError, match="v_out"):
+        tm.estimate_stress_rate(z.astype(bool), None, PVDFCircuit(), 1000.0)
+    with pytest.raises(TypeError, match="axis"):
+        tm.estimate_stress_rate(z, z, PVDFCircuit(), 1000.0, axis=True)
+    with pytest.raises(TypeError, match="channels"):
+        StressRateEstimator(PVDFCircuit(), 1000.0, 2.0)
+    with pytest.raises(ValueError, match="channels"):
+        StressRateEstimator(PVDFCircuit(), 1000.0, 0)
+    # ints are numbers, as in scipy
+    assert np.allclose(tm.sosfilt(sos, np.arange(4)), signal.sosfilt(sos, np.arange(4.0)))
+
+
+def test_reference_helpers_name_bad_arguments():
+    from tactile_mirror import measure
+
+    with pytest.raises(ValueError, match="max_shift"):
+        measure.rel_rms_aligned(np.ones(10), np.ones(10), max_shift=10)
+    with pytest.raises(TypeError, match="max_shift"):
+        measure.rel_rms_aligned(np.ones(10), np.ones(10), max_shift=2.0)
+    assert measure.rel_rms_aligned(np.ones(10), np.ones(10), max_shift=9) == 0.0
+    with pytest.raises(ValueError, match="a0"):
+        measure.extended_sosfilt(np.array([[1.0, 0, 0, 0, 0.1, 0]]), np.ones(4))
+
+
 def test_c_abi_refuses_bank_fields_out_of_range_or_for_the_papers_net():
     """bank_pad_mean = 5, or a bank field on the paper's net, were ignored silently; and an
     ABI-9 struct (ending before force_input) runs without a force input."""

@@ -339,8 +339,10 @@ class StressRateEstimator:
                  use_u: bool = True, kind: str = "butter", diff_order: int = 1,
                  diff_bandwidth: float | None = None, dtype: npt.DTypeLike = np.float64,
                  notch: float | tuple[float, ...] | None = None, notch_q: float = 30.0) -> None:
-        if isinstance(channels, bool) or not isinstance(channels, numbers.Integral) or channels < 1:
-            raise ValueError(f"channels must be a positive integer, got {channels!r}")
+        if isinstance(channels, (bool, np.bool_)) or not isinstance(channels, numbers.Integral):
+            raise TypeError(f"channels must be an int, got {type(channels).__name__}")
+        if channels < 1:
+            raise ValueError(f"channels must be >= 1, got {channels!r}")
         d = _Design(circuit, fs, order, bandwidth, use_u, kind, diff_order, diff_bandwidth, notch, notch_q)
         self.circuit = d.circuit
         self.fs = d.fs
@@ -474,10 +476,11 @@ def estimate_stress_rate(v_out: npt.ArrayLike, u_out: npt.ArrayLike | None, circ
     """
     d = _Design(circuit, fs, order, bandwidth, u_out is not None, kind, diff_order, diff_bandwidth, notch, notch_q)
     v = np.asarray(v_out)
-    if v.dtype.kind not in "biuf":
-        raise TypeError(f"v_out must hold real numbers, got dtype {v.dtype}")
+    _real_numeric(v, "v_out")
     if v.ndim == 0:
         raise ValueError("v_out must have at least one dimension")
+    if isinstance(axis, (bool, np.bool_)) or not isinstance(axis, (int, np.integer)):
+        raise TypeError(f"axis must be an int, got {type(axis).__name__}")
     try:
         ax = range(v.ndim)[axis]
     except (IndexError, TypeError):
@@ -486,8 +489,7 @@ def estimate_stress_rate(v_out: npt.ArrayLike, u_out: npt.ArrayLike | None, circ
     rate = sosfilt(d.sos_rate, v, axis=ax)
     if u_out is not None:
         u = np.asarray(u_out)
-        if u.dtype.kind not in "biuf":
-            raise TypeError(f"u_out must hold real numbers, got dtype {u.dtype}")
+        _real_numeric(u, "u_out")
         if u.shape != v.shape:
             raise ValueError(f"u_out must have the shape of v_out {v.shape}, got {u.shape}")
         rate2 = sosfilt(d.sos_rate2, u.astype(np.float64, copy=False), axis=ax)

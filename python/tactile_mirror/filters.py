@@ -82,7 +82,10 @@ def simd_path() -> str:
 
 
 def _real_numeric(a: np.ndarray, name: str) -> None:
-    if a.dtype.kind not in "biuf":
+    # bool is refused too: True/False samples are a mistake (a mask passed for a signal),
+    # and SosFilter.step and the pipeline refuse them. sosfilt, scipy's drop-in, casts
+    # them as scipy.signal.sosfilt does and does not come here.
+    if a.dtype.kind not in "iuf":
         raise TypeError(f"{name} must hold real numbers, got dtype {a.dtype}")
 
 

@@ -119,6 +119,10 @@ def rel_rms_aligned(a, b, max_shift: int = 30) -> float:
     Time on the last axis."""
     a, b = np.asarray(a), np.asarray(b)
     n = b.shape[-1]
+    if isinstance(max_shift, (bool, np.bool_)) or not isinstance(max_shift, (int, np.integer)):
+        raise TypeError(f"max_shift must be an int, got {type(max_shift).__name__}")
+    if not 0 <= max_shift < n:
+        raise ValueError(f"max_shift must be in [0, {n - 1}] (the signals' length {n} minus 1), got {max_shift}")
     return min(rel_rms(a[..., k:], b[..., : n - k]) for k in range(max_shift + 1))
 
 
@@ -137,6 +141,8 @@ def extended_sosfilt(sos, x) -> np.ndarray:
     """
     sos = np.atleast_2d(np.asarray(sos, dtype=np.float64))
     x = np.atleast_2d(np.asarray(x, dtype=np.float64))
+    if sos.ndim != 2 or sos.shape[1] != 6 or not np.all(sos[:, 3] != 0):
+        raise ValueError("sos must have shape (n_sections, 6) with every a0 nonzero")
     if np.finfo(np.longdouble).eps < 1e-18:
         return _delta_longdouble(sos, x)
     try:
