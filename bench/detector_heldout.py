@@ -207,6 +207,12 @@ def main(argv=None):
             cells.append(f"{100 * q['detection_rate']:.1f}/{100 * q['detection_release']:.1f}/"
                          f"{100 * q['detection_gradual']:.1f}")
         print(f"{cond:<15} {name:<38} {cells[0]:>20} {cells[1]:>20} {cells[2]:>20}")
+    print("\nmean latency at a false-alarm rate (ms; release / gradual)")
+    print(f"{'noise':<15} {'detector':<38} {'at 1 % FA':>14} {'at 2 % FA':>14} {'at 3 % FA':>14}")
+    for cond, name, c in curves:
+        cells = [f"{q['latency_release_ms']:.1f} / {q['latency_gradual_ms']:.1f}"
+                 for q in (c.at_false_alarm(fa) for fa in (0.01, 0.02, 0.03))]
+        print(f"{cond:<15} {name:<38} {cells[0]:>14} {cells[1]:>14} {cells[2]:>14}")
     n0 = rows[0]
     print(f"\n{n0['n_seq']} sequences, {n0['n_slip']} slips ({n0['n_release']} release, {n0['n_gradual']} gradual)")
     print(f"\nkernel tick, 6 ridges, measured in C++ (ns, best of 5 x 200000 ticks); CPU: {cpu_model()}")

@@ -70,6 +70,34 @@ def test_agrees_with_evaluate_at_every_threshold_and_at_08():
     assert 0 < m.detection_rate < 1 and 0 < m.false_alarm_rate < 1  # a point inside the curve
 
 
+def test_latency_along_the_curve_agrees_with_evaluate():
+    """The mean latency at a point of the sweep is evaluate's mean latency at its threshold,
+    per onset kind too, and with K samples in a row the alarm comes at the K-th."""
+    results, scores, kinds = _synthetic(seed=3)
+    c = roc(scores, results, kinds)
+    for thr in (0.6, 0.8, 0.95):
+        p = c.at_threshold(thr)
+        seqs = [analyse_sequence(r.t, s[0], s[0], r.slip_fraction[0], slip_threshold=thr) for s, r in
+                zip(scores, results)]
+        for kind in (None, "release", "gradual"):
+            lat = [q["latency"] for q, k in zip(seqs, kinds) if q["detected"] and (kind is None or k == kind)]
+            key = "latency_ms" if kind is None else f"latency_{kind}_ms"
+            assert p[key] == pytest.approx(1e3 * np.mean(lat), abs=1e-9)
+    assert c.at_false_alarm(0.1)["latency_ms"] == c.at_threshold(c.at_false_alarm(0.1)["threshold"])["latency_ms"]
+    # a lower threshold never alarms later on any sequence
+    lo, hi = c.latencies(0.6), c.latencies(0.9)
+    both = np.isfinite(hi)
+    assert np.all(np.isfinite(lo[both])) and np.all(lo[both] <= hi[both])
+    # three in a row: the alarm comes two samples after the first of them
+    t = np.arange(100) / FS
+    res = SimpleNamespace(t=t, fs=FS, slip_fraction=(np.arange(100) >= 50)[None].astype(float))
+    x = np.zeros(100)
+    x[55:] = 1.0
+    assert roc([x], [res], consecutive=3).latencies(0.5)[0] == pytest.approx(0.007)
+    assert roc([x], [res]).latencies(0.5)[0] == pytest.approx(0.005)
+    assert np.isnan(roc([x * 0], [res]).latencies(0.5)[0])
+
+
 def test_operating_point_at_false_alarm_rate():
     results, scores, kinds = _synthetic(seed=2)
     c = roc(scores, results, kinds)

@@ -433,6 +433,14 @@ def sequence_extremes(t, score, gross, max_latency: float = 0.05, consecutive: i
     slip : bool
         Whether the sequence has a gross-slip onset.
     """
+    pre, held, _, slip = _held_window(t, score, gross, max_latency, consecutive)
+    return pre, float(held[-1]) if slip else -np.inf, slip
+
+
+def _held_window(t, score, gross, max_latency, consecutive):
+    """:func:`sequence_extremes`'s ``pre`` and ``slip``, and in the detection window the
+    running maximum of the (held) statistic with each sample's time after the onset, s:
+    the alarm at threshold ``c`` comes at the first sample whose running maximum is >= c."""
     t = np.asarray(t, dtype=np.float64)
     x = np.asarray(score, dtype=np.float64)
     if x.shape != t.shape:
@@ -444,9 +452,9 @@ def sequence_extremes(t, score, gross, max_latency: float = 0.05, consecutive: i
     i0 = int(on[0]) if on.size else t.size
     pre = float(x[:i0].max()) if i0 else -np.inf
     if not on.size:
-        return pre, -np.inf, False
+        return pre, np.empty(0), np.empty(0), False
     win = (t[i0:] <= t[i0] + max_latency + 1e-12)
-    return pre, float(x[i0:][win].max()), True
+    return pre, np.maximum.accumulate(x[i0:][win]), t[i0:][win] - t[i0], True
 
 
 @dataclass
@@ -472,31 +480,56 @@ class RocCurve:
     n_by_kind: dict
     n_sequences: int
     n_slip: int
+    window_max: np.ndarray | None = None
+    window_dt: np.ndarray | None = None
+    slip_kinds: tuple | None = None
 
     def at_false_alarm(self, rate: float) -> dict:
         """The operating point with the most detections among those with a false-alarm
         rate <= ``rate`` (the lowest such threshold): ``threshold``, ``detection_rate``,
-        ``false_alarm_rate`` and ``detection_<kind>`` per onset kind."""
+        ``false_alarm_rate``, ``detection_<kind>`` per onset kind and the mean latency
+        of the detected slips, ``latency_ms`` and ``latency_<kind>_ms`` (NaN when none)."""
         ok = np.flatnonzero(self.false_alarm_rate <= rate + 1e-12)
-        j = int(ok[-1]) if ok.size else 0
-        out = {"threshold": float(self.thresholds[j]), "detection_rate": float(self.detection_rate[j]),
-               "false_alarm_rate": float(self.false_alarm_rate[j])}
-        for kind, d in self.detection_by_kind.items():
-            out[f"detection_{kind}"] = float(d[j])
-        return out
+        return self._point(int(ok[-1]) if ok.size else 0)
 
     def at_threshold(self, threshold: float) -> dict:
-        """Rates at one threshold (alarm where the statistic >= ``threshold``)."""
+        """Rates and latencies at one threshold (alarm where the statistic >= ``threshold``)."""
         ok = np.flatnonzero(self.thresholds >= threshold)
         if not ok.size:
             out = {"threshold": float(threshold), "detection_rate": 0.0, "false_alarm_rate": 0.0}
             out.update({f"detection_{k}": 0.0 for k in self.detection_by_kind})
+            out.update({"latency_ms": np.nan}, **{f"latency_{k}_ms": np.nan for k in self.detection_by_kind})
             return out
-        j = int(ok[-1])
-        out = {"threshold": float(threshold), "detection_rate": float(self.detection_rate[j]),
+        # the rates are those of the curve's point; the latency is the threshold's own (the
+        # statistic can cross values between two points of the curve inside a window)
+        return self._point(int(ok[-1]), float(threshold))
+
+    def latencies(self, threshold: float) -> np.ndarray:
+        """Latency (s) of each slipping sequence's alarm at ``threshold``, NaN where it is
+        missed, in the order of the slipping sequences (``slip_kinds``)."""
+        if self.window_max is None:
+            raise ValueError("this curve was built without its detection windows (RocCurve from roc() has them)")
+        hit = self.window_max >= threshold
+        first = np.argmax(hit, axis=1)
+        lat = self.window_dt[np.arange(first.size), first]
+        return np.where(hit.any(axis=1), lat, np.nan)
+
+    def _point(self, j: int, threshold: float | None = None) -> dict:
+        threshold = float(self.thresholds[j]) if threshold is None else threshold
+        out = {"threshold": threshold, "detection_rate": float(self.detection_rate[j]),
                "false_alarm_rate": float(self.false_alarm_rate[j])}
         for kind, d in self.detection_by_kind.items():
             out[f"detection_{kind}"] = float(d[j])
+        if self.window_max is not None:
+            lat = self.latencies(threshold) * 1e3
+
+            def mean(sel):
+                v = lat[sel & np.isfinite(lat)]
+                return float(v.mean()) if v.size else float("nan")
+
+            out["latency_ms"] = mean(np.ones(lat.size, bool))
+            for kind in self.detection_by_kind:
+                out[f"latency_{kind}_ms"] = mean(np.array([k == kind for k in self.slip_kinds]))
         return out
 
     def as_dict(self) -> dict:
@@ -547,7 +580,7 @@ def roc(scores, results, kinds=None, thresholds=None, max_latency: float = 0.05,
         raise ValueError(f"consecutive must be a positive integer, got {consecutive!r}")
     if not (np.isfinite(max_latency) and max_latency >= 0):
         raise ValueError(f"max_latency must be a non-negative number (s), got {max_latency!r}")
-    pre, win, slip = [], [], []
+    pre, win, slip, held, dts = [], [], [], [], []
     for k, (sc, res) in enumerate(zip(scores, results)):
         gross, _ = targets_from_result(res)
         x = np.asarray(sc, dtype=np.float64)
@@ -556,11 +589,14 @@ def roc(scores, results, kinds=None, thresholds=None, max_latency: float = 0.05,
         if x.ndim != 2:
             raise ValueError(f"scores[{k}] must have shape (n_ridges, n) or (n,), got {np.shape(sc)}")
         for r in range(x.shape[0]):
-            p, w, s = sequence_extremes(res.t, x[r], gross[min(r, gross.shape[0] - 1)], max_latency,
-                                        int(consecutive))
+            p, h, dt, s = _held_window(res.t, x[r], gross[min(r, gross.shape[0] - 1)], max_latency,
+                                       int(consecutive))
             pre.append(p)
-            win.append(w)
+            win.append(float(h[-1]) if s else -np.inf)
             slip.append(s)
+            if s:
+                held.append(h)
+                dts.append(dt)
     pre_a, win_a, slip_a = np.array(pre), np.array(win), np.array(slip)
     if kinds is not None:
         kinds = list(kinds)
@@ -585,5 +621,14 @@ def roc(scores, results, kinds=None, thresholds=None, max_latency: float = 0.05,
             sel = np.array([k == kind for k in kinds])
             n_by_kind[kind] = int(sel.sum())
             by_kind[kind] = hit[:, sel].mean(axis=1) if sel.any() else np.full(thr.size, np.nan)
+    # The windows padded to one length (-inf: no alarm there) for the latency at any threshold.
+    width = max((h.size for h in held), default=1)
+    window_max = np.full((len(held), width), -np.inf)
+    window_dt = np.full((len(held), width), np.nan)
+    for i, (h, dt) in enumerate(zip(held, dts)):
+        window_max[i, : h.size] = h
+        window_dt[i, : h.size] = dt
+    slip_kinds = tuple(k for k, s in zip(kinds, slip) if s) if kinds is not None else ("",) * len(held)
     return RocCurve(name=name, thresholds=thr, detection_rate=det, false_alarm_rate=alarm.mean(axis=1),
-                    detection_by_kind=by_kind, n_by_kind=n_by_kind, n_sequences=int(pre_a.size), n_slip=n_slip)
+                    detection_by_kind=by_kind, n_by_kind=n_by_kind, n_sequences=int(pre_a.size), n_slip=n_slip,
+                    window_max=window_max, window_dt=window_dt, slip_kinds=slip_kinds)
