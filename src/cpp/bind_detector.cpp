@@ -349,6 +349,36 @@ void bind_one(py::module_& m, const char* cls) {
             "scalar loop over the instances (step_one), the reference.");
 }
 
+// The state of a staged net (y_pred and its filter states) before a call, put back
+// when the call leaves a non-finite filter state: finite features large enough
+// (|x| near the type's maximum, times a leaky integral's gain of fs tau) overflow a
+// filter, and an inf or NaN state never recovers (every later output would be one
+// constant until reset()). Copies N (n_state + 1) values: small beside a call.
+template <typename T, typename PM>
+class StateUndo {
+public:
+    explicit StateUndo(PM& p)
+        : yp_(static_cast<std::size_t>(p.n_r)), filt_(static_cast<std::size_t>(p.n_r * p.k->n_state())) {
+        p.k->get_state(yp_.data(), filt_.data());
+    }
+    void restore(PM& p) const { p.k->set_state(yp_.data(), filt_.data()); }
+    // Raise (state put back) if the call left a non-finite state.
+    void refuse_overflow(PM& p) {
+        std::vector<T> yp(yp_.size()), filt(filt_.size());
+        p.k->get_state(yp.data(), filt.data());
+        bool ok = true;
+        for (T v : yp) ok &= std::isfinite(v);
+        for (T v : filt) ok &= std::isfinite(v);
+        if (ok) return;
+        restore(p);
+        throw py::value_error("features overflow the detector's filter states (finite values too large for " +
+                              std::string(dtype_name<T>()) + " once filtered); the state is unchanged");
+    }
+
+private:
+    std::vector<T> yp_, filt_;
+};
+
 // The sizes, dtype, SIMD path, state, reset, step, run and time_step_ns of a detector
 // with a feature stage in front of its net (PyMemory, PyBank): the same calls, only the
 // stage's constructor and its number of states per ridge (k->n_state()) differ.
@@ -416,10 +446,14 @@ void def_staged_net_calls(py::class_<PM>& cls, const char* state_name, const cha
                 check_features(a.data(), p.n_r, 4, 1, 4, 1, 1);
                 py::array_t<T> out({py::ssize_t(p.n_r), py::ssize_t(3)});
                 Claim claim(p.owner);
+                StateUndo<T, PM> undo(p);
                 p.k->step(a.data(), out.mutable_data());
+                undo.refuse_overflow(p);
                 return out;
             },
-            py::arg("x"), "One tick. x: (n_ridges, 4) -> (n_ridges, 3) [y_slip, y_non, y_pred].")
+            py::arg("x"),
+            "One tick. x: (n_ridges, 4) -> (n_ridges, 3) [y_slip, y_non, y_pred]. NaN/Inf features, or finite "
+            "ones so large that a filter state overflows: ValueError, state unchanged.")
         .def(
             "run",
             [](PM& p, py::handle x, bool reset) {
@@ -436,36 +470,40 @@ void def_staged_net_calls(py::class_<PM>& cls, const char* state_name, const cha
                 if constexpr (std::is_same<Run, bool>::value) {
                     // The kernel checks the inputs in its feature pass (BankJordan::run):
                     // on a non-finite one, the state of before the call is put back.
-                    std::vector<T> yp(static_cast<std::size_t>(N)), filt(static_cast<std::size_t>(N * p.k->n_state()));
                     bool finite;
+                    Claim claim(p.owner);
+                    StateUndo<T, PM> undo(p);
                     {
-                        Claim claim(p.owner);
                         py::gil_scoped_release release;
-                        p.k->get_state(yp.data(), filt.data());
                         if (reset) p.k->reset();
                         tactile::DenormalGuard ftz;
                         finite = p.k->run(xd, 4 * n, n, 1, n, o, o + N * n, o + 2 * N * n, n);
-                        if (!finite) p.k->set_state(yp.data(), filt.data());
+                        if (!finite) undo.restore(p);
                     }
                     if (!finite) {
                         throw_first_nonfinite(xd, N, 4, n, 4 * n, n, 1);
                         // (all finite now: another thread rewrote x during the run)
                         throw py::value_error("features must be finite: x changed while the run read it");
                     }
+                    undo.refuse_overflow(p);
                 } else {
                     check_features(xd, N, 4, n, 4 * n, n, 1);
                     Claim claim(p.owner);
-                    py::gil_scoped_release release;
-                    if (reset) p.k->reset();
-                    tactile::DenormalGuard ftz;
-                    p.k->run(xd, 4 * n, n, 1, n, o, o + N * n, o + 2 * N * n, n);
+                    StateUndo<T, PM> undo(p);
+                    {
+                        py::gil_scoped_release release;
+                        if (reset) p.k->reset();
+                        tactile::DenormalGuard ftz;
+                        p.k->run(xd, 4 * n, n, 1, n, o, o + N * n, o + 2 * N * n, n);
+                    }
+                    undo.refuse_overflow(p);
                 }
                 return out;
             },
             py::arg("x"), py::arg("reset") = false,
             "Run over a block. x: (n_ridges, 4, n) -> (3, n_ridges, n) [y_slip, y_non, y_pred]; the state "
-            "carries over between calls (reset=True starts from zero). NaN/Inf features: ValueError, state "
-            "unchanged.")
+            "carries over between calls (reset=True starts from zero). NaN/Inf features, or finite ones so "
+            "large that a filter state overflows: ValueError, state unchanged.")
         .def(
             "time_step_ns",
             [](PM& p, long n_iter, int repeats) {

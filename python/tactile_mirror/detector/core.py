@@ -7,6 +7,7 @@ from importlib import resources
 
 import numpy as np
 
+from .._owner import NotCopyable
 from .._owner import claim
 from .bank import bank_features
 from .memory import memory_features
@@ -44,7 +45,7 @@ def _core():
     return _core
 
 
-class SlipDetector:
+class SlipDetector(NotCopyable):
     """Recurrent MLP slip detector (one instance per ridge).
 
     Two kinds of weights (:attr:`kind`): ``"jordan"``, the paper's Jordan net on the
@@ -78,6 +79,8 @@ class SlipDetector:
     >>> det = SlipDetector.default()                        # doctest: +SKIP
     >>> y_slip, y_non, y_pred = det.run(features)           # features (n_ridges, 4, n)
     """
+
+    _copy_hint = "make a new one with SlipDetector(det.weights, ...) (weights copy and pickle)"
 
     slip_threshold = 0.8
 
@@ -290,6 +293,17 @@ class SlipDetector:
         if fs is not None:
             self.weights.check_compatible(fs=fs)
         n_r = x.shape[0]
+        if x.shape[2] == 0:  # nothing to run: empty outputs, the state as it was
+            e = np.zeros((n_r, 0), dtype=np.float64 if self.backend == "numpy" else self.dtype)
+            out = (e, e.copy(), e.copy())
+            return tuple(a[0] for a in out) if single else out
+        if self.backend != "numpy" and self.dtype == np.float32 and x.dtype.itemsize > 4 and x.dtype.kind == "f":
+            # values beyond float32's range would be cast to inf and named as such
+            big = np.abs(x) > np.finfo(np.float32).max
+            if big.any():
+                r, c, t = np.argwhere(big.transpose(2, 0, 1))[0][[1, 2, 0]]
+                raise ValueError(f"features must fit float32 (this detector's dtype): ridge {r}, channel {c}, "
+                                 f"sample {t} is {x[r, c, t]:.6g}")
         with self._claim():
             if self.backend == "numpy":
                 self._check_finite(x)
@@ -298,13 +312,19 @@ class SlipDetector:
                 p0, l0 = (None, None) if fresh else self._state
                 xf = x.astype(np.float64)
                 l1 = None
-                if w.kind == "jordan_memory":
-                    xf, l1 = memory_features(xf, w.fs, w.load_tau, state=l0, return_state=True)
-                elif w.kind == "jordan_bank":
-                    xf, l1 = bank_features(xf, w.fs, w.bank, state=l0, return_state=True)
-                xn = (xf - w.input_mean[None, :, None]) * w.input_gain[None, :, None]
-                ys, yp = forward(w.params, xn, p0)
+                with np.errstate(over="ignore", invalid="ignore"):  # an overflow is refused below
+                    if w.kind == "jordan_memory":
+                        xf, l1 = memory_features(xf, w.fs, w.load_tau, state=l0, return_state=True)
+                    elif w.kind == "jordan_bank":
+                        xf, l1 = bank_features(xf, w.fs, w.bank, state=l0, return_state=True)
+                    xn = (xf - w.input_mean[None, :, None]) * w.input_gain[None, :, None]
+                    ys, yp = forward(w.params, xn, p0)
                 p1 = yp[:, -1].copy() if yp.shape[1] else (np.zeros(n_r) if p0 is None else p0)
+                if not (np.isfinite(p1).all() and (l1 is None or all(np.isfinite(a).all() for a in
+                                                                     np.atleast_1d(l1)))
+                        and np.isfinite(ys).all()):
+                    raise ValueError("features overflow the detector's filter states (finite values too large "
+                                     "for float64 once filtered); the state is unchanged")
                 self._state = (p1, l1)
                 out = (ys, 1.0 - ys, yp)
             else:
