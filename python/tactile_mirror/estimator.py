@@ -49,6 +49,7 @@ import numpy as np
 import numpy.typing as npt
 import scipy.signal
 
+from ._owner import NotCopyable
 from ._checks import real_number
 from ._owner import claim
 from .circuit import PVDFCircuit, _check_fs
@@ -287,7 +288,7 @@ def _sample(x, name: str, channels: int, dtype) -> np.ndarray:
     return a.astype(dtype, copy=False)
 
 
-class StressRateEstimator:
+class StressRateEstimator(NotCopyable):
     """Streaming estimator of stress rate and 2nd-order stress rate.
 
     Parameters
@@ -405,13 +406,19 @@ class StressRateEstimator:
                 raise ValueError(f"u must have the shape of v {v.shape}, got {u.shape}")
         with self._claim():
             before = self._rate._snapshot()
-            rate = self._rate.process(v)
+            try:
+                rate = self._rate.process(v)
+            except ValueError as exc:  # (the filter's message names the block, not which one)
+                raise ValueError(f"v: {exc}") from None
             try:
                 rate2 = self._rate2.process(u if self.use_u else rate)
-            except BaseException:
+            except BaseException as exc:
                 # the second filter refused the block (a NaN/Inf in u, an overflow): the first
                 # one goes back to where it was, so the estimator is as before the call
                 self._rate._restore(before)
+                if isinstance(exc, ValueError):
+                    raise ValueError(f"{'u' if self.use_u else 'v (its differentiated stress rate)'}: {exc}") \
+                        from None
                 raise
         return rate, rate2
 
@@ -486,13 +493,21 @@ def estimate_stress_rate(v_out: npt.ArrayLike, u_out: npt.ArrayLike | None, circ
     except (IndexError, TypeError):
         raise ValueError(f"axis {axis!r} is out of range for v_out with {v.ndim} dimensions") from None
     v = v.astype(np.float64, copy=False)
-    rate = sosfilt(d.sos_rate, v, axis=ax)
+    u = None
     if u_out is not None:
         u = np.asarray(u_out)
         _real_numeric(u, "u_out")
         if u.shape != v.shape:
             raise ValueError(f"u_out must have the shape of v_out {v.shape}, got {u.shape}")
-        rate2 = sosfilt(d.sos_rate2, u.astype(np.float64, copy=False), axis=ax)
-    else:
-        rate2 = sosfilt(d.sos_diff, rate, axis=ax)
+        u = u.astype(np.float64, copy=False)
+
+    def run(sos, x, name):
+        try:
+            return sosfilt(sos, x, axis=ax)
+        except ValueError as exc:  # sosfilt names its own argument, x
+            msg = str(exc)
+            raise ValueError(f"{name}{msg[1:]}" if msg.startswith("x ") else f"{name}: {msg}") from None
+
+    rate = run(d.sos_rate, v, "v_out")
+    rate2 = run(d.sos_rate2, u, "u_out") if u is not None else run(d.sos_diff, rate, "v_out")
     return rate, rate2

@@ -136,12 +136,16 @@ void bind_cascade(py::module_& m, const char* name) {
                     const std::ptrdiff_t xsc = x.strides(0) / py::ssize_t(sizeof(T));
                     const std::ptrdiff_t xst = x.strides(1) / py::ssize_t(sizeof(T));
                     const std::size_t ns = c.k.raw_state_size(), ch = c.k.channels();
+                    // The held output is part of what a refused block leaves as it was: step()
+                    // returns it on a rejected sample.
+                    std::vector<T> held_before(c.k.held_output(), c.k.held_output() + ch);
                     py::gil_scoped_release nogil;
                     if (guard_state) std::copy(c.k.raw_state(), c.k.raw_state() + ns, c.undo.data());
                     ok = c.k.process(xp, xsc, xst, yp, static_cast<std::ptrdiff_t>(n), 1, n, &bt, &bc);
                     if (ok && guard_state &&
                         !(all_finite(yp, ch * n) && all_finite(c.k.raw_state(), ns))) {
                         c.k.load_raw_state(c.undo.data());
+                        c.k.load_held_output(held_before.data());
                         over_t = std::ptrdiff_t(n) - 1;
                         over_c = 0;
                         for (std::size_t t = 0; t < n && over_t == std::ptrdiff_t(n) - 1; ++t)
@@ -151,6 +155,11 @@ void bind_cascade(py::module_& m, const char* name) {
                                     over_c = std::ptrdiff_t(ci);
                                     break;
                                 }
+                    } else if (ok && n > 0) {
+                        // accepted: its last outputs are the held ones, also for step()'s
+                        // wrapper, whose own held copy dates from before the block
+                        for (std::size_t ci = 0; ci < ch; ++ci) c.held[ci] = yp[ci * n + n - 1];
+                        c.hold_override = false;
                     }
                 }
                 if (over_t >= 0)

@@ -671,8 +671,11 @@ public:
         nch_ = std::size_t(2 * R_);
         fs_ = c.fs;
         use_u_ = c.use_u;
-        v_limit_ = c.v_limit;
-        u_limit_ = c.u_limit;
+        // A float32 pipeline refuses samples its filters cannot hold as out of range:
+        // beyond FLT_MAX the cast gives inf, the cascade drops the sample while the
+        // rest of the tick advances, and the paths fall a tick apart.
+        v_limit_ = std::min(c.v_limit, double(std::numeric_limits<T>::max()));
+        u_limit_ = std::min(c.u_limit, double(std::numeric_limits<T>::max()));
         force_ = c.force_input == 1;
         force_limit_ = c.force_limit;
         slip_threshold_ = c.slip_threshold;
