@@ -198,14 +198,14 @@ void tm_bind_contact(py::module_& m) {
              py::arg("compliance"), py::arg("node_z"), py::arg("weights"), py::arg("r"), py::arg("w_tol"))
         .def_property_readonly("n_nodes", [](const PyContact& c) { return c.k.n_nodes(); })
         .def_property_readonly("r", [](const PyContact& c) { return c.k.r(); })
-        .def_property_readonly("factorizations", [](const PyContact& c) { return c.view().factorizations(); },
+        .def_property_readonly("factorizations", [](PyContact& c) { Busy b(c); return c.view().factorizations(); },
                                "piece LU factorisations since construction")
-        .def_property_readonly("affine_steps", [](const PyContact& c) { return c.view().affine_steps(); },
+        .def_property_readonly("affine_steps", [](PyContact& c) { Busy b(c); return c.view().affine_steps(); },
                                "piece solves served by the affine response of an unchanged piece")
-        .def_property_readonly("rhs_reuses", [](const PyContact& c) { return c.view().rhs_reuses(); },
+        .def_property_readonly("rhs_reuses", [](PyContact& c) { Busy b(c); return c.view().rhs_reuses(); },
                                "base solves of a load's right-hand side served by the previous one (the "
                                "iterations of one load point)")
-        .def_property_readonly("updates", [](const PyContact& c) { return c.view().updates(); },
+        .def_property_readonly("updates", [](PyContact& c) { Busy b(c); return c.view().updates(); },
                                "pieces solved by bordering the factored base piece instead of refactoring")
         .def("set_params",
              [](PyContact& c, double mu, double mu_kinetic, double tol, int max_iter, int max_as) {
@@ -228,16 +228,17 @@ void tm_bind_contact(py::module_& m) {
              },
              py::arg("plate_y"), py::arg("plate_z"), py::arg("every") = true)
         .def("error",
-             [](const PyContact& c) {
+             [](PyContact& c) {
+                 Busy b(c);
                  const ContactSolverKernel& k = c.view();
                  return py::make_tuple(k.error_info(), k.error_residual(), k.error_tolerance());
              },
              "(info, residual, tolerance) of the last failed step")
-        .def("error_point", [](const PyContact& c) { return py::make_tuple(c.view().error_y(), c.view().error_z()); },
+        .def("error_point", [](PyContact& c) { Busy b(c); return py::make_tuple(c.view().error_y(), c.view().error_z()); },
              "load point (plate_y, plate_z) of the last failure inside follow (cascade or status cycle)")
-        .def_property_readonly("solves", [](const PyContact& c) { return c.view().solves(); },
+        .def_property_readonly("solves", [](PyContact& c) { Busy b(c); return c.view().solves(); },
                                "linear solves of the path following since the last reset")
-        .def_property_readonly("events", [](const PyContact& c) { return c.view().events(); },
+        .def_property_readonly("events", [](PyContact& c) { Busy b(c); return c.view().events(); },
                                "points where node statuses changed since the last reset")
         .def("set_event_tolerances",
              [](PyContact& c, double g_tol, double f_tol, double evt_g_tol, double evt_f_tol) {
@@ -285,7 +286,10 @@ void tm_bind_contact(py::module_& m) {
                  c.k.reset();
              })
         .def("get_history",
-             [](const PyContact& c) {
+             [](PyContact& c) {
+                 // Reads are claimed as writes are: while a pad's follow() runs without the
+                 // GIL, a read would return the middle of a step.
+                 Busy b(c);
                  const ContactSolverKernel& k = c.view();
                  const std::size_t n = k.n_nodes();
                  py::array_t<bool> sliding(static_cast<py::ssize_t>(n));

@@ -19,6 +19,7 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
+from .._owner import NotCopyable
 from .._checks import real_number
 from .model import RidgeModel
 from .solver import MAX_PLATE_POSITION, OPEN, SLIP, STEPPINGS, STICK, ContactSolver, _position_error
@@ -62,7 +63,7 @@ class PadState:
         return np.stack([m.node_y + self.displacement[:, :n], m.node_z + self.displacement[:, n:]], axis=1)
 
 
-class Pad:
+class Pad(NotCopyable):
     """``n_ridges`` identical ridges at ``pitch`` under a curved rigid finger.
 
     Parameters
@@ -105,6 +106,9 @@ class Pad:
         (a tick is as long as its slowest ridge's breakaway cascade). More than 2 count as 2.
         A plain attribute; the Python backend ignores it.
     """
+
+    _copy_hint = ("make a new one from the same arguments and carry each ridge's history with "
+                  "new.solvers[i].set_state(pad.solvers[i].get_state())")
 
     def __init__(self, model: RidgeModel, mu: float, n_ridges: int = 1, pitch: float | None = None,
                  finger_radius: float = np.inf, ridge_length: float = 10e-3, tol: float = 1e-10,
@@ -161,11 +165,24 @@ class Pad:
     @mu.setter
     def mu(self, value: float) -> None:
         """Change the friction mid-run (e.g. sweat); the contact history is kept."""
+        from .solver import _real_param
+
+        value = _real_param("mu", value)
         if not (np.isfinite(value) and value > 0):
             raise ValueError(f"mu must be a positive number, got {value!r}")
-        for s in self.solvers:  # the kinetic coefficient keeps its ratio to the static one
-            s.mu_kinetic = s.mu_kinetic * float(value) / s.mu
-            s.mu = float(value)
+        # the kinetic coefficient keeps its ratio to the static one; every ridge or none
+        # (a ridge busy in another thread raises before any is changed, and a failure
+        # part way puts the changed ones back)
+        old = [(s.mu, s.mu_kinetic) for s in self.solvers]
+        done = 0
+        try:
+            for s, (mu, mu_k) in zip(self.solvers, old):
+                s.set_friction(value, mu_k * value / mu)
+                done += 1
+        except BaseException:
+            for s, (mu, mu_k) in list(zip(self.solvers, old))[:done]:
+                s.set_friction(mu, mu_k)
+            raise
 
     def reset(self) -> None:
         # last ridge first: a compiled ridge shadowing an earlier one (its mirror image,

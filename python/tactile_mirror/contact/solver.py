@@ -113,9 +113,12 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
+import numbers
+
 import numpy as np
 from scipy.linalg.lapack import dgetrf, dgetrs
 
+from .._owner import NotCopyable
 from .model import RidgeModel
 
 try:
@@ -168,7 +171,37 @@ class ContactStep:
         return self.in_contact and not np.any(self.state == STICK)
 
 
-class ContactSolver:
+MAX_ITERATIONS = 1_000_000  # iteration limits: the kernel counts in a C int
+
+
+def _real_param(name: str, value) -> float:
+    if isinstance(value, (bool, np.bool_, str, bytes)) or not isinstance(value, (numbers.Real, np.floating,
+                                                                                   np.integer)):
+        raise TypeError(f"{name} must be a real number, got {type(value).__name__}")
+    return float(value)
+
+
+def _int_param(name: str, value) -> int:
+    if isinstance(value, (bool, np.bool_)) or not isinstance(value, (numbers.Integral, np.integer)):
+        raise TypeError(f"{name} must be an int, got {type(value).__name__}")
+    if not 0 <= value <= MAX_ITERATIONS:  # (0: fail at once, or skip the active-set phase)
+        raise ValueError(f"{name} must be in [0, {MAX_ITERATIONS}], got {value}")
+    return int(value)
+
+
+def _check_params(p: dict, changed) -> None:
+    """The solver's parameters ``p`` as a whole; the message names what was changed."""
+    if not (np.isfinite(p["mu"]) and p["mu"] > 0):
+        raise ValueError(f"mu must be a positive number, got {p['mu']!r}")
+    if not (np.isfinite(p["mu_kinetic"]) and 0 < p["mu_kinetic"] <= p["mu"]):
+        which = "mu" if "mu" in changed and "mu_kinetic" not in changed else "mu_kinetic"
+        raise ValueError(f"{which} must keep 0 < mu_kinetic <= mu, got mu = {p['mu']!r}, mu_kinetic = "
+                         f"{p['mu_kinetic']!r} (set_friction changes both at once)")
+    if not (0 < p["tol"] < 1e-2):
+        raise ValueError(f"tol must be in (0, 1e-2), got {p['tol']!r}")
+
+
+class ContactSolver(NotCopyable):
     """History-dependent quasi-static contact of one ridge with the plate.
 
     Parameters
@@ -193,15 +226,15 @@ class ContactSolver:
         with either.
     """
 
+    _copy_hint = "make a new one from the same arguments and carry the history with set_state(get_state())"
+
     def __init__(self, model: RidgeModel, mu: float, tol: float = 1e-10, max_iter: int = 60,
                  reduced: bool = True, mu_kinetic: float | None = None, backend: str = "cpp") -> None:
-        if not (np.isfinite(mu) and mu > 0):
-            raise ValueError(f"mu must be a positive number, got {mu!r}")
-        mu_k = mu if mu_kinetic is None else mu_kinetic
-        if not (np.isfinite(mu_k) and 0 < mu_k <= mu):
-            raise ValueError(f"mu_kinetic must be in (0, mu], got {mu_kinetic!r}")
-        if not (0 < tol < 1e-2):
-            raise ValueError(f"tol must be in (0, 1e-2), got {tol!r}")
+        mu = _real_param("mu", mu)
+        mu_k = mu if mu_kinetic is None else _real_param("mu_kinetic", mu_kinetic)
+        params = {"mu": mu, "mu_kinetic": mu_k, "tol": _real_param("tol", tol),
+                  "max_iter": _int_param("max_iter", max_iter), "max_active_set_iter": 25}
+        _check_params(params, ("mu_kinetic",) if mu_kinetic is not None else ("mu",))
         if backend not in BACKENDS:
             raise ValueError(f"backend must be one of {BACKENDS}, got {backend!r}")
         self._kernel = None
@@ -223,8 +256,7 @@ class ContactSolver:
         # crossings by a sample in the per-sample stepping only)
         self._evt_tol = np.array([1e-16, 1e-15 * self._r, 1e-15 * self._r, 1e-15 * self._r])[:, None] \
             * model.geometry.height
-        self._params = {"mu": float(mu), "mu_kinetic": float(mu_k), "tol": float(tol), "max_iter": int(max_iter),
-                        "max_active_set_iter": 25}
+        self._params = params
         self.backend = backend if self.reduced else "python"
         if self.backend == "cpp":
             if _core is None:  # pragma: no cover
@@ -236,24 +268,36 @@ class ContactSolver:
                                               float(self._evt_tol[1, 0]))
         self.reset()
 
-    # Parameters: plain attributes for the user, pushed to the kernel when set.
-    def _set_param(self, name: str, value) -> None:
-        self._params[name] = value
+    # Parameters: plain attributes for the user, pushed to the kernel when set. All are
+    # checked together and kept only once the kernel took them: a refused value (or a
+    # kernel busy in another thread) leaves every parameter as it was.
+    def _set_params(self, **changes) -> None:
+        new = {**self._params, **changes}
+        _check_params(new, changes)
         if self._kernel is not None:
-            self._kernel.set_params(**self._params)
+            self._kernel.set_params(**new)
+        self._params = new
 
-    mu = property(lambda self: self._params["mu"], lambda self, v: self._set_param("mu", float(v)),
-                  doc="Static Coulomb friction coefficient.")
+    def set_friction(self, mu: float, mu_kinetic: float | None = None) -> None:
+        """Change both friction coefficients at once (``0 < mu_kinetic <= mu``; default
+        ``mu_kinetic = mu``), checked together: setting ``mu`` and ``mu_kinetic`` one
+        after the other can pass through a pair that is not allowed."""
+        mu = _real_param("mu", mu)
+        self._set_params(mu=mu, mu_kinetic=mu if mu_kinetic is None else _real_param("mu_kinetic", mu_kinetic))
+
+    mu = property(lambda self: self._params["mu"], lambda self, v: self._set_params(mu=_real_param("mu", v)),
+                  doc="Static Coulomb friction coefficient (>= mu_kinetic; see set_friction).")
     mu_kinetic = property(lambda self: self._params["mu_kinetic"],
-                          lambda self, v: self._set_param("mu_kinetic", float(v)),
+                          lambda self, v: self._set_params(mu_kinetic=_real_param("mu_kinetic", v)),
                           doc="Kinetic Coulomb friction coefficient (<= mu).")
-    tol = property(lambda self: self._params["tol"], lambda self, v: self._set_param("tol", float(v)),
-                   doc="Relative tolerance of the Alart-Curnier residual.")
+    tol = property(lambda self: self._params["tol"], lambda self, v: self._set_params(tol=_real_param("tol", v)),
+                   doc="Relative tolerance of the Alart-Curnier residual, in (0, 1e-2).")
     max_iter = property(lambda self: self._params["max_iter"],
-                        lambda self, v: self._set_param("max_iter", int(v)),
+                        lambda self, v: self._set_params(max_iter=_int_param("max_iter", v)),
                         doc="Damped-Newton iterations per step before ContactConvergenceError.")
     max_active_set_iter = property(lambda self: self._params["max_active_set_iter"],
-                                   lambda self, v: self._set_param("max_active_set_iter", int(v)),
+                                   lambda self, v: self._set_params(
+                                       max_active_set_iter=_int_param("max_active_set_iter", v)),
                                    doc="Active-set iterations per step before the damped-Newton fallback (25).")
 
     # Solves and events so far: the compiled kernel's counts, read when asked (so a
