@@ -77,6 +77,17 @@ def _sync_folder(folder: str) -> None:
         os.close(fd)
 
 
+def _refuse_read_only(target: str, path) -> None:
+    """PermissionError if ``target`` exists and may not be written: by this process, or by
+    anyone (no write bit: a file made read-only to keep it, which root could replace)."""
+    try:
+        st = os.stat(target)
+    except FileNotFoundError:
+        return
+    if not os.access(target, os.W_OK) or not st.st_mode & (stat.S_IWUSR | stat.S_IWGRP | stat.S_IWOTH):
+        raise PermissionError(f"{os.fspath(path)!r} is read-only; it was not replaced")
+
+
 @contextlib.contextmanager
 def atomic_write(path, mode: str = "wb", *, encoding: str | None = None) -> Iterator[IO[Any]]:
     """Open a temporary file for writing that replaces ``path`` when the block ends without error.
@@ -86,6 +97,8 @@ def atomic_write(path, mode: str = "wb", *, encoding: str | None = None) -> Iter
     path : str or os.PathLike
         The file to write. Its folder must exist. An existing file keeps its
         permission bits; a symlink keeps pointing where it did (its target is replaced).
+        A read-only file (no write bit, or not writable by this process) is not
+        replaced: PermissionError, also for root.
     mode : {"wb", "w"}
         Binary or text.
     encoding : str, optional
@@ -117,6 +130,7 @@ def atomic_write(path, mode: str = "wb", *, encoding: str | None = None) -> Iter
         with open(target, mode, **({"encoding": encoding or "utf-8", "newline": ""} if mode == "w" else {})) as f:
             yield f
         return
+    _refuse_read_only(target, path)
     fd, tmp = _open_temporary(target)
     try:
         if mode == "w":
@@ -157,10 +171,11 @@ def check_writable(path, *, make_folder: bool = False) -> None:
         raise NotADirectoryError(f"the folder of {os.fspath(path)!r} is a file")
     elif not os.path.isdir(folder):
         raise FileNotFoundError(f"the folder of {os.fspath(path)!r} does not exist")
-    if os.path.exists(target) and not os.access(target, os.W_OK):
-        raise PermissionError(f"{os.fspath(path)!r} is not writable")
     if _is_special(target):
+        if not os.access(target, os.W_OK):
+            raise PermissionError(f"{os.fspath(path)!r} is not writable")
         return
+    _refuse_read_only(target, path)
     fd, tmp = _open_temporary(target)
     os.close(fd)
     os.unlink(tmp)

@@ -20,3 +20,25 @@ def claim(lock: threading.Lock, name: str, noun: str):
         yield
     finally:
         lock.release()
+
+
+class NotCopyable:
+    """``copy.copy``, ``copy.deepcopy`` and ``pickle`` refuse an object holding a running
+    compiled state, with a TypeError naming its class and how to make another: a shallow
+    copy shared that state (two objects stepping one filter, each seeing the other's
+    samples), and the compiled state cannot be pickled. ``_copy_hint`` says how."""
+
+    _copy_hint = "make a new one from the same arguments"
+
+    def _refuse_copy(self, what: str):
+        raise TypeError(f"a {type(self).__name__} cannot be {what}: it holds a running compiled state; "
+                        f"{self._copy_hint}")
+
+    def __copy__(self):
+        self._refuse_copy("copied")
+
+    def __deepcopy__(self, memo):
+        self._refuse_copy("copied")
+
+    def __reduce_ex__(self, protocol):
+        self._refuse_copy("pickled")

@@ -50,6 +50,7 @@ from typing import overload
 import numpy as np
 import numpy.typing as npt
 
+from ._owner import NotCopyable
 from . import _core
 
 __all__ = ["POLE_TOLERANCE", "STRUCTURES", "SosFilter", "UnstableFilterWarning", "roundoff_bound", "simd_path",
@@ -307,7 +308,7 @@ def sosfilt(sos: npt.ArrayLike, x: npt.ArrayLike, axis: int = -1, zi: npt.ArrayL
     return y, zf
 
 
-class SosFilter:
+class SosFilter(NotCopyable):
     """Streaming multi-channel SOS filter with state, for real-time and block use.
 
     Parameters
@@ -337,6 +338,8 @@ class SosFilter:
     values: it rejects the sample, counts it in ``rejected`` and returns the
     previous output (sample-and-hold), which is what a real-time loop wants.
     """
+
+    _copy_hint = "make a new one with SosFilter(f.sos, f.channels, f.dtype) and set its state with g.zi = f.zi"
 
     def __init__(self, sos: npt.ArrayLike, channels: int = 1, dtype: npt.DTypeLike = np.float64, *,
                  structure: str = "auto", allow_unstable: bool = False) -> None:

@@ -26,6 +26,7 @@ import numbers
 import numpy as np
 import scipy.signal
 
+from ._owner import NotCopyable
 from . import _core
 from ._checks import real_number
 from .circuit import _check_fs
@@ -214,7 +215,7 @@ def pipeline_config(detector, fs, n_ridges: int = 6, *, estimator=None, sos_v=No
     }
 
 
-class MirrorPipeline:
+class MirrorPipeline(NotCopyable):
     """Samples -> stress rates -> slip detector -> stage command, one C++ tick at a time.
 
     Parameters
@@ -451,6 +452,11 @@ class MirrorPipeline:
 
     def time_step_ns(self, n_iter: int = 200000, repeats: int = 5) -> float:
         """Mean time of one tick measured inside C++, ns (best of ``repeats``; state restored)."""
+        for name, v, top in (("n_iter", n_iter, 10**9), ("repeats", repeats, 1000)):
+            if isinstance(v, (bool, np.bool_)) or not isinstance(v, (int, np.integer)):
+                raise TypeError(f"{name} must be an int, got {type(v).__name__}")
+            if not 1 <= v <= top:
+                raise ValueError(f"{name} must be in [1, {top}], got {v}")
         return self._core.time_step_ns(int(n_iter), int(repeats))
 
     def __repr__(self) -> str:

@@ -187,8 +187,10 @@ class DetectorWeights:
         for name, a in arrays.items():
             if not np.all(np.isfinite(a)):
                 raise WeightsError(f"{name} contains non-finite values")
-        if np.any(self.input_scale <= 0):
-            raise WeightsError("input_scale must be positive")
+        if np.any(self.input_scale < np.finfo(np.float64).tiny):
+            # subnormal scales pass "> 0" but their reciprocal, the kernel's gain, is inf
+            raise WeightsError(f"input_scale must be positive and normal (>= {np.finfo(np.float64).tiny:.3g}), "
+                               f"got {float(self.input_scale.min())!r}")
         if not isinstance(self.fs, (int, float, np.floating)) or not math.isfinite(self.fs) or self.fs <= 0:
             raise WeightsError(f"fs must be a positive number of Hz, got {self.fs!r}")
         if not isinstance(self.metadata, dict):
@@ -246,7 +248,10 @@ class DetectorWeights:
         fs = data["fs"]
         meta = parse_json(data["metadata"], "metadata", WeightsError, repr(path))
         params = Params(data["w1"], data["b1"], data["w2"], data["b2"])
-        w = cls(params, data["input_mean"], data["input_scale"], float(fs), meta)
+        try:
+            w = cls(params, data["input_mean"], data["input_scale"], float(fs), meta)
+        except WeightsError as exc:
+            raise WeightsError(f"{path!r}: {exc}") from None
         kind = str(data["kind"]) if "kind" in data else "jordan"
         if int(data["format_version"]) >= 2 and "kind" not in data:
             raise WeightsError(f"{path!r}: key 'kind' missing (format_version 2)")

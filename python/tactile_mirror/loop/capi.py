@@ -271,7 +271,7 @@ class CPipeline:
 
     def process_block(self, x, accepted: bool = False):
         x = np.asarray(x)
-        if x.dtype.kind not in "biuf":
+        if x.dtype.kind not in "iuf":  # (bools refused, as MirrorPipeline.process_block does)
             raise TypeError(f"x must hold real numbers, got dtype {x.dtype}")
         x = np.ascontiguousarray(x, dtype=np.float64)  # a copy in the right layout
         if x.ndim != 2 or x.shape[1] != self.n_inputs:
