@@ -72,6 +72,17 @@ def _out_folder(path) -> pathlib.Path:
     return out
 
 
+def _out_files(path, *names) -> pathlib.Path:
+    """:func:`_out_folder`, and that each of the files ``names`` the command writes there can
+    be written (not a folder, not read-only): checked before the work, not after it."""
+    from ._io import check_figure_path, check_writable
+
+    out = _out_folder(path)
+    for name in names:
+        (check_figure_path if name.endswith(".png") else check_writable)(out / name)
+    return out
+
+
 def _contact_figure(result, name, path):
     from .plots import contact_scene_figure, save
 
@@ -324,11 +335,10 @@ def cmd_loop_design(args) -> int:
 
     limits = _stage_from_args(args)
     w = _weights(_loop_weights(args.weights, args.fs))
-    out = pathlib.Path(args.out)
     stem = "loop_design_load_cell" if args.load_cell else "loop_design"
+    out = _out_files(args.out, f"{stem}.png", f"{stem}.json")  # before the FEM calibration, not after
     d = _design(w, args.fs, limits, args.delay * 1e-3, args.lag * 1e-3, 6, "fem",
                 sensor="force" if args.load_cell else "strips", planner=not args.streaming)
-    out.mkdir(parents=True, exist_ok=True)
     design_figure(d, str(out / f"{stem}.png"))
     write_json(out / f"{stem}.json", d.summary(), indent=1)
     sign = d.controller.direction_sign
@@ -353,10 +363,9 @@ def _weights(w):
 def cmd_loop_envelope(args) -> int:
     from .loop.envelope import PATH_SETS, envelope_figure, run_envelope
 
-    out = pathlib.Path(args.out)
-    out.mkdir(parents=True, exist_ok=True)
     paths = PATH_SETS[args.paths]
     weights = None if args.weights is None else _load_detector(args.weights).weights
+    out = _out_files(args.out, "loop_envelope.json", "loop_envelope.png")  # before the work, not after
     data = run_envelope(str(out / "loop_envelope.json"), speeds=[v * 1e-3 for v in args.speeds], n_seeds=args.seeds,
                         conditions=args.conditions, laws=args.laws, paths=paths, duration=args.duration,
                         limits=_stage_from_args(args), stage_delay=args.delay * 1e-3, stage_lag=args.lag * 1e-3,
@@ -384,6 +393,8 @@ def cmd_loop_realtime(args) -> int:
 
     fs, limits = args.fs, _stage_from_args(args)
     weights = _loop_weights(args.weights, fs)
+    # before the calibration and the paced run, not after them
+    out = _out_files(args.out, "realtime.json", "realtime_recording.npz", "realtime.png")
     seed = REPORT_PATHS.first_seed if args.seed is None else args.seed
     scene = LoopScene(seed=seed, duration=args.duration, fs=fs, plant="fem", stage_delay=args.delay * 1e-3,
                       stage_lag=args.lag * 1e-3, trajectory=REPORT_PATHS.trajectory(args.speed * 1e-3),
@@ -408,8 +419,6 @@ def cmd_loop_realtime(args) -> int:
                "finger_peak_speed_mm_s": args.speed, "seed": seed, "tick_us": tick, "latency_us": lat,
                "overruns": int(res.overruns), "late_starts": int(res.late_starts), "gross_slips": int(r.gross_slips),
                "tracking_rms_mm": r.tracking_rms * 1e3}
-    out = pathlib.Path(args.out)
-    out.mkdir(parents=True, exist_ok=True)
     write_json(out / "realtime.json", summary, indent=1, default=float)
     res.to_recording(r.config, {"pad": args.pad, "law": args.law}).save(out / "realtime_recording.npz")
     paced_figure(res, r.log["slip_fraction"][:, : r.t.size], fs, out / "realtime.png",

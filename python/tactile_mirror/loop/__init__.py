@@ -7,7 +7,8 @@
 - :mod:`~tactile_mirror.loop.envelope`: gross slips and tracking error against peak finger
   speed (``tactile-mirror loop envelope``);
 - :mod:`~tactile_mirror.loop.stage`: the :class:`Stage` protocol and :class:`SimulatedStage`;
-- :mod:`~tactile_mirror.loop.runner`: :class:`LoopRunner` (fixed rate, latency percentiles);
+- :mod:`~tactile_mirror.loop.runner`: :class:`LoopRunner` (fixed rate, latency percentiles;
+  :class:`StageError` when the stage driver fails mid-run);
 - :mod:`~tactile_mirror.loop.recording`: :class:`Recording` (npz, bit-identical replay);
 - :mod:`~tactile_mirror.loop.capi`: the C ABI's library path and a cffi binding;
 - :mod:`~tactile_mirror.loop.finger`: finger paths (seeded, band-limited, within a stage's limits);
@@ -23,7 +24,7 @@ from .capi import header_path, library_path
 from .controller import Controller, NoController, PaperController, VelocityController, controller_from_dict
 from .design import LoopDesign, design_loop
 from .recording import Recording, RecordingError
-from .runner import ArraySource, LoopResult, LoopRunner
+from .runner import ArraySource, LoopResult, LoopRunner, StageError
 from .scene import LoopScene, SceneResult, run_scene
 from .stage import SimulatedStage, Stage, StageLimits
 
@@ -41,6 +42,7 @@ __all__ = [
     "SceneResult",
     "SimulatedStage",
     "Stage",
+    "StageError",
     "StageLimits",
     "VelocityController",
     "controller_from_dict",

@@ -27,11 +27,11 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .._io import save_figure
+from .._io import check_writable, save_figure, write_json
 from .stage import StageLimits
 
 __all__ = ["CONDITIONS", "PATH_SETS", "REPORT_FAST_PATHS", "REPORT_PATHS", "TUNING_FAST_PATHS", "TUNING_PATHS", "PathSet", "envelope_figure", "envelope_table",
-           "run_envelope"]
+           "read_results", "run_envelope"]
 
 
 @dataclass(frozen=True)
@@ -92,6 +92,71 @@ def _key(row) -> tuple:
     return (row["condition"], row["law"], round(row["speed"] * 1e6), int(row["seed"]), row["paths"])
 
 
+#: What every row of a results file must hold (what resuming and :func:`envelope_table` read),
+#: and the JSON types each must have.
+_ROW_KEYS = {"condition": str, "law": str, "speed": "real", "seed": int, "paths": str, "gross_slips": int,
+             "tracking_rms_mm": "real", "finger_peak_acceleration": "real"}
+
+
+def _row_problem(row) -> str | None:
+    """What is wrong with one row of a results file (None: nothing)."""
+    if not isinstance(row, dict):
+        return f"is a {type(row).__name__}, not an object"
+    for key, kind in _ROW_KEYS.items():
+        if key not in row:
+            return f"lacks {key!r}"
+        v = row[key]
+        if kind == "real":
+            ok = isinstance(v, (int, float)) and not isinstance(v, bool)
+        else:
+            ok = isinstance(v, kind) and not isinstance(v, bool)
+        if not ok:
+            want = "a number" if kind == "real" else ("an integer" if kind is int else "a string")
+            return f"has {key}={v!r}, not {want}"
+    if not (math.isfinite(row["speed"]) and row["speed"] > 0):
+        return f"has speed={row['speed']!r}, not a positive finite m/s"
+    return None
+
+
+def read_results(path) -> dict:
+    """The results file of :func:`run_envelope` at ``path``, checked (``{"rows": []}`` if there is none).
+
+    Raises ValueError naming the file if it is not valid JSON, not an object with a list
+    ``rows``, or a row lacks a key resuming and :func:`envelope_table` read (or has the
+    wrong type there).
+    """
+    path = os.fspath(path)
+    if not os.path.exists(path):
+        return {"rows": []}
+    try:
+        with open(path, encoding="utf-8") as fh:
+            data = json.load(fh)
+    except (json.JSONDecodeError, UnicodeDecodeError) as exc:
+        raise ValueError(f"envelope results file {path!r} is not valid JSON ({exc}); repair or delete it "
+                         f"(its rows are the runs done so far)") from exc
+    problem = _results_problem(data)
+    if problem is not None:
+        raise ValueError(f"envelope results file {path!r}{problem}; repair or delete it")
+    return data
+
+
+def _results_problem(data) -> str | None:
+    """What is wrong with the content of a results file (None: nothing)."""
+    if not isinstance(data, dict):
+        return f" holds a JSON {type(data).__name__}, not an object with 'rows'"
+    if "rows" not in data:
+        return " has no 'rows' (a list of run results)"
+    if not isinstance(data["rows"], list):
+        return f" has 'rows' of type {type(data['rows']).__name__} (a list of run results)"
+    for i, row in enumerate(data["rows"]):
+        problem = _row_problem(row)
+        if problem is not None:
+            return f": row {i} {problem}"
+    if not isinstance(data.get("path_sets", {}), dict):
+        return f": 'path_sets' is a {type(data['path_sets']).__name__}, not an object"
+    return None
+
+
 def _design(weights, fs, limits, delay, lag, n_ridges, plant, sensor: str = "strips", planner: bool = True):
     """The default law's design for a pad: calibrated (after the press on the FEM pad, the
     finger pushed; nothing from a finger path), then :func:`~tactile_mirror.loop.design.design_loop`."""
@@ -142,7 +207,7 @@ def _settle_after_slips(res, fs, window: float = 0.1) -> dict:
     return {"settle_s": worst, "second_slip_within_100ms": second}
 
 
-def run_envelope(out: str, speeds: Sequence[float] = (0.002, 0.005, 0.01, 0.02), n_seeds: int = 10,
+def run_envelope(out: str | os.PathLike, speeds: Sequence[float] = (0.002, 0.005, 0.01, 0.02), n_seeds: int = 10,
                  conditions: Sequence[str] = ("nominal",), laws: Sequence[str] = DEFAULT_LAWS,
                  paths: PathSet = REPORT_PATHS,
                  plant: str = "fem", duration: float = 3.0, fs: float = 1000.0,
@@ -154,6 +219,8 @@ def run_envelope(out: str, speeds: Sequence[float] = (0.002, 0.005, 0.01, 0.02),
     ----------
     out : path
         Results file (JSON with ``rows`` and ``design``); existing rows are kept and not rerun.
+        It is read and checked (:func:`read_results`) and found writable before any work:
+        a damaged file is a ValueError naming it. Every save replaces it atomically.
     speeds : sequence of float
         Peak finger speeds of the classes, m/s.
     n_seeds : int
@@ -185,13 +252,13 @@ def run_envelope(out: str, speeds: Sequence[float] = (0.002, 0.005, 0.01, 0.02),
     if not speeds or any(not (math.isfinite(v) and v > 0) for v in speeds):
         raise ValueError(f"speeds must be positive finite m/s, got {speeds!r}")
     limits = limits or StageLimits(-0.02, 0.02, 0.03, 1.0)
+    # the results file is read, checked and found writable before the design and calibration run
+    out = os.fspath(out)
+    check_writable(out)
+    data = read_results(out)
     weights = default_weights(plant, fs) if weights is None else weights
     w = _weights_dict(weights) if not isinstance(weights, dict) else weights
     law_objs, design = _laws(w, fs, limits, stage_delay, stage_lag, n_ridges, plant, load_cell="load cell" in laws)
-    data: dict = {"rows": []}
-    if os.path.exists(out):
-        with open(out) as fh:
-            data = json.load(fh)
     done = {_key(r) for r in data["rows"]}
     data["design"] = design.summary()
     data["setup"] = {"plant": plant, "duration_s": duration, "fs": fs, "n_ridges": n_ridges,
@@ -219,10 +286,7 @@ def run_envelope(out: str, speeds: Sequence[float] = (0.002, 0.005, 0.01, 0.02),
                "force_z_mean": float(np.mean(res.log["force_z"][round(0.5 * fs):])),
                **_settle_after_slips(res, fs)}
         data["rows"].append(row)
-        tmp = out + ".tmp"
-        with open(tmp, "w") as fh:
-            json.dump(data, fh, indent=1)
-        os.replace(tmp, out)
+        write_json(out, data, indent=1)  # atomically: an interrupted save keeps the rows before it
         if progress:
             k = i + 1
             el = time.monotonic() - t0
@@ -234,9 +298,7 @@ def run_envelope(out: str, speeds: Sequence[float] = (0.002, 0.005, 0.01, 0.02),
     if progress and todo:
         sys.stderr.write("\n")
     data["table"] = envelope_table(data["rows"])
-    with open(out + ".tmp", "w") as fh:
-        json.dump(data, fh, indent=1)
-    os.replace(out + ".tmp", out)
+    write_json(out, data, indent=1)
     return data
 
 

@@ -24,6 +24,7 @@ from __future__ import annotations
 import math
 import numbers
 import time
+import warnings
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -31,7 +32,7 @@ import numpy as np
 from .._checks import real_number
 from .recording import Recording
 
-__all__ = ["ArraySource", "LoopResult", "LoopRunner"]
+__all__ = ["ArraySource", "LoopResult", "LoopRunner", "StageError"]
 
 
 class ArraySource:
@@ -120,6 +121,23 @@ class LoopResult:
                          stage_position=self.stage_position, config=config, x0=self.x0, metadata=meta)
 
 
+class StageError(RuntimeError):
+    """The stage driver failed during :meth:`LoopRunner.run`: a driver call raised (chained as
+    ``__cause__``) or ``stage.position()`` returned what is not a finite real number.
+
+    The stage has been stopped (``stage.stop()``) before this is raised.
+
+    Attributes
+    ----------
+    partial : LoopResult
+        The ticks completed before the failure (possibly none): nothing recorded is lost.
+    """
+
+    def __init__(self, message: str, partial: LoopResult | None = None):
+        super().__init__(message)
+        self.partial = partial
+
+
 class LoopRunner:
     """Tick ``source -> pipeline -> stage`` at the pipeline's rate.
 
@@ -130,7 +148,9 @@ class LoopRunner:
         ``reset(x0)`` (also the C ABI wrapper :class:`~tactile_mirror.loop.capi.CPipeline`).
     stage : Stage
         The stage; if it has ``advance(dt)`` (a simulated stage) it is advanced by
-        one period after each tick.
+        one period after each tick. Its ``stop()`` is called when a run ends with an
+        exception; a failing driver call ends the run with :class:`StageError`, which
+        keeps the ticks run so far.
     source : object with ``read(stage_position, t)``
     realtime : bool
         Pace ticks on the wall clock (busy wait). False: simulated time, as fast as
@@ -168,6 +188,23 @@ class LoopRunner:
             Start position for the controller, m; default: the stage's position.
         reset : bool
             Reset the pipeline first (default).
+
+        Raises
+        ------
+        StageError
+            A stage driver call (``position``, ``move_to``, ``advance``) raised (the
+            driver's exception is chained as ``__cause__``), or ``stage.position()``
+            returned what is not a finite real number (NaN, inf, None, a string, an
+            array, a bool). The stage has been stopped; the error's ``partial`` is the
+            :class:`LoopResult` of the ticks completed before the failure.
+
+        Notes
+        -----
+        Whenever a run ends with an exception (a driver error, the source or the
+        pipeline raising, Ctrl-C), ``stage.stop()`` is called before the exception
+        propagates; errors other than the driver's propagate unchanged. A run that
+        ends normally leaves the stage on its last target (a following run with
+        ``reset=False`` continues from there).
         """
         fs = float(self.pipeline.fs)
         if (n_ticks is None) == (duration is None):
@@ -179,11 +216,10 @@ class LoopRunner:
                 raise ValueError(f"duration must last at least one tick (1 / {fs:g} s), got {duration!r} s")
         if isinstance(n_ticks, bool) or not isinstance(n_ticks, numbers.Integral) or n_ticks < 1:
             raise ValueError(f"n_ticks must be a positive integer, got {n_ticks!r}")
+        if x0 is not None:
+            x0 = real_number(x0, "x0", unit="m")
         n = int(n_ticks)
         pipe, stage, source = self.pipeline, self.stage, self.source
-        x_start = float(stage.position()) if x0 is None else float(x0)
-        if reset:
-            pipe.reset(x_start)
         ni, no = pipe.n_inputs, pipe.n_outputs
         samples = np.empty((n, ni))
         outputs = np.empty((n, no))
@@ -196,46 +232,121 @@ class LoopRunner:
         period_ns = round(1e9 / fs)
         advance = getattr(stage, "advance", None)
         step = pipe.step
+        position = stage.position
         move = stage.move_to if self.command else None
         clock = time.perf_counter_ns
         overruns = late = 0
-        k = 0
-        t_next = clock() + period_ns
-        for k in range(n):
-            if self.realtime:
-                while True:  # busy wait: sleep() cannot hold a 100 us period
-                    now = clock()
-                    if now >= t_next - period_ns:
-                        break
-                if now > t_next:
-                    late += 1
-            t_start = clock()
-            p = stage.position()
-            x = source.read(p, k * period)
-            if x is None:
-                break
-            t0 = clock()
-            cmd = step(x, out)
-            if move is not None:
-                move(cmd)
-            t1 = clock()
-            if advance is not None:
-                advance(period)
-            lat[k] = t1 - t0
-            tick[k] = t1 - t_start
-            if self.realtime:
-                overruns += t1 > t_next
-                t_next += period_ns
+        x_start = math.nan
+        done = 0  # ticks completed (recorded)
+
+        def result(k, overruns, late, x_start) -> LoopResult:  # the first k ticks
+            status = dict(pipe.status) if hasattr(pipe, "status") else {}
+            return LoopResult(t=np.arange(k) * period, samples=samples[:k], outputs=outputs[:k],
+                              accepted=accepted[:k], stage_position=pos[:k], latency_ns=lat[:k],
+                              overruns=int(overruns), late_starts=int(late), fs=fs, realtime=self.realtime,
+                              x0=x_start, status=status, tick_ns=tick[:k])
+
+        try:
+            if x0 is None:
+                try:
+                    p = position()
+                except Exception as exc:
+                    raise _DriverFailure("stage.position() raised before the first tick", exc) from exc
+                x_start = _checked_position(p, "before the first tick")
             else:
-                overruns += (t1 - t0) > period_ns
-            samples[k] = x
-            outputs[k] = out
-            accepted[k] = getattr(pipe, "last_accepted", True)
-            pos[k] = p
-        else:
-            k = n
-        status = dict(pipe.status) if hasattr(pipe, "status") else {}
-        return LoopResult(t=np.arange(k) * period, samples=samples[:k], outputs=outputs[:k],
-                          accepted=accepted[:k], stage_position=pos[:k], latency_ns=lat[:k],
-                          overruns=int(overruns), late_starts=int(late), fs=fs, realtime=self.realtime,
-                          x0=x_start, status=status, tick_ns=tick[:k])
+                x_start = x0
+            if reset:
+                pipe.reset(x_start)
+            t_next = clock() + period_ns
+            for k in range(n):
+                if self.realtime:
+                    while True:  # busy wait: sleep() cannot hold a 100 us period
+                        now = clock()
+                        if now >= t_next - period_ns:
+                            break
+                    if now > t_next:
+                        late += 1
+                t_start = clock()
+                try:
+                    p = position()
+                except Exception as exc:
+                    raise _DriverFailure(f"stage.position() raised at tick {k}", exc) from exc
+                p = _checked_position(p, f"at tick {k}")
+                x = source.read(p, k * period)
+                if x is None:
+                    break
+                t0 = clock()
+                cmd = step(x, out)
+                if move is not None:
+                    try:
+                        move(cmd)
+                    except Exception as exc:
+                        raise _DriverFailure(f"stage.move_to({cmd!r}) raised at tick {k}", exc) from exc
+                t1 = clock()
+                lat[k] = t1 - t0
+                tick[k] = t1 - t_start
+                if self.realtime:
+                    overruns += t1 > t_next
+                    t_next += period_ns
+                else:
+                    overruns += (t1 - t0) > period_ns
+                samples[k] = x
+                outputs[k] = out
+                accepted[k] = getattr(pipe, "last_accepted", True)
+                pos[k] = p
+                done = k + 1
+                if advance is not None:
+                    try:
+                        advance(period)
+                    except Exception as exc:
+                        raise _DriverFailure(f"stage.advance({period!r}) raised at tick {k}", exc) from exc
+        except _DriverFailure as failure:
+            stop_error = _stop(stage)
+            msg = f"{failure.what}: {failure.detail}; the stage was stopped, {done} tick(s) kept in .partial"
+            if stop_error is not None:
+                msg += f" (stage.stop() failed too: {type(stop_error).__name__}: {stop_error})"
+            raise StageError(msg, result(done, overruns, late, x_start)) from failure.__cause__
+        except BaseException as exc:
+            stop_error = _stop(stage)
+            if stop_error is not None:
+                warnings.warn(f"stage.stop() failed after {type(exc).__name__} at tick {done}: "
+                              f"{type(stop_error).__name__}: {stop_error}", RuntimeWarning, stacklevel=2)
+            raise
+        return result(done, overruns, late, x_start)
+
+
+class _DriverFailure(Exception):
+    """Internal: a stage driver call failed (``what``), raised inside :meth:`LoopRunner.run`."""
+
+    def __init__(self, what: str, cause: BaseException | None = None, detail: str | None = None):
+        super().__init__(what)
+        self.what = what
+        self.detail = detail if detail is not None else f"{type(cause).__name__}: {cause}"
+
+
+def _checked_position(value, when: str) -> float:
+    """``stage.position()``'s return as a float: a finite real number (int, float, numpy real
+    scalar; not a bool, a string, an array, None), else :class:`_DriverFailure`."""
+    if type(value) is float:  # (the common case, without the ABC check)
+        v = value
+    elif isinstance(value, bool) or not isinstance(value, numbers.Real):
+        raise _DriverFailure(f"stage.position() returned {value!r} ({type(value).__name__}) {when}",
+                             detail="a position must be a finite real number, m")
+    else:
+        v = float(value)
+    if not math.isfinite(v):
+        raise _DriverFailure(f"stage.position() returned {value!r} {when}",
+                             detail="a position must be a finite real number, m")
+    return v
+
+
+def _stop(stage) -> BaseException | None:
+    """``stage.stop()`` if the stage has one; the exception it raised, if any."""
+    stop = getattr(stage, "stop", None)
+    if stop is None:
+        return None
+    try:
+        stop()
+    except Exception as exc:  # noqa: BLE001 (a driver fails any way it likes; the caller reports it)
+        return exc
+    return None

@@ -150,6 +150,8 @@ class PlantSource:
         k = self.k
         if k >= self.finger.size:
             return None
+        # (a NaN reached the plant as its internal "dy must be finite"; nothing is stepped here)
+        stage_position = real_number(stage_position, "stage_position (the stage's position)", unit="m")
         sc = self.scene
         if sc.mu_change is not None and t >= sc.mu_change[0]:
             # Sweat wets the contact over a fraction of a second; a step change of mu would
