@@ -95,6 +95,8 @@ def main(argv=None):
     ap.add_argument("--hidden", type=int, default=16)
     ap.add_argument("--negative-weight", type=float, default=30.0)
     ap.add_argument("--swap", action="store_true", help="choose on the second half, report on the first")
+    ap.add_argument("--ensemble", action="store_true",
+                    help="also report each seed's kept net and the mean y_slip of all seeds' kept nets")
     ap.add_argument("--json", default=None, help="write the table's figures here")
     args = ap.parse_args(argv)
     sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
@@ -141,8 +143,10 @@ def main(argv=None):
         tsv = TrainingSet(f(ts.x) * ts.mask[:, None, :], ts.y_slip, ts.y_pred, ts.mask, ts.fs, ts.features,
                           ts.estimator, ts.targets, ts.load_tau, ts.bank)
         best = (-1.0, None, "")
+        per_seed = []
         t1 = time.perf_counter()
         for seed in range(args.seeds):
+            seed_best = (-1.0, None, "")
             cands = []
             w_end = train_detector(tsv, args.hidden, seed=seed, maxiter=args.maxiter, negative_weight=args.negative_weight,
                                    pred_weight=4.0,
@@ -154,11 +158,28 @@ def main(argv=None):
                 score = np.mean([c[n].at_false_alarm(0.02)["detection_rate"] for n in c])
                 if score > best[0]:
                     best = (score, w, f"seed {seed}, {it} it")
+                if score > seed_best[0]:
+                    seed_best = (score, w, f"seed {seed}, {it} it")
+            per_seed.append(seed_best)
         print(f"# {variant}: kept {best[2]} (selection score {100 * best[0]:.1f} %), "
               f"{time.perf_counter() - t1:.0f} s", flush=True)
         w = best[1]
         rows.append((f"net, {variant} inputs", curves("report", lambda feats: run_net(w, [f(x) for x in feats])),
                      best[2]))
+        if args.ensemble:
+            # Each seed's own kept net, then their mean y_slip: the spread between seeds'
+            # minima against what averaging them buys.
+            for score, ws, kept in per_seed:
+                rows.append((f"net, {variant} inputs, one seed", curves("report", lambda feats, ws=ws: run_net(
+                    ws, [f(x) for x in feats])), kept))
+            members = [ws for _, ws, _ in per_seed]
+
+            def mean_scores(feats, members=members):
+                outs = [run_net(ws, [f(x) for x in feats]) for ws in members]
+                return [np.mean([o[i] for o in outs], axis=0) for i in range(len(feats))]
+
+            rows.append((f"mean of {len(members)} seeds' nets, {variant} inputs", curves("report", mean_scores),
+                         ", ".join(k for _, _, k in per_seed)))
 
     print(f"\n| validation scenes {reported}, detection at 1 / 2 / 3 % false alarms, all (gradual) "
           f"| kept | noise-free | 1 mV rms |")
