@@ -239,3 +239,27 @@ def test_time_step_ns_checks_its_counts():
         with pytest.raises(exc, match="n_iter"):
             p.time_step_ns(bad, 1)
     assert p.time_step_ns(100, 1) > 0
+
+
+def test_a_status_cycle_at_high_friction_ends_in_both_backends(model, monkeypatch):
+    """On a 0.6 mm sine at mu = 1 the node statuses cycle at one load point (the quasi-static
+    problem has no solution there the law can follow). The compiled kernel raised; the
+    Python reference looped for ever, its resolves leading back into the cycle through a
+    set that was not their result. Both raise now, at the same point, the state kept."""
+    from tactile_mirror.contact import solver as S
+
+    y = 0.6e-3 * np.sin(np.linspace(0, 4 * np.pi, 8000))
+    z = np.full(y.size, 0.00198)
+    c = ContactSolver(model, 1.0)
+    c.follow(y[:3686], z[:3686])
+    state = c.get_state()
+    monkeypatch.setattr(S, "SEEN_CAP", 40)  # (the bound, not its size, is under test: faster)
+    messages = []
+    for backend in ("cpp", "python"):
+        s = ContactSolver(model, 1.0, backend=backend)
+        s.set_state(state)
+        with pytest.raises(S.ContactConvergenceError, match="cycle") as err:
+            s.follow(y[3685:3687], z[3685:3687], stepping="every")
+        messages.append(str(err.value).split("(")[0])
+        np.testing.assert_array_equal(s.get_state()["lam"], state["lam"])
+    assert messages[0] == messages[1]

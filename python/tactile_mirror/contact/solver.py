@@ -171,6 +171,7 @@ class ContactStep:
         return self.in_contact and not np.any(self.state == STICK)
 
 
+SEEN_CAP = 256  # status sets kept per point by the cycle rule (the kernel's kSeenCap)
 MAX_ITERATIONS = 1_000_000  # iteration limits: the kernel counts in a C int
 
 
@@ -199,6 +200,28 @@ def _check_params(p: dict, changed) -> None:
                          f"{p['mu_kinetic']!r} (set_friction changes both at once)")
     if not (0 < p["tol"] < 1e-2):
         raise ValueError(f"tol must be in (0, 1e-2), got {p['tol']!r}")
+
+
+class _SeenSets(set):
+    """The cycle rule's status sets met at one point. As the kernel's (kSeenCap), at most
+    SEEN_CAP additions per point, repeats counted: a resolve can lead back into a cycle
+    through a set that was not its result, and the loop would never end."""
+
+    added = 0
+
+    def add(self, entry) -> None:
+        if self.added >= SEEN_CAP:
+            raise _SeenFull
+        self.added += 1
+        super().add(entry)
+
+    def clear(self) -> None:
+        self.added = 0
+        super().clear()
+
+
+class _SeenFull(Exception):
+    pass
 
 
 class ContactSolver(NotCopyable):
@@ -579,7 +602,7 @@ class ContactSolver(NotCopyable):
         n = self._n
         s0, z0p = self._s_prev, self._z_prev
         th, j, ns = 0.0, 0, thetas.size
-        seen: set = set()  # status sets met at the current point (a cycle guard)
+        seen = _SeenSets()  # status sets met at the current point (a cycle guard)
         # 1e-6 of a sample along the segment: the step of the cycle rule (the same in
         # both steppings, whatever the segment's length)
         tiny = (1e3 * eps * (s1 - s0), 1e3 * eps * (z1 - z0p))
@@ -656,15 +679,19 @@ class ContactSolver(NotCopyable):
         Alart-Curnier solve of a short step (1e-6 of a sample) ahead."""
         self.events += 1
         key = self._state.tobytes() + self._sign.tobytes()
-        if key not in seen:
-            seen.add(key)
-            return
-        if ("resolved", key) in seen:
-            raise ContactConvergenceError(
-                f"node statuses cycle at the plate position y={self._s_prev:.6g} m, z={self._z_prev:.6g} m")
-        self._resolve_point(tiny)
-        seen.add(("resolved", self._state.tobytes() + self._sign.tobytes()))
-        seen.add(self._state.tobytes() + self._sign.tobytes())
+        cycle = ContactConvergenceError(
+            f"node statuses cycle at the plate position y={self._s_prev:.6g} m, z={self._z_prev:.6g} m")
+        try:
+            if key not in seen:
+                seen.add(key)
+                return
+            if ("resolved", key) in seen:
+                raise cycle
+            self._resolve_point(tiny)
+            seen.add(("resolved", self._state.tobytes() + self._sign.tobytes()))
+            seen.add(self._state.tobytes() + self._sign.tobytes())
+        except _SeenFull:
+            raise cycle from None
 
     def _resolve_point(self, tiny):
         """Statuses at the current point from the Alart-Curnier solve of the step
