@@ -581,3 +581,16 @@ def test_random_bytes_raise_only_the_format_error(tmp_path, kind, blob):
     path = _write(tmp_path / "random.npz", blob)
     with pytest.raises(error):
         load(path)
+
+
+def test_a_recording_whose_fields_disagree_names_its_file(tmp_path):
+    """The constructor's checks (a config entry, a shape) named the field but not the file."""
+    path = str(tmp_path / "rec.npz")
+    recording(20, seed=1).save(path)
+    with np.load(path) as f:
+        data = dict(f)
+    data["fs"] = np.array(-1.0)
+    bad = str(tmp_path / "bad.npz")
+    np.savez(bad, **data)
+    with pytest.raises(RecordingError, match=r"bad\.npz.*fs must be a positive number"):
+        Recording.load(bad)

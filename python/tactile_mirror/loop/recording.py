@@ -209,9 +209,12 @@ class Recording:
             raise RecordingError(f"{path!r}: config must be a JSON object")
         for k in _CFG_ARRAYS:
             cfg[k] = data.get("cfg_" + k)
-        return cls(fs=float(data["fs"]), samples=data["samples"], outputs=data["outputs"],
-                   accepted=data["accepted"], stage_position=data["stage_position"], config=cfg,
-                   x0=float(data["x0"]), metadata=meta)
+        try:
+            return cls(fs=float(data["fs"]), samples=data["samples"], outputs=data["outputs"],
+                       accepted=data["accepted"], stage_position=data["stage_position"], config=cfg,
+                       x0=float(data["x0"]), metadata=meta)
+        except RecordingError as exc:  # (the checks of the constructor name the field, not the file)
+            raise RecordingError(f"{path!r}: {exc}") from None
 
     # -- replay ---------------------------------------------------------------------------
     def pipeline(self):
