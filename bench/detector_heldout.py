@@ -107,12 +107,11 @@ def main(argv=None):
     sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
     from _common import header
     from detector_roc import bound_scores
-    from tactile_mirror.detector.evaluate import NOISE_CONDITIONS, with_noise
-    from tactile_mirror.detector.evaluate import condition_estimator as estimator_of
-    from tactile_mirror.detector.evaluate import noise_free as clean
     from tactile_mirror.detector import SlipDetector, build
     from tactile_mirror.detector.data_prep import features_from_result
-    from tactile_mirror.detector.evaluate import onset_kinds, roc
+    from tactile_mirror.detector.evaluate import NOISE_CONDITIONS, onset_kinds, roc, with_noise
+    from tactile_mirror.detector.evaluate import condition_estimator as estimator_of
+    from tactile_mirror.detector.evaluate import noise_free as clean
     from tactile_mirror.measure import cpu_model
 
     header("filter-bank and load-memory nets vs the paper's Jordan net on the build's held-out scenes")

@@ -152,7 +152,7 @@ def cmd_demo(args) -> int:
         rows.append((name, PAPER_SCENES[name], res.slip_time, first_alarm(paper_det, res, stops[name]),
                      first_alarm(default_det, res, stops[name])))
     save(figure10(paper_det, results[0], results[2], stops_b=stops["fig8"]), out / "fig10.png")
-    fmt = lambda t: "none" if t is None else f"{t:.3f} s"  # noqa: E731
+    fmt = lambda t: "none" if t is None else f"{t:.3f} s"
     print("\n| scene | plate motion | gross slip | first y_slip >= 0.8: paper's net | default (filter-bank) net |")
     print("|---|---|---|---|---|")
     for name, what, ts, ta, tb in rows:

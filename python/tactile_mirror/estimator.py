@@ -49,9 +49,8 @@ import numpy as np
 import numpy.typing as npt
 import scipy.signal
 
-from ._owner import NotCopyable
 from ._checks import real_number
-from ._owner import claim
+from ._owner import NotCopyable, claim
 from .circuit import PVDFCircuit, _check_fs
 from .filters import SosFilter, _real_numeric, sosfilt
 
@@ -412,13 +411,14 @@ class StressRateEstimator(NotCopyable):
                 raise ValueError(f"v: {exc}") from None
             try:
                 rate2 = self._rate2.process(u if self.use_u else rate)
-            except BaseException as exc:
+            except ValueError as exc:
                 # the second filter refused the block (a NaN/Inf in u, an overflow): the first
                 # one goes back to where it was, so the estimator is as before the call
                 self._rate._restore(before)
-                if isinstance(exc, ValueError):
-                    raise ValueError(f"{'u' if self.use_u else 'v (its differentiated stress rate)'}: {exc}") \
-                        from None
+                which = "u" if self.use_u else "v (its differentiated stress rate)"
+                raise ValueError(f"{which}: {exc}") from None
+            except BaseException:
+                self._rate._restore(before)
                 raise
         return rate, rate2
 

@@ -50,8 +50,8 @@ from typing import overload
 import numpy as np
 import numpy.typing as npt
 
-from ._owner import NotCopyable
 from . import _core
+from ._owner import NotCopyable
 
 __all__ = ["POLE_TOLERANCE", "STRUCTURES", "SosFilter", "UnstableFilterWarning", "roundoff_bound", "simd_path",
            "sosfilt", "validate_sos"]

@@ -26,9 +26,9 @@ import numbers
 import numpy as np
 import scipy.signal
 
-from ._owner import NotCopyable
 from . import _core
 from ._checks import real_number
+from ._owner import NotCopyable
 from .circuit import _check_fs
 from .filters import validate_sos
 from .loop.controller import Controller, controller_from_dict

@@ -19,8 +19,8 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from .._owner import NotCopyable
 from .._checks import real_number
+from .._owner import NotCopyable
 from .model import RidgeModel
 from .solver import MAX_PLATE_POSITION, OPEN, SLIP, STEPPINGS, STICK, ContactSolver, _position_error
 

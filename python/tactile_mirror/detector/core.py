@@ -7,8 +7,7 @@ from importlib import resources
 
 import numpy as np
 
-from .._owner import NotCopyable
-from .._owner import claim
+from .._owner import NotCopyable, claim
 from .bank import bank_features
 from .memory import memory_features
 from .network import forward
