@@ -165,11 +165,7 @@ class Pad(NotCopyable):
     @mu.setter
     def mu(self, value: float) -> None:
         """Change the friction mid-run (e.g. sweat); the contact history is kept."""
-        from .solver import _real_param
-
-        value = _real_param("mu", value)
-        if not (np.isfinite(value) and value > 0):
-            raise ValueError(f"mu must be a positive number, got {value!r}")
+        value = real_number(value, "mu", positive=True)
         # the kinetic coefficient keeps its ratio to the static one; every ridge or none
         # (a ridge busy in another thread raises before any is changed, and a failure
         # part way puts the changed ones back)

@@ -117,6 +117,7 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.linalg.lapack import dgetrf, dgetrs
 
+from .._checks import real_number
 from .._owner import NotCopyable
 from .model import RidgeModel
 
@@ -172,13 +173,6 @@ class ContactStep:
 
 SEEN_CAP = 256  # status sets kept per point by the cycle rule (the kernel's kSeenCap)
 MAX_ITERATIONS = 1_000_000  # iteration limits: the kernel counts in a C int
-
-
-def _real_param(name: str, value) -> float:
-    if isinstance(value, (bool, np.bool_, str, bytes)) or not isinstance(value, (numbers.Real, np.floating,
-                                                                                   np.integer)):
-        raise TypeError(f"{name} must be a real number, got {type(value).__name__}")
-    return float(value)
 
 
 def _int_param(name: str, value) -> int:
@@ -252,9 +246,9 @@ class ContactSolver(NotCopyable):
 
     def __init__(self, model: RidgeModel, mu: float, tol: float = 1e-10, max_iter: int = 60,
                  reduced: bool = True, mu_kinetic: float | None = None, backend: str = "cpp") -> None:
-        mu = _real_param("mu", mu)
-        mu_k = mu if mu_kinetic is None else _real_param("mu_kinetic", mu_kinetic)
-        params = {"mu": mu, "mu_kinetic": mu_k, "tol": _real_param("tol", tol),
+        mu = real_number(mu, "mu")
+        mu_k = mu if mu_kinetic is None else real_number(mu_kinetic, "mu_kinetic")
+        params = {"mu": mu, "mu_kinetic": mu_k, "tol": real_number(tol, "tol"),
                   "max_iter": _int_param("max_iter", max_iter), "max_active_set_iter": 25}
         _check_params(params, ("mu_kinetic",) if mu_kinetic is not None else ("mu",))
         if backend not in BACKENDS:
@@ -304,15 +298,15 @@ class ContactSolver(NotCopyable):
         """Change both friction coefficients at once (``0 < mu_kinetic <= mu``; default
         ``mu_kinetic = mu``), checked together: setting ``mu`` and ``mu_kinetic`` one
         after the other can pass through a pair that is not allowed."""
-        mu = _real_param("mu", mu)
-        self._set_params(mu=mu, mu_kinetic=mu if mu_kinetic is None else _real_param("mu_kinetic", mu_kinetic))
+        mu = real_number(mu, "mu")
+        self._set_params(mu=mu, mu_kinetic=mu if mu_kinetic is None else real_number(mu_kinetic, "mu_kinetic"))
 
-    mu = property(lambda self: self._params["mu"], lambda self, v: self._set_params(mu=_real_param("mu", v)),
+    mu = property(lambda self: self._params["mu"], lambda self, v: self._set_params(mu=real_number(v, "mu")),
                   doc="Static Coulomb friction coefficient (>= mu_kinetic; see set_friction).")
     mu_kinetic = property(lambda self: self._params["mu_kinetic"],
-                          lambda self, v: self._set_params(mu_kinetic=_real_param("mu_kinetic", v)),
+                          lambda self, v: self._set_params(mu_kinetic=real_number(v, "mu_kinetic")),
                           doc="Kinetic Coulomb friction coefficient (<= mu).")
-    tol = property(lambda self: self._params["tol"], lambda self, v: self._set_params(tol=_real_param("tol", v)),
+    tol = property(lambda self: self._params["tol"], lambda self, v: self._set_params(tol=real_number(v, "tol")),
                    doc="Relative tolerance of the Alart-Curnier residual, in (0, 1e-2).")
     max_iter = property(lambda self: self._params["max_iter"],
                         lambda self, v: self._set_params(max_iter=_int_param("max_iter", v)),
