@@ -148,3 +148,52 @@ def test_bad_arguments_name_the_argument():
         roc(scores, results, thresholds=[])
     with pytest.raises(ValueError, match="score"):
         roc([np.full((1, 500), np.nan)] + scores[1:], results)
+
+
+def test_a_curve_without_slips_and_scores_with_extra_ridges():
+    """A curve of sequences none of which slips gave a TypeError at its operating points
+    (an empty float array as a mask); scores with more rows than the result has ridges were
+    scored against its last ridge."""
+    results, scores, kinds = _synthetic(n_seq=8)
+    calm = [(r, s, k) for r, s, k in zip(results, scores, kinds) if k is None]
+    c = roc([s for _, s, _ in calm], [r for r, _, _ in calm], [k for _, _, k in calm])
+    p = c.at_false_alarm(0.02)
+    assert c.n_slip == 0 and np.isnan(p["detection_rate"]) and np.isnan(p["latency_gradual_ms"])
+    with pytest.raises(ValueError, match=r"scores\[0\].*1 ridges"):
+        roc([np.vstack([scores[0]] * 3)] + scores[1:], results)
+    # fewer rows score the first ridges
+    two = SimpleNamespace(t=results[0].t, fs=FS, slip_fraction=np.vstack([results[0].slip_fraction] * 2))
+    assert roc([scores[0]], [two]).n_sequences == 1
+
+
+def test_evaluate_and_calibrate_refuse_levels_that_make_the_rates_meaningless():
+    from tactile_mirror.detector import SlipDetector, build, evaluate
+
+    det = SlipDetector.paper()
+    results, _, _ = _synthetic(n_seq=2)
+    for kwargs, name in (({"max_latency": -1.0}, "max_latency"), ({"max_latency": float("nan")}, "max_latency"),
+                         ({"slip_threshold": float("nan")}, "slip_threshold"),
+                         ({"slip_threshold": 1.5}, "slip_threshold")):
+        with pytest.raises(ValueError, match=name):
+            evaluate(det, results, **kwargs)
+    with pytest.raises(TypeError, match="slip_threshold"):
+        evaluate(det, results, slip_threshold="0.8")
+    for fa in (-1, float("nan"), 5, True):
+        with pytest.raises(ValueError, match="false_alarm"):
+            build.calibrate_slip(det.weights, results, fa)
+    for st in (0.0, 1.0):
+        with pytest.raises(ValueError, match="slip_threshold"):
+            build.calibrate_slip(det.weights, results, 0.02, slip_threshold=st)
+    with pytest.raises(ValueError, match="validation"):
+        build.calibrate_slip(det.weights, [], 0.02)
+
+
+def test_targets_refuse_levels_that_never_slip():
+    from tactile_mirror.detector.data_prep import targets_from_result
+
+    res = _synthetic(n_seq=1)[0][0]
+    for kwargs, name in (({"gross_level": 2.0}, "gross_level"), ({"gross_level": float("nan")}, "gross_level"),
+                         ({"pred_scale": -1.0}, "pred_scale")):
+        with pytest.raises(ValueError, match=name):
+            targets_from_result(res, **kwargs)
+    assert targets_from_result(res)[0].sum() > 0

@@ -405,11 +405,20 @@ def calibrate_slip(weights, validation, false_alarm: float | None, slip_threshol
     from .data_prep import features_from_result
     from .evaluate import NOISE_CONDITIONS, condition_estimator, noise_free, onset_kinds, roc, with_noise
 
-    det = SlipDetector(weights)
-    kinds = onset_kinds(validation)
+    if isinstance(slip_threshold, bool) or not (isinstance(slip_threshold, (int, float)) and 0 < slip_threshold < 1):
+        raise ValueError(f"slip_threshold must be in (0, 1), got {slip_threshold!r}")
     if conditions is None:
         if false_alarm is None:
             raise ValueError("give false_alarm or conditions")
+        if isinstance(false_alarm, bool) or not (isinstance(false_alarm, (int, float)) and 0 <= false_alarm < 1):
+            # (NaN or -1 put the threshold at 1: a detector that never alarms; 5 at 0)
+            raise ValueError(f"false_alarm must be a false-alarm rate in [0, 1), got {false_alarm!r}")
+    validation = list(validation)
+    if not validation:
+        raise ValueError("validation must hold at least one simulation result")
+    det = SlipDetector(weights)
+    kinds = onset_kinds(validation)
+    if conditions is None:
         runs = {"own noise": (validation, det.metadata.get("estimator"), float(false_alarm))}
     else:
         conditions = dict(conditions)
@@ -429,6 +438,9 @@ def calibrate_slip(weights, validation, false_alarm: float | None, slip_threshol
     for name, (res, est, fa) in runs.items():
         scores = [det.run(features_from_result(r, det.features, estimator=est), fs=r.fs)[0] for r in res]
         curves[name] = roc(scores, validation, kinds)
+        if curves[name].n_slip == 0:
+            raise ValueError("validation has no slipping sequence: its detection rate, which the calibration "
+                             "reports, is undefined")
         t = max(t, float(curves[name].at_false_alarm(fa)["threshold"]))
     t = min(max(t, 1e-6), 1 - 1e-6)
     shift = bias_shift(t, slip_threshold)

@@ -21,6 +21,8 @@ from __future__ import annotations
 
 import numpy as np
 
+from .._checks import real_number
+
 __all__ = ["DEFAULT_ESTIMATOR", "features_from_result", "targets_from_result"]
 
 #: Estimator settings used for the ``"stress_rate"`` features (stored with the weights).
@@ -152,6 +154,11 @@ def targets_from_result(result, gross_level: float = 0.999, pred_scale: float = 
     """
     if pred_target not in ("load_ratio", "slip_zone"):
         raise ValueError(f"pred_target must be 'load_ratio' or 'slip_zone', got {pred_target!r}")
+    # (gross_level 2 or NaN made a target that never slips: a detector trained on it never alarms)
+    if not 0 < real_number(gross_level, "gross_level") <= 1:
+        raise ValueError(f"gross_level must be in (0, 1] (a share of the contact), got {gross_level!r}")
+    if not 0 < real_number(pred_scale, "pred_scale") <= 1:
+        raise ValueError(f"pred_scale must be in (0, 1], got {pred_scale!r}")
     frac = getattr(result, "slip_fraction", None)
     t = np.asarray(result.t, dtype=np.float64)
     if frac is None:

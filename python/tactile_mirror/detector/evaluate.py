@@ -308,6 +308,13 @@ def evaluate(detector, scenes, baselines=None, slip_threshold: float = 0.8, pred
     EvaluationReport
         ``str(report)`` is the table; ``report[name]`` one row (``"detector"`` is the first).
     """
+    from .._checks import real_number
+
+    # (a NaN or negative level or window used to report 0 % detection, silently)
+    for name, v, lo, hi in (("slip_threshold", slip_threshold, 0.0, 1.0), ("pred_threshold", pred_threshold, 0.0, 1.0)):
+        if not lo < real_number(v, name) < hi:
+            raise ValueError(f"{name} must be in ({lo:g}, {hi:g}), got {v!r}")
+    real_number(max_latency, "max_latency", unit="s", nonnegative=True)
     results = _as_results(scenes, progress)
     if not results:
         raise ValueError("scenes must not be empty")
@@ -529,7 +536,7 @@ class RocCurve:
 
             out["latency_ms"] = mean(np.ones(lat.size, bool))
             for kind in self.detection_by_kind:
-                out[f"latency_{kind}_ms"] = mean(np.array([k == kind for k in self.slip_kinds]))
+                out[f"latency_{kind}_ms"] = mean(np.array([k == kind for k in self.slip_kinds], dtype=bool))
         return out
 
     def as_dict(self) -> dict:
@@ -548,7 +555,8 @@ def roc(scores, results, kinds=None, thresholds=None, max_latency: float = 0.05,
     scores : sequence of arrays, one per result, shape (n_ridges, n) or (n,)
         The statistic a detector thresholds (``y_slip`` of a :class:`SlipDetector`,
         a classifier's probability, :meth:`ForceRatioDetector.ratio`), per ridge and
-        sample of each result. A 1-D score serves every ridge of its result.
+        sample of each result. A 1-D score serves every ridge of its result; fewer rows
+        than the result has ridges score its first ridges.
     results : sequence of simulation results
         With ``t`` and the slip targets (:func:`targets_from_result`), in the order of
         ``scores``.
@@ -586,11 +594,12 @@ def roc(scores, results, kinds=None, thresholds=None, max_latency: float = 0.05,
         x = np.asarray(sc, dtype=np.float64)
         if x.ndim == 1:
             x = np.broadcast_to(x, gross.shape)
-        if x.ndim != 2:
-            raise ValueError(f"scores[{k}] must have shape (n_ridges, n) or (n,), got {np.shape(sc)}")
+        if x.ndim != 2 or x.shape[0] > gross.shape[0]:
+            # (fewer rows score the result's first ridges; more had been scored against its last)
+            raise ValueError(f"scores[{k}] must have shape (n_ridges <= {gross.shape[0]}, n) or (n,) for a result "
+                             f"with {gross.shape[0]} ridges, got {np.shape(sc)}")
         for r in range(x.shape[0]):
-            p, h, dt, s = _held_window(res.t, x[r], gross[min(r, gross.shape[0] - 1)], max_latency,
-                                       int(consecutive))
+            p, h, dt, s = _held_window(res.t, x[r], gross[r], max_latency, int(consecutive))
             pre.append(p)
             win.append(float(h[-1]) if s else -np.inf)
             slip.append(s)
