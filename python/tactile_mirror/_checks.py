@@ -7,7 +7,7 @@ from __future__ import annotations
 import math
 import numbers
 
-__all__ = ["real_array", "real_number", "real_sequence"]
+__all__ = ["integer", "real_array", "real_number", "real_sequence"]
 
 
 def real_number(value, name: str, *, unit: str | None = None, positive: bool = False,
@@ -29,6 +29,17 @@ def real_number(value, name: str, *, unit: str | None = None, positive: bool = F
         sign = "positive and " if positive else ("non-negative and " if nonnegative else "")
         raise ValueError(f"{name} must be {sign}finite{f' ({unit})' if unit else ''}, got {value!r}")
     return v
+
+
+def integer(value, name: str, lo: int, hi: int | None = None) -> int:
+    """``value`` as an int in ``[lo, hi]`` (``hi`` None: no upper bound). TypeError for what is
+    not an integer (a bool, a float such as 2.0 or a string is not), ValueError out of range."""
+    if isinstance(value, bool) or not isinstance(value, numbers.Integral):
+        raise TypeError(f"{name} must be an int, got {type(value).__name__}")
+    if value < lo or (hi is not None and value > hi):
+        raise ValueError(f"{name} must be in [{lo}, {hi}], got {value}" if hi is not None
+                         else f"{name} must be >= {lo}, got {value!r}")
+    return int(value)
 
 
 def real_sequence(value, name: str) -> tuple[float, ...]:

@@ -49,7 +49,7 @@ import numpy as np
 import numpy.typing as npt
 import scipy.signal
 
-from ._checks import real_number
+from ._checks import integer, real_number
 from ._owner import NotCopyable, claim
 from .circuit import PVDFCircuit, _check_fs
 from .filters import SosFilter, _real_numeric, sosfilt
@@ -339,10 +339,7 @@ class StressRateEstimator(NotCopyable):
                  use_u: bool = True, kind: str = "butter", diff_order: int = 1,
                  diff_bandwidth: float | None = None, dtype: npt.DTypeLike = np.float64,
                  notch: float | tuple[float, ...] | None = None, notch_q: float = 30.0) -> None:
-        if isinstance(channels, (bool, np.bool_)) or not isinstance(channels, numbers.Integral):
-            raise TypeError(f"channels must be an int, got {type(channels).__name__}")
-        if channels < 1:
-            raise ValueError(f"channels must be >= 1, got {channels!r}")
+        integer(channels, "channels", 1)
         d = _Design(circuit, fs, order, bandwidth, use_u, kind, diff_order, diff_bandwidth, notch, notch_q)
         self.circuit = d.circuit
         self.fs = d.fs

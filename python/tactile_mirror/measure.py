@@ -41,6 +41,8 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from ._checks import integer
+
 __all__ = [
     "FilterCase",
     "best_time",
@@ -119,10 +121,7 @@ def rel_rms_aligned(a, b, max_shift: int = 30) -> float:
     Time on the last axis."""
     a, b = np.asarray(a), np.asarray(b)
     n = b.shape[-1]
-    if isinstance(max_shift, (bool, np.bool_)) or not isinstance(max_shift, (int, np.integer)):
-        raise TypeError(f"max_shift must be an int, got {type(max_shift).__name__}")
-    if not 0 <= max_shift < n:
-        raise ValueError(f"max_shift must be in [0, {n - 1}] (the signals' length {n} minus 1), got {max_shift}")
+    integer(max_shift, "max_shift", 0, n - 1)  # (a shift of the whole signal leaves nothing to compare)
     return min(rel_rms(a[..., k:], b[..., : n - k]) for k in range(max_shift + 1))
 
 

@@ -27,7 +27,7 @@ import numpy as np
 import scipy.signal
 
 from . import _core
-from ._checks import real_number
+from ._checks import integer, real_number
 from ._owner import NotCopyable
 from .circuit import _check_fs
 from .filters import validate_sos
@@ -452,12 +452,7 @@ class MirrorPipeline(NotCopyable):
 
     def time_step_ns(self, n_iter: int = 200000, repeats: int = 5) -> float:
         """Mean time of one tick measured inside C++, ns (best of ``repeats``; state restored)."""
-        for name, v, top in (("n_iter", n_iter, 10**9), ("repeats", repeats, 1000)):
-            if isinstance(v, (bool, np.bool_)) or not isinstance(v, (int, np.integer)):
-                raise TypeError(f"{name} must be an int, got {type(v).__name__}")
-            if not 1 <= v <= top:
-                raise ValueError(f"{name} must be in [1, {top}], got {v}")
-        return self._core.time_step_ns(int(n_iter), int(repeats))
+        return self._core.time_step_ns(integer(n_iter, "n_iter", 1, 10**9), integer(repeats, "repeats", 1, 1000))
 
     def __repr__(self) -> str:
         c = self._config

@@ -111,13 +111,12 @@ contact history unchanged when a step fails.
 """
 from __future__ import annotations
 
-import numbers
 from dataclasses import dataclass
 
 import numpy as np
 from scipy.linalg.lapack import dgetrf, dgetrs
 
-from .._checks import real_number
+from .._checks import integer, real_number
 from .._owner import NotCopyable
 from .model import RidgeModel
 
@@ -172,15 +171,7 @@ class ContactStep:
 
 
 SEEN_CAP = 256  # status sets kept per point by the cycle rule (the kernel's kSeenCap)
-MAX_ITERATIONS = 1_000_000  # iteration limits: the kernel counts in a C int
-
-
-def _int_param(name: str, value) -> int:
-    if isinstance(value, (bool, np.bool_)) or not isinstance(value, (numbers.Integral, np.integer)):
-        raise TypeError(f"{name} must be an int, got {type(value).__name__}")
-    if not 0 <= value <= MAX_ITERATIONS:  # (0: fail at once, or skip the active-set phase)
-        raise ValueError(f"{name} must be in [0, {MAX_ITERATIONS}], got {value}")
-    return int(value)
+MAX_ITERATIONS = 1_000_000  # iteration limits (0: fail at once, or skip the active-set phase): a C int
 
 
 def _check_params(p: dict, changed) -> None:
@@ -249,7 +240,7 @@ class ContactSolver(NotCopyable):
         mu = real_number(mu, "mu")
         mu_k = mu if mu_kinetic is None else real_number(mu_kinetic, "mu_kinetic")
         params = {"mu": mu, "mu_kinetic": mu_k, "tol": real_number(tol, "tol"),
-                  "max_iter": _int_param("max_iter", max_iter), "max_active_set_iter": 25}
+                  "max_iter": integer(max_iter, "max_iter", 0, MAX_ITERATIONS), "max_active_set_iter": 25}
         _check_params(params, ("mu_kinetic",) if mu_kinetic is not None else ("mu",))
         if backend not in BACKENDS:
             raise ValueError(f"backend must be one of {BACKENDS}, got {backend!r}")
@@ -309,11 +300,11 @@ class ContactSolver(NotCopyable):
     tol = property(lambda self: self._params["tol"], lambda self, v: self._set_params(tol=real_number(v, "tol")),
                    doc="Relative tolerance of the Alart-Curnier residual, in (0, 1e-2).")
     max_iter = property(lambda self: self._params["max_iter"],
-                        lambda self, v: self._set_params(max_iter=_int_param("max_iter", v)),
+                        lambda self, v: self._set_params(max_iter=integer(v, "max_iter", 0, MAX_ITERATIONS)),
                         doc="Damped-Newton iterations per step before ContactConvergenceError.")
     max_active_set_iter = property(lambda self: self._params["max_active_set_iter"],
                                    lambda self, v: self._set_params(
-                                       max_active_set_iter=_int_param("max_active_set_iter", v)),
+                                       max_active_set_iter=integer(v, "max_active_set_iter", 0, MAX_ITERATIONS)),
                                    doc="Active-set iterations per step before the damped-Newton fallback (25).")
 
     # Solves and events so far: the compiled kernel's counts, read when asked (so a

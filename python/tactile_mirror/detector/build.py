@@ -374,6 +374,11 @@ def bias_shift(threshold: float, slip_threshold: float = 0.8) -> float:
     return math.log(slip_threshold / (1 - slip_threshold)) - math.log(threshold / (1 - threshold))
 
 
+def _check_rate(value, name: str) -> None:
+    if isinstance(value, bool) or not (isinstance(value, (int, float)) and 0 <= value < 1):
+        raise ValueError(f"{name} must be a false-alarm rate in [0, 1), got {value!r}")
+
+
 def calibrate_slip(weights, validation, false_alarm: float | None, slip_threshold: float = 0.8, scenes: str = "",
                    conditions=None, seed: int = 5000):
     """Weights whose ``y_slip >= slip_threshold`` alarms at most ``false_alarm`` of the
@@ -410,9 +415,7 @@ def calibrate_slip(weights, validation, false_alarm: float | None, slip_threshol
     if conditions is None:
         if false_alarm is None:
             raise ValueError("give false_alarm or conditions")
-        if isinstance(false_alarm, bool) or not (isinstance(false_alarm, (int, float)) and 0 <= false_alarm < 1):
-            # (NaN or -1 put the threshold at 1: a detector that never alarms; 5 at 0)
-            raise ValueError(f"false_alarm must be a false-alarm rate in [0, 1), got {false_alarm!r}")
+        _check_rate(false_alarm, "false_alarm")  # (NaN or -1 gave a detector that never alarms; 5, always)
     validation = list(validation)
     if not validation:
         raise ValueError("validation must hold at least one simulation result")
@@ -429,8 +432,7 @@ def calibrate_slip(weights, validation, false_alarm: float | None, slip_threshol
         for k, (name, fa) in enumerate(conditions.items()):
             if name not in NOISE_CONDITIONS:
                 raise ValueError(f"conditions: unknown condition {name!r}; known: {sorted(NOISE_CONDITIONS)}")
-            if isinstance(fa, bool) or not (isinstance(fa, (int, float)) and 0 <= fa < 1):
-                raise ValueError(f"conditions[{name!r}] must be a false-alarm rate in [0, 1), got {fa!r}")
+            _check_rate(fa, f"conditions[{name!r}]")
             res = clean if NOISE_CONDITIONS[name] == (0.0, None, None) else with_noise(clean, name, seed + k)
             runs[name] = (res, condition_estimator(det, name), float(fa))
     curves = {}

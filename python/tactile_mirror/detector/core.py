@@ -319,9 +319,7 @@ class SlipDetector(NotCopyable):
                     xn = (xf - w.input_mean[None, :, None]) * w.input_gain[None, :, None]
                     ys, yp = forward(w.params, xn, p0)
                 p1 = yp[:, -1].copy() if yp.shape[1] else (np.zeros(n_r) if p0 is None else p0)
-                if not (np.isfinite(p1).all() and (l1 is None or all(np.isfinite(a).all() for a in
-                                                                     np.atleast_1d(l1)))
-                        and np.isfinite(ys).all()):
+                if not (np.isfinite(ys).all() and np.isfinite(p1).all() and (l1 is None or np.isfinite(l1).all())):
                     raise ValueError("features overflow the detector's filter states (finite values too large "
                                      "for float64 once filtered); the state is unchanged")
                 self._state = (p1, l1)

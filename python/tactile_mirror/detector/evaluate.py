@@ -31,6 +31,7 @@ from dataclasses import asdict, dataclass, replace
 
 import numpy as np
 
+from .._checks import real_number
 from .data_prep import features_from_result, targets_from_result
 
 __all__ = ["NOISE_CONDITIONS", "DetectionMetrics", "EvaluationReport", "ForceRatioDetector", "RocCurve",
@@ -308,8 +309,6 @@ def evaluate(detector, scenes, baselines=None, slip_threshold: float = 0.8, pred
     EvaluationReport
         ``str(report)`` is the table; ``report[name]`` one row (``"detector"`` is the first).
     """
-    from .._checks import real_number
-
     # (a NaN or negative level or window used to report 0 % detection, silently)
     for name, v, lo, hi in (("slip_threshold", slip_threshold, 0.0, 1.0), ("pred_threshold", pred_threshold, 0.0, 1.0)):
         if not lo < real_number(v, name) < hi:
@@ -586,8 +585,7 @@ def roc(scores, results, kinds=None, thresholds=None, max_latency: float = 0.05,
         raise ValueError("results must not be empty")
     if isinstance(consecutive, bool) or int(consecutive) != consecutive or consecutive < 1:
         raise ValueError(f"consecutive must be a positive integer, got {consecutive!r}")
-    if not (np.isfinite(max_latency) and max_latency >= 0):
-        raise ValueError(f"max_latency must be a non-negative number (s), got {max_latency!r}")
+    real_number(max_latency, "max_latency", unit="s", nonnegative=True)
     pre, win, slip, held, dts = [], [], [], [], []
     for k, (sc, res) in enumerate(zip(scores, results)):
         gross, _ = targets_from_result(res)

@@ -327,21 +327,14 @@ class _DriverFailure(Exception):
 
 def _checked_position(value, tick: int) -> float:
     """``stage.position()``'s return at ``tick`` (-1: before the first) as a float: a finite real
-    number (int, float, numpy real scalar; not a bool, a string, an array, None), else
-    :class:`_DriverFailure`. The tick's path costs two type checks and isfinite (no message
-    is made unless it fails: this runs every tick)."""
-    t = type(value)
-    if t is float or t is np.float64:
-        v = float(value)
-    elif isinstance(value, (bool, np.bool_)) or not isinstance(value, numbers.Real):
-        raise _DriverFailure(f"stage.position() returned {value!r} ({t.__name__}) {_when(tick)}",
-                             detail="a position must be a finite real number, m")
-    else:
-        v = float(value)
-    if not math.isfinite(v):
-        raise _DriverFailure(f"stage.position() returned {value!r} {_when(tick)}",
-                             detail="a position must be a finite real number, m")
-    return v
+    number (:func:`~tactile_mirror._checks.real_number`: int, float, numpy real scalar; not a
+    bool, a string, an array, None), else :class:`_DriverFailure`. The tick loop calls it
+    only for what is not a finite float."""
+    try:
+        return real_number(value, "stage.position()", unit="m")
+    except (TypeError, ValueError):
+        raise _DriverFailure(f"stage.position() returned {value!r} ({type(value).__name__}) {_when(tick)}",
+                             detail="a position must be a finite real number, m") from None
 
 
 def _when(tick: int) -> str:
