@@ -7,7 +7,7 @@ from __future__ import annotations
 import math
 import numbers
 
-__all__ = ["integer", "real_array", "real_number", "real_sequence"]
+__all__ = ["integer", "real_array", "real_number", "real_range", "real_sequence"]
 
 
 def real_number(value, name: str, *, unit: str | None = None, positive: bool = False,
@@ -57,6 +57,26 @@ def real_sequence(value, name: str) -> tuple[float, ...]:
             raise TypeError(f"{name} must be a sequence of real numbers, got {value!r}")
         out.append(float(v))
     return tuple(out)
+
+
+def real_range(value, name: str, *, unit: str | None = None, positive: bool = False,
+               nonnegative: bool = False) -> tuple[float, float]:
+    """``value`` as a pair ``(low, high)`` of floats with ``low <= high``, each checked as
+    :func:`real_number` checks it (``positive``, ``nonnegative``).
+
+    Raises TypeError for what is not a sequence of real numbers (a string, a scalar, a bool
+    entry), ValueError for a sequence of another length than 2, an entry that is NaN,
+    infinite or out of range, or ``low > high``; every message names ``name``.
+    """
+    pair = real_sequence(value, name)
+    u = f" ({unit})" if unit else ""
+    if len(pair) != 2:
+        raise ValueError(f"{name} must be a pair (low, high){u}, got {len(pair)} values: {value!r}")
+    lo = real_number(pair[0], f"{name} low", unit=unit, positive=positive, nonnegative=nonnegative)
+    hi = real_number(pair[1], f"{name} high", unit=unit, positive=positive, nonnegative=nonnegative)
+    if lo > hi:
+        raise ValueError(f"{name} must be a range (low, high) with low <= high{u}, got {value!r}")
+    return lo, hi
 
 
 def real_array(value, name: str):

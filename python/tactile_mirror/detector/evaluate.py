@@ -31,7 +31,7 @@ from dataclasses import asdict, dataclass, replace
 
 import numpy as np
 
-from .._checks import real_number
+from .._checks import real_number, real_range
 from .data_prep import features_from_result, targets_from_result
 
 __all__ = ["NOISE_CONDITIONS", "DetectionMetrics", "EvaluationReport", "ForceRatioDetector", "RocCurve",
@@ -156,10 +156,14 @@ class ForceRatioDetector:
     name = "force ratio |Fy|/Fz"
 
     def __init__(self, threshold: float, min_fz_fraction: float = 0.05):
-        if not np.isfinite(threshold) or threshold <= 0:
+        threshold = real_number(threshold, "threshold")
+        if not threshold > 0:
             raise ValueError(f"threshold must be positive, got {threshold!r}")
-        self.threshold = float(threshold)
-        self.min_fz_fraction = float(min_fz_fraction)
+        min_fz_fraction = real_number(min_fz_fraction, "min_fz_fraction", nonnegative=True)
+        if not min_fz_fraction < 1:
+            raise ValueError(f"min_fz_fraction must be in [0, 1) (a share of the peak F_z), got {min_fz_fraction!r}")
+        self.threshold = threshold
+        self.min_fz_fraction = min_fz_fraction
 
     def ratio(self, result) -> np.ndarray:
         fy = np.abs(np.asarray(result.force_y, dtype=np.float64))
@@ -178,10 +182,23 @@ class ForceRatioDetector:
 
     @classmethod
     def fit(cls, results, slip_threshold: float = 0.8, max_latency: float = 0.05, **kwargs):
-        """Threshold that maximises detection rate minus false-alarm rate on ``results``."""
+        """Threshold that maximises detection rate minus false-alarm rate on ``results``.
+
+        ``results`` must not be empty and must carry a positive force ratio somewhere
+        (ValueError otherwise); ``slip_threshold`` in (0, 1) and ``max_latency`` (s, >= 0)
+        are checked as :func:`evaluate` checks them.
+        """
+        if not 0 < real_number(slip_threshold, "slip_threshold") < 1:
+            raise ValueError(f"slip_threshold must be in (0, 1), got {slip_threshold!r}")
+        real_number(max_latency, "max_latency", unit="s", nonnegative=True)
         results = list(results)
+        if not results:
+            raise ValueError("results must not be empty (the threshold is fitted on them)")
         probe = cls(1.0, **kwargs)
         ratios = np.concatenate([probe.ratio(r).ravel() for r in results])
+        if not np.any(ratios > 0):
+            raise ValueError("results: no sample has a positive force ratio |F_y| / F_z (no tangential load), "
+                             "so there is no threshold to fit")
         cands = np.unique(np.quantile(ratios[ratios > 0], np.linspace(0.5, 0.999, 120)))
         best, best_score = float(cands[-1]), -np.inf
         for c in cands:
@@ -352,12 +369,20 @@ def onset_kinds(results, level: float = 1e8, window=(-0.003, 0.005)) -> list:
     ``window`` (s) of the onset, else ``"gradual"``; ``None`` for a sequence
     without gross slip.
 
+    ``window`` is a pair ``(before, after)`` of finite times in s around the onset with
+    ``before <= 0 <= after`` (so that it holds the onset's own sample); ``level`` is
+    finite and non-negative. Anything else is a TypeError / ValueError naming it.
+
     Returns
     -------
     list of str or None, one per (result, ridge) sequence, in :func:`evaluate`'s order.
     """
     from types import SimpleNamespace
 
+    real_number(level, "level", unit="Pa/s^2", nonnegative=True)
+    window = real_range(window, "window", unit="s")
+    if not window[0] <= 0.0 <= window[1]:
+        raise ValueError(f"window must hold the onset: (before, after) with before <= 0 <= after (s), got {window!r}")
     kinds = []
     for res in results:
         gross, _ = targets_from_result(res)

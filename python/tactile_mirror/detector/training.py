@@ -7,7 +7,7 @@ import time
 import numpy as np
 import scipy.optimize
 
-from .._checks import real_array, real_number
+from .._checks import integer, real_array, real_number, real_range
 from .bank import bank_config
 from .data_prep import DEFAULT_ESTIMATOR, features_from_result, targets_from_result
 from .memory import DEFAULT_LOAD_TAU
@@ -156,21 +156,21 @@ def augment_noise(results, copies: int = 2, noise=(0.0, 5e-3), seed=0) -> list:
     copies : int
         Copies per result (>= 1).
     noise : (float, float)
-        Range of the noise level, V rms.
+        Range of the noise level, V rms: ``0 <= low <= high``, finite.
+
+    Raises TypeError / ValueError naming ``copies`` or ``noise`` (a bool, a float or a
+    string is no count of copies) before any result is read.
     """
     import dataclasses
 
-    if int(copies) != copies or copies < 1:
-        raise ValueError(f"copies must be a positive integer, got {copies!r}")
-    lo, hi = (float(v) for v in noise)
-    if not (0.0 <= lo <= hi and np.isfinite(hi)):
-        raise ValueError(f"noise must be a range (low, high) with 0 <= low <= high, got {noise!r}")
+    copies = integer(copies, "copies", 1)
+    lo, hi = real_range(noise, "noise", unit="V rms", nonnegative=True)
     rng = np.random.default_rng(seed)
     out = []
     for k, r in enumerate(results):
         if getattr(r, "stress", None) is None or getattr(r, "scene", None) is None:
             raise ValueError(f"results[{k}] has no strip stresses: simulate with the 'stress' output")
-        for _ in range(int(copies)):
+        for _ in range(copies):
             level = float(rng.uniform(lo, hi))
             v, u = r.scene.circuit.simulate(r.stress, r.fs, noise=level, seed=int(rng.integers(2**31)))
             out.append(dataclasses.replace(r, v_out=v, u_out=u))
@@ -184,10 +184,14 @@ def augment_gains(ts: TrainingSet, gain_range=(0.6, 1.7), seed=0) -> TrainingSet
     trained on one range of scenes meet larger and smaller signals (the held-out
     scenes are drawn from wider ranges). Targets are unchanged. Deterministic for
     a seed.
+
+    ``gain_range`` is a pair ``(low, high)`` of positive finite gains (dimensionless),
+    ``low <= high``; anything else is a TypeError / ValueError naming it, as is a ``ts``
+    that is not a :class:`TrainingSet`.
     """
-    lo, hi = (float(g) for g in gain_range)
-    if not (0 < lo <= hi):
-        raise ValueError(f"gain_range must satisfy 0 < low <= high, got {gain_range!r}")
+    lo, hi = real_range(gain_range, "gain_range", positive=True)
+    if not isinstance(ts, TrainingSet):
+        raise TypeError(f"ts must be a TrainingSet, got {type(ts).__name__}")
     rng = np.random.default_rng(seed)
     g = np.exp(rng.uniform(np.log(lo), np.log(hi), ts.n_seq))
     return TrainingSet(ts.x * g[:, None, None], ts.y_slip, ts.y_pred, ts.mask, ts.fs, ts.features, ts.estimator,
