@@ -56,11 +56,16 @@ def contact_scene_figure(result: SimulationResult, ridge: int = 0, title: str | 
     The stress rates are those of the strip's equivalent load (the stress that makes
     the same charge; see :mod:`tactile_mirror.circuit`), estimated from ``v_out`` and
     ``u_out`` with :func:`tactile_mirror.estimate_stress_rate`.
+
+    ``ridge`` is the index of the ridge shown, ``0 <= ridge < n_ridges`` (TypeError /
+    ValueError naming it otherwise; a negative index is no ridge).
     """
+    from ._checks import integer
     from .estimator import estimate_stress_rate
 
     if result.v_out is None or result.slip_fraction is None:
         raise ValueError("result must include the 'signals' and 'slip' outputs")
+    integer(ridge, "ridge", 0, np.shape(result.v_out)[0] - 1)
     scene = result.scene
     rate, rate2 = estimate_stress_rate(result.v_out[ridge], result.u_out[ridge], scene.circuit, result.fs,
                                        order=estimator_order, bandwidth=estimator_bandwidth)

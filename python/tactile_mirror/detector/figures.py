@@ -3,9 +3,21 @@ from __future__ import annotations
 
 import numpy as np
 
+from .._checks import integer
 from .data_prep import features_from_result, targets_from_result
 
 __all__ = ["figure10", "figure10_data"]
+
+
+def _check_ridge(ridge, result) -> None:
+    """Refuse a ridge index the result has no ridge for (its ``features`` or ``v_out``
+    give the ridges: ``(n_ridges, channels, n)``)."""
+    ready = getattr(result, "features", None)
+    shape = np.shape(ready if ready is not None else getattr(result, "v_out", None))
+    if len(shape) == 3:
+        integer(ridge, "ridge", 0, shape[0] - 1)
+    else:  # (the shape itself is refused by features_from_result)
+        integer(ridge, "ridge", 0)
 
 
 def figure10_data(detector, result, ridge: int = 0, stops=None) -> dict:
@@ -17,7 +29,8 @@ def figure10_data(detector, result, ridge: int = 0, stops=None) -> dict:
     result
         Simulation result of a paper scene (e.g. ``simulate(scenes.paper("fig8"))``).
     ridge : int
-        Ridge whose strips and outputs are shown.
+        Ridge whose strips and outputs are shown: ``0 <= ridge < n_ridges`` (TypeError /
+        ValueError naming ``ridge`` otherwise, before the detector runs).
     stops : list of (float, float), optional
         Plate stops in s; default ``result.stops`` or ``result.scene.stops``.
 
@@ -28,6 +41,7 @@ def figure10_data(detector, result, ridge: int = 0, stops=None) -> dict:
         ``y_slip``, ``y_pred`` (of the ridge), ``slip_time`` (first gross slip of the
         ridge, s, or None), ``stops``, ``features`` kind.
     """
+    _check_ridge(ridge, result)
     x = features_from_result(result, detector.features, estimator=detector.metadata.get("estimator"))
     ys, _, yp = detector.run(x, fs=result.fs)
     gross, _ = targets_from_result(result)
@@ -59,13 +73,14 @@ def figure10(detector, result_a, result_b, stops_b=None, ridge: int = 0, fig=Non
     -------
     matplotlib.figure.Figure
     """
+    # (the data first: a refused ridge leaves no half-made figure behind)
+    panels = [("(a)", figure10_data(detector, result_a, ridge)),
+              ("(b)", figure10_data(detector, result_b, ridge, stops=stops_b))]
     if fig is None:
         import matplotlib.pyplot as plt
 
         fig = plt.figure(figsize=(10, 7))
     axes = fig.subplots(3, 2, sharex="col")
-    panels = [("(a)", figure10_data(detector, result_a, ridge)),
-              ("(b)", figure10_data(detector, result_b, ridge, stops=stops_b))]
     units = ("Pa/s", "Pa/s$^2$") if panels[0][1]["features"] == "stress_rate" else ("V", "V")
     for col, (label, d) in enumerate(panels):
         a0, a1, a2 = axes[:, col]

@@ -5,6 +5,7 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
+from .._checks import integer
 from .._io import save_figure
 
 if TYPE_CHECKING:
@@ -19,7 +20,12 @@ LAW_TITLES = {"paper": "paper's law", "velocity": "shear loop with y_pred gain s
 
 
 def loop_figure(r: SceneResult, path, closed: bool, ridge: int = 0, law: str | None = None):
-    """The paper's Fig. 12 (open loop) / Fig. 13 (closed loop) layout for one run."""
+    """The paper's Fig. 12 (open loop) / Fig. 13 (closed loop) layout for one run.
+
+    ``ridge`` is the ridge whose strip voltages are shown, ``0 <= ridge < n_ridges``
+    (TypeError / ValueError naming it otherwise, before anything is drawn)."""
+    R = r.log["v_out"].shape[0]
+    integer(ridge, "ridge", 0, R - 1)
     import matplotlib
 
     matplotlib.use("Agg")
@@ -27,7 +33,6 @@ def loop_figure(r: SceneResult, path, closed: bool, ridge: int = 0, law: str | N
 
     t = r.t
     n = t.size
-    R = r.log["v_out"].shape[0]
     y = r.outputs[:, 2:].reshape(n, R, 3)
     rows = 7 if closed else 6
     fig, ax = plt.subplots(rows, 1, figsize=(7, 1.45 * rows + 0.6), sharex=True)
