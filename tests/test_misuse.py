@@ -365,3 +365,21 @@ def test_figures_refuse_a_ridge_the_result_has_not(tmp_path):
     with pytest.raises(TypeError, match="ridge"):
         contact_scene_figure(contact, ridge=1.0)
     assert len(plt.get_fignums()) == figures and not os.listdir(tmp_path)  # nothing drawn, nothing written
+
+
+# ------------------------------------------------------------------ ridge counts
+def test_a_pad_or_scene_of_more_ridges_than_a_finger_covers_is_refused_by_name(model):
+    """Scene(n_ridges=100000) ran out of memory in simulate, with no message."""
+    from tactile_mirror.contact import FemPad
+    from tactile_mirror.contact.pad import MAX_RIDGES
+
+    for n in (MAX_RIDGES + 1, 100_000):
+        with pytest.raises(ValueError, match=f"n_ridges must be at most {MAX_RIDGES}"):
+            tm.Scene(n_ridges=n)
+        with pytest.raises(ValueError, match="n_ridges"):
+            Pad(model, 0.5, n_ridges=n)
+        with pytest.raises(ValueError, match="n_ridges"):
+            FemPad(n)
+    with pytest.raises(TypeError, match="n_ridges"):
+        FemPad(6.7)  # (was 6 ridges)
+    assert tm.Scene(n_ridges=MAX_RIDGES).n_ridges == MAX_RIDGES

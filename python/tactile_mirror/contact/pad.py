@@ -27,7 +27,15 @@ from .solver import MAX_PLATE_POSITION, OPEN, SLIP, STEPPINGS, STICK, ContactSol
 if TYPE_CHECKING:
     from ..scenes import Scene
 
-__all__ = ["Pad", "PadState"]
+__all__ = ["MAX_RIDGES", "Pad", "PadState"]
+
+#: Most ridges a pad (and a contact scene, :class:`tactile_mirror.Scene`) may have. A pad is
+#: the few ridges under one fingertip: 6 in the paper's hardware, and at the default pitch
+#: (3 mm) 64 ridges span 19 cm, beyond any finger. Each ridge keeps its own contact solver
+#: and outputs (about 4 MB per ridge for a 0.6 s scene), so 1e5 ridges ran out of memory
+#: with no message. A recording holds at most as many
+#: (:data:`tactile_mirror.loop.recording.MAX_RIDGES`).
+MAX_RIDGES = 64
 
 
 @dataclass
@@ -63,6 +71,11 @@ class PadState:
         return np.stack([m.node_y + self.displacement[:, :n], m.node_z + self.displacement[:, n:]], axis=1)
 
 
+def _too_many_ridges(n_ridges) -> str:
+    return (f"n_ridges must be at most {MAX_RIDGES} (MAX_RIDGES: the ridges under one finger; each keeps "
+            f"its own contact solver), got {n_ridges!r}")
+
+
 class Pad(NotCopyable):
     """``n_ridges`` identical ridges at ``pitch`` under a curved rigid finger.
 
@@ -74,7 +87,8 @@ class Pad(NotCopyable):
     mu_kinetic : float or None
         Kinetic coefficient (default: ``mu``; see :class:`ContactSolver`).
     n_ridges : int
-        Number of ridges (1 for the paper's single-ridge analysis, 6 for the pad).
+        Number of ridges (1 for the paper's single-ridge analysis, 6 for the pad), at most
+        :data:`MAX_RIDGES`.
     pitch : float
         Centre distance of neighbouring ridges, m (default: ridge width + 1 mm gap).
     finger_radius : float
@@ -116,6 +130,8 @@ class Pad(NotCopyable):
                  threads: int = 1) -> None:
         if int(n_ridges) != n_ridges or n_ridges < 1:
             raise ValueError(f"n_ridges must be a positive integer, got {n_ridges!r}")
+        if n_ridges > MAX_RIDGES:
+            raise ValueError(_too_many_ridges(n_ridges))
         if isinstance(finger_radius, bool) or not isinstance(finger_radius, numbers.Real) or not finger_radius > 0:
             raise ValueError(f"finger_radius must be positive (m; inf for a flat finger), got {finger_radius!r}")
         # (an inf length made an infinite force; a NaN or inf pitch put the ridges at NaN)

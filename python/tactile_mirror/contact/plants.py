@@ -89,6 +89,7 @@ class FemPad:
     Parameters
     ----------
     n_ridges : int
+        1 to :data:`~tactile_mirror.contact.pad.MAX_RIDGES` (64).
     mu : float, optional
         Static friction coefficient (default :data:`tactile_mirror.scenes.DEFAULT_FRICTION`);
         the kinetic one is ``mu * DEFAULT_KINETIC_RATIO``, as in the scenes.
@@ -123,11 +124,13 @@ class FemPad:
     def __init__(self, n_ridges: int = 6, mu: float | None = None, fs: float = 1000.0, indent: float = 30e-6,
                  press_speed: float = 0.06e-3, finger_radius: float = 2.0, circuit: PVDFCircuit | None = None,
                  stepping: str = "auto", geometry: RidgeGeometry | None = None, threads: int = 1):
+        from .._checks import integer
         from ..scenes import DEFAULT_FRICTION, DEFAULT_KINETIC_RATIO
         from .model import ridge_model
-        from .pad import Pad
+        from .pad import MAX_RIDGES, Pad
 
-        self.n_ridges = int(n_ridges)
+        # (before the ridge model is built; a float such as 6.7 was truncated to 6 ridges)
+        self.n_ridges = integer(n_ridges, "n_ridges", 1, MAX_RIDGES)
         mu = DEFAULT_FRICTION if mu is None else float(mu)
         # static above kinetic friction, as in the scenes of tactile_mirror.scenes
         self.pad = Pad(ridge_model(geometry), mu, n_ridges=self.n_ridges, finger_radius=finger_radius,
