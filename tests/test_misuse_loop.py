@@ -370,3 +370,15 @@ def test_the_cache_key_covers_arrays_in_full_and_keeps_the_existing_keys():
     for kw in (build.TRAIN_KWARGS, build.TEST_KWARGS, {**build.TEST_KWARGS, "n_ridges": 6}, {}):
         old = hashlib.sha256(repr((3, 1, sorted(kw.items()), __version__)).encode()).hexdigest()[:16]
         assert key(kw) == old
+
+
+# ---------------------------------------------------------------- E: the loop scene's mount
+@pytest.mark.parametrize("stiffness", [1e-3, 1.0, 999.0])
+def test_a_mount_too_soft_for_the_model_is_named_at_the_scene(stiffness):
+    """mount_stiffness=1e-3 carried the pad metres off the stage and failed mid-run as the
+    plant's "dy must lie within 1 m"."""
+    from tactile_mirror.loop.scene import MIN_MOUNT_STIFFNESS, LoopScene
+
+    with pytest.raises(ValueError, match=f"mount_stiffness must be at least {MIN_MOUNT_STIFFNESS:g} N/m"):
+        LoopScene(mount_stiffness=stiffness)
+    assert LoopScene(mount_stiffness=MIN_MOUNT_STIFFNESS).mount_stiffness == MIN_MOUNT_STIFFNESS

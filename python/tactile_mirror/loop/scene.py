@@ -29,12 +29,20 @@ from .finger import pressed_finger_path
 from .runner import LoopRunner
 from .stage import SimulatedStage, StageLimits
 
-__all__ = ["PLANT_KINDS", "LoopScene", "PlantSource", "SceneResult", "gross_slip_events", "gross_slip_starts", "make_plant",
+__all__ = ["MIN_MOUNT_STIFFNESS", "PLANT_KINDS", "LoopScene", "PlantSource", "SceneResult", "gross_slip_events", "gross_slip_starts", "make_plant",
            "run_scene", "scene_finger"]
 
 #: The plants a scene can name: ``"brush"`` (:class:`~tactile_mirror.contact.brush.BrushRidges`)
 #: and ``"fem"`` (:class:`~tactile_mirror.contact.plants.FemPad`).
 PLANT_KINDS = ("brush", "fem")
+
+#: Softest mount a scene may have, N/m. The pads carry up to about 10 N of friction (the FEM
+#: pad at its 30 um indent: 9 N; the brush model: 0.9 N), and the mount's give is
+#: ``F_y / mount_stiffness`` (no pad mass): at 1 kN/m that is up to 9 mm, half the default
+#: stage's travel; much softer mounts carried the pad beyond any travel, and at 1e-3 N/m
+#: beyond the contact models' 1 m, where the run failed mid-way with an error about the
+#: plant's ``dy``.
+MIN_MOUNT_STIFFNESS = 1e3
 
 
 @dataclass
@@ -51,7 +59,7 @@ class LoopScene:
     fs: float = 1000.0
     mu: float | None = None             # None: the plant's default (brush 1.0, fem DEFAULT_FRICTION)
     mu_change: tuple | None = None      # (time s, new mu[, ramp s]): sweat; mu ramps linearly (default 0.2 s)
-    mount_stiffness: float | None = None  # N/m between stage and pad (None: rigid)
+    mount_stiffness: float | None = None  # N/m between stage and pad, >= MIN_MOUNT_STIFFNESS (None: rigid)
     noise: float = 0.0                   # rms sensor noise on v_out and u_out, V
     drop_rate: float = 0.0               # fraction of ticks whose samples are lost (NaN)
     stage_delay: float = 0.001
@@ -84,6 +92,10 @@ class LoopScene:
             real_number(self.mu, "mu", positive=True)
         if self.mount_stiffness is not None:
             real_number(self.mount_stiffness, "mount_stiffness", unit="N/m", positive=True)
+            if not self.mount_stiffness >= MIN_MOUNT_STIFFNESS:
+                raise ValueError(f"mount_stiffness must be at least {MIN_MOUNT_STIFFNESS:g} N/m (MIN_MOUNT_STIFFNESS: "
+                                 f"a softer mount lets the pad's friction carry it centimetres off the stage), "
+                                 f"got {self.mount_stiffness!r}")
         if self.mu_change is not None:
             mc = tuple(self.mu_change) if isinstance(self.mu_change, (tuple, list)) else ()
             if len(mc) not in (2, 3):
