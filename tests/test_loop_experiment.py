@@ -210,6 +210,9 @@ def test_loop_signals_are_the_circuit_stream_of_the_plant_loads():
     ("fs", float("nan"), ValueError, "fs"),
     ("seeds", [0, True], TypeError, "seeds"),
     ("seeds", 3, TypeError, "seeds"),
+    ("seeds", [], ValueError, "seeds must hold at least one seed"),  # (ran, and wrote empty tables)
+    ("seeds", [0, -1], ValueError, "seeds must be non-negative"),  # (refused only by the first scene)
+    ("seeds", [np.True_], TypeError, "seeds"),
     ("robustness_seeds", -1, ValueError, "robustness_seeds"),
     ("robustness", "yes", TypeError, "robustness"),
 ])

@@ -382,3 +382,14 @@ def test_a_mount_too_soft_for_the_model_is_named_at_the_scene(stiffness):
     with pytest.raises(ValueError, match=f"mount_stiffness must be at least {MIN_MOUNT_STIFFNESS:g} N/m"):
         LoopScene(mount_stiffness=stiffness)
     assert LoopScene(mount_stiffness=MIN_MOUNT_STIFFNESS).mount_stiffness == MIN_MOUNT_STIFFNESS
+
+
+# ---------------------------------------------------------------- F: the loop experiment's plant names
+@pytest.mark.parametrize("call", ["make_laws", "default_weights", "train_detector_on_brush", "open_and_closed"])
+def test_an_unknown_plant_is_a_value_error_listing_the_plants(call):
+    """An unknown plant name was a bare KeyError."""
+    from tactile_mirror.loop import experiment
+
+    kwargs = {"make_laws": {"weights": {}}, "open_and_closed": {"weights": {}}}.get(call, {})
+    with pytest.raises(ValueError, match=r"plant must be one of \['brush', 'fem'\], got 'rubber'"):
+        getattr(experiment, call)(plant="rubber", **kwargs)

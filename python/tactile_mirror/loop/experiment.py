@@ -101,6 +101,14 @@ PLANTS: dict[str, dict[str, Any]] = {
 }
 
 
+def _plant(plant) -> dict[str, Any]:
+    """The settings of ``plant`` (:data:`PLANTS`); ValueError naming the known plants for
+    another name (it was a bare KeyError, deep inside the call)."""
+    if not isinstance(plant, str) or plant not in PLANTS:
+        raise ValueError(f"plant must be one of {sorted(PLANTS)}, got {plant!r}")
+    return PLANTS[plant]
+
+
 def calibrate_shear(weights, fs: float = 1000.0, n_ridges: int = 6, plant: str = "brush", shear_weights=None,
                     load_cell: bool = False):
     """Push the finger slowly to +y (after the press for the FEM pad) and read the
@@ -213,22 +221,23 @@ def train_detector_on_brush(seeds=range(100, 106), fs: float = 1000.0, duration:
     :func:`tactile_mirror.detector.targets_from_result`."""
     from ..detector import train_detector
 
+    cfg = _plant(plant)
     placeholder = {"w1": np.zeros((n_hidden, 5)), "b1": np.zeros(n_hidden), "w2": np.zeros((2, n_hidden)),
                    "b2": np.zeros(2), "input_mean": np.zeros(4), "input_gain": np.ones(4), "fs": fs}
     results = []
     for s in seeds:
         # open-loop runs at a range of trajectory amplitudes: stick, incipient and gross slip
-        base = PLANTS[plant]["trajectory"]
+        base = cfg["trajectory"]
         amp = base.get("amplitude", 3e-3) * (1 / 6 + ((s * 7919) % 10) / 10)
         sc = LoopScene(seed=int(s), duration=duration, fs=fs, noise=noise, trajectory=dict(base, amplitude=amp),
-                   plant=plant, mu=PLANTS[plant]["mu"])
+                   plant=plant, mu=cfg["mu"])
         r = _run_scene(sc, placeholder, None)
         if plant == "fem":
             from ..scenes import DEFAULT_FRICTION, DEFAULT_KINETIC_RATIO
 
             mu, kr = DEFAULT_FRICTION, DEFAULT_KINETIC_RATIO
         else:
-            mu, kr = PLANTS[plant]["mu"], 1.0
+            mu, kr = cfg["mu"], 1.0
         n = r.t.size
         results.append(_Result(fs, r.t, r.log["v_out"], r.log["u_out"], r.log["slip_fraction"],
                                r.log["force_y"][:n], r.log["force_z"][:n], mu, kr))
@@ -255,6 +264,7 @@ def default_weights(plant: str = "fem", fs: float = 1000.0):
     slips with 1 mV of noise at 20 mm/s, but 29 against 20 under sweat (mu 0.45, 5 mm/s):
     the bank net also reports the creeping slips, and each report holds the stage.
     """
+    _plant(plant)
     if plant == "fem":
         from ..detector import SlipDetector
 
@@ -274,8 +284,8 @@ def make_laws(weights, fs: float = 1000.0, plant: str = "fem", n_ridges: int = 6
 
     Returns ``(laws, direction_sign, asymmetry_per_m, shear_gain)``.
     """
+    cfg = _plant(plant)
     w = _weights_dict(weights) if not isinstance(weights, dict) else weights
-    cfg = PLANTS[plant]
     sign, a_per_m = calibrate_shear(w, fs, n_ridges, plant=plant)
     vf = cfg["finger_v_max"]
     # 60 rad/s of the shear signal, 150 rad/s at full y_pred: the stage (1 ms delay, 2 ms lag)
@@ -299,12 +309,13 @@ def open_and_closed(seed: int = 0, weights=None, law: str = "velocity", duration
                     fs: float = 1000.0, plant: str = "fem"):
     """One finger path, open loop and closed loop (Figs. 12 and 13): two
     :class:`~tactile_mirror.loop.scene.SceneResult`."""
+    cfg = _plant(plant)
     weights = default_weights(plant, fs) if weights is None else weights
     w = _weights_dict(weights) if not isinstance(weights, dict) else weights
     laws = make_laws(w, fs, plant)[0]
     if law not in laws:
         raise ValueError(f"law must be one of {sorted(laws)}, got {law!r}")
-    sc = LoopScene(seed=int(seed), duration=duration, fs=fs, plant=plant, trajectory=PLANTS[plant]["trajectory"])
+    sc = LoopScene(seed=int(seed), duration=duration, fs=fs, plant=plant, trajectory=cfg["trajectory"])
     return _run_scene(sc, w, None), _run_scene(sc, w, laws[law])
 
 
@@ -316,8 +327,9 @@ class ExperimentOptions:
     Attributes
     ----------
     seeds : tuple of int
-        Seeds of the finger paths (one open-loop run and one run per law each).
-        Any iterable of ints is accepted and stored as a tuple. Default ``(0, ..., 4)``.
+        Seeds of the finger paths (one open-loop run and one run per law each): at least
+        one, each a non-negative int (a numpy random seed; a bool is not). Any iterable of
+        ints is accepted and stored as a tuple. Default ``(0, ..., 4)``.
     duration : float
         Length of each run, s (> 0). Default 3.
     fs : float
@@ -348,13 +360,16 @@ class ExperimentOptions:
             seeds = tuple(self.seeds)
         except TypeError:
             raise TypeError(f"seeds must be an iterable of ints, got {self.seeds!r}") from None
-        if any(isinstance(s, bool) or not isinstance(s, numbers.Integral) for s in seeds):
+        if any(isinstance(s, (bool, np.bool_)) or not isinstance(s, numbers.Integral) for s in seeds):
             raise TypeError(f"seeds must be ints, got {seeds!r}")
+        if not seeds:  # (an empty run wrote empty tables)
+            raise ValueError("seeds must hold at least one seed, got none")
+        if any(s < 0 for s in seeds):  # (refused only later, by the first scene)
+            raise ValueError(f"seeds must be non-negative (numpy random seeds), got {seeds!r}")
         object.__setattr__(self, "seeds", tuple(int(s) for s in seeds))
         for name in ("duration", "fs"):
             object.__setattr__(self, name, real_number(getattr(self, name), name, positive=True))
-        if self.plant not in PLANTS:
-            raise ValueError(f"plant must be one of {sorted(PLANTS)}, got {self.plant!r}")
+        _plant(self.plant)
         rs = self.robustness_seeds
         if isinstance(rs, bool) or not isinstance(rs, numbers.Integral) or int(rs) < 0:
             raise ValueError(f"robustness_seeds must be a non-negative int, got {rs!r}")
