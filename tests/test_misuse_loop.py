@@ -393,3 +393,61 @@ def test_an_unknown_plant_is_a_value_error_listing_the_plants(call):
     kwargs = {"make_laws": {"weights": {}}, "open_and_closed": {"weights": {}}}.get(call, {})
     with pytest.raises(ValueError, match=r"plant must be one of \['brush', 'fem'\], got 'rubber'"):
         getattr(experiment, call)(plant="rubber", **kwargs)
+
+
+# ---------------------------------------------------------------- G: the envelope's classes, laws and plant
+def test_repeated_speeds_laws_and_conditions_run_once_with_a_warning(tmp_path, fake_envelope):
+    """A repeated --speeds or --laws value ran its class twice (and the table counted its rows
+    twice)."""
+    from tactile_mirror.loop.envelope import run_envelope
+
+    with pytest.warns(UserWarning, match="given more than once") as record:
+        data = run_envelope(str(tmp_path / "env.json"), speeds=(0.005, 0.005, 0.0050000001), n_seeds=2,
+                            laws=("open loop", "open loop"), conditions=("nominal", "nominal"), duration=1.0,
+                            weights={}, progress=False)
+    assert fake_envelope == ["design", 0, 1] and len(data["rows"]) == 2
+    (t,) = data["table"]
+    assert t["runs"] == 2
+    assert {str(w.message).split(":")[0] for w in record} == {"speeds (m/s)", "laws", "conditions"}
+
+
+def test_the_envelope_reports_the_speed_its_paths_ran_and_warns_when_capped(tmp_path, fake_envelope):
+    """Where the path set's acceleration limit binds, the paths peak below the class's speed;
+    the rows and table named only the class's (asked) speed."""
+    import warnings
+
+    from tactile_mirror.loop.envelope import PATH_SETS, envelope_table, run_envelope
+
+    fast = PATH_SETS["tuning-fast2"]
+    with pytest.warns(UserWarning, match=r"acceleration limit \(0.5 m/s\^2\).*20 mm/s: 2 of 2 paths peak at 1"):
+        run_envelope(str(tmp_path / "fast.json"), speeds=(0.005, 0.02), n_seeds=2, laws=("open loop",),
+                     paths=fast, duration=3.0, weights={}, progress=False)
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")  # a class its paths reach: no warning
+        run_envelope(str(tmp_path / "slow.json"), speeds=(0.005,), n_seeds=2, laws=("open loop",),
+                     paths=fast, duration=3.0, weights={}, progress=False)
+    row = {"paths": "tuning-fast2", "condition": "nominal", "law": "open loop", "speed": 0.02, "gross_slips": 0,
+           "tracking_rms_mm": 0.01, "finger_peak_acceleration": 0.5, "seed": 0}
+    (t,) = envelope_table([dict(row, finger_peak_speed=0.016), dict(row, seed=1, finger_peak_speed=0.018)])
+    assert t["speed_mm_s"] == pytest.approx(20.0) and t["capped_runs"] == 2
+    assert (t["peak_speed_run_mm_s_min"], t["peak_speed_run_mm_s_max"]) == pytest.approx((16.0, 18.0))
+    (t,) = envelope_table([dict(row, finger_peak_speed=0.02)])
+    assert t["capped_runs"] == 0 and t["peak_speed_run_mm_s_max"] == pytest.approx(20.0)
+
+
+def test_the_envelope_command_prints_the_speed_run_and_its_notes(tmp_path, fake_envelope, capsys):
+    assert main(["loop", "envelope", "--out", str(tmp_path), "--speeds", "5,20,20", "--seeds", "1",
+                 "--laws", "open loop,open loop", "--paths", "tuning-fast2", "--quiet"]) == 0
+    out, err = capsys.readouterr()
+    assert "| peak speed mm/s | peak speed run mm/s |" in out
+    assert len([line for line in out.splitlines() if line.startswith("| nominal | open loop |")]) == 2
+    notes = err.splitlines()
+    assert len(notes) == 3 and all(line.startswith("warning: ") for line in notes)
+    assert "[0.02] given more than once" in notes[0] and "['open loop'] given more than once" in notes[1]
+    assert "acceleration limit" in notes[2] and "20 mm/s: 1 of 1 paths" in notes[2]
+
+
+def test_an_unknown_plant_is_named_before_the_design(tmp_path, fake_envelope):
+    with pytest.raises(ValueError, match=r"plant must be one of \['brush', 'fem'\], got 'rubber'"):
+        _envelope(str(tmp_path / "env.json"), plant="rubber")
+    assert fake_envelope == []

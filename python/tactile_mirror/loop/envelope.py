@@ -10,8 +10,13 @@ where it stopped. :func:`envelope_table` sums the rows per (condition, law, spee
 
 Finger paths are :func:`~tactile_mirror.loop.finger.finger_trajectory` with
 ``v_max`` = the class's peak speed and ``a_max`` = 0.5 m/s^2 (band-limited noise
-scaled down until both hold, so the peak speed is the class's). Two disjoint path
-sets: :data:`TUNING_PATHS` (seeds 1000.., 8 mm rms, 1.5 Hz) for any choice made while
+scaled down until both hold). Where the acceleration limit binds first, a path is
+scaled below the class's speed: the fast path sets at 20 mm/s and any set at 50 mm/s
+peak lower (e.g. 15-18 mm/s in the 20 mm/s class of ``tuning-fast2``). Each row keeps
+the class's speed (``speed``, m/s: what was asked, the key the rows are resumed and
+summed by) and the path's own peak speed (``finger_peak_speed``, m/s: what was run);
+:func:`envelope_table` gives both, and :func:`run_envelope` warns before it runs a
+class whose paths are capped. Two disjoint path sets: :data:`TUNING_PATHS` (seeds 1000.., 8 mm rms, 1.5 Hz) for any choice made while
 developing the law, :data:`REPORT_PATHS` (seeds 0.., 10 mm rms, 2 Hz) for the reported
 envelope.
 """
@@ -22,6 +27,7 @@ import math
 import os
 import sys
 import time
+import warnings
 from collections.abc import Sequence
 from dataclasses import dataclass
 
@@ -187,6 +193,45 @@ def _laws(weights, fs, limits, delay, lag, n_ridges, plant, load_cell: bool = Fa
     return laws, design
 
 
+def _unique(values, name: str, key=lambda v: v) -> list:
+    """``values`` without repeats (by ``key``), in their order; a warning names the repeats
+    (each was run, and its rows counted, twice)."""
+    seen, out, repeats = set(), [], []
+    for v in values:
+        k = key(v)
+        if k in seen:
+            repeats.append(v)
+            continue
+        seen.add(k)
+        out.append(v)
+    if repeats:
+        warnings.warn(f"{name}: {repeats!r} given more than once; each runs once", UserWarning, stacklevel=3)
+    return out
+
+
+#: A path whose peak speed is below its class's by more than this share was capped by the
+#: acceleration limit (where the speed limit binds the path peaks at the class's speed, to rounding).
+_CAPPED = 1e-6
+
+
+def _capped_classes(speeds, seeds, paths: PathSet, duration: float, fs: float, plant: str) -> list[str]:
+    """One line per speed class whose paths the acceleration limit scales below the class's
+    speed: the class, how many of its paths, and the peak speeds they run at."""
+    from .scene import LoopScene, scene_finger
+
+    lines = []
+    for v in speeds:
+        peaks = []
+        for s in seeds:
+            f = scene_finger(LoopScene(seed=s, duration=duration, fs=fs, plant=plant, trajectory=paths.trajectory(v)))
+            peaks.append(float(np.abs(np.gradient(f, 1.0 / fs)).max()))
+        low = [p for p in peaks if p < v * (1 - _CAPPED)]
+        if low:
+            lines.append(f"{v * 1e3:g} mm/s: {len(low)} of {len(peaks)} paths peak at {min(low) * 1e3:.3g}-"
+                         f"{max(low) * 1e3:.3g} mm/s")
+    return lines
+
+
 def _settle_after_slips(res, fs, window: float = 0.1) -> dict:
     """Settling after each gross slip: time from its end until the relative displacement's
     speed stays below 1 mm/s, and whether another gross slip starts within ``window`` s."""
@@ -222,22 +267,29 @@ def run_envelope(out: str | os.PathLike, speeds: Sequence[float] = (0.002, 0.005
         It is read and checked (:func:`read_results`) and found writable before any work:
         a damaged file is a ValueError naming it. Every save replaces it atomically.
     speeds : sequence of float
-        Peak finger speeds of the classes, m/s.
+        Peak finger speeds of the classes, m/s: what each class's paths are asked for.
+        Where the path set's acceleration limit (``paths.a_max``) binds first, a path runs
+        slower; a ``UserWarning`` names such classes before anything runs, and the rows'
+        ``finger_peak_speed`` and the table's ``peak_speed_run_mm_s_min`` / ``_max`` give
+        the speeds run. A speed given twice (to the um/s) runs once, with a warning.
     n_seeds : int
         Paths per class.
     conditions : sequence of str
-        Keys of :data:`CONDITIONS`.
+        Keys of :data:`CONDITIONS` (one given twice runs once, with a warning).
     laws : sequence of str
         Among ``"open loop"``, ``"paper"``, ``"default"`` (these three by default) and ``"load cell"``
-        (the default law's design on a load cell's force; its scenes get the cell).
+        (the default law's design on a load cell's force; its scenes get the cell). One given
+        twice runs once, with a warning.
     paths : PathSet
         :data:`REPORT_PATHS` (default) or :data:`TUNING_PATHS`.
+    plant : {"fem", "brush"}
+        The contact model (:data:`~tactile_mirror.loop.experiment.PLANTS`).
     limits : StageLimits
         The stage (default +-20 mm, 30 mm/s, 1 m/s^2); ``stage_delay``, ``stage_lag`` in s.
 
     Returns the results dict (as written).
     """
-    from .experiment import _weights_dict, default_weights
+    from .experiment import _plant, _weights_dict, default_weights
     from .scene import LoopScene, gross_slip_starts, run_scene
 
     for c in conditions:
@@ -251,6 +303,16 @@ def run_envelope(out: str | os.PathLike, speeds: Sequence[float] = (0.002, 0.005
     speeds = [float(v) for v in speeds]
     if not speeds or any(not (math.isfinite(v) and v > 0) for v in speeds):
         raise ValueError(f"speeds must be positive finite m/s, got {speeds!r}")
+    _plant(plant)
+    # (a repeat ran its class, law or condition twice, and the table counted its rows twice)
+    speeds = _unique(speeds, "speeds (m/s)", key=lambda v: round(v * 1e6))  # (the rows are keyed to the um/s)
+    conditions = _unique(conditions, "conditions")
+    laws = _unique(laws, "laws")
+    capped = _capped_classes(speeds, paths.seeds(n_seeds), paths, duration, fs, plant)
+    if capped:
+        warnings.warn(f"speeds: the {paths.name} paths' acceleration limit ({paths.a_max:g} m/s^2) keeps some paths "
+                      f"below their class's peak speed: {'; '.join(capped)} (the rows' finger_peak_speed and the "
+                      f"table's peak_speed_run_mm_s_min/max give the speeds run)", UserWarning, stacklevel=2)
     limits = limits or StageLimits(-0.02, 0.02, 0.03, 1.0)
     # the results file is read, checked and found writable before the design and calibration run
     out = os.fspath(out)
@@ -304,13 +366,22 @@ def run_envelope(out: str | os.PathLike, speeds: Sequence[float] = (0.002, 0.005
 
 def envelope_table(rows) -> list[dict]:
     """Sum the rows per (path set, condition, law, speed): runs, gross slips, runs with a slip,
-    tracking rms (mean and max over the paths, mm), worst settling after a slip (s)."""
+    tracking rms (mean and max over the paths, mm), worst settling after a slip (s).
+
+    ``speed_mm_s`` is the class's asked peak speed; ``peak_speed_run_mm_s_min`` / ``_max`` the
+    lowest and highest peak speed its paths ran at (below ``speed_mm_s`` where the path set's
+    acceleration limit capped them; NaN for rows without ``finger_peak_speed``), and
+    ``capped_runs`` how many ran below it."""
     groups: dict[tuple, list] = {}
     for r in rows:
         groups.setdefault((r["paths"], r["condition"], r["law"], r["speed"]), []).append(r)
     table = []
     for (p, c, law, v), rs in sorted(groups.items(), key=lambda kv: (kv[0][0], kv[0][1], kv[0][2], kv[0][3])):
-        table.append({"paths": p, "condition": c, "law": law, "speed_mm_s": v * 1e3, "runs": len(rs),
+        run = [float(r["finger_peak_speed"]) for r in rs if isinstance(r.get("finger_peak_speed"), (int, float))]
+        table.append({"paths": p, "condition": c, "law": law, "speed_mm_s": v * 1e3,
+                      "peak_speed_run_mm_s_min": 1e3 * min(run) if run else math.nan,
+                      "peak_speed_run_mm_s_max": 1e3 * max(run) if run else math.nan,
+                      "capped_runs": sum(x < v * (1 - _CAPPED) for x in run), "runs": len(rs),
                       "gross_slips": sum(r["gross_slips"] for r in rs),
                       "runs_with_slip": sum(r["gross_slips"] > 0 for r in rs),
                       "tracking_rms_mm_mean": float(np.mean([r["tracking_rms_mm"] for r in rs])),
@@ -347,10 +418,10 @@ def envelope_figure(data, path: str, paths: str = "report") -> None:
                      alpha=1.0 if c == "nominal" else 0.6)
             ax2.plot(v, [t["tracking_rms_mm_mean"] for t in ts], color=color, marker=marker, ls=ls, label=lab,
                      alpha=1.0 if c == "nominal" else 0.6)
-    ax1.set_xlabel("peak finger speed (mm/s)")
+    ax1.set_xlabel("peak finger speed asked (mm/s)")
     ax1.set_ylabel("gross slips per 2.5 s path")
     ax1.set_xscale("log")
-    ax2.set_xlabel("peak finger speed (mm/s)")
+    ax2.set_xlabel("peak finger speed asked (mm/s)")
     ax2.set_ylabel("tracking rms (mm), mean over paths")
     ax2.set_xscale("log")
     ax2.set_yscale("log")
