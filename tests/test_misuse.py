@@ -383,3 +383,29 @@ def test_a_pad_or_scene_of_more_ridges_than_a_finger_covers_is_refused_by_name(m
     with pytest.raises(TypeError, match="n_ridges"):
         FemPad(6.7)  # (was 6 ridges)
     assert tm.Scene(n_ridges=MAX_RIDGES).n_ridges == MAX_RIDGES
+
+
+# ------------------------------------------------------------------ the detector build's command line
+@pytest.mark.parametrize("argv, option", [
+    (["--n-train", "0"], "--n-train"), (["--hidden", "-1"], "--hidden"), (["--candidates", "0"], "--candidates"),
+    (["--study", "8", "0"], "--study"), (["--noise-range", "0.002", "0"], "--noise-range"),
+    (["--calibrate-fa", "2"], "--calibrate-fa"), (["--kind", "jordan_bank", "--lp-taus", "-1"], "--lp-taus"),
+    (["--compress"], "--compress"), (["--negative-weight", "nan"], "--negative-weight"),
+    (["--pred-weight", "-1"], "--pred-weight"), (["--onset-weight", "inf"], "--onset-weight"),
+    (["--recalibrate", "in.npz", "--calibrate-goals", "0.01", "0.02", "--n-validation", "0"], "--n-validation"),
+])
+def test_build_command_line_refuses_bad_arguments_with_a_usage_line(argv, option, monkeypatch, capsys):
+    """Bad arguments were a traceback (ValueError from BuildOptions, or from the training
+    after the scenes were simulated); now argparse's usage line, exit status 2, nothing run."""
+    from tactile_mirror.detector import build
+
+    def never(*args, **kwargs):
+        raise AssertionError("the build ran")
+
+    monkeypatch.setattr(build, "build_default", never)
+    monkeypatch.setattr(build, "recalibrate", never)
+    with pytest.raises(SystemExit) as exc:
+        build.main(["--out", "unused.npz", *argv])
+    assert exc.value.code == 2
+    err = capsys.readouterr().err
+    assert err.startswith("usage:") and f"error: argument {option}" in err and "Traceback" not in err

@@ -872,7 +872,28 @@ def _build(out_path, options: BuildOptions, report_path, figure_path, results, c
     return w, report
 
 
+#: The command line's option for each BuildOptions field (named in its errors' messages).
+_OPTIONS = {"n_train": "--n-train", "n_test": "--n-test", "n_hidden": "--hidden", "maxiter": "--maxiter",
+            "study_sizes": "--study", "candidates": "--candidates", "n_extra_train": "--extra-train",
+            "checkpoint_every": "--checkpoint-every", "noise_range": "--noise-range", "calibrate_fa": "--calibrate-fa",
+            "calibrate_conditions": "--calibrate-goals / --calibrate-condition", "n_validation": "--n-validation",
+            "bank": "--lp-taus / --abs-taus", "compress": "--compress", "kind": "--kind"}
+
+
+def _usage_error(ap: argparse.ArgumentParser, exc: Exception):
+    """``ap.error`` (usage line, exit status 2) for an argument the options refused, naming its option."""
+    msg = str(exc)
+    for field, option in _OPTIONS.items():
+        if msg.startswith(field):
+            ap.error(f"argument {option}: {msg}")
+    ap.error(msg)
+
+
 def main(argv=None):
+    """The command line. Bad arguments (a count below 1, a negative weight, a bank time
+    constant <= 0, ...) end in a usage line and exit status 2, before anything is simulated."""
+    from .._checks import real_number
+
     ap = argparse.ArgumentParser(description="Train and evaluate the default slip detector.")
     ap.add_argument("--out", required=True, help="weights file to write (.npz)")
     ap.add_argument("--recalibrate", metavar="WEIGHTS", default=None,
@@ -919,6 +940,12 @@ def main(argv=None):
                     help="jordan_bank: compress the bank's inputs to sign(x) log(1 + |x| / knee), the knees fitted "
                          "on the training inputs")
     args = ap.parse_args(argv)
+    for option, value in (("--negative-weight", args.negative_weight), ("--pred-weight", args.pred_weight),
+                          ("--onset-weight", args.onset_weight)):
+        try:  # (checked by the training itself only after the scenes were simulated)
+            real_number(value, option, nonnegative=True)
+        except ValueError as exc:
+            ap.error(f"argument {exc}")
     bank = None
     if args.lp_taus is not None or args.abs_taus is not None:
         from .bank import DEFAULT_BANK
@@ -957,18 +984,25 @@ def main(argv=None):
     if args.recalibrate is not None:
         if goals is None:
             ap.error("--recalibrate needs --calibrate-goals or --calibrate-condition")
-        _w, info = recalibrate(args.recalibrate, args.out, goals, _positive_int("n_validation", args.n_validation),
-                               _positive_int("n_test", args.n_test), args.cache)
+        try:
+            n_validation = _positive_int("n_validation", args.n_validation)
+            n_test = _positive_int("n_test", args.n_test)
+        except (TypeError, ValueError) as exc:
+            _usage_error(ap, exc)
+        _w, info = recalibrate(args.recalibrate, args.out, goals, n_validation, n_test, args.cache)
         print(json.dumps(info, indent=1))
         return
-    options = BuildOptions(n_train=args.n_train, n_test=args.n_test, n_hidden=args.hidden, maxiter=args.maxiter,
-                           bank=bank, study_sizes=args.study or None, kind=args.kind, candidates=args.candidates,
-                           n_extra_train=args.extra_train, checkpoint_every=args.checkpoint_every,
-                           noise_range=tuple(args.noise_range), calibrate_fa=args.calibrate_fa,
-                           calibrate_conditions=goals, n_validation=args.n_validation, compress=args.compress,
-                           train_options={"negative_weight": args.negative_weight, "pred_weight": args.pred_weight,
-                                          "normalisation": args.normalisation,
-                                          **({"onset_weight": args.onset_weight} if args.onset_weight else {})})
+    try:
+        options = BuildOptions(n_train=args.n_train, n_test=args.n_test, n_hidden=args.hidden, maxiter=args.maxiter,
+                               bank=bank, study_sizes=args.study or None, kind=args.kind, candidates=args.candidates,
+                               n_extra_train=args.extra_train, checkpoint_every=args.checkpoint_every,
+                               noise_range=tuple(args.noise_range), calibrate_fa=args.calibrate_fa,
+                               calibrate_conditions=goals, n_validation=args.n_validation, compress=args.compress,
+                               train_options={"negative_weight": args.negative_weight,
+                                              "pred_weight": args.pred_weight, "normalisation": args.normalisation,
+                                              **({"onset_weight": args.onset_weight} if args.onset_weight else {})})
+    except (TypeError, ValueError) as exc:
+        _usage_error(ap, exc)
     extra = {} if args.cache is None else {"cache_dir": args.cache}
     _w, report = build_default(args.out, options, report_path=args.report, figure_path=args.figure, **extra)
     print(report["evaluation_table"])
