@@ -409,3 +409,20 @@ def test_build_command_line_refuses_bad_arguments_with_a_usage_line(argv, option
     assert exc.value.code == 2
     err = capsys.readouterr().err
     assert err.startswith("usage:") and f"error: argument {option}" in err and "Traceback" not in err
+
+
+# ------------------------------------------------------------------ the evaluate module and function
+def test_detector_evaluate_is_the_function_and_its_module_is_reachable():
+    """``tactile_mirror.detector.evaluate`` is the function (public API); the module behind
+    it is reached as its docstring says."""
+    import importlib
+    import sys
+    import types
+
+    from tactile_mirror import detector
+    from tactile_mirror.detector.evaluate import roc
+
+    module = importlib.import_module("tactile_mirror.detector.evaluate")
+    assert isinstance(module, types.ModuleType) and module is sys.modules["tactile_mirror.detector.evaluate"]
+    assert module.roc is roc and detector.evaluate is module.evaluate is tm.evaluate
+    assert "importlib.import_module" in module.__doc__ and "import_module" in detector.__doc__

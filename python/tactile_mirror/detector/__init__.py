@@ -8,6 +8,10 @@ or raw circuit voltages; the kind is stored with the weights) plus the net's own
 previous ``y_pred``; outputs ``y_slip`` (slip when >= 0.8), ``y_non = 1 - y_slip``
 and ``y_pred`` (the incipient-slip level). Training is numpy BPTT with
 L-BFGS-B; running is the allocation-free C++ kernel ``jordan_mlp.hpp``.
+
+``evaluate`` here is the function :func:`.evaluate.evaluate`, not its module (which it
+shadows as an attribute); ``from tactile_mirror.detector.evaluate import roc`` reaches the
+module's names, ``importlib.import_module("tactile_mirror.detector.evaluate")`` the module.
 """
 from __future__ import annotations
 

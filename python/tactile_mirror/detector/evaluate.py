@@ -24,6 +24,15 @@ raises a false alarm when it reaches ``c`` before ``t_s``; so each sequence need
 only two numbers (its largest statistic before ``t_s`` and within the window), and
 the curve is exact at every threshold. At ``c = 0.8`` on ``y_slip`` it gives
 :func:`evaluate`'s detection and false-alarm rates.
+
+Reaching this module: the package exports the function :func:`evaluate` under the
+module's own name, so the attribute ``tactile_mirror.detector.evaluate`` is the
+function (``from tactile_mirror.detector import evaluate`` and ``tactile_mirror.evaluate``
+give it, as they always have), and ``import tactile_mirror.detector.evaluate as m``
+binds the function too. ``from tactile_mirror.detector.evaluate import roc`` (any name
+of the module) works as usual; for the module object itself use
+``importlib.import_module("tactile_mirror.detector.evaluate")`` (or
+``sys.modules["tactile_mirror.detector.evaluate"]``).
 """
 from __future__ import annotations
 
