@@ -477,3 +477,44 @@ def test_uncalibrate_undoes_a_threshold_only_record():
     bad.metadata["slip_calibration"] = {"threshold": 1.5}
     with pytest.raises(ValueError, match="threshold"):
         uncalibrate(bad)
+
+
+def test_validation_scorer_in_sensor_conditions_scores_their_curves(paper_results):
+    """ValidationScorer(conditions=...) scores the threshold sweep in each named condition
+    (the scenes' noise-free outputs plus the condition's noise, seeded noise_seed + its place),
+    recomputed here from the same noisy copies; the score is the mean detection over them."""
+    from tactile_mirror.detector.build import BuildOptions, ValidationScorer
+    from tactile_mirror.detector.data_prep import features_from_result
+    from tactile_mirror.detector.evaluate import condition_estimator, noise_free, onset_kinds, roc, with_noise
+
+    bank = SlipDetector.bank()
+    val = [paper_results["fig6"], paper_results["fig7"], paper_results["fig8"]]
+    names = ("noise-free", "1 mV rms white")
+    scorer = ValidationScorer(val, at_false_alarm=0.5, conditions=names, noise_seed=21)
+    s = scorer(bank.weights)
+    assert set(s["conditions"]) == set(names)
+    clean = noise_free(val)
+    rates = []
+    for k, name in enumerate(names):
+        x = clean if k == 0 else with_noise(clean, name, 21 + k)
+        scores = [bank.run(features_from_result(r, bank.features, estimator=condition_estimator(bank, name)),
+                           fs=r.fs)[0] for r in x]
+        p = roc(scores, val, onset_kinds(val)).at_false_alarm(0.5)
+        assert s["conditions"][name]["detection_rate"] == p["detection_rate"]
+        assert repr(s["conditions"][name]["latency_gradual_ms"]) == repr(p["latency_gradual_ms"])
+        assert s["conditions"][name]["false_alarm_rate"] == p["false_alarm_rate"]
+        rates.append(p["detection_rate"])
+    assert s["score"] == s["detection_at_false_alarm"] == pytest.approx(np.mean(rates), abs=1e-15)
+    assert repr(scorer(bank.weights)) == repr(s)  # the cached features give the same scores (NaN latencies too)
+    # the scenes' own noise is what the plain scorer uses: another statistic on the same net
+    assert "conditions" not in ValidationScorer(val, at_false_alarm=0.5)(bank.weights)
+    for kw, msg in (({"conditions": ("pink",)}, "unknown condition"), ({"conditions": ()}, "at least one"),
+                    ({"conditions": ("noise-free", "noise-free")}, "twice"),
+                    ({"conditions": ("noise-free",), "at_false_alarm": None}, "at_false_alarm")):
+        with pytest.raises(ValueError, match=msg):
+            ValidationScorer(val, **{"at_false_alarm": 0.5, **kw})
+    with pytest.raises(ValueError, match="select_conditions"):
+        BuildOptions(select_conditions=("pink",))
+    with pytest.raises(ValueError, match="select_fa"):
+        BuildOptions(select_fa=1.5)
+    assert BuildOptions(select_conditions="noise-free").select_conditions == ("noise-free",)

@@ -19,6 +19,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from .._checks import integer
 from .._io import save_figure, write_text
 from .._legacy import legacy_arguments
 from .core import SlipDetector
@@ -301,9 +302,19 @@ class ValidationScorer:
     also returned as ``detection_at_false_alarm``): the right score for a net whose decision
     point is calibrated afterwards (:func:`calibrate_slip`), where what the threshold
     0.8 of the uncalibrated net gives does not matter, only how far its curve reaches.
+
+    ``conditions`` (with ``at_false_alarm``): names of sensor conditions
+    (:data:`~tactile_mirror.detector.evaluate.NOISE_CONDITIONS`) in which to score instead of
+    the scenes' own noise: their noise-free outputs plus each condition's noise (seeded by
+    ``noise_seed`` + the condition's place in ``conditions``, as :func:`calibrate_slip` seeds
+    its own), the score the mean detection rate over them. The goals and the calibration are
+    stated in these conditions; the scenes' own noise (0-4 mV) ranks candidates otherwise (see
+    docs/detector.md, "How soon"). Also returned: ``latency_gradual_ms``, the mean latency of
+    the gradual onsets found, over the conditions.
     """
 
-    def __init__(self, validation, fa_cost: float = 10.0, at_false_alarm: float | None = None):
+    def __init__(self, validation, fa_cost: float = 10.0, at_false_alarm: float | None = None,
+                 conditions=None, noise_seed: int = 4000):
         self.validation = list(validation)
         if not self.validation:
             raise ValueError("validation must not be empty")
@@ -316,6 +327,26 @@ class ValidationScorer:
         self.fa_cost = float(fa_cost)
         self.at_false_alarm = None if at_false_alarm is None else float(at_false_alarm)
         self._features = {}
+        self.conditions = None
+        if conditions is not None:
+            from .evaluate import NOISE_CONDITIONS, noise_free, onset_kinds, with_noise
+
+            names = [conditions] if isinstance(conditions, str) else list(conditions)
+            if not names:
+                raise ValueError("conditions must name at least one sensor condition")
+            for name in names:
+                if name not in NOISE_CONDITIONS:
+                    raise ValueError(f"conditions: unknown condition {name!r}; known: {sorted(NOISE_CONDITIONS)}")
+            if len(set(names)) != len(names):
+                raise ValueError(f"conditions: a condition is named twice in {names!r}")
+            if self.at_false_alarm is None:
+                raise ValueError("conditions needs at_false_alarm (they score the threshold sweep)")
+            clean = noise_free(self.validation)
+            seed = integer(noise_seed, "noise_seed", 0)
+            self.conditions = {name: clean if NOISE_CONDITIONS[name] == (0.0, None, None)
+                               else with_noise(clean, name, seed + k) for k, name in enumerate(names)}
+            self._condition_features = {name: {} for name in names}
+            self._kinds = onset_kinds(self.validation)  # (the latency per onset kind)
 
     def __call__(self, weights) -> dict:
         det = SlipDetector(weights)
@@ -329,9 +360,31 @@ class ValidationScorer:
             # the features evaluate() has just computed, from the same cache
             scores = [det.run(cached_features(det, k, r, self._features), fs=r.fs)[0]
                       for k, r in enumerate(self.validation)]
-            point = roc(scores, self.validation).at_false_alarm(self.at_false_alarm)
-            out["detection_at_false_alarm"] = point["detection_rate"]
-            out["score"] = point["detection_rate"]
+            if self.conditions is None:
+                point = roc(scores, self.validation).at_false_alarm(self.at_false_alarm)
+                out["detection_at_false_alarm"] = point["detection_rate"]
+                out["score"] = point["detection_rate"]
+                return out
+            from .data_prep import features_from_result
+            from .evaluate import condition_estimator
+
+            points = {}
+            for name, res in self.conditions.items():
+                cache, est = self._condition_features[name], condition_estimator(det, name)
+                key = (det.features, repr(est))  # (the features do not depend on the weights: once per kind)
+                if key not in cache:
+                    cache[key] = [features_from_result(r, det.features, estimator=est) for r in res]
+                scores = [det.run(x, fs=r.fs)[0] for x, r in zip(cache[key], res)]
+                points[name] = roc(scores, self.validation, self._kinds).at_false_alarm(self.at_false_alarm)
+            out["conditions"] = {name: {"detection_rate": p["detection_rate"],
+                                        "false_alarm_rate": p["false_alarm_rate"],
+                                        "latency_gradual_ms": p.get("latency_gradual_ms", float("nan"))}
+                                 for name, p in points.items()}
+            out["detection_at_false_alarm"] = float(np.mean([p["detection_rate"] for p in points.values()]))
+            out["latency_gradual_ms"] = float(np.nanmean([c["latency_gradual_ms"] for c in out["conditions"].values()])
+                                              if any(np.isfinite(c["latency_gradual_ms"])
+                                                     for c in out["conditions"].values()) else float("nan"))
+            out["score"] = out["detection_at_false_alarm"]
         return out
 
 
@@ -608,6 +661,13 @@ class BuildOptions:
         false-alarm rate (the smallest bound) along their threshold sweep
         (``ValidationScorer(at_false_alarm=...)``), since the calibration, not the
         threshold the net was trained to, sets where they operate.
+    select_conditions : tuple of str, optional
+        Choose the candidates in these sensor conditions (keys of
+        :data:`~tactile_mirror.detector.evaluate.NOISE_CONDITIONS`: the validation scenes'
+        noise-free outputs plus each condition's noise, ``ValidationScorer(conditions=...)``)
+        instead of in the scenes' own noise, by their mean detection at ``select_fa``.
+    select_fa : float, optional
+        The false-alarm rate of that choice (default: the calibration's, as above).
     """
 
     n_train: int = 64
@@ -634,6 +694,8 @@ class BuildOptions:
     calibrate_fa: float | None = None
     calibrate_conditions: dict | None = None
     compress: bool = False
+    select_conditions: tuple[str, ...] | None = None
+    select_fa: float | None = None
 
     def __post_init__(self) -> None:
         def put(name, value):
@@ -681,6 +743,23 @@ class BuildOptions:
             if not self.selecting:
                 raise ValueError("calibrate_fa needs the validation scenes: candidates > 1 or checkpoint_every > 0")
             put("calibrate_fa", float(fa))
+        if self.select_conditions is not None:
+            from .evaluate import NOISE_CONDITIONS
+
+            sc = (self.select_conditions,) if isinstance(self.select_conditions, str) else self.select_conditions
+            sc = tuple(sc)
+            if not sc or any(name not in NOISE_CONDITIONS for name in sc) or len(set(sc)) != len(sc):
+                raise ValueError(f"select_conditions must name distinct sensor conditions of "
+                                 f"{sorted(NOISE_CONDITIONS)}, got {self.select_conditions!r}")
+            if not self.selecting:
+                raise ValueError("select_conditions needs the validation scenes: candidates > 1 or "
+                                 "checkpoint_every > 0")
+            put("select_conditions", sc)
+        if self.select_fa is not None:
+            fa = self.select_fa
+            if isinstance(fa, bool) or not isinstance(fa, (int, float)) or not 0 < fa < 1:
+                raise ValueError(f"select_fa must be a false-alarm rate in (0, 1), got {fa!r}")
+            put("select_fa", float(fa))
         if self.calibrate_conditions is not None:
             from .evaluate import NOISE_CONDITIONS
 
@@ -811,7 +890,12 @@ def _build(out_path, options: BuildOptions, report_path, figure_path, results, c
     # A net calibrated afterwards is chosen by how far its curve reaches at the false-alarm
     # rate it will be calibrated to, not by what its uncalibrated threshold gives.
     select_fa = o.calibrate_fa if o.calibrate_conditions is None else min(o.calibrate_conditions.values())
-    scorer = ValidationScorer(val_res, at_false_alarm=select_fa) if selecting else None
+    if o.select_fa is not None:
+        select_fa = o.select_fa
+    if o.select_conditions is not None and select_fa is None:
+        raise ValueError("select_conditions needs a false-alarm rate: select_fa, calibrate_fa or calibrate_conditions")
+    scorer = ValidationScorer(val_res, at_false_alarm=select_fa, conditions=o.select_conditions) if selecting \
+        else None
     if study_sizes:
         if scorer is None:
             raise ValueError("study_sizes needs validation scenes: candidates > 1 or checkpoint_every > 0")
@@ -836,6 +920,8 @@ def _build(out_path, options: BuildOptions, report_path, figure_path, results, c
             "n_candidates": len(scores), "checkpoint_every": int(checkpoint_every),
             "chosen_seed": int(tr_meta["seed"]), "chosen_iteration": int(tr_meta["iterations"]),
             "chosen_score": scores[k_best]}
+        if o.select_conditions is not None:
+            report["candidates"].update(conditions=list(o.select_conditions), at_false_alarm=select_fa)
         tr_meta["selection"] = dict(report["candidates"], seeds=int(candidates), fa_cost=10.0)
     if o.calibrate_fa is not None or o.calibrate_conditions is not None:
         w, report["slip_calibration"] = calibrate_slip(
@@ -877,7 +963,8 @@ _OPTIONS = {"n_train": "--n-train", "n_test": "--n-test", "n_hidden": "--hidden"
             "study_sizes": "--study", "candidates": "--candidates", "n_extra_train": "--extra-train",
             "checkpoint_every": "--checkpoint-every", "noise_range": "--noise-range", "calibrate_fa": "--calibrate-fa",
             "calibrate_conditions": "--calibrate-goals / --calibrate-condition", "n_validation": "--n-validation",
-            "bank": "--lp-taus / --abs-taus", "compress": "--compress", "kind": "--kind"}
+            "bank": "--lp-taus / --abs-taus", "compress": "--compress", "kind": "--kind",
+            "select_conditions": "--select-conditions", "select_fa": "--select-fa"}
 
 
 def _usage_error(ap: argparse.ArgumentParser, exc: Exception):
@@ -936,6 +1023,12 @@ def main(argv=None):
                     help=f"validation scenes (seed {VALIDATION_SEED}) for the choice among candidates and the calibration")
     ap.add_argument("--noise-range", type=float, nargs=2, default=list(NOISE_RANGE), metavar=("LOW", "HIGH"),
                     help="range of the training noise copies' sensor noise, V rms")
+    ap.add_argument("--select-conditions", nargs="+", default=None, metavar="CONDITION",
+                    help="choose among the candidates in these sensor conditions (detector.evaluate.NOISE_CONDITIONS, "
+                         "e.g. 'noise-free' '1 mV rms white') instead of in the validation scenes' own noise")
+    ap.add_argument("--select-fa", type=float, default=None, metavar="FA",
+                    help="the false-alarm rate at which the candidates' detection is compared (default: the "
+                         "calibration's)")
     ap.add_argument("--compress", action="store_true",
                     help="jordan_bank: compress the bank's inputs to sign(x) log(1 + |x| / knee), the knees fitted "
                          "on the training inputs")
@@ -998,6 +1091,7 @@ def main(argv=None):
                                n_extra_train=args.extra_train, checkpoint_every=args.checkpoint_every,
                                noise_range=tuple(args.noise_range), calibrate_fa=args.calibrate_fa,
                                calibrate_conditions=goals, n_validation=args.n_validation, compress=args.compress,
+                               select_conditions=args.select_conditions, select_fa=args.select_fa,
                                train_options={"negative_weight": args.negative_weight,
                                               "pred_weight": args.pred_weight, "normalisation": args.normalisation,
                                               **({"onset_weight": args.onset_weight} if args.onset_weight else {})})
