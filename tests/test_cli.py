@@ -72,7 +72,7 @@ def test_figure10_and_evaluate(tmp_path, capsys):
     assert "detect %" in out and "false %" in out and "detection by how gross slip starts" in out
 
 
-@pytest.mark.parametrize("name", ["default", "paper", "bank", "pad", "memory"])
+@pytest.mark.parametrize("name", ["default", "paper", "bank", "early", "pad", "memory"])
 def test_weights_takes_the_bundled_nets_by_name(name):
     """--weights NAME is SlipDetector.NAME(): the same weights; a path is a file."""
     from tactile_mirror.cli import BUNDLED_NETS, _load_detector

@@ -518,3 +518,21 @@ def test_validation_scorer_in_sensor_conditions_scores_their_curves(paper_result
     with pytest.raises(ValueError, match="select_fa"):
         BuildOptions(select_fa=1.5)
     assert BuildOptions(select_conditions="noise-free").select_conditions == ("noise-free",)
+
+
+def test_the_early_net_is_the_bank_net_trained_for_the_onset_and_chosen_in_the_goals_conditions():
+    """SlipDetector.early() ships what docs/detector.md says was built: the bundled bank and
+    size, the onset weight, the choice in the goals' conditions and the bundled calibration."""
+    early, bank = SlipDetector.early().weights, SlipDetector.bank().weights
+    assert early.kind == bank.kind == "jordan_bank"
+    assert early.metadata["bank"] == bank.metadata["bank"] and early.n_hidden == bank.n_hidden
+    tr = early.metadata["training"]
+    assert tr["onset_weight"] == 1.0 and tr["negative_weight"] == 30.0
+    sel = tr["selection"]
+    assert sel["conditions"] == ["noise-free", "1 mV rms white"] and sel["at_false_alarm"] == 0.02
+    assert sel["chosen_score"]["score"] == sel["chosen_score"]["detection_at_false_alarm"] > 0.9
+    cal = early.metadata["slip_calibration"]
+    assert {k: v["false_alarm_bound"] for k, v in cal["conditions"].items()} == {
+        "noise-free": 0.015, "1 mV rms white": 0.025, "thermal + 2 mV 50 Hz hum, notch": 0.025}
+    assert all(v["validation_false_alarm"] <= v["false_alarm_bound"] for v in cal["conditions"].values())
+    assert not np.array_equal(early.params.pack(), bank.params.pack())

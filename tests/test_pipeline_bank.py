@@ -66,7 +66,8 @@ def pad_bank_weights(seed=7, n_hidden=16):
                            {"features": "stress_rate_bank", "bank": bank})
 
 
-DETECTORS = {"bundled": lambda: SlipDetector.bank(), "small": lambda: SlipDetector(small_bank_weights()),
+DETECTORS = {"bundled": lambda: SlipDetector.bank(), "early": lambda: SlipDetector.early(),
+             "small": lambda: SlipDetector(small_bank_weights()),
              "compressed": lambda: SlipDetector(knee_bank_weights()), "pad": lambda: SlipDetector(pad_bank_weights())}
 
 

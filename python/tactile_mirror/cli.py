@@ -176,7 +176,7 @@ def cmd_demo(args) -> int:
 
 #: Names ``--weights`` takes for the bundled nets (``SlipDetector.<name>()``); a weights file
 #: of one of these names is given as a path, e.g. ``./pad``.
-BUNDLED_NETS = ("default", "paper", "bank", "pad", "memory")
+BUNDLED_NETS = ("default", "paper", "bank", "early", "pad", "memory")
 _WEIGHTS_HELP = ("detector weights file, or a bundled net: " + ", ".join(BUNDLED_NETS) + " (default: %s)")
 
 

@@ -16,7 +16,15 @@ module's names, ``importlib.import_module("tactile_mirror.detector.evaluate")`` 
 from __future__ import annotations
 
 from .bank import DEFAULT_BANK, bank_features
-from .core import BANK_WEIGHTS, DEFAULT_WEIGHTS, MEMORY_WEIGHTS, PAPER_WEIGHTS, SlipDetector, reference_run
+from .core import (
+    BANK_WEIGHTS,
+    DEFAULT_WEIGHTS,
+    EARLY_WEIGHTS,
+    MEMORY_WEIGHTS,
+    PAPER_WEIGHTS,
+    SlipDetector,
+    reference_run,
+)
 from .data_prep import features_from_result, targets_from_result
 from .evaluate import DetectionMetrics, EvaluationReport, ForceRatioDetector, evaluate
 from .figures import figure10, figure10_data
@@ -29,6 +37,7 @@ __all__ = [
     "BANK_WEIGHTS",
     "DEFAULT_BANK",
     "DEFAULT_WEIGHTS",
+    "EARLY_WEIGHTS",
     "FEATURE_KINDS",
     "FORMAT_VERSION",
     "KINDS",
