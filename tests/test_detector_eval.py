@@ -517,7 +517,9 @@ def test_validation_scorer_in_sensor_conditions_scores_their_curves(paper_result
         BuildOptions(select_conditions=("pink",))
     with pytest.raises(ValueError, match="select_fa"):
         BuildOptions(select_fa=1.5)
-    assert BuildOptions(select_conditions="noise-free").select_conditions == ("noise-free",)
+    with pytest.raises(ValueError, match="needs a false-alarm rate"):
+        BuildOptions(select_conditions="noise-free")  # refused before any scene is simulated
+    assert BuildOptions(select_conditions="noise-free", select_fa=0.02).select_conditions == ("noise-free",)
 
 
 def test_the_early_net_is_the_bank_net_trained_for_the_onset_and_chosen_in_the_goals_conditions():

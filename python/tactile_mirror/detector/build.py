@@ -288,6 +288,22 @@ def train_selected(ts, n_hidden: int, maxiter: int, seed: int, candidates: int, 
     return select_candidate(ws, scorer)
 
 
+def condition_names(conditions, name: str) -> tuple[str, ...]:
+    """``conditions`` (one name or a sequence) as a tuple of distinct keys of
+    :data:`~tactile_mirror.detector.evaluate.NOISE_CONDITIONS`; ValueError naming ``name``."""
+    from .evaluate import NOISE_CONDITIONS
+
+    names = (conditions,) if isinstance(conditions, str) else tuple(conditions)
+    if not names:
+        raise ValueError(f"{name} must name at least one sensor condition")
+    for c in names:
+        if c not in NOISE_CONDITIONS:
+            raise ValueError(f"{name}: unknown condition {c!r}; known: {sorted(NOISE_CONDITIONS)}")
+    if len(set(names)) != len(names):
+        raise ValueError(f"{name}: a condition is named twice in {names!r}")
+    return names
+
+
 class ValidationScorer:
     """Scores detector weights on validation results (features computed once).
 
@@ -331,14 +347,7 @@ class ValidationScorer:
         if conditions is not None:
             from .evaluate import NOISE_CONDITIONS, noise_free, onset_kinds, with_noise
 
-            names = [conditions] if isinstance(conditions, str) else list(conditions)
-            if not names:
-                raise ValueError("conditions must name at least one sensor condition")
-            for name in names:
-                if name not in NOISE_CONDITIONS:
-                    raise ValueError(f"conditions: unknown condition {name!r}; known: {sorted(NOISE_CONDITIONS)}")
-            if len(set(names)) != len(names):
-                raise ValueError(f"conditions: a condition is named twice in {names!r}")
+            names = condition_names(conditions, "conditions")
             if self.at_false_alarm is None:
                 raise ValueError("conditions needs at_false_alarm (they score the threshold sweep)")
             clean = noise_free(self.validation)
@@ -381,9 +390,8 @@ class ValidationScorer:
                                         "latency_gradual_ms": p.get("latency_gradual_ms", float("nan"))}
                                  for name, p in points.items()}
             out["detection_at_false_alarm"] = float(np.mean([p["detection_rate"] for p in points.values()]))
-            out["latency_gradual_ms"] = float(np.nanmean([c["latency_gradual_ms"] for c in out["conditions"].values()])
-                                              if any(np.isfinite(c["latency_gradual_ms"])
-                                                     for c in out["conditions"].values()) else float("nan"))
+            lat = np.array([c["latency_gradual_ms"] for c in out["conditions"].values()], dtype=float)
+            out["latency_gradual_ms"] = float(lat[np.isfinite(lat)].mean()) if np.isfinite(lat).any() else float("nan")
             out["score"] = out["detection_at_false_alarm"]
         return out
 
@@ -744,22 +752,16 @@ class BuildOptions:
                 raise ValueError("calibrate_fa needs the validation scenes: candidates > 1 or checkpoint_every > 0")
             put("calibrate_fa", float(fa))
         if self.select_conditions is not None:
-            from .evaluate import NOISE_CONDITIONS
-
-            sc = (self.select_conditions,) if isinstance(self.select_conditions, str) else self.select_conditions
-            sc = tuple(sc)
-            if not sc or any(name not in NOISE_CONDITIONS for name in sc) or len(set(sc)) != len(sc):
-                raise ValueError(f"select_conditions must name distinct sensor conditions of "
-                                 f"{sorted(NOISE_CONDITIONS)}, got {self.select_conditions!r}")
+            put("select_conditions", condition_names(self.select_conditions, "select_conditions"))
             if not self.selecting:
                 raise ValueError("select_conditions needs the validation scenes: candidates > 1 or "
                                  "checkpoint_every > 0")
-            put("select_conditions", sc)
+            if self.select_fa is None and self.calibrate_fa is None and self.calibrate_conditions is None:
+                raise ValueError("select_conditions needs a false-alarm rate: select_fa, calibrate_fa or "
+                                 "calibrate_conditions")
         if self.select_fa is not None:
-            fa = self.select_fa
-            if isinstance(fa, bool) or not isinstance(fa, (int, float)) or not 0 < fa < 1:
-                raise ValueError(f"select_fa must be a false-alarm rate in (0, 1), got {fa!r}")
-            put("select_fa", float(fa))
+            _check_rate(self.select_fa, "select_fa")
+            put("select_fa", float(self.select_fa))
         if self.calibrate_conditions is not None:
             from .evaluate import NOISE_CONDITIONS
 
@@ -892,8 +894,6 @@ def _build(out_path, options: BuildOptions, report_path, figure_path, results, c
     select_fa = o.calibrate_fa if o.calibrate_conditions is None else min(o.calibrate_conditions.values())
     if o.select_fa is not None:
         select_fa = o.select_fa
-    if o.select_conditions is not None and select_fa is None:
-        raise ValueError("select_conditions needs a false-alarm rate: select_fa, calibrate_fa or calibrate_conditions")
     scorer = ValidationScorer(val_res, at_false_alarm=select_fa, conditions=o.select_conditions) if selecting \
         else None
     if study_sizes:
