@@ -33,8 +33,8 @@ __all__ = ["MAX_RIDGES", "Pad", "PadState"]
 #: the few ridges under one fingertip: 6 in the paper's hardware, and at the default pitch
 #: (3 mm) 64 ridges span 19 cm, beyond any finger. Each ridge keeps its own contact solver
 #: and outputs (about 4 MB per ridge for a 0.6 s scene), so 1e5 ridges ran out of memory
-#: with no message. A recording holds at most as many
-#: (:data:`tactile_mirror.loop.recording.MAX_RIDGES`).
+#: with no message. A recording holds at most as many (:mod:`tactile_mirror.loop.recording`
+#: takes this limit).
 MAX_RIDGES = 64
 
 
