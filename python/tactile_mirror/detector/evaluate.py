@@ -154,6 +154,14 @@ class EvaluationReport:
         return self.table()
 
 
+def _level(value, name: str) -> float:
+    """A threshold on a sigmoid output or a share: a real number in (0, 1), else TypeError /
+    ValueError naming ``name``."""
+    if not 0 < real_number(value, name) < 1:
+        raise ValueError(f"{name} must be in (0, 1), got {value!r}")
+    return float(value)
+
+
 class ForceRatioDetector:
     """Baseline: slip when the force ratio ``|F_y| / F_z`` exceeds a threshold.
 
@@ -197,8 +205,7 @@ class ForceRatioDetector:
         (ValueError otherwise); ``slip_threshold`` in (0, 1) and ``max_latency`` (s, >= 0)
         are checked as :func:`evaluate` checks them.
         """
-        if not 0 < real_number(slip_threshold, "slip_threshold") < 1:
-            raise ValueError(f"slip_threshold must be in (0, 1), got {slip_threshold!r}")
+        _level(slip_threshold, "slip_threshold")
         real_number(max_latency, "max_latency", unit="s", nonnegative=True)
         results = list(results)
         if not results:
@@ -336,9 +343,8 @@ def evaluate(detector, scenes, baselines=None, slip_threshold: float = 0.8, pred
         ``str(report)`` is the table; ``report[name]`` one row (``"detector"`` is the first).
     """
     # (a NaN or negative level or window used to report 0 % detection, silently)
-    for name, v, lo, hi in (("slip_threshold", slip_threshold, 0.0, 1.0), ("pred_threshold", pred_threshold, 0.0, 1.0)):
-        if not lo < real_number(v, name) < hi:
-            raise ValueError(f"{name} must be in ({lo:g}, {hi:g}), got {v!r}")
+    _level(slip_threshold, "slip_threshold")
+    _level(pred_threshold, "pred_threshold")
     real_number(max_latency, "max_latency", unit="s", nonnegative=True)
     results = _as_results(scenes, progress)
     if not results:
