@@ -304,6 +304,18 @@ def condition_names(conditions, name: str) -> tuple[str, ...]:
     return names
 
 
+def condition_results(validation, names, seed: int) -> dict:
+    """``{name: results}``: the ``validation`` results' noise-free outputs plus the noise of
+    each sensor condition ``names`` (seeded ``seed`` + its place in ``names``; a noise-free
+    condition gets the clean results themselves). :class:`ValidationScorer` and
+    :func:`calibrate_slip` score in these copies."""
+    from .evaluate import NOISE_CONDITIONS, noise_free, with_noise
+
+    clean = noise_free(validation)
+    return {name: clean if NOISE_CONDITIONS[name] == (0.0, None, None) else with_noise(clean, name, seed + k)
+            for k, name in enumerate(names)}
+
+
 class ValidationScorer:
     """Scores detector weights on validation results (features computed once).
 
@@ -345,15 +357,12 @@ class ValidationScorer:
         self._features = {}
         self.conditions = None
         if conditions is not None:
-            from .evaluate import NOISE_CONDITIONS, noise_free, onset_kinds, with_noise
+            from .evaluate import onset_kinds
 
             names = condition_names(conditions, "conditions")
             if self.at_false_alarm is None:
                 raise ValueError("conditions needs at_false_alarm (they score the threshold sweep)")
-            clean = noise_free(self.validation)
-            seed = integer(noise_seed, "noise_seed", 0)
-            self.conditions = {name: clean if NOISE_CONDITIONS[name] == (0.0, None, None)
-                               else with_noise(clean, name, seed + k) for k, name in enumerate(names)}
+            self.conditions = condition_results(self.validation, names, integer(noise_seed, "noise_seed", 0))
             self._condition_features = {name: {} for name in names}
             self._kinds = onset_kinds(self.validation)  # (the latency per onset kind)
 
@@ -469,7 +478,7 @@ def calibrate_slip(weights, validation, false_alarm: float | None, slip_threshol
     import copy
 
     from .data_prep import features_from_result
-    from .evaluate import NOISE_CONDITIONS, condition_estimator, noise_free, onset_kinds, roc, with_noise
+    from .evaluate import condition_estimator, onset_kinds, roc
 
     if isinstance(slip_threshold, bool) or not (isinstance(slip_threshold, (int, float)) and 0 < slip_threshold < 1):
         raise ValueError(f"slip_threshold must be in (0, 1), got {slip_threshold!r}")
@@ -486,16 +495,11 @@ def calibrate_slip(weights, validation, false_alarm: float | None, slip_threshol
         runs = {"own noise": (validation, det.metadata.get("estimator"), float(false_alarm))}
     else:
         conditions = dict(conditions)
-        if not conditions:
-            raise ValueError("conditions must name at least one condition")
-        clean = noise_free(validation)
-        runs = {}
-        for k, (name, fa) in enumerate(conditions.items()):
-            if name not in NOISE_CONDITIONS:
-                raise ValueError(f"conditions: unknown condition {name!r}; known: {sorted(NOISE_CONDITIONS)}")
-            _check_rate(fa, f"conditions[{name!r}]")
-            res = clean if NOISE_CONDITIONS[name] == (0.0, None, None) else with_noise(clean, name, seed + k)
-            runs[name] = (res, condition_estimator(det, name), float(fa))
+        names = condition_names(conditions, "conditions")
+        for name in names:
+            _check_rate(conditions[name], f"conditions[{name!r}]")
+        copies = condition_results(validation, names, seed)
+        runs = {name: (copies[name], condition_estimator(det, name), float(conditions[name])) for name in names}
     curves = {}
     t = 0.0
     for name, (res, est, fa) in runs.items():
@@ -763,17 +767,13 @@ class BuildOptions:
             _check_rate(self.select_fa, "select_fa")
             put("select_fa", float(self.select_fa))
         if self.calibrate_conditions is not None:
-            from .evaluate import NOISE_CONDITIONS
-
             cc = self.calibrate_conditions
             if not isinstance(cc, dict) or not cc:
                 raise ValueError(f"calibrate_conditions must be a non-empty dict, got {cc!r}")
             if self.calibrate_fa is not None:
                 raise ValueError("give calibrate_fa or calibrate_conditions, not both")
+            condition_names(cc, "calibrate_conditions")
             for name, fa in cc.items():
-                if name not in NOISE_CONDITIONS:
-                    raise ValueError(f"calibrate_conditions: unknown condition {name!r}; "
-                                     f"known: {sorted(NOISE_CONDITIONS)}")
                 if isinstance(fa, bool) or not isinstance(fa, (int, float)) or not 0 < fa < 1:
                     raise ValueError(f"calibrate_conditions[{name!r}] must be a false-alarm rate in (0, 1), "
                                      f"got {fa!r}")
