@@ -1,11 +1,11 @@
 """Helpers of the benchmark scripts (run as ``python bench/<script>.py``).
 
-The measuring functions themselves live in :mod:`tactile_mirror.measure`, shared with
+The measuring functions themselves live in :mod:`tactile_mirror.lab.measure`, shared with
 ``tactile-mirror bench``; this module only names them for the scripts and prints.
 """
 from __future__ import annotations
 
-from tactile_mirror.measure import best_time, best_times, environment_line, markdown_table, timed
+from tactile_mirror.lab.measure import best_time, best_times, environment_line, markdown_table, timed
 
 __all__ = ["best_time", "best_times", "environment_line", "fit_bound_classifier", "header", "study_training_scenes",
            "table", "timed"]
@@ -36,7 +36,7 @@ def fit_bound_classifier(X, Y, seed: int = 0):
 def study_training_scenes(cache, extra: int, progress: bool = True) -> list:
     """The detector studies' training scenes: the build's 64 training scenes and ``extra``
     scenes drawn from the held-out ranges with ``build.EXTRA_TRAIN_SEED`` (cached in ``cache``)."""
-    from tactile_mirror.detector import build
+    from tactile_mirror.lab.detector import build
 
     train = build.simulate_cached(64, build.TRAIN_SEED, build.TRAIN_KWARGS, cache, progress)
     if extra:
@@ -47,8 +47,8 @@ def study_training_scenes(cache, extra: int, progress: bool = True) -> list:
 def bank_training_set(train):
     """The detector studies' training set of the filter-bank net: the build's recipe (two noise
     copies of every scene, ``build.NOISE_RANGE``, then random gains 0.6-1.7)."""
-    from tactile_mirror.detector import build
-    from tactile_mirror.detector.training import augment_gains, augment_noise, make_training_set
+    from tactile_mirror.lab.detector import build
+    from tactile_mirror.lab.detector.training import augment_gains, augment_noise, make_training_set
 
     seqs = augment_noise(train, build.NOISE_COPIES, build.NOISE_RANGE, seed=2)
     return augment_gains(make_training_set(seqs, "stress_rate_bank"), (0.6, 1.7), seed=1)
@@ -58,7 +58,7 @@ def bank_validation_conditions(results, estimator) -> dict:
     """``{"noise-free" | "1 mV rms": (bank features, results, onset kinds)}`` of validation
     scenes: their own noise removed, and 1 mV rms of white noise added (seed 4001)."""
     from tactile_mirror.detector.data_prep import features_from_result
-    from tactile_mirror.detector.evaluate import noise_free, onset_kinds, with_noise
+    from tactile_mirror.lab.detector.evaluation import noise_free, onset_kinds, with_noise
 
     clean = noise_free(results)
     noisy = with_noise(clean, "1 mV rms white", seed=4001)
@@ -70,7 +70,7 @@ def bank_validation_conditions(results, estimator) -> dict:
 def study_scenes(cache, extra: int, n_validation: int) -> tuple[list, list]:
     """The detector studies' training scenes (:func:`study_training_scenes`) and the build's
     first ``n_validation`` validation scenes (``build.VALIDATION_SEED``), cached in ``cache``."""
-    from tactile_mirror.detector import build
+    from tactile_mirror.lab.detector import build
 
     train = study_training_scenes(cache, extra)
     return train, build.simulate_cached(n_validation, build.VALIDATION_SEED, build.TEST_KWARGS, cache)

@@ -27,8 +27,9 @@ import numpy as np
 import tactile_mirror as tm
 from _common import table, timed
 from tactile_mirror import _core
-from tactile_mirror.contact import ContactSolver, Pad, RidgeGeometry, ridge_model, simulate
-from tactile_mirror.measure import cpu_model
+from tactile_mirror.contact import ContactSolver, Pad, ridge_model, simulate
+from tactile_mirror.geometry import RidgeGeometry
+from tactile_mirror.lab.measure import cpu_model
 
 
 def bench_backends(quick):
@@ -114,8 +115,8 @@ def bench_realtime(duration):
     default pad on one and two threads, and :meth:`FemPad.realtime` (coarser contact
     elements)."""
     from tactile_mirror.contact.plants import FemPad
-    from tactile_mirror.loop.envelope import REPORT_PATHS, _laws
-    from tactile_mirror.loop.experiment import PLANTS, default_weights
+    from tactile_mirror.lab.loop.envelope import REPORT_PATHS, law_controllers
+    from tactile_mirror.lab.loop.experiment import PLANTS, default_weights
     from tactile_mirror.loop.scene import LoopScene, run_scene
     from tactile_mirror.loop.stage import StageLimits
 
@@ -138,7 +139,7 @@ def bench_realtime(duration):
         sc = LoopScene(seed=0, duration=duration, press=0.5, plant="fem", trajectory=PLANTS["fem"]["trajectory"])
         run(f"open loop, {n_ridges} ridge{'s' if n_ridges > 1 else ''}, experiment path, default pad", sc,
             FemPad(n_ridges, fs=sc.fs))
-    laws, design = _laws(weights, 1000.0, limits, 0.001, 0.002, 6, "fem")
+    laws, design = law_controllers(weights, 1000.0, limits, 0.001, 0.002, 6, "fem")
     for law, pad_names in (("open loop", list(pads)), ("default", ["default pad", "FemPad.realtime()"])):
         for pad_name in pad_names:
             for v in (0.005, 0.02):
@@ -165,7 +166,7 @@ def bench_realtime_accuracy(duration, figure_path=None):
     and tangential force compared, with the plant's own time per tick. ``figure_path``:
     also the figure of error and tick time against the contact nodes."""
     from tactile_mirror.contact.plants import REALTIME_CONTACT_MESH_SIZE, FemPad
-    from tactile_mirror.loop.envelope import REPORT_PATHS
+    from tactile_mirror.lab.loop.envelope import REPORT_PATHS
     from tactile_mirror.loop.scene import LoopScene, gross_slip_events, scene_finger
 
     def sized(h, **kw):
@@ -217,7 +218,7 @@ def bench_realtime_accuracy(duration, figure_path=None):
     if figure_path:
         realtime_figure(points, figure_path, default_h, REALTIME_CONTACT_MESH_SIZE)
         from tactile_mirror._io import write_json
-        from tactile_mirror.measure import environment
+        from tactile_mirror.lab.measure import environment
 
         write_json(os.path.splitext(figure_path)[0] + ".json",
                    {"environment": environment(), "duration_s": duration, "default_contact_mesh_size": default_h,
@@ -464,7 +465,7 @@ def bench_stepping(quick):
 
 
 def figures(folder):
-    from tactile_mirror.plots import contact_scene_figure, save
+    from tactile_mirror.lab.plots import contact_scene_figure, save
 
     titles = {"fig6": "Fig. 6: no stop", "fig7": "Fig. 7: stop at A (1.00-1.05 s)",
               "fig8": "Fig. 8: stop at B (1.40-1.45 s)"}

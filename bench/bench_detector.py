@@ -8,7 +8,7 @@
    per Python call.
 3. Run time against output error: exact/fast sigmoid x float32/float64, error
    measured against the float64 numpy reference (the detector kernel of
-   ``tactile-mirror bench``: :func:`tactile_mirror.measure.detector_variants`).
+   ``tactile-mirror bench``: :func:`tactile_mirror.lab.measure.detector_variants`).
 5. The bundled filter-bank net (kind ``"jordan_bank"``, 17 inputs per ridge: the
    four rates and their filter bank): one tick of 6 ridges inside C++ (goal
    <= 250 ns float32) and its block API against its numpy reference
@@ -19,7 +19,7 @@
    reads the pad's mean of the bank, ``bank["pad_mean"]``, 34 inputs, compressed): what the
    pad's mean costs.
 4. Training: one loss-and-gradient evaluation (exact BPTT) of the C++ kernel
-   (``_core.jordan_loss_grad``, 1 and 2 threads) against the numpy specification
+   (``tactile_mirror.kernels.jordan_loss_grad``, 1 and 2 threads) against the numpy specification
    (``network.loss_and_grad``) on the same padded training batch, with the
    difference of their results.
 
@@ -38,7 +38,7 @@ from _common import best_time, header
 from tactile_mirror import _core
 from tactile_mirror.detector import DetectorWeights, Params, SlipDetector
 from tactile_mirror.detector.network import forward
-from tactile_mirror.measure import detector_variants, sigmoid_error
+from tactile_mirror.lab.measure import detector_variants, sigmoid_error
 
 
 def make_weights(n_hidden=16, seed=0):

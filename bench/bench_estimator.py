@@ -18,7 +18,7 @@ Columns:
   outputs, best of 5;
 - ``step us``: one ``StressRateEstimator.step`` call from Python, 12 channels.
 
-Signals and errors come from :mod:`tactile_mirror.measure` (``estimator_signals``,
+Signals and errors come from :mod:`tactile_mirror.lab.measure` (``estimator_signals``,
 ``estimator_errors``, ``lowpass_delay_ms``), as in ``tactile-mirror bench``.
 
 Run: ``python bench/bench_estimator.py`` (options: ``--fs``, ``--noise``, ``--kind``,
@@ -32,7 +32,7 @@ import numpy as np
 from _common import best_time, environment_line
 from tactile_mirror.circuit import PVDFCircuit
 from tactile_mirror.estimator import StressRateEstimator, estimate_stress_rate
-from tactile_mirror.measure import estimator_errors, estimator_signals, lowpass_delay_ms
+from tactile_mirror.lab.measure import estimator_errors, estimator_signals, lowpass_delay_ms
 
 
 def timing(circuit, fs, order, bandwidth, use_u, kind, channels=12, n=100_000):

@@ -7,7 +7,7 @@ Prints markdown tables: block throughput (ratio to scipy.signal.sosfilt), per-sa
 step cost from Python and inside C++, the cost of a decay into the subnormal range,
 a long soak against an extended-precision reference, and run time against error for
 each structure and dtype (the filters kernel of ``tactile-mirror bench``, measured by
-the same function, :func:`tactile_mirror.measure.filter_variants`).
+the same function, :func:`tactile_mirror.lab.measure.filter_variants`).
 """
 from __future__ import annotations
 
@@ -21,7 +21,7 @@ import numpy as np
 import scipy.signal as ss
 import tactile_mirror as tm
 from _common import best_time, header, table
-from tactile_mirror.measure import filter_variants
+from tactile_mirror.lab.measure import filter_variants
 
 
 def bench_block(n, channels=12):

@@ -40,9 +40,9 @@ from _common import best_time, header
 from tactile_mirror.circuit import PVDFCircuit
 from tactile_mirror.estimator import StressRateEstimator
 from tactile_mirror.filters import simd_path
-from tactile_mirror.loop import ArraySource, LoopRunner, SimulatedStage, VelocityController
+from tactile_mirror.loop import ArraySource, LoopRunner, SimulatedStage
 from tactile_mirror.loop.capi import CPipeline, header_path, library_path
-from tactile_mirror.pipeline import MirrorPipeline, ReferencePipeline
+from tactile_mirror.pipeline import MirrorPipeline, ReferencePipeline, VelocityController
 
 ROOT = Path(__file__).resolve().parents[1]
 H = 16

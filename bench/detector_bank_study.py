@@ -50,10 +50,9 @@ def feature_sets(x, fs):
     from types import SimpleNamespace
 
     from detector_bound import window_features
+    from scipy.signal import lfilter
     from tactile_mirror.detector.bank import DEFAULT_BANK, bank_features
     from tactile_mirror.detector.memory import memory_features
-
-    from scipy.signal import lfilter
 
     def lp(y, tau):
         a = np.exp(-1.0 / (fs * tau))
@@ -91,12 +90,12 @@ def main(argv=None):
     args = ap.parse_args(argv)
     sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
     from _common import fit_bound_classifier, study_training_scenes
-    from tactile_mirror.detector.evaluate import noise_free as clean
-    from tactile_mirror.detector.evaluate import with_noise
-    from tactile_mirror.detector import build
     from tactile_mirror.detector.data_prep import features_from_result, targets_from_result
-    from tactile_mirror.detector.evaluate import onset_kinds, roc
-    from tactile_mirror.measure import cpu_model
+    from tactile_mirror.lab.detector import build
+    from tactile_mirror.lab.detector.evaluation import noise_free as clean
+    from tactile_mirror.lab.detector.evaluation import onset_kinds, with_noise
+    from tactile_mirror.lab.detector.roc import roc
+    from tactile_mirror.lab.measure import cpu_model
 
     t0 = time.perf_counter()
     cache = args.cache or None

@@ -50,13 +50,13 @@ def main(argv=None):
     sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
     from _common import study_training_scenes
     from detector_heldout import table_rows
-    from tactile_mirror.detector.evaluate import noise_free as clean
-    from tactile_mirror.detector.evaluate import with_noise
-    from tactile_mirror.detector import SlipDetector, build
+    from tactile_mirror.detector import SlipDetector
     from tactile_mirror.detector.data_prep import features_from_result
-    from tactile_mirror.detector.evaluate import onset_kinds
-    from tactile_mirror.detector.training import augment_gains, augment_noise, make_training_set
-    from tactile_mirror.measure import cpu_model
+    from tactile_mirror.lab.detector import build
+    from tactile_mirror.lab.detector.evaluation import noise_free as clean
+    from tactile_mirror.lab.detector.evaluation import onset_kinds, with_noise
+    from tactile_mirror.lab.detector.training import augment_gains, augment_noise, make_training_set
+    from tactile_mirror.lab.measure import cpu_model
 
     t0 = time.perf_counter()
     cache = args.cache or None

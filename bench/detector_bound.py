@@ -31,12 +31,10 @@ os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
 from types import SimpleNamespace
 
 import numpy as np
-from tactile_mirror.detector import (
-    SlipDetector,
-    build,
-)
+from tactile_mirror.detector import SlipDetector
 from tactile_mirror.detector.data_prep import features_from_result, targets_from_result
-from tactile_mirror.detector.evaluate import analyse_sequence, onset_kinds
+from tactile_mirror.lab.detector import build
+from tactile_mirror.lab.detector.evaluation import analyse_sequence, onset_kinds
 
 LAGS = (1, 2, 4, 8, 16, 32, 64, 128, 256)
 

@@ -43,8 +43,9 @@ def main(argv=None):
     sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
 
     from _common import bank_validation_conditions, header
-    from tactile_mirror.detector import SlipDetector, build
-    from tactile_mirror.detector.evaluate import roc
+    from tactile_mirror.detector import SlipDetector
+    from tactile_mirror.lab.detector import build
+    from tactile_mirror.lab.detector.roc import roc
 
     t0 = time.perf_counter()
     header(f"filter-bank nets on validation scenes {first}-{last} (seed {build.VALIDATION_SEED})")

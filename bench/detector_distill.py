@@ -70,13 +70,20 @@ def main(argv=None):
     args = ap.parse_args(argv)
     sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
 
-    import tactile_mirror.detector.training as training
+    import tactile_mirror.lab.detector.training as training
     from _common import study_training_scenes
-    from tactile_mirror.detector import SlipDetector, build
+    from tactile_mirror.detector import SlipDetector
     from tactile_mirror.detector.data_prep import features_from_result
-    from tactile_mirror.detector.evaluate import noise_free, onset_kinds, roc, with_noise
-    from tactile_mirror.detector.training import (TrainingSet, augment_gains, augment_noise, make_training_set)
-    from tactile_mirror.measure import cpu_model
+    from tactile_mirror.lab.detector import build
+    from tactile_mirror.lab.detector.evaluation import noise_free, onset_kinds, with_noise
+    from tactile_mirror.lab.detector.roc import roc
+    from tactile_mirror.lab.detector.training import (
+        TrainingSet,
+        augment_gains,
+        augment_noise,
+        make_training_set,
+    )
+    from tactile_mirror.lab.measure import cpu_model
 
     t0 = time.perf_counter()
     train = study_training_scenes(args.cache, args.extra)

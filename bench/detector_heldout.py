@@ -38,7 +38,7 @@ HUM = "thermal + 2 mV 50 Hz hum, notch"
 def table_rows(name, scores_pred, results, kinds, cond):
     """One row per detector: the held-out metrics from (y_slip, y_pred) per result."""
     from tactile_mirror.detector.data_prep import targets_from_result
-    from tactile_mirror.detector.evaluate import analyse_sequence
+    from tactile_mirror.lab.detector.evaluation import analyse_sequence
 
     seqs, at_onset = [], []
     for (ys, yp), r in zip(scores_pred, results):
@@ -107,12 +107,14 @@ def main(argv=None):
     sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
     from _common import header
     from detector_roc import bound_scores
-    from tactile_mirror.detector import SlipDetector, build
+    from tactile_mirror.detector import SlipDetector
     from tactile_mirror.detector.data_prep import features_from_result
-    from tactile_mirror.detector.evaluate import NOISE_CONDITIONS, onset_kinds, roc, with_noise
-    from tactile_mirror.detector.evaluate import condition_estimator as estimator_of
-    from tactile_mirror.detector.evaluate import noise_free as clean
-    from tactile_mirror.measure import cpu_model
+    from tactile_mirror.lab.detector import build
+    from tactile_mirror.lab.detector.evaluation import NOISE_CONDITIONS, onset_kinds, with_noise
+    from tactile_mirror.lab.detector.evaluation import condition_estimator as estimator_of
+    from tactile_mirror.lab.detector.evaluation import noise_free as clean
+    from tactile_mirror.lab.detector.roc import roc
+    from tactile_mirror.lab.measure import cpu_model
 
     header("filter-bank and load-memory nets vs the paper's Jordan net on the build's held-out scenes")
     cache = args.cache or None

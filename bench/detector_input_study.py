@@ -47,7 +47,7 @@ VARIANTS = ("linear", "asinh/median", "asinh/rms", "softsign/median", "linear, m
 def compression(name: str, x, mask):
     """The transform ``f(x)`` of variant ``name``, its knees fitted on ``x`` (n_seq, n_ch, n) and
     kept as ``f.knee`` (None for the linear variants)."""
-    from tactile_mirror.detector.training import fit_normalisation
+    from tactile_mirror.lab.detector.training import fit_normalisation
 
     if name.startswith("linear"):
         def f(v):
@@ -103,10 +103,11 @@ def main(argv=None):
 
     from _common import bank_training_set, bank_validation_conditions, study_scenes
     from tactile_mirror._io import write_json
-    from tactile_mirror.detector import SlipDetector, build
-    from tactile_mirror.detector.evaluate import roc
-    from tactile_mirror.detector.training import TrainingSet, train_detector
-    from tactile_mirror.measure import cpu_model
+    from tactile_mirror.detector import SlipDetector
+    from tactile_mirror.lab.detector import build
+    from tactile_mirror.lab.detector.roc import roc
+    from tactile_mirror.lab.detector.training import TrainingSet, train_detector
+    from tactile_mirror.lab.measure import cpu_model
 
     t0 = time.perf_counter()
     train, val = study_scenes(args.cache, args.extra, args.n_validation)

@@ -10,7 +10,7 @@ the extra scenes from the held-out ranges, two noise copies each, random gains; 
 weight 30, ``pred_weight`` 4, 300 L-BFGS-B iterations) and against it the same net trained
 in rounds: the recipe for the first ``--first`` iterations, then rounds of ``--round``
 iterations, each warm-started from the last, with the y_slip loss of the hard examples
-multiplied by ``--factor`` (:func:`tactile_mirror.detector.training.hard_example_weights`: the
+multiplied by ``--factor`` (:func:`tactile_mirror.lab.detector.training.hard_example_weights`: the
 no-slip samples where the net's output is at or above ``--level``, and the onset windows of
 the slips it misses), the same number of iterations in all.
 
@@ -70,10 +70,11 @@ def main(argv=None):
 
     from _common import bank_training_set, bank_validation_conditions, study_scenes
     from tactile_mirror._io import write_json
-    from tactile_mirror.detector import SlipDetector, build
-    from tactile_mirror.detector.evaluate import roc
-    from tactile_mirror.detector.training import hard_example_weights, train_detector
-    from tactile_mirror.measure import cpu_model
+    from tactile_mirror.detector import SlipDetector
+    from tactile_mirror.lab.detector import build
+    from tactile_mirror.lab.detector.roc import roc
+    from tactile_mirror.lab.detector.training import hard_example_weights, train_detector
+    from tactile_mirror.lab.measure import cpu_model
 
     t0 = time.perf_counter()
     train, val = study_scenes(args.cache, args.extra, args.n_validation)

@@ -64,7 +64,7 @@ def pad_inputs(result, with_mean: bool) -> np.ndarray:
 def stack(results, with_mean: bool, gains=None):
     """Padded (n_seq, n_in, n) inputs, targets and mask of the results' ridges."""
     from tactile_mirror.detector.data_prep import targets_from_result
-    from tactile_mirror.detector.training import pad_sequences
+    from tactile_mirror.lab.detector.training import pad_sequences
 
     xs, ys, ps = [], [], []
     for k, r in enumerate(results):
@@ -122,13 +122,20 @@ def main(argv=None):
     import scipy.optimize
     from detector_input_study import compression
     from detector_pad_study import N_RIDGES, PAD_TRAIN_SEED, PAD_VALIDATION_SEED, SCORED, latency_at
-    from tactile_mirror.detector import DetectorWeights, SlipDetector, build
+    from tactile_mirror.detector import DetectorWeights, SlipDetector
     from tactile_mirror.detector.bank import DEFAULT_BANK
     from tactile_mirror.detector.data_prep import features_from_result, targets_from_result
-    from tactile_mirror.detector.evaluate import condition_estimator, noise_free, onset_kinds, roc, with_noise
     from tactile_mirror.detector.network import Params, forward, init_params
-    from tactile_mirror.detector.training import _cpp_loss, _loss_weights, augment_noise, fit_normalisation
-    from tactile_mirror.measure import cpu_model
+    from tactile_mirror.lab.detector import build
+    from tactile_mirror.lab.detector.evaluation import (
+        condition_estimator,
+        noise_free,
+        onset_kinds,
+        with_noise,
+    )
+    from tactile_mirror.lab.detector.roc import roc
+    from tactile_mirror.lab.detector.training import augment_noise, cpp_loss, fit_normalisation, loss_weights
+    from tactile_mirror.lab.measure import cpu_model
 
     t0 = time.perf_counter()
     kw = {**build.TEST_KWARGS, "n_ridges": N_RIDGES}
@@ -226,9 +233,9 @@ def main(argv=None):
         _mean, scale = fit_normalisation(X, M, "rms")
         xn = X / scale[None, :, None] * M[:, None, :]
         data = SimpleNamespace(x=X, y_slip=S, y_pred=P, mask=M, fs=float(train[0].fs))
-        w_slip, w_pred = _loss_weights(data, 4.0, args.negative_weight)
+        w_slip, w_pred = loss_weights(data, 4.0, args.negative_weight)
         n_in = X.shape[1]
-        fun = _cpp_loss(xn, data, w_slip, w_pred, H, 1e-4, True, 2)
+        fun = cpp_loss(xn, data, w_slip, w_pred, H, 1e-4, True, 2)
         sel = val_clean if args.select_clean else val
         xv_clean = compressed(stack(val_clean, with_mean)[0]) / scale[None, :, None]
         xv = xv_clean if args.select_clean else compressed(stack(val, with_mean)[0]) / scale[None, :, None]

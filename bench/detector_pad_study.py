@@ -62,12 +62,12 @@ def pad_feature_sets(x: np.ndarray) -> dict:
 
 def latency_at(t, scores, gross, threshold: float, consecutive: int, max_latency: float = 0.05):
     """Latency (s) of the first alarm after the onset (NaN when missed or no slip)."""
-    from tactile_mirror.detector.evaluate import _running_min
+    from tactile_mirror.lab.detector.roc import running_min
 
     on = np.flatnonzero(np.asarray(gross) >= 0.5)
     if not on.size:
         return np.nan
-    x = _running_min(np.asarray(scores, dtype=np.float64), consecutive)
+    x = running_min(np.asarray(scores, dtype=np.float64), consecutive)
     i0 = int(on[0])
     hit = np.flatnonzero((x[i0:] >= threshold) & (t[i0:] <= t[i0] + max_latency + 1e-12))
     return float(t[i0 + hit[0]] - t[i0]) if hit.size else np.nan
@@ -85,11 +85,13 @@ def main(argv=None):
                     help="and scale every training copy by a random gain (0.6-1.7), as the build")
     args = ap.parse_args(argv)
     from _common import fit_bound_classifier
-    from tactile_mirror.detector import SlipDetector, build
+    from tactile_mirror.detector import SlipDetector
     from tactile_mirror.detector.data_prep import features_from_result, targets_from_result
-    from tactile_mirror.detector.evaluate import noise_free, onset_kinds, roc, with_noise
-    from tactile_mirror.detector.training import augment_noise
-    from tactile_mirror.measure import cpu_model
+    from tactile_mirror.lab.detector import build
+    from tactile_mirror.lab.detector.evaluation import noise_free, onset_kinds, with_noise
+    from tactile_mirror.lab.detector.roc import roc
+    from tactile_mirror.lab.detector.training import augment_noise
+    from tactile_mirror.lab.measure import cpu_model
 
     t0 = time.perf_counter()
     kw = {**build.TEST_KWARGS, "n_ridges": N_RIDGES}

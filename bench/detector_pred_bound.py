@@ -94,10 +94,11 @@ def main(argv=None):
     sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
     from _common import header, study_training_scenes
     from sklearn.ensemble import HistGradientBoostingRegressor
-    from tactile_mirror.detector import SlipDetector, build
+    from tactile_mirror.detector import SlipDetector
     from tactile_mirror.detector.data_prep import features_from_result
-    from tactile_mirror.detector.evaluate import onset_kinds
-    from tactile_mirror.measure import cpu_model
+    from tactile_mirror.lab.detector import build
+    from tactile_mirror.lab.detector.evaluation import onset_kinds
+    from tactile_mirror.lab.measure import cpu_model
 
     header("y_pred at the onset: the bundled net against causal regressors with more information")
     cache = args.cache or None

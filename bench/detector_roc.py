@@ -3,7 +3,7 @@
 For each detector the statistic it thresholds is swept (``y_slip`` of the nets, the
 bound classifier's probability, the force ratio ``|F_y| / F_z``) and every
 threshold gives one point (false-alarm rate, detection rate) with
-:func:`tactile_mirror.detector.evaluate.roc`, whose definitions of detection, false
+:func:`tactile_mirror.lab.detector.evaluation.roc`, whose definitions of detection, false
 alarm and onset kind are those of ``detector.evaluate``. Three noise conditions,
 added to the circuit outputs of the same simulated scenes (the contact simulation
 runs once; noise is added to ``v_out``/``u_out`` afterwards):
@@ -56,7 +56,7 @@ os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
 
 import numpy as np
 from tactile_mirror._io import atomic_write
-from tactile_mirror.detector.evaluate import NOISE_CONDITIONS, condition_estimator, with_noise
+from tactile_mirror.lab.detector.evaluation import NOISE_CONDITIONS, condition_estimator, with_noise
 
 #: Seed of the held-out scenes of this study (disjoint from every seed the build uses).
 ROC_SEED = 5150
@@ -64,7 +64,7 @@ BOUND_EXTRA_SEED = 99
 
 
 def scene_sets(n_test: int, n_train: int):
-    from tactile_mirror.detector import build
+    from tactile_mirror.lab.detector import build
 
     clean = {"noise": (0.0, 0.0)}
     test = build._random_scenes(n_test, ROC_SEED, **{**build.TEST_KWARGS, **clean})
@@ -74,7 +74,7 @@ def scene_sets(n_test: int, n_train: int):
 
 def simulated(n_test: int, n_train: int, cache: str | None):
     """(held-out results, training results), from ``cache`` when it holds these scenes."""
-    from tactile_mirror.detector import build
+    from tactile_mirror.lab.detector import build
 
     key = {"n_test": n_test, "n_train": n_train, "roc_seed": ROC_SEED, "train_seed": build.TRAIN_SEED,
            "test_kwargs": repr(sorted(build.TEST_KWARGS.items())),
@@ -108,8 +108,8 @@ def net_scores(detector, results, condition: str) -> list:
 
 def train_mlp(train, progress: bool):
     """The no-feedback MLP, trained as the build trains it (one seed, no checkpoint selection)."""
-    from tactile_mirror.detector import build
-    from tactile_mirror.detector.training import (
+    from tactile_mirror.lab.detector import build
+    from tactile_mirror.lab.detector.training import (
         augment_gains,
         augment_noise,
         make_training_set,
@@ -162,7 +162,7 @@ def pct(x) -> str:
 def bound_extra(n: int, cache: str | None):
     """Extra training scenes of the bound classifier, as the bound study draws them: the held-out
     ranges, seed :data:`BOUND_EXTRA_SEED` (cached in ``cache`` with ``.extra`` before its extension)."""
-    from tactile_mirror.detector import build
+    from tactile_mirror.lab.detector import build
 
     if n <= 0:
         return []
@@ -207,8 +207,9 @@ def main(argv=None):
     from _common import header
     from tactile_mirror._io import save_figure, write_json, write_text
     from tactile_mirror.detector import SlipDetector
-    from tactile_mirror.detector.evaluate import ForceRatioDetector, onset_kinds, roc
-    from tactile_mirror.measure import environment, markdown_table
+    from tactile_mirror.lab.detector.evaluation import ForceRatioDetector, onset_kinds
+    from tactile_mirror.lab.detector.roc import roc
+    from tactile_mirror.lab.measure import environment, markdown_table
 
     header("slip detection against false alarms, threshold sweeps per noise condition")
     t0 = time.perf_counter()

@@ -53,10 +53,12 @@ def main(argv=None):
     sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
 
     from _common import bank_training_set, bank_validation_conditions, header, study_scenes
-    from tactile_mirror.detector import SlipDetector, build
+    from tactile_mirror.detector import SlipDetector
     from tactile_mirror.detector.data_prep import features_from_result
-    from tactile_mirror.detector.evaluate import NOISE_CONDITIONS, onset_kinds, roc
-    from tactile_mirror.detector.training import train_detector
+    from tactile_mirror.lab.detector import build
+    from tactile_mirror.lab.detector.evaluation import NOISE_CONDITIONS, onset_kinds
+    from tactile_mirror.lab.detector.roc import roc
+    from tactile_mirror.lab.detector.training import train_detector
 
     t0 = time.perf_counter()
     header("latency as a selection criterion, on the build's validation halves")

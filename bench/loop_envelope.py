@@ -8,10 +8,10 @@ Resumable: rows go to ``OUT/loop_envelope.json`` after every run, and a rerun sk
 the rows already there (run it in the background, interrupt it, run it again). Writes
 ``OUT/loop_envelope.png`` and prints the table (markdown) with the CPU model.
 
-Reported paths: :data:`tactile_mirror.loop.envelope.REPORT_PATHS` (seeds 0.., 10 mm rms,
+Reported paths: :data:`tactile_mirror.lab.loop.envelope.REPORT_PATHS` (seeds 0.., 10 mm rms,
 2 Hz band, scaled to the class's peak speed and <= 0.5 m/s^2). Every choice made while
-developing the law used :data:`~tactile_mirror.loop.envelope.TUNING_PATHS` (seeds 1000..,
-8 mm rms, 1.5 Hz band) or :data:`~tactile_mirror.loop.envelope.TUNING_FAST_PATHS` (seeds
+developing the law used :data:`~tactile_mirror.lab.loop.envelope.TUNING_PATHS` (seeds 1000..,
+8 mm rms, 1.5 Hz band) or :data:`~tactile_mirror.lab.loop.envelope.TUNING_FAST_PATHS` (seeds
 3000.., 8 mm rms, 4 Hz): disjoint seeds and generator settings (``--paths tuning`` runs them).
 ``--paths report-fast`` (seeds 100.., 12 mm rms, 5 Hz band) reports paths whose acceleration
 limit binds (up to 0.5 m/s^2 at 20 mm/s).
@@ -36,13 +36,13 @@ import numpy as np
 def tick_table(n_iter: int = 200_000) -> dict:
     from tactile_mirror.circuit import PVDFCircuit
     from tactile_mirror.estimator import StressRateEstimator
+    from tactile_mirror.lab.loop.experiment import default_weights, weights_dict
+    from tactile_mirror.lab.measure import cpu_model
     from tactile_mirror.loop.design import design_loop
-    from tactile_mirror.loop.experiment import _weights_dict, default_weights
     from tactile_mirror.loop.stage import StageLimits
-    from tactile_mirror.measure import cpu_model
     from tactile_mirror.pipeline import MirrorPipeline
 
-    w = _weights_dict(default_weights("fem"))
+    w = weights_dict(default_weights("fem"))
     old = VelocityControllerOld()
     new = design_loop(StageLimits(-0.02, 0.02, 0.03, 1.0), (1.0, 4.78e7), 1000.0, stage_delay=0.001,
                       stage_lag=0.002).controller
@@ -61,7 +61,7 @@ def tick_table(n_iter: int = 200_000) -> dict:
 
 
 def VelocityControllerOld():
-    from tactile_mirror.loop.controller import VelocityController
+    from tactile_mirror.pipeline.controller import VelocityController
 
     return VelocityController(threshold=0.2, y_full=0.7, v_max=0.004, a_max=1.0, ramp_gain=0.0, pred_boost=1.5,
                               shear_gain=1.25e-6, slip_hold=0.1, direction_sign=1.0, asym_tau=20.0, x_min=-0.02,
@@ -71,7 +71,7 @@ def VelocityControllerOld():
 def _windows(data, conditions, paths: str, duration: float) -> None:
     """Gross slips per time window of the runs, for conditions with a friction change: before it,
     its first 1.25 s, and the rest in two halves (does the loop settle on the new contact?)."""
-    from tactile_mirror.loop.envelope import CONDITIONS
+    from tactile_mirror.lab.loop.envelope import CONDITIONS
 
     print("\n| condition | law | peak speed mm/s | paths | gross slips per window (s) | paths still slipping in "
           "the last window |\n|---|---|---|---|---|---|")
@@ -90,20 +90,20 @@ def _windows(data, conditions, paths: str, duration: float) -> None:
 
 
 def main(argv=None):
-    from tactile_mirror.loop.envelope import (
-        _LAWS,
+    from tactile_mirror.lab.loop.envelope import (
         CONDITIONS,
+        LAWS,
         PATH_SETS,
         envelope_figure,
         run_envelope,
     )
-    from tactile_mirror.measure import cpu_model
+    from tactile_mirror.lab.measure import cpu_model
 
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--out", default="bench-out/loop")
     ap.add_argument("--seeds", type=int, default=10)
     ap.add_argument("--speeds", default="2,5,10,20", help="mm/s")
-    ap.add_argument("--laws", default=",".join(_LAWS))
+    ap.add_argument("--laws", default=",".join(LAWS))
     ap.add_argument("--robustness", action="store_true", help="also the robustness conditions")
     ap.add_argument("--robustness-laws", default="default")
     ap.add_argument("--robustness-seeds", type=int, default=None, help="paths per class (default: --seeds)")

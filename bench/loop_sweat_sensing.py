@@ -40,7 +40,6 @@ import argparse
 
 import numpy as np
 import scipy.signal
-
 from _common import header, table
 
 
@@ -52,8 +51,8 @@ def main(argv=None) -> None:
     ap.add_argument("--common-mode", action="store_true", help="also measurement 3 (L + R as a second channel)")
     ap.add_argument("--step-probe", action="store_true", help="also measurement 4 (a small pad step after the drop)")
     args = ap.parse_args(argv)
-    from tactile_mirror.loop.envelope import _laws
-    from tactile_mirror.loop.experiment import _weights_dict, default_weights, still_pad_features
+    from tactile_mirror.lab.loop.envelope import law_controllers
+    from tactile_mirror.lab.loop.experiment import default_weights, still_pad_features, weights_dict
     from tactile_mirror.loop.scene import LoopScene, run_scene
     from tactile_mirror.loop.stage import StageLimits
 
@@ -62,8 +61,8 @@ def main(argv=None) -> None:
     mus = [float(m) for m in args.mu.split(",")]
     offsets = [float(d) * 1e-6 for d in args.offsets.split(",")]
     limits = StageLimits(-0.02, 0.02, 0.03, 1.0)
-    w = _weights_dict(default_weights("fem", fs))
-    laws, design = _laws(w, fs, limits, 0.001, 0.002, n_ridges, "fem")
+    w = weights_dict(default_weights("fem", fs))
+    laws, design = law_controllers(w, fs, limits, 0.001, 0.002, n_ridges, "fem")
     c = design.shear_weights[:, 0]                    # per ridge, on L - R
     per_m = design.asym_per_m                         # the shear signal per metre
     tau = design.controller.asym_tau                  # its integrator's leak, s

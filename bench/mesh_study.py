@@ -31,7 +31,6 @@ thread: run it on a quiet machine.
 from __future__ import annotations
 
 import argparse
-import dataclasses
 import os
 import subprocess
 import time
@@ -42,8 +41,9 @@ os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
 import numpy as np
 import tactile_mirror as tm
 from _common import table, timed
-from tactile_mirror.contact import RidgeGeometry, ridge_model, simulate
-from tactile_mirror.measure import cpu_model, environment
+from tactile_mirror.contact import ridge_model, simulate
+from tactile_mirror.geometry import RidgeGeometry
+from tactile_mirror.lab.measure import cpu_model, environment
 
 FULL_SIZES = (0.4e-3, 0.35e-3, 0.3e-3, 0.25e-3, 0.2e-3, 0.175e-3, 0.15e-3, 0.125e-3, 0.1e-3, 0.075e-3)
 FULL_REFERENCE = 0.05e-3

@@ -4,7 +4,7 @@
 
 Writes ``bench_report.md`` (tables), ``bench_pareto.png`` (one panel per kernel, error
 against run time, Pareto-optimal variants highlighted) and ``bench_report.json`` into
-DIR; see :mod:`tactile_mirror.benchmark` for what is measured.
+DIR; see :mod:`tactile_mirror.lab.benchmark` for what is measured.
 """
 from __future__ import annotations
 

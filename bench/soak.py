@@ -46,7 +46,7 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from _common import table
-from tactile_mirror.measure import cpu_model
+from tactile_mirror.lab.measure import cpu_model
 
 ROOT = Path(__file__).resolve().parents[1]
 FS = 1000.0
@@ -70,7 +70,7 @@ def make_pipeline(v_limit=LIMIT):
     from tactile_mirror import MirrorPipeline, SlipDetector
     from tactile_mirror.circuit import PVDFCircuit
     from tactile_mirror.estimator import StressRateEstimator
-    from tactile_mirror.loop import VelocityController
+    from tactile_mirror.pipeline import VelocityController
 
     det = SlipDetector.paper()  # the net the pre-guard tree (ABI 4) can run too
     est = StressRateEstimator(PVDFCircuit(), FS, 2 * N_RIDGES, use_u=True)
@@ -194,10 +194,10 @@ class CLib:
 
     def __init__(self, lib: Path, header: Path):
         import cffi
-        from tactile_mirror.loop.capi import _cdef_from_header
+        from tactile_mirror.loop.capi import cdef_from_header
 
         self.ffi = cffi.FFI()
-        self.ffi.cdef(_cdef_from_header(header.read_text()) +
+        self.ffi.cdef(cdef_from_header(header.read_text()) +
                       "\ndouble tm_bench_step_loop(tm_pipeline h, const double* x, size_t period, size_t ni,"
                       " double* out, size_t no, long n);")
         self.lib = self.ffi.dlopen(str(lib))

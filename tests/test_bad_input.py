@@ -12,9 +12,8 @@ from tactile_mirror.detector.network import init_params
 from tactile_mirror.detector.weights import DetectorWeights
 from tactile_mirror.estimator import StressRateEstimator
 from tactile_mirror.filters import SosFilter
-from tactile_mirror.loop import PaperController, VelocityController
-from tactile_mirror.loop.controller import NoController, controller_fields
-from tactile_mirror.pipeline import MirrorPipeline, ReferencePipeline
+from tactile_mirror.pipeline import MirrorPipeline, PaperController, ReferencePipeline, VelocityController
+from tactile_mirror.pipeline.controller import NoController, controller_fields
 
 cffi = pytest.importorskip("cffi")
 from tactile_mirror.loop.capi import CAPIError, CPipeline, load, new_config
@@ -522,7 +521,7 @@ def test_signal_paths_refuse_bools_and_name_the_argument():
 
 
 def test_reference_helpers_name_bad_arguments():
-    from tactile_mirror import measure
+    from tactile_mirror.lab import measure
 
     with pytest.raises(ValueError, match="max_shift"):
         measure.rel_rms_aligned(np.ones(10), np.ones(10), max_shift=10)
@@ -588,8 +587,8 @@ def test_noise_densities_beyond_any_part_are_refused(kw):
 def test_seeds_iterations_and_save_folders_are_named_in_their_errors(tmp_path, capsys):
     import tactile_mirror as tm
     from tactile_mirror.cli import main
-    from tactile_mirror.detector.synthetic import synthetic_scene
-    from tactile_mirror.detector.training import make_training_set, train_detector
+    from tactile_mirror.lab.detector.synthetic import synthetic_scene
+    from tactile_mirror.lab.detector.training import make_training_set, train_detector
 
     with pytest.raises(SystemExit):
         main(["evaluate", "--seed", "-5"])
@@ -623,10 +622,10 @@ def test_pipeline_rates_beyond_10_mhz_are_refused_in_python_and_c():
 def test_random_scenes_from_the_cli_and_their_ranges():
     """`simulate --scene random` always failed (its scalar --noise reached a (low, high) range)."""
     from tactile_mirror import scenes
-    from tactile_mirror.cli import _scene_from_args, build_parser
+    from tactile_mirror.cli import build_parser, scene_from_args
 
     args = build_parser().parse_args(["simulate", "--scene", "random", "--friction", "0.5", "--seed", "3"])
-    sc = _scene_from_args(args)
+    sc = scene_from_args(args)
     assert sc.friction == 0.5 and sc.noise == args.noise  # the options given are fixed values
     assert repr(scenes.random(2, seed=7)) == repr(scenes.random(2, seed=7, friction=(0.45, 0.85)))  # as before
     for kw, exc, match in (({"friction": (0.9, 0.4)}, ValueError, "friction"), ({"noise": "ab"}, TypeError, "noise"),
@@ -704,7 +703,7 @@ def test_more_arguments_that_were_taken_silently():
     import tactile_mirror as tm
     from tactile_mirror.contact.model import ridge_model
     from tactile_mirror.contact.pad import Pad
-    from tactile_mirror.measure import rel_max
+    from tactile_mirror.lab.measure import rel_max
 
     with pytest.raises(TypeError, match="use_u must be True or False"):
         tm.StressRateEstimator(PVDFCircuit(), FS, 2, use_u="False")  # (the string was truthy)

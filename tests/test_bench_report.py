@@ -6,7 +6,8 @@ import math
 import numpy as np
 import pytest
 import scipy.signal as ss
-from tactile_mirror.benchmark import (
+from tactile_mirror.cli import main
+from tactile_mirror.lab.benchmark import (
     JSON_NAME,
     KERNELS,
     MD_NAME,
@@ -15,7 +16,6 @@ from tactile_mirror.benchmark import (
     extended_sosfilt,
     pareto_front,
 )
-from tactile_mirror.cli import main
 
 # Documented in jordan_mlp.hpp: the fast sigmoid against scipy.special.expit over 2e6
 # points in [-100, 100].
@@ -206,9 +206,10 @@ def test_cli_bench_unusable_output_fails_before_any_work(tmp_path, capsys):
 
 # ---------------------------------------------------------------- one measuring path
 def test_report_and_measure_functions_give_the_same_errors(quick):
-    """The report's rows come from tactile_mirror.measure: the same function on the same
+    """The report's rows come from tactile_mirror.lab.measure: the same function on the same
     data gives the same errors (the times differ run to run)."""
-    from tactile_mirror import PVDFCircuit, SlipDetector, StressRateEstimator, measure
+    from tactile_mirror import PVDFCircuit, SlipDetector, StressRateEstimator
+    from tactile_mirror.lab import measure
 
     _, report = quick
     sos = ss.butter(4, 0.5, "highpass", fs=10_000.0, output="sos")
@@ -228,7 +229,7 @@ def test_bench_scripts_time_with_the_shared_functions():
     import importlib.util
     import pathlib
 
-    from tactile_mirror import measure
+    from tactile_mirror.lab import measure
 
     path = pathlib.Path(__file__).resolve().parents[1] / "bench" / "_common.py"
     spec = importlib.util.spec_from_file_location("bench_common", path)
@@ -238,7 +239,7 @@ def test_bench_scripts_time_with_the_shared_functions():
 
 
 def test_measure_timing_and_errors():
-    from tactile_mirror import measure
+    from tactile_mirror.lab import measure
 
     ticks = []
     calls = []
@@ -262,13 +263,13 @@ def test_measure_timing_and_errors():
 
 
 def test_place_labels_keeps_labels_apart_and_inside():
-    """The plot helper (tactile_mirror.plots) puts every label where it covers no other
+    """The plot helper (tactile_mirror.lab.plots) puts every label where it covers no other
     label and stays in the axes, for a cluster of points."""
     import matplotlib
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
-    from tactile_mirror.plots import place_labels
+    from tactile_mirror.lab.plots import place_labels
 
     fig, ax = plt.subplots(figsize=(5, 4))
     ax.set_xscale("log")

@@ -1,12 +1,12 @@
 """BuildOptions: what build_default builds, checked on construction; the old keyword
-form of build_default maps onto it with a DeprecationWarning."""
+form of build_default is gone."""
 from __future__ import annotations
 
 import dataclasses
 
 import pytest
-from tactile_mirror.detector import build
-from tactile_mirror.detector.build import (
+from tactile_mirror.lab.detector import build
+from tactile_mirror.lab.detector.build import (
     TEST_KWARGS,
     TRAIN_KWARGS,
     TRAIN_OPTIONS,
@@ -70,24 +70,11 @@ def test_options_call_reaches_the_build_unchanged(captured, tmp_path):
     assert captured[1]["options"] == BuildOptions()
 
 
-def test_old_keyword_and_positional_calls_warn_and_map(captured, tmp_path):
-    with pytest.warns(DeprecationWarning, match="BuildOptions"):
-        build_default(tmp_path / "w.npz", n_hidden=8, candidates=2, report_path="r.txt", gain_range=None)
-    assert captured[0]["options"] == BuildOptions(n_hidden=8, candidates=2, gain_range=None)
-    assert captured[0]["report_path"] == "r.txt"
-    with pytest.warns(DeprecationWarning):
-        build_default(tmp_path / "w.npz", 2, 3, 4, 5, 1, 0, None, None, "f.png")
-    assert captured[1]["options"] == BuildOptions(n_train=2, n_test=3, n_hidden=4, maxiter=5)
-    assert captured[1]["figure_path"] == "f.png"
-    with pytest.raises(TypeError, match="not both"):
-        build_default(tmp_path / "w.npz", BuildOptions(), n_hidden=4)
-    with pytest.raises(TypeError, match="hidden"):
-        build_default(tmp_path / "w.npz", hidden=4)
-    with pytest.raises(TypeError, match="multiple values"):
-        build_default(tmp_path / "w.npz", 2, n_train=3)
-    with pytest.warns(DeprecationWarning), pytest.raises(ValueError, match="n_train"):
-        build_default(tmp_path / "w.npz", n_train=0)
-    assert len(captured) == 2
+def test_build_default_takes_only_options(tmp_path):
+    with pytest.raises(TypeError, match="BuildOptions"):
+        build_default(tmp_path / "w.npz", 2)
+    with pytest.raises(TypeError):
+        build_default(tmp_path / "w.npz", n_hidden=4)  # type: ignore[call-arg]
 
 
 def test_module_command_maps_onto_options(monkeypatch, tmp_path):

@@ -11,8 +11,8 @@ import numpy as np
 import pytest
 from tactile_mirror.circuit import PVDFCircuit
 from tactile_mirror.estimator import StressRateEstimator
-from tactile_mirror.loop import PaperController, VelocityController, header_path, library_path
-from tactile_mirror.pipeline import MirrorPipeline
+from tactile_mirror.loop import header_path, library_path
+from tactile_mirror.pipeline import MirrorPipeline, PaperController, VelocityController
 
 cffi = pytest.importorskip("cffi")
 from tactile_mirror.loop.capi import CAPIError, CPipeline, load, new_config

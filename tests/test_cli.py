@@ -75,11 +75,11 @@ def test_figure10_and_evaluate(tmp_path, capsys):
 @pytest.mark.parametrize("name", ["default", "paper", "bank", "early", "pad", "memory"])
 def test_weights_takes_the_bundled_nets_by_name(name):
     """--weights NAME is SlipDetector.NAME(): the same weights; a path is a file."""
-    from tactile_mirror.cli import BUNDLED_NETS, _load_detector
+    from tactile_mirror.cli import BUNDLED_NETS, load_detector
     from tactile_mirror.detector import SlipDetector
 
     assert name in BUNDLED_NETS
-    got, want = _load_detector(name).weights, getattr(SlipDetector, name)().weights
+    got, want = load_detector(name).weights, getattr(SlipDetector, name)().weights
     assert got.kind == want.kind and got.metadata == want.metadata
     np.testing.assert_array_equal(got.params.pack(), want.params.pack())
 
@@ -105,7 +105,7 @@ def test_loop_rate_other_than_the_detectors_is_refused_before_any_simulation(tmp
                                                                             fs):
     # The pad was calibrated (simulated) at --fs before the pipeline refused the rate;
     # at --fs 1e9 that exhausted the machine's memory. Now nothing is simulated first.
-    from tactile_mirror.loop import experiment
+    from tactile_mirror.lab.loop import experiment
 
     def must_not_run(*a, **k):
         raise AssertionError("the pad was simulated before --fs was checked")
@@ -158,7 +158,7 @@ def test_demo_end_to_end(tmp_path, capsys):
 
 def test_train_maps_its_flags_onto_build_options():
     from tactile_mirror.cli import build_options_from_args
-    from tactile_mirror.detector.build import BuildOptions
+    from tactile_mirror.lab.detector.build import BuildOptions
 
     parser = build_parser()
     # the command's defaults are the bundled detector's

@@ -12,13 +12,12 @@ from tactile_mirror.contact import (
     ContactConvergenceError,
     ContactSolver,
     Pad,
-    RidgeGeometry,
     ridge_model,
     simulate,
-    wide_block,
 )
 from tactile_mirror.contact.solver import BACKENDS
 from tactile_mirror.estimator import estimate_stress_rate
+from tactile_mirror.geometry import RidgeGeometry, wide_block
 
 
 @pytest.fixture(scope="module")

@@ -144,7 +144,8 @@ def test_contact_kernel_under_sanitizers(tmp_path):
     # rejected non-finite positions, cascades failing without iterations and restore()
     # leave the history unchanged (tests/cpp/test_contact.cpp).
     from tactile_mirror import scenes
-    from tactile_mirror.contact import ContactSolver, RidgeGeometry, ridge_model
+    from tactile_mirror.contact import ContactSolver, ridge_model
+    from tactile_mirror.geometry import RidgeGeometry
 
     try:
         exe = build(tmp_path, "test_contact.cpp")

@@ -11,16 +11,14 @@ from tactile_mirror.detector import (
     DetectorWeights,
     Params,
     SlipDetector,
-    TrainingSet,
     WeightsError,
     forward,
     init_params,
     loss_and_grad,
-    make_training_set,
     reference_run,
-    train_detector,
 )
-from tactile_mirror.detector.synthetic import synthetic_scene
+from tactile_mirror.lab.detector import TrainingSet, make_training_set, train_detector
+from tactile_mirror.lab.detector.synthetic import synthetic_scene
 
 core = pytest.importorskip("tactile_mirror._core")
 
@@ -155,13 +153,13 @@ def test_cpp_loss_validation_names_arguments():
 
 @pytest.mark.parametrize("feedback", [True, False])
 def test_cpp_training_objective_with_weight_decay_matches_numpy(feedback):
-    from tactile_mirror.detector.training import _cpp_loss, _loss_weights
+    from tactile_mirror.lab.detector.training import cpp_loss, loss_weights
 
     ts = small_set(2)
     xn = ts.x / ts.x.std(axis=(0, 2))[None, :, None]
-    ws, wp = _loss_weights(ts, 4.0, 10.0)
+    ws, wp = loss_weights(ts, 4.0, 10.0)
     theta = np.random.default_rng(0).normal(size=6 * 5 + 6 * 3 + 2)
-    f_c, g_c = _cpp_loss(xn, ts, ws, wp, 6, 1e-2, feedback, 2)(theta)
+    f_c, g_c = cpp_loss(xn, ts, ws, wp, 6, 1e-2, feedback, 2)(theta)
     f_n, g_n = loss_and_grad(theta, xn, ts.y_slip, ts.y_pred, ws, wp, 4, 6, l2=1e-2, feedback=feedback)
     assert f_c == pytest.approx(f_n, rel=1e-12)
     np.testing.assert_allclose(g_c, g_n, rtol=1e-12, atol=1e-12 * np.abs(g_n).max())
@@ -534,7 +532,7 @@ def test_sigmoid_error_bound(dtype, activation, bound, path):
 
 
 def test_onset_windows_mark_the_first_samples_of_every_slip():
-    from tactile_mirror.detector.training import onset_windows
+    from tactile_mirror.lab.detector.training import onset_windows
 
     y = np.array([[0, 0, 1, 1, 1, 1, 0, 1, 1, 0, 0],
                   [1, 1, 1, 0, 0, 0, 0, 0, 0, 0, 0],
@@ -549,11 +547,11 @@ def test_onset_windows_mark_the_first_samples_of_every_slip():
 
 
 def test_onset_weight_adds_the_window_as_a_class_of_its_own():
-    from tactile_mirror.detector.training import _loss_weights, onset_windows
+    from tactile_mirror.lab.detector.training import loss_weights, onset_windows
 
     ts = small_set(2)
-    base, wp = _loss_weights(ts, 4.0, 10.0)
-    ws, wp2 = _loss_weights(ts, 4.0, 10.0, onset_weight=2.0, onset_window=0.02)
+    base, wp = loss_weights(ts, 4.0, 10.0)
+    ws, wp2 = loss_weights(ts, 4.0, 10.0, onset_weight=2.0, onset_window=0.02)
     win = onset_windows(ts.y_slip, ts.mask, int(round(0.02 * ts.fs)))
     assert win.any()
     np.testing.assert_array_equal(ws[~win], base[~win])  # only the window's samples change
@@ -603,7 +601,7 @@ def test_warm_start_continues_from_the_given_weights():
 
 
 def test_hard_example_weights_mark_near_false_alarms_and_missed_onsets():
-    from tactile_mirror.detector.training import hard_example_weights
+    from tactile_mirror.lab.detector.training import hard_example_weights
 
     y = np.array([[0, 0, 0, 1, 1, 1, 1, 0, 0, 0, 0, 0],
                   [0, 0, 0, 0, 0, 0, 1, 1, 1, 1, 0, 0]], dtype=float)
@@ -631,7 +629,7 @@ def test_hard_example_weights_mark_near_false_alarms_and_missed_onsets():
 
 
 def test_mining_and_sample_weights_refuse_what_would_train_silently_wrong():
-    from tactile_mirror.detector.training import hard_example_weights
+    from tactile_mirror.lab.detector.training import hard_example_weights
 
     ts = small_set(2)
     out = np.full(ts.mask.shape, 0.1)

@@ -408,7 +408,7 @@ def test_bank_kernel_refuses_wrong_shapes():
 def test_training_bank_kind_from_results_records_bank():
     from types import SimpleNamespace
 
-    from tactile_mirror.detector.training import make_training_set, train_detector
+    from tactile_mirror.lab.detector.training import make_training_set, train_detector
 
     x = _signals(n_r=2, n=300)
     t = np.arange(300) / FS
@@ -430,8 +430,8 @@ def test_compressed_training_set_trains_a_net_that_runs_compressed():
     reads its inputs compressed (as the numpy reference of the compressed bank)."""
     from types import SimpleNamespace
 
-    from tactile_mirror.detector.build import BuildOptions
-    from tactile_mirror.detector.training import compress_training_set, make_training_set, train_detector
+    from tactile_mirror.lab.detector.build import BuildOptions
+    from tactile_mirror.lab.detector.training import compress_training_set, make_training_set, train_detector
 
     x = _signals(n_r=2, n=300)
     frac = np.zeros((2, 300))
@@ -555,9 +555,9 @@ def test_bundled_pad_net_loads_runs_like_numpy_and_finds_slips_on_pads():
     """The bundled pad net: a compressed bank with the pad's mean, run by the C++ kernel as
     numpy runs it; on six-ridge pad scenes of a seed no choice has seen it finds most slips
     at its decision point and rarely alarms without one; the pipeline runs it."""
-    from tactile_mirror.detector import build
     from tactile_mirror.detector.data_prep import features_from_result
-    from tactile_mirror.detector.evaluate import roc
+    from tactile_mirror.lab.detector import build
+    from tactile_mirror.lab.detector.roc import roc
 
     det = SlipDetector.pad()
     b = det.weights.bank

@@ -3,10 +3,11 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-from tactile_mirror.detector import SlipDetector, make_training_set, train_detector
-from tactile_mirror.detector.evaluate import ForceRatioDetector, analyse_sequence, evaluate
-from tactile_mirror.detector.figures import figure10, figure10_data
-from tactile_mirror.detector.synthetic import synthetic_scene
+from tactile_mirror.detector import SlipDetector
+from tactile_mirror.lab.detector import make_training_set, train_detector
+from tactile_mirror.lab.detector.evaluation import ForceRatioDetector, analyse_sequence, evaluate
+from tactile_mirror.lab.detector.figures import figure10, figure10_data
+from tactile_mirror.lab.detector.synthetic import synthetic_scene
 
 pytest.importorskip("tactile_mirror._core")
 
@@ -81,7 +82,7 @@ def test_evaluate_reports_all_rows(synthetic_detectors):
 
 
 def test_validation_selection_prefers_fewer_false_alarms(synthetic_detectors):
-    from tactile_mirror.detector.build import ValidationScorer, select_candidate
+    from tactile_mirror.lab.detector.build import ValidationScorer, select_candidate
 
     det, _, _ = synthetic_detectors
     val = [synthetic_scene(seed=3000 + s, n_ridges=1) for s in range(4)]
@@ -107,7 +108,7 @@ def test_validation_selection_prefers_fewer_false_alarms(synthetic_detectors):
 
 
 def test_hidden_size_study_uses_the_build_selection():
-    from tactile_mirror.detector.build import ValidationScorer, hidden_size_study, train_selected
+    from tactile_mirror.lab.detector.build import ValidationScorer, hidden_size_study, train_selected
 
     ts = make_training_set([synthetic_scene(seed=s, n_ridges=1, duration=1.2) for s in range(2)])
     scorer = ValidationScorer([synthetic_scene(seed=50 + s, n_ridges=1, duration=1.2) for s in range(2)])
@@ -204,7 +205,7 @@ def test_load_ratio_target_follows_the_tangential_load(paper_results):
 
 
 def test_augment_noise_copies(paper_results):
-    from tactile_mirror.detector import augment_noise
+    from tactile_mirror.lab.detector import augment_noise
 
     r = paper_results["fig7"]
     a = augment_noise([r], copies=3, noise=(1e-3, 2e-3), seed=4)
@@ -227,7 +228,7 @@ def test_augment_noise_copies(paper_results):
 def test_onset_kinds_and_detection_by_onset(paper_results, default_detector):
     import tactile_mirror
     from tactile_mirror import scenes
-    from tactile_mirror.detector.evaluate import detection_by_onset, onset_kinds
+    from tactile_mirror.lab.detector.evaluation import detection_by_onset, onset_kinds
 
     no_slip = tactile_mirror.simulate(scenes.paper("fig6", duration=1.0))
     # fig6 ends in a release of stored shear (the -1e8 Pa/s^2 spike of Fig. 10a)
@@ -294,8 +295,8 @@ def test_calibrate_slip_moves_the_decision_point_exactly(paper_results):
     """calibrate_slip shifts y_slip's output bias only: the calibrated net's y_slip >= 0.8
     alarms on exactly the samples where the original's y_slip reaches the threshold it
     found, y_pred is untouched, and the calibration is recorded."""
-    from tactile_mirror.detector.build import calibrate_slip
     from tactile_mirror.detector.data_prep import features_from_result
+    from tactile_mirror.lab.detector.build import calibrate_slip
 
     bank = SlipDetector.bank()
     before = (bank.weights.params.b2.copy(), dict(bank.weights.metadata.get("slip_calibration") or {}))
@@ -323,16 +324,16 @@ def test_calibration_per_condition_keeps_every_condition_within_its_bound(paper_
     condition's false alarms on the validation scenes within its own bound: the largest of
     the per-condition thresholds, recomputed here from the same noisy copies; uncalibrate
     gives the net as trained back, bit for bit."""
-    from tactile_mirror.detector.build import calibrate_slip, uncalibrate
     from tactile_mirror.detector.data_prep import features_from_result
-    from tactile_mirror.detector.evaluate import (
+    from tactile_mirror.lab.detector.build import calibrate_slip, uncalibrate
+    from tactile_mirror.lab.detector.evaluation import (
         NOISE_CONDITIONS,
         condition_estimator,
         noise_free,
         onset_kinds,
-        roc,
         with_noise,
     )
+    from tactile_mirror.lab.detector.roc import roc
 
     bank = SlipDetector.bank()
     raw = uncalibrate(bank.weights)
@@ -370,7 +371,7 @@ def test_calibration_per_condition_keeps_every_condition_within_its_bound(paper_
 def test_noise_conditions_add_what_they_name(paper_results):
     """noise_free removes a scene's own noise (its stresses through its circuit);
     with_noise adds the condition's noise, seeded: white 1 mV rms on both outputs."""
-    from tactile_mirror.detector.evaluate import noise_free, with_noise
+    from tactile_mirror.lab.detector.evaluation import noise_free, with_noise
 
     r = paper_results["fig6"]
     clean = noise_free([r])[0]
@@ -395,7 +396,7 @@ def test_noise_conditions_add_what_they_name(paper_results):
 
 
 def test_build_options_check_the_calibration_conditions():
-    from tactile_mirror.detector.build import BuildOptions
+    from tactile_mirror.lab.detector.build import BuildOptions
 
     o = BuildOptions(calibrate_conditions={"noise-free": 0.015, "1 mV rms white": 0.025})
     assert o.calibrate_conditions == {"noise-free": 0.015, "1 mV rms white": 0.025}
@@ -411,7 +412,7 @@ def test_build_options_check_the_calibration_conditions():
 
 @pytest.mark.parametrize("bad", [0.0, 1.0, -0.1, True, "0.02"])
 def test_build_options_refuse_a_bad_calibration_rate(bad):
-    from tactile_mirror.detector.build import BuildOptions
+    from tactile_mirror.lab.detector.build import BuildOptions
 
     with pytest.raises(ValueError, match="calibrate_fa"):
         BuildOptions(calibrate_fa=bad)
@@ -422,9 +423,9 @@ def test_build_options_refuse_a_bad_calibration_rate(bad):
 def test_scorer_at_false_alarm_scores_the_curve_not_the_threshold(synthetic_detectors):
     """A net calibrated afterwards is scored by its curve: shifting y_slip's bias moves the
     threshold-0.8 score but not the detection at a false-alarm rate."""
-    from tactile_mirror.detector.build import ValidationScorer
     from tactile_mirror.detector.data_prep import features_from_result
-    from tactile_mirror.detector.evaluate import roc
+    from tactile_mirror.lab.detector.build import ValidationScorer
+    from tactile_mirror.lab.detector.roc import roc
 
     det, _, _ = synthetic_detectors
     val = [synthetic_scene(seed=3000 + s, n_ridges=1) for s in range(4)]
@@ -455,8 +456,8 @@ def test_uncalibrate_undoes_a_threshold_only_record():
     import copy
 
     import tactile_mirror as tm
-    from tactile_mirror.detector.build import uncalibrate
     from tactile_mirror.detector.data_prep import features_from_result
+    from tactile_mirror.lab.detector.build import uncalibrate
 
     pad = SlipDetector.pad()
     t = pad.weights.metadata["slip_calibration"]["threshold"]
@@ -483,9 +484,15 @@ def test_validation_scorer_in_sensor_conditions_scores_their_curves(paper_result
     """ValidationScorer(conditions=...) scores the threshold sweep in each named condition
     (the scenes' noise-free outputs plus the condition's noise, seeded noise_seed + its place),
     recomputed here from the same noisy copies; the score is the mean detection over them."""
-    from tactile_mirror.detector.build import BuildOptions, ValidationScorer
     from tactile_mirror.detector.data_prep import features_from_result
-    from tactile_mirror.detector.evaluate import condition_estimator, noise_free, onset_kinds, roc, with_noise
+    from tactile_mirror.lab.detector.build import BuildOptions, ValidationScorer
+    from tactile_mirror.lab.detector.evaluation import (
+        condition_estimator,
+        noise_free,
+        onset_kinds,
+        with_noise,
+    )
+    from tactile_mirror.lab.detector.roc import roc
 
     bank = SlipDetector.bank()
     val = [paper_results["fig6"], paper_results["fig7"], paper_results["fig8"]]

@@ -224,7 +224,7 @@ def test_memory_metadata_json():
 
 
 def test_build_options_kind_and_load_tau():
-    from tactile_mirror.detector.build import BuildOptions
+    from tactile_mirror.lab.detector.build import BuildOptions
 
     assert BuildOptions(kind="jordan_memory").kind == "jordan_memory"
     with pytest.raises(ValueError, match="kind"):
@@ -236,7 +236,7 @@ def test_build_options_kind_and_load_tau():
 def test_training_memory_kind_from_results_records_tau():
     from types import SimpleNamespace
 
-    from tactile_mirror.detector.training import make_training_set, train_detector
+    from tactile_mirror.lab.detector.training import make_training_set, train_detector
 
     x = _signals(n_r=2, n=300)
     t = np.arange(300) / FS

@@ -12,7 +12,7 @@ from tactile_mirror.estimator import (
     equalizer_sos,
     estimate_stress_rate,
 )
-from tactile_mirror.testing import known_load
+from tactile_mirror.lab.testing import known_load
 
 FAST = settings(max_examples=25, deadline=None)
 

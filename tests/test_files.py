@@ -222,7 +222,7 @@ def test_interrupted_figure_save_keeps_the_old_figure(tmp_path):
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
-    from tactile_mirror import plots
+    from tactile_mirror.lab import plots
 
     path = tmp_path / "fig.png"
     fig, ax = plt.subplots()
@@ -249,7 +249,7 @@ def test_report_and_figure_writes_in_the_build_are_atomic():
     """The detector build writes its report and figure through the atomic helpers."""
     import inspect
 
-    from tactile_mirror.detector import build
+    from tactile_mirror.lab.detector import build
 
     src = inspect.getsource(build)
     assert "write_text(" in src and "save_figure(" in src
@@ -273,7 +273,7 @@ def test_simulate_out_is_written_exactly_where_named(tmp_path, capsys):
 @pytest.mark.parametrize("where", ["folder", "parent is a file", "report is a folder"])
 def test_train_with_an_unwritable_out_fails_before_training(tmp_path, capsys, monkeypatch, where):
     from tactile_mirror import cli
-    from tactile_mirror.detector import build
+    from tactile_mirror.lab.detector import build
 
     def no_training(*args, **kwargs):
         raise AssertionError("training started")

@@ -7,9 +7,9 @@ import numpy as np
 import pytest
 from tactile_mirror.circuit import PVDFCircuit
 from tactile_mirror.estimator import StressRateEstimator
-from tactile_mirror.loop import PaperController, StageLimits, VelocityController
+from tactile_mirror.loop import StageLimits
 from tactile_mirror.loop.design import design_loop, loop_response
-from tactile_mirror.pipeline import MirrorPipeline, ReferencePipeline
+from tactile_mirror.pipeline import MirrorPipeline, PaperController, ReferencePipeline, VelocityController
 
 FS = 1000.0
 STAGE = StageLimits(-0.02, 0.02, 0.03, 1.0)
@@ -158,12 +158,12 @@ def test_design_on_a_load_cell_has_no_estimator_delay():
 def sweat_runs():
     """One finger path (seed 7000: in no tuning or reported set), friction 0.76 -> 0.45 under
     load at 1.75 s: the default law on the strips and on a load cell."""
-    from tactile_mirror.loop.envelope import _laws
-    from tactile_mirror.loop.experiment import _weights_dict, default_weights
+    from tactile_mirror.lab.loop.envelope import law_controllers
+    from tactile_mirror.lab.loop.experiment import default_weights, weights_dict
     from tactile_mirror.loop.scene import LoopScene, run_scene
 
-    w = _weights_dict(default_weights("fem"))
-    laws, design = _laws(w, FS, STAGE, 0.001, 0.002, 6, "fem", load_cell=True)
+    w = weights_dict(default_weights("fem"))
+    laws, design = law_controllers(w, FS, STAGE, 0.001, 0.002, 6, "fem", load_cell=True)
     traj = {"amplitude": 10e-3, "bandwidth": 2.0, "v_max": 0.01, "a_max": 0.5}
     runs = {}
     for name in ("default", "load cell"):
@@ -189,10 +189,10 @@ def test_the_load_cell_design_predicts_its_closed_loop_error():
     """The force design's linear prediction e = S x_finger against the FEM closed loop on a
     load cell, within 30 % (as the strips' design is tested), on a path faster than any tuning
     path (25 mm/s peak, seed 5000: in no tuning or reported set)."""
-    from tactile_mirror.loop.experiment import _weights_dict, calibrate_shear, default_weights
+    from tactile_mirror.lab.loop.experiment import calibrate_shear, default_weights, weights_dict
     from tactile_mirror.loop.scene import LoopScene, run_scene
 
-    w = _weights_dict(default_weights("fem"))
+    w = weights_dict(default_weights("fem"))
     d = design_loop(STAGE, calibrate_shear(w, FS, 6, plant="fem", load_cell=True), FS, stage_delay=0.001,
                     stage_lag=0.002, sensor="force")
     sc = LoopScene(seed=5000, duration=2.0, plant="fem", load_cell=True,

@@ -8,16 +8,13 @@ from tactile_mirror.estimator import StressRateEstimator
 from tactile_mirror.loop import (
     ArraySource,
     LoopRunner,
-    PaperController,
     Recording,
     RecordingError,
     SimulatedStage,
     Stage,
     StageLimits,
-    VelocityController,
-    controller_from_dict,
 )
-from tactile_mirror.pipeline import MirrorPipeline
+from tactile_mirror.pipeline import MirrorPipeline, PaperController, VelocityController, controller_from_dict
 
 FS = 1000.0
 

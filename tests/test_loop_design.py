@@ -9,9 +9,9 @@ import numpy as np
 import pytest
 from tactile_mirror.circuit import PVDFCircuit
 from tactile_mirror.estimator import StressRateEstimator
-from tactile_mirror.loop import StageLimits, VelocityController
+from tactile_mirror.loop import StageLimits
 from tactile_mirror.loop.design import LoopDesign, design_loop, loop_response
-from tactile_mirror.pipeline import MirrorPipeline, ReferencePipeline
+from tactile_mirror.pipeline import MirrorPipeline, ReferencePipeline, VelocityController
 
 FS = 1000.0
 STAGE = StageLimits(-0.02, 0.02, 0.03, 1.0)
@@ -163,10 +163,10 @@ def fem_fast_run():
     path (tuning: peak 20 mm/s, <= 0.30 m/s^2, 1.5 Hz band; this one: 25 mm/s, 0.14 m/s^2,
     1 Hz band, seed 5000, in neither the tuning nor the reported set). The type-2 law's error
     follows the finger's acceleration, not its speed."""
-    from tactile_mirror.loop.experiment import _weights_dict, calibrate_shear, default_weights
+    from tactile_mirror.lab.loop.experiment import calibrate_shear, default_weights, weights_dict
     from tactile_mirror.loop.scene import LoopScene, run_scene
 
-    w = _weights_dict(default_weights("fem"))
+    w = weights_dict(default_weights("fem"))
     cal = calibrate_shear(w, FS, 6, plant="fem")
     d = design_loop(STAGE, cal, FS, stage_delay=0.001, stage_lag=0.002)
     sc = LoopScene(seed=5000, duration=2.0, plant="fem",
@@ -252,7 +252,7 @@ def test_loop_command_rejects_bad_options(argv, match, capsys):
 
 
 def test_envelope_table_sums_per_class():
-    from tactile_mirror.loop.envelope import envelope_table
+    from tactile_mirror.lab.loop.envelope import envelope_table
 
     rows = [{"paths": "report", "condition": "nominal", "law": "default", "speed": 0.02, "seed": s,
              "gross_slips": g, "tracking_rms_mm": t, "finger_peak_acceleration": 0.3, "settle_s": 0.0,
@@ -315,14 +315,14 @@ def test_shear_weights_are_checked(bad, match):
 def test_calibrated_shear_signal_stays_monotonic_beyond_the_plain_difference():
     # The pad alone (no finger path): the calibrated weights, then a slow push of the finger
     # each way; the shear signal's range of monotonic growth against L - R's.
-    from tactile_mirror.loop.experiment import (
-        _weights_dict,
+    from tactile_mirror.lab.loop.experiment import (
         calibrate_shear_weights,
         default_weights,
         still_pad_features,
+        weights_dict,
     )
 
-    w = _weights_dict(default_weights("fem", FS))
+    w = weights_dict(default_weights("fem", FS))
     sw = calibrate_shear_weights(w, FS)
     assert sw.shape == (6, 2) and np.array_equal(sw[:, 1], -sw[:, 0])
     # mostly the inner (most loaded) ridges
@@ -476,7 +476,7 @@ def test_envelope_rows_record_when_each_gross_slip_starts(tmp_path):
     """run_envelope's rows carry the start time of every gross slip they count (what the
     sweat study's windows are counted from): as many as gross_slips, in order, on whole ticks,
     after the press (the finger rests for the first 0.5 s) and within the run."""
-    from tactile_mirror.loop.envelope import REPORT_PATHS, run_envelope
+    from tactile_mirror.lab.loop.envelope import REPORT_PATHS, run_envelope
 
     data = run_envelope(str(tmp_path / "env.json"), speeds=(0.02,), n_seeds=1, laws=("open loop",),
                         paths=REPORT_PATHS, duration=1.5, progress=False)

@@ -3,19 +3,16 @@ runs, the experiment's options, and the names that moved out of the experiment m
 from __future__ import annotations
 
 import dataclasses
-import warnings
 
 import numpy as np
 import pytest
-import tactile_mirror
-from tactile_mirror.circuit import PVDFCircuit
 from tactile_mirror.contact.brush import BrushRidges
-from tactile_mirror.contact.plants import ContactPlant
-from tactile_mirror.loop import VelocityController, experiment
-from tactile_mirror.loop.experiment import ExperimentOptions, calibrate_direction, run_experiment
+from tactile_mirror.lab.loop import experiment
+from tactile_mirror.lab.loop.experiment import ExperimentOptions, calibrate_direction, run_experiment
 from tactile_mirror.loop.finger import finger_trajectory, pressed_finger_path
 from tactile_mirror.loop.scene import LoopScene as Scene
-from tactile_mirror.loop.scene import gross_slip_events, gross_slip_starts, make_plant, run_scene, scene_finger
+from tactile_mirror.loop.scene import gross_slip_events, gross_slip_starts, run_scene
+from tactile_mirror.pipeline import VelocityController
 
 FS = 1000.0
 
@@ -107,7 +104,7 @@ def test_short_open_and_closed_runs():
 
 def test_fem_pad_plant_short_closed_loop():
     pytest.importorskip("skfem")
-    from tactile_mirror.loop.experiment import PLANTS, calibrate_shear
+    from tactile_mirror.lab.loop.experiment import PLANTS, calibrate_shear
 
     w = weights()
     sign, a_per_m = calibrate_shear(w, FS, n_ridges=2, plant="fem")
@@ -122,105 +119,6 @@ def test_fem_pad_plant_short_closed_loop():
     assert np.ptp(r.stage) > 0
 
 
-def test_moved_names_warn_and_resolve_to_their_new_home():
-    import importlib
-
-    for name, (module, new) in experiment._MOVED.items():
-        with pytest.warns(DeprecationWarning, match=f"{module}.{new}"):
-            old = getattr(experiment, name)
-        assert old is getattr(importlib.import_module(module), new), name
-    with pytest.warns(DeprecationWarning, match="LoopScene"):
-        from tactile_mirror.loop.experiment import Scene as OldScene
-    assert OldScene is Scene and OldScene is not tactile_mirror.Scene
-    with pytest.raises(AttributeError, match="no_such_name"):
-        experiment.no_such_name  # noqa: B018
-    with warnings.catch_warnings():
-        warnings.simplefilter("error")  # the names that stay do not warn
-        for name in experiment.__all__:
-            getattr(experiment, name)
-
-
-def test_brush_plant_has_the_plant_interface():
-    plant = BrushRidges(n_ridges=3)
-    assert isinstance(plant, ContactPlant)
-    st = plant.advance(1e-4)
-    assert st.stress.shape == (3, 2) and st.slip_fraction.shape == (3,)
-    plant.set_mu(0.5)
-    assert np.all(plant.mu == 0.5)
-
-
-def test_fem_plant_has_the_plant_interface():
-    pytest.importorskip("skfem")
-    from tactile_mirror.contact.plants import FemPad
-
-    plant = FemPad(n_ridges=1, fs=FS)
-    assert isinstance(plant, ContactPlant)
-    plant.set_mu([0.4, 0.6])
-    assert plant.mu == pytest.approx(0.5)
-    st = plant.advance(0.0)
-    assert st.stress.shape == (1, 2) and st.force_z > 0
-
-
-def test_run_scene_takes_a_given_finger_path():
-    """A recorded (here: generated elsewhere) finger path replaces the scene's own, tick for
-    tick; the run lasts as long as it; a bad one is refused by name."""
-    sc = Scene(seed=3, duration=0.6)
-    own = run_scene(sc, weights(), None)
-    path = scene_finger(Scene(seed=9, duration=0.3))
-    r = run_scene(sc, weights(), None, finger=path)
-    np.testing.assert_array_equal(r.finger, path)
-    assert r.t.size == path.size and r.tracking_max == pytest.approx(np.abs(path).max())
-    assert not np.array_equal(r.finger, own.finger[: path.size])
-    for bad in (np.zeros((2, 5)), np.array([]), np.array([0.0, np.nan])):
-        with pytest.raises(ValueError, match="finger"):
-            run_scene(sc, weights(), None, finger=bad)
-    # a plant of its own replaces the scene's; one with another ridge count is refused
-    from tactile_mirror.contact.brush import BrushRidges
-
-    slippery = [run_scene(sc, weights(), None, finger=path, plant=BrushRidges(6, mu=0.3)) for _ in range(2)]
-    np.testing.assert_array_equal(slippery[0].log["force_y"], slippery[1].log["force_y"])
-    assert not np.array_equal(slippery[0].log["force_y"], run_scene(sc, weights(), None, finger=path).log["force_y"])
-    with pytest.raises(ValueError, match="n_ridges"):
-        run_scene(sc, weights(), None, finger=path, plant=make_plant(sc, 3))
-
-
-def test_pressed_finger_path_rests_then_follows_the_trajectory():
-    y = pressed_finger_path(5, 1.5, FS, press=0.5, amplitude=1e-3)
-    assert np.all(y[:500] == 0.0)
-    np.testing.assert_array_equal(y[500:], finger_trajectory(5, 1.0, FS, amplitude=1e-3))
-    np.testing.assert_array_equal(pressed_finger_path(5, 1.0, FS), finger_trajectory(5, 1.0, FS))
-
-
-def test_loop_signals_are_the_circuit_stream_of_the_plant_loads():
-    """Open loop, no noise: the source's v_out/u_out are the circuit's streaming form run
-    offline over the plant's change of load, bit for bit."""
-    sc = Scene(seed=4, duration=0.4)
-    r = run_scene(sc, weights(), None)
-    plant = make_plant(sc)
-    loads = np.stack([plant.advance(y).stress.reshape(-1) for y in scene_finger(sc)], axis=-1)  # (12, n)
-    loads = loads - loads[:, :1]
-    v, u = PVDFCircuit().stream(FS, 12).process_load(loads)
-    np.testing.assert_array_equal(r.log["v_out"], v.reshape(6, 2, -1))
-    np.testing.assert_array_equal(r.log["u_out"], u.reshape(6, 2, -1))
-
-
-@pytest.mark.parametrize("field,value,exc,match", [
-    ("plant", "rubber", ValueError, "plant"),
-    ("duration", -1.0, ValueError, "duration"),
-    ("fs", float("nan"), ValueError, "fs"),
-    ("seeds", [0, True], TypeError, "seeds"),
-    ("seeds", 3, TypeError, "seeds"),
-    ("seeds", [], ValueError, "seeds must hold at least one seed"),  # (ran, and wrote empty tables)
-    ("seeds", [0, -1], ValueError, "seeds must be non-negative"),  # (refused only by the first scene)
-    ("seeds", [np.True_], TypeError, "seeds"),
-    ("robustness_seeds", -1, ValueError, "robustness_seeds"),
-    ("robustness", "yes", TypeError, "robustness"),
-])
-def test_experiment_options_name_the_bad_field(field, value, exc, match):
-    with pytest.raises(exc, match=match):
-        ExperimentOptions(**{field: value})
-
-
 def test_experiment_options_are_frozen_and_normalised():
     o = ExperimentOptions(seeds=range(3), duration=1, plant="fem")
     assert o.seeds == (0, 1, 2) and isinstance(o.duration, float)
@@ -228,22 +126,15 @@ def test_experiment_options_are_frozen_and_normalised():
         o.plant = "brush"  # type: ignore[misc]
 
 
-def test_run_experiment_old_keywords_warn_and_give_the_same_result():
+def test_run_experiment_takes_options():
     w = weights()
     opts = ExperimentOptions(seeds=(1,), duration=0.3, robustness=False)
     new = run_experiment(opts, weights=w)
-    with pytest.warns(DeprecationWarning, match="ExperimentOptions"):
-        old_kw = run_experiment(seeds=[1], duration=0.3, weights=w, robustness=False)
-    with pytest.warns(DeprecationWarning, match="ExperimentOptions"):
-        old_pos = run_experiment([1], 0.3, 1000.0, w, None, False)
-    assert new["rows"] == old_kw["rows"] == old_pos["rows"]
     assert new["rows"][0]["controller"] == "open loop" and len(new["rows"]) == 5
-    with pytest.raises(TypeError, match="not both"):
-        run_experiment(opts, duration=1.0)
-    with pytest.raises(TypeError, match="nope"):
-        run_experiment(nope=1)
-    with pytest.warns(DeprecationWarning), pytest.raises(ValueError, match="plant"):
-        run_experiment(plant="rubber")
+    with pytest.raises(TypeError, match="ExperimentOptions"):
+        run_experiment([1])
+    with pytest.raises(TypeError):
+        run_experiment(nope=1)  # type: ignore[call-arg]
 
 
 def test_experiment_command_line_maps_onto_the_options():

@@ -6,11 +6,11 @@ import numpy as np
 import pytest
 from tactile_mirror.circuit import PVDFCircuit
 from tactile_mirror.contact.plants import FemPad
-from tactile_mirror.loop.controller import NoController
-from tactile_mirror.loop.experiment import PLANTS, default_weights
+from tactile_mirror.lab.loop.experiment import PLANTS, default_weights
 from tactile_mirror.loop.runner import LoopRunner
 from tactile_mirror.loop.scene import LoopScene, PlantSource, loop_pipeline, scene_finger
 from tactile_mirror.loop.stage import SimulatedStage
+from tactile_mirror.pipeline.controller import NoController
 
 pytest.importorskip("skfem")
 
@@ -50,8 +50,8 @@ def test_pacing_does_not_change_the_run():
 
 
 def test_realtime_pad_is_the_fem_pad_at_coarser_contact_elements():
-    from tactile_mirror.contact import RidgeGeometry
     from tactile_mirror.contact.plants import REALTIME_CONTACT_MESH_SIZE
+    from tactile_mirror.geometry import RidgeGeometry
 
     rt, default = FemPad.realtime(3, fs=1000.0), FemPad(3, fs=1000.0)
     g_rt, g_def = rt.pad.model.geometry, default.pad.model.geometry

@@ -1,7 +1,8 @@
 """Mesh size and the strips' stress reading: what ``bench/mesh_study.py`` measures, in small."""
 import numpy as np
 import pytest
-from tactile_mirror.contact import ContactSolver, RidgeGeometry, ridge_model
+from tactile_mirror.contact import ContactSolver, ridge_model
+from tactile_mirror.geometry import RidgeGeometry
 
 
 def strip_stresses(g):

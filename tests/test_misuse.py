@@ -13,8 +13,9 @@ import numpy as np
 import pytest
 import tactile_mirror as tm
 from scipy import signal
-from tactile_mirror.contact import ContactSolver, Pad, RidgeGeometry, ridge_model
+from tactile_mirror.contact import ContactSolver, Pad, ridge_model
 from tactile_mirror.detector.weights import DetectorWeights, WeightsError
+from tactile_mirror.geometry import RidgeGeometry
 
 
 def _rates(n_ridges, n, seed=0):
@@ -269,7 +270,7 @@ def test_a_status_cycle_at_high_friction_ends_in_both_backends(model, monkeypatc
 def test_onset_kinds_checks_its_window_and_level_first():
     """A window that is not a pair, reversed or NaN was a TypeError or numpy's "zero-size
     array" deep inside; now the window is checked before any result is read."""
-    from tactile_mirror.detector.evaluate import onset_kinds
+    from tactile_mirror.lab.detector.evaluation import onset_kinds
 
     for window, exc in ((5, TypeError), ("ab", TypeError), ((0.005, -0.003), ValueError),
                         ((float("nan"), 0.0), ValueError), ((0.001, 0.005), ValueError),
@@ -287,7 +288,7 @@ def test_force_ratio_fit_refuses_what_it_cannot_fit_on():
     tangential load an IndexError."""
     from types import SimpleNamespace
 
-    from tactile_mirror.detector.evaluate import ForceRatioDetector
+    from tactile_mirror.lab.detector.evaluation import ForceRatioDetector
 
     with pytest.raises(ValueError, match="results must not be empty"):
         ForceRatioDetector.fit([])
@@ -312,7 +313,7 @@ def test_force_ratio_fit_refuses_what_it_cannot_fit_on():
     ({"noise": (0.0, 1e-3, 2e-3)}, ValueError, "noise"), ({"noise": (2e-3, 1e-3)}, ValueError, "noise"),
 ])
 def test_augment_noise_names_a_bad_count_or_range(kwargs, exc, name):
-    from tactile_mirror.detector.training import augment_noise
+    from tactile_mirror.lab.detector.training import augment_noise
 
     with pytest.raises(exc, match=name):
         augment_noise([object()], **kwargs)  # (refused before the result is read)
@@ -324,14 +325,14 @@ def test_augment_noise_names_a_bad_count_or_range(kwargs, exc, name):
     ((True, 2.0), TypeError),
 ])
 def test_augment_gains_names_a_bad_range(gain_range, exc):
-    from tactile_mirror.detector.training import augment_gains
+    from tactile_mirror.lab.detector.training import augment_gains
 
     with pytest.raises(exc, match="gain_range"):
         augment_gains(object(), gain_range)
 
 
 def test_augment_gains_names_what_is_not_a_training_set():
-    from tactile_mirror.detector.training import augment_gains
+    from tactile_mirror.lab.detector.training import augment_gains
 
     with pytest.raises(TypeError, match="ts must be a TrainingSet"):
         augment_gains(None, (0.6, 1.7))
@@ -344,9 +345,9 @@ def test_figures_refuse_a_ridge_the_result_has_not(tmp_path):
     from types import SimpleNamespace
 
     import matplotlib.pyplot as plt
-    from tactile_mirror.detector.figures import figure10, figure10_data
-    from tactile_mirror.loop.figures import loop_figure
-    from tactile_mirror.plots import contact_scene_figure
+    from tactile_mirror.lab.detector.figures import figure10, figure10_data
+    from tactile_mirror.lab.loop.figures import loop_figure
+    from tactile_mirror.lab.plots import contact_scene_figure
 
     n = 50
     contact = SimpleNamespace(v_out=np.zeros((2, 2, n)), u_out=np.zeros((2, 2, n)), slip_fraction=np.zeros((2, n)))
@@ -397,7 +398,7 @@ def test_a_pad_or_scene_of_more_ridges_than_a_finger_covers_is_refused_by_name(m
 def test_build_command_line_refuses_bad_arguments_with_a_usage_line(argv, option, monkeypatch, capsys):
     """Bad arguments were a traceback (ValueError from BuildOptions, or from the training
     after the scenes were simulated); now argparse's usage line, exit status 2, nothing run."""
-    from tactile_mirror.detector import build
+    from tactile_mirror.lab.detector import build
 
     def never(*args, **kwargs):
         raise AssertionError("the build ran")
@@ -411,18 +412,13 @@ def test_build_command_line_refuses_bad_arguments_with_a_usage_line(argv, option
     assert err.startswith("usage:") and f"error: argument {option}" in err and "Traceback" not in err
 
 
-# ------------------------------------------------------------------ the evaluate module and function
-def test_detector_evaluate_is_the_function_and_its_module_is_reachable():
-    """``tactile_mirror.detector.evaluate`` is the function (public API); the module behind
-    it is reached as its docstring says."""
+# ------------------------------------------------------------------ the evaluation module and its function
+def test_evaluation_module_is_not_hidden_by_its_function():
     import importlib
-    import sys
     import types
 
-    from tactile_mirror import detector
-    from tactile_mirror.detector.evaluate import roc
+    from tactile_mirror.lab import detector
 
-    module = importlib.import_module("tactile_mirror.detector.evaluate")
-    assert isinstance(module, types.ModuleType) and module is sys.modules["tactile_mirror.detector.evaluate"]
-    assert module.roc is roc and detector.evaluate is module.evaluate is tm.evaluate
-    assert "importlib.import_module" in module.__doc__ and "import_module" in detector.__doc__
+    module = importlib.import_module("tactile_mirror.lab.detector.evaluation")
+    assert isinstance(module, types.ModuleType) and detector.evaluation is module
+    assert detector.evaluate is module.evaluate

@@ -13,8 +13,8 @@ import pytest
 from tactile_mirror.circuit import PVDFCircuit
 from tactile_mirror.cli import main
 from tactile_mirror.estimator import StressRateEstimator
-from tactile_mirror.loop import ArraySource, LoopRunner, PaperController, SimulatedStage, StageError
-from tactile_mirror.pipeline import MirrorPipeline
+from tactile_mirror.loop import ArraySource, LoopRunner, SimulatedStage, StageError
+from tactile_mirror.pipeline import MirrorPipeline, PaperController
 
 FS = 1000.0
 
@@ -185,9 +185,10 @@ def _must_not_run(*args, **kwargs):
 @pytest.fixture
 def no_loop_work(monkeypatch):
     from tactile_mirror.contact import plants
-    from tactile_mirror.loop import envelope, experiment, scene
+    from tactile_mirror.lab.loop import envelope, experiment
+    from tactile_mirror.loop import scene
 
-    for module, name in ((envelope, "_design"), (envelope, "_laws"), (envelope, "run_envelope"),
+    for module, name in ((envelope, "design_law"), (envelope, "law_controllers"), (envelope, "run_envelope"),
                          (experiment, "calibrate_shear_weights"), (experiment, "calibrate_shear"),
                          (scene, "run_scene"), (plants, "FemPad")):
         monkeypatch.setattr(module, name, _must_not_run)
@@ -219,7 +220,8 @@ def fake_envelope(monkeypatch):
     """run_envelope with the design and every scene faked: counts the scenes run."""
     from types import SimpleNamespace
 
-    from tactile_mirror.loop import envelope, scene
+    from tactile_mirror.lab.loop import envelope
+    from tactile_mirror.loop import scene
 
     calls = []
     design = SimpleNamespace(summary=lambda: {"fake": True}, shear_weights=None, controller=None)
@@ -237,13 +239,13 @@ def fake_envelope(monkeypatch):
         summary = {"gross_slips": 0, "gross_slip_time_s": 0.0, "tracking_rms_mm": 0.5, "tracking_max_mm": 1.0}
         return SimpleNamespace(t=t, finger=finger, log=log, summary=lambda: summary)
 
-    monkeypatch.setattr(envelope, "_laws", laws)
+    monkeypatch.setattr(envelope, "law_controllers", laws)
     monkeypatch.setattr(scene, "run_scene", run_scene)
     return calls
 
 
 def _envelope(path, **kw):
-    from tactile_mirror.loop.envelope import run_envelope
+    from tactile_mirror.lab.loop.envelope import run_envelope
 
     return run_envelope(path, speeds=(0.005,), n_seeds=2, laws=("open loop",), duration=1.0, weights={},
                         progress=False, **kw)
@@ -299,7 +301,7 @@ def test_an_unwritable_results_file_is_found_before_the_design(tmp_path, fake_en
 def fake_simulation(monkeypatch):
     """simulate_cached with the simulation faked (tiny real SimulationResults); counts the simulations."""
     from tactile_mirror.contact.simulate import SimulationResult
-    from tactile_mirror.detector import build
+    from tactile_mirror.lab.detector import build
 
     calls = []
 
@@ -320,7 +322,7 @@ def _only_file(folder):
 
 @pytest.mark.parametrize("damage", ["truncated", "empty", "dict", "short list", "foreign items"])
 def test_a_damaged_cache_file_is_a_miss_that_is_replaced(damage, tmp_path, fake_simulation):
-    from tactile_mirror.detector.build import simulate_cached
+    from tactile_mirror.lab.detector.build import simulate_cached
 
     first = simulate_cached(3, 7, {"duration": 1.0}, tmp_path, progress=False)
     cache = _only_file(tmp_path)
@@ -338,7 +340,7 @@ def test_a_damaged_cache_file_is_a_miss_that_is_replaced(damage, tmp_path, fake_
 
 
 def test_a_cache_dir_that_is_a_file_fails_before_simulating(tmp_path, fake_simulation):
-    from tactile_mirror.detector.build import simulate_cached
+    from tactile_mirror.lab.detector.build import simulate_cached
 
     target = tmp_path / "cache"
     target.write_text("not a folder")
@@ -353,7 +355,7 @@ def test_a_cache_dir_that_is_a_file_fails_before_simulating(tmp_path, fake_simul
 
 def test_the_cache_key_covers_arrays_in_full_and_keeps_the_existing_keys():
     from tactile_mirror import __version__
-    from tactile_mirror.detector import build
+    from tactile_mirror.lab.detector import build
 
     a, b = np.zeros(5000), np.zeros(5000)
     b[2500] = 1.0
@@ -388,7 +390,7 @@ def test_a_mount_too_soft_for_the_model_is_named_at_the_scene(stiffness):
 @pytest.mark.parametrize("call", ["make_laws", "default_weights", "train_detector_on_brush", "open_and_closed"])
 def test_an_unknown_plant_is_a_value_error_listing_the_plants(call):
     """An unknown plant name was a bare KeyError."""
-    from tactile_mirror.loop import experiment
+    from tactile_mirror.lab.loop import experiment
 
     kwargs = {"make_laws": {"weights": {}}, "open_and_closed": {"weights": {}}}.get(call, {})
     with pytest.raises(ValueError, match=r"plant must be one of \['brush', 'fem'\], got 'rubber'"):
@@ -399,7 +401,7 @@ def test_an_unknown_plant_is_a_value_error_listing_the_plants(call):
 def test_repeated_speeds_laws_and_conditions_run_once_with_a_warning(tmp_path, fake_envelope):
     """A repeated --speeds or --laws value ran its class twice (and the table counted its rows
     twice)."""
-    from tactile_mirror.loop.envelope import run_envelope
+    from tactile_mirror.lab.loop.envelope import run_envelope
 
     with pytest.warns(UserWarning, match="given more than once") as record:
         data = run_envelope(str(tmp_path / "env.json"), speeds=(0.005, 0.005, 0.0050000001), n_seeds=2,
@@ -416,7 +418,7 @@ def test_the_envelope_reports_the_speed_its_paths_ran_and_warns_when_capped(tmp_
     the rows and table named only the class's (asked) speed."""
     import warnings
 
-    from tactile_mirror.loop.envelope import PATH_SETS, envelope_table, run_envelope
+    from tactile_mirror.lab.loop.envelope import PATH_SETS, envelope_table, run_envelope
 
     fast = PATH_SETS["tuning-fast2"]
     with pytest.warns(UserWarning, match=r"acceleration limit \(0.5 m/s\^2\).*20 mm/s: 2 of 2 paths peak at 1"):

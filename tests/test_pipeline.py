@@ -6,8 +6,13 @@ import pytest
 from tactile_mirror import _core
 from tactile_mirror.circuit import PVDFCircuit
 from tactile_mirror.estimator import StressRateEstimator
-from tactile_mirror.loop import NoController, PaperController, VelocityController
-from tactile_mirror.pipeline import MirrorPipeline, ReferencePipeline
+from tactile_mirror.pipeline import (
+    MirrorPipeline,
+    NoController,
+    PaperController,
+    ReferencePipeline,
+    VelocityController,
+)
 
 FS = 1000.0
 

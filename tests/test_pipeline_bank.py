@@ -17,10 +17,9 @@ from tactile_mirror.detector.bank import DEFAULT_BANK, bank_channels, bank_confi
 from tactile_mirror.detector.network import init_params
 from tactile_mirror.detector.weights import DetectorWeights
 from tactile_mirror.estimator import StressRateEstimator
-from tactile_mirror.loop import NoController, VelocityController
 from tactile_mirror.loop.capi import CAPIError, CPipeline
 from tactile_mirror.loop.recording import Recording
-from tactile_mirror.pipeline import MirrorPipeline, ReferencePipeline
+from tactile_mirror.pipeline import MirrorPipeline, NoController, ReferencePipeline, VelocityController
 
 FS = 1000.0
 # A bank other than the bundled one (12 inputs: the kernel's generic path; the

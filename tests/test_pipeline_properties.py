@@ -6,8 +6,7 @@ from hypothesis import given
 from hypothesis import strategies as st
 from tactile_mirror.circuit import PVDFCircuit
 from tactile_mirror.estimator import StressRateEstimator
-from tactile_mirror.loop import VelocityController
-from tactile_mirror.pipeline import MirrorPipeline
+from tactile_mirror.pipeline import MirrorPipeline, VelocityController
 
 FS = 1000.0
 _RNG = np.random.default_rng(11)

@@ -5,7 +5,8 @@ from types import SimpleNamespace
 
 import numpy as np
 import pytest
-from tactile_mirror.detector.evaluate import _metrics, analyse_sequence, roc, sequence_extremes
+from tactile_mirror.lab.detector.evaluation import _metrics, analyse_sequence
+from tactile_mirror.lab.detector.roc import roc, sequence_extremes
 
 FS = 1000.0
 
@@ -167,7 +168,8 @@ def test_a_curve_without_slips_and_scores_with_extra_ridges():
 
 
 def test_evaluate_and_calibrate_refuse_levels_that_make_the_rates_meaningless():
-    from tactile_mirror.detector import SlipDetector, build, evaluate
+    from tactile_mirror.detector import SlipDetector
+    from tactile_mirror.lab.detector import build, evaluate
 
     det = SlipDetector.paper()
     results, _, _ = _synthetic(n_seq=2)

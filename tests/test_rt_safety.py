@@ -20,8 +20,8 @@ from tactile_mirror.detector.network import init_params
 from tactile_mirror.detector.weights import DetectorWeights
 from tactile_mirror.estimator import StressRateEstimator
 from tactile_mirror.filters import SosFilter
-from tactile_mirror.loop import VelocityController, header_path, library_path
-from tactile_mirror.pipeline import MirrorPipeline
+from tactile_mirror.loop import header_path, library_path
+from tactile_mirror.pipeline import MirrorPipeline, VelocityController
 
 cffi = pytest.importorskip("cffi")
 from tactile_mirror.loop.capi import CAPIError, CPipeline

@@ -90,7 +90,7 @@ def test_an_indent_beyond_the_small_strain_range_is_refused_naming_the_limit():
         tm.Scene(indent_speed=limit / 0.5 * 1.001)
     tm.Scene(indent_speed=limit / 0.2, duration=0.19)  # stops short of the limit
     # the limit scales with the ridge
-    from tactile_mirror.contact.geometry import RidgeGeometry
+    from tactile_mirror.geometry import RidgeGeometry
 
     tall = RidgeGeometry(height=4e-3)
     tm.Scene(indent_speed=limit / 0.5 * 1.5, geometry=tall)
@@ -128,7 +128,7 @@ def test_the_edges_of_validity_are_accepted():
 
 
 def test_every_scene_the_library_builds_is_valid():
-    from tactile_mirror.detector.build import TEST_KWARGS, TRAIN_KWARGS
+    from tactile_mirror.lab.detector.build import TEST_KWARGS, TRAIN_KWARGS
 
     for name in ("fig6", "fig7", "fig8"):
         tm.scenes.paper(name)

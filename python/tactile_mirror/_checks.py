@@ -7,7 +7,8 @@ from __future__ import annotations
 import math
 import numbers
 
-__all__ = ["integer", "real_array", "real_number", "real_range", "real_sequence"]
+__all__ = ["channel_shape", "integer", "real_array", "real_number", "real_numeric", "real_range", "real_sequence",
+           "sample_rate"]
 
 
 def real_number(value, name: str, *, unit: str | None = None, positive: bool = False,
@@ -89,3 +90,32 @@ def real_array(value, name: str):
     if arr.dtype.kind not in "iuf":
         raise TypeError(f"{name} must be a real numeric array, got dtype {arr.dtype}")
     return arr.astype(np.float64, copy=False)
+
+
+def real_numeric(a, name: str) -> None:
+    """Refuse an array whose dtype is not integer or floating (``a`` is an ndarray)."""
+    # bool is refused too: True/False samples are a mistake (a mask passed for a signal),
+    # and SosFilter.step and the pipeline refuse them. sosfilt, scipy's drop-in, casts
+    # them as scipy.signal.sosfilt does and does not come here.
+    if a.dtype.kind not in "iuf":
+        raise TypeError(f"{name} must hold real numbers, got dtype {a.dtype}")
+
+
+def sample_rate(fs) -> float:
+    """``fs`` as a float in [1, 1e7] Hz."""
+    fs = real_number(fs, "fs", unit="Hz", positive=True)
+    if not 1.0 <= fs <= 1e7:  # (as the pipeline: outside, the filter design failed naming its sections)
+        raise ValueError(f"fs must lie in [1, 1e7] Hz, got {fs!r}")
+    return fs
+
+
+def channel_shape(channels) -> tuple[int, ...]:
+    """``channels`` (an int or a tuple of ints) as a tuple of non-negative ints."""
+    shape = (channels,) if isinstance(channels, numbers.Integral) and not isinstance(channels, bool) else channels
+    try:
+        shape = tuple(shape)
+    except TypeError:
+        raise TypeError(f"channels must be an int or a tuple of ints, got {channels!r}") from None
+    if any(isinstance(c, bool) or not isinstance(c, numbers.Integral) or c < 0 for c in shape):
+        raise ValueError(f"channels must be non-negative ints, got {channels!r}")
+    return tuple(int(c) for c in shape)

@@ -19,7 +19,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ._io import save_npz
+from tactile_mirror._io import save_npz
 
 __all__ = ["Member", "check_json", "read_versioned", "write_versioned"]
 

@@ -104,14 +104,16 @@ import dataclasses
 import math
 import numbers
 from dataclasses import dataclass
+from typing import TYPE_CHECKING
 
 import numpy as np
 import numpy.typing as npt
-import scipy.optimize
-import scipy.signal
 
-from ._checks import real_number, real_sequence
-from .filters import SosFilter
+from tactile_mirror._checks import channel_shape, real_number, real_sequence, sample_rate
+from tactile_mirror.filters import SosFilter
+
+if TYPE_CHECKING:
+    import scipy.signal
 
 __all__ = ["EPSILON_0", "SLOPE_BAND", "CircuitStream", "PVDFCircuit", "fit_circuit"]
 
@@ -131,13 +133,6 @@ def _check_output(output) -> str:
     if output not in _OUTPUTS:
         raise ValueError(f"output must be 'v' or 'u', got {output!r}")
     return output
-
-
-def _check_fs(fs) -> float:
-    fs = real_number(fs, "fs", unit="Hz", positive=True)
-    if not 1.0 <= fs <= 1e7:  # (as the pipeline: outside, the filter design failed naming its sections)
-        raise ValueError(f"fs must lie in [1, 1e7] Hz, got {fs!r}")
-    return fs
 
 
 def _real_array(x, name: str) -> np.ndarray:
@@ -340,6 +335,8 @@ class PVDFCircuit:
     def lti(self, output: str = "v") -> scipy.signal.ZerosPolesGain:
         """Analog transfer function load (Pa) -> ``v_out`` or ``u_out`` (V) as a
         :class:`scipy.signal.ZerosPolesGain`."""
+        import scipy.signal
+
         return scipy.signal.ZerosPolesGain(*self.zpk(output))
 
     def response(self, f: npt.ArrayLike, output: str = "v") -> np.ndarray:
@@ -399,7 +396,9 @@ class PVDFCircuit:
         -------
         ndarray, shape (n_sections, 6)
         """
-        fs = _check_fs(fs)
+        import scipy.signal
+
+        fs = sample_rate(fs)
         _check_output(output)
         if method not in _METHODS:
             raise ValueError(f"method must be one of {_METHODS}, got {method!r}")
@@ -450,7 +449,7 @@ class PVDFCircuit:
         v_out, u_out : ndarray, shape (..., n)
             Output voltages, V.
         """
-        fs = _check_fs(fs)
+        fs = sample_rate(fs)
         _check_noise(noise)
         s = self._stress(stress)
         return self.stream(fs, s.shape[:-2], noise=noise, seed=seed, method=method, prewarp=prewarp).process(s)
@@ -505,8 +504,8 @@ class CircuitStream:
         if not isinstance(circuit, PVDFCircuit):
             raise TypeError(f"circuit must be a PVDFCircuit, got {type(circuit).__name__}")
         self.circuit = circuit
-        self.fs = _check_fs(fs)
-        self.shape = _check_channels(channels)
+        self.fs = sample_rate(fs)
+        self.shape = channel_shape(channels)
         self.noise = _check_noise(noise)
         self.n_channels = int(np.prod(self.shape, dtype=np.int64))
         sos_v = circuit.sos(self.fs, "v", method, prewarp)
@@ -578,17 +577,6 @@ class CircuitStream:
         return v, u
 
 
-def _check_channels(channels) -> tuple[int, ...]:
-    shape = (channels,) if isinstance(channels, (int, np.integer)) and not isinstance(channels, bool) else channels
-    try:
-        shape = tuple(shape)
-    except TypeError:
-        raise TypeError(f"channels must be an int or a tuple of ints, got {channels!r}") from None
-    if any(isinstance(c, bool) or not isinstance(c, (int, np.integer)) or c < 0 for c in shape):
-        raise ValueError(f"channels must be non-negative ints, got {channels!r}")
-    return tuple(int(c) for c in shape)
-
-
 def _check_noise(noise):
     vals = np.atleast_1d(np.asarray(noise, dtype=object))
     if vals.ndim != 1 or vals.size not in (1, 2):
@@ -652,6 +640,8 @@ def fit_circuit(freqs: npt.ArrayLike, gain_v_db: npt.ArrayLike, gain_u_db: npt.A
     PVDFCircuit
         ``initial`` with the fitted components.
     """
+    import scipy.optimize
+
     f = _real_array(freqs, "freqs")
     if f.ndim != 1 or f.size < 2:
         raise ValueError(f"freqs must be 1-D with at least 2 points, got shape {f.shape}")

@@ -47,12 +47,11 @@ import threading
 
 import numpy as np
 import numpy.typing as npt
-import scipy.signal
 
-from ._checks import integer, real_number
-from ._owner import NotCopyable, claim
-from .circuit import PVDFCircuit, _check_fs
-from .filters import SosFilter, _real_numeric, sosfilt
+from tactile_mirror._checks import integer, real_number, real_numeric, sample_rate
+from tactile_mirror._owner import NotCopyable, claim
+from tactile_mirror.circuit import PVDFCircuit
+from tactile_mirror.filters import SosFilter, sosfilt
 
 __all__ = [
     "StressRateEstimator",
@@ -92,6 +91,8 @@ def _check_circuit(circuit) -> PVDFCircuit:
 def _lowpass_zpk(order: int, bandwidth: float, fs: float, kind: str):
     """Analog low-pass (unit DC gain) whose bilinear image (c = 2 fs) has its
     -3 dB point at ``bandwidth``."""
+    import scipy.signal
+
     if kind not in _KINDS:
         raise ValueError(f"kind must be one of {_KINDS}, got {kind!r}")
     wc = 2.0 * fs * math.tan(math.pi * bandwidth / fs)
@@ -127,8 +128,10 @@ def equalizer_sos(circuit: PVDFCircuit, fs: float, output: str = "v", order: int
     -------
     ndarray, shape (n_sections, 6)
     """
+    import scipy.signal
+
     circuit = _check_circuit(circuit)
-    fs = _check_fs(fs)
+    fs = sample_rate(fs)
     if output not in ("v", "u"):
         raise ValueError(f"output must be 'v' or 'u', got {output!r}")
     order = _check_order(order, 1 if output == "v" else 2)
@@ -162,7 +165,9 @@ def differentiator_sos(fs: float, order: int = 1, bandwidth: float = 100.0, kind
     -------
     ndarray, shape (n_sections, 6)
     """
-    fs = _check_fs(fs)
+    import scipy.signal
+
+    fs = sample_rate(fs)
     order = _check_order(order, 1)
     bandwidth = _check_bandwidth(bandwidth, fs)
     zl, pl, kl = _lowpass_zpk(order, bandwidth, fs, kind)
@@ -224,7 +229,9 @@ def notch_sos(fs: float, notch, notch_q: float = 30.0) -> np.ndarray:
     -------
     ndarray, shape (len(notch), 6)
     """
-    fs = _check_fs(fs)
+    import scipy.signal
+
+    fs = sample_rate(fs)
     freqs = _notch_freqs(notch, fs)
     if not freqs:
         raise ValueError("notch must name at least one frequency (Hz)")
@@ -238,7 +245,7 @@ class _Design:
     def __init__(self, circuit, fs, order, bandwidth, use_u, kind, diff_order, diff_bandwidth, notch=None,
                  notch_q=30.0):
         self.circuit = _check_circuit(circuit)
-        self.fs = _check_fs(fs)
+        self.fs = sample_rate(fs)
         if not isinstance(use_u, (bool, np.bool_)):  # (the string "False" was truthy)
             raise TypeError(f"use_u must be True or False, got {use_u!r}")
         self.use_u = bool(use_u)
@@ -273,7 +280,7 @@ class _Design:
 
 def _block(x, name: str, channels: int) -> np.ndarray:
     a = np.asarray(x)
-    _real_numeric(a, name)
+    real_numeric(a, name)
     if a.ndim != 2 or a.shape[0] != channels:
         raise ValueError(f"{name} must have shape (channels, n) = ({channels}, n), got {a.shape}")
     return a
@@ -281,7 +288,7 @@ def _block(x, name: str, channels: int) -> np.ndarray:
 
 def _sample(x, name: str, channels: int, dtype) -> np.ndarray:
     a = np.asarray(x)
-    _real_numeric(a, name)
+    real_numeric(a, name)
     if a.shape != (channels,):
         raise ValueError(f"{name} must have shape ({channels},), got {a.shape}")
     return a.astype(dtype, copy=False)
@@ -480,7 +487,7 @@ def estimate_stress_rate(v_out: npt.ArrayLike, u_out: npt.ArrayLike | None, circ
     """
     d = _Design(circuit, fs, order, bandwidth, u_out is not None, kind, diff_order, diff_bandwidth, notch, notch_q)
     v = np.asarray(v_out)
-    _real_numeric(v, "v_out")
+    real_numeric(v, "v_out")
     if v.ndim == 0:
         raise ValueError("v_out must have at least one dimension")
     if isinstance(axis, (bool, np.bool_)) or not isinstance(axis, (int, np.integer)):
@@ -493,7 +500,7 @@ def estimate_stress_rate(v_out: npt.ArrayLike, u_out: npt.ArrayLike | None, circ
     u = None
     if u_out is not None:
         u = np.asarray(u_out)
-        _real_numeric(u, "u_out")
+        real_numeric(u, "u_out")
         if u.shape != v.shape:
             raise ValueError(f"u_out must have the shape of v_out {v.shape}, got {u.shape}")
         u = u.astype(np.float64, copy=False)

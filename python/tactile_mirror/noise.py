@@ -68,10 +68,9 @@ from dataclasses import dataclass, field
 
 import numpy as np
 import numpy.typing as npt
-import scipy.signal
 
-from ._checks import real_array, real_number, real_sequence
-from .circuit import PVDFCircuit, _check_channels, _check_fs
+from tactile_mirror._checks import channel_shape, real_array, real_number, real_sequence, sample_rate
+from tactile_mirror.circuit import PVDFCircuit
 
 __all__ = ["BOLTZMANN", "NOISE_SOURCES", "SensorNoise"]
 
@@ -224,7 +223,9 @@ class SensorNoise:
     def sos(self, fs: float, source: str, output: str = "v") -> np.ndarray | None:
         """Second-order sections (bilinear, ``c = 2 fs``) of one source's noise gain to
         ``output``, per unit of the source; None where it does not reach the output."""
-        fs = _check_fs(fs)
+        import scipy.signal
+
+        fs = sample_rate(fs)
         output = _check_output(output)
         g = self._source(source).gain_v if output == "v" else self._source(source).gain_u
         if g is None:
@@ -240,7 +241,9 @@ class SensorNoise:
         Exact for what :meth:`draw` returns (hum not included: it is a set of lines,
         see :meth:`hum_lines`). ``source`` picks one of :data:`NOISE_SOURCES`; default all.
         """
-        fs = _check_fs(fs)
+        import scipy.signal
+
+        fs = sample_rate(fs)
         f = _freqs(f, fs)
         out = np.zeros(f.shape)
         for s in self._selected(source):
@@ -276,7 +279,7 @@ class SensorNoise:
         """Rms of the sampled noise at ``output``, V: the broadband PSD integrated over
         ``[0, fs/2]`` (of ``source`` only if given), plus the hum lines when ``hum``
         (and no ``source`` is given)."""
-        fs = _check_fs(fs)
+        fs = sample_rate(fs)
         f = np.linspace(0.0, fs / 2, 2**15 + 1)
         var = float(np.trapezoid(self.psd(f, fs, output, source), f))
         if hum and source is None:
@@ -285,7 +288,9 @@ class SensorNoise:
 
     def hum_lines(self, fs: float, output: str = "v") -> tuple[np.ndarray, np.ndarray]:
         """Frequencies (Hz) and rms amplitudes (V) of the hum lines at ``output``, below ``fs/2``."""
-        fs = _check_fs(fs)
+        import scipy.signal
+
+        fs = sample_rate(fs)
         output = _check_output(output)
         k = np.arange(1, len(self.harmonics) + 1)
         f = self.mains * k
@@ -325,10 +330,12 @@ class SensorNoise:
         noise_v, noise_u : ndarray, shape (*channels, n)
             V; stationary, with the PSD of :meth:`psd` and the hum of :meth:`hum_lines`.
         """
-        fs = _check_fs(fs)
+        import scipy.signal
+
+        fs = sample_rate(fs)
         if isinstance(n, bool) or not isinstance(n, (int, np.integer)) or n < 0:
             raise ValueError(f"n must be a non-negative integer (samples), got {n!r}")
-        shape = _check_channels(channels)
+        shape = channel_shape(channels)
         if isinstance(seed, (int, np.integer)) and not isinstance(seed, bool) and seed < 0:
             raise ValueError(f"seed must be a non-negative integer, got {seed!r}")  # (numpy's words named nothing)
         rng = seed if isinstance(seed, np.random.Generator) else np.random.default_rng(seed)

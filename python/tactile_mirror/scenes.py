@@ -17,11 +17,10 @@ from typing import Any
 
 import numpy as np
 
-from ._checks import real_number, real_sequence
-from .circuit import PVDFCircuit
-from .contact.geometry import RidgeGeometry
-from .contact.pad import MAX_RIDGES, _too_many_ridges
-from .noise import SensorNoise
+from tactile_mirror._checks import real_number, real_sequence
+from tactile_mirror.circuit import PVDFCircuit
+from tactile_mirror.geometry import MAX_RIDGES, RidgeGeometry, too_many_ridges
+from tactile_mirror.noise import SensorNoise
 
 __all__ = ["DEFAULT_FRICTION", "DEFAULT_KINETIC_RATIO", "MAX_INDENT_STRAIN", "MAX_NOISE", "MAX_SAMPLES", "OUTPUTS", "Scene",
            "paper", "random"]
@@ -90,7 +89,7 @@ class Scene:
         slip releases stored shear: the sharp stress drop that tells slip from a stop.
     n_ridges : int
         1 (the paper's single ridge) or more (a pad; 6 in the paper's hardware), at most
-        :data:`~tactile_mirror.contact.pad.MAX_RIDGES` (64).
+        :data:`~tactile_mirror.geometry.MAX_RIDGES` (64).
     finger_radius : float
         Effective curvature radius of the finger over the pad, m: inner ridges press
         deeper by ``y^2 / (2 R)``. The finger pulp flattens on the pad, so this is far
@@ -164,7 +163,7 @@ class Scene:
         if int(nr) != nr or nr < 1:
             raise ValueError(f"n_ridges must be a positive integer, got {nr!r}")
         if nr > MAX_RIDGES:  # (1e5 ridges ran out of memory in simulate, with no message)
-            raise ValueError(_too_many_ridges(nr))
+            raise ValueError(too_many_ridges(nr))
         # (a string was iterated: ("12",) became ((1.0, 2.0),))
         if isinstance(self.stops, (str, bytes)):
             raise TypeError(f"stops must be a sequence of (start, end) pairs in s, got {self.stops!r}")

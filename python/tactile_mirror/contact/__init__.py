@@ -2,7 +2,8 @@
 
 Pieces, each usable on its own:
 
-* :mod:`.geometry`  ridge/block geometry, material, graded P2-ready mesh
+* :mod:`.mesh`      the graded P2-ready mesh of a ridge (its geometry and material:
+  :mod:`tactile_mirror.geometry`)
 * :mod:`.model`     scikit-fem assembly and condensation to the contact surface
   (compliance, strip-stress sensor operator), cached per geometry
 * :mod:`.solver`    quasi-static frictional contact of one ridge (semismooth Newton)
@@ -12,17 +13,34 @@ Pieces, each usable on its own:
   (``ContactPlant``, ``ContactState``) and the FEM pad with a pressing finger (``FemPad``)
 * :mod:`.brush`     the reduced brush model of the ridges (``BrushRidges``), the other plant
 """
-from .brush import BrushRidges
-from .geometry import Material, RidgeGeometry, ridge_mesh, wide_block
-from .model import RidgeModel, ridge_model
-from .pad import Pad, PadState
-from .plants import ContactPlant, ContactState, FemPad
-from .simulate import SimulationResult, calibrate_friction, simulate, simulate_many
-from .solver import OPEN, SLIP, STICK, ContactConvergenceError, ContactSolver, ContactStep
+from __future__ import annotations
 
-__all__ = [
-    "OPEN", "SLIP", "STICK", "BrushRidges", "ContactConvergenceError", "ContactPlant", "ContactSolver",
-    "ContactState", "ContactStep", "FemPad", "Material", "Pad", "PadState", "RidgeGeometry", "RidgeModel",
-    "SimulationResult", "calibrate_friction", "ridge_mesh", "ridge_model", "simulate", "simulate_many",
-    "wide_block",
-]
+from typing import TYPE_CHECKING
+
+from tactile_mirror._lazy import attach
+
+__getattr__, __dir__, __all__ = attach(__name__, {
+    "BrushRidges": "brush",
+    "ridge_mesh": "mesh",
+    "RidgeModel": "model", "ridge_model": "model",
+    "Pad": "pad", "PadState": "pad",
+    "ContactPlant": "plants", "ContactState": "plants", "FemPad": "plants",
+    "SimulationResult": "simulate", "calibrate_friction": "simulate", "simulate": "simulate", "simulate_many": "simulate",
+    "OPEN": "solver", "SLIP": "solver", "STICK": "solver", "ContactConvergenceError": "solver", "ContactSolver": "solver", "ContactStep": "solver",
+})
+
+if TYPE_CHECKING:
+    from tactile_mirror.contact.brush import BrushRidges
+    from tactile_mirror.contact.mesh import ridge_mesh
+    from tactile_mirror.contact.model import RidgeModel, ridge_model
+    from tactile_mirror.contact.pad import Pad, PadState
+    from tactile_mirror.contact.plants import ContactPlant, ContactState, FemPad
+    from tactile_mirror.contact.simulate import SimulationResult, calibrate_friction, simulate, simulate_many
+    from tactile_mirror.contact.solver import (
+        OPEN,
+        SLIP,
+        STICK,
+        ContactConvergenceError,
+        ContactSolver,
+        ContactStep,
+    )

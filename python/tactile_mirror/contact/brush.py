@@ -19,8 +19,8 @@ import numbers
 import numpy as np
 import numpy.typing as npt
 
-from .._checks import real_array, real_number
-from .plants import ContactState
+from tactile_mirror._checks import real_array, real_number
+from tactile_mirror.contact.plants import ContactState
 
 __all__ = ["BrushRidges"]
 
@@ -86,7 +86,7 @@ class BrushRidges:
         Raises ValueError for a non-finite ``dy`` or one beyond 1 m
         (:data:`~tactile_mirror.contact.solver.MAX_PLATE_POSITION`, as the FEM pad), the
         state unchanged (an infinite one was taken into the slid offsets for good)."""
-        from .solver import MAX_PLATE_POSITION
+        from tactile_mirror.contact.solver import MAX_PLATE_POSITION
 
         dy = real_number(dy, "dy", unit="m")
         if not abs(dy) <= MAX_PLATE_POSITION:

@@ -34,7 +34,8 @@ import numpy.typing as npt
 import scipy.sparse as sp
 import scipy.sparse.linalg as spla
 
-from .geometry import RidgeGeometry, ridge_mesh
+from tactile_mirror.contact.mesh import ridge_mesh
+from tactile_mirror.geometry import RidgeGeometry
 
 __all__ = ["RidgeModel", "ridge_model"]
 

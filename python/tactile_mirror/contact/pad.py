@@ -19,23 +19,25 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from .._checks import real_number
-from .._owner import NotCopyable
-from .model import RidgeModel
-from .solver import MAX_PLATE_POSITION, OPEN, SLIP, STEPPINGS, STICK, ContactSolver, _position_error
+from tactile_mirror._checks import real_number
+from tactile_mirror._owner import NotCopyable
+from tactile_mirror.contact.model import RidgeModel
+from tactile_mirror.contact.solver import (
+    MAX_PLATE_POSITION,
+    OPEN,
+    SLIP,
+    STEPPINGS,
+    STICK,
+    ContactSolver,
+    position_error,
+)
+from tactile_mirror.geometry import MAX_RIDGES, too_many_ridges
 
 if TYPE_CHECKING:
-    from ..scenes import Scene
+    from tactile_mirror.scenes import Scene
 
 __all__ = ["MAX_RIDGES", "Pad", "PadState"]
 
-#: Most ridges a pad (and a contact scene, :class:`tactile_mirror.Scene`) may have. A pad is
-#: the few ridges under one fingertip: 6 in the paper's hardware, and at the default pitch
-#: (3 mm) 64 ridges span 19 cm, beyond any finger. Each ridge keeps its own contact solver
-#: and outputs (about 4 MB per ridge for a 0.6 s scene), so 1e5 ridges ran out of memory
-#: with no message. A recording holds at most as many (:mod:`tactile_mirror.loop.recording`
-#: takes this limit).
-MAX_RIDGES = 64
 
 
 @dataclass
@@ -69,11 +71,6 @@ class PadState:
         m = self.model
         n = m.n_nodes
         return np.stack([m.node_y + self.displacement[:, :n], m.node_z + self.displacement[:, n:]], axis=1)
-
-
-def _too_many_ridges(n_ridges) -> str:
-    return (f"n_ridges must be at most {MAX_RIDGES} (MAX_RIDGES: the ridges under one finger; each keeps "
-            f"its own contact solver), got {n_ridges!r}")
 
 
 class Pad(NotCopyable):
@@ -131,7 +128,7 @@ class Pad(NotCopyable):
         if int(n_ridges) != n_ridges or n_ridges < 1:
             raise ValueError(f"n_ridges must be a positive integer, got {n_ridges!r}")
         if n_ridges > MAX_RIDGES:
-            raise ValueError(_too_many_ridges(n_ridges))
+            raise ValueError(too_many_ridges(n_ridges))
         if isinstance(finger_radius, bool) or not isinstance(finger_radius, numbers.Real) or not finger_radius > 0:
             raise ValueError(f"finger_radius must be positive (m; inf for a flat finger), got {finger_radius!r}")
         # (an inf length made an infinite force; a NaN or inf pitch put the ridges at NaN)
@@ -160,7 +157,7 @@ class Pad(NotCopyable):
         self.backend = self.solvers[0].backend
         self._stepper = None
         if self.backend == "cpp":
-            from .. import _core
+            from tactile_mirror import _core
 
             self._stepper = _core._ContactPad([s._kernel for s in self.solvers])
 
@@ -168,7 +165,7 @@ class Pad(NotCopyable):
     def from_scene(cls, scene: Scene, backend: str = "cpp", stepping: str = "auto") -> Pad:
         """The pad a :class:`~tactile_mirror.Scene` describes: its ridge geometry,
         static and kinetic friction, number of ridges and finger radius."""
-        from .model import ridge_model
+        from tactile_mirror.contact.model import ridge_model
 
         return cls(ridge_model(scene.geometry), scene.friction, n_ridges=scene.n_ridges,
                    finger_radius=scene.finger_radius, mu_kinetic=scene.friction * scene.kinetic_ratio,
@@ -228,7 +225,7 @@ class Pad(NotCopyable):
         ok = (np.abs(y) <= MAX_PLATE_POSITION) & np.all(np.abs(z) <= MAX_PLATE_POSITION, axis=1)
         if not np.all(ok):  # (NaN fails the comparison too)
             k = int(np.flatnonzero(~ok)[0])
-            raise _position_error(y[k], ind[k], "indent")
+            raise position_error(y[k], ind[k], "indent")
         return stepping, y, z
 
     def follow(self, plate_y: np.ndarray, indent: np.ndarray, stepping: str | None = None,
@@ -351,7 +348,7 @@ class Pad(NotCopyable):
         plate_z = m.geometry.height - (indent - self.indent_offset)
         # (the ridges' offsets are finite; NaN fails the comparison too)
         if not (abs(plate_y) <= MAX_PLATE_POSITION and np.all(np.abs(plate_z) <= MAX_PLATE_POSITION)):
-            raise _position_error(plate_y, indent, "indent")
+            raise position_error(plate_y, indent, "indent")
         (status, bad, its, forces, disp, states, frac, touch, gross, sum_t,
          sum_n) = self._stepper.step(plate_y, plate_z, self.stepping == "every", min(self.threads, 2))
         if status:

@@ -18,11 +18,11 @@ from typing import TYPE_CHECKING, Protocol, runtime_checkable
 import numpy as np
 import numpy.typing as npt
 
-from ..circuit import PVDFCircuit
+from tactile_mirror.circuit import PVDFCircuit
 
 if TYPE_CHECKING:
-    from .geometry import RidgeGeometry
-    from .pad import Pad
+    from tactile_mirror.contact.pad import Pad
+    from tactile_mirror.geometry import RidgeGeometry
 
 __all__ = ["REALTIME_CONTACT_MESH_SIZE", "ContactPlant", "ContactState", "FemPad"]
 
@@ -89,7 +89,7 @@ class FemPad:
     Parameters
     ----------
     n_ridges : int
-        1 to :data:`~tactile_mirror.contact.pad.MAX_RIDGES` (64).
+        1 to :data:`~tactile_mirror.geometry.MAX_RIDGES` (64).
     mu : float, optional
         Static friction coefficient (default :data:`tactile_mirror.scenes.DEFAULT_FRICTION`);
         the kinetic one is ``mu * DEFAULT_KINETIC_RATIO``, as in the scenes.
@@ -124,10 +124,10 @@ class FemPad:
     def __init__(self, n_ridges: int = 6, mu: float | None = None, fs: float = 1000.0, indent: float = 30e-6,
                  press_speed: float = 0.06e-3, finger_radius: float = 2.0, circuit: PVDFCircuit | None = None,
                  stepping: str = "auto", geometry: RidgeGeometry | None = None, threads: int = 1):
-        from .._checks import integer
-        from ..scenes import DEFAULT_FRICTION, DEFAULT_KINETIC_RATIO
-        from .model import ridge_model
-        from .pad import MAX_RIDGES, Pad
+        from tactile_mirror._checks import integer
+        from tactile_mirror.contact.model import ridge_model
+        from tactile_mirror.contact.pad import MAX_RIDGES, Pad
+        from tactile_mirror.scenes import DEFAULT_FRICTION, DEFAULT_KINETIC_RATIO
 
         # (before the ridge model is built; a float such as 6.7 was truncated to 6 ridges)
         self.n_ridges = integer(n_ridges, "n_ridges", 1, MAX_RIDGES)
@@ -169,7 +169,7 @@ class FemPad:
         Keyword arguments go to :class:`FemPad` (a ``geometry`` given there wins; None is
         this one's).
         """
-        from .geometry import RidgeGeometry
+        from tactile_mirror.geometry import RidgeGeometry
 
         if kwargs.get("geometry") is None:
             kwargs["geometry"] = RidgeGeometry(contact_mesh_size=REALTIME_CONTACT_MESH_SIZE)

@@ -15,11 +15,11 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from .pad import Pad
-from .solver import BACKENDS, OPEN, SLIP, STEPPINGS, STICK
+from tactile_mirror.contact.pad import Pad
+from tactile_mirror.contact.solver import BACKENDS, OPEN, SLIP, STEPPINGS, STICK
 
 if TYPE_CHECKING:  # scenes imports contact.geometry, so import it lazily at run time
-    from ..scenes import Scene
+    from tactile_mirror.scenes import Scene
 
 __all__ = ["SimulationResult", "calibrate_friction", "simulate", "simulate_many"]
 
@@ -99,7 +99,7 @@ def simulate(scene: Scene, progress: bool = False, backend: str = "cpp", steppin
         at its own point (:mod:`~tactile_mirror.contact.solver`) and agree to
         round-off, with either backend.
     """
-    from ..scenes import Scene
+    from tactile_mirror.scenes import Scene
 
     if not isinstance(scene, Scene):
         raise TypeError(f"scene must be a tactile_mirror.Scene, got {type(scene).__name__}")
@@ -266,7 +266,7 @@ def simulate_many(scenes: Iterable[Scene], executor: concurrent.futures.Executor
     Any :class:`concurrent.futures.Executor` works, e.g. ``dask.distributed.Client(...)
     .get_executor()`` to spread a sweep over a cluster. Shows a progress bar.
     """
-    from ..scenes import Scene
+    from tactile_mirror.scenes import Scene
 
     if stepping not in STEPPINGS:
         raise ValueError(f"stepping must be one of {STEPPINGS}, got {stepping!r}")
@@ -318,7 +318,7 @@ def calibrate_friction(target_slip_time: float, scene: Scene | None = None,
     slip at ``target_slip_time`` s (bisection; slip time grows with friction)."""
     from dataclasses import replace
 
-    from ..scenes import paper
+    from tactile_mirror.scenes import paper
 
     base = scene if scene is not None else paper("fig6")
     base = replace(base, outputs=frozenset({"slip"}), stop_after_slip=0.0)

@@ -116,12 +116,12 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.linalg.lapack import dgetrf, dgetrs
 
-from .._checks import integer, real_number
-from .._owner import NotCopyable
-from .model import RidgeModel
+from tactile_mirror._checks import integer, real_number
+from tactile_mirror._owner import NotCopyable
+from tactile_mirror.contact.model import RidgeModel
 
 try:
-    from .. import _core
+    from tactile_mirror import _core
 except ImportError:  # pragma: no cover - the compiled core is part of every install
     _core = None
 
@@ -141,7 +141,7 @@ OPEN, STICK, SLIP = 0, 1, 2
 MAX_PLATE_POSITION = 1.0
 
 
-def _position_error(y, z, zname: str = "z") -> ValueError:
+def position_error(y, z, zname: str = "z") -> ValueError:
     return ValueError(f"plate position must be finite and within {MAX_PLATE_POSITION:g} m, got y={float(y)!r}, "
                       f"{zname}={float(z)!r}")
 
@@ -411,7 +411,7 @@ class ContactSolver(NotCopyable):
         # plain float comparisons: np.isfinite costs about 1 us a call, a tenth of
         # the compiled step
         if not (abs(y) <= MAX_PLATE_POSITION and abs(z) <= MAX_PLATE_POSITION):  # (NaN fails too)
-            raise _position_error(plate_y, plate_z)
+            raise position_error(plate_y, plate_z)
         if self._kernel is not None:
             status, f, u, state, frac, it = self._kernel.step(y, z)
             if status:
@@ -483,7 +483,7 @@ class ContactSolver(NotCopyable):
         ok = (np.abs(ys) <= MAX_PLATE_POSITION) & (np.abs(zs) <= MAX_PLATE_POSITION)  # (NaN fails too)
         if not np.all(ok):
             k = int(np.flatnonzero(~ok)[0])
-            raise _position_error(ys[k], zs[k])
+            raise position_error(ys[k], zs[k])
         N, n = ys.size, self._n
         lam_out = np.empty((N, 2 * n)) if lam_out is None else lam_out
         if self._kernel is not None:
@@ -816,7 +816,7 @@ class ContactSolver(NotCopyable):
         """The exception of the reference implementation for a kernel status."""
         info, residual, atol = self._kernel.error()
         if status == 1:
-            raise _position_error(plate_y, plate_z)
+            raise position_error(plate_y, plate_z)
         if status == 2:
             raise ContactConvergenceError(f"singular contact system (LU getrf info={info})")
         if status == 3:

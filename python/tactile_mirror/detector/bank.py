@@ -48,6 +48,8 @@ import math
 
 import numpy as np
 
+from tactile_mirror.detector.normalisation import fit_normalisation
+
 __all__ = ["DEFAULT_BANK", "bank_channels", "bank_config", "bank_features", "bank_state_size", "bank_units",
            "fit_knees", "log_compress"]
 
@@ -157,11 +159,9 @@ def fit_knees(x, mask=None) -> np.ndarray:
 
     ``x`` has shape (n_seq, n_channels, n) (a training set's inputs, ``mask`` its real
     samples), or (n_channels, n). The L and R strips (and u_L, u_R) share a knee, as they
-    share a normalisation scale (:func:`~tactile_mirror.detector.training.fit_normalisation`),
+    share a normalisation scale (:func:`~tactile_mirror.detector.normalisation.fit_normalisation`),
     which keeps the pad's mirror symmetry. A channel that is zero throughout gets knee 1.
     """
-    from .training import fit_normalisation
-
     x = np.asarray(x, dtype=np.float64)
     if x.ndim == 2:
         x = x[None]

@@ -7,11 +7,11 @@ from importlib import resources
 
 import numpy as np
 
-from .._owner import NotCopyable, claim
-from .bank import bank_features
-from .memory import memory_features
-from .network import forward
-from .weights import DetectorWeights
+from tactile_mirror._owner import NotCopyable, claim
+from tactile_mirror.detector.bank import bank_features
+from tactile_mirror.detector.memory import memory_features
+from tactile_mirror.detector.network import forward
+from tactile_mirror.detector.weights import DetectorWeights
 
 __all__ = ["BANK_WEIGHTS", "DEFAULT_WEIGHTS", "EARLY_WEIGHTS", "MEMORY_WEIGHTS", "PAPER_WEIGHTS", "SlipDetector"]
 
@@ -43,7 +43,7 @@ _DERIVED = ("jordan_memory", "jordan_bank")
 
 
 def _core():
-    from .. import _core
+    from tactile_mirror import _core
 
     return _core
 

@@ -21,7 +21,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from .._checks import real_number
+from tactile_mirror._checks import real_number
 
 __all__ = ["DEFAULT_ESTIMATOR", "features_from_result", "targets_from_result"]
 
@@ -37,7 +37,7 @@ def _circuit_of(result, circuit):
         c = getattr(getattr(result, "scene", None), "circuit", None)
     if c is not None:
         return c
-    from ..circuit import PVDFCircuit
+    from tactile_mirror.circuit import PVDFCircuit
 
     return PVDFCircuit()
 
@@ -83,11 +83,11 @@ def features_from_result(result, features: str = "stress_rate", circuit=None, es
         if x.ndim != 3 or x.shape[1] != 4:
             raise ValueError(f"result.features must have shape (n_ridges, 4, n), got {x.shape}")
         if features == "stress_rate_memory":
-            from .memory import DEFAULT_LOAD_TAU, memory_features
+            from tactile_mirror.detector.memory import DEFAULT_LOAD_TAU, memory_features
 
             return memory_features(x, float(result.fs), DEFAULT_LOAD_TAU if load_tau is None else load_tau)
         if features == "stress_rate_bank":
-            from .bank import bank_features
+            from tactile_mirror.detector.bank import bank_features
 
             return bank_features(x, float(result.fs), bank)
         return x
@@ -98,17 +98,17 @@ def features_from_result(result, features: str = "stress_rate", circuit=None, es
     if u.shape != v.shape:
         raise ValueError(f"result.u_out must have the shape of v_out {v.shape}, got {u.shape}")
     if features != "circuit":
-        from ..estimator import estimate_stress_rate
+        from tactile_mirror.estimator import estimate_stress_rate
 
         est = dict(DEFAULT_ESTIMATOR if estimator is None else estimator)
         v, u = estimate_stress_rate(v, u, _circuit_of(result, circuit), float(result.fs), **est)
     x = np.concatenate([v, u], axis=1)
     if features == "stress_rate_memory":
-        from .memory import DEFAULT_LOAD_TAU, memory_features
+        from tactile_mirror.detector.memory import DEFAULT_LOAD_TAU, memory_features
 
         x = memory_features(x, float(result.fs), DEFAULT_LOAD_TAU if load_tau is None else load_tau)
     elif features == "stress_rate_bank":
-        from .bank import bank_features
+        from tactile_mirror.detector.bank import bank_features
 
         x = bank_features(x, float(result.fs), bank)
     return x

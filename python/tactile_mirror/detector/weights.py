@@ -41,10 +41,10 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from .._npzfile import Member, check_json, parse_json, read_versioned, write_versioned
-from .bank import bank_channels, bank_config, bank_units
-from .memory import MEMORY_CHANNELS, MEMORY_UNITS
-from .network import Params
+from tactile_mirror._npzfile import Member, check_json, parse_json, read_versioned, write_versioned
+from tactile_mirror.detector.bank import bank_channels, bank_config, bank_units
+from tactile_mirror.detector.memory import MEMORY_CHANNELS, MEMORY_UNITS
+from tactile_mirror.detector.network import Params
 
 __all__ = ["FEATURE_CHANNELS", "FEATURE_KINDS", "FORMAT", "FORMAT_VERSION", "KINDS", "MAX_HIDDEN",
            "DetectorWeights", "WeightsError"]

@@ -1,11 +1,7 @@
-"""The tactile-mirror loop: controllers, stages, the loop runner, recordings.
+"""The tactile-mirror loop: stages, the loop runner, recordings, the simulated closed loop.
 
-- :mod:`~tactile_mirror.loop.controller`: the paper's stage law and a velocity law
-  with limits (both run inside the C++ pipeline; numpy references here);
 - :mod:`~tactile_mirror.loop.design`: the default law designed from a stage's data sheet,
   the shear calibration and the sample rate (:func:`design_loop`);
-- :mod:`~tactile_mirror.loop.envelope`: gross slips and tracking error against peak finger
-  speed (``tactile-mirror loop envelope``);
 - :mod:`~tactile_mirror.loop.stage`: the :class:`Stage` protocol and :class:`SimulatedStage`;
 - :mod:`~tactile_mirror.loop.runner`: :class:`LoopRunner` (fixed rate, latency percentiles;
   :class:`StageError` when the stage driver fails mid-run);
@@ -14,40 +10,29 @@
 - :mod:`~tactile_mirror.loop.finger`: finger paths (seeded, band-limited, within a stage's limits);
 - :mod:`~tactile_mirror.loop.scene`: one simulated closed-loop scene (:class:`LoopScene`,
   :func:`run_scene`): finger, contact plant, circuit, pipeline and stage;
-- :mod:`~tactile_mirror.loop.figures`: the Fig. 12/13 layout of a run;
-- :mod:`~tactile_mirror.loop.experiment`: the closed-loop experiment of the paper's section 4
-  (:class:`~tactile_mirror.loop.experiment.ExperimentOptions`, ``run_experiment``).
+
+The control laws the pipeline runs are in :mod:`tactile_mirror.pipeline.controller`; the
+closed-loop experiment, its envelope and figures in :mod:`tactile_mirror.lab.loop`.
 """
 from __future__ import annotations
 
-from .capi import header_path, library_path
-from .controller import Controller, NoController, PaperController, VelocityController, controller_from_dict
-from .design import LoopDesign, design_loop
-from .recording import Recording, RecordingError
-from .runner import ArraySource, LoopResult, LoopRunner, StageError
-from .scene import LoopScene, SceneResult, run_scene
-from .stage import SimulatedStage, Stage, StageLimits
+from typing import TYPE_CHECKING
 
-__all__ = [
-    "ArraySource",
-    "Controller",
-    "LoopDesign",
-    "LoopResult",
-    "LoopRunner",
-    "LoopScene",
-    "NoController",
-    "PaperController",
-    "Recording",
-    "RecordingError",
-    "SceneResult",
-    "SimulatedStage",
-    "Stage",
-    "StageError",
-    "StageLimits",
-    "VelocityController",
-    "controller_from_dict",
-    "design_loop",
-    "header_path",
-    "library_path",
-    "run_scene",
-]
+from tactile_mirror._lazy import attach
+
+__getattr__, __dir__, __all__ = attach(__name__, {
+    "header_path": "capi", "library_path": "capi",
+    "LoopDesign": "design", "design_loop": "design",
+    "Recording": "recording", "RecordingError": "recording",
+    "ArraySource": "runner", "LoopResult": "runner", "LoopRunner": "runner", "StageError": "runner",
+    "LoopScene": "scene", "SceneResult": "scene", "run_scene": "scene",
+    "SimulatedStage": "stage", "Stage": "stage", "StageLimits": "stage",
+})
+
+if TYPE_CHECKING:
+    from tactile_mirror.loop.capi import header_path, library_path
+    from tactile_mirror.loop.design import LoopDesign, design_loop
+    from tactile_mirror.loop.recording import Recording, RecordingError
+    from tactile_mirror.loop.runner import ArraySource, LoopResult, LoopRunner, StageError
+    from tactile_mirror.loop.scene import LoopScene, SceneResult, run_scene
+    from tactile_mirror.loop.stage import SimulatedStage, Stage, StageLimits

@@ -28,7 +28,7 @@ _LIB_NAMES = {"linux": "libtactile_mirror_c.so", "darwin": "libtactile_mirror_c.
 
 
 def _package_dirs():
-    from .. import _core
+    from tactile_mirror import _core
 
     here = Path(__file__).resolve().parent.parent
     dirs = [Path(_core.__file__).resolve().parent, here]
@@ -68,7 +68,7 @@ def include_dir() -> str:
     return os.path.dirname(header_path())
 
 
-def _cdef_from_header(text: str) -> str:
+def cdef_from_header(text: str) -> str:
     """The declarations of tm.h in the subset of C that cffi's cdef parses."""
     text = re.sub(r"/\*.*?\*/", "", text, flags=re.DOTALL)
     lines = []
@@ -103,7 +103,7 @@ def load(path: str | None = None):
     global _FFI
     if _FFI is None:
         ffi = cffi.FFI()
-        ffi.cdef(_cdef_from_header(Path(header_path()).read_text()))
+        ffi.cdef(cdef_from_header(Path(header_path()).read_text()))
         _FFI = ffi
     lib = _FFI.dlopen(path or library_path())
     # Resolve every declaration now. cffi resolves a name on first use under a lock of
@@ -181,7 +181,7 @@ class CPipeline:
     """
 
     def __init__(self, config: dict, path: str | None = None, *, check: bool = True):
-        from ..pipeline import MirrorPipeline
+        from tactile_mirror.pipeline import MirrorPipeline
 
         # Checked by building it as MirrorPipeline.from_config builds it (every array's
         # shape against the sizes it implies): the C ABI takes bare pointers and reads as

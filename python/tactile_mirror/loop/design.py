@@ -4,11 +4,11 @@ Nothing here reads a finger path. :func:`design_loop` takes
 
 * the stage's limits (travel, speed, acceleration: :class:`~tactile_mirror.loop.stage.StageLimits`),
   its command dead time and its servo lag (s);
-* the shear calibration of the pad (:func:`tactile_mirror.loop.experiment.calibrate_shear`):
+* the shear calibration of the pad (:func:`tactile_mirror.lab.loop.experiment.calibrate_shear`):
   ``direction_sign`` and the L/R asymmetry per metre of finger-pad displacement ``k_a``;
 * the sample rate and the pipeline's stress-rate estimator (its order and bandwidth);
 
-and returns a :class:`LoopDesign`: the :class:`~tactile_mirror.loop.controller.VelocityController`
+and returns a :class:`LoopDesign`: the :class:`~tactile_mirror.pipeline.controller.VelocityController`
 with its gains, the loop transfer function, crossover, margins, and the tracking error
 it predicts for any finger motion.
 
@@ -56,7 +56,7 @@ The stage's planner
     ``|v| / a_max`` (20 ms at 20 mm/s: measured on the simulated stage, 55 degrees more
     phase at 25 Hz than delay and lag, which leaves the loop no phase margin). The law
     therefore leads its command by that braking distance (``planner_decel = a_max``,
-    :meth:`~tactile_mirror.loop.controller.Controller.command`), which makes the planned set
+    :meth:`~tactile_mirror.pipeline.controller.Controller.command`), which makes the planned set
     point move at the law's speed; then ``G`` above holds at every speed. A stage that follows
     streamed set points (``planner=False``) gets the law's position itself.
 
@@ -97,13 +97,12 @@ import math
 from dataclasses import dataclass, field
 
 import numpy as np
-import scipy.signal
 
-from .._checks import real_number
-from ..circuit import PVDFCircuit
-from ..estimator import equalizer_sos
-from .controller import VelocityController
-from .stage import StageLimits
+from tactile_mirror._checks import real_number
+from tactile_mirror.circuit import PVDFCircuit
+from tactile_mirror.estimator import equalizer_sos
+from tactile_mirror.loop.stage import StageLimits
+from tactile_mirror.pipeline.controller import VelocityController
 
 __all__ = ["LoopDesign", "design_loop", "loop_response"]
 
@@ -140,6 +139,8 @@ def loop_response(f, kp: float, z: float, kv: float, fs: float, delay: float, la
     -------
     ndarray of complex
     """
+    import scipy.signal
+
     f = np.asarray(f, dtype=np.float64)
     circuit = circuit or PVDFCircuit()
     dt = 1.0 / fs
@@ -305,6 +306,8 @@ SLIP_MIN_SHEAR = 0.04e-3
 
 
 def _estimator_group_delay(fs, order, bandwidth, f0=1.0):
+    import scipy.signal
+
     sos = equalizer_sos(PVDFCircuit(), fs, "v", order, bandwidth)
     f = np.array([f0, f0 * 1.01])
     _, h = scipy.signal.sosfreqz(sos, worN=f, fs=fs)
@@ -325,7 +328,7 @@ def design_loop(limits: StageLimits, calibration, fs: float, *, stage_delay: flo
     limits : StageLimits
         The stage's travel (m), speed (m/s) and acceleration (m/s^2) limits.
     calibration : tuple (direction_sign, asym_per_m)
-        From :func:`tactile_mirror.loop.experiment.calibrate_shear`: the stage direction for
+        From :func:`tactile_mirror.lab.loop.experiment.calibrate_shear`: the stage direction for
         a positive asymmetry (+1/-1) and the asymmetry per metre of relative displacement (> 0);
         with ``sensor="force"``, ``calibrate_shear(..., load_cell=True)``: the force per metre
         (the contact's tangential stiffness, N/m).
@@ -349,7 +352,7 @@ def design_loop(limits: StageLimits, calibration, fs: float, *, stage_delay: flo
 
     shear_weights : array_like (n_ridges, 2), optional
         The pipeline's shear signal the calibration was taken with
-        (:func:`tactile_mirror.loop.experiment.calibrate_shear_weights`); kept in the
+        (:func:`tactile_mirror.lab.loop.experiment.calibrate_shear_weights`); kept in the
         design for :meth:`LoopDesign.pipeline_kwargs`. None: the plain L - R difference.
     planner : bool
         True (default): the stage's move command plans a braking move to each target at

@@ -5,9 +5,8 @@ Positions in m, speeds in m/s, accelerations in m/s^2, times in s, rates in Hz.
 from __future__ import annotations
 
 import numpy as np
-import scipy.signal
 
-from .._checks import real_number
+from tactile_mirror._checks import real_number
 
 __all__ = ["finger_trajectory", "pressed_finger_path"]
 
@@ -21,6 +20,8 @@ def finger_trajectory(seed, duration: float, fs: float, amplitude: float = 3e-3,
     that its speed and acceleration stay within ``v_max`` and ``a_max`` (a stage with those
     limits can follow it).
     """
+    import scipy.signal
+
     fs = real_number(fs, "fs", unit="Hz", positive=True)
     duration = real_number(duration, "duration", unit="s", positive=True)
     # (a negative amplitude or limit mirrored the path; a zero ramp divided 0 by 0)

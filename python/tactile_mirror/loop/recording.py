@@ -41,8 +41,8 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from .._npzfile import Member, check_json, parse_json, read_versioned, write_versioned
-from ..contact.pad import MAX_RIDGES
+from tactile_mirror._npzfile import Member, check_json, parse_json, read_versioned, write_versioned
+from tactile_mirror.geometry import MAX_RIDGES
 
 __all__ = ["FORMAT", "FORMAT_VERSION", "MAX_RIDGES", "MAX_TICKS", "Recording", "RecordingError"]
 
@@ -53,7 +53,7 @@ _CFG_ARRAYS = ("sos_v", "sos_u", "sos_diff", "w1", "b1", "w2", "b2", "input_mean
 #: Longest recording a file may hold: 1e8 ticks, 28 h at 1 kHz (a 6-ridge recording
 #: that long is 27 GB of samples and outputs).
 MAX_TICKS = 10**8
-# MAX_RIDGES: most ridges a recording may have, those of a pad (contact.pad.MAX_RIDGES, 64)
+# MAX_RIDGES: most ridges a recording may have, those of a pad (geometry.MAX_RIDGES, 64)
 _MAX_IN, _MAX_OUT = 4 * MAX_RIDGES, 2 + 3 * MAX_RIDGES
 _MAX_HIDDEN, _MAX_SECTIONS, _MAX_JSON_CHARS = 1024, 64, 1 << 22
 _MEMBERS = {
@@ -219,7 +219,7 @@ class Recording:
     # -- replay ---------------------------------------------------------------------------
     def pipeline(self):
         """A fresh pipeline built from the stored configuration, reset to ``x0``."""
-        from ..pipeline import MirrorPipeline
+        from tactile_mirror.pipeline import MirrorPipeline
 
         pipe = MirrorPipeline.from_config(self.config)
         pipe.reset(self.x0)

@@ -29,8 +29,8 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from .._checks import real_number
-from .recording import Recording
+from tactile_mirror._checks import real_number
+from tactile_mirror.loop.recording import Recording
 
 __all__ = ["ArraySource", "LoopResult", "LoopRunner", "StageError"]
 

@@ -9,7 +9,7 @@ into the pipeline, whose command drives the stage. Open loop (Fig. 12) never com
 the stage; closed loop (Fig. 13) does.
 
 :func:`run_scene` runs one :class:`LoopScene` and returns a :class:`SceneResult`;
-:mod:`~tactile_mirror.loop.experiment` composes many of them.
+:mod:`~tactile_mirror.lab.loop.experiment` composes many of them.
 """
 from __future__ import annotations
 
@@ -19,15 +19,15 @@ from typing import Any
 
 import numpy as np
 
-from .._checks import real_number
-from ..circuit import PVDFCircuit
-from ..contact.brush import BrushRidges
-from ..contact.plants import ContactPlant, FemPad
-from ..estimator import StressRateEstimator
-from .controller import Controller, NoController
-from .finger import pressed_finger_path
-from .runner import LoopRunner
-from .stage import SimulatedStage, StageLimits
+from tactile_mirror._checks import real_number
+from tactile_mirror.circuit import PVDFCircuit
+from tactile_mirror.contact.brush import BrushRidges
+from tactile_mirror.contact.plants import ContactPlant, FemPad
+from tactile_mirror.estimator import StressRateEstimator
+from tactile_mirror.loop.finger import pressed_finger_path
+from tactile_mirror.loop.runner import LoopRunner
+from tactile_mirror.loop.stage import SimulatedStage, StageLimits
+from tactile_mirror.pipeline.controller import Controller, NoController
 
 __all__ = ["MIN_MOUNT_STIFFNESS", "PLANT_KINDS", "LoopScene", "PlantSource", "SceneResult", "gross_slip_events", "gross_slip_starts", "make_plant",
            "run_scene", "scene_finger"]
@@ -266,7 +266,7 @@ def loop_pipeline(weights, fs: float, controller: Controller, n_ridges: int, she
     """The pipeline of the experiment: 2nd-order 100 Hz estimator, fast activation, 50-tick hold;
     ``shear_weights`` (n_ridges, 2) for the controller's shear signal (default: L - R);
     ``force_input``: a load cell's force drives it instead (``LoopScene.load_cell``)."""
-    from ..pipeline import MirrorPipeline
+    from tactile_mirror.pipeline import MirrorPipeline
 
     est = StressRateEstimator(PVDFCircuit(), fs, 2 * n_ridges, order=2, bandwidth=100.0)
     return MirrorPipeline(weights, fs, n_ridges, estimator=est, controller=controller, activation="fast",

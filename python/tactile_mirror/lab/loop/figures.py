@@ -5,15 +5,15 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from .._checks import integer
-from .._io import save_figure
+from tactile_mirror._checks import integer
+from tactile_mirror._io import save_figure
 
 if TYPE_CHECKING:
-    from .scene import SceneResult
+    from tactile_mirror.loop.scene import SceneResult
 
 __all__ = ["design_figure", "loop_figure", "paced_figure"]
 
-#: What the figures call each law of :func:`tactile_mirror.loop.experiment.make_laws`.
+#: What the figures call each law of :func:`tactile_mirror.lab.loop.experiment.make_laws`.
 LAW_TITLES = {"paper": "paper's law", "velocity": "shear loop with y_pred gain scheduling",
               "velocity, y_pred ramp": "velocity law, y_pred ramp only",
               "velocity, shear only": "shear loop without y_pred"}
@@ -132,7 +132,7 @@ def paced_figure(res, slip_fraction, fs: float, path, title: str) -> None:
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    from .scene import gross_slip_starts
+    from tactile_mirror.loop.scene import gross_slip_starts
 
     us = res.tick_ns / 1e3
     period = 1e6 / fs

@@ -15,7 +15,7 @@ reference computed in the same run:
 ``estimator``
     :class:`tactile_mirror.StressRateEstimator` (2nd-order rate from ``u_out``),
     low-pass order x bandwidth, on the default :class:`~tactile_mirror.PVDFCircuit`
-    driven by :func:`tactile_mirror.testing.known_load` with 1 mV rms sensor noise,
+    driven by :func:`tactile_mirror.lab.testing.known_load` with 1 mV rms sensor noise,
     12 strips at 1 kHz. Error: ``rms(rate - true rate) / rms(true rate)`` against the
     analytic stress rate. Speed: ratio to scipy.signal.sosfilt running the same sections.
 ``detector``
@@ -35,8 +35,8 @@ A variant is Pareto-optimal when no other variant of the same kernel is at least
 accurate and at least as fast, and strictly better in one of the two.
 
 The measuring itself (timing rounds, error functions, the filter, estimator and
-detector measurements) lives in :mod:`tactile_mirror.measure`, which the scripts in
-``bench/`` call too; the figure is :func:`tactile_mirror.plots.pareto_figure`.
+detector measurements) lives in :mod:`tactile_mirror.lab.measure`, which the scripts in
+``bench/`` call too; the figure is :func:`tactile_mirror.lab.plots.pareto_figure`.
 
 Run times are the best of a few wall-clock rounds in which every variant of a kernel
 runs in turn (one run for the contact model); on a shared machine compare the speed
@@ -44,7 +44,7 @@ ratios, which come from the same run, rather than absolute times. Run with ``OMP
 
 Example
 -------
->>> from tactile_mirror.benchmark import bench_report
+>>> from tactile_mirror.lab.benchmark import bench_report
 >>> report = bench_report("bench-out", quick=True)     # doctest: +SKIP
 >>> report.kernels["filters"].variants[0].error        # doctest: +SKIP
 """
@@ -61,9 +61,9 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from . import measure
-from ._io import write_text
-from .measure import extended_sosfilt
+from tactile_mirror._io import write_text
+from tactile_mirror.lab import measure
+from tactile_mirror.lab.measure import extended_sosfilt
 
 __all__ = [
     "KERNELS",
@@ -210,8 +210,8 @@ def _bench_filters(quick: bool, progress: _Progress) -> KernelReport:
 def _bench_estimator(quick: bool, progress: _Progress) -> KernelReport:
     import scipy.signal as ss
 
-    from .circuit import PVDFCircuit
-    from .estimator import StressRateEstimator
+    from tactile_mirror.circuit import PVDFCircuit
+    from tactile_mirror.estimator import StressRateEstimator
 
     fs, duration, noise, channels = 1000.0, 2.0, 1e-3, 12
     tile, repeat = (10, 3) if quick else (50, 5)
@@ -258,7 +258,7 @@ def _bench_estimator(quick: bool, progress: _Progress) -> KernelReport:
         title="stress-rate estimator: low-pass order x bandwidth (Butterworth), fs = 1 kHz",
         error_name="rms(rate error) / rms(rate)",
         unit="channel-sample (both outputs)", time_scale=1e9, time_unit="ns",
-        notes=(f"The default PVDF circuit driven by `tactile_mirror.testing.known_load` (loading, ramp, stop, "
+        notes=(f"The default PVDF circuit driven by `tactile_mirror.lab.testing.known_load` (loading, ramp, stop, "
                f"slip), {noise * 1e3:g} mV rms sensor noise on v_out and u_out, {channels} strips x "
                f"{duration:g} s; error against the analytic stress rate (rate2: the same for the 2nd-order rate, "
                f"from u_out); delay: low-frequency group delay of the low-pass. Time: "
@@ -271,7 +271,7 @@ def _bench_estimator(quick: bool, progress: _Progress) -> KernelReport:
 
 
 def _bench_detector(quick: bool, progress: _Progress) -> KernelReport:
-    from .detector import SlipDetector, reference_run
+    from tactile_mirror.detector import SlipDetector, reference_run
 
     n_scenes, repeat, repeat_ref = (3, 5, 2) if quick else (10, 7, 3)
     weights = SlipDetector.paper().weights
@@ -290,7 +290,7 @@ def _bench_detector(quick: bool, progress: _Progress) -> KernelReport:
         title=f"slip detector: SlipDetector.run, the paper's net (H = {weights.n_hidden}), 6 ridges",
         error_name="max |y - y_ref| (y_slip, y_pred)",
         unit="tick (6 ridges)", time_scale=1e9, time_unit="ns",
-        notes=(f"{n_scenes} synthetic stick-slip scenes (`tactile_mirror.detector.synthetic`), 6 ridges x {n} "
+        notes=(f"{n_scenes} synthetic stick-slip scenes (`tactile_mirror.lab.detector.synthetic`), 6 ridges x {n} "
                "ticks, features scaled to the weights' input normalisation; error against the float64 numpy "
                f"recurrence, which is also the speed reference. Time: best of {repeat} rounds of block calls "
                f"(numpy: best of {repeat_ref}). sigmoid: "
@@ -303,8 +303,9 @@ def _bench_detector(quick: bool, progress: _Progress) -> KernelReport:
 
 
 def _bench_contact(quick: bool, progress: _Progress) -> KernelReport:
-    from . import scenes
-    from .contact import RidgeGeometry, ridge_model, simulate
+    from tactile_mirror import scenes
+    from tactile_mirror.contact import ridge_model, simulate
+    from tactile_mirror.geometry import RidgeGeometry
 
     sizes, ref_size = ((0.4e-3, 0.3e-3), 0.2e-3) if quick else ((0.4e-3, 0.3e-3, 0.2e-3, 0.15e-3, 0.1e-3), 0.075e-3)
     duration = 1.3
@@ -428,8 +429,8 @@ class BenchReport:
     # ---- figure
     def figure(self):
         """Matplotlib figure: one panel per kernel, error against run time, log scales
-        (:func:`tactile_mirror.plots.pareto_figure`)."""
-        from .plots import pareto_figure
+        (:func:`tactile_mirror.lab.plots.pareto_figure`)."""
+        from tactile_mirror.lab.plots import pareto_figure
 
         return pareto_figure(self)
 
@@ -440,7 +441,7 @@ class BenchReport:
 
     def write(self, out) -> dict:
         """Write ``bench_report.md``, ``bench_pareto.png`` and ``bench_report.json`` into ``out``."""
-        from .plots import save
+        from tactile_mirror.lab.plots import save
 
         out = pathlib.Path(out)
         out.mkdir(parents=True, exist_ok=True)

@@ -3,8 +3,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from .._checks import integer
-from .data_prep import features_from_result, targets_from_result
+from tactile_mirror._checks import integer
+from tactile_mirror.detector.data_prep import features_from_result, targets_from_result
 
 __all__ = ["figure10", "figure10_data"]
 

@@ -1,4 +1,5 @@
-"""Ridge geometry, material and mesh generation (plane strain, SI units).
+"""Ridge geometry and material of the pad (plane strain, SI units); the mesh is made in
+:mod:`tactile_mirror.contact.mesh`.
 
 Coordinates: ``y`` is across the ridge (the sliding direction), ``z`` is up; the ridge
 occupies ``-width/2 <= y <= width/2``, ``0 <= z <= top(y)`` with a circular top of radius
@@ -22,18 +23,30 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass, field
-from typing import TYPE_CHECKING, Any
+from typing import Any
 
 import numpy as np
 import numpy.typing as npt
 
-if TYPE_CHECKING:
-    from skfem import MeshTri
-
-__all__ = ["STRESS_RECOVERIES", "Material", "RidgeGeometry", "ridge_mesh", "wide_block"]
+__all__ = ["MAX_RIDGES", "STRESS_RECOVERIES", "Material", "RidgeGeometry", "too_many_ridges", "wide_block"]
 
 #: How the strips may read the FEM stress (``RidgeGeometry.stress_recovery``).
 STRESS_RECOVERIES = ("pointwise", "projected")
+
+
+#: Most ridges a pad (and a contact scene, :class:`tactile_mirror.Scene`) may have. A pad is
+#: the few ridges under one fingertip: 6 in the paper's hardware, and at the default pitch
+#: (3 mm) 64 ridges span 19 cm, beyond any finger. Each ridge keeps its own contact solver
+#: and outputs (about 4 MB per ridge for a 0.6 s scene), so 1e5 ridges ran out of memory
+#: with no message. A recording holds at most as many (:mod:`tactile_mirror.loop.recording`
+#: takes this limit).
+MAX_RIDGES = 64
+
+
+def too_many_ridges(n_ridges) -> str:
+    """The error message for a pad or scene with more than :data:`MAX_RIDGES` ridges."""
+    return (f"n_ridges must be at most {MAX_RIDGES} (MAX_RIDGES: the ridges under one finger; each keeps "
+            f"its own contact solver), got {n_ridges!r}")
 
 
 @dataclass(frozen=True)
@@ -205,57 +218,3 @@ def wide_block(width: float = 20e-3, height: float = 10e-3, top_radius: float = 
     return RidgeGeometry(width=width, height=height, top_radius=top_radius,
                          contact_halfwidth=contact_halfwidth, contact_mesh_size=contact_mesh_size,
                          mesh_size=mesh_size, **kw)
-
-
-def _dist_to_segment(p, a, b):
-    ab = b - a
-    t = np.clip(((p - a[:, None]) * ab[:, None]).sum(0) / max(ab @ ab, 1e-300), 0.0, 1.0)
-    q = a[:, None] + ab[:, None] * t[None, :]
-    return np.sqrt(((p - q) ** 2).sum(0))
-
-
-def ridge_mesh(geom: RidgeGeometry) -> MeshTri:
-    """Graded triangle mesh of the ridge cross-section (scikit-fem ``MeshTri``).
-
-    A coarse tensor mesh is refined (conforming red-green-blue refinement) until every
-    element is no larger than a target size that grows linearly with the distance from the
-    contact zone and from the strips; then the top is mapped onto the circular profile.
-
-    The tensor mesh has an even number of columns, so its column lines fall on the centre
-    plane at every mesh size. Its squares are all split along the same diagonal, so the
-    mesh is not mirror-symmetric, and with an odd number of columns (as 0.4 and 0.3 mm had,
-    ``ceil(width / mesh_size)`` = 5 and 7) the strips sit in a differently cut mesh than
-    with an even one: the two families have different error constants, and a sweep that
-    mixed them did not converge steadily (0.3 mm looked more accurate than 0.2 mm). A
-    mirror-symmetric mesh would be more accurate still, but it makes mirror-image contact
-    nodes reach their events at the same load, and the event-driven solver then orders
-    them by round-off (its stepping and backends part on the paper's scenes).
-    """
-    from skfem import MeshTri
-
-    W, H = geom.width, geom.height
-    ny = 2 * max(1, math.ceil(W / 2 / geom.mesh_size))  # even (see above)
-    nz = max(2, math.ceil(H / geom.mesh_size))
-    m = MeshTri.init_tensor(np.linspace(-W / 2, W / 2, ny + 1), np.linspace(0.0, H, nz + 1))
-    hc = geom.contact_halfwidth if geom.contact_halfwidth is not None else W / 2
-    hs = geom.strip_mesh_size if geom.strip_mesh_size is not None else geom.mesh_size
-    a, b = np.array([-hc, H]), np.array([hc, H])
-    segs = [(geom.strip_points(ys)[0], geom.strip_points(ys)[-1]) for ys in geom.strip_y]
-    for _ in range(40):
-        p = m.p[:, m.t]  # (2, 3, nt)
-        c = p.mean(axis=1)
-        edges = np.stack([p[:, 1] - p[:, 0], p[:, 2] - p[:, 1], p[:, 0] - p[:, 2]])
-        diam = np.sqrt((edges**2).sum(axis=1)).max(axis=0)
-        target = np.minimum(geom.mesh_size,
-                            geom.contact_mesh_size + geom.grading * _dist_to_segment(c, a, b))
-        for s0, s1 in segs:
-            target = np.minimum(target, hs + geom.grading * _dist_to_segment(c, s0, s1))
-        marked = np.nonzero(diam > 1.05 * target)[0]
-        if marked.size == 0:
-            break
-        m = m.refined(marked)
-    else:  # pragma: no cover - refinement always terminates for positive sizes
-        raise RuntimeError("mesh refinement did not terminate")
-    p = m.p.copy()
-    p[1] = p[1] * (H - geom.sag(p[0])) / H
-    return MeshTri(p, m.t)

@@ -1,6 +1,6 @@
 """Measuring functions shared by ``tactile-mirror bench`` and the scripts in ``bench/``.
 
-One measuring path: the report of :mod:`tactile_mirror.benchmark` and the scripts
+One measuring path: the report of :mod:`tactile_mirror.lab.benchmark` and the scripts
 ``bench/bench_*.py`` time and score the kernels with these functions, so a figure in
 the report and the same figure printed by a script come from the same code.
 
@@ -26,8 +26,8 @@ Tables
 A new benchmark (a C++ contact solver, a soak run) plugs in by timing with
 :func:`best_times`/:func:`timed`, scoring with the error functions, and printing
 :func:`environment` with its table; a kernel that belongs in the report adds a
-function returning a :class:`tactile_mirror.benchmark.KernelReport` to
-``tactile_mirror.benchmark.KERNEL_BENCHES``.
+function returning a :class:`tactile_mirror.lab.benchmark.KernelReport` to
+``tactile_mirror.lab.benchmark.KERNEL_BENCHES``.
 """
 from __future__ import annotations
 
@@ -41,7 +41,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from ._checks import integer
+from tactile_mirror._checks import integer
 
 __all__ = [
     "FilterCase",
@@ -102,10 +102,10 @@ def timed(fn: Callable[[], object], repeat: int = 3, clock: Callable[[], float] 
 # ---------------------------------------------------------------- errors
 def rel_max(y, ref) -> float:
     """``max |y - ref| / max |ref|``, computed in long double (real arrays only)."""
-    from .filters import _real_numeric
+    from tactile_mirror._checks import real_numeric
 
     for name, a in (("y", y), ("ref", ref)):  # (an imaginary part was dropped)
-        _real_numeric(np.asarray(a), name)
+        real_numeric(np.asarray(a), name)
     ref = np.asarray(ref, dtype=np.longdouble)
     return float(np.max(np.abs(np.asarray(y).astype(np.longdouble) - ref)) / np.max(np.abs(ref)))
 
@@ -224,7 +224,7 @@ def filter_variants(sos, channels: int = 12, n_err: int = 20_000, n_time: int = 
     """
     import scipy.signal as ss
 
-    from . import filters as flt
+    from tactile_mirror import filters as flt
 
     sos = np.asarray(sos, dtype=np.float64)
     rng = np.random.default_rng(seed)
@@ -291,14 +291,14 @@ def lowpass_delay_ms(order: int, bandwidth: float, fs: float, kind: str = "butte
 
 def estimator_signals(circuit=None, fs: float = 1000.0, duration: float = 2.0, noise: float = 1e-3,
                       channels: int = 12, seed: int = 0):
-    """The circuit's outputs for :func:`tactile_mirror.testing.known_load` on every strip.
+    """The circuit's outputs for :func:`tactile_mirror.lab.testing.known_load` on every strip.
 
     Returns ``(v_out, u_out, rate, rate2)``: outputs (channels, n) in V with independent
     sensor noise (``noise`` V rms) per strip, and the analytic stress rate (Pa/s) and
     2nd-order rate (Pa/s^2) of the load, shape (n,).
     """
-    from .circuit import PVDFCircuit
-    from .testing import known_load
+    from tactile_mirror.circuit import PVDFCircuit
+    from tactile_mirror.lab.testing import known_load
 
     circuit = PVDFCircuit() if circuit is None else circuit
     t = np.arange(round(duration * fs)) / fs
@@ -324,7 +324,7 @@ def estimator_errors(rate, rate2, rate_true, rate2_true, aligned: bool = False, 
 def detector_features(weights, n_scenes: int) -> np.ndarray:
     """Features of ``n_scenes`` synthetic stick-slip scenes (6 ridges), scaled to unit
     rms after the weights' input normalisation (as in training); (6, 4, n)."""
-    from .detector.synthetic import synthetic_scene
+    from tactile_mirror.lab.detector.synthetic import synthetic_scene
 
     x = np.concatenate([synthetic_scene(seed=s, n_ridges=6).features for s in range(n_scenes)], axis=-1)
     rms = np.sqrt(np.mean(x**2, axis=(0, 2)))
@@ -336,14 +336,14 @@ def sigmoid_error(dtype, activation: str, path: str | None = None, n: int = 2_00
     in [-100, 100] (``path``: a SIMD path name, default the detector's)."""
     from scipy.special import expit
 
-    from . import _core
+    from tactile_mirror.kernels import detector_sigmoid
 
     g = np.linspace(-100.0, 100.0, n).astype(dtype)
     if path is None:
-        from .detector import SlipDetector
+        from tactile_mirror.detector import SlipDetector
 
         path = SlipDetector.default().simd_path
-    y = _core.detector_sigmoid(g, activation, path)  # type: ignore[call-overload]
+    y = detector_sigmoid(g, activation, path)
     return float(np.max(np.abs(y.astype(np.float64) - expit(g.astype(np.float64)))))
 
 
@@ -354,7 +354,7 @@ def detector_variants(weights, x, repeat: int = 5, tick: Callable[[], object] | 
     recurrence :func:`tactile_mirror.detector.reference_run`), ``error_slip``,
     ``error_pred`` and ``seconds`` per tick (best of ``repeat`` interleaved rounds).
     ``tick`` is called once per variant and once per round."""
-    from .detector import SlipDetector, reference_run
+    from tactile_mirror.detector import SlipDetector, reference_run
 
     ref_s, _, ref_p = reference_run(weights, x)
     rows, runs = [], []
@@ -393,7 +393,7 @@ def environment() -> dict:
     """Where a measurement ran: versions, SIMD path, machine, CPU model, threads, date."""
     import scipy
 
-    from . import __version__, simd_path
+    from tactile_mirror import __version__, simd_path
 
     threads = ", ".join(f"{v}={os.environ[v]}" for v in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS")
                         if v in os.environ) or "library defaults"

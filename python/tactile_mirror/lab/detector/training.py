@@ -7,12 +7,13 @@ import time
 import numpy as np
 import scipy.optimize
 
-from .._checks import integer, real_array, real_number, real_range
-from .bank import bank_config
-from .data_prep import DEFAULT_ESTIMATOR, features_from_result, targets_from_result
-from .memory import DEFAULT_LOAD_TAU
-from .network import Params, init_params, loss_and_grad
-from .weights import FEATURE_KINDS, DetectorWeights, feature_channels, feature_units
+from tactile_mirror._checks import integer, real_array, real_number, real_range
+from tactile_mirror.detector.bank import bank_config
+from tactile_mirror.detector.data_prep import DEFAULT_ESTIMATOR, features_from_result, targets_from_result
+from tactile_mirror.detector.memory import DEFAULT_LOAD_TAU
+from tactile_mirror.detector.network import Params, init_params, loss_and_grad
+from tactile_mirror.detector.normalisation import fit_normalisation
+from tactile_mirror.detector.weights import FEATURE_KINDS, DetectorWeights, feature_channels, feature_units
 
 __all__ = ["TrainingSet", "augment_noise", "compress_training_set", "fit_normalisation", "hard_example_weights",
            "make_training_set", "pad_sequences", "train_detector"]
@@ -206,7 +207,7 @@ def compress_training_set(ts: TrainingSet, knee=None) -> TrainingSet:
     Apply it after any gain augmentation (gains scale the rates, which the compression
     does not commute with). Padding stays zero.
     """
-    from .bank import fit_knees, log_compress
+    from tactile_mirror.detector.bank import fit_knees, log_compress
 
     if ts.features != "stress_rate_bank":
         raise ValueError(f"only filter-bank inputs ('stress_rate_bank') are compressed, got {ts.features!r}")
@@ -219,41 +220,6 @@ def compress_training_set(ts: TrainingSet, knee=None) -> TrainingSet:
                        ts.load_tau, bank)
 
 
-def fit_normalisation(x, mask=None, method: str = "rms"):
-    """Zero mean and one shared scale per signal pair.
-
-    The L and R strips share a scale (and so do u_L, u_R), which keeps the
-    mirror symmetry of the pad in the normalised inputs; channels after the
-    first four (the load-memory inputs) get a scale each. The mean is zero: the
-    features are signed rates (and their integrals) whose sign carries the slide
-    direction.
-
-    Parameters
-    ----------
-    method : {"median", "rms"}
-        ``"median"``: median of ``|x|`` (robust: the 2nd-order rates are spikes
-        on a quiet background, and an RMS scale set by the spikes would squeeze
-        the background into a tiny range); ``"rms"``: root mean square.
-
-    Returns
-    -------
-    input_mean, input_scale : ndarray, shape (n_inputs,)
-    """
-    x = np.asarray(x, dtype=np.float64)
-    if mask is None:
-        mask = np.ones((x.shape[0], x.shape[2]), dtype=bool)
-    if method not in ("median", "rms"):
-        raise ValueError(f"method must be 'median' or 'rms', got {method!r}")
-    sel = np.moveaxis(x, 1, 0)[:, mask]  # (n_inputs, n_samples)
-    groups = [[0, 1], [2, 3]] + [[k] for k in range(4, x.shape[1])]
-    scale = np.ones(x.shape[1])
-    for g in groups:
-        v = sel[g].reshape(-1)
-        scale[g] = np.median(np.abs(v)) if method == "median" else np.sqrt(np.mean(v ** 2))
-    scale = np.where(scale > 0, scale, 1.0)
-    return np.zeros(x.shape[1]), scale
-
-
 _PRED_TARGET_TEXT = {
     "load_ratio": "pred_scale x |F_y| / (mu_k F_z) (tangential load over what the sliding contact carries), "
                   "1 during gross slip",
@@ -264,7 +230,7 @@ _PRED_TARGET_TEXT = {
 def onset_windows(y_slip: np.ndarray, mask: np.ndarray, n_window: int) -> np.ndarray:
     """True on the first ``n_window`` samples of every run of ``y_slip >= 0.5`` (per row,
     within ``mask``): the samples where a slip is detected or missed (the evaluation's
-    detection window, :func:`~tactile_mirror.detector.evaluate.analyse_sequence`)."""
+    detection window, :func:`~tactile_mirror.lab.detector.evaluation.analyse_sequence`)."""
     pos = (np.asarray(y_slip) >= 0.5) & np.asarray(mask, dtype=bool)
     if n_window < 1:
         return np.zeros_like(pos)
@@ -275,7 +241,7 @@ def onset_windows(y_slip: np.ndarray, mask: np.ndarray, n_window: int) -> np.nda
     return pos & (last >= 0) & (idx - last < n_window)
 
 
-def _loss_weights(ts: TrainingSet, pred_weight: float, negative_weight: float = 1.0, onset_weight: float = 0.0,
+def loss_weights(ts: TrainingSet, pred_weight: float, negative_weight: float = 1.0, onset_weight: float = 0.0,
                   onset_window: float = 0.05):
     m = ts.mask.astype(np.float64)
     pos = m * (ts.y_slip >= 0.5)
@@ -385,10 +351,10 @@ def _window_samples(onset_window, fs: float) -> int:
     return n
 
 
-def _cpp_loss(xn, data, w_slip, w_pred, n_hidden, l2, feedback, n_threads):
+def cpp_loss(xn, data, w_slip, w_pred, n_hidden, l2, feedback, n_threads):
     n_in = xn.shape[1]
     """``loss_and_grad`` for L-BFGS-B through the compiled kernel (same function, same packing)."""
-    from .._core import jordan_loss_grad
+    from tactile_mirror.kernels import jordan_loss_grad
 
     m = data.mask
     # Samples used of each sequence: up to its last real one (padding after it has zero weight).
@@ -449,7 +415,7 @@ def train_detector(data, n_hidden: int = 16, feedback: bool = True, seed=0, maxi
         Weight of the first ``onset_window`` seconds of every gross slip in the y_slip
         loss, on top of their weight as slip samples, relative to the slip class (0:
         none, the default). The detection of a slip is decided there
-        (:func:`~tactile_mirror.detector.evaluate.evaluate`'s ``max_latency``).
+        (:func:`~tactile_mirror.lab.detector.evaluation.evaluate`'s ``max_latency``).
     onset_window : float
         Length of that window, s. Default 0.05.
     features, estimator, circuit
@@ -462,7 +428,7 @@ def train_detector(data, n_hidden: int = 16, feedback: bool = True, seed=0, maxi
         Extra entries stored under ``metadata["training"]``.
     backend : {"cpp", "numpy"}
         Where the loss and gradient are computed: ``"cpp"`` (the compiled
-        ``_core.jordan_loss_grad``, each sequence run only for its real samples,
+        ``tactile_mirror.kernels.jordan_loss_grad``, each sequence run only for its real samples,
         sequences spread over ``n_threads`` threads; 6-9x the numpy speed on one
         thread, 9-11x on two, ``bench/bench_detector.py``) or ``"numpy"``
         (:func:`~tactile_mirror.detector.network.loss_and_grad`, the specification).
@@ -474,7 +440,7 @@ def train_detector(data, n_hidden: int = 16, feedback: bool = True, seed=0, maxi
     callback : callable, optional
         ``callback(iteration, weights)`` with the :class:`DetectorWeights` of the
         iterate after every ``callback_every`` L-BFGS-B iterations: checkpoints for
-        early stopping on a validation set (what :func:`~tactile_mirror.detector.build.build_default`
+        early stopping on a validation set (what :func:`~tactile_mirror.lab.detector.build.build_default`
         does; the training loss keeps falling after the validation false alarms
         have started to rise).
     sample_weight : array_like, shape (n_seq, n), optional
@@ -522,7 +488,7 @@ def train_detector(data, n_hidden: int = 16, feedback: bool = True, seed=0, maxi
         raise ValueError(f"onset_weight must be finite and >= 0, got {onset_weight!r}")
     if not (np.isfinite(onset_window) and onset_window > 0.0):
         raise ValueError(f"onset_window must be finite and > 0 s, got {onset_window!r}")
-    w_slip, w_pred = _loss_weights(data, pred_weight, negative_weight, onset_weight, onset_window)
+    w_slip, w_pred = loss_weights(data, pred_weight, negative_weight, onset_weight, onset_window)
     if sample_weight is not None:
         sw = np.asarray(sample_weight)
         if sw.shape != w_slip.shape or sw.dtype.kind not in "iuf":
@@ -559,7 +525,7 @@ def train_detector(data, n_hidden: int = 16, feedback: bool = True, seed=0, maxi
             return loss_and_grad(theta, xn, data.y_slip, data.y_pred, w_slip, w_pred, n_in, int(n_hidden),
                                  l2=l2, feedback=feedback)
     else:
-        fun = _cpp_loss(xn, data, w_slip, w_pred, int(n_hidden), l2, feedback, int(n_threads))
+        fun = cpp_loss(xn, data, w_slip, w_pred, int(n_hidden), l2, feedback, int(n_threads))
 
     from tqdm.auto import tqdm
 

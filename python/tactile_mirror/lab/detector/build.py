@@ -2,7 +2,7 @@
 
 Command line (writes the weights, a report and Figure 10)::
 
-    python -m tactile_mirror.detector.build --out weights.npz [--study] [--report report.txt]
+    python -m tactile_mirror.lab.detector.build --out weights.npz [--study] [--report report.txt]
 
 The bundled ``data/paper_detector.npz`` (the paper's net) was made with the defaults of :class:`BuildOptions`
 (64 training scenes, two noise copies of each at 0-5 mV, gain augmentation 0.6-1.7, H = 16,
@@ -19,13 +19,13 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .._checks import integer
-from .._io import save_figure, write_text
-from .._legacy import legacy_arguments
-from .core import SlipDetector
-from .evaluate import ForceRatioDetector, evaluate
-from .memory import DEFAULT_LOAD_TAU
-from .training import (
+from tactile_mirror._checks import integer
+from tactile_mirror._io import save_figure, write_text
+from tactile_mirror.detector.core import SlipDetector
+from tactile_mirror.detector.memory import DEFAULT_LOAD_TAU
+from tactile_mirror.detector.weights import KINDS
+from tactile_mirror.lab.detector.evaluation import ForceRatioDetector, evaluate
+from tactile_mirror.lab.detector.training import (
     TrainingSet,
     augment_gains,
     augment_noise,
@@ -33,7 +33,6 @@ from .training import (
     make_training_set,
     train_detector,
 )
-from .weights import KINDS
 
 __all__ = [
     "EXTRA_TRAIN_SEED",
@@ -113,8 +112,8 @@ def simulate_cached(n: int, seed: int, kwargs: dict, cache_dir=None, progress: b
     import os
     import pickle
 
-    from .. import __version__
-    from .._io import atomic_write, check_writable
+    from tactile_mirror import __version__
+    from tactile_mirror._io import atomic_write, check_writable
 
     try:
         folder = os.fspath(cache_dir)
@@ -148,7 +147,7 @@ def _load_cached_scenes(path: str, n: int):
     import warnings
     from pathlib import Path
 
-    from ..contact.simulate import SimulationResult
+    from tactile_mirror.contact.simulate import SimulationResult
 
     try:
         value = pickle.loads(Path(path).read_bytes())
@@ -290,8 +289,8 @@ def train_selected(ts, n_hidden: int, maxiter: int, seed: int, candidates: int, 
 
 def condition_names(conditions, name: str) -> tuple[str, ...]:
     """``conditions`` (one name or a sequence) as a tuple of distinct keys of
-    :data:`~tactile_mirror.detector.evaluate.NOISE_CONDITIONS`; ValueError naming ``name``."""
-    from .evaluate import NOISE_CONDITIONS
+    :data:`~tactile_mirror.lab.detector.evaluation.NOISE_CONDITIONS`; ValueError naming ``name``."""
+    from tactile_mirror.lab.detector.evaluation import NOISE_CONDITIONS
 
     names = (conditions,) if isinstance(conditions, str) else tuple(conditions)
     if not names:
@@ -309,7 +308,7 @@ def condition_results(validation, names, seed: int) -> dict:
     each sensor condition ``names`` (seeded ``seed`` + its place in ``names``; a noise-free
     condition gets the clean results themselves). :class:`ValidationScorer` and
     :func:`calibrate_slip` score in these copies."""
-    from .evaluate import NOISE_CONDITIONS, noise_free, with_noise
+    from tactile_mirror.lab.detector.evaluation import NOISE_CONDITIONS, noise_free, with_noise
 
     clean = noise_free(validation)
     return {name: clean if NOISE_CONDITIONS[name] == (0.0, None, None) else with_noise(clean, name, seed + k)
@@ -321,18 +320,18 @@ class ValidationScorer:
 
     ``scorer(weights)`` returns the detection and false-alarm rates, the y_pred
     lead and ``score = detection_rate - fa_cost * false_alarm_rate`` of the
-    weights on the validation set (:func:`~tactile_mirror.detector.evaluate.evaluate`'s
+    weights on the validation set (:func:`~tactile_mirror.lab.detector.evaluation.evaluate`'s
     definitions). Scoring hundreds of checkpoints costs one C++ block run per
     scene each, not a feature computation.
 
     With ``at_false_alarm`` (a rate) the score is instead the detection rate at that
-    false-alarm rate along the net's threshold sweep (:func:`~tactile_mirror.detector.evaluate.roc`;
+    false-alarm rate along the net's threshold sweep (:func:`~tactile_mirror.lab.detector.evaluation.roc`;
     also returned as ``detection_at_false_alarm``): the right score for a net whose decision
     point is calibrated afterwards (:func:`calibrate_slip`), where what the threshold
     0.8 of the uncalibrated net gives does not matter, only how far its curve reaches.
 
     ``conditions`` (with ``at_false_alarm``): names of sensor conditions
-    (:data:`~tactile_mirror.detector.evaluate.NOISE_CONDITIONS`) in which to score instead of
+    (:data:`~tactile_mirror.lab.detector.evaluation.NOISE_CONDITIONS`) in which to score instead of
     the scenes' own noise: their noise-free outputs plus each condition's noise (seeded by
     ``noise_seed`` + the condition's place in ``conditions``, as :func:`calibrate_slip` seeds
     its own), the score the mean detection rate over them. The goals and the calibration are
@@ -357,7 +356,7 @@ class ValidationScorer:
         self._features = {}
         self.conditions = None
         if conditions is not None:
-            from .evaluate import onset_kinds
+            from tactile_mirror.lab.detector.evaluation import onset_kinds
 
             names = condition_names(conditions, "conditions")
             if self.at_false_alarm is None:
@@ -373,7 +372,8 @@ class ValidationScorer:
                "false_alarm_samples": m.false_alarm_samples, "pred_lead_mean_ms": m.pred_lead_mean_ms,
                "score": m.detection_rate - self.fa_cost * m.false_alarm_rate}
         if self.at_false_alarm is not None:
-            from .evaluate import cached_features, roc
+            from tactile_mirror.lab.detector.evaluation import cached_features
+            from tactile_mirror.lab.detector.roc import roc
 
             # the features evaluate() has just computed, from the same cache
             scores = [det.run(cached_features(det, k, r, self._features), fs=r.fs)[0]
@@ -383,8 +383,8 @@ class ValidationScorer:
                 out["detection_at_false_alarm"] = point["detection_rate"]
                 out["score"] = point["detection_rate"]
                 return out
-            from .data_prep import features_from_result
-            from .evaluate import condition_estimator
+            from tactile_mirror.detector.data_prep import features_from_result
+            from tactile_mirror.lab.detector.evaluation import condition_estimator
 
             points = {}
             for name, res in self.conditions.items():
@@ -457,13 +457,13 @@ def calibrate_slip(weights, validation, false_alarm: float | None, slip_threshol
     ``y_slip`` is not fed back (only ``y_pred`` is), so adding ``c`` to its output bias
     ``b2[0]`` thresholds the same net at another level, exactly: the lowest threshold
     ``t`` whose false-alarm rate on ``validation`` is at most ``false_alarm``
-    (:func:`~tactile_mirror.detector.evaluate.roc`, the evaluation's own definitions)
+    (:func:`~tactile_mirror.lab.detector.evaluation.roc`, the evaluation's own definitions)
     becomes ``slip_threshold`` with ``c = logit(slip_threshold) - logit(t)``. Every
     consumer (the pipeline's status, the slip guard, :func:`evaluate`) keeps the one
     rule ``y_slip >= 0.8``. Choose ``validation`` disjoint from what is reported.
 
     ``conditions``: a mapping of sensor conditions (keys of
-    :data:`~tactile_mirror.detector.evaluate.NOISE_CONDITIONS`) to false-alarm bounds. The
+    :data:`~tactile_mirror.lab.detector.evaluation.NOISE_CONDITIONS`) to false-alarm bounds. The
     validation scenes are then scored in each condition (their noise-free outputs plus the
     condition's noise, seeded by ``seed`` + the condition's index) instead of in their own
     noise, and ``t`` is the lowest threshold that keeps every condition within its bound
@@ -477,8 +477,9 @@ def calibrate_slip(weights, validation, false_alarm: float | None, slip_threshol
     """
     import copy
 
-    from .data_prep import features_from_result
-    from .evaluate import condition_estimator, onset_kinds, roc
+    from tactile_mirror.detector.data_prep import features_from_result
+    from tactile_mirror.lab.detector.evaluation import condition_estimator, onset_kinds
+    from tactile_mirror.lab.detector.roc import roc
 
     if isinstance(slip_threshold, bool) or not (isinstance(slip_threshold, (int, float)) and 0 < slip_threshold < 1):
         raise ValueError(f"slip_threshold must be in (0, 1), got {slip_threshold!r}")
@@ -559,7 +560,7 @@ def recalibrate(weights_path, out_path, conditions: dict, n_validation: int = 48
     :data:`VALIDATION_SEED`), refresh its held-out evaluation record (``n_test`` scenes, seed
     :data:`TEST_SEED`, as :func:`build_default` writes it) and save it to ``out_path``.
     Returns ``(weights, info)``."""
-    from .weights import DetectorWeights
+    from tactile_mirror.detector.weights import DetectorWeights
 
     w = uncalibrate(DetectorWeights.load(weights_path))
     val = simulate_cached(n_validation, VALIDATION_SEED, TEST_KWARGS, cache_dir, progress)
@@ -575,7 +576,7 @@ def recalibrate(weights_path, out_path, conditions: dict, n_validation: int = 48
 
 
 def _random_scenes(n, seed, **kwargs):
-    from .. import scenes
+    from tactile_mirror import scenes
 
     return scenes.random(n, seed=seed, **kwargs)
 
@@ -665,7 +666,7 @@ class BuildOptions:
         weights' bank. Default False.
     calibrate_conditions : dict, optional
         Instead of ``calibrate_fa``: false-alarm bounds per sensor condition (keys of
-        :data:`~tactile_mirror.detector.evaluate.NOISE_CONDITIONS`); the decision point is
+        :data:`~tactile_mirror.lab.detector.evaluation.NOISE_CONDITIONS`); the decision point is
         the lowest that keeps the validation scenes within every bound in its condition
         (:func:`calibrate_slip` with ``conditions``).
 
@@ -675,7 +676,7 @@ class BuildOptions:
         threshold the net was trained to, sets where they operate.
     select_conditions : tuple of str, optional
         Choose the candidates in these sensor conditions (keys of
-        :data:`~tactile_mirror.detector.evaluate.NOISE_CONDITIONS`: the validation scenes'
+        :data:`~tactile_mirror.lab.detector.evaluation.NOISE_CONDITIONS`: the validation scenes'
         noise-free outputs plus each condition's noise, ``ValidationScorer(conditions=...)``)
         instead of in the scenes' own noise, by their mean detection at ``select_fa``.
     select_fa : float, optional
@@ -724,7 +725,7 @@ class BuildOptions:
         if self.compress and self.kind != "jordan_bank":
             raise ValueError(f"compress is for kind 'jordan_bank' (its bank's inputs), not {self.kind!r}")
         if self.bank is not None:
-            from .bank import bank_config
+            from tactile_mirror.detector.bank import bank_config
 
             put("bank", bank_config(self.bank))
         for name in ("n_train", "n_test", "n_hidden", "maxiter", "ridges_per_scene", "candidates"):
@@ -788,16 +789,8 @@ class BuildOptions:
         return self.candidates > 1 or self.checkpoint_every > 0
 
 
-#: The parameters of the old keyword form of build_default after ``out_path``, in order.
-_LEGACY_BUILD_PARAMS = ("n_train", "n_test", "n_hidden", "maxiter", "ridges_per_scene", "seed", "study_sizes",
-                        "report_path", "figure_path", "train_kwargs", "test_kwargs", "progress", "results",
-                        "train_options", "gain_range", "noise_copies", "noise_range", "n_validation",
-                        "candidates", "checkpoint_every")
-_BUILD_IO = ("report_path", "figure_path", "results")
-
-
-def build_default(out_path, options: BuildOptions | None = None, *args, report_path=None, figure_path=None,
-                  results=None, cache_dir=None, **kwargs):
+def build_default(out_path, options: BuildOptions | None = None, *, report_path=None, figure_path=None,
+                  results=None, cache_dir=None):
     """Simulate, train and evaluate the default detector; save its weights.
 
     Parameters
@@ -813,39 +806,17 @@ def build_default(out_path, options: BuildOptions | None = None, *args, report_p
     cache_dir : path, optional
         Keep the simulated scene sets there between builds (:func:`simulate_cached`).
 
-    The old form ``build_default(out_path, n_train, n_test, n_hidden, maxiter, ...)``
-    with the options as positional or keyword arguments still works and warns with a
-    ``DeprecationWarning``.
-
     Returns
     -------
     weights : DetectorWeights
     report : dict
     """
-    if not isinstance(options, BuildOptions):
-        if options is None and not args and not kwargs:
-            options = BuildOptions()
-        else:
-            io = {"report_path": report_path, "figure_path": figure_path, "results": results}
-            legacy = (options, *args) if (options is not None or args) else ()
-            options, io = _legacy_build_options(legacy, kwargs, io)
-            report_path, figure_path, results = io["report_path"], io["figure_path"], io["results"]
-    elif args or kwargs:
-        raise TypeError("build_default takes BuildOptions or the old keyword options, not both")
+    if options is None:
+        options = BuildOptions()
+    elif not isinstance(options, BuildOptions):
+        raise TypeError(f"options must be a BuildOptions, got {type(options).__name__}")
     extra = {} if cache_dir is None else {"cache_dir": cache_dir}
     return _build(out_path, options, report_path, figure_path, results, **extra)
-
-
-def _legacy_build_options(args: tuple, kwargs: dict, io: dict):
-    given = legacy_arguments("build_default", _LEGACY_BUILD_PARAMS, args, kwargs,
-                             "build_default(out_path, BuildOptions(...), report_path=..., figure_path=...)")
-    for k in _BUILD_IO:
-        if k in given:
-            value = given.pop(k)
-            if io[k] is not None and value is not None:
-                raise TypeError(f"build_default got multiple values for argument {k!r}")
-            io[k] = value if value is not None else io[k]
-    return BuildOptions(**given), io
 
 
 def _build(out_path, options: BuildOptions, report_path, figure_path, results, cache_dir=None):
@@ -948,8 +919,8 @@ def _build(out_path, options: BuildOptions, report_path, figure_path, results, c
     if report_path is not None:
         write_text(report_path, rep.table() + "\n\n" + json.dumps(report, indent=1, default=float) + "\n")
     if figure_path is not None:
-        from .. import scenes
-        from .figures import figure10
+        from tactile_mirror import scenes
+        from tactile_mirror.lab.detector.figures import figure10
 
         ra = simulate_scenes([scenes.paper("fig6")], False)[0]
         rb = simulate_scenes([scenes.paper("fig8")], False)[0]
@@ -979,7 +950,7 @@ def _usage_error(ap: argparse.ArgumentParser, exc: Exception):
 def main(argv=None):
     """The command line. Bad arguments (a count below 1, a negative weight, a bank time
     constant <= 0, ...) end in a usage line and exit status 2, before anything is simulated."""
-    from .._checks import real_number
+    from tactile_mirror._checks import real_number
 
     ap = argparse.ArgumentParser(description="Train and evaluate the default slip detector.")
     ap.add_argument("--out", required=True, help="weights file to write (.npz)")
@@ -1041,7 +1012,7 @@ def main(argv=None):
             ap.error(f"argument {exc}")
     bank = None
     if args.lp_taus is not None or args.abs_taus is not None:
-        from .bank import DEFAULT_BANK
+        from tactile_mirror.detector.bank import DEFAULT_BANK
 
         bank = dict(DEFAULT_BANK)
         if args.lp_taus is not None:
@@ -1054,12 +1025,12 @@ def main(argv=None):
     if args.calibrate_fa is not None and args.calibrate_condition:
         ap.error("--calibrate-fa and --calibrate-condition exclude each other")
     if args.calibrate_goals is not None:
-        from .evaluate import NOISE_CONDITIONS
+        from tactile_mirror.lab.detector.evaluation import NOISE_CONDITIONS
 
         clean_fa, noisy_fa = args.calibrate_goals
         goals = {name: (clean_fa if name == "noise-free" else noisy_fa) for name in NOISE_CONDITIONS}
     if args.calibrate_condition:
-        from .evaluate import NOISE_CONDITIONS
+        from tactile_mirror.lab.detector.evaluation import NOISE_CONDITIONS
 
         goals = {}
         for name, fa in args.calibrate_condition:

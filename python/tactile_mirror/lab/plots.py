@@ -17,8 +17,8 @@ import numpy as np
 if TYPE_CHECKING:
     from matplotlib.figure import Figure
 
-    from .benchmark import BenchReport, KernelReport
-    from .contact import SimulationResult
+    from tactile_mirror.contact import SimulationResult
+    from tactile_mirror.lab.benchmark import BenchReport, KernelReport
 
 __all__ = ["contact_scene_figure", "pareto_figure", "place_labels", "save"]
 
@@ -60,8 +60,8 @@ def contact_scene_figure(result: SimulationResult, ridge: int = 0, title: str | 
     ``ridge`` is the index of the ridge shown, ``0 <= ridge < n_ridges`` (TypeError /
     ValueError naming it otherwise; a negative index is no ridge).
     """
-    from ._checks import integer
-    from .estimator import estimate_stress_rate
+    from tactile_mirror._checks import integer
+    from tactile_mirror.estimator import estimate_stress_rate
 
     if result.v_out is None or result.slip_fraction is None:
         raise ValueError("result must include the 'signals' and 'slip' outputs")
@@ -102,7 +102,7 @@ def save(fig: Figure, path: str | os.PathLike[str]) -> None:
 
     import matplotlib.pyplot as plt
 
-    from ._io import save_figure
+    from tactile_mirror._io import save_figure
 
     p = pathlib.Path(path)
     try:
@@ -233,7 +233,7 @@ def place_labels(ax, items, points, renderer) -> None:
 
 
 def pareto_figure(report: BenchReport) -> Figure:
-    """Run time against error of a :class:`~tactile_mirror.benchmark.BenchReport`: one
+    """Run time against error of a :class:`~tactile_mirror.lab.benchmark.BenchReport`: one
     panel per kernel, log scales, Pareto-optimal variants filled and labelled."""
     import matplotlib
 

@@ -9,7 +9,7 @@ This module composes the loop's pieces; it holds the experiment itself, not its 
 * one scene and its run: :mod:`tactile_mirror.loop.scene` (:class:`~tactile_mirror.loop.scene.LoopScene`,
   :func:`~tactile_mirror.loop.scene.run_scene`), the circuit in streaming form
   (:class:`tactile_mirror.circuit.CircuitStream`);
-* the Fig. 12/13 layout: :mod:`tactile_mirror.loop.figures`.
+* the Fig. 12/13 layout: :mod:`tactile_mirror.lab.loop.figures`.
 
 Here: the per-plant settings (:data:`PLANTS`), the shear calibration, the detector
 trained on the plant's open-loop runs, the control laws scaled to the plant
@@ -17,7 +17,7 @@ trained on the plant's open-loop runs, the control laws scaled to the plant
 a set of seeded trajectories and the robustness scenes (friction change, compliant
 mounting, sensor noise, dropped samples) and reports gross slips and tracking
 errors for the paper's law and the velocity law (:class:`ExperimentOptions` says
-what it runs). ``python -m tactile_mirror.loop.experiment --out DIR`` writes the
+what it runs). ``python -m tactile_mirror.lab.loop.experiment --out DIR`` writes the
 tables and the Fig. 12/13 reproductions.
 
 The names that lived here before (``Scene``, ``BrushRidges``, ``FemPad``,
@@ -29,27 +29,24 @@ from __future__ import annotations
 import argparse
 import numbers
 import os
-import warnings
-from collections.abc import Iterable
 from dataclasses import dataclass
 from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
-from .._checks import real_number
-from .._io import write_json
-from .._legacy import legacy_arguments
-from ..circuit import PVDFCircuit
-from .controller import NoController, PaperController, VelocityController
-from .figures import loop_figure
-from .runner import LoopRunner
-from .scene import LoopScene, PlantSource, loop_pipeline
-from .scene import make_plant as _make_plant
-from .scene import run_scene as _run_scene
-from .stage import SimulatedStage
+from tactile_mirror._checks import real_number
+from tactile_mirror._io import write_json
+from tactile_mirror.circuit import PVDFCircuit
+from tactile_mirror.lab.loop.figures import loop_figure
+from tactile_mirror.loop.runner import LoopRunner
+from tactile_mirror.loop.scene import LoopScene, PlantSource, loop_pipeline
+from tactile_mirror.loop.scene import make_plant as _make_plant
+from tactile_mirror.loop.scene import run_scene as _run_scene
+from tactile_mirror.loop.stage import SimulatedStage
+from tactile_mirror.pipeline.controller import NoController, PaperController, VelocityController
 
 if TYPE_CHECKING:  # not a name of this module: it moved to .scene
-    from .scene import SceneResult
+    from tactile_mirror.loop.scene import SceneResult
 
 __all__ = [
     "PLANTS",
@@ -65,34 +62,6 @@ __all__ = [
     "train_detector_on_brush",
 ]
 
-#: Names that moved out of this module: name -> (module, name there).
-_MOVED = {
-    "Scene": ("tactile_mirror.loop.scene", "LoopScene"),
-    "SceneResult": ("tactile_mirror.loop.scene", "SceneResult"),
-    "PadSource": ("tactile_mirror.loop.scene", "PlantSource"),
-    "make_plant": ("tactile_mirror.loop.scene", "make_plant"),
-    "scene_finger": ("tactile_mirror.loop.scene", "scene_finger"),
-    "run_scene": ("tactile_mirror.loop.scene", "run_scene"),
-    "gross_slip_events": ("tactile_mirror.loop.scene", "gross_slip_events"),
-    "finger_trajectory": ("tactile_mirror.loop.finger", "finger_trajectory"),
-    "figure": ("tactile_mirror.loop.figures", "loop_figure"),
-    "BrushRidges": ("tactile_mirror.contact.brush", "BrushRidges"),
-    "FemPad": ("tactile_mirror.contact.plants", "FemPad"),
-    "ContactState": ("tactile_mirror.contact.plants", "ContactState"),
-}
-
-
-def __getattr__(name: str):
-    if name in _MOVED:
-        import importlib
-
-        module, new = _MOVED[name]
-        warnings.warn(f"tactile_mirror.loop.experiment.{name} moved to {module}.{new}; import it from there",
-                      DeprecationWarning, stacklevel=2)
-        return getattr(importlib.import_module(module), new)
-    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
-
-
 #: Per-plant settings of the experiment: finger paths, travel, laws' scale, robustness.
 PLANTS: dict[str, dict[str, Any]] = {
     "brush": {"trajectory": {}, "mu": 1.0, "sweat": (1.5, 0.6), "mount": 2000.0, "finger_v_max": 0.015},
@@ -101,7 +70,7 @@ PLANTS: dict[str, dict[str, Any]] = {
 }
 
 
-def _plant(plant) -> dict[str, Any]:
+def plant_settings(plant) -> dict[str, Any]:
     """The settings of ``plant`` (:data:`PLANTS`); ValueError naming the known plants for
     another name (it was a bare KeyError, deep inside the call)."""
     if not isinstance(plant, str) or plant not in PLANTS:
@@ -219,9 +188,9 @@ def train_detector_on_brush(seeds=range(100, 106), fs: float = 1000.0, duration:
     """Train a Jordan detector on open-loop runs of the plant (:class:`~tactile_mirror.contact.brush.BrushRidges` or
     :class:`~tactile_mirror.contact.plants.FemPad`; seeds apart from the evaluation ones); targets as in
     :func:`tactile_mirror.detector.targets_from_result`."""
-    from ..detector import train_detector
+    from tactile_mirror.lab.detector import train_detector
 
-    cfg = _plant(plant)
+    cfg = plant_settings(plant)
     placeholder = {"w1": np.zeros((n_hidden, 5)), "b1": np.zeros(n_hidden), "w2": np.zeros((2, n_hidden)),
                    "b2": np.zeros(2), "input_mean": np.zeros(4), "input_gain": np.ones(4), "fs": fs}
     results = []
@@ -233,7 +202,7 @@ def train_detector_on_brush(seeds=range(100, 106), fs: float = 1000.0, duration:
                    plant=plant, mu=cfg["mu"])
         r = _run_scene(sc, placeholder, None)
         if plant == "fem":
-            from ..scenes import DEFAULT_FRICTION, DEFAULT_KINETIC_RATIO
+            from tactile_mirror.scenes import DEFAULT_FRICTION, DEFAULT_KINETIC_RATIO
 
             mu, kr = DEFAULT_FRICTION, DEFAULT_KINETIC_RATIO
         else:
@@ -245,11 +214,11 @@ def train_detector_on_brush(seeds=range(100, 106), fs: float = 1000.0, duration:
                           metadata={"data": f"{plant} open-loop runs", "seeds": [int(s) for s in seeds]})
 
 
-def _weights_dict(w):
+def weights_dict(w):
     """The pipeline's weight arrays of a DetectorWeights (kind and filter bank included)."""
-    from ..pipeline import _weights_of
+    from tactile_mirror.pipeline import as_detector_weights
 
-    return _weights_of(w)
+    return as_detector_weights(w)
 
 
 def default_weights(plant: str = "fem", fs: float = 1000.0):
@@ -264,9 +233,9 @@ def default_weights(plant: str = "fem", fs: float = 1000.0):
     slips with 1 mV of noise at 20 mm/s, but 29 against 20 under sweat (mu 0.45, 5 mm/s):
     the bank net also reports the creeping slips, and each report holds the stage.
     """
-    _plant(plant)
+    plant_settings(plant)
     if plant == "fem":
-        from ..detector import SlipDetector
+        from tactile_mirror.detector import SlipDetector
 
         return SlipDetector.paper().weights
     return train_detector_on_brush(fs=fs, plant=plant)
@@ -284,8 +253,8 @@ def make_laws(weights, fs: float = 1000.0, plant: str = "fem", n_ridges: int = 6
 
     Returns ``(laws, direction_sign, asymmetry_per_m, shear_gain)``.
     """
-    cfg = _plant(plant)
-    w = _weights_dict(weights) if not isinstance(weights, dict) else weights
+    cfg = plant_settings(plant)
+    w = weights_dict(weights) if not isinstance(weights, dict) else weights
     sign, a_per_m = calibrate_shear(w, fs, n_ridges, plant=plant)
     vf = cfg["finger_v_max"]
     # 60 rad/s of the shear signal, 150 rad/s at full y_pred: the stage (1 ms delay, 2 ms lag)
@@ -309,9 +278,9 @@ def open_and_closed(seed: int = 0, weights=None, law: str = "velocity", duration
                     fs: float = 1000.0, plant: str = "fem"):
     """One finger path, open loop and closed loop (Figs. 12 and 13): two
     :class:`~tactile_mirror.loop.scene.SceneResult`."""
-    cfg = _plant(plant)
+    cfg = plant_settings(plant)
     weights = default_weights(plant, fs) if weights is None else weights
-    w = _weights_dict(weights) if not isinstance(weights, dict) else weights
+    w = weights_dict(weights) if not isinstance(weights, dict) else weights
     laws = make_laws(w, fs, plant)[0]
     if law not in laws:
         raise ValueError(f"law must be one of {sorted(laws)}, got {law!r}")
@@ -369,7 +338,7 @@ class ExperimentOptions:
         object.__setattr__(self, "seeds", tuple(int(s) for s in seeds))
         for name in ("duration", "fs"):
             object.__setattr__(self, name, real_number(getattr(self, name), name, positive=True))
-        _plant(self.plant)
+        plant_settings(self.plant)
         rs = self.robustness_seeds
         if isinstance(rs, bool) or not isinstance(rs, numbers.Integral) or int(rs) < 0:
             raise ValueError(f"robustness_seeds must be a non-negative int, got {rs!r}")
@@ -380,26 +349,7 @@ class ExperimentOptions:
             object.__setattr__(self, name, bool(getattr(self, name)))
 
 
-#: The parameters of the old keyword form of run_experiment, in their positional order.
-_LEGACY_PARAMS = ("seeds", "duration", "fs", "weights", "out_dir", "robustness", "progress", "plant",
-                  "robustness_seeds")
-
-
-def _legacy_options(args: tuple, kwargs: dict, weights, out_dir):
-    """Map the old call ``run_experiment(seeds, duration, fs, weights, out_dir, ...)`` onto options."""
-    given = legacy_arguments("run_experiment", _LEGACY_PARAMS, args, kwargs,
-                             "run_experiment(ExperimentOptions(...), weights=..., out_dir=...)")
-    if "weights" in given:
-        weights = given.pop("weights")
-    if "out_dir" in given:
-        out_dir = given.pop("out_dir")
-    if "seeds" in given:
-        given["seeds"] = tuple(given["seeds"])
-    return ExperimentOptions(**given), weights, out_dir
-
-
-def run_experiment(options: ExperimentOptions | Iterable[int] | None = None, *args, weights=None, out_dir=None,
-                   **kwargs) -> dict:
+def run_experiment(options: ExperimentOptions | None = None, *, weights=None, out_dir=None) -> dict:
     """Open vs closed loop over seeded trajectories, all laws, and the robustness scenes.
 
     Parameters
@@ -411,24 +361,15 @@ def run_experiment(options: ExperimentOptions | Iterable[int] | None = None, *ar
     out_dir : path, optional
         Where to write the results (see below).
 
-    The old form ``run_experiment(seeds, duration, fs, weights, out_dir, robustness,
-    progress, plant, robustness_seeds)`` (positional or keywords) still works and
-    warns with a ``DeprecationWarning``.
-
     Returns a dict with ``rows`` (one summary per run), ``totals`` and the trained
     weights' metadata; with ``out_dir``, writes ``experiment.json``, the figures
     ``fig12_open_loop.png``, ``fig13_closed_loop.png``, ``fig13_paper_law.png``, the
     detector and a recording of one closed-loop run.
     """
-    if isinstance(options, ExperimentOptions):
-        if args or kwargs:
-            raise TypeError("run_experiment takes ExperimentOptions or the old keyword options, not both")
-    elif options is None and not args and not kwargs:
+    if options is None:
         options = ExperimentOptions()
-    else:
-        legacy_args = (options, *args) if (options is not None or args) else ()
-        options, weights, out_dir = _legacy_options(legacy_args, kwargs, weights, out_dir)
-    assert isinstance(options, ExperimentOptions)
+    elif not isinstance(options, ExperimentOptions):
+        raise TypeError(f"options must be an ExperimentOptions, got {type(options).__name__}")
     return _run_experiment(options, weights, out_dir)
 
 
@@ -438,7 +379,7 @@ def _run_experiment(options: ExperimentOptions, weights, out_dir) -> dict:
     cfg = PLANTS[plant]
     if weights is None:
         weights = default_weights(plant, fs)
-    w = _weights_dict(weights) if not isinstance(weights, dict) else weights
+    w = weights_dict(weights) if not isinstance(weights, dict) else weights
     laws, sign, a_per_m, shear_gain = make_laws(w, fs, plant)
     base = {"duration": duration, "fs": fs, "plant": plant, "trajectory": cfg["trajectory"]}
     rows: list[dict] = []
@@ -492,7 +433,7 @@ def _run_experiment(options: ExperimentOptions, weights, out_dir) -> dict:
             rec = r.run.to_recording(pcfg, {"scene": r.scene.label, "seed": r.scene.seed, "plant": plant})
             path = os.path.join(out_dir, "closed_loop_recording.npz")
             rec.save(path)
-            from .recording import Recording
+            from tactile_mirror.loop.recording import Recording
 
             result["recording"] = {"path": "closed_loop_recording.npz",
                                    "replay_bit_identical": Recording.load(path).verify()}
@@ -530,7 +471,7 @@ def main(argv=None):
         ap.error(str(exc))
     weights = None
     if args.weights:
-        from ..detector import DetectorWeights
+        from tactile_mirror.detector import DetectorWeights
 
         weights = DetectorWeights.load(args.weights)
     res = run_experiment(options, weights=weights, out_dir=args.out)

@@ -33,8 +33,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .._io import check_writable, save_figure, write_json
-from .stage import StageLimits
+from tactile_mirror._io import check_writable, save_figure, write_json
+from tactile_mirror.loop.stage import StageLimits
 
 __all__ = ["CONDITIONS", "PATH_SETS", "REPORT_FAST_PATHS", "REPORT_PATHS", "TUNING_FAST_PATHS", "TUNING_PATHS", "PathSet", "envelope_figure", "envelope_table",
            "read_results", "run_envelope"]
@@ -89,7 +89,7 @@ CONDITIONS: dict[str, dict] = {
 #: The laws an envelope can run: no loop, the paper's law, the default law on the strips, and the
 #: default law designed for and run on a load cell under the pad (the scene gets one:
 #: ``LoopScene.load_cell``; ``MirrorPipeline(force_input=True)``).
-_LAWS = ("open loop", "paper", "default", "load cell")
+LAWS = ("open loop", "paper", "default", "load cell")
 #: What :func:`run_envelope` and ``tactile-mirror loop envelope`` run unless told otherwise.
 DEFAULT_LAWS = ("open loop", "paper", "default")
 
@@ -163,11 +163,11 @@ def _results_problem(data) -> str | None:
     return None
 
 
-def _design(weights, fs, limits, delay, lag, n_ridges, plant, sensor: str = "strips", planner: bool = True):
+def design_law(weights, fs, limits, delay, lag, n_ridges, plant, sensor: str = "strips", planner: bool = True):
     """The default law's design for a pad: calibrated (after the press on the FEM pad, the
     finger pushed; nothing from a finger path), then :func:`~tactile_mirror.loop.design.design_loop`."""
-    from .design import design_loop
-    from .experiment import calibrate_shear, calibrate_shear_weights
+    from tactile_mirror.lab.loop.experiment import calibrate_shear, calibrate_shear_weights
+    from tactile_mirror.loop.design import design_loop
 
     kw = {"stage_delay": delay, "stage_lag": lag, "arm_delay": 0.5 if plant == "fem" else 0.0, "planner": planner}
     if sensor == "force":  # a load cell's force: no strip weights
@@ -180,16 +180,16 @@ def _design(weights, fs, limits, delay, lag, n_ridges, plant, sensor: str = "str
     return design_loop(limits, cal, fs, shear_weights=sw, **kw)
 
 
-def _laws(weights, fs, limits, delay, lag, n_ridges, plant, load_cell: bool = False):
+def law_controllers(weights, fs, limits, delay, lag, n_ridges, plant, load_cell: bool = False):
     """The envelope's laws and the strips' design; ``"load cell"`` (its own calibration run)
     only with ``load_cell``."""
-    from .experiment import make_laws
+    from tactile_mirror.lab.loop.experiment import make_laws
 
-    design = _design(weights, fs, limits, delay, lag, n_ridges, plant)
+    design = design_law(weights, fs, limits, delay, lag, n_ridges, plant)
     paper = make_laws(weights, fs, plant, n_ridges)[0]["paper"]
     laws = {"open loop": None, "paper": paper, "default": design.controller}
     if load_cell:
-        laws["load cell"] = _design(weights, fs, limits, delay, lag, n_ridges, plant, sensor="force").controller
+        laws["load cell"] = design_law(weights, fs, limits, delay, lag, n_ridges, plant, sensor="force").controller
     return laws, design
 
 
@@ -217,7 +217,7 @@ _CAPPED = 1e-6
 def _capped_classes(speeds, seeds, paths: PathSet, duration: float, fs: float, plant: str) -> list[str]:
     """One line per speed class whose paths the acceleration limit scales below the class's
     speed: the class, how many of its paths, and the peak speeds they run at."""
-    from .scene import LoopScene, scene_finger
+    from tactile_mirror.loop.scene import LoopScene, scene_finger
 
     lines = []
     for v in speeds:
@@ -283,27 +283,27 @@ def run_envelope(out: str | os.PathLike, speeds: Sequence[float] = (0.002, 0.005
     paths : PathSet
         :data:`REPORT_PATHS` (default) or :data:`TUNING_PATHS`.
     plant : {"fem", "brush"}
-        The contact model (:data:`~tactile_mirror.loop.experiment.PLANTS`).
+        The contact model (:data:`~tactile_mirror.lab.loop.experiment.PLANTS`).
     limits : StageLimits
         The stage (default +-20 mm, 30 mm/s, 1 m/s^2); ``stage_delay``, ``stage_lag`` in s.
 
     Returns the results dict (as written).
     """
-    from .experiment import _plant, _weights_dict, default_weights
-    from .scene import LoopScene, gross_slip_starts, run_scene
+    from tactile_mirror.lab.loop.experiment import default_weights, plant_settings, weights_dict
+    from tactile_mirror.loop.scene import LoopScene, gross_slip_starts, run_scene
 
     for c in conditions:
         if c not in CONDITIONS:
             raise ValueError(f"conditions: unknown condition {c!r}; known: {sorted(CONDITIONS)}")
     for name in laws:
-        if name not in _LAWS:
-            raise ValueError(f"laws: unknown law {name!r}; known: {list(_LAWS)}")
+        if name not in LAWS:
+            raise ValueError(f"laws: unknown law {name!r}; known: {list(LAWS)}")
     if not isinstance(n_seeds, int) or n_seeds < 1:
         raise ValueError(f"n_seeds must be a positive int, got {n_seeds!r}")
     speeds = [float(v) for v in speeds]
     if not speeds or any(not (math.isfinite(v) and v > 0) for v in speeds):
         raise ValueError(f"speeds must be positive finite m/s, got {speeds!r}")
-    _plant(plant)
+    plant_settings(plant)
     # (a repeat ran its class, law or condition twice, and the table counted its rows twice)
     speeds = _unique(speeds, "speeds (m/s)", key=lambda v: round(v * 1e6))  # (the rows are keyed to the um/s)
     conditions = _unique(conditions, "conditions")
@@ -319,8 +319,8 @@ def run_envelope(out: str | os.PathLike, speeds: Sequence[float] = (0.002, 0.005
     check_writable(out)
     data = read_results(out)
     weights = default_weights(plant, fs) if weights is None else weights
-    w = _weights_dict(weights) if not isinstance(weights, dict) else weights
-    law_objs, design = _laws(w, fs, limits, stage_delay, stage_lag, n_ridges, plant, load_cell="load cell" in laws)
+    w = weights_dict(weights) if not isinstance(weights, dict) else weights
+    law_objs, design = law_controllers(w, fs, limits, stage_delay, stage_lag, n_ridges, plant, load_cell="load cell" in laws)
     done = {_key(r) for r in data["rows"]}
     data["design"] = design.summary()
     data["setup"] = {"plant": plant, "duration_s": duration, "fs": fs, "n_ridges": n_ridges,
@@ -406,7 +406,7 @@ def envelope_figure(data, path: str, paths: str = "report") -> None:
               "load cell": ("tab:green", "D")}
     conds = sorted({t["condition"] for t in table}, key=lambda c: list(CONDITIONS).index(c))
     for ci, c in enumerate(conds):
-        for law in _LAWS:
+        for law in LAWS:
             ts = sorted((t for t in table if t["condition"] == c and t["law"] == law), key=lambda t: t["speed_mm_s"])
             if not ts:
                 continue

@@ -42,8 +42,8 @@ def _positive(kind, allow_zero=False):
 _nonnegative_int = _positive(int, allow_zero=True)
 
 
-def _scene_from_args(args):
-    from . import scenes
+def scene_from_args(args):
+    from tactile_mirror import scenes
 
     kw = {}
     if args.friction is not None:
@@ -76,7 +76,7 @@ def _out_folder(path) -> pathlib.Path:
 def _out_files(path, *names) -> pathlib.Path:
     """:func:`_out_folder`, and that each of the files ``names`` the command writes there can
     be written (not a folder, not read-only): checked before the work, not after it."""
-    from ._io import check_figure_path, check_writable
+    from tactile_mirror._io import check_figure_path, check_writable
 
     out = _out_folder(path)
     for name in names:
@@ -85,7 +85,7 @@ def _out_files(path, *names) -> pathlib.Path:
 
 
 def _contact_figure(result, name, path):
-    from .plots import contact_scene_figure, save
+    from tactile_mirror.lab.plots import contact_scene_figure, save
 
     slip = f"gross slip at {result.slip_time:.3f} s" if result.slip_time is not None else "no gross slip"
     title = f"{name}: {PAPER_SCENES.get(name, 'scene')}; {slip}"
@@ -96,10 +96,10 @@ def _contact_figure(result, name, path):
 def cmd_simulate(args) -> int:
     import numpy as np
 
-    from . import simulate
-    from ._io import check_figure_path, check_writable, save_npz
+    from tactile_mirror import simulate
+    from tactile_mirror._io import check_figure_path, check_writable, save_npz
 
-    scene = _scene_from_args(args)
+    scene = scene_from_args(args)
     out = pathlib.Path(args.out)
     check_writable(out, make_folder=True)  # fail before the work, not after
     if args.figure:
@@ -124,7 +124,7 @@ def cmd_simulate(args) -> int:
 def cmd_demo(args) -> int:
     from tqdm.auto import tqdm
 
-    from . import scenes, simd_path, simulate_many
+    from tactile_mirror import scenes, simd_path, simulate_many
 
     out = _out_folder(args.out)  # fail before the work, not after
     t_start = time.perf_counter()
@@ -133,10 +133,11 @@ def cmd_demo(args) -> int:
     results = simulate_many([scenes.paper(n) for n in names], progress=True)
     import numpy as np
 
-    from .detector import SlipDetector, figure10, figure10_data
-    from .loop import experiment
-    from .loop.figures import loop_figure
-    from .plots import save
+    from tactile_mirror.detector import SlipDetector
+    from tactile_mirror.lab.detector import figure10, figure10_data
+    from tactile_mirror.lab.loop import experiment
+    from tactile_mirror.lab.loop.figures import loop_figure
+    from tactile_mirror.lab.plots import save
 
     # Fig. 10 is the paper's net's figure; the table also gives the default (filter-bank) net.
     paper_det, default_det = SlipDetector.paper(), SlipDetector.default()
@@ -180,8 +181,8 @@ BUNDLED_NETS = ("default", "paper", "bank", "early", "pad", "memory")
 _WEIGHTS_HELP = ("detector weights file, or a bundled net: " + ", ".join(BUNDLED_NETS) + " (default: %s)")
 
 
-def _load_detector(path):
-    from .detector import SlipDetector
+def load_detector(path):
+    from tactile_mirror.detector import SlipDetector
 
     if path is None:
         return SlipDetector.default()
@@ -191,8 +192,8 @@ def _load_detector(path):
 
 
 def build_options_from_args(args):
-    """The :class:`~tactile_mirror.detector.build.BuildOptions` of ``tactile-mirror train``'s arguments."""
-    from .detector.build import BuildOptions
+    """The :class:`~tactile_mirror.lab.detector.build.BuildOptions` of ``tactile-mirror train``'s arguments."""
+    from tactile_mirror.lab.detector.build import BuildOptions
 
     return BuildOptions(n_train=args.n_train, n_test=args.n_test, n_hidden=args.hidden, maxiter=args.maxiter,
                         candidates=args.candidates, n_validation=args.n_validation,
@@ -200,8 +201,8 @@ def build_options_from_args(args):
 
 
 def cmd_train(args) -> int:
-    from ._io import check_figure_path, check_writable
-    from .detector.build import build_default
+    from tactile_mirror._io import check_figure_path, check_writable
+    from tactile_mirror.lab.detector.build import build_default
 
     options = build_options_from_args(args)  # bad combinations fail before any work
     out = pathlib.Path(args.out)
@@ -217,19 +218,19 @@ def cmd_train(args) -> int:
 
 
 def cmd_evaluate(args) -> int:
-    from . import simulate_many
-    from .detector import evaluate
-    from .detector.build import TEST_KWARGS, TEST_SEED
-    from .detector.evaluate import detection_by_onset
-    from .scenes import random
+    from tactile_mirror import simulate_many
+    from tactile_mirror.lab.detector import evaluate
+    from tactile_mirror.lab.detector.build import TEST_KWARGS, TEST_SEED
+    from tactile_mirror.lab.detector.evaluation import detection_by_onset
+    from tactile_mirror.scenes import random
 
-    det = _load_detector(args.weights)
+    det = load_detector(args.weights)
     scenes = random(args.scenes, seed=TEST_SEED if args.seed is None else args.seed, **TEST_KWARGS)
     results = simulate_many(scenes, progress=True)
     report = evaluate(det, results)
     print(report.table())
     by = detection_by_onset(det, results)
-    print("\ndetection by how gross slip starts (detector.evaluate.onset_kinds):")
+    print("\ndetection by how gross slip starts (lab.detector.evaluation.onset_kinds):")
     for kind, what in (("release", "release of stored shear (a spike on both strips)"),
                        ("gradual", "gradual creep (the strips' rates only settle)")):
         n, rate = by[kind]
@@ -238,7 +239,7 @@ def cmd_evaluate(args) -> int:
 
 
 def cmd_figure(args) -> int:
-    from . import scenes, simulate
+    from tactile_mirror import scenes, simulate
 
     out = _out_folder(args.out)
     if args.number in (6, 7, 8):
@@ -247,18 +248,18 @@ def cmd_figure(args) -> int:
         path = out / f"{name}.png"
         _contact_figure(res, name, path)
     elif args.number == 10:  # the detector on fig6 and fig8
-        from .detector import figure10
-        from .plots import save
+        from tactile_mirror.lab.detector import figure10
+        from tactile_mirror.lab.plots import save
 
-        det = _load_detector(args.weights)
+        det = load_detector(args.weights)
         a, b = simulate(scenes.paper("fig6")), simulate(scenes.paper("fig8"))
         path = out / "fig10.png"
         save(figure10(det, a, b, stops_b=[(1.40, 1.45)]), path)
     else:  # 12, 13: the open / closed loop on the FEM pad
-        from .loop import experiment
-        from .loop.figures import loop_figure
+        from tactile_mirror.lab.loop import experiment
+        from tactile_mirror.lab.loop.figures import loop_figure
 
-        w = None if args.weights is None else _load_detector(args.weights).weights
+        w = None if args.weights is None else load_detector(args.weights).weights
         r_open, r_closed = experiment.open_and_closed(args.seed, w, law=args.law)
         out.mkdir(parents=True, exist_ok=True)
         if args.number == 12:
@@ -274,7 +275,7 @@ def cmd_figure(args) -> int:
 
 
 def _bench_kernels(text):
-    from .benchmark import KERNELS
+    from tactile_mirror.lab.benchmark import KERNELS
 
     names = [k.strip() for k in text.split(",") if k.strip()]
     if names == ["all"]:
@@ -287,7 +288,7 @@ def _bench_kernels(text):
 
 
 def cmd_bench(args) -> int:
-    from .benchmark import JSON_NAME, MD_NAME, PNG_NAME, bench_report
+    from tactile_mirror.lab.benchmark import JSON_NAME, MD_NAME, PNG_NAME, bench_report
 
     out = _out_folder(args.out)
     print(f"tactile-mirror bench: {', '.join(args.kernels)} ({'quick' if args.quick else 'full'} run); "
@@ -322,7 +323,7 @@ def _names(choices):
 
 
 def _stage_from_args(args):
-    from .loop.stage import StageLimits
+    from tactile_mirror.loop.stage import StageLimits
 
     return StageLimits(-args.travel * 1e-3, args.travel * 1e-3, args.v_max * 1e-3, args.a_max)
 
@@ -330,15 +331,15 @@ def _stage_from_args(args):
 def cmd_loop_design(args) -> int:
     import numpy as np
 
-    from ._io import write_json
-    from .loop.envelope import _design
-    from .loop.figures import design_figure
+    from tactile_mirror._io import write_json
+    from tactile_mirror.lab.loop.envelope import design_law
+    from tactile_mirror.lab.loop.figures import design_figure
 
     limits = _stage_from_args(args)
     w = _weights(_loop_weights(args.weights, args.fs))
     stem = "loop_design_load_cell" if args.load_cell else "loop_design"
     out = _out_files(args.out, f"{stem}.png", f"{stem}.json")  # before the FEM calibration, not after
-    d = _design(w, args.fs, limits, args.delay * 1e-3, args.lag * 1e-3, 6, "fem",
+    d = design_law(w, args.fs, limits, args.delay * 1e-3, args.lag * 1e-3, 6, "fem",
                 sensor="force" if args.load_cell else "strips", planner=not args.streaming)
     design_figure(d, str(out / f"{stem}.png"))
     write_json(out / f"{stem}.json", d.summary(), indent=1)
@@ -356,16 +357,16 @@ def cmd_loop_design(args) -> int:
 
 
 def _weights(w):
-    from .loop.experiment import _weights_dict
+    from tactile_mirror.lab.loop.experiment import weights_dict
 
-    return _weights_dict(w)
+    return weights_dict(w)
 
 
 def cmd_loop_envelope(args) -> int:
-    from .loop.envelope import PATH_SETS, envelope_figure, run_envelope
+    from tactile_mirror.lab.loop.envelope import PATH_SETS, envelope_figure, run_envelope
 
     paths = PATH_SETS[args.paths]
-    weights = None if args.weights is None else _load_detector(args.weights).weights
+    weights = None if args.weights is None else load_detector(args.weights).weights
     out = _out_files(args.out, "loop_envelope.json", "loop_envelope.png")  # before the work, not after
     with warnings.catch_warnings():
         # run_envelope's notes (repeated values dropped, classes capped by the paths' acceleration)
@@ -394,12 +395,12 @@ def cmd_loop_envelope(args) -> int:
 def cmd_loop_realtime(args) -> int:
     """Hardware in the loop without the hardware: the loop paced by the wall clock against
     a simulated finger on the 6-ridge FEM pad; can this machine hold the rate?"""
-    from ._io import write_json
-    from .contact.plants import FemPad
-    from .loop.envelope import REPORT_PATHS, _laws
-    from .loop.figures import paced_figure
-    from .loop.scene import LoopScene, run_scene
-    from .measure import environment
+    from tactile_mirror._io import write_json
+    from tactile_mirror.contact.plants import FemPad
+    from tactile_mirror.lab.loop.envelope import REPORT_PATHS, law_controllers
+    from tactile_mirror.lab.loop.figures import paced_figure
+    from tactile_mirror.lab.measure import environment
+    from tactile_mirror.loop.scene import LoopScene, run_scene
 
     fs, limits = args.fs, _stage_from_args(args)
     weights = _loop_weights(args.weights, fs)
@@ -413,7 +414,7 @@ def cmd_loop_realtime(args) -> int:
     plant = make(6, fs=fs, threads=args.threads)
     controller, shear_weights = None, None
     if args.law != "open loop":
-        laws, design = _laws(weights, fs, limits, scene.stage_delay, scene.stage_lag, 6, "fem",
+        laws, design = law_controllers(weights, fs, limits, scene.stage_delay, scene.stage_lag, 6, "fem",
                              load_cell=args.law == "load cell")
         controller = laws[args.law]
         shear_weights = design.shear_weights if args.law == "default" else None
@@ -443,9 +444,9 @@ def cmd_loop_realtime(args) -> int:
 
 
 def _loop_weights(path, fs):
-    from .loop.experiment import default_weights
+    from tactile_mirror.lab.loop.experiment import default_weights
 
-    w = default_weights("fem", fs) if path is None else _load_detector(path).weights
+    w = default_weights("fem", fs) if path is None else load_detector(path).weights
     # checked here, before the pad is calibrated and simulated at --fs (which the
     # pipeline would refuse only afterwards, and which at MHz rates exhausts memory)
     if float(w.fs) != float(fs):
@@ -455,7 +456,7 @@ def _loop_weights(path, fs):
 
 # ---------------------------------------------------------------- parser
 def build_parser() -> argparse.ArgumentParser:
-    from .scenes import DEFAULT_FRICTION
+    from tactile_mirror.scenes import DEFAULT_FRICTION
 
     parser = argparse.ArgumentParser(prog="tactile-mirror",
                                      description="Closed-loop tactile displays that render static friction.")
@@ -586,14 +587,14 @@ def build_parser() -> argparse.ArgumentParser:
             q.add_argument("--duration", type=_positive(float), default=3.0, help="seconds, 0.5 s press included "
                            "(default: 3)")
         else:
-            from .loop.envelope import _LAWS, CONDITIONS, DEFAULT_LAWS
+            from tactile_mirror.lab.loop.envelope import CONDITIONS, DEFAULT_LAWS, LAWS
 
             q.add_argument("--speeds", type=_speeds_mm_s, default=[2.0, 5.0, 10.0, 20.0],
                            help="peak finger speeds of the classes, mm/s (default: 2,5,10,20)")
             q.add_argument("--seeds", type=_positive(int), default=10, help="paths per class (default: 10)")
             q.add_argument("--conditions", type=_names(list(CONDITIONS)), default=["nominal"],
                            help=f"comma-separated subset of: {', '.join(CONDITIONS).replace('%', '%%')} (default: nominal)")
-            q.add_argument("--laws", type=_names(list(_LAWS)), default=list(DEFAULT_LAWS),
+            q.add_argument("--laws", type=_names(list(LAWS)), default=list(DEFAULT_LAWS),
                            help="comma-separated subset of: open loop,paper,default,load cell (the default law "
                                 "on a load cell under the pad) (default: open loop,paper,default)")
             q.add_argument("--paths", choices=["report", "tuning", "report-fast", "tuning-fast", "report-fast2",

@@ -17,7 +17,7 @@ Direction (both laws)
     which way the finger pulls. ``dir = direction_sign * sign(a)`` while
     ``|a| > asym_deadband``, else the previous ``dir`` (0 before the first decision).
     ``direction_sign`` maps the strips' orientation to the stage axis (+1 or -1;
-    calibrate it once per pad, e.g. with :func:`tactile_mirror.loop.experiment.calibrate_shear`).
+    calibrate it once per pad, e.g. with :func:`tactile_mirror.lab.loop.experiment.calibrate_shear`).
 
 Command (both laws)
     What goes to the stage is the law's position ``x``, or, with ``planner_decel`` = ``d`` > 0,
@@ -55,8 +55,8 @@ from dataclasses import asdict, dataclass
 
 import numpy as np
 
-from .. import _core
-from .._checks import real_number
+from tactile_mirror import _core
+from tactile_mirror._checks import real_number
 
 __all__ = ["Controller", "NoController", "PaperController", "VelocityController", "controller_fields",
            "controller_from_dict"]
