@@ -557,7 +557,7 @@ def test_bundled_pad_net_loads_runs_like_numpy_and_finds_slips_on_pads():
     at its decision point and rarely alarms without one; the pipeline runs it."""
     from tactile_mirror.detector.data_prep import features_from_result
     from tactile_mirror.lab.detector import build
-    from tactile_mirror.lab.detector.roc import roc
+    from tactile_mirror.lab.detector.thresholds import roc
 
     det = SlipDetector.pad()
     b = det.weights.bank

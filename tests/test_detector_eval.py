@@ -333,7 +333,7 @@ def test_calibration_per_condition_keeps_every_condition_within_its_bound(paper_
         onset_kinds,
         with_noise,
     )
-    from tactile_mirror.lab.detector.roc import roc
+    from tactile_mirror.lab.detector.thresholds import roc
 
     bank = SlipDetector.bank()
     raw = uncalibrate(bank.weights)
@@ -425,7 +425,7 @@ def test_scorer_at_false_alarm_scores_the_curve_not_the_threshold(synthetic_dete
     threshold-0.8 score but not the detection at a false-alarm rate."""
     from tactile_mirror.detector.data_prep import features_from_result
     from tactile_mirror.lab.detector.build import ValidationScorer
-    from tactile_mirror.lab.detector.roc import roc
+    from tactile_mirror.lab.detector.thresholds import roc
 
     det, _, _ = synthetic_detectors
     val = [synthetic_scene(seed=3000 + s, n_ridges=1) for s in range(4)]
@@ -492,7 +492,7 @@ def test_validation_scorer_in_sensor_conditions_scores_their_curves(paper_result
         onset_kinds,
         with_noise,
     )
-    from tactile_mirror.lab.detector.roc import roc
+    from tactile_mirror.lab.detector.thresholds import roc
 
     bank = SlipDetector.bank()
     val = [paper_results["fig6"], paper_results["fig7"], paper_results["fig8"]]

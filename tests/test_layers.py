@@ -10,7 +10,6 @@ import subprocess
 import sys
 
 import pytest
-
 import tactile_mirror
 
 ROOT = pathlib.Path(__file__).resolve().parents[1]

@@ -6,7 +6,7 @@ from types import SimpleNamespace
 import numpy as np
 import pytest
 from tactile_mirror.lab.detector.evaluation import _metrics, analyse_sequence
-from tactile_mirror.lab.detector.roc import roc, sequence_extremes
+from tactile_mirror.lab.detector.thresholds import roc, sequence_extremes
 
 FS = 1000.0
 

@@ -16,7 +16,12 @@ from tactile_mirror.pipeline.controller import (
     VelocityController,
     controller_from_dict,
 )
-from tactile_mirror.pipeline.mirror import PIPELINE_DETECTOR_KINDS, MirrorPipeline, pipeline_config
+from tactile_mirror.pipeline.mirror import (
+    PIPELINE_DETECTOR_KINDS,
+    MirrorPipeline,
+    as_detector_weights,
+    pipeline_config,
+)
 from tactile_mirror.pipeline.reference import ReferencePipeline
 
 __all__ = [
@@ -27,6 +32,7 @@ __all__ = [
     "PaperController",
     "ReferencePipeline",
     "VelocityController",
+    "as_detector_weights",
     "controller_from_dict",
     "pipeline_config",
 ]

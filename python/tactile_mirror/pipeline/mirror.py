@@ -31,7 +31,7 @@ from tactile_mirror._owner import NotCopyable
 from tactile_mirror.filters import validate_sos
 from tactile_mirror.pipeline.controller import Controller, controller_from_dict
 
-__all__ = ["PIPELINE_DETECTOR_KINDS", "MirrorPipeline", "pipeline_config"]
+__all__ = ["PIPELINE_DETECTOR_KINDS", "MirrorPipeline", "as_detector_weights", "pipeline_config"]
 
 _CORES = {("float64", "float64"): "_MirrorPipelineF64", ("float32", "float32"): "_MirrorPipelineF32",
           ("float64", "float32"): "_MirrorPipelineF64F32"}

@@ -4,7 +4,7 @@ calibration) and Figure 10.
 
 - :mod:`.training`: :func:`train_detector`, :class:`TrainingSet` and its augmentations;
 - :mod:`.evaluation`: :func:`evaluate`, the sensor conditions, the force-ratio baseline;
-- :mod:`.roc`: :func:`roc`, detection against false alarms over thresholds;
+- :mod:`.thresholds`: :func:`roc`, detection against false alarms over thresholds;
 - :mod:`.build`: the default detector's build (``tactile-mirror train``);
 - :mod:`.figures`: Figure 10; :mod:`.synthetic`: synthetic scenes for kernel benchmarks.
 """
@@ -18,7 +18,7 @@ from tactile_mirror.lab.detector.evaluation import (
     evaluate,
 )
 from tactile_mirror.lab.detector.figures import figure10, figure10_data
-from tactile_mirror.lab.detector.roc import RocCurve, roc
+from tactile_mirror.lab.detector.thresholds import RocCurve, roc
 from tactile_mirror.lab.detector.training import TrainingSet, augment_noise, make_training_set, train_detector
 
 __all__ = [

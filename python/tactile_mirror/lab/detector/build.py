@@ -373,7 +373,7 @@ class ValidationScorer:
                "score": m.detection_rate - self.fa_cost * m.false_alarm_rate}
         if self.at_false_alarm is not None:
             from tactile_mirror.lab.detector.evaluation import cached_features
-            from tactile_mirror.lab.detector.roc import roc
+            from tactile_mirror.lab.detector.thresholds import roc
 
             # the features evaluate() has just computed, from the same cache
             scores = [det.run(cached_features(det, k, r, self._features), fs=r.fs)[0]
@@ -479,7 +479,7 @@ def calibrate_slip(weights, validation, false_alarm: float | None, slip_threshol
 
     from tactile_mirror.detector.data_prep import features_from_result
     from tactile_mirror.lab.detector.evaluation import condition_estimator, onset_kinds
-    from tactile_mirror.lab.detector.roc import roc
+    from tactile_mirror.lab.detector.thresholds import roc
 
     if isinstance(slip_threshold, bool) or not (isinstance(slip_threshold, (int, float)) and 0 < slip_threshold < 1):
         raise ValueError(f"slip_threshold must be in (0, 1), got {slip_threshold!r}")

@@ -17,7 +17,7 @@ y_pred lead
 Rates are over sequences: detection rate over slipping sequences, false-alarm
 rate over all sequences.
 
-The threshold sweep is :func:`tactile_mirror.lab.detector.roc.roc`.
+The threshold sweep is :func:`tactile_mirror.lab.detector.thresholds.roc`.
 """
 from __future__ import annotations
 
