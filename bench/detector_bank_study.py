@@ -94,7 +94,7 @@ def main(argv=None):
     from tactile_mirror.lab.detector import build
     from tactile_mirror.lab.detector.evaluation import noise_free as clean
     from tactile_mirror.lab.detector.evaluation import onset_kinds, with_noise
-    from tactile_mirror.lab.detector.roc import roc
+    from tactile_mirror.lab.detector.thresholds import roc
     from tactile_mirror.lab.measure import cpu_model
 
     t0 = time.perf_counter()

@@ -45,7 +45,7 @@ def main(argv=None):
     from _common import bank_validation_conditions, header
     from tactile_mirror.detector import SlipDetector
     from tactile_mirror.lab.detector import build
-    from tactile_mirror.lab.detector.roc import roc
+    from tactile_mirror.lab.detector.thresholds import roc
 
     t0 = time.perf_counter()
     header(f"filter-bank nets on validation scenes {first}-{last} (seed {build.VALIDATION_SEED})")

@@ -76,7 +76,7 @@ def main(argv=None):
     from tactile_mirror.detector.data_prep import features_from_result
     from tactile_mirror.lab.detector import build
     from tactile_mirror.lab.detector.evaluation import noise_free, onset_kinds, with_noise
-    from tactile_mirror.lab.detector.roc import roc
+    from tactile_mirror.lab.detector.thresholds import roc
     from tactile_mirror.lab.detector.training import (
         TrainingSet,
         augment_gains,

@@ -113,7 +113,7 @@ def main(argv=None):
     from tactile_mirror.lab.detector.evaluation import NOISE_CONDITIONS, onset_kinds, with_noise
     from tactile_mirror.lab.detector.evaluation import condition_estimator as estimator_of
     from tactile_mirror.lab.detector.evaluation import noise_free as clean
-    from tactile_mirror.lab.detector.roc import roc
+    from tactile_mirror.lab.detector.thresholds import roc
     from tactile_mirror.lab.measure import cpu_model
 
     header("filter-bank and load-memory nets vs the paper's Jordan net on the build's held-out scenes")

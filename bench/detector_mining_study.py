@@ -72,7 +72,7 @@ def main(argv=None):
     from tactile_mirror._io import write_json
     from tactile_mirror.detector import SlipDetector
     from tactile_mirror.lab.detector import build
-    from tactile_mirror.lab.detector.roc import roc
+    from tactile_mirror.lab.detector.thresholds import roc
     from tactile_mirror.lab.detector.training import hard_example_weights, train_detector
     from tactile_mirror.lab.measure import cpu_model
 

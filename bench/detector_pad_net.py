@@ -133,7 +133,7 @@ def main(argv=None):
         onset_kinds,
         with_noise,
     )
-    from tactile_mirror.lab.detector.roc import roc
+    from tactile_mirror.lab.detector.thresholds import roc
     from tactile_mirror.lab.detector.training import augment_noise, cpp_loss, fit_normalisation, loss_weights
     from tactile_mirror.lab.measure import cpu_model
 

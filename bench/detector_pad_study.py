@@ -62,7 +62,7 @@ def pad_feature_sets(x: np.ndarray) -> dict:
 
 def latency_at(t, scores, gross, threshold: float, consecutive: int, max_latency: float = 0.05):
     """Latency (s) of the first alarm after the onset (NaN when missed or no slip)."""
-    from tactile_mirror.lab.detector.roc import running_min
+    from tactile_mirror.lab.detector.thresholds import running_min
 
     on = np.flatnonzero(np.asarray(gross) >= 0.5)
     if not on.size:
@@ -89,7 +89,7 @@ def main(argv=None):
     from tactile_mirror.detector.data_prep import features_from_result, targets_from_result
     from tactile_mirror.lab.detector import build
     from tactile_mirror.lab.detector.evaluation import noise_free, onset_kinds, with_noise
-    from tactile_mirror.lab.detector.roc import roc
+    from tactile_mirror.lab.detector.thresholds import roc
     from tactile_mirror.lab.detector.training import augment_noise
     from tactile_mirror.lab.measure import cpu_model
 

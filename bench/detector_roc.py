@@ -208,7 +208,7 @@ def main(argv=None):
     from tactile_mirror._io import save_figure, write_json, write_text
     from tactile_mirror.detector import SlipDetector
     from tactile_mirror.lab.detector.evaluation import ForceRatioDetector, onset_kinds
-    from tactile_mirror.lab.detector.roc import roc
+    from tactile_mirror.lab.detector.thresholds import roc
     from tactile_mirror.lab.measure import environment, markdown_table
 
     header("slip detection against false alarms, threshold sweeps per noise condition")

@@ -57,7 +57,7 @@ def main(argv=None):
     from tactile_mirror.detector.data_prep import features_from_result
     from tactile_mirror.lab.detector import build
     from tactile_mirror.lab.detector.evaluation import NOISE_CONDITIONS, onset_kinds
-    from tactile_mirror.lab.detector.roc import roc
+    from tactile_mirror.lab.detector.thresholds import roc
     from tactile_mirror.lab.detector.training import train_detector
 
     t0 = time.perf_counter()
