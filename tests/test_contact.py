@@ -318,7 +318,7 @@ def test_own_worker_pool_runs_single_threaded_blas(monkeypatch):
     import multiprocessing
     import os
 
-    from tactile_mirror.contact.simulate import WORKER_THREAD_VARS, _worker_env
+    from tactile_mirror.contact.simulation import WORKER_THREAD_VARS, _worker_env
 
     monkeypatch.delenv("OMP_NUM_THREADS", raising=False)
     monkeypatch.setenv("OPENBLAS_NUM_THREADS", "3")  # the user's choice is kept

@@ -334,7 +334,7 @@ def test_compiled_blocks_equal_per_step_stepping(monkeypatch, stepping):
     # sample at a time from Python (Pad.advance) meets the same path
     import importlib
 
-    sim = importlib.import_module("tactile_mirror.contact.simulate")
+    sim = importlib.import_module("tactile_mirror.contact.simulation")
 
     scene = tm.scenes.paper("fig6", n_ridges=2, field_times=(0.2, 1.0),
                            outputs={"stress", "forces", "slip", "state", "fields"}, stop_after_slip=0.013)

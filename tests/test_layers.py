@@ -155,3 +155,32 @@ def test_names_stay_one_attribute_away():
     with pytest.raises(AttributeError, match="no_such_name"):
         tm.no_such_name  # noqa: B018
     assert not hasattr(tm, "train_detector") and not hasattr(tm, "evaluate")
+
+
+def test_lazy_names_are_what_they_say_whatever_was_imported_first():
+    """After every module of the package is imported (which sets each submodule as an
+    attribute of its package), no public name of a package is a module it should not be, and
+    no submodule shares its name with a name it defines (the package attribute would be one
+    or the other by import order)."""
+    code = """
+import importlib, importlib.util, inspect, json, pkgutil
+import tactile_mirror
+bad = []
+for info in pkgutil.walk_packages(tactile_mirror.__path__, "tactile_mirror."):
+    if (importlib.util.find_spec(info.name).origin or "").endswith(".py"):
+        importlib.import_module(info.name)
+for name in ("tactile_mirror", "tactile_mirror.contact", "tactile_mirror.loop", "tactile_mirror.detector",
+             "tactile_mirror.lab", "tactile_mirror.lab.detector", "tactile_mirror.pipeline"):
+    package = importlib.import_module(name)
+    for attr in package.__all__:
+        value = getattr(package, attr)
+        submodule = f"{name}.{attr}"
+        if importlib.util.find_spec(submodule) is None:
+            if inspect.ismodule(value):
+                bad.append(f"{submodule} is the module {value.__name__}")
+        elif hasattr(importlib.import_module(submodule), attr):
+            bad.append(f"{submodule} is a module and defines {attr}: one hides the other")
+print(json.dumps(bad))
+"""
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True).stdout
+    assert json.loads(out.splitlines()[-1]) == []

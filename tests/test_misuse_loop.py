@@ -300,7 +300,7 @@ def test_an_unwritable_results_file_is_found_before_the_design(tmp_path, fake_en
 @pytest.fixture
 def fake_simulation(monkeypatch):
     """simulate_cached with the simulation faked (tiny real SimulationResults); counts the simulations."""
-    from tactile_mirror.contact.simulate import SimulationResult
+    from tactile_mirror.contact.simulation import SimulationResult
     from tactile_mirror.lab.detector import build
 
     calls = []

@@ -8,7 +8,7 @@ Pieces, each usable on its own:
   (compliance, strip-stress sensor operator), cached per geometry
 * :mod:`.solver`    quasi-static frictional contact of one ridge (semismooth Newton)
 * :mod:`.pad`       several ridges under a curved finger, stepped with ``advance``
-* :mod:`.simulate`  scenes -> signals (``simulate``, ``simulate_many``)
+* :mod:`.simulation`  scenes -> signals (``simulate``, ``simulate_many``)
 * :mod:`.plants`    the contact models of the closed loop behind one interface
   (``ContactPlant``, ``ContactState``) and the FEM pad with a pressing finger (``FemPad``)
 * :mod:`.brush`     the reduced brush model of the ridges (``BrushRidges``), the other plant
@@ -25,7 +25,8 @@ __getattr__, __dir__, __all__ = attach(__name__, {
     "RidgeModel": "model", "ridge_model": "model",
     "Pad": "pad", "PadState": "pad",
     "ContactPlant": "plants", "ContactState": "plants", "FemPad": "plants",
-    "SimulationResult": "simulate", "calibrate_friction": "simulate", "simulate": "simulate", "simulate_many": "simulate",
+    "SimulationResult": "simulation", "calibrate_friction": "simulation", "simulate": "simulation",
+    "simulate_many": "simulation",
     "OPEN": "solver", "SLIP": "solver", "STICK": "solver", "ContactConvergenceError": "solver", "ContactSolver": "solver", "ContactStep": "solver",
 })
 
@@ -35,7 +36,7 @@ if TYPE_CHECKING:
     from tactile_mirror.contact.model import RidgeModel, ridge_model
     from tactile_mirror.contact.pad import Pad, PadState
     from tactile_mirror.contact.plants import ContactPlant, ContactState, FemPad
-    from tactile_mirror.contact.simulate import SimulationResult, calibrate_friction, simulate, simulate_many
+    from tactile_mirror.contact.simulation import SimulationResult, calibrate_friction, simulate, simulate_many
     from tactile_mirror.contact.solver import (
         OPEN,
         SLIP,
