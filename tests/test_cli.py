@@ -158,7 +158,7 @@ def test_demo_end_to_end(tmp_path, capsys):
 
 def test_train_maps_its_flags_onto_build_options():
     from tactile_mirror.cli import build_options_from_args
-    from tactile_mirror.lab.detector.build import BuildOptions
+    from tactile_mirror.lab.detector.build_options import BuildOptions
 
     parser = build_parser()
     # the command's defaults are the bundled detector's
@@ -167,7 +167,6 @@ def test_train_maps_its_flags_onto_build_options():
                               "--candidates", "2", "--checkpoint-every", "0", "--n-validation", "3"])
     assert build_options_from_args(args) == BuildOptions(n_train=5, n_test=6, n_hidden=7, maxiter=8, candidates=2,
                                                          checkpoint_every=0, n_validation=3)
-
 
 
 @pytest.mark.parametrize("argv", [["simulate", "--duration", "0.05"], ["train", "--maxiter", "1"]])

@@ -3,7 +3,7 @@
     tactile-mirror demo                       the paper's scenes, figures and a summary
     tactile-mirror simulate --scene fig8      one contact scene -> .npz (+ figure)
     tactile-mirror figure 6 --out figures/    a paper figure reproduction (6, 7, 8, 10, 12, 13)
-    tactile-mirror train / evaluate           slip-detector training and evaluation
+    tactile-mirror train / evaluate           slip-detector training (and calibration) and evaluation
     tactile-mirror bench --out report/        run time against error of every kernel (table + plot)
     tactile-mirror loop design / envelope     the default loop law from a stage's data sheet; its envelope
 
@@ -22,7 +22,7 @@ import argparse
 import sys
 
 from tactile_mirror.cli import bench, detector, loop, scenes
-from tactile_mirror.cli.arguments import BUNDLED_NETS, CommandError, load_detector
+from tactile_mirror.cli.arguments import BUNDLED_NETS, CommandError, UsageError, load_detector
 from tactile_mirror.cli.detector import build_options_from_args
 from tactile_mirror.cli.scenes import scene_from_args
 
@@ -52,6 +52,8 @@ def main(argv=None) -> int:
     args = parser.parse_args(argv)
     try:
         return int(args.func(args))
+    except UsageError as exc:
+        getattr(args, "command_parser", parser).error(str(exc))
     except (CommandError, ValueError, TypeError, OSError, RuntimeError) as exc:
         print(f"error: {exc}", file=sys.stderr)
         return 1

@@ -12,6 +12,7 @@ __all__ = [
     "BUNDLED_NETS",
     "WEIGHTS_HELP",
     "CommandError",
+    "UsageError",
     "add_command",
     "load_detector",
     "names",
@@ -26,12 +27,21 @@ class CommandError(Exception):
     """A failure to report as ``error: ...`` without a traceback (exit status 1)."""
 
 
+class UsageError(Exception):
+    """A bad argument found after parsing (by an options class, or two options that exclude
+    each other): reported as argparse reports one, the command's usage line and
+    ``error: <message>``, exit status 2, before any work."""
+
+
 def add_command(subparsers, name: str, func, **kwargs) -> argparse.ArgumentParser:
     """Add the subcommand ``name`` to ``subparsers`` (``kwargs``: ``help``, ``description``,
-    ... of ``add_parser``), run by ``func(args)`` (which returns the exit status). Returns
-    the subcommand's parser."""
+    ... of ``add_parser``), run by ``func(args)`` (which returns the exit status).
+
+    The parsed arguments also carry ``command_parser``, the subcommand's parser, which
+    reports a :class:`UsageError` with the subcommand's own usage line. Returns that parser.
+    """
     p = subparsers.add_parser(name, **kwargs)
-    p.set_defaults(func=func)
+    p.set_defaults(func=func, command_parser=p)
     return p
 
 
