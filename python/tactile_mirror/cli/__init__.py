@@ -6,13 +6,14 @@
     tactile-mirror train / evaluate           slip-detector training (and calibration) and evaluation
     tactile-mirror bench --out report/        run time against error of every kernel (table + plot)
     tactile-mirror loop design / envelope     the default loop law from a stage's data sheet; its envelope
+    tactile-mirror loop realtime / experiment the loop paced by the wall clock; the paper's experiment
 
 Every subcommand has ``--help``. Bad options print a message and exit with status 2;
 errors while running print ``error: ...`` and exit with status 1.
 
 Each command group is a module with an ``add_parser(subparsers)`` that adds its
 subcommands: :mod:`.scenes` (demo, simulate, figure), :mod:`.detector` (train, evaluate),
-:mod:`.bench` and :mod:`.loop` (design, envelope, realtime); :mod:`.arguments`
+:mod:`.bench` and :mod:`.loop` (design, envelope, realtime, experiment); :mod:`.arguments`
 holds what they share. The group modules import the lab and the runtime inside their
 command functions, so ``tactile-mirror --help`` stays fast.
 """

@@ -1,6 +1,6 @@
 """The ``loop`` commands: ``design`` (the default law from a stage's data sheet), ``envelope``
-(gross slips and tracking error against finger speed) and ``realtime`` (the loop paced by the
-wall clock against the simulated pad)."""
+(gross slips and tracking error against finger speed), ``realtime`` (the loop paced by the
+wall clock against the simulated pad) and ``experiment`` (the paper's section-4 experiment)."""
 from __future__ import annotations
 
 import argparse
@@ -10,6 +10,7 @@ import warnings
 from tactile_mirror.cli.arguments import (
     WEIGHTS_HELP,
     CommandError,
+    UsageError,
     add_command,
     load_detector,
     names,
@@ -22,7 +23,9 @@ __all__ = [
     "add_parser",
     "cmd_loop_design",
     "cmd_loop_envelope",
+    "cmd_loop_experiment",
     "cmd_loop_realtime",
+    "experiment_options_from_args",
 ]
 
 
@@ -175,16 +178,58 @@ def _loop_weights(path, fs):
     return w
 
 
+def experiment_options_from_args(args):
+    """The :class:`~tactile_mirror.lab.loop.experiment.ExperimentOptions` of ``tactile-mirror
+    loop experiment``'s arguments: ``--seeds N`` runs the finger paths of seeds 0 .. N-1,
+    with a progress line per seed. ValueError/TypeError (naming the field) for bad values."""
+    from tactile_mirror.lab.loop.experiment import ExperimentOptions
+
+    return ExperimentOptions(seeds=tuple(range(args.seeds)), duration=args.duration, plant=args.plant,
+                             robustness=not args.no_robustness, robustness_seeds=args.robustness_seeds,
+                             progress=True)
+
+
+def cmd_loop_experiment(args) -> int:
+    """``tactile-mirror loop experiment``: open against closed loop over seeded finger paths
+    and the robustness scenes (:func:`~tactile_mirror.lab.loop.experiment.run_experiment`);
+    the totals on stdout, ``experiment.json``, the figures, the detector and a recording in
+    ``--out``. Returns the exit status."""
+    from tactile_mirror.lab.loop.experiment import run_experiment
+
+    try:
+        options = experiment_options_from_args(args)
+    except (TypeError, ValueError) as exc:
+        raise UsageError(str(exc)) from None
+    weights = None if args.weights is None else load_detector(args.weights).weights
+    out = out_files(args.out, "experiment.json")  # before the work, not after
+    res = run_experiment(options, weights=weights, out_dir=str(out))
+    print(f"plant {res['plant']}; direction_sign {res['direction_sign']:+g}; asymmetry {res['asymmetry_per_m']:.3g} "
+          f"per m; shear_gain {res['shear_gain']:.3g}; detector: {res['detector']}")
+    if "recording" in res:
+        print(f"closed-loop recording replayed bit-identical: {res['recording']['replay_bit_identical']}")
+    print(f"{'scene':<34} {'controller':<22} {'runs':>4} {'slips':>6} {'runs w/ slip':>12} {'slip s':>7} "
+          f"{'max y_slip':>10} {'track rms mm':>12}")
+    for t in res["totals"]:
+        print(f"{t['label']:<34} {t['controller']:<22} {t['runs']:>4} {t['gross_slips']:>6} "
+              f"{t['runs_with_slip']:>12} {t['gross_slip_time_s']:>7.2f} {t['y_slip_max']:>10.2f} "
+              f"{t['tracking_rms_mm']:>12.3f}")
+    return 0
+
+
 def add_parser(sub) -> None:
     """Add ``loop`` and its subcommands to the ``tactile-mirror`` subcommands ``sub``."""
-    p = sub.add_parser("loop", help="the closed loop: design the default law, measure its envelope, pace it",
+    p = sub.add_parser("loop", help="the closed loop: design the default law, measure its envelope, pace it, "
+                                    "run the experiment",
                        description="The stage loop on the 6-ridge FEM pad. 'design': the default law from the "
                                    "stage's data sheet, the pad's shear calibration and the sample rate (Bode "
                                    "plot, margins). 'envelope': gross slips and tracking error against peak finger "
                                    "speed for open loop, the paper's law and the default law (JSON + plot; an "
                                    "interrupted run resumes). 'realtime': the loop paced by the wall clock against a "
                                    "simulated finger on the pad (hardware in the loop without the hardware): tick "
-                                   "times, overruns, gross slips (JSON, plot, recording).")
+                                   "times, overruns, gross slips (JSON, plot, recording). 'experiment': the "
+                                   "paper's section-4 experiment on the brush model or the FEM pad: open against "
+                                   "closed loop for each law over seeded finger paths and the robustness scenes "
+                                   "(tables, JSON, Figs. 12/13, a recording).")
     lsub = p.add_subparsers(dest="loop_command", required=True, metavar="loop_command")
     for name, helptext, func in (("design", "design the default law and plot its loop", cmd_loop_design),
                                  ("envelope", "run the envelope (seeded paths per speed class)", cmd_loop_envelope),
@@ -242,3 +287,20 @@ def add_parser(sub) -> None:
             q.add_argument("--duration", type=positive(float), default=3.0, help="seconds per run, 0.5 s press "
                            "included (default: 3)")
             q.add_argument("--quiet", action="store_true", help="no progress bar")
+
+    q = add_command(lsub, "experiment", cmd_loop_experiment,
+                    help="open against closed loop over seeded finger paths and the robustness scenes")
+    q.add_argument("--out", default="tactile-mirror-output/experiment", help="output folder (default: %(default)s)")
+    q.add_argument("--plant", default="brush",
+                   help="contact model: brush (the reduced brush model) or fem (the 6-ridge FEM pad) "
+                        "(default: %(default)s)")
+    q.add_argument("--seeds", type=positive(int), default=5,
+                   help="finger paths (seeds 0 .. N-1), each run open loop and with every law (default: 5)")
+    q.add_argument("--duration", type=positive(float), default=3.0, help="seconds per run (default: 3)")
+    q.add_argument("--no-robustness", action="store_true",
+                   help="skip the robustness scenes (sweat, compliant mounting, sensor noise, dropped samples)")
+    q.add_argument("--robustness-seeds", type=nonnegative_int, default=2,
+                   help="how many of the first seeds each robustness scene runs (default: 2)")
+    q.add_argument("--weights", default=None,
+                   help=WEIGHTS_HELP % "the plant's: for fem the paper's net, for brush one trained on the "
+                                       "brush model's open-loop runs")
