@@ -1,17 +1,18 @@
 """BuildOptions: what build_default builds, checked on construction; the old keyword
-form of build_default is gone."""
+form of build_default is gone. ``tactile-mirror train``'s build options map onto them."""
 from __future__ import annotations
 
 import dataclasses
 
 import pytest
-from tactile_mirror.lab.detector import build
-from tactile_mirror.lab.detector.build import (
+from tactile_mirror.cli import main
+from tactile_mirror.lab.detector import build, calibration
+from tactile_mirror.lab.detector.build import build_default
+from tactile_mirror.lab.detector.build_options import (
     TEST_KWARGS,
     TRAIN_KWARGS,
     TRAIN_OPTIONS,
     BuildOptions,
-    build_default,
 )
 
 
@@ -77,35 +78,37 @@ def test_build_default_takes_only_options(tmp_path):
         build_default(tmp_path / "w.npz", n_hidden=4)  # type: ignore[call-arg]
 
 
-def test_module_command_maps_onto_options(monkeypatch, tmp_path):
+def test_train_command_maps_onto_options(monkeypatch, tmp_path):
     seen = {}
 
     def fake(out_path, options, report_path=None, figure_path=None):
         seen.update(out=out_path, options=options, report=report_path, figure=figure_path)
-        return None, {"evaluation_table": ""}
+        return None, {"evaluation_table": "", "total_seconds": 0.0}
 
     monkeypatch.setattr(build, "build_default", fake)
-    build.main(["--out", str(tmp_path / "w.npz"), "--hidden", "8", "--pred-weight", "2", "--report", "r.txt"])
+    monkeypatch.chdir(tmp_path)  # (the report's folder is checked before the build)
+    assert main(["train", "--out", str(tmp_path / "w.npz"), "--hidden", "8", "--pred-weight", "2",
+                 "--report", "r.txt"]) == 0
     assert seen["options"] == BuildOptions(n_hidden=8, train_options=dict(TRAIN_OPTIONS, pred_weight=2.0))
     assert seen["report"] == "r.txt" and seen["figure"] is None
 
 
-def test_module_command_maps_the_bank_options(monkeypatch, tmp_path):
+def test_train_command_maps_the_bank_options(monkeypatch, tmp_path):
     seen = {}
 
     def fake(out_path, options, report_path=None, figure_path=None):
         seen.update(options=options)
-        return None, {"evaluation_table": ""}
+        return None, {"evaluation_table": "", "total_seconds": 0.0}
 
     monkeypatch.setattr(build, "build_default", fake)
-    build.main(["--out", str(tmp_path / "w.npz"), "--kind", "jordan_bank", "--lp-taus", "0.008", "0.032",
-                "--abs-taus", "--negative-weight", "30", "--noise-range", "0", "0.002"])
+    assert main(["train", "--out", str(tmp_path / "w.npz"), "--kind", "jordan_bank", "--lp-taus", "0.008", "0.032",
+                 "--abs-taus", "--negative-weight", "30", "--noise-range", "0", "0.002"]) == 0
     o = seen["options"]
     assert o.kind == "jordan_bank" and o.noise_range == (0.0, 0.002)
     assert o.bank == {"lp_taus": [0.008, 0.032], "abs_taus": [], "load_tau": 0.5, "peak_tau": 2.0}
     assert o.train_options["negative_weight"] == 30.0
     # without bank options the build uses the default bank (None here)
-    build.main(["--out", str(tmp_path / "w.npz"), "--kind", "jordan_bank"])
+    assert main(["train", "--out", str(tmp_path / "w.npz"), "--kind", "jordan_bank"]) == 0
     assert seen["options"].bank is None
 
 
@@ -124,12 +127,12 @@ def test_calibrate_condition_reaches_the_recalibration(monkeypatch, tmp_path, ca
         calls.append((weights_path, out_path, conditions, n_validation, n_test, cache_dir))
         return None, {"threshold": 0.5}
 
-    monkeypatch.setattr(build, "recalibrate", fake_recalibrate)
+    monkeypatch.setattr(calibration, "recalibrate", fake_recalibrate)
     out = str(tmp_path / "w.npz")
-    build.main(["--out", out, "--recalibrate", "in.npz", "--calibrate-condition", "1 mV rms white", "0.025",
-                "--n-validation", "480"])
+    assert main(["train", "--out", out, "--recalibrate", "in.npz", "--calibrate-condition", "1 mV rms white",
+                 "0.025", "--n-validation", "480"]) == 0
     assert calls == [("in.npz", out, {"1 mV rms white": 0.025}, 480, 200, None)]
-    build.main(["--out", out, "--recalibrate", "in.npz", "--calibrate-goals", "0.015", "0.025"])
+    assert main(["train", "--out", out, "--recalibrate", "in.npz", "--calibrate-goals", "0.015", "0.025"]) == 0
     assert calls[-1][2] == {"noise-free": 0.015, "1 mV rms white": 0.025, "thermal + 2 mV 50 Hz hum, notch": 0.025}
     for bad, match in ((["--calibrate-condition", "2 mV", "0.02"], "unknown condition"),
                        (["--calibrate-condition", "noise-free", "low"], "must be a number"),
@@ -142,6 +145,30 @@ def test_calibrate_condition_reaches_the_recalibration(monkeypatch, tmp_path, ca
                        (["--calibrate-condition", "noise-free", "0.02", "--calibrate-goals", "0.01", "0.02"],
                         "exclude each other")):
         with pytest.raises(SystemExit):
-            build.main(["--out", out, "--recalibrate", "in.npz", *bad])
+            main(["train", "--out", out, "--recalibrate", "in.npz", *bad])
         assert match in capsys.readouterr().err
     assert len(calls) == 2
+
+
+def test_train_command_passes_the_cache_and_refuses_what_the_build_cannot_do(monkeypatch, tmp_path, capsys):
+    """--cache reaches the build; an unknown --kind and --recalibrate without a calibration goal
+    end in the usage line (exit status 2) before anything runs."""
+    seen = {}
+
+    def fake(out_path, options, report_path=None, figure_path=None, cache_dir=None):
+        seen.update(options=options, cache_dir=cache_dir, runs=seen.get("runs", 0) + 1)
+        return None, {"evaluation_table": "", "total_seconds": 0.0, "hidden_size_study": [{"n_hidden": 8}]}
+
+    monkeypatch.setattr(build, "build_default", fake)
+    out = str(tmp_path / "w.npz")
+    assert main(["train", "--out", out, "--cache", str(tmp_path / "cache"), "--study", "8", "16"]) == 0
+    assert seen["cache_dir"] == str(tmp_path / "cache") and seen["options"].study_sizes == (8, 16)
+    assert "{'n_hidden': 8}" in capsys.readouterr().out
+    for argv, message in ((["--kind", "elman"], "error: argument --kind: kind must be one of"),
+                          (["--recalibrate", "in.npz"], "--recalibrate needs --calibrate-goals")):
+        with pytest.raises(SystemExit) as exc:
+            main(["train", "--out", out, *argv])
+        assert exc.value.code == 2
+        err = capsys.readouterr().err
+        assert err.startswith("usage: tactile-mirror train") and message in err
+    assert seen["runs"] == 1

@@ -158,7 +158,7 @@ def test_demo_end_to_end(tmp_path, capsys):
 
 def test_train_maps_its_flags_onto_build_options():
     from tactile_mirror.cli import build_options_from_args
-    from tactile_mirror.lab.detector.build import BuildOptions
+    from tactile_mirror.lab.detector.build_options import BuildOptions
 
     parser = build_parser()
     # the command's defaults are the bundled detector's
@@ -168,6 +168,28 @@ def test_train_maps_its_flags_onto_build_options():
     assert build_options_from_args(args) == BuildOptions(n_train=5, n_test=6, n_hidden=7, maxiter=8, candidates=2,
                                                          checkpoint_every=0, n_validation=3)
 
+
+def test_loop_experiment_maps_onto_the_options():
+    import argparse
+
+    from tactile_mirror.cli.loop import experiment_options_from_args
+    from tactile_mirror.lab.loop.experiment import ExperimentOptions
+
+    args = argparse.Namespace(seeds=3, duration=1.5, plant="fem", no_robustness=True, robustness_seeds=1)
+    o = experiment_options_from_args(args)
+    assert o == ExperimentOptions(seeds=(0, 1, 2), duration=1.5, plant="fem", robustness=False,
+                                  robustness_seeds=1, progress=True)
+    with pytest.raises(SystemExit):
+        main(["loop", "experiment", "--duration", "0", "--out", "unused"])
+
+
+def test_loop_experiment_refuses_an_unknown_plant_with_a_usage_line(tmp_path, capsys):
+    with pytest.raises(SystemExit) as exc:
+        main(["loop", "experiment", "--plant", "rubber", "--out", str(tmp_path / "o")])
+    assert exc.value.code == 2
+    err = capsys.readouterr().err
+    assert err.startswith("usage: tactile-mirror loop experiment") and "plant must be one of" in err
+    assert not (tmp_path / "o").exists()  # refused before the work
 
 
 @pytest.mark.parametrize("argv", [["simulate", "--duration", "0.05"], ["train", "--maxiter", "1"]])

@@ -430,7 +430,7 @@ def test_compressed_training_set_trains_a_net_that_runs_compressed():
     reads its inputs compressed (as the numpy reference of the compressed bank)."""
     from types import SimpleNamespace
 
-    from tactile_mirror.lab.detector.build import BuildOptions
+    from tactile_mirror.lab.detector.build_options import BuildOptions
     from tactile_mirror.lab.detector.training import compress_training_set, make_training_set, train_detector
 
     x = _signals(n_r=2, n=300)
@@ -556,7 +556,8 @@ def test_bundled_pad_net_loads_runs_like_numpy_and_finds_slips_on_pads():
     numpy runs it; on six-ridge pad scenes of a seed no choice has seen it finds most slips
     at its decision point and rarely alarms without one; the pipeline runs it."""
     from tactile_mirror.detector.data_prep import features_from_result
-    from tactile_mirror.lab.detector import build
+    from tactile_mirror.lab.detector.build_options import TEST_KWARGS
+    from tactile_mirror.lab.detector.scene_cache import simulate_cached
     from tactile_mirror.lab.detector.thresholds import roc
 
     det = SlipDetector.pad()
@@ -567,7 +568,7 @@ def test_bundled_pad_net_loads_runs_like_numpy_and_finds_slips_on_pads():
     rs, _, rp = reference_run(det.weights, x)
     np.testing.assert_allclose(ys, rs, atol=1e-11)
     np.testing.assert_allclose(yp, rp, atol=1e-11)
-    scenes = build.simulate_cached(24, 4712, {**build.TEST_KWARGS, "n_ridges": 6}, progress=False)
+    scenes = simulate_cached(24, 4712, {**TEST_KWARGS, "n_ridges": 6}, progress=False)
     scores = [det.run(features_from_result(r, "stress_rate"), fs=r.fs)[0] for r in scenes]
     q = roc(scores, scenes).at_threshold(0.8)
     # (its held-out figures: 88 % at 1 %; 24 scenes' 144 ridges leave room for their luck)

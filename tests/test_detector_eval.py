@@ -82,7 +82,7 @@ def test_evaluate_reports_all_rows(synthetic_detectors):
 
 
 def test_validation_selection_prefers_fewer_false_alarms(synthetic_detectors):
-    from tactile_mirror.lab.detector.build import ValidationScorer, select_candidate
+    from tactile_mirror.lab.detector.selection import ValidationScorer, select_candidate
 
     det, _, _ = synthetic_detectors
     val = [synthetic_scene(seed=3000 + s, n_ridges=1) for s in range(4)]
@@ -108,7 +108,8 @@ def test_validation_selection_prefers_fewer_false_alarms(synthetic_detectors):
 
 
 def test_hidden_size_study_uses_the_build_selection():
-    from tactile_mirror.lab.detector.build import ValidationScorer, hidden_size_study, train_selected
+    from tactile_mirror.lab.detector.selection import ValidationScorer, train_selected
+    from tactile_mirror.lab.detector.size_study import hidden_size_study
 
     ts = make_training_set([synthetic_scene(seed=s, n_ridges=1, duration=1.2) for s in range(2)])
     scorer = ValidationScorer([synthetic_scene(seed=50 + s, n_ridges=1, duration=1.2) for s in range(2)])
@@ -296,7 +297,7 @@ def test_calibrate_slip_moves_the_decision_point_exactly(paper_results):
     alarms on exactly the samples where the original's y_slip reaches the threshold it
     found, y_pred is untouched, and the calibration is recorded."""
     from tactile_mirror.detector.data_prep import features_from_result
-    from tactile_mirror.lab.detector.build import calibrate_slip
+    from tactile_mirror.lab.detector.calibration import calibrate_slip
 
     bank = SlipDetector.bank()
     before = (bank.weights.params.b2.copy(), dict(bank.weights.metadata.get("slip_calibration") or {}))
@@ -325,7 +326,7 @@ def test_calibration_per_condition_keeps_every_condition_within_its_bound(paper_
     the per-condition thresholds, recomputed here from the same noisy copies; uncalibrate
     gives the net as trained back, bit for bit."""
     from tactile_mirror.detector.data_prep import features_from_result
-    from tactile_mirror.lab.detector.build import calibrate_slip, uncalibrate
+    from tactile_mirror.lab.detector.calibration import calibrate_slip, uncalibrate
     from tactile_mirror.lab.detector.evaluation import (
         NOISE_CONDITIONS,
         condition_estimator,
@@ -396,7 +397,7 @@ def test_noise_conditions_add_what_they_name(paper_results):
 
 
 def test_build_options_check_the_calibration_conditions():
-    from tactile_mirror.lab.detector.build import BuildOptions
+    from tactile_mirror.lab.detector.build_options import BuildOptions
 
     o = BuildOptions(calibrate_conditions={"noise-free": 0.015, "1 mV rms white": 0.025})
     assert o.calibrate_conditions == {"noise-free": 0.015, "1 mV rms white": 0.025}
@@ -412,7 +413,7 @@ def test_build_options_check_the_calibration_conditions():
 
 @pytest.mark.parametrize("bad", [0.0, 1.0, -0.1, True, "0.02"])
 def test_build_options_refuse_a_bad_calibration_rate(bad):
-    from tactile_mirror.lab.detector.build import BuildOptions
+    from tactile_mirror.lab.detector.build_options import BuildOptions
 
     with pytest.raises(ValueError, match="calibrate_fa"):
         BuildOptions(calibrate_fa=bad)
@@ -424,7 +425,7 @@ def test_scorer_at_false_alarm_scores_the_curve_not_the_threshold(synthetic_dete
     """A net calibrated afterwards is scored by its curve: shifting y_slip's bias moves the
     threshold-0.8 score but not the detection at a false-alarm rate."""
     from tactile_mirror.detector.data_prep import features_from_result
-    from tactile_mirror.lab.detector.build import ValidationScorer
+    from tactile_mirror.lab.detector.selection import ValidationScorer
     from tactile_mirror.lab.detector.thresholds import roc
 
     det, _, _ = synthetic_detectors
@@ -457,7 +458,7 @@ def test_uncalibrate_undoes_a_threshold_only_record():
 
     import tactile_mirror as tm
     from tactile_mirror.detector.data_prep import features_from_result
-    from tactile_mirror.lab.detector.build import uncalibrate
+    from tactile_mirror.lab.detector.calibration import uncalibrate
 
     pad = SlipDetector.pad()
     t = pad.weights.metadata["slip_calibration"]["threshold"]
@@ -485,13 +486,14 @@ def test_validation_scorer_in_sensor_conditions_scores_their_curves(paper_result
     (the scenes' noise-free outputs plus the condition's noise, seeded noise_seed + its place),
     recomputed here from the same noisy copies; the score is the mean detection over them."""
     from tactile_mirror.detector.data_prep import features_from_result
-    from tactile_mirror.lab.detector.build import BuildOptions, ValidationScorer
+    from tactile_mirror.lab.detector.build_options import BuildOptions
     from tactile_mirror.lab.detector.evaluation import (
         condition_estimator,
         noise_free,
         onset_kinds,
         with_noise,
     )
+    from tactile_mirror.lab.detector.selection import ValidationScorer
     from tactile_mirror.lab.detector.thresholds import roc
 
     bank = SlipDetector.bank()

@@ -224,7 +224,7 @@ def test_memory_metadata_json():
 
 
 def test_build_options_kind_and_load_tau():
-    from tactile_mirror.lab.detector.build import BuildOptions
+    from tactile_mirror.lab.detector.build_options import BuildOptions
 
     assert BuildOptions(kind="jordan_memory").kind == "jordan_memory"
     with pytest.raises(ValueError, match="kind"):

@@ -7,7 +7,6 @@ import dataclasses
 import numpy as np
 import pytest
 from tactile_mirror.contact.brush import BrushRidges
-from tactile_mirror.lab.loop import experiment
 from tactile_mirror.lab.loop.experiment import ExperimentOptions, calibrate_direction, run_experiment
 from tactile_mirror.loop.finger import finger_trajectory, pressed_finger_path
 from tactile_mirror.loop.scene import LoopScene as Scene
@@ -135,14 +134,3 @@ def test_run_experiment_takes_options():
         run_experiment([1])
     with pytest.raises(TypeError):
         run_experiment(nope=1)  # type: ignore[call-arg]
-
-
-def test_experiment_command_line_maps_onto_the_options():
-    import argparse
-
-    args = argparse.Namespace(seeds=3, duration=1.5, plant="fem", no_robustness=True, robustness_seeds=1)
-    o = experiment.options_from_args(args)
-    assert o == ExperimentOptions(seeds=(0, 1, 2), duration=1.5, plant="fem", robustness=False,
-                                  robustness_seeds=1, progress=True)
-    with pytest.raises(SystemExit):
-        experiment.main(["--duration", "0", "--out", "unused"])

@@ -398,15 +398,16 @@ def test_a_pad_or_scene_of_more_ridges_than_a_finger_covers_is_refused_by_name(m
 def test_build_command_line_refuses_bad_arguments_with_a_usage_line(argv, option, monkeypatch, capsys):
     """Bad arguments were a traceback (ValueError from BuildOptions, or from the training
     after the scenes were simulated); now argparse's usage line, exit status 2, nothing run."""
-    from tactile_mirror.lab.detector import build
+    from tactile_mirror.cli import main
+    from tactile_mirror.lab.detector import build, calibration
 
     def never(*args, **kwargs):
         raise AssertionError("the build ran")
 
     monkeypatch.setattr(build, "build_default", never)
-    monkeypatch.setattr(build, "recalibrate", never)
+    monkeypatch.setattr(calibration, "recalibrate", never)
     with pytest.raises(SystemExit) as exc:
-        build.main(["--out", "unused.npz", *argv])
+        main(["train", "--out", "unused.npz", *argv])
     assert exc.value.code == 2
     err = capsys.readouterr().err
     assert err.startswith("usage:") and f"error: argument {option}" in err and "Traceback" not in err

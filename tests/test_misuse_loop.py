@@ -301,7 +301,7 @@ def test_an_unwritable_results_file_is_found_before_the_design(tmp_path, fake_en
 def fake_simulation(monkeypatch):
     """simulate_cached with the simulation faked (tiny real SimulationResults); counts the simulations."""
     from tactile_mirror.contact.simulation import SimulationResult
-    from tactile_mirror.lab.detector import build
+    from tactile_mirror.lab.detector import scene_cache
 
     calls = []
 
@@ -310,8 +310,8 @@ def fake_simulation(monkeypatch):
         return [SimulationResult(scene=None, t=np.arange(3) / FS, fs=FS, plate_y=np.zeros(3), indent=np.full(3, i))
                 for i in range(len(scenes))]
 
-    monkeypatch.setattr(build, "simulate_scenes", simulate_scenes)
-    monkeypatch.setattr(build, "_random_scenes", lambda n, seed, **kwargs: list(range(n)))
+    monkeypatch.setattr(scene_cache, "simulate_scenes", simulate_scenes)
+    monkeypatch.setattr(scene_cache, "random_scenes", lambda n, seed, **kwargs: list(range(n)))
     return calls
 
 
@@ -322,7 +322,7 @@ def _only_file(folder):
 
 @pytest.mark.parametrize("damage", ["truncated", "empty", "dict", "short list", "foreign items"])
 def test_a_damaged_cache_file_is_a_miss_that_is_replaced(damage, tmp_path, fake_simulation):
-    from tactile_mirror.lab.detector.build import simulate_cached
+    from tactile_mirror.lab.detector.scene_cache import simulate_cached
 
     first = simulate_cached(3, 7, {"duration": 1.0}, tmp_path, progress=False)
     cache = _only_file(tmp_path)
@@ -340,7 +340,7 @@ def test_a_damaged_cache_file_is_a_miss_that_is_replaced(damage, tmp_path, fake_
 
 
 def test_a_cache_dir_that_is_a_file_fails_before_simulating(tmp_path, fake_simulation):
-    from tactile_mirror.lab.detector.build import simulate_cached
+    from tactile_mirror.lab.detector.scene_cache import simulate_cached
 
     target = tmp_path / "cache"
     target.write_text("not a folder")
@@ -355,21 +355,22 @@ def test_a_cache_dir_that_is_a_file_fails_before_simulating(tmp_path, fake_simul
 
 def test_the_cache_key_covers_arrays_in_full_and_keeps_the_existing_keys():
     from tactile_mirror import __version__
-    from tactile_mirror.lab.detector import build
+    from tactile_mirror.lab.detector import build_options, scene_cache
 
     a, b = np.zeros(5000), np.zeros(5000)
     b[2500] = 1.0
     assert repr(a) == repr(b)  # what collided
 
     def key(kw):
-        return build._cache_key(3, 1, kw, __version__)
+        return scene_cache.cache_key(3, 1, kw, __version__)
 
     assert key({"x": a}) != key({"x": b})
     assert key({"x": a}) == key({"x": a.copy()})  # the content, not the object
     assert key({"x": a}) != key({"x": a.astype(np.float32)}) != key({"x": a.reshape(50, 100)})
     assert key({"x": (a,)}) != key({"x": (b,)})
     # plain options keep the key the existing caches were saved under
-    for kw in (build.TRAIN_KWARGS, build.TEST_KWARGS, {**build.TEST_KWARGS, "n_ridges": 6}, {}):
+    for kw in (build_options.TRAIN_KWARGS, build_options.TEST_KWARGS, {**build_options.TEST_KWARGS, "n_ridges": 6},
+               {}):
         old = hashlib.sha256(repr((3, 1, sorted(kw.items()), __version__)).encode()).hexdigest()[:16]
         assert key(kw) == old
 

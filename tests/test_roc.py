@@ -169,7 +169,8 @@ def test_a_curve_without_slips_and_scores_with_extra_ridges():
 
 def test_evaluate_and_calibrate_refuse_levels_that_make_the_rates_meaningless():
     from tactile_mirror.detector import SlipDetector
-    from tactile_mirror.lab.detector import build, evaluate
+    from tactile_mirror.lab.detector import evaluate
+    from tactile_mirror.lab.detector.calibration import calibrate_slip
 
     det = SlipDetector.paper()
     results, _, _ = _synthetic(n_seq=2)
@@ -182,12 +183,12 @@ def test_evaluate_and_calibrate_refuse_levels_that_make_the_rates_meaningless():
         evaluate(det, results, slip_threshold="0.8")
     for fa in (-1, float("nan"), 5, True):
         with pytest.raises(ValueError, match="false_alarm"):
-            build.calibrate_slip(det.weights, results, fa)
+            calibrate_slip(det.weights, results, fa)
     for st in (0.0, 1.0):
         with pytest.raises(ValueError, match="slip_threshold"):
-            build.calibrate_slip(det.weights, results, 0.02, slip_threshold=st)
+            calibrate_slip(det.weights, results, 0.02, slip_threshold=st)
     with pytest.raises(ValueError, match="validation"):
-        build.calibrate_slip(det.weights, [], 0.02)
+        calibrate_slip(det.weights, [], 0.02)
 
 
 def test_targets_refuse_levels_that_never_slip():

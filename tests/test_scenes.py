@@ -128,7 +128,7 @@ def test_the_edges_of_validity_are_accepted():
 
 
 def test_every_scene_the_library_builds_is_valid():
-    from tactile_mirror.lab.detector.build import TEST_KWARGS, TRAIN_KWARGS
+    from tactile_mirror.lab.detector.build_options import TEST_KWARGS, TRAIN_KWARGS
 
     for name in ("fig6", "fig7", "fig8"):
         tm.scenes.paper(name)

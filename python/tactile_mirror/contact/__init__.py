@@ -36,7 +36,12 @@ if TYPE_CHECKING:
     from tactile_mirror.contact.model import RidgeModel, ridge_model
     from tactile_mirror.contact.pad import Pad, PadState
     from tactile_mirror.contact.plants import ContactPlant, ContactState, FemPad
-    from tactile_mirror.contact.simulation import SimulationResult, calibrate_friction, simulate, simulate_many
+    from tactile_mirror.contact.simulation import (
+        SimulationResult,
+        calibrate_friction,
+        simulate,
+        simulate_many,
+    )
     from tactile_mirror.contact.solver import (
         OPEN,
         SLIP,

@@ -17,8 +17,8 @@ trained on the plant's open-loop runs, the control laws scaled to the plant
 a set of seeded trajectories and the robustness scenes (friction change, compliant
 mounting, sensor noise, dropped samples) and reports gross slips and tracking
 errors for the paper's law and the velocity law (:class:`ExperimentOptions` says
-what it runs). ``python -m tactile_mirror.lab.loop.experiment --out DIR`` writes the
-tables and the Fig. 12/13 reproductions.
+what it runs). ``tactile-mirror loop experiment --out DIR`` writes the tables and the
+Fig. 12/13 reproductions.
 
 The names that lived here before (``Scene``, ``BrushRidges``, ``FemPad``,
 ``ContactState``, ``PadSource``, ``finger_trajectory``, ``run_scene``, ...) still
@@ -26,7 +26,6 @@ import from here, with a ``DeprecationWarning`` naming their new home.
 """
 from __future__ import annotations
 
-import argparse
 import numbers
 import os
 from dataclasses import dataclass
@@ -446,47 +445,3 @@ def _run_experiment(options: ExperimentOptions, weights, out_dir) -> dict:
             if name in keep:
                 loop_figure(keep[name], os.path.join(out_dir, fname), closed=True, law=name)
     return result
-
-
-def options_from_args(args: argparse.Namespace) -> ExperimentOptions:
-    """The options of the command line's arguments (``--seeds N`` runs seeds 0 .. N-1)."""
-    return ExperimentOptions(seeds=tuple(range(args.seeds)), duration=args.duration, plant=args.plant,
-                             robustness=not args.no_robustness, robustness_seeds=args.robustness_seeds,
-                             progress=True)
-
-
-def main(argv=None):
-    ap = argparse.ArgumentParser(description="Closed-loop tactile-mirror experiment (simulation)")
-    ap.add_argument("--out", default="tactile-mirror-output/experiment")
-    ap.add_argument("--seeds", type=int, default=5)
-    ap.add_argument("--duration", type=float, default=3.0)
-    ap.add_argument("--no-robustness", action="store_true")
-    ap.add_argument("--weights", default=None, help="detector weights (.npz) instead of training them")
-    ap.add_argument("--plant", default="brush", choices=sorted(PLANTS))
-    ap.add_argument("--robustness-seeds", type=int, default=2)
-    args = ap.parse_args(argv)
-    try:
-        options = options_from_args(args)
-    except (TypeError, ValueError) as exc:
-        ap.error(str(exc))
-    weights = None
-    if args.weights:
-        from tactile_mirror.detector import DetectorWeights
-
-        weights = DetectorWeights.load(args.weights)
-    res = run_experiment(options, weights=weights, out_dir=args.out)
-    print(f"plant {res['plant']}; direction_sign {res['direction_sign']:+g}; asymmetry {res['asymmetry_per_m']:.3g} "
-          f"per m; shear_gain {res['shear_gain']:.3g}; detector: {res['detector']}")
-    if "recording" in res:
-        print(f"closed-loop recording replayed bit-identical: {res['recording']['replay_bit_identical']}")
-    print(f"{'scene':<34} {'controller':<22} {'runs':>4} {'slips':>6} {'runs w/ slip':>12} {'slip s':>7} "
-          f"{'max y_slip':>10} {'track rms mm':>12}")
-    for t in res["totals"]:
-        print(f"{t['label']:<34} {t['controller']:<22} {t['runs']:>4} {t['gross_slips']:>6} "
-              f"{t['runs_with_slip']:>12} {t['gross_slip_time_s']:>7.2f} {t['y_slip_max']:>10.2f} "
-              f"{t['tracking_rms_mm']:>12.3f}")
-    return res
-
-
-if __name__ == "__main__":
-    main()
