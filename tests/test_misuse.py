@@ -247,7 +247,7 @@ def test_a_status_cycle_at_high_friction_ends_in_both_backends(model, monkeypatc
     problem has no solution there the law can follow). The compiled kernel raised; the
     Python reference looped for ever, its resolves leading back into the cycle through a
     set that was not their result. Both raise now, at the same point, the state kept."""
-    from tactile_mirror.contact import solver as S
+    from tactile_mirror.contact import reference_path as S
 
     y = 0.6e-3 * np.sin(np.linspace(0, 4 * np.pi, 8000))
     z = np.full(y.size, 0.00198)
