@@ -24,15 +24,9 @@ from tactile_mirror._io import save_figure, write_text
 from tactile_mirror.detector.core import SlipDetector
 from tactile_mirror.detector.memory import DEFAULT_LOAD_TAU
 from tactile_mirror.detector.weights import KINDS
+from tactile_mirror.lab.detector.augment import augment_gains, augment_noise, compress_training_set
 from tactile_mirror.lab.detector.evaluation import ForceRatioDetector, evaluate
-from tactile_mirror.lab.detector.training import (
-    TrainingSet,
-    augment_gains,
-    augment_noise,
-    compress_training_set,
-    make_training_set,
-    train_detector,
-)
+from tactile_mirror.lab.detector.training import TrainingSet, make_training_set, train_detector
 
 __all__ = [
     "EXTRA_TRAIN_SEED",
