@@ -48,7 +48,8 @@ def bank_training_set(train):
     """The detector studies' training set of the filter-bank net: the build's recipe (two noise
     copies of every scene, ``build.NOISE_RANGE``, then random gains 0.6-1.7)."""
     from tactile_mirror.lab.detector import build
-    from tactile_mirror.lab.detector.training import augment_gains, augment_noise, make_training_set
+    from tactile_mirror.lab.detector.augment import augment_gains, augment_noise
+    from tactile_mirror.lab.detector.training import make_training_set
 
     seqs = augment_noise(train, build.NOISE_COPIES, build.NOISE_RANGE, seed=2)
     return augment_gains(make_training_set(seqs, "stress_rate_bank"), (0.6, 1.7), seed=1)

@@ -75,14 +75,10 @@ def main(argv=None):
     from tactile_mirror.detector import SlipDetector
     from tactile_mirror.detector.data_prep import features_from_result
     from tactile_mirror.lab.detector import build
+    from tactile_mirror.lab.detector.augment import augment_gains, augment_noise
     from tactile_mirror.lab.detector.evaluation import noise_free, onset_kinds, with_noise
     from tactile_mirror.lab.detector.thresholds import roc
-    from tactile_mirror.lab.detector.training import (
-        TrainingSet,
-        augment_gains,
-        augment_noise,
-        make_training_set,
-    )
+    from tactile_mirror.lab.detector.training import TrainingSet, make_training_set
     from tactile_mirror.lab.measure import cpu_model
 
     t0 = time.perf_counter()

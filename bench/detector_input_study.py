@@ -47,7 +47,7 @@ VARIANTS = ("linear", "asinh/median", "asinh/rms", "softsign/median", "linear, m
 def compression(name: str, x, mask):
     """The transform ``f(x)`` of variant ``name``, its knees fitted on ``x`` (n_seq, n_ch, n) and
     kept as ``f.knee`` (None for the linear variants)."""
-    from tactile_mirror.lab.detector.training import fit_normalisation
+    from tactile_mirror.detector import fit_normalisation
 
     if name.startswith("linear"):
         def f(v):

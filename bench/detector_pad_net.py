@@ -122,11 +122,12 @@ def main(argv=None):
     import scipy.optimize
     from detector_input_study import compression
     from detector_pad_study import N_RIDGES, PAD_TRAIN_SEED, PAD_VALIDATION_SEED, SCORED, latency_at
-    from tactile_mirror.detector import DetectorWeights, SlipDetector
+    from tactile_mirror.detector import DetectorWeights, SlipDetector, fit_normalisation
     from tactile_mirror.detector.bank import DEFAULT_BANK
     from tactile_mirror.detector.data_prep import features_from_result, targets_from_result
     from tactile_mirror.detector.network import Params, forward, init_params
     from tactile_mirror.lab.detector import build
+    from tactile_mirror.lab.detector.augment import augment_noise
     from tactile_mirror.lab.detector.evaluation import (
         condition_estimator,
         noise_free,
@@ -134,7 +135,7 @@ def main(argv=None):
         with_noise,
     )
     from tactile_mirror.lab.detector.thresholds import roc
-    from tactile_mirror.lab.detector.training import augment_noise, cpp_loss, fit_normalisation, loss_weights
+    from tactile_mirror.lab.detector.training import cpp_loss, loss_weights
     from tactile_mirror.lab.measure import cpu_model
 
     t0 = time.perf_counter()

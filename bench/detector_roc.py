@@ -109,12 +109,8 @@ def net_scores(detector, results, condition: str) -> list:
 def train_mlp(train, progress: bool):
     """The no-feedback MLP, trained as the build trains it (one seed, no checkpoint selection)."""
     from tactile_mirror.lab.detector import build
-    from tactile_mirror.lab.detector.training import (
-        augment_gains,
-        augment_noise,
-        make_training_set,
-        train_detector,
-    )
+    from tactile_mirror.lab.detector.augment import augment_gains, augment_noise
+    from tactile_mirror.lab.detector.training import make_training_set, train_detector
 
     seqs = augment_noise(train, build.NOISE_COPIES, build.NOISE_RANGE, seed=2)
     ts = augment_gains(make_training_set(seqs), (0.6, 1.7), seed=1)

@@ -430,8 +430,9 @@ def test_compressed_training_set_trains_a_net_that_runs_compressed():
     reads its inputs compressed (as the numpy reference of the compressed bank)."""
     from types import SimpleNamespace
 
+    from tactile_mirror.lab.detector.augment import compress_training_set
     from tactile_mirror.lab.detector.build_options import BuildOptions
-    from tactile_mirror.lab.detector.training import compress_training_set, make_training_set, train_detector
+    from tactile_mirror.lab.detector.training import make_training_set, train_detector
 
     x = _signals(n_r=2, n=300)
     frac = np.zeros((2, 300))

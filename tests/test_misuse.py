@@ -247,7 +247,7 @@ def test_a_status_cycle_at_high_friction_ends_in_both_backends(model, monkeypatc
     problem has no solution there the law can follow). The compiled kernel raised; the
     Python reference looped for ever, its resolves leading back into the cycle through a
     set that was not their result. Both raise now, at the same point, the state kept."""
-    from tactile_mirror.contact import solver as S
+    from tactile_mirror.contact import reference_path as S
 
     y = 0.6e-3 * np.sin(np.linspace(0, 4 * np.pi, 8000))
     z = np.full(y.size, 0.00198)
@@ -313,7 +313,7 @@ def test_force_ratio_fit_refuses_what_it_cannot_fit_on():
     ({"noise": (0.0, 1e-3, 2e-3)}, ValueError, "noise"), ({"noise": (2e-3, 1e-3)}, ValueError, "noise"),
 ])
 def test_augment_noise_names_a_bad_count_or_range(kwargs, exc, name):
-    from tactile_mirror.lab.detector.training import augment_noise
+    from tactile_mirror.lab.detector.augment import augment_noise
 
     with pytest.raises(exc, match=name):
         augment_noise([object()], **kwargs)  # (refused before the result is read)
@@ -325,14 +325,14 @@ def test_augment_noise_names_a_bad_count_or_range(kwargs, exc, name):
     ((True, 2.0), TypeError),
 ])
 def test_augment_gains_names_a_bad_range(gain_range, exc):
-    from tactile_mirror.lab.detector.training import augment_gains
+    from tactile_mirror.lab.detector.augment import augment_gains
 
     with pytest.raises(exc, match="gain_range"):
         augment_gains(object(), gain_range)
 
 
 def test_augment_gains_names_what_is_not_a_training_set():
-    from tactile_mirror.lab.detector.training import augment_gains
+    from tactile_mirror.lab.detector.augment import augment_gains
 
     with pytest.raises(TypeError, match="ts must be a TrainingSet"):
         augment_gains(None, (0.6, 1.7))

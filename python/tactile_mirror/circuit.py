@@ -7,8 +7,10 @@ the circuit's physical parameters (:class:`PVDFCircuit`), its analog transfer
 functions and gain curves (paper Eq. 1), its discretisation to second-order
 sections at any sample rate, a simulator that runs those sections on the C++
 filter engine (:meth:`PVDFCircuit.simulate` for whole records, its streaming form
-:class:`CircuitStream` for sample-by-sample and block-by-block use), and
-:func:`fit_circuit`, which identifies the components from a measured gain curve.
+:class:`CircuitStream` for sample-by-sample and block-by-block use, in
+:mod:`tactile_mirror.circuit_stream`), and :func:`fit_circuit`, which identifies the
+components from a measured gain curve (:mod:`tactile_mirror.circuit_fit`); both are
+importable from here.
 
 Circuit
 -------
@@ -100,17 +102,17 @@ what :meth:`PVDFCircuit.simulate` uses. At ``fs = 10 kHz`` all errors are below
 """
 from __future__ import annotations
 
-import dataclasses
 import math
-import numbers
 from dataclasses import dataclass
 from typing import TYPE_CHECKING
 
 import numpy as np
 import numpy.typing as npt
 
-from tactile_mirror._checks import channel_shape, real_number, real_sequence, sample_rate
-from tactile_mirror.filters import SosFilter
+from tactile_mirror._checks import real_number, real_sequence, sample_rate
+from tactile_mirror.circuit_checks import check_noise, finite_array, stress_array
+from tactile_mirror.circuit_fit import fit_circuit
+from tactile_mirror.circuit_stream import CircuitStream
 
 if TYPE_CHECKING:
     import scipy.signal
@@ -135,20 +137,22 @@ def _check_output(output) -> str:
     return output
 
 
-def _real_array(x, name: str) -> np.ndarray:
-    a = np.asarray(x)
-    if a.dtype.kind not in "biuf":
-        raise TypeError(f"{name} must hold real numbers, got dtype {a.dtype}")
-    a = a.astype(np.float64, copy=False)
-    if not np.all(np.isfinite(a)):
-        raise ValueError(f"{name} must be finite (no NaN or Inf)")
-    return a
-
-
 def _low_frequency_gain_analog(z, p, k) -> float:
     """lim_{s->0} H(s) / s^m for an analog zpk with m zeros at the origin."""
     nz = z[z != 0]
     return float(np.real(k * np.prod(-nz) / np.prod(-p)))
+
+
+def _band_freqs(band, num) -> np.ndarray:
+    try:
+        lo, hi = (float(b) for b in band)
+    except (TypeError, ValueError):
+        raise TypeError(f"band must be a pair (f_low, f_high) in Hz, got {band!r}") from None
+    if not (math.isfinite(lo) and math.isfinite(hi) and 0 < lo < hi):
+        raise ValueError(f"band must satisfy 0 < f_low < f_high (Hz), got {band!r}")
+    if int(num) < 2:
+        raise ValueError(f"num must be >= 2, got {num}")
+    return np.logspace(math.log10(lo), math.log10(hi), int(num))
 
 
 @dataclass(frozen=True)
@@ -285,7 +289,7 @@ class PVDFCircuit:
         ndarray, shape (..., n)
             ``Q = A (d31 s1 + d32 s2 + d33 s3)``, C.
         """
-        s = self._stress(stress)
+        s = stress_array(stress)
         d = np.array([self.d31, self.d32, self.d33])
         return self.area * np.einsum("...kn,k->...n", s, d)
 
@@ -296,12 +300,6 @@ class PVDFCircuit:
         """
         return self.charge(stress) / self.charge_sensitivity
 
-    @staticmethod
-    def _stress(stress) -> np.ndarray:
-        s = _real_array(stress, "stress")
-        if s.ndim < 2 or s.shape[-2] != 3:
-            raise ValueError(f"stress must have shape (..., 3, n) (s1, s2, s3 on axis -2), got {s.shape}")
-        return s
 
     # ------------------------------------------------------------------ analog
     def zpk(self, output: str = "v") -> tuple[np.ndarray, np.ndarray, float]:
@@ -341,7 +339,7 @@ class PVDFCircuit:
 
     def response(self, f: npt.ArrayLike, output: str = "v") -> np.ndarray:
         """Complex analog frequency response at ``f`` (Hz, >= 0), V/Pa."""
-        f = _real_array(f, "f")
+        f = finite_array(f, "f")
         if np.any(f < 0):
             raise ValueError("f must be non-negative (Hz)")
         z, p, k = self.zpk(output)
@@ -450,8 +448,8 @@ class PVDFCircuit:
             Output voltages, V.
         """
         fs = sample_rate(fs)
-        _check_noise(noise)
-        s = self._stress(stress)
+        check_noise(noise)
+        s = stress_array(stress)
         return self.stream(fs, s.shape[:-2], noise=noise, seed=seed, method=method, prewarp=prewarp).process(s)
 
     def stream(self, fs: float, channels: int | tuple[int, ...] = 1, noise: float | tuple[float, float] = 0.0,
@@ -459,230 +457,3 @@ class PVDFCircuit:
                prewarp: float | None = None) -> CircuitStream:
         """The circuit in streaming form, at rest: see :class:`CircuitStream`."""
         return CircuitStream(self, fs, channels, noise=noise, seed=seed, method=method, prewarp=prewarp)
-
-
-class CircuitStream:
-    """The circuit in streaming form: strip stresses in, ``v_out`` and ``u_out`` out,
-    sample by sample (:meth:`step`) or block by block (:meth:`process`).
-
-    Runs the sections of :meth:`PVDFCircuit.sos` on the C++ filter engine
-    (:class:`~tactile_mirror.filters.SosFilter`, float64), one channel per strip. Any
-    chunking of a record, down to single samples, gives the one-shot result of
-    :meth:`PVDFCircuit.simulate` bit for bit (noise included, for the same ``seed``
-    and the same chunking of noise draws: each call draws the ``v_out`` noise of
-    its samples, then the ``u_out`` noise).
-
-    Parameters
-    ----------
-    circuit : PVDFCircuit
-    fs : float
-        Sample rate, Hz.
-    channels : int or tuple of int
-        Number of strips, or the shape of the strip axes (e.g. ``(n_ridges, 2)``):
-        the leading shape of every input, fixed at construction.
-    noise : float or (float, float)
-        Sensor noise, V rms, white and Gaussian, added to ``v_out`` and ``u_out``
-        (one value for both, or one each). Default 0.
-    seed : int or numpy.random.Generator, optional
-        Seed of the noise; a Generator is used as it is (shared with the caller).
-    method, prewarp
-        Discretisation, as in :meth:`PVDFCircuit.sos`.
-
-    Notes
-    -----
-    Inputs come either as stresses (:meth:`step`, :meth:`process`: ``s1, s2, s3``
-    on the axis before time, Pa) or as equivalent loads (:meth:`step_load`,
-    :meth:`process_load`: :meth:`PVDFCircuit.equivalent_load`, Pa). Stresses are
-    checked (finite, real) and raise ``ValueError`` naming ``stress``; equivalent
-    loads in :meth:`step_load` are not checked (a NaN is rejected by the filter,
-    which holds its previous output, see :meth:`SosFilter.step`).
-    """
-
-    def __init__(self, circuit: PVDFCircuit, fs: float, channels: int | tuple[int, ...] = 1,
-                 noise: float | tuple[float, float] = 0.0, seed: int | np.random.Generator | None = None,
-                 method: str = "bilinear", prewarp: float | None = None) -> None:
-        if not isinstance(circuit, PVDFCircuit):
-            raise TypeError(f"circuit must be a PVDFCircuit, got {type(circuit).__name__}")
-        self.circuit = circuit
-        self.fs = sample_rate(fs)
-        self.shape = channel_shape(channels)
-        self.noise = _check_noise(noise)
-        self.n_channels = int(np.prod(self.shape, dtype=np.int64))
-        sos_v = circuit.sos(self.fs, "v", method, prewarp)
-        sos_u = circuit.sos(self.fs, "u", method, prewarp)
-        # no filter for zero channels (an empty record passes through)
-        self._v = SosFilter(sos_v, self.n_channels) if self.n_channels else None
-        self._u = SosFilter(sos_u, self.n_channels) if self.n_channels else None
-        self._rng = np.random.default_rng(seed) if any(self.noise) else None
-
-    def reset(self) -> None:
-        """Back to rest (the noise generator goes on)."""
-        if self._v is not None and self._u is not None:
-            self._v.reset()
-            self._u.reset()
-
-    # ------------------------------------------------------------------ one sample
-    def step(self, stress: npt.ArrayLike) -> tuple[np.ndarray, np.ndarray]:
-        """One sample of strip stresses, shape ``(*channels, 3)``, Pa -> ``v_out``,
-        ``u_out``, each shape ``channels``, V."""
-        s = self.circuit._stress(np.asarray(stress)[..., None])
-        if s.shape[:-2] != self.shape:
-            raise ValueError(f"stress must have shape {(*self.shape, 3)}, got {np.shape(stress)}")
-        v, u = self.step_load(self.circuit.equivalent_load(s)[..., 0])
-        return v.reshape(self.shape), u.reshape(self.shape)
-
-    def step_load(self, load: npt.ArrayLike) -> tuple[np.ndarray, np.ndarray]:
-        """One sample of equivalent loads, shape ``channels`` (or flat), Pa -> ``v_out``,
-        ``u_out``, flat ``(n_channels,)``, V."""
-        x = np.asarray(load, dtype=np.float64).reshape(-1)
-        if x.size != self.n_channels:
-            raise ValueError(f"load must have {self.n_channels} values (channels {self.shape}), got {x.size}")
-        if self._v is None or self._u is None:
-            return x.copy(), x.copy()
-        v = self._v.step(x)
-        u = self._u.step(x)
-        return self._add_noise(v, u)
-
-    # ------------------------------------------------------------------ blocks
-    def process(self, stress: npt.ArrayLike) -> tuple[np.ndarray, np.ndarray]:
-        """A block of strip stresses, shape ``(*channels, 3, n)``, Pa -> ``v_out``,
-        ``u_out``, each ``(*channels, n)``, V. The state carries over to the next call."""
-        s = self.circuit._stress(stress)
-        if s.shape[:-2] != self.shape:
-            raise ValueError(f"stress must have shape {(*self.shape, 3, 'n')}, got {s.shape}")
-        return self.process_load(self.circuit.equivalent_load(s))
-
-    def process_load(self, load: npt.ArrayLike) -> tuple[np.ndarray, np.ndarray]:
-        """A block of equivalent loads, shape ``(*channels, n)``, Pa -> ``v_out``,
-        ``u_out``, same shape, V."""
-        lo = _real_array(load, "load")
-        if lo.shape[:-1] != self.shape:
-            raise ValueError(f"load must have shape {(*self.shape, 'n')}, got {lo.shape}")
-        n = lo.shape[-1]
-        if self._v is None or self._u is None or n == 0:
-            v, u = lo.copy(), lo.copy()
-        else:
-            x = lo.reshape(self.n_channels, n)
-            v = self._v.process(x).reshape(lo.shape)
-            u = self._u.process(x).reshape(lo.shape)
-        return self._add_noise(v, u)
-
-    def _add_noise(self, v: np.ndarray, u: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        noise_v, noise_u = self.noise
-        if self._rng is not None:
-            if noise_v:
-                v = v + self._rng.normal(0.0, noise_v, v.shape)
-            if noise_u:
-                u = u + self._rng.normal(0.0, noise_u, u.shape)
-        return v, u
-
-
-def _check_noise(noise):
-    vals = np.atleast_1d(np.asarray(noise, dtype=object))
-    if vals.ndim != 1 or vals.size not in (1, 2):
-        raise ValueError(f"noise must be a number or a pair (v_rms, u_rms), got {noise!r}")
-    out = []
-    for v in vals:
-        if isinstance(v, bool) or not isinstance(v, numbers.Real):
-            raise TypeError(f"noise must be real (V rms), got {noise!r}")
-        v = float(v)
-        if not math.isfinite(v) or v < 0:
-            raise ValueError(f"noise must be finite and >= 0 (V rms), got {noise!r}")
-        out.append(v)
-    if len(out) == 1:
-        out = out * 2
-    return out[0], out[1]
-
-
-def _band_freqs(band, num) -> np.ndarray:
-    try:
-        lo, hi = (float(b) for b in band)
-    except (TypeError, ValueError):
-        raise TypeError(f"band must be a pair (f_low, f_high) in Hz, got {band!r}") from None
-    if not (math.isfinite(lo) and math.isfinite(hi) and 0 < lo < hi):
-        raise ValueError(f"band must satisfy 0 < f_low < f_high (Hz), got {band!r}")
-    if int(num) < 2:
-        raise ValueError(f"num must be >= 2, got {num}")
-    return np.logspace(math.log10(lo), math.log10(hi), int(num))
-
-
-# ---------------------------------------------------------------------- fitting
-_FIT_FIELDS = ("Rf", "Cf", "Rd", "Rs")
-
-
-def fit_circuit(freqs: npt.ArrayLike, gain_v_db: npt.ArrayLike, gain_u_db: npt.ArrayLike | None = None,
-                initial: PVDFCircuit | None = None) -> PVDFCircuit:
-    """Identify the circuit components from a measured gain curve (paper Eq. 1).
-
-    The gain curves fix only products of components: ``v_out`` gives ``q Rf``
-    and ``Rf Cf``; ``u_out`` adds ``Rd Cd`` and ``Rs Cd``. The fit therefore
-    adjusts ``Rf, Cf`` (and ``Rd, Rs`` when ``gain_u_db`` is given) and keeps the
-    strip, the piezoelectric coefficients, the load and ``Cd`` at their values in
-    ``initial``. It minimises the dB residuals with
-    :func:`scipy.optimize.least_squares` over the logarithms of the components.
-    The corners are identified when the frequencies span them (for the
-    defaults, e.g. 0.1 Hz - 10 kHz: a bench sweep of the analog circuit).
-
-    Parameters
-    ----------
-    freqs : array_like, shape (m,)
-        Measurement frequencies, Hz, > 0.
-    gain_v_db : array_like, shape (m,)
-        Measured ``20 log10 |v_out / lo|``, dB re 1 V/Pa.
-    gain_u_db : array_like, shape (m,), optional
-        Measured ``20 log10 |u_out / lo|``, dB re 1 V/Pa.
-    initial : PVDFCircuit, optional
-        Known parameters and starting values of the fitted ones. Default
-        ``PVDFCircuit()``.
-
-    Returns
-    -------
-    PVDFCircuit
-        ``initial`` with the fitted components.
-    """
-    import scipy.optimize
-
-    f = _real_array(freqs, "freqs")
-    if f.ndim != 1 or f.size < 2:
-        raise ValueError(f"freqs must be 1-D with at least 2 points, got shape {f.shape}")
-    if np.any(f <= 0):
-        raise ValueError("freqs must be positive (Hz)")
-    gv = _real_array(gain_v_db, "gain_v_db")
-    if gv.shape != f.shape:
-        raise ValueError(f"gain_v_db must have the shape of freqs {f.shape}, got {gv.shape}")
-    gu = None
-    if gain_u_db is not None:
-        gu = _real_array(gain_u_db, "gain_u_db")
-        if gu.shape != f.shape:
-            raise ValueError(f"gain_u_db must have the shape of freqs {f.shape}, got {gu.shape}")
-    if initial is None:
-        initial = PVDFCircuit()
-    elif not isinstance(initial, PVDFCircuit):
-        raise TypeError(f"initial must be a PVDFCircuit, got {type(initial).__name__}")
-    names = _FIT_FIELDS if gu is not None else _FIT_FIELDS[:2]
-    x0 = np.log([getattr(initial, n) for n in names])
-
-    def make(x):
-        return dataclasses.replace(initial, **dict(zip(names, np.exp(x))))
-
-    def residuals(x):
-        c = make(x)
-        r = c.gain(f, "v") - gv
-        if gu is not None:
-            r = np.concatenate([r, c.gain(f, "u") - gu])
-        return r
-
-    # Local fits from ``initial`` and from starts with the corners a decade away
-    # on either side (ln 10 ~ 2.3); the best one wins.
-    best = scipy.optimize.least_squares(residuals, x0, method="lm")
-    for shift in (-2.3, 2.3):
-        x1 = x0.copy()
-        x1[1] += shift
-        if gu is not None:
-            x1[3] += shift
-        r1 = scipy.optimize.least_squares(residuals, x1, method="lm")
-        if r1.cost < best.cost:
-            best = r1
-    if not np.all(np.isfinite(best.x)):
-        raise RuntimeError("fit_circuit did not converge")
-    return make(best.x)

@@ -6,7 +6,12 @@ Pieces, each usable on its own:
   :mod:`tactile_mirror.geometry`)
 * :mod:`.model`     scikit-fem assembly and condensation to the contact surface
   (compliance, strip-stress sensor operator), cached per geometry
-* :mod:`.solver`    quasi-static frictional contact of one ridge (semismooth Newton)
+* :mod:`.solver`    quasi-static frictional contact of one ridge (semismooth Newton):
+  ``ContactSolver``, which checks and hands each step to the compiled kernel or the
+  Python reference (:mod:`.reference_path`: event-driven path following;
+  :mod:`.reference_active_set`: the solve of one load)
+* :mod:`.step`      what a step answers: node statuses ``OPEN`` / ``STICK`` / ``SLIP``,
+  ``ContactStep``, ``ContactConvergenceError``
 * :mod:`.pad`       several ridges under a curved finger, stepped with ``advance``
 * :mod:`.simulation`  scenes -> signals (``simulate``, ``simulate_many``)
 * :mod:`.plants`    the contact models of the closed loop behind one interface
@@ -27,7 +32,8 @@ __getattr__, __dir__, __all__ = attach(__name__, {
     "ContactPlant": "plants", "ContactState": "plants", "FemPad": "plants",
     "SimulationResult": "simulation", "calibrate_friction": "simulation", "simulate": "simulation",
     "simulate_many": "simulation",
-    "OPEN": "solver", "SLIP": "solver", "STICK": "solver", "ContactConvergenceError": "solver", "ContactSolver": "solver", "ContactStep": "solver",
+    "ContactSolver": "solver",
+    "OPEN": "step", "SLIP": "step", "STICK": "step", "ContactConvergenceError": "step", "ContactStep": "step",
 })
 
 if TYPE_CHECKING:
@@ -42,11 +48,5 @@ if TYPE_CHECKING:
         simulate,
         simulate_many,
     )
-    from tactile_mirror.contact.solver import (
-        OPEN,
-        SLIP,
-        STICK,
-        ContactConvergenceError,
-        ContactSolver,
-        ContactStep,
-    )
+    from tactile_mirror.contact.solver import ContactSolver
+    from tactile_mirror.contact.step import OPEN, SLIP, STICK, ContactConvergenceError, ContactStep

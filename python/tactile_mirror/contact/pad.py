@@ -22,15 +22,8 @@ import numpy as np
 from tactile_mirror._checks import real_number
 from tactile_mirror._owner import NotCopyable
 from tactile_mirror.contact.model import RidgeModel
-from tactile_mirror.contact.solver import (
-    MAX_PLATE_POSITION,
-    OPEN,
-    SLIP,
-    STEPPINGS,
-    STICK,
-    ContactSolver,
-    position_error,
-)
+from tactile_mirror.contact.solver import MAX_PLATE_POSITION, STEPPINGS, ContactSolver, position_error
+from tactile_mirror.contact.step import OPEN, SLIP, STICK
 from tactile_mirror.geometry import MAX_RIDGES, too_many_ridges
 
 if TYPE_CHECKING:

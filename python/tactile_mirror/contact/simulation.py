@@ -16,7 +16,8 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from tactile_mirror.contact.pad import Pad
-from tactile_mirror.contact.solver import BACKENDS, OPEN, SLIP, STEPPINGS, STICK
+from tactile_mirror.contact.solver import BACKENDS, STEPPINGS
+from tactile_mirror.contact.step import OPEN, SLIP, STICK
 
 if TYPE_CHECKING:  # scenes imports contact.geometry, so import it lazily at run time
     from tactile_mirror.scenes import Scene

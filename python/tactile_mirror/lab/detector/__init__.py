@@ -2,7 +2,7 @@
 scenes, the threshold sweep, the detector build (scene cache, candidate selection,
 calibration) and Figure 10.
 
-- :mod:`.training`: :func:`train_detector`, :class:`TrainingSet` and its augmentations;
+- :mod:`.training`: :func:`train_detector`, :class:`TrainingSet`; :mod:`.augment`: its augmentations;
 - :mod:`.evaluation`: :func:`evaluate`, the sensor conditions, the force-ratio baseline;
 - :mod:`.thresholds`: :func:`roc`, detection against false alarms over thresholds;
 - :mod:`.build`: the default detector's build (``tactile-mirror train``);
@@ -10,6 +10,7 @@ calibration) and Figure 10.
 """
 from __future__ import annotations
 
+from tactile_mirror.lab.detector.augment import augment_noise
 from tactile_mirror.lab.detector.evaluation import (
     NOISE_CONDITIONS,
     DetectionMetrics,
@@ -19,7 +20,7 @@ from tactile_mirror.lab.detector.evaluation import (
 )
 from tactile_mirror.lab.detector.figures import figure10, figure10_data
 from tactile_mirror.lab.detector.thresholds import RocCurve, roc
-from tactile_mirror.lab.detector.training import TrainingSet, augment_noise, make_training_set, train_detector
+from tactile_mirror.lab.detector.training import TrainingSet, make_training_set, train_detector
 
 __all__ = [
     "NOISE_CONDITIONS",

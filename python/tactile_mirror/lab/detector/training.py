@@ -1,4 +1,13 @@
-"""Training the slip detector: exact BPTT in numpy, L-BFGS-B from scipy.optimize."""
+"""Training the slip detector: exact BPTT in numpy, L-BFGS-B from scipy.optimize.
+
+- the training data: :class:`TrainingSet` (padded sequences and their targets), made
+  from simulation results by :func:`make_training_set` (its augmentations are
+  :mod:`~tactile_mirror.lab.detector.augment`);
+- the loss's per-sample weights: :func:`loss_weights` (class balance, the onset windows of
+  :func:`onset_windows`), and :func:`hard_example_weights` for a further round;
+- :func:`train_detector`, with the loss and gradient of the compiled kernel
+  (:func:`cpp_loss`) or of numpy.
+"""
 from __future__ import annotations
 
 import os
@@ -7,7 +16,7 @@ import time
 import numpy as np
 import scipy.optimize
 
-from tactile_mirror._checks import integer, real_array, real_number, real_range
+from tactile_mirror._checks import real_array, real_number
 from tactile_mirror.detector.bank import bank_config
 from tactile_mirror.detector.data_prep import DEFAULT_ESTIMATOR, features_from_result, targets_from_result
 from tactile_mirror.detector.memory import DEFAULT_LOAD_TAU
@@ -15,8 +24,8 @@ from tactile_mirror.detector.network import Params, init_params, loss_and_grad
 from tactile_mirror.detector.normalisation import fit_normalisation
 from tactile_mirror.detector.weights import FEATURE_KINDS, DetectorWeights, feature_channels, feature_units
 
-__all__ = ["TrainingSet", "augment_noise", "compress_training_set", "fit_normalisation", "hard_example_weights",
-           "make_training_set", "pad_sequences", "train_detector"]
+__all__ = ["TrainingSet", "cpp_loss", "hard_example_weights", "loss_weights", "make_training_set", "onset_windows",
+           "pad_sequences", "train_detector"]
 
 
 def load_tau_of(features: str, load_tau: float | None) -> float | None:
@@ -82,10 +91,12 @@ class TrainingSet:
 
     @property
     def n_seq(self) -> int:
+        """Number of sequences."""
         return self.x.shape[0]
 
     @property
     def n_inputs(self) -> int:
+        """Number of input channels."""
         return self.x.shape[1]
 
 
@@ -141,85 +152,6 @@ def make_training_set(results, features: str = "stress_rate", circuit=None, esti
                         "pred_target": pred_target}, load_tau, bank)
 
 
-def augment_noise(results, copies: int = 2, noise=(0.0, 5e-3), seed=0) -> list:
-    """Copies of simulation results with fresh sensor noise on ``v_out`` and ``u_out``.
-
-    Each copy reruns the result's strip stresses through its scene's circuit
-    (:meth:`~tactile_mirror.circuit.PVDFCircuit.simulate`) with a noise level drawn
-    uniformly from ``noise`` (V rms) and its own seed, so one simulated contact
-    gives ``copies`` sequences that differ only in noise. The contact simulation is
-    the expensive part; this is cheap. Deterministic for a seed.
-
-    Parameters
-    ----------
-    results : iterable of SimulationResult
-        With ``stress`` and ``scene`` (simulated with the "stress" output).
-    copies : int
-        Copies per result (>= 1).
-    noise : (float, float)
-        Range of the noise level, V rms: ``0 <= low <= high``, finite.
-
-    Raises TypeError / ValueError naming ``copies`` or ``noise`` (a bool, a float or a
-    string is no count of copies) before any result is read.
-    """
-    import dataclasses
-
-    copies = integer(copies, "copies", 1)
-    lo, hi = real_range(noise, "noise", unit="V rms", nonnegative=True)
-    rng = np.random.default_rng(seed)
-    out = []
-    for k, r in enumerate(results):
-        if getattr(r, "stress", None) is None or getattr(r, "scene", None) is None:
-            raise ValueError(f"results[{k}] has no strip stresses: simulate with the 'stress' output")
-        for _ in range(copies):
-            level = float(rng.uniform(lo, hi))
-            v, u = r.scene.circuit.simulate(r.stress, r.fs, noise=level, seed=int(rng.integers(2**31)))
-            out.append(dataclasses.replace(r, v_out=v, u_out=u))
-    return out
-
-
-def augment_gains(ts: TrainingSet, gain_range=(0.6, 1.7), seed=0) -> TrainingSet:
-    """Scale each sequence's features by a random gain (log-uniform in ``gain_range``).
-
-    Stress rates scale with the loading speed and depth; the gains let a net
-    trained on one range of scenes meet larger and smaller signals (the held-out
-    scenes are drawn from wider ranges). Targets are unchanged. Deterministic for
-    a seed.
-
-    ``gain_range`` is a pair ``(low, high)`` of positive finite gains (dimensionless),
-    ``low <= high``; anything else is a TypeError / ValueError naming it, as is a ``ts``
-    that is not a :class:`TrainingSet`.
-    """
-    lo, hi = real_range(gain_range, "gain_range", positive=True)
-    if not isinstance(ts, TrainingSet):
-        raise TypeError(f"ts must be a TrainingSet, got {type(ts).__name__}")
-    rng = np.random.default_rng(seed)
-    g = np.exp(rng.uniform(np.log(lo), np.log(hi), ts.n_seq))
-    return TrainingSet(ts.x * g[:, None, None], ts.y_slip, ts.y_pred, ts.mask, ts.fs, ts.features, ts.estimator,
-                       {**ts.targets, "gain_range": [lo, hi], "gain_seed": int(seed)}, ts.load_tau, ts.bank)
-
-
-def compress_training_set(ts: TrainingSet, knee=None) -> TrainingSet:
-    """The filter-bank inputs of ``ts`` compressed (:func:`~.bank.log_compress`), their bank
-    given the knees: a net trained on the result reads compressed inputs wherever it runs.
-
-    ``knee`` (one per input) defaults to :func:`~.bank.fit_knees` of ``ts``'s real samples.
-    Apply it after any gain augmentation (gains scale the rates, which the compression
-    does not commute with). Padding stays zero.
-    """
-    from tactile_mirror.detector.bank import fit_knees, log_compress
-
-    if ts.features != "stress_rate_bank":
-        raise ValueError(f"only filter-bank inputs ('stress_rate_bank') are compressed, got {ts.features!r}")
-    if ts.bank.get("knee") is not None:
-        raise ValueError("ts is compressed already (its bank has knees)")
-    knee = fit_knees(ts.x, ts.mask) if knee is None else np.asarray(knee, dtype=np.float64)
-    bank = bank_config({**ts.bank, "knee": [float(k) for k in knee]})
-    x = log_compress(ts.x, bank["knee"], axis=1) * ts.mask[:, None, :]
-    return TrainingSet(x, ts.y_slip, ts.y_pred, ts.mask, ts.fs, ts.features, ts.estimator, ts.targets,
-                       ts.load_tau, bank)
-
-
 _PRED_TARGET_TEXT = {
     "load_ratio": "pred_scale x |F_y| / (mu_k F_z) (tangential load over what the sliding contact carries), "
                   "1 during gross slip",
@@ -243,6 +175,11 @@ def onset_windows(y_slip: np.ndarray, mask: np.ndarray, n_window: int) -> np.nda
 
 def loss_weights(ts: TrainingSet, pred_weight: float, negative_weight: float = 1.0, onset_weight: float = 0.0,
                   onset_window: float = 0.05):
+    """The per-sample weights ``(w_slip, w_pred)`` of the ``y_slip`` and ``y_pred`` losses on
+    ``ts``: slip and no-slip samples balanced (half the weight each, the no-slip half times
+    ``negative_weight``), plus ``onset_weight`` on the first ``onset_window`` s of every
+    slip (:func:`onset_windows`); ``y_pred`` weighs every real sample alike, ``pred_weight``
+    in all. Padding weighs nothing."""
     m = ts.mask.astype(np.float64)
     pos = m * (ts.y_slip >= 0.5)
     neg = m - pos
@@ -352,10 +289,10 @@ def _window_samples(onset_window, fs: float) -> int:
 
 
 def cpp_loss(xn, data, w_slip, w_pred, n_hidden, l2, feedback, n_threads):
-    n_in = xn.shape[1]
     """``loss_and_grad`` for L-BFGS-B through the compiled kernel (same function, same packing)."""
     from tactile_mirror.kernels import jordan_loss_grad
 
+    n_in = xn.shape[1]
     m = data.mask
     # Samples used of each sequence: up to its last real one (padding after it has zero weight).
     length = np.where(m.any(axis=1), m.shape[1] - np.argmax(m[:, ::-1], axis=1), 0).astype(np.intp)
@@ -423,7 +360,7 @@ def train_detector(data, n_hidden: int = 16, feedback: bool = True, seed=0, maxi
     progress : bool
         Show a tqdm progress bar of the iterations.
     normalisation : {"median", "rms"}
-        Input scale (see :func:`fit_normalisation`).
+        Input scale (see :func:`~tactile_mirror.detector.fit_normalisation`).
     metadata : dict, optional
         Extra entries stored under ``metadata["training"]``.
     backend : {"cpp", "numpy"}
