@@ -1,6 +1,6 @@
 """The checks of what the PVDF circuit's functions take (shared by
-:mod:`tactile_mirror.circuit`, :mod:`tactile_mirror.circuit_stream` and
-:mod:`tactile_mirror.circuit_fit`): real finite arrays, strip stresses, noise levels.
+:mod:`tactile_mirror.circuit`, :mod:`tactile_mirror.circuit.stream` and
+:mod:`tactile_mirror.circuit.fit`): real finite arrays, strip stresses, noise levels.
 """
 from __future__ import annotations
 

@@ -3,9 +3,7 @@
 
 It runs the sections of :meth:`PVDFCircuit.sos <tactile_mirror.circuit.PVDFCircuit.sos>`
 on the C++ filter engine. Made with :meth:`PVDFCircuit.stream
-<tactile_mirror.circuit.PVDFCircuit.stream>` or directly; importable from
-:mod:`tactile_mirror.circuit`, which imports this module (so this one reads
-``PVDFCircuit`` only when a stream is made).
+<tactile_mirror.circuit.PVDFCircuit.stream>` or directly.
 """
 from __future__ import annotations
 
@@ -15,11 +13,11 @@ import numpy as np
 import numpy.typing as npt
 
 from tactile_mirror._checks import channel_shape, sample_rate
-from tactile_mirror.circuit_checks import check_noise, finite_array, stress_array
+from tactile_mirror.circuit.checks import check_noise, finite_array, stress_array
 from tactile_mirror.filters import SosFilter
 
 if TYPE_CHECKING:
-    from tactile_mirror.circuit import PVDFCircuit
+    from tactile_mirror.circuit.pvdf import PVDFCircuit
 
 __all__ = ["CircuitStream"]
 
@@ -64,10 +62,8 @@ class CircuitStream:
     def __init__(self, circuit: PVDFCircuit, fs: float, channels: int | tuple[int, ...] = 1,
                  noise: float | tuple[float, float] = 0.0, seed: int | np.random.Generator | None = None,
                  method: str = "bilinear", prewarp: float | None = None) -> None:
-        from tactile_mirror.circuit import PVDFCircuit  # (circuit imports this module at its top)
-
-        if not isinstance(circuit, PVDFCircuit):
-            raise TypeError(f"circuit must be a PVDFCircuit, got {type(circuit).__name__}")
+        if not (callable(getattr(circuit, "sos", None)) and callable(getattr(circuit, "equivalent_load", None))):
+            raise TypeError(f"circuit must be a PVDFCircuit (sos and equivalent_load), got {type(circuit).__name__}")
         self.circuit = circuit
         self.fs = sample_rate(fs)
         self.shape = channel_shape(channels)

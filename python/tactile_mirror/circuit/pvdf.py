@@ -6,11 +6,11 @@ differentiator turns ``v_out`` into ``u_out`` (paper Fig. 4). This module holds
 the circuit's physical parameters (:class:`PVDFCircuit`), its analog transfer
 functions and gain curves (paper Eq. 1), its discretisation to second-order
 sections at any sample rate, a simulator that runs those sections on the C++
-filter engine (:meth:`PVDFCircuit.simulate` for whole records, its streaming form
-:class:`CircuitStream` for sample-by-sample and block-by-block use, in
-:mod:`tactile_mirror.circuit_stream`), and :func:`fit_circuit`, which identifies the
-components from a measured gain curve (:mod:`tactile_mirror.circuit_fit`); both are
-importable from here.
+filter engine (:meth:`PVDFCircuit.simulate` for whole records; its streaming form
+:class:`~tactile_mirror.circuit.stream.CircuitStream` for sample-by-sample and block-by-block
+use is in :mod:`tactile_mirror.circuit.stream`, and
+:func:`~tactile_mirror.circuit.fit.fit_circuit`, which identifies the components from a
+measured gain curve, in :mod:`tactile_mirror.circuit.fit`).
 
 Circuit
 -------
@@ -110,14 +110,13 @@ import numpy as np
 import numpy.typing as npt
 
 from tactile_mirror._checks import real_number, real_sequence, sample_rate
-from tactile_mirror.circuit_checks import check_noise, finite_array, stress_array
-from tactile_mirror.circuit_fit import fit_circuit
-from tactile_mirror.circuit_stream import CircuitStream
+from tactile_mirror.circuit.checks import check_noise, finite_array, stress_array
+from tactile_mirror.circuit.stream import CircuitStream
 
 if TYPE_CHECKING:
     import scipy.signal
 
-__all__ = ["EPSILON_0", "SLOPE_BAND", "CircuitStream", "PVDFCircuit", "fit_circuit"]
+__all__ = ["EPSILON_0", "SLOPE_BAND", "PVDFCircuit"]
 
 #: Band over which the default circuit reproduces the paper's slopes, Hz.
 SLOPE_BAND: tuple[float, float] = (1.0, 100.0)

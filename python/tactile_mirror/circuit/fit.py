@@ -1,21 +1,15 @@
 """Identifying the PVDF circuit's components from a measured gain curve:
 :func:`fit_circuit` (:func:`scipy.optimize.least_squares` over their logarithms).
-
-Importable from :mod:`tactile_mirror.circuit`, which imports this module (so this one
-reads ``PVDFCircuit`` when it fits).
 """
 from __future__ import annotations
 
 import dataclasses
-from typing import TYPE_CHECKING
 
 import numpy as np
 import numpy.typing as npt
 
-from tactile_mirror.circuit_checks import finite_array
-
-if TYPE_CHECKING:
-    from tactile_mirror.circuit import PVDFCircuit
+from tactile_mirror.circuit.checks import finite_array
+from tactile_mirror.circuit.pvdf import PVDFCircuit
 
 __all__ = ["fit_circuit"]
 
@@ -54,7 +48,6 @@ def fit_circuit(freqs: npt.ArrayLike, gain_v_db: npt.ArrayLike, gain_u_db: npt.A
     """
     import scipy.optimize
 
-    from tactile_mirror.circuit import PVDFCircuit  # (circuit imports this module at its top)
 
     f = finite_array(freqs, "freqs")
     if f.ndim != 1 or f.size < 2:
