@@ -407,7 +407,7 @@ def _numeric_constructors():
 
 @pytest.mark.parametrize("case", range(9))
 def test_numeric_arguments_are_checked_alike(case):
-    # Every constructor takes its numbers through one check (tactile_mirror._checks): a
+    # Every constructor takes its numbers through one check (tactile_mirror.checks): a
     # non-number is a TypeError, a NaN / Inf or out-of-range number a ValueError, and both
     # name the argument; the same arguments pass with a good value.
     name, good, build = _numeric_constructors()[case]

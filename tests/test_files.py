@@ -1,7 +1,7 @@
 """Files: saves that cannot destroy a good file, loads that cannot be made to read too much.
 
 - every writer (weights, recordings, simulation output, reports, figures) goes through
-  ``tactile_mirror._io.atomic_write``: an interrupted save leaves the old file and no
+  ``tactile_mirror.files.atomic_write``: an interrupted save leaves the old file and no
   temporary behind;
 - weights and recording loads read only their members, each bounded by its npy header
   before its data is read, and any defect of a file raises the format's own error.
@@ -24,7 +24,7 @@ import numpy as np
 import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
-from tactile_mirror import _io
+from tactile_mirror import files
 from tactile_mirror.detector.network import Params
 from tactile_mirror.detector.weights import MAX_HIDDEN, DetectorWeights, WeightsError
 from tactile_mirror.loop.recording import MAX_TICKS, Recording, RecordingError
@@ -72,7 +72,7 @@ def half_then_fail(exc):
 def test_atomic_write_replaces_only_on_success(tmp_path):
     target = tmp_path / "a.txt"
     target.write_text("old")
-    with _io.atomic_write(target, "w") as f:
+    with files.atomic_write(target, "w") as f:
         f.write("new")
         assert target.read_text() == "old"  # not yet in place
     assert target.read_text() == "new"
@@ -83,14 +83,14 @@ def test_atomic_write_replaces_only_on_success(tmp_path):
 def test_atomic_write_failure_keeps_old_file_and_removes_temporary(tmp_path, exc):
     target = tmp_path / "a.bin"
     target.write_bytes(b"old contents")
-    with pytest.raises(type(exc)), _io.atomic_write(target) as f:
+    with pytest.raises(type(exc)), files.atomic_write(target) as f:
         f.write(b"partial new contents" * 1000)
         raise exc
     assert target.read_bytes() == b"old contents"
     assert leftovers(tmp_path) == []
     # a new file that fails is never created
     fresh = tmp_path / "fresh.bin"
-    with pytest.raises(type(exc)), _io.atomic_write(fresh) as f:
+    with pytest.raises(type(exc)), files.atomic_write(fresh) as f:
         f.write(b"x")
         raise exc
     assert not fresh.exists() and leftovers(tmp_path) == []
@@ -102,12 +102,12 @@ def test_atomic_write_keeps_permissions_and_symlinks(tmp_path):
     os.chmod(target, 0o640)
     link = tmp_path / "link.bin"
     link.symlink_to(target)
-    _io.write_text(link, "new")
+    files.write_text(link, "new")
     assert link.is_symlink() and target.read_text() == "new"
     assert (os.stat(target).st_mode & 0o777) == 0o640
     umask = os.umask(0o022)
     os.umask(umask)
-    _io.write_text(tmp_path / "fresh.txt", "x")
+    files.write_text(tmp_path / "fresh.txt", "x")
     assert (os.stat(tmp_path / "fresh.txt").st_mode & 0o777) == 0o666 & ~umask
 
 
@@ -121,8 +121,8 @@ def test_atomic_write_to_a_pipe_writes_into_it_and_keeps_it_a_pipe(tmp_path):
     got = []
     reader = threading.Thread(target=lambda: got.append(fifo.read_bytes()))
     reader.start()
-    _io.check_writable(fifo)
-    with _io.atomic_write(fifo) as f:
+    files.check_writable(fifo)
+    with files.atomic_write(fifo) as f:
         f.write(b"through the pipe")
     reader.join(10)
     assert got == [b"through the pipe"]
@@ -131,25 +131,25 @@ def test_atomic_write_to_a_pipe_writes_into_it_and_keeps_it_a_pipe(tmp_path):
 
 def test_atomic_write_refuses_a_folder_and_bad_modes(tmp_path):
     with pytest.raises(IsADirectoryError):
-        _io.write_text(tmp_path, "x")
-    with pytest.raises(ValueError, match="mode"), _io.atomic_write(tmp_path / "x", "ab"):
+        files.write_text(tmp_path, "x")
+    with pytest.raises(ValueError, match="mode"), files.atomic_write(tmp_path / "x", "ab"):
         pass
     with pytest.raises(FileNotFoundError):
-        _io.write_text(tmp_path / "no" / "such" / "folder.txt", "x")
+        files.write_text(tmp_path / "no" / "such" / "folder.txt", "x")
 
 
 def test_check_writable(tmp_path):
-    _io.check_writable(tmp_path / "new.npz")
+    files.check_writable(tmp_path / "new.npz")
     with pytest.raises(IsADirectoryError):
-        _io.check_writable(tmp_path)
+        files.check_writable(tmp_path)
     (tmp_path / "file").write_text("")
     with pytest.raises(NotADirectoryError):
-        _io.check_writable(tmp_path / "file" / "x.npz", make_folder=False)
+        files.check_writable(tmp_path / "file" / "x.npz", make_folder=False)
     with pytest.raises(OSError):
-        _io.check_writable(tmp_path / "file" / "x.npz", make_folder=True)
+        files.check_writable(tmp_path / "file" / "x.npz", make_folder=True)
     with pytest.raises(FileNotFoundError):
-        _io.check_writable(tmp_path / "missing" / "x.npz")
-    _io.check_writable(tmp_path / "made" / "x.npz", make_folder=True)
+        files.check_writable(tmp_path / "missing" / "x.npz")
+    files.check_writable(tmp_path / "made" / "x.npz", make_folder=True)
     assert (tmp_path / "made").is_dir() and leftovers(tmp_path / "made") == []
 
 
@@ -157,7 +157,7 @@ def test_json_value_that_does_not_serialise_leaves_no_trace(tmp_path):
     target = tmp_path / "r.json"
     target.write_text("{}")
     with pytest.raises(TypeError):
-        _io.write_json(target, {"a": object()})
+        files.write_json(target, {"a": object()})
     assert target.read_text() == "{}" and leftovers(tmp_path) == []
 
 

@@ -97,7 +97,7 @@ def test_no_import_circles():
 
 def test_no_private_name_crosses_a_module():
     """No module imports a ``_name`` from another module, in the package or in bench/; the
-    package-internal modules (``tactile_mirror._checks``, ``_io``, ...) are imported only by the
+    package-internal modules (``tactile_mirror.checks``, ``_io``, ...) are imported only by the
     runtime, never by the lab, the command line or a study."""
     crossings = []
     sources = [*_modules(PACKAGE, "tactile_mirror")]

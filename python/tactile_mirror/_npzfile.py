@@ -19,7 +19,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from tactile_mirror._io import save_npz
+from tactile_mirror.files import save_npz
 
 __all__ = ["Member", "check_json", "read_versioned", "write_versioned"]
 
@@ -171,7 +171,7 @@ def read_versioned(path, fmt: str, version: int | tuple[int, ...], error: type[E
 def write_versioned(path, fmt: str, version: int, **arrays) -> None:
     """Write an npz archive with ``format``/``format_version`` and ``arrays`` to ``path``, atomically.
 
-    See :func:`tactile_mirror._io.atomic_write`: an interrupted save leaves the
+    See :func:`tactile_mirror.files.atomic_write`: an interrupted save leaves the
     previous file intact.
     """
     save_npz(path, format=np.array(fmt), format_version=np.array(version), **arrays)

@@ -48,8 +48,8 @@ import threading
 import numpy as np
 import numpy.typing as npt
 
-from tactile_mirror._checks import integer, real_number, real_numeric, sample_rate
 from tactile_mirror._owner import NotCopyable, claim
+from tactile_mirror.checks import integer, real_number, real_numeric, sample_rate
 from tactile_mirror.circuit import PVDFCircuit
 from tactile_mirror.filters import SosFilter, sosfilt
 

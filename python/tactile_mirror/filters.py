@@ -51,8 +51,8 @@ import numpy as np
 import numpy.typing as npt
 
 from tactile_mirror import _core
-from tactile_mirror._checks import integer, real_numeric
 from tactile_mirror._owner import NotCopyable
+from tactile_mirror.checks import integer, real_numeric
 
 __all__ = ["POLE_TOLERANCE", "STRUCTURES", "SosFilter", "UnstableFilterWarning", "roundoff_bound", "simd_path",
            "sosfilt", "validate_sos"]

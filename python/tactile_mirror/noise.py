@@ -69,7 +69,7 @@ from dataclasses import dataclass, field
 import numpy as np
 import numpy.typing as npt
 
-from tactile_mirror._checks import channel_shape, real_array, real_number, real_sequence, sample_rate
+from tactile_mirror.checks import channel_shape, real_array, real_number, real_sequence, sample_rate
 from tactile_mirror.circuit import PVDFCircuit
 
 __all__ = ["BOLTZMANN", "NOISE_SOURCES", "SensorNoise"]

@@ -17,7 +17,7 @@ from typing import Any
 
 import numpy as np
 
-from tactile_mirror._checks import real_number, real_sequence
+from tactile_mirror.checks import real_number, real_sequence
 from tactile_mirror.circuit import PVDFCircuit
 from tactile_mirror.geometry import MAX_RIDGES, RidgeGeometry, too_many_ridges
 from tactile_mirror.noise import SensorNoise

@@ -109,7 +109,7 @@ from typing import TYPE_CHECKING
 import numpy as np
 import numpy.typing as npt
 
-from tactile_mirror._checks import real_number, real_sequence, sample_rate
+from tactile_mirror.checks import real_number, real_sequence, sample_rate
 from tactile_mirror.circuit.checks import check_noise, finite_array, stress_array
 from tactile_mirror.circuit.stream import CircuitStream
 

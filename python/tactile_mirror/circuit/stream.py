@@ -12,7 +12,7 @@ from typing import TYPE_CHECKING
 import numpy as np
 import numpy.typing as npt
 
-from tactile_mirror._checks import channel_shape, sample_rate
+from tactile_mirror.checks import channel_shape, sample_rate
 from tactile_mirror.circuit.checks import check_noise, finite_array, stress_array
 from tactile_mirror.filters import SosFilter
 

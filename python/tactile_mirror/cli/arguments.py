@@ -96,7 +96,8 @@ def out_files(path, *file_names) -> pathlib.Path:
     """:func:`out_folder`, and that each of the files ``file_names`` the command writes there
     can be written (not a folder, not read-only; a ``.png`` in a format matplotlib writes):
     checked before the work, not after it. Returns the folder's path."""
-    from tactile_mirror._io import check_figure_path, check_writable
+    from tactile_mirror.files import check_writable
+    from tactile_mirror.lab.figure_files import check_figure_path
 
     out = out_folder(path)
     for name in file_names:

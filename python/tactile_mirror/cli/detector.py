@@ -36,7 +36,7 @@ def _option_error(exc: Exception) -> UsageError:
 def _train_options(args) -> dict:
     """The training options of ``train``'s loss arguments over the bundled net's (checked here:
     the training would refuse them only after the scenes were simulated)."""
-    from tactile_mirror._checks import real_number
+    from tactile_mirror.checks import real_number
     from tactile_mirror.lab.detector.build_options import TRAIN_OPTIONS
 
     options = dict(TRAIN_OPTIONS)
@@ -133,7 +133,7 @@ def _recalibrate(args) -> int:
     """``train --recalibrate WEIGHTS``: the net in WEIGHTS calibrated anew, written to ``--out``."""
     import json
 
-    from tactile_mirror._io import check_writable
+    from tactile_mirror.files import check_writable
     from tactile_mirror.lab.detector.calibration import recalibrate
 
     goals = calibration_goals(args)
@@ -151,8 +151,9 @@ def cmd_train(args) -> int:
     calibrate if asked, evaluate on the held-out scenes and write the weights to ``--out``
     (the evaluation table, and the hidden-size study if asked, on stdout); with
     ``--recalibrate``, calibrate a trained net anew instead. Returns the exit status."""
-    from tactile_mirror._io import check_figure_path, check_writable
+    from tactile_mirror.files import check_writable
     from tactile_mirror.lab.detector.build import build_default
+    from tactile_mirror.lab.figure_files import check_figure_path
 
     if args.recalibrate is not None:
         return _recalibrate(args)

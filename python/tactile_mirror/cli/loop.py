@@ -51,7 +51,7 @@ def cmd_loop_design(args) -> int:
     exit status."""
     import numpy as np
 
-    from tactile_mirror._io import write_json
+    from tactile_mirror.files import write_json
     from tactile_mirror.lab.loop.envelope import design_law
     from tactile_mirror.lab.loop.figures import design_figure
 
@@ -119,8 +119,8 @@ def cmd_loop_realtime(args) -> int:
     paced by the wall clock against a simulated finger on the 6-ridge FEM pad; can this
     machine hold the rate? Tick times, overruns and gross slips (JSON, plot, recording).
     Returns the exit status."""
-    from tactile_mirror._io import write_json
     from tactile_mirror.contact.plants import FemPad
+    from tactile_mirror.files import write_json
     from tactile_mirror.lab.loop.envelope import REPORT_PATHS, law_controllers
     from tactile_mirror.lab.loop.figures import paced_figure
     from tactile_mirror.lab.measure import environment

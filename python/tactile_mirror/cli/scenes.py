@@ -55,7 +55,8 @@ def cmd_simulate(args) -> int:
     import numpy as np
 
     from tactile_mirror import simulate
-    from tactile_mirror._io import check_figure_path, check_writable, save_npz
+    from tactile_mirror.files import check_writable, save_npz
+    from tactile_mirror.lab.figure_files import check_figure_path
 
     scene = scene_from_args(args)
     out = pathlib.Path(args.out)

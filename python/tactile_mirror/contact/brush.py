@@ -19,7 +19,7 @@ import numbers
 import numpy as np
 import numpy.typing as npt
 
-from tactile_mirror._checks import real_array, real_number
+from tactile_mirror.checks import real_array, real_number
 from tactile_mirror.contact.plants import ContactState
 
 __all__ = ["BrushRidges"]

@@ -19,8 +19,8 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from tactile_mirror._checks import real_number
 from tactile_mirror._owner import NotCopyable
+from tactile_mirror.checks import real_number
 from tactile_mirror.contact.model import RidgeModel
 from tactile_mirror.contact.solver import MAX_PLATE_POSITION, STEPPINGS, ContactSolver, position_error
 from tactile_mirror.contact.step import OPEN, SLIP, STICK

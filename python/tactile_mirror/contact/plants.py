@@ -124,7 +124,7 @@ class FemPad:
     def __init__(self, n_ridges: int = 6, mu: float | None = None, fs: float = 1000.0, indent: float = 30e-6,
                  press_speed: float = 0.06e-3, finger_radius: float = 2.0, circuit: PVDFCircuit | None = None,
                  stepping: str = "auto", geometry: RidgeGeometry | None = None, threads: int = 1):
-        from tactile_mirror._checks import integer
+        from tactile_mirror.checks import integer
         from tactile_mirror.contact.model import ridge_model
         from tactile_mirror.contact.pad import MAX_RIDGES, Pad
         from tactile_mirror.scenes import DEFAULT_FRICTION, DEFAULT_KINETIC_RATIO

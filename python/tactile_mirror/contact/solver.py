@@ -121,8 +121,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from tactile_mirror._checks import integer, real_number
 from tactile_mirror._owner import NotCopyable
+from tactile_mirror.checks import integer, real_number
 from tactile_mirror.contact.model import RidgeModel
 from tactile_mirror.contact.reference_path import ReferencePath
 from tactile_mirror.contact.step import ContactConvergenceError, ContactStep

@@ -21,7 +21,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from tactile_mirror._checks import real_number
+from tactile_mirror.checks import real_number
 
 __all__ = ["DEFAULT_ESTIMATOR", "features_from_result", "targets_from_result"]
 

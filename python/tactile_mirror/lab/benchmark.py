@@ -61,7 +61,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from tactile_mirror._io import write_text
+from tactile_mirror.files import write_text
 from tactile_mirror.lab import measure
 from tactile_mirror.lab.measure import extended_sosfilt
 

@@ -41,7 +41,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from tactile_mirror._checks import integer
+from tactile_mirror.checks import integer
 
 __all__ = [
     "FilterCase",
@@ -102,7 +102,7 @@ def timed(fn: Callable[[], object], repeat: int = 3, clock: Callable[[], float] 
 # ---------------------------------------------------------------- errors
 def rel_max(y, ref) -> float:
     """``max |y - ref| / max |ref|``, computed in long double (real arrays only)."""
-    from tactile_mirror._checks import real_numeric
+    from tactile_mirror.checks import real_numeric
 
     for name, a in (("y", y), ("ref", ref)):  # (an imaginary part was dropped)
         real_numeric(np.asarray(a), name)

@@ -60,7 +60,7 @@ def contact_scene_figure(result: SimulationResult, ridge: int = 0, title: str | 
     ``ridge`` is the index of the ridge shown, ``0 <= ridge < n_ridges`` (TypeError /
     ValueError naming it otherwise; a negative index is no ridge).
     """
-    from tactile_mirror._checks import integer
+    from tactile_mirror.checks import integer
     from tactile_mirror.estimator import estimate_stress_rate
 
     if result.v_out is None or result.slip_fraction is None:
@@ -102,7 +102,7 @@ def save(fig: Figure, path: str | os.PathLike[str]) -> None:
 
     import matplotlib.pyplot as plt
 
-    from tactile_mirror._io import save_figure
+    from tactile_mirror.lab.figure_files import save_figure
 
     p = pathlib.Path(path)
     try:

@@ -98,7 +98,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from tactile_mirror._checks import real_number
+from tactile_mirror.checks import real_number
 from tactile_mirror.circuit import PVDFCircuit
 from tactile_mirror.estimator import equalizer_sos
 from tactile_mirror.loop.stage import StageLimits

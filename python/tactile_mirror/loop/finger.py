@@ -6,7 +6,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from tactile_mirror._checks import real_number
+from tactile_mirror.checks import real_number
 
 __all__ = ["finger_trajectory", "pressed_finger_path"]
 

@@ -29,7 +29,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from tactile_mirror._checks import real_number
+from tactile_mirror.checks import real_number
 from tactile_mirror.loop.recording import Recording
 
 __all__ = ["ArraySource", "LoopResult", "LoopRunner", "StageError"]
@@ -327,7 +327,7 @@ class _DriverFailure(Exception):
 
 def _checked_position(value, tick: int) -> float:
     """``stage.position()``'s return at ``tick`` (-1: before the first) as a float: a finite real
-    number (:func:`~tactile_mirror._checks.real_number`: int, float, numpy real scalar; not a
+    number (:func:`~tactile_mirror.checks.real_number`: int, float, numpy real scalar; not a
     bool, a string, an array, None), else :class:`_DriverFailure`. The tick loop calls it
     only for what is not a finite float."""
     try:

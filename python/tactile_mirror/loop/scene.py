@@ -19,7 +19,7 @@ from typing import Any
 
 import numpy as np
 
-from tactile_mirror._checks import real_number
+from tactile_mirror.checks import real_number
 from tactile_mirror.circuit import PVDFCircuit
 from tactile_mirror.contact.brush import BrushRidges
 from tactile_mirror.contact.plants import ContactPlant, FemPad

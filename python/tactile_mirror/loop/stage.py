@@ -12,7 +12,7 @@ import math
 from dataclasses import dataclass
 from typing import Protocol, runtime_checkable
 
-from tactile_mirror._checks import real_number
+from tactile_mirror.checks import real_number
 
 __all__ = ["SimulatedStage", "Stage", "StageLimits"]
 

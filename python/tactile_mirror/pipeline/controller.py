@@ -56,7 +56,7 @@ from dataclasses import asdict, dataclass
 import numpy as np
 
 from tactile_mirror import _core
-from tactile_mirror._checks import real_number
+from tactile_mirror.checks import real_number
 
 __all__ = ["Controller", "NoController", "PaperController", "VelocityController", "controller_fields",
            "controller_from_dict"]

@@ -26,8 +26,8 @@ import numbers
 import numpy as np
 
 from tactile_mirror import _core
-from tactile_mirror._checks import integer, real_number, sample_rate
 from tactile_mirror._owner import NotCopyable
+from tactile_mirror.checks import integer, real_number, sample_rate
 from tactile_mirror.filters import validate_sos
 from tactile_mirror.pipeline.controller import Controller, controller_from_dict
 

@@ -10,7 +10,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from tactile_mirror._checks import integer, real_range
+from tactile_mirror.checks import integer, real_range
 from tactile_mirror.detector.bank import bank_config
 from tactile_mirror.lab.detector.training import TrainingSet
 

@@ -25,8 +25,8 @@ import time
 
 import numpy as np
 
-from tactile_mirror._io import save_figure, write_text
 from tactile_mirror.detector.core import SlipDetector
+from tactile_mirror.files import write_text
 from tactile_mirror.lab.detector.augment import augment_gains, augment_noise, compress_training_set
 from tactile_mirror.lab.detector.build_options import (
     EXTRA_TRAIN_SEED,
@@ -41,6 +41,7 @@ from tactile_mirror.lab.detector.scene_cache import simulate_cached, simulate_sc
 from tactile_mirror.lab.detector.selection import ValidationScorer, train_selected
 from tactile_mirror.lab.detector.size_study import hidden_size_study, subset
 from tactile_mirror.lab.detector.training import make_training_set
+from tactile_mirror.lab.figure_files import save_figure
 
 __all__ = ["build_default"]
 

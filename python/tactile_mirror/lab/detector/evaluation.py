@@ -25,7 +25,7 @@ from dataclasses import asdict, dataclass, replace
 
 import numpy as np
 
-from tactile_mirror._checks import real_number, real_range
+from tactile_mirror.checks import real_number, real_range
 from tactile_mirror.detector.data_prep import features_from_result, targets_from_result
 
 __all__ = ["NOISE_CONDITIONS", "DetectionMetrics", "EvaluationReport", "ForceRatioDetector",

@@ -3,7 +3,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from tactile_mirror._checks import integer
+from tactile_mirror.checks import integer
 from tactile_mirror.detector.data_prep import features_from_result, targets_from_result
 
 __all__ = ["figure10", "figure10_data"]

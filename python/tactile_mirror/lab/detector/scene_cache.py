@@ -53,7 +53,7 @@ def simulate_cached(n: int, seed: int, kwargs: dict, cache_dir=None, progress: b
     import pickle
 
     from tactile_mirror import __version__
-    from tactile_mirror._io import atomic_write, check_writable
+    from tactile_mirror.files import atomic_write, check_writable
 
     try:
         folder = os.fspath(cache_dir)

@@ -11,7 +11,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from tactile_mirror._checks import integer
+from tactile_mirror.checks import integer
 from tactile_mirror.detector.core import SlipDetector
 from tactile_mirror.lab.detector.evaluation import evaluate
 from tactile_mirror.lab.detector.training import train_detector

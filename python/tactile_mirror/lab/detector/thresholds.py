@@ -14,7 +14,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from tactile_mirror._checks import real_number
+from tactile_mirror.checks import real_number
 from tactile_mirror.detector.data_prep import targets_from_result
 
 __all__ = ["RocCurve", "roc", "running_min", "sequence_extremes"]

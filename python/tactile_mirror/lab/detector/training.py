@@ -16,7 +16,7 @@ import time
 import numpy as np
 import scipy.optimize
 
-from tactile_mirror._checks import real_array, real_number
+from tactile_mirror.checks import real_array, real_number
 from tactile_mirror.detector.bank import bank_config
 from tactile_mirror.detector.data_prep import DEFAULT_ESTIMATOR, features_from_result, targets_from_result
 from tactile_mirror.detector.memory import DEFAULT_LOAD_TAU

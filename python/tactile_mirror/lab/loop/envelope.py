@@ -33,7 +33,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from tactile_mirror._io import check_writable, save_figure, write_json
+from tactile_mirror.files import check_writable, write_json
+from tactile_mirror.lab.figure_files import save_figure
 from tactile_mirror.loop.stage import StageLimits
 
 __all__ = ["CONDITIONS", "PATH_SETS", "REPORT_FAST_PATHS", "REPORT_PATHS", "TUNING_FAST_PATHS", "TUNING_PATHS", "PathSet", "envelope_figure", "envelope_table",

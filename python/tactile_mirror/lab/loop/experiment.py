@@ -33,9 +33,9 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
-from tactile_mirror._checks import real_number
-from tactile_mirror._io import write_json
+from tactile_mirror.checks import real_number
 from tactile_mirror.circuit import PVDFCircuit
+from tactile_mirror.files import write_json
 from tactile_mirror.lab.loop.figures import loop_figure
 from tactile_mirror.loop.runner import LoopRunner
 from tactile_mirror.loop.scene import LoopScene, PlantSource, loop_pipeline

@@ -5,8 +5,8 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from tactile_mirror._checks import integer
-from tactile_mirror._io import save_figure
+from tactile_mirror.checks import integer
+from tactile_mirror.lab.figure_files import save_figure
 
 if TYPE_CHECKING:
     from tactile_mirror.loop.scene import SceneResult

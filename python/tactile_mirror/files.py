@@ -10,7 +10,7 @@ and the target is untouched: the previous weights, which may have taken minutes 
 train, survive an interrupted save.
 
 The helpers :func:`save_npz`, :func:`write_text`, :func:`write_json` and
-:func:`save_figure` cover what the library writes; :func:`check_writable` lets a
+(and :func:`tactile_mirror.lab.figure_files.save_figure` for figures) cover what the library writes; :func:`check_writable` lets a
 long computation find out before it starts that its output cannot be written.
 """
 from __future__ import annotations
@@ -25,7 +25,7 @@ from typing import IO, Any
 
 import numpy as np
 
-__all__ = ["atomic_write", "check_writable", "save_figure", "save_npz", "write_json", "write_text"]
+__all__ = ["atomic_write", "check_writable", "save_npz", "write_json", "write_text"]
 
 _TEMP_SUFFIX = ".tmp"
 
@@ -205,27 +205,3 @@ def write_json(path, value, **dumps_kwargs) -> None:
     serialise leaves no trace.
     """
     write_text(path, json.dumps(value, **dumps_kwargs) + "\n")
-
-
-def check_figure_path(path, *, make_folder: bool = False) -> None:
-    """:func:`check_writable`, and that matplotlib can write the format the suffix names
-    (raise ValueError now, not after the work the figure shows)."""
-    check_writable(path, make_folder=make_folder)
-    suffix = os.path.splitext(os.fspath(path))[1].lstrip(".").lower()
-    if suffix:
-        from matplotlib.backend_bases import FigureCanvasBase
-
-        formats = FigureCanvasBase.get_supported_filetypes()
-        if suffix not in formats:
-            raise ValueError(f"{os.fspath(path)!r}: matplotlib cannot write '.{suffix}' figures; use one of "
-                             f"{', '.join('.' + f for f in sorted(formats))}")
-
-
-def save_figure(fig, path, **savefig_kwargs) -> None:
-    """``fig.savefig`` to ``path`` atomically; the format comes from the suffix (or ``format=``)."""
-    fmt = savefig_kwargs.pop("format", None)
-    if fmt is None:
-        suffix = os.path.splitext(os.fspath(path))[1].lstrip(".").lower()
-        fmt = suffix or None  # matplotlib's default format
-    with atomic_write(path, "wb") as f:
-        fig.savefig(f, format=fmt, **savefig_kwargs)
