@@ -424,7 +424,8 @@ class SimulatedRig:
     def stop(self, timeout: float = 10.0) -> SimRigLog | None:
         """Shut the process down (it stops the axis and returns its log), wait for it to end
         (terminated after ``timeout`` s), remove the shared memory. Returns the log (None if
-        the process gave none). Calling it again returns the same."""
+        the process gave none; if it raised, its traceback is in :attr:`error`). Calling it
+        again returns the same."""
         if self._ring is None:
             return self.log
         ring, proc, conn = self._ring, self._process, self._conn
