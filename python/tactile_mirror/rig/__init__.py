@@ -1,9 +1,30 @@
 """The mirror on a real rig: clocked acquisition in blocks, stage drivers that never block the
 loop, and a simulated rig that stands in for the hardware.
 
+- :mod:`~tactile_mirror.rig.daq`: blocks of samples (:class:`Block`), the :class:`BlockSource`
+  and :class:`Daq` protocols, the analog inputs' map (:class:`InputChannel`);
+- :mod:`~tactile_mirror.rig.analog_stage`: the stage on the DAQ's analog output and encoder
+  counter (:class:`AnalogStage`);
+- :mod:`~tactile_mirror.rig.nidaq`: the NI-DAQmx adapters;
+- :mod:`~tactile_mirror.rig.sim`: the simulated rig.
+
 Nothing here is imported by ``import tactile_mirror``; pyserial and nidaqmx (the optional
 extras ``rig`` and ``nidaq``) load inside the drivers that use them.
 """
 from __future__ import annotations
 
-__all__: list[str] = []
+from typing import TYPE_CHECKING
+
+from tactile_mirror._lazy import attach
+
+__getattr__, __dir__, __all__ = attach(__name__, {
+    "Block": "daq", "BlockSource": "daq", "Daq": "daq", "InputChannel": "daq", "Overrun": "daq",
+    "StageIO": "daq", "input_names": "daq",
+    "AnalogStage": "analog_stage",
+    "NiAnalogInput": "nidaq", "NiDaq": "nidaq", "NiStageIO": "nidaq",
+})
+
+if TYPE_CHECKING:
+    from tactile_mirror.rig.analog_stage import AnalogStage
+    from tactile_mirror.rig.daq import Block, BlockSource, Daq, InputChannel, Overrun, StageIO, input_names
+    from tactile_mirror.rig.nidaq import NiAnalogInput, NiDaq, NiStageIO
