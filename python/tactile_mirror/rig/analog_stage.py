@@ -10,7 +10,7 @@ from __future__ import annotations
 import math
 import time
 
-from tactile_mirror._checks import real_number
+from tactile_mirror.checks import real_number
 from tactile_mirror.loop.stage import StageLimits
 from tactile_mirror.rig.daq import StageIO
 

@@ -22,7 +22,7 @@ from typing import Protocol, runtime_checkable
 
 import numpy as np
 
-from tactile_mirror._checks import real_number
+from tactile_mirror.checks import real_number
 
 __all__ = ["INPUT_KINDS", "TERMINAL_CONFIGS", "Block", "BlockSource", "Daq", "InputChannel", "Overrun",
            "StageIO", "input_names"]
@@ -202,7 +202,7 @@ def input_names(n_ridges: int, force: bool = True) -> tuple[str, ...]:
     """Names of the pipeline's inputs on the rig, in its order: ``v_out`` of every strip
     (ridge ``r``, strips ``L`` and ``R``: ``v_out_0L, v_out_0R, v_out_1L, ...``), then
     ``u_out`` likewise, then (``force``) the force sensor's ``force_y`` and ``force_z``."""
-    from tactile_mirror._checks import integer
+    from tactile_mirror.checks import integer
 
     n_ridges = integer(n_ridges, "n_ridges", 1)
     strips = [f"{r}{side}" for r in range(n_ridges) for side in "LR"]

@@ -23,7 +23,7 @@ from collections.abc import Sequence
 
 import numpy as np
 
-from tactile_mirror._checks import integer, real_number, sample_rate
+from tactile_mirror.checks import integer, real_number, sample_rate
 from tactile_mirror.rig.daq import Block, InputChannel, Overrun
 
 __all__ = ["ACQUISITION_STOPPED_CODES", "ENCODER_KINDS", "SAMPLES_NOT_YET_AVAILABLE", "SAMPLES_OVERWRITTEN",

@@ -30,7 +30,7 @@ from multiprocessing import shared_memory
 
 import numpy as np
 
-from tactile_mirror._checks import integer, real_number, sample_rate
+from tactile_mirror.checks import integer, real_number, sample_rate
 from tactile_mirror.rig.daq import Block
 
 __all__ = ["COMMAND_SLOTS", "DaqRing", "RingState", "ShmBlockSource", "ShmDaq"]

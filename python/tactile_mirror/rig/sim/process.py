@@ -42,7 +42,7 @@ from typing import Protocol, runtime_checkable
 
 import numpy as np
 
-from tactile_mirror._checks import integer, real_number, sample_rate
+from tactile_mirror.checks import integer, real_number, sample_rate
 from tactile_mirror.loop.stage import SimulatedStage, StageLimits
 from tactile_mirror.noise import SensorNoise
 from tactile_mirror.rig.daq import input_names
