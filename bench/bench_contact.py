@@ -217,7 +217,7 @@ def bench_realtime_accuracy(duration, figure_path=None):
            "L - R stress error", "F_y error"], rows)
     if figure_path:
         realtime_figure(points, figure_path, default_h, REALTIME_CONTACT_MESH_SIZE)
-        from tactile_mirror._io import write_json
+        from tactile_mirror.files import write_json
         from tactile_mirror.lab.measure import environment
 
         write_json(os.path.splitext(figure_path)[0] + ".json",
@@ -263,7 +263,7 @@ def realtime_figure(points, path, default_h, realtime_h):
                  fontsize=10)
     fig.tight_layout()
     os.makedirs(os.path.dirname(path) or ".", exist_ok=True)
-    from tactile_mirror._io import save_figure
+    from tactile_mirror.lab.figure_files import save_figure
 
     try:
         save_figure(fig, path, dpi=110)

@@ -102,8 +102,8 @@ def main(argv=None):
     sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
 
     from _common import bank_training_set, bank_validation_conditions, study_scenes
-    from tactile_mirror._io import write_json
     from tactile_mirror.detector import SlipDetector
+    from tactile_mirror.files import write_json
     from tactile_mirror.lab.detector import build
     from tactile_mirror.lab.detector.thresholds import roc
     from tactile_mirror.lab.detector.training import TrainingSet, train_detector

@@ -324,7 +324,7 @@ def main(argv=None):
                 print(line)
     if args.figure:
         from detector_roc import figure
-        from tactile_mirror._io import save_figure
+        from tactile_mirror.lab.figure_files import save_figure
 
         save_figure(figure(curves, len(test)), args.figure, dpi=110)
         print(f"wrote {args.figure}")

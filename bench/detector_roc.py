@@ -55,7 +55,7 @@ os.environ.setdefault("OMP_NUM_THREADS", "1")
 os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
 
 import numpy as np
-from tactile_mirror._io import atomic_write
+from tactile_mirror.files import atomic_write
 from tactile_mirror.lab.detector.evaluation import NOISE_CONDITIONS, condition_estimator, with_noise
 
 #: Seed of the held-out scenes of this study (disjoint from every seed the build uses).
@@ -201,10 +201,11 @@ def main(argv=None):
         return
     sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
     from _common import header
-    from tactile_mirror._io import save_figure, write_json, write_text
     from tactile_mirror.detector import SlipDetector
+    from tactile_mirror.files import write_json, write_text
     from tactile_mirror.lab.detector.evaluation import ForceRatioDetector, onset_kinds
     from tactile_mirror.lab.detector.thresholds import roc
+    from tactile_mirror.lab.figure_files import save_figure
     from tactile_mirror.lab.measure import environment, markdown_table
 
     header("slip detection against false alarms, threshold sweeps per noise condition")

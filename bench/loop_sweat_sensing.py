@@ -223,7 +223,7 @@ def figure(path, fs, traces, runs, mus) -> None:
     ax2.set(xlabel="time (s)", ylabel="stage position (um)", title="Finger held still: the loop follows the phantom")
     ax2.legend(fontsize=8)
     fig.tight_layout()
-    from tactile_mirror._io import save_figure
+    from tactile_mirror.lab.figure_files import save_figure
 
     save_figure(fig, path, dpi=110)
     plt.close(fig)

@@ -151,7 +151,7 @@ def figure(rows: list, default_h_mm: float, order, ref_h_mm: float, path: str) -
         title += f" (observed order of the rms error: {order:.2f})"
     fig.suptitle(title, fontsize=10)
     fig.tight_layout()
-    from tactile_mirror._io import save_figure
+    from tactile_mirror.lab.figure_files import save_figure
 
     save_figure(fig, path, dpi=110)
     plt.close(fig)
@@ -205,7 +205,7 @@ def main(argv=None) -> None:
            "reference_slip_time_s": ref["slip_time_s"], "default_h_mm": default_h * 1e3, "observed_order": order,
            "quick": bool(args.quick), "repeat": repeat, "seconds": time.perf_counter() - t0,
            "rows": [{k: v for k, v in r.items() if k not in ("stress", "stress_pointwise")} for r in rows]}
-    from tactile_mirror._io import write_json
+    from tactile_mirror.files import write_json
 
     write_json(os.path.join(args.out, "mesh_study.json"), doc, indent=1)
     figure(rows, default_h * 1e3, order, ref_h * 1e3, os.path.join(args.out, "mesh_study.png"))
