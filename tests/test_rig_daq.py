@@ -29,8 +29,9 @@ import pytest
 from tactile_mirror.loop.stage import StageLimits
 from tactile_mirror.rig.analog_stage import AnalogStage
 from tactile_mirror.rig.daq import Block, BlockSource, Daq, InputChannel, Overrun, StageIO, input_names
+from tactile_mirror.rig.sim.config import SimRigConfig
 from tactile_mirror.rig.sim.daq_shm import DaqRing, RingState, ShmBlockSource, ShmDaq
-from tactile_mirror.rig.sim.process import SimRigConfig, SimulatedRig
+from tactile_mirror.rig.sim.process import SimulatedRig
 
 FS, N = 1000.0, 10
 

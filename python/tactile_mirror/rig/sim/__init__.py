@@ -3,8 +3,11 @@ stage's serial line on a pseudo-terminal and the acquisition channels as clocked
 
 - :mod:`~tactile_mirror.rig.sim.daq_shm`: the simulated DAQ in shared memory (:class:`DaqRing`,
   the host's :class:`ShmBlockSource` and :class:`ShmDaq`);
-- :mod:`~tactile_mirror.rig.sim.process`: the process (:class:`SimulatedRig`,
-  :class:`SimRigConfig`, its log :class:`SimRigLog`, the axis hook :class:`SimAxis`).
+- :mod:`~tactile_mirror.rig.sim.config`: its settings (:class:`SimRigConfig`), its log
+  (:class:`SimRigLog`), the faults it can make (:data:`FAULTS`);
+- :mod:`~tactile_mirror.rig.sim.axis`: the axis hook (:class:`SimAxis`) and the analog path's
+  axis (:class:`AnalogAxis`);
+- :mod:`~tactile_mirror.rig.sim.process`: the process (:class:`SimulatedRig`).
 """
 from __future__ import annotations
 
@@ -14,10 +17,13 @@ from tactile_mirror._lazy import attach
 
 __getattr__, __dir__, __all__ = attach(__name__, {
     "DaqRing": "daq_shm", "ShmBlockSource": "daq_shm", "ShmDaq": "daq_shm",
-    "AnalogAxis": "process", "SimAxis": "process", "SimRigConfig": "process", "SimRigLog": "process",
+    "FAULTS": "config", "SimRigConfig": "config", "SimRigLog": "config",
+    "AnalogAxis": "axis", "SimAxis": "axis",
     "SimulatedRig": "process",
 })
 
 if TYPE_CHECKING:
+    from tactile_mirror.rig.sim.axis import AnalogAxis, SimAxis
+    from tactile_mirror.rig.sim.config import FAULTS, SimRigConfig, SimRigLog
     from tactile_mirror.rig.sim.daq_shm import DaqRing, ShmBlockSource, ShmDaq
-    from tactile_mirror.rig.sim.process import AnalogAxis, SimAxis, SimRigConfig, SimRigLog, SimulatedRig
+    from tactile_mirror.rig.sim.process import SimulatedRig

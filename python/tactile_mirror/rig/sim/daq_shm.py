@@ -33,7 +33,8 @@ import numpy as np
 from tactile_mirror.checks import integer, real_number, sample_rate
 from tactile_mirror.rig.daq import Block
 
-__all__ = ["COMMAND_SLOTS", "DaqRing", "RingState", "ShmBlockSource", "ShmDaq"]
+__all__ = ["COMMAND_SLOTS", "DEVICE_ERROR", "DEVICE_OK", "DEVICE_REMOVED", "DaqRing", "RingState", "ShmBlockSource",
+           "ShmDaq"]
 
 #: AO values a host may write between two simulator ticks before the oldest is overwritten.
 COMMAND_SLOTS = 4096
@@ -45,7 +46,10 @@ _FLOATS = 4       # float64 entries after them: fs, AO low, AO high, spare
 # header entries
 _H_MAGIC, _H_N, _H_INPUTS, _H_CAPACITY, _H_SLOTS, _H_T0, _H_PUBLISHED, _H_STATE = range(8)
 _H_STOP, _H_SHUTDOWN, _H_MISSED, _H_COMMANDS, _H_ENC_LAST, _H_ENC_INIT, _H_TRIPS, _H_ENC_SLOTS = range(8, 16)
-_H_CMD_SLOTS, _H_COMPUTE_MAX, _H_COMPUTE_SUM = range(16, 19)
+_H_CMD_SLOTS, _H_COMPUTE_MAX, _H_COMPUTE_SUM, _H_DEVICE = range(16, 20)
+
+#: :attr:`DaqRing.device_fault` values: the device works, reports an error on every call, is gone.
+DEVICE_OK, DEVICE_ERROR, DEVICE_REMOVED = 0, 1, 2
 
 
 class RingState:
@@ -217,6 +221,29 @@ class DaqRing:
     @property
     def shutdown_requested(self) -> bool:
         return bool(self._header[_H_SHUTDOWN])
+
+    @property
+    def device_fault(self) -> int:
+        """:data:`DEVICE_OK`, or the fault the simulator made: :data:`DEVICE_ERROR` (the host's
+        output writes and counter reads fail with a device error), :data:`DEVICE_REMOVED` (the
+        device is gone: they and the block reads raise OSError)."""
+        return int(self._header[_H_DEVICE])
+
+    def set_device_fault(self, fault: int) -> None:
+        """The simulator: make a device fault (:attr:`device_fault`)."""
+        if fault not in (DEVICE_OK, DEVICE_ERROR, DEVICE_REMOVED):
+            raise ValueError(f"fault must be DEVICE_OK, DEVICE_ERROR or DEVICE_REMOVED, got {fault!r}")
+        self._header[_H_DEVICE] = int(fault)
+
+    def check_device(self) -> None:
+        """Raise what a failing device raises on the host: RuntimeError for
+        :data:`DEVICE_ERROR`, OSError for :data:`DEVICE_REMOVED`."""
+        fault = int(self._header[_H_DEVICE])
+        if fault == DEVICE_ERROR:
+            raise RuntimeError("the simulated DAQ reports a device error (error -200000, as a driver's "
+                               "error code)")
+        if fault == DEVICE_REMOVED:
+            raise OSError("the simulated DAQ device is gone (removed)")
 
     # ------------------------------------------------------------------ counters the writer keeps
     def count_block(self, compute_ns: int, missed: bool) -> None:
@@ -392,6 +419,8 @@ class ShmBlockSource:
         ring = self.ring
         deadline = time.monotonic_ns() + round(timeout * 1e9)
         while True:
+            if ring.device_fault == DEVICE_REMOVED:
+                ring.check_device()
             published = ring.published
             if published > self._next:
                 oldest = published - ring.capacity
@@ -459,10 +488,12 @@ class ShmDaq:
             raise ValueError(f"volts must lie in the analog output's range [{lo:g}, {hi:g}] V, got {volts!r}")
         if self._closed:
             raise RuntimeError("the simulated DAQ is closed")
+        self.ring.check_device()
         self.ring.write_command(v, time.monotonic_ns())
 
     def read_counter(self) -> tuple[int, int]:
         """The encoder count now and the ``monotonic_ns`` time it holds for."""
+        self.ring.check_device()
         return self.ring.read_count(time.monotonic_ns())
 
     def status(self) -> dict:
