@@ -58,8 +58,9 @@ class AnalogStage:
     -----
     :meth:`position` reads the counter (one read per tick, before :meth:`move_to` in the
     loop); :meth:`move_to` works from that reading. :meth:`stop` writes 0 V in velocity
-    mode; in position mode 0 V is a position, so it writes the command of the position last
-    read (the stage holds there).
+    mode; in position mode 0 V is a position, so it writes the command of the last position
+    read within the soft limits (the stage holds there; a reading outside them, an encoder
+    glitch, is never made a target).
     """
 
     command_mode = "per_tick"
@@ -109,6 +110,7 @@ class AnalogStage:
         self._t_ns = -1              # its time
         self._x_prev = math.nan
         self._t_prev = -1
+        self._x_hold = math.nan      # last position read within the soft limits
         self._target = math.nan
         self._volts = math.nan       # last value written
         self._fault: str | None = None
@@ -137,6 +139,8 @@ class AnalogStage:
                 self._x_prev, self._t_prev = self._x, self._t_ns
                 self._x = self.offset + int(count) / self.counts_per_m
                 self._t_ns = int(t_ns)
+                if self._limits.x_min <= self._x <= self._limits.x_max:
+                    self._x_hold = self._x
         return self._x
 
     def position_age(self) -> float:
@@ -202,12 +206,12 @@ class AnalogStage:
         self._write(v * self.volts_per_m_s)
 
     def stop(self) -> None:
-        """Stop now: 0 V in velocity mode; in position mode the command of the position last
-        read (nothing if there is none). Written after a fault too."""
+        """Stop now: 0 V in velocity mode; in position mode the command of the last position
+        read within the soft limits (nothing if there is none). Written after a fault too."""
         if self.mode == "velocity":
             self._write(0.0, stopping=True)
-        elif math.isfinite(self._x):
-            self._write(self.volts_offset + self._x * self.volts_per_m, stopping=True)
+        elif math.isfinite(self._x_hold):
+            self._write(self.volts_offset + self._x_hold * self.volts_per_m, stopping=True)
         self._target = math.nan
 
     def close(self) -> None:
