@@ -2,6 +2,8 @@
 
 - :mod:`~tactile_mirror.loop.design`: the default law designed from a stage's data sheet,
   the shear calibration and the sample rate (:func:`design_loop`);
+- :mod:`~tactile_mirror.loop.calibration`: the shear calibration's fits (shear weights, the
+  signal's sign and size per metre) from a known displacement;
 - :mod:`~tactile_mirror.loop.stage`: the :class:`Stage` protocol and :class:`SimulatedStage`;
 - :mod:`~tactile_mirror.loop.runner`: :class:`LoopRunner` (fixed rate, latency percentiles;
   :class:`StageError` when the stage driver fails mid-run);
@@ -22,6 +24,7 @@ from tactile_mirror._lazy import attach
 
 __getattr__, __dir__, __all__ = attach(__name__, {
     "header_path": "capi", "library_path": "capi",
+    "fit_shear_scale": "calibration", "fit_shear_weights": "calibration", "triangle_path": "calibration",
     "LoopDesign": "design", "design_loop": "design",
     "Recording": "recording", "RecordingError": "recording",
     "ArraySource": "runner", "LoopResult": "runner", "LoopRunner": "runner", "StageError": "runner",
@@ -30,6 +33,7 @@ __getattr__, __dir__, __all__ = attach(__name__, {
 })
 
 if TYPE_CHECKING:
+    from tactile_mirror.loop.calibration import fit_shear_scale, fit_shear_weights, triangle_path
     from tactile_mirror.loop.capi import header_path, library_path
     from tactile_mirror.loop.design import LoopDesign, design_loop
     from tactile_mirror.loop.recording import Recording, RecordingError

@@ -37,6 +37,7 @@ from tactile_mirror.checks import real_number
 from tactile_mirror.circuit import PVDFCircuit
 from tactile_mirror.files import write_json
 from tactile_mirror.lab.loop.figures import loop_figure
+from tactile_mirror.loop.calibration import fit_shear_weights, triangle_path
 from tactile_mirror.loop.runner import LoopRunner
 from tactile_mirror.loop.scene import LoopScene, PlantSource, loop_pipeline
 from tactile_mirror.loop.scene import make_plant as _make_plant
@@ -120,23 +121,14 @@ def still_pad_features(weights, finger, fs: float = 1000.0, n_ridges: int = 6, p
     return pipe.process_block(x, features=True)[1].reshape(finger.size, n_ridges, 4)
 
 
-def _triangle_path(amplitudes, step: float) -> np.ndarray:
-    """0, then one cycle +a, -a per amplitude, back to 0; ``step`` m per tick."""
-    path, x = [np.zeros(1)], 0.0
-    for target in [s * a for a in amplitudes for s in (1.0, -1.0)] + [0.0]:
-        n = max(1, round(abs(target - x) / step))
-        path.append(np.linspace(x, target, n + 1)[1:])
-        x = target
-    return np.concatenate(path)
-
-
 def calibrate_shear_weights(weights, fs: float = 1000.0, n_ridges: int = 6, plant: str = "fem",
                             amplitudes=(20e-6, 40e-6, 60e-6, 80e-6), speed: float = 0.5e-3) -> np.ndarray:
     """Weights of the strips' stress rates in the controller's shear signal, from a calibration
     of the pad alone (no finger path): after the press, the pad is moved under the resting
     finger in slow triangle cycles of growing ``amplitudes`` (m) at ``speed`` (m/s), and the
     per-ridge L-R differences of the integrated stress-rate estimates are fitted, by least
-    squares, to the relative displacement.
+    squares, to the relative displacement (:func:`~tactile_mirror.loop.calibration.fit_shear_weights`,
+    the fit a rig's bring-up makes too).
 
     Returns ``(n_ridges, 2)`` weights ``(c_r, -c_r)`` for :class:`~tactile_mirror.MirrorPipeline`
     (``shear_weights``): each ridge enters with its own L-R difference, so a change of the
@@ -150,13 +142,9 @@ def calibrate_shear_weights(weights, fs: float = 1000.0, n_ridges: int = 6, plan
     about 0.07 mm both ways (``tests/test_loop_design.py`` checks that it outlasts L - R).
     """
     n0 = round(0.5 * fs) if plant == "fem" else 0
-    finger = np.concatenate([np.zeros(n0), _triangle_path(amplitudes, speed / fs)])
+    finger = np.concatenate([np.zeros(n0), triangle_path(amplitudes, speed / fs)])
     feats = still_pad_features(weights, finger, fs, n_ridges, plant)
-    diff = np.cumsum(feats[:, :, 0] - feats[:, :, 1], axis=0) / fs  # integrated L-R rate per ridge
-    diff = diff[n0:] - diff[n0]
-    c = np.linalg.lstsq(diff, finger[n0:], rcond=None)[0]
-    c = c / np.max(np.abs(c))
-    return np.stack([c, -c], axis=1)
+    return fit_shear_weights(feats, finger, fs, start=n0)
 
 
 def calibrate_direction(weights, fs: float = 1000.0, n_ridges: int = 6, plant: str = "brush") -> float:
