@@ -26,7 +26,7 @@ __getattr__, __dir__, __all__ = attach(__name__, {
     "header_path": "capi", "library_path": "capi",
     "fit_shear_scale": "calibration", "fit_shear_weights": "calibration", "triangle_path": "calibration",
     "LoopDesign": "design", "design_loop": "design",
-    "Recording": "recording", "RecordingError": "recording",
+    "Recording": "recording", "RecordingError": "recording", "RigTrace": "recording",
     "ArraySource": "runner", "LoopResult": "runner", "LoopRunner": "runner", "StageError": "runner",
     "LoopScene": "scene", "SceneResult": "scene", "run_scene": "scene",
     "SimulatedStage": "stage", "Stage": "stage", "StageLimits": "stage",
@@ -36,7 +36,7 @@ if TYPE_CHECKING:
     from tactile_mirror.loop.calibration import fit_shear_scale, fit_shear_weights, triangle_path
     from tactile_mirror.loop.capi import header_path, library_path
     from tactile_mirror.loop.design import LoopDesign, design_loop
-    from tactile_mirror.loop.recording import Recording, RecordingError
+    from tactile_mirror.loop.recording import Recording, RecordingError, RigTrace
     from tactile_mirror.loop.runner import ArraySource, LoopResult, LoopRunner, StageError
     from tactile_mirror.loop.scene import LoopScene, SceneResult, run_scene
     from tactile_mirror.loop.stage import SimulatedStage, Stage, StageLimits

@@ -24,6 +24,23 @@ key                 shape / type        meaning
 ``metadata``        str (JSON)          free-form (run settings, latency, scene ...)
 ==================  ==================  =============================================
 
+Version 2 adds what a run on a rig (:mod:`tactile_mirror.rig`) records, all optional
+(:class:`RigTrace`; a recording without it has none of them):
+
+======================  ==================  =============================================
+``rig_block_row``       (n_blocks,) int64   row of each acquisition block's first sample
+``rig_block_index``     (n_blocks,) int64   its sample index since the acquisition started
+``rig_block_lost``      (n_blocks,) int64   samples lost (never delivered) just before it
+``rig_block_t_ns``      (n_blocks,) int64   ``monotonic_ns`` time of its last sample
+``rig_command_row``     (n_cmd,) int64      row whose output was sent to the stage
+``rig_command_t_ns``    (n_cmd,) int64      when it was sent
+``rig_command_x``       (n_cmd,)            the target sent, m
+``rig_aux``             (n, n_aux)          acquired channels the pipeline does not read
+``rig_aux_names``       str (JSON)          their names
+======================  ==================  =============================================
+
+Files of version 1 (no rig members) are read as they are.
+
 Loading reads only these members (others are ignored, unread) and checks each one's
 dtype and shape against bounds (at most :data:`MAX_TICKS` ticks, :data:`MAX_RIDGES`
 ridges) from its npy header before reading its data; anything wrong with the file's
@@ -44,10 +61,14 @@ import numpy as np
 from tactile_mirror._npzfile import Member, check_json, parse_json, read_versioned, write_versioned
 from tactile_mirror.geometry import MAX_RIDGES
 
-__all__ = ["FORMAT", "FORMAT_VERSION", "MAX_RIDGES", "MAX_TICKS", "Recording", "RecordingError"]
+__all__ = ["FORMAT", "FORMAT_VERSION", "MAX_RIDGES", "MAX_TICKS", "READ_VERSIONS", "Recording", "RecordingError",
+           "RigTrace"]
 
 FORMAT = "tactile-mirror-recording"
-FORMAT_VERSION = 1
+#: The version :meth:`Recording.save` writes (2: the rig's members, :class:`RigTrace`).
+FORMAT_VERSION = 2
+#: The versions :meth:`Recording.load` reads.
+READ_VERSIONS = (1, 2)
 _CFG_ARRAYS = ("sos_v", "sos_u", "sos_diff", "w1", "b1", "w2", "b2", "input_mean", "input_gain", "shear_weights")
 
 #: Longest recording a file may hold: 1e8 ticks, 28 h at 1 kHz (a 6-ridge recording
@@ -72,11 +93,90 @@ _MEMBERS = {
     "cfg_input_mean": Member("f", 1, (_MAX_IN,), required=False),
     "cfg_input_gain": Member("f", 1, (_MAX_IN,), required=False),
     "cfg_shear_weights": Member("f", 2, (MAX_RIDGES, 2), required=False),
+    **{"rig_" + k: Member("iu", 1, (MAX_TICKS,), required=False)
+       for k in ("block_row", "block_index", "block_lost", "block_t_ns", "command_row", "command_t_ns")},
+    "rig_command_x": Member("f", 1, (MAX_TICKS,), required=False),
+    "rig_aux": Member("f", 2, (MAX_TICKS, _MAX_IN), required=False),
+    "rig_aux_names": Member("U", 0, max_itemsize=4 * _MAX_JSON_CHARS, required=False),
 }
+_RIG_INTS = ("block_row", "block_index", "block_lost", "block_t_ns", "command_row", "command_t_ns")
 
 
 class RecordingError(ValueError):
     """A recording file or object is invalid."""
+
+
+@dataclass
+class RigTrace:
+    """What a run on a rig adds to a :class:`Recording` (format version 2).
+
+    The recording's rows are the samples the acquisition delivered, in order; samples it
+    lost (its buffer overflowed) are not rows, they are counted here, before the block that
+    came after them.
+
+    Attributes
+    ----------
+    block_row, block_index, block_lost, block_t_ns : ndarray of int64, shape (n_blocks,)
+        Per acquisition block: the row of its first sample, that sample's index since the
+        acquisition started, the samples lost just before it, the ``monotonic_ns`` time of
+        its last sample.
+    command_row, command_t_ns : ndarray of int64, shape (n_commands,)
+        Per command sent to the stage: the row whose output it was, when it was sent.
+    command_x : ndarray, shape (n_commands,)
+        The target sent, m.
+    aux : ndarray, shape (n, n_aux)
+        Acquired channels the pipeline does not read (e.g. ``force_y``, ``force_z``), per row.
+    aux_names : tuple of str
+    """
+
+    block_row: np.ndarray
+    block_index: np.ndarray
+    block_lost: np.ndarray
+    block_t_ns: np.ndarray
+    command_row: np.ndarray
+    command_t_ns: np.ndarray
+    command_x: np.ndarray
+    aux: np.ndarray
+    aux_names: tuple = ()
+
+    def __post_init__(self):
+        for k in _RIG_INTS:
+            a = getattr(self, k)
+            if not isinstance(a, np.ndarray) or a.ndim != 1 or a.dtype.kind not in "iu":
+                raise RecordingError(f"rig {k} must be a 1-D integer array")
+            setattr(self, k, a.astype(np.int64, copy=False))
+        if not isinstance(self.command_x, np.ndarray) or self.command_x.ndim != 1 or self.command_x.dtype.kind != "f":
+            raise RecordingError("rig command_x must be a 1-D float array")
+        if not isinstance(self.aux, np.ndarray) or self.aux.ndim != 2 or self.aux.dtype.kind != "f":
+            raise RecordingError("rig aux must be a 2-D float array (rows, channels)")
+        self.aux_names = tuple(self.aux_names)
+        if not all(isinstance(n, str) for n in self.aux_names) or len(self.aux_names) != self.aux.shape[1]:
+            raise RecordingError(f"rig aux_names must name the {self.aux.shape[1]} aux channels, got "
+                                 f"{self.aux_names!r}")
+        nb = self.block_row.size
+        if any(getattr(self, k).size != nb for k in ("block_index", "block_lost", "block_t_ns")):
+            raise RecordingError("rig block arrays must have one entry per block each")
+        nc = self.command_row.size
+        if self.command_t_ns.size != nc or self.command_x.size != nc:
+            raise RecordingError("rig command arrays must have one entry per command each")
+
+    @property
+    def lost_samples(self) -> int:
+        """Samples the acquisition lost during the run."""
+        return int(self.block_lost.sum())
+
+    def check(self, n: int) -> None:
+        """Raise :class:`RecordingError` unless it fits a recording of ``n`` rows."""
+        if self.aux.shape[0] != n:
+            raise RecordingError(f"rig aux has {self.aux.shape[0]} rows for {n} samples")
+        r = self.block_row
+        if r.size and (r[0] != 0 or np.any(np.diff(r) <= 0) or r[-1] >= max(n, 1)):
+            raise RecordingError("rig block_row must start at 0 and grow within the rows")
+        if np.any(self.block_lost < 0) or np.any(np.diff(self.block_index) <= 0):
+            raise RecordingError("rig block_lost must be >= 0 and block_index grow")
+        c = self.command_row
+        if c.size and (np.any(c < 0) or np.any(c >= n) or np.any(np.diff(c) < 0)):
+            raise RecordingError("rig command_row must be rows of the recording, in order")
 
 
 @dataclass
@@ -97,6 +197,8 @@ class Recording:
         Start position of the controller, m.
     metadata : dict
         JSON-serialisable.
+    rig : RigTrace or None
+        What a run on a rig adds (blocks, lost samples, commands sent, other channels).
     """
 
     fs: float
@@ -107,6 +209,7 @@ class Recording:
     config: dict
     x0: float = 0.0
     metadata: dict = field(default_factory=dict)
+    rig: RigTrace | None = None
 
     def __post_init__(self):
         self.validate()
@@ -167,6 +270,10 @@ class Recording:
         if not math.isclose(float(self.config["fs"]), float(self.fs), rel_tol=1e-12):
             raise RecordingError(f"fs={self.fs} differs from the configuration's {self.config['fs']}")
         check_json(self.metadata, "metadata", RecordingError)
+        if self.rig is not None:
+            if not isinstance(self.rig, RigTrace):
+                raise RecordingError(f"rig must be a RigTrace or None, got {type(self.rig).__name__}")
+            self.rig.check(self.samples.shape[0])
 
     # -- files ----------------------------------------------------------------------------
     def save(self, path) -> None:
@@ -186,7 +293,16 @@ class Recording:
                         fs=np.array(float(self.fs)), x0=np.array(float(self.x0)), samples=self.samples,
                         outputs=self.outputs, accepted=self.accepted, stage_position=self.stage_position,
                         config=np.array(json.dumps(cfg, sort_keys=True)),
-                        metadata=np.array(json.dumps(self.metadata, sort_keys=True)), **arrays)
+                        metadata=np.array(json.dumps(self.metadata, sort_keys=True)), **arrays, **self._rig_arrays())
+
+    def _rig_arrays(self) -> dict:
+        r = self.rig
+        if r is None:
+            return {}
+        out = {"rig_" + k: getattr(r, k) for k in _RIG_INTS}
+        out.update(rig_command_x=np.asarray(r.command_x, dtype=np.float64),
+                   rig_aux=np.asarray(r.aux, dtype=np.float64), rig_aux_names=np.array(json.dumps(list(r.aux_names))))
+        return out
 
     @classmethod
     def load(cls, path) -> Recording:
@@ -202,17 +318,32 @@ class Recording:
             ``path`` cannot be opened (:class:`FileNotFoundError` if it does not exist).
         """
         path = os.fspath(path)
-        data = read_versioned(path, FORMAT, FORMAT_VERSION, RecordingError, "tactile-mirror recording", _MEMBERS)
+        data = read_versioned(path, FORMAT, READ_VERSIONS, RecordingError, "tactile-mirror recording", _MEMBERS)
         cfg = parse_json(data["config"], "config", RecordingError, repr(path))
         meta = parse_json(data["metadata"], "metadata", RecordingError, repr(path))
         if not isinstance(cfg, dict):
             raise RecordingError(f"{path!r}: config must be a JSON object")
         for k in _CFG_ARRAYS:
             cfg[k] = data.get("cfg_" + k)
+        rig_keys = [k for k in data if k.startswith("rig_")]
+        rig = None
+        if rig_keys:
+            missing = [k for k in ["rig_" + k for k in _RIG_INTS] + ["rig_command_x", "rig_aux", "rig_aux_names"]
+                       if k not in data]
+            if missing:
+                raise RecordingError(f"{path!r}: key {missing[0]!r} missing (the file has other rig members)")
+            names = parse_json(data["rig_aux_names"], "rig_aux_names", RecordingError, repr(path))
+            if not isinstance(names, list):
+                raise RecordingError(f"{path!r}: rig_aux_names must be a JSON list")
+            try:
+                rig = RigTrace(**{k: data["rig_" + k] for k in _RIG_INTS}, command_x=data["rig_command_x"],
+                               aux=data["rig_aux"], aux_names=tuple(names))
+            except RecordingError as exc:
+                raise RecordingError(f"{path!r}: {exc}") from None
         try:
             return cls(fs=float(data["fs"]), samples=data["samples"], outputs=data["outputs"],
                        accepted=data["accepted"], stage_position=data["stage_position"], config=cfg,
-                       x0=float(data["x0"]), metadata=meta)
+                       x0=float(data["x0"]), metadata=meta, rig=rig)
         except RecordingError as exc:  # (the checks of the constructor name the field, not the file)
             raise RecordingError(f"{path!r}: {exc}") from None
 
