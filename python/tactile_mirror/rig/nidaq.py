@@ -214,10 +214,15 @@ class NiStageIO:
         ``counts_per_m``.
     ao_range : (float, float)
         The output's range, V.
+    idle_volts : float or None
+        What the output is set to when the tasks start and when they close, V (0: the stop of
+        a velocity command). None: it is left as it is; an amplifier taking a position
+        command holds where its last command put it (0 V would be a position, a move).
     """
 
     def __init__(self, ao: str, counter: str, encoder: str = "linear",
-                 ao_range: tuple[float, float] = (-10.0, 10.0), task_name: str = "tactile-mirror-stage"):
+                 ao_range: tuple[float, float] = (-10.0, 10.0), task_name: str = "tactile-mirror-stage",
+                 idle_volts: float | None = 0.0):
         import nidaqmx
         from nidaqmx import constants
 
@@ -228,6 +233,11 @@ class NiStageIO:
             raise ValueError(f"ao_range must contain 0 V, got {ao_range!r}")
         self.ao_range = (lo, hi)
         self.encoder = encoder
+        if idle_volts is not None:
+            idle_volts = real_number(idle_volts, "idle_volts", unit="V")
+            if not lo <= idle_volts <= hi:
+                raise ValueError(f"idle_volts must lie in the output's range [{lo:g}, {hi:g}] V, got {idle_volts!r}")
+        self.idle_volts = idle_volts
         self._ao = nidaqmx.Task(f"{task_name}-ao")
         self._ci = None
         try:
@@ -242,7 +252,8 @@ class NiStageIO:
             # started once: each write and read is then a single driver call
             self._ao.start()
             self._ci.start()
-            self._ao.write(0.0)
+            if idle_volts is not None:
+                self._ao.write(idle_volts)
         except BaseException:
             self._close_tasks()
             raise
@@ -264,9 +275,10 @@ class NiStageIO:
         return int(round(count)), t_ns
 
     def close(self) -> None:
-        """Write 0 V, then stop and release both tasks."""
+        """Write :attr:`idle_volts` (unless None), then stop and release both tasks."""
         try:
-            self._ao.write(0.0)
+            if self.idle_volts is not None:
+                self._ao.write(self.idle_volts)
         finally:
             self._close_tasks()
 

@@ -473,6 +473,8 @@ class ShmDaq:
         self.ring = ring
         self._source = ShmBlockSource(ring, channels, start_delay)
         self.ao_range = ring.ao_range
+        #: What :meth:`close` writes, V (None: nothing; see NiStageIO's ``idle_volts``).
+        self.idle_volts: float | None = 0.0
         self._closed = False
 
     @property
@@ -501,10 +503,12 @@ class ShmDaq:
         return self.ring.counters()
 
     def close(self) -> None:
-        """Write 0 V and stop the acquisition (the memory belongs to its owner)."""
+        """Write :attr:`idle_volts` (0 V unless set otherwise) and stop the acquisition (the
+        memory belongs to its owner)."""
         if not self._closed:
             try:
-                self.write_ao(0.0)
+                if self.idle_volts is not None:
+                    self.write_ao(self.idle_volts)
             finally:
                 self._closed = True
                 self._source.close()
