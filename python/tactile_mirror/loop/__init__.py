@@ -24,7 +24,8 @@ from tactile_mirror._lazy import attach
 
 __getattr__, __dir__, __all__ = attach(__name__, {
     "header_path": "capi", "library_path": "capi",
-    "fit_shear_scale": "calibration", "fit_shear_weights": "calibration", "triangle_path": "calibration",
+    "band_pass": "calibration", "fit_shear_scale": "calibration", "fit_shear_weights": "calibration",
+    "triangle_path": "calibration",
     "LoopDesign": "design", "design_loop": "design",
     "Recording": "recording", "RecordingError": "recording", "RigTrace": "recording",
     "ArraySource": "runner", "LoopResult": "runner", "LoopRunner": "runner", "StageError": "runner",
@@ -33,7 +34,7 @@ __getattr__, __dir__, __all__ = attach(__name__, {
 })
 
 if TYPE_CHECKING:
-    from tactile_mirror.loop.calibration import fit_shear_scale, fit_shear_weights, triangle_path
+    from tactile_mirror.loop.calibration import band_pass, fit_shear_scale, fit_shear_weights, triangle_path
     from tactile_mirror.loop.capi import header_path, library_path
     from tactile_mirror.loop.design import LoopDesign, design_loop
     from tactile_mirror.loop.recording import Recording, RecordingError, RigTrace

@@ -170,10 +170,12 @@ _SCHEMA: dict[str, dict] = {
              "notch": (_reals(), ()), "arm_delay": (_NONNEG, 0.5), "phase_margin": (_NONNEG, 45.0),
              "gain_margin": (_NONNEG, 6.0), "max_sensitivity": (_number(1.0, lo_open=True, what="a number > 1"), 2.0),
              "planner": (_bool, True), "max_hold_ticks": (_int(1, 100_000), 50)},
-    "bringup": {"sensors_only": (_POS, 1.0), "calibrate": (_bool, True),
+    "bringup": {"sensors_only": (_POS, 1.0),
                 "calibration_amplitudes": (_reals(), (20e-6, 40e-6, 60e-6, 80e-6)),
-                "calibration_speed": (_POS, 0.5e-3), "delay_steps": (_int(1, 100), 3),
-                "delay_step": (_POS, 20e-6), "delay_threshold": (_POS, 1e-6)},
+                "calibration_speed": (_POS, 0.5e-3), "calibration_cycles": (_int(1, 100), 3),
+                "calibration_band": (_pair("a pair [low, high] of Hz with 0 < low < high"), (0.3, 15.0)),
+                "symmetric": (_bool, True), "delay_steps": (_int(1, 100), 3),
+                "delay_step": (_POS, 20e-6)},
     "safety": {"watchdog": (_POS, 0.02), "max_position_age": (_POS, 0.02), "comm_timeout": (_POS, 0.1),
                "late_block": (_POS, 0.005), "late_blocks": (_int(1), 3), "position_margin": (_NONNEG, 0.5e-3)},
     "simulation": {"plant": (_choice("realtime", "fem", "brush"), "realtime"), "seed": (_int(0), 0),
@@ -347,6 +349,10 @@ def parse_config(raw: dict, source: str = "") -> RigConfig:
         raise ConfigError("simulation.lead", f"expected at most one block ({acq['block_size'] / acq['fs']:g} s), "
                                              f"got {sim['lead']!r}", source)
     safety = s["safety"]
+    lo_b, hi_b = s["bringup"]["calibration_band"]
+    if not 0 < lo_b < hi_b < acq["fs"] / 2:
+        raise ConfigError("bringup.calibration_band", f"expected 0 < low < high < fs / 2 = {acq['fs'] / 2:g} Hz, "
+                                                      f"got [{lo_b:g}, {hi_b:g}]", source)
     if safety["comm_timeout"] <= acq["block_size"] / acq["fs"]:
         raise ConfigError("safety.comm_timeout", f"expected more than one block period "
                                                  f"({acq['block_size'] / acq['fs']:g} s), got {safety['comm_timeout']!r}",

@@ -47,9 +47,10 @@ class SimRigConfig:
         :func:`~tactile_mirror.loop.finger.finger_trajectory`.
     finger_wait
         False: the finger presses in for ``press`` s from the clock's start, then follows its
-        path (``duration`` s in all). True: it presses in and rests until the host says
-        :meth:`SimulatedRig.start_finger` (a person told to start moving), then follows a
-        path of ``duration`` s.
+        path (``duration`` s in all). True: it rides with the pad (no shear, as a finger not
+        yet placed) until the host places it (:meth:`SimulatedRig.place_finger`), rests
+        there until :meth:`SimulatedRig.start_finger` (a person told to start moving), then
+        follows a path of ``duration`` s from there.
     noise, noise_record
         Sensor noise (None: none), drawn once for ``noise_record`` s and played in a loop
         (2 s holds whole periods of 50 and 60 Hz hum at 1 kHz).
@@ -243,6 +244,28 @@ class SimRigLog:
             return {"rms": math.nan, "max": math.nan}
         e = e - e[0]
         return {"rms": float(np.sqrt(np.mean(e * e))), "max": float(np.max(np.abs(e)))}
+
+    def stop_after(self, t_ns: int) -> tuple[int, str] | None:
+        """When the axis was stopped after ``t_ns`` (``monotonic_ns``), and how: ``"stop
+        received"`` (the first command the axis took that the host sent at ``t_ns`` or later:
+        the stop; a command log with ``stop_ns`` gives the stops themselves) or ``"watchdog"``
+        (its communication watchdog); None if neither happened."""
+        out = []
+        cmd = self.commands
+        if "stop_ns" in cmd:
+            s = np.asarray(cmd["stop_ns"], dtype=np.int64)
+            s = s[s >= t_ns]
+            if s.size:
+                out.append((int(s.min()), "stop received"))
+        elif "t_ns" in cmd and "seen_ns" in cmd:
+            sent = np.asarray(cmd["t_ns"], dtype=np.int64)
+            k = np.flatnonzero(sent >= t_ns)
+            if k.size:
+                out.append((int(np.asarray(cmd["seen_ns"])[k[0]]), "stop received"))
+        w = self.watchdog_trips_ns[self.watchdog_trips_ns >= t_ns]
+        if w.size:
+            out.append((int(w.min()), "watchdog"))
+        return min(out) if out else None
 
     def summary(self) -> dict:
         """Blocks, misses and the block compute time's p50 / p99 / max, us."""

@@ -7,7 +7,8 @@ tick by tick, on the DAQ's clock (the wall clock, ``time.monotonic_ns()``):
 
 * the finger: a seeded band-limited path (:func:`~tactile_mirror.loop.finger.finger_trajectory`;
   at rest while it presses in, at rest again after its ``duration``; with
-  ``finger_wait`` it rests, pressed in, until the host says :meth:`SimulatedRig.start_finger`);
+  ``finger_wait`` it rides with the pad until the host places it
+  (:meth:`SimulatedRig.place_finger`), then rests until :meth:`SimulatedRig.start_finger`);
 * the stage's axis (:class:`~tactile_mirror.rig.sim.axis.SimAxis`; by default
   :class:`~tactile_mirror.rig.sim.axis.AnalogAxis`: the analog output's volts as a velocity
   or position command to a servo with a lag, the encoder's counts from its position);
@@ -143,8 +144,14 @@ class SimulatedRig:
             raise RuntimeError("start() the simulated rig first")
         self._control.send(message)
 
+    def place_finger(self) -> None:
+        """``finger_wait``: the finger, riding with the pad until now (no shear), stays where the
+        pad is (read by the process within a block)."""
+        self._send(("place",))
+
     def start_finger(self) -> None:
-        """The finger starts its path (``finger_wait``; read by the process within a block)."""
+        """``finger_wait``: the finger starts its path from where it was placed (placed now if
+        it was not); read by the process within a block."""
         self._send(("finger",))
 
     def reset_amplifiers(self) -> None:
@@ -252,9 +259,11 @@ class _Simulation:
         if c.finger_wait:
             self.finger = finger_trajectory(c.seed, c.duration, c.fs, **c.trajectory)
             self.finger_start = -1
+            self.anchor = math.nan       # not placed yet: the finger rides with the pad
         else:
             self.finger = pressed_finger_path(c.seed, c.duration, c.fs, press, **c.trajectory)
             self.finger_start = 0
+            self.anchor = 0.0
         self.circuit = self.circuit_model.stream(c.fs, 2 * R)
         rng = np.random.default_rng(30_000 + c.seed)
         L = max(1, round(c.noise_record * c.fs))
@@ -295,7 +304,12 @@ class _Simulation:
             except (EOFError, OSError):
                 return
             now = time.monotonic_ns()
-            if message[0] == "finger":
+            if message[0] == "place":
+                if math.isnan(self.anchor):
+                    self.anchor = self._pads[1]
+            elif message[0] == "finger":
+                if math.isnan(self.anchor):
+                    self.anchor = self._pads[1]
                 if self.finger_start < 0:
                     self.finger_start = self._n_ticks
             elif message[0] == "reset":
@@ -401,7 +415,10 @@ class _Simulation:
         if not self._frozen:
             ring.write_count(i, math.floor((pad + self._count_offset) * self.cpm))
         s = self.finger_start
-        finger = 0.0 if s < 0 else float(self.finger[min(i - s, self.finger.size - 1)])
+        if math.isnan(self.anchor):
+            finger = pad
+        else:
+            finger = self.anchor + (0.0 if s < 0 else float(self.finger[min(i - s, self.finger.size - 1)]))
         st = self.plant.advance(finger - pad)
         load = st.stress.reshape(-1)
         if self._stress0 is None:
