@@ -7,6 +7,7 @@
     tactile-mirror bench --out report/        run time against error of every kernel (table + plot)
     tactile-mirror loop design / envelope     the default loop law from a stage's data sheet; its envelope
     tactile-mirror loop realtime / experiment the loop paced by the wall clock; the paper's experiment
+    tactile-mirror rig check / run            the mirror on a rig (or --simulate): connect; bring up and run
 
 Every subcommand has ``--help``. Bad options print a message and exit with status 2;
 errors while running print ``error: ...`` and exit with status 1.
@@ -22,7 +23,7 @@ from __future__ import annotations
 import argparse
 import sys
 
-from tactile_mirror.cli import bench, detector, loop, scenes
+from tactile_mirror.cli import bench, detector, loop, rig, scenes
 from tactile_mirror.cli.arguments import BUNDLED_NETS, CommandError, UsageError, load_detector
 from tactile_mirror.cli.detector import build_options_from_args
 from tactile_mirror.cli.scenes import scene_from_args
@@ -30,7 +31,7 @@ from tactile_mirror.cli.scenes import scene_from_args
 __all__ = ["BUNDLED_NETS", "build_options_from_args", "build_parser", "load_detector", "main", "scene_from_args"]
 
 #: The command groups, in the order ``tactile-mirror --help`` lists their subcommands.
-GROUPS = (scenes, detector, bench, loop)
+GROUPS = (scenes, detector, bench, loop, rig)
 
 
 def build_parser() -> argparse.ArgumentParser:
