@@ -25,7 +25,7 @@ os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
 
 import numpy as np
 import tactile_mirror as tm
-from _common import table, timed
+from common import table, timed
 from tactile_mirror import _core
 from tactile_mirror.contact import ContactSolver, Pad, ridge_model, simulate
 from tactile_mirror.geometry import RidgeGeometry

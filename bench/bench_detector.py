@@ -34,7 +34,7 @@ os.environ.setdefault("OMP_NUM_THREADS", "1")
 os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
 
 import numpy as np
-from _common import best_time, header
+from common import best_time, header
 from tactile_mirror import _core
 from tactile_mirror.detector import DetectorWeights, Params, SlipDetector
 from tactile_mirror.detector.network import forward

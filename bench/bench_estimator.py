@@ -29,7 +29,7 @@ from __future__ import annotations
 import argparse
 
 import numpy as np
-from _common import best_time, environment_line
+from common import best_time, environment_line
 from tactile_mirror.circuit import PVDFCircuit
 from tactile_mirror.estimator import StressRateEstimator, estimate_stress_rate
 from tactile_mirror.lab.measure import estimator_errors, estimator_signals, lowpass_delay_ms

@@ -20,7 +20,7 @@ os.environ.setdefault("OMP_NUM_THREADS", "1")
 import numpy as np
 import scipy.signal as ss
 import tactile_mirror as tm
-from _common import best_time, header, table
+from common import best_time, header, table
 from tactile_mirror.lab.measure import filter_variants
 
 

@@ -36,7 +36,7 @@ import time
 from pathlib import Path
 
 import numpy as np
-from _common import best_time, header
+from common import best_time, header
 from tactile_mirror.circuit import PVDFCircuit
 from tactile_mirror.estimator import StressRateEstimator
 from tactile_mirror.filters import simd_path

@@ -89,7 +89,7 @@ def main(argv=None):
     ap.add_argument("--only", nargs="*", help="input sets to run (default: all)")
     args = ap.parse_args(argv)
     sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
-    from _common import fit_bound_classifier, study_training_scenes
+    from common import fit_bound_classifier, study_training_scenes
     from tactile_mirror.detector.data_prep import features_from_result, targets_from_result
     from tactile_mirror.lab.detector import build
     from tactile_mirror.lab.detector.evaluation import noise_free as clean

@@ -48,7 +48,7 @@ def main(argv=None):
     ap.add_argument("--extra", type=int, default=96, help="extra training scenes (seed build.EXTRA_TRAIN_SEED)")
     args = ap.parse_args(argv)
     sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
-    from _common import study_training_scenes
+    from common import study_training_scenes
     from detector_heldout import table_rows
     from tactile_mirror.detector import SlipDetector
     from tactile_mirror.detector.data_prep import features_from_result

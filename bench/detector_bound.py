@@ -78,7 +78,7 @@ def main(argv=None):
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--quick", action="store_true", help="fewer scenes (a smoke run, not the figures)")
     args = ap.parse_args(argv)
-    from _common import fit_bound_classifier
+    from common import fit_bound_classifier
 
     n_train, n_extra, n_test = (16, 16, 20) if args.quick else (64, 240, 200)
     t0 = time.perf_counter()

@@ -42,7 +42,7 @@ def main(argv=None):
         ap.error(f"--part must be FIRST <= LAST, both >= 1, got {first} {last}")
     sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
 
-    from _common import bank_validation_conditions, header
+    from common import bank_validation_conditions, header
     from tactile_mirror.detector import SlipDetector
     from tactile_mirror.lab.detector import build
     from tactile_mirror.lab.detector.roc import roc

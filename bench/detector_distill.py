@@ -37,7 +37,7 @@ import numpy as np
 
 def teacher_targets(ts, groups, folds: int = 4, stride: int = 2, seed: int = 0):
     """Cross-fitted tree probabilities of slip for every sample of ``ts`` (0 on padding)."""
-    from _common import fit_bound_classifier
+    from common import fit_bound_classifier
 
     n_seq, n_ch, n = ts.x.shape
     fold = np.random.default_rng(seed).permutation(np.max(groups) + 1) % folds
@@ -71,7 +71,7 @@ def main(argv=None):
     sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
 
     import tactile_mirror.lab.detector.training as training
-    from _common import study_training_scenes
+    from common import study_training_scenes
     from tactile_mirror.detector import SlipDetector
     from tactile_mirror.detector.data_prep import features_from_result
     from tactile_mirror.lab.detector import build

@@ -67,7 +67,7 @@ def table_rows(name, scores_pred, results, kinds, cond):
 
 def bank_tree_scores(train, test, notch=None) -> list:
     """Probabilities of the bound study's boosted trees on the filter bank's inputs (ridge 0)."""
-    from _common import fit_bound_classifier
+    from common import fit_bound_classifier
     from tactile_mirror.detector.data_prep import DEFAULT_ESTIMATOR, features_from_result, targets_from_result
 
     est = dict(DEFAULT_ESTIMATOR, **({} if notch is None else {"notch": notch}))
@@ -105,7 +105,7 @@ def main(argv=None):
     if any(k < 1 for k in args.consecutive):
         ap.error("--consecutive takes positive sample counts")
     sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
-    from _common import header
+    from common import header
     from detector_roc import bound_scores
     from tactile_mirror.detector import SlipDetector
     from tactile_mirror.detector.data_prep import features_from_result

@@ -101,7 +101,7 @@ def main(argv=None):
     args = ap.parse_args(argv)
     sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
 
-    from _common import bank_training_set, bank_validation_conditions, study_scenes
+    from common import bank_training_set, bank_validation_conditions, study_scenes
     from tactile_mirror._io import write_json
     from tactile_mirror.detector import SlipDetector
     from tactile_mirror.lab.detector import build

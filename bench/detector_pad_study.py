@@ -84,7 +84,7 @@ def main(argv=None):
     ap.add_argument("--gains", action="store_true",
                     help="and scale every training copy by a random gain (0.6-1.7), as the build")
     args = ap.parse_args(argv)
-    from _common import fit_bound_classifier
+    from common import fit_bound_classifier
     from tactile_mirror.detector import SlipDetector
     from tactile_mirror.detector.data_prep import features_from_result, targets_from_result
     from tactile_mirror.lab.detector import build

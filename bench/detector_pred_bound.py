@@ -92,7 +92,7 @@ def main(argv=None):
     ap.add_argument("--every", type=int, default=4, help="training samples: every n-th")
     args = ap.parse_args(argv)
     sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
-    from _common import header, study_training_scenes
+    from common import header, study_training_scenes
     from sklearn.ensemble import HistGradientBoostingRegressor
     from tactile_mirror.detector import SlipDetector
     from tactile_mirror.detector.data_prep import features_from_result

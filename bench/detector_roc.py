@@ -146,7 +146,7 @@ def bound_features(results, condition: str):
 
 def bound_scores(train, test, condition: str) -> list:
     """Probabilities of the bound study's classifier, trained on ``train`` with the condition's noise."""
-    from _common import fit_bound_classifier
+    from common import fit_bound_classifier
     from tactile_mirror.detector.data_prep import targets_from_result
 
     X = np.vstack([f[::2] for f in bound_features(train, condition)])
@@ -204,7 +204,7 @@ def main(argv=None):
     if args.simulate_only:
         return
     sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
-    from _common import header
+    from common import header
     from tactile_mirror._io import save_figure, write_json, write_text
     from tactile_mirror.detector import SlipDetector
     from tactile_mirror.lab.detector.evaluation import ForceRatioDetector, onset_kinds

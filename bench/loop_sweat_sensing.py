@@ -40,7 +40,7 @@ import argparse
 
 import numpy as np
 import scipy.signal
-from _common import header, table
+from common import header, table
 
 
 def main(argv=None) -> None:

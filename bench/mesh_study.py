@@ -40,7 +40,7 @@ os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
 
 import numpy as np
 import tactile_mirror as tm
-from _common import table, timed
+from common import table, timed
 from tactile_mirror.contact import ridge_model, simulate
 from tactile_mirror.geometry import RidgeGeometry
 from tactile_mirror.lab.measure import cpu_model, environment

@@ -45,7 +45,7 @@ from pathlib import Path
 import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-from _common import table
+from common import table
 from tactile_mirror.lab.measure import cpu_model
 
 ROOT = Path(__file__).resolve().parents[1]
