@@ -10,7 +10,9 @@ noise-free, 1 mV rms white). The held-out seed (``build.TEST_SEED``) is not touc
 the variant chosen here is the one the README reports on it.
 
 Run: ``python bench/detector_bank_sweep.py --cache out/scenes [--out DIR] [--extra 96]`` (about 4 min with
-96 extra scenes; the scenes are simulated first if the cache lacks them).
+96 extra scenes; the scenes are simulated first if the cache lacks them). ``--quick``: 6 + 4 training and 8
+validation scenes simulated here, 10 iterations with checkpoints every 5, a smoke run of a few seconds.
+``main`` returns the number of rows printed (variant x condition).
 """
 from __future__ import annotations
 
@@ -42,13 +44,20 @@ VARIANTS = {
 def main(argv=None):
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--cache", default="out/scenes")
-    ap.add_argument("--maxiter", type=int, default=300)
+    ap.add_argument("--maxiter", type=int, default=None,
+                    help="L-BFGS-B iterations (default 300; --quick: 10)")
     ap.add_argument("--out", default=None, help="directory for the kept weights of each variant")
     ap.add_argument("--only", nargs="*", help="variant names to run")
-    ap.add_argument("--extra", type=int, default=96, help="extra training scenes (seed build.EXTRA_TRAIN_SEED)")
+    ap.add_argument("--extra", type=int, default=None,
+                    help="extra training scenes (seed build.EXTRA_TRAIN_SEED; default 96, --quick: 4)")
+    ap.add_argument("--quick", action="store_true",
+                    help="6 training scenes and few others, simulated here; 10 iterations (a smoke run)")
     args = ap.parse_args(argv)
+    args.maxiter = (10 if args.quick else 300) if args.maxiter is None else args.maxiter
+    args.extra = (4 if args.quick else 96) if args.extra is None else args.extra
+    every = 5 if args.quick else 25
     sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
-    from common import study_training_scenes
+    from common import simulated, study_training_scenes
     from detector_heldout import table_rows
     from tactile_mirror.detector import SlipDetector
     from tactile_mirror.detector.data_prep import features_from_result
@@ -60,8 +69,10 @@ def main(argv=None):
 
     t0 = time.perf_counter()
     cache = args.cache or None
-    train = study_training_scenes(cache, args.extra, False)
-    val = build.simulate_cached(120, build.VALIDATION_SEED, build.TEST_KWARGS, cache, False)
+    small = {"n_train": 6, "quick": True} if args.quick else {}
+    train = study_training_scenes(cache, args.extra, False, **small)
+    val = simulated(8 if args.quick else 120, build.VALIDATION_SEED, build.TEST_KWARGS, cache, False,
+                    args.quick)
     kinds = onset_kinds(val)
     scorer = build.ValidationScorer(val)
     conds = {"own noise": val, "noise-free": clean(val), "1 mV rms white": with_noise(clean(val), "1 mV rms white", 7)}
@@ -76,7 +87,7 @@ def main(argv=None):
         ts = augment_gains(make_training_set(seqs, "stress_rate_bank", bank=bank[0] if bank else None),
                            (0.6, 1.7), seed=1)
         opts = {**build.TRAIN_OPTIONS, "negative_weight": nw}
-        w, _k, _scores = build.train_selected(ts, h, args.maxiter, 0, cand, 25, scorer, True, False,
+        w, _k, _scores = build.train_selected(ts, h, args.maxiter, 0, cand, every, scorer, True, False,
                                             {"kind": "jordan_bank"}, **opts)
         det = SlipDetector(w)
         if args.out:
@@ -96,7 +107,8 @@ def main(argv=None):
                   f"grad {100 * row['det_gradual']:5.1f} lat {row['lat_release_ms']:.1f}/{row['lat_gradual_ms']:.1f} ms"
                   f"  ({time.perf_counter() - t1:.0f} s)", flush=True)
     print(f"\n({time.perf_counter() - t0:.0f} s)")
+    return len(rows)
 
 
 if __name__ == "__main__":
-    sys.exit(main())
+    main()
