@@ -231,7 +231,7 @@ def test_bench_scripts_time_with_the_shared_functions():
 
     from tactile_mirror.lab import measure
 
-    path = pathlib.Path(__file__).resolve().parents[1] / "bench" / "_common.py"
+    path = pathlib.Path(__file__).resolve().parents[1] / "bench" / "common.py"
     spec = importlib.util.spec_from_file_location("bench_common", path)
     common = importlib.util.module_from_spec(spec)
     spec.loader.exec_module(common)
