@@ -262,6 +262,18 @@ def test_measure_timing_and_errors():
     assert measure.markdown_table("t", ["a", "b"], [[1, 2]]).splitlines()[-1] == "| 1 | 2 |"
 
 
+def test_reference_helpers_name_bad_arguments():
+    from tactile_mirror.lab import measure
+
+    with pytest.raises(ValueError, match="max_shift"):
+        measure.rel_rms_aligned(np.ones(10), np.ones(10), max_shift=10)
+    with pytest.raises(TypeError, match="max_shift"):
+        measure.rel_rms_aligned(np.ones(10), np.ones(10), max_shift=2.0)
+    assert measure.rel_rms_aligned(np.ones(10), np.ones(10), max_shift=9) == 0.0
+    with pytest.raises(ValueError, match="a0"):
+        measure.extended_sosfilt(np.array([[1.0, 0, 0, 0, 0.1, 0]]), np.ones(4))
+
+
 def test_place_labels_keeps_labels_apart_and_inside():
     """The plot helper (tactile_mirror.lab.plots) puts every label where it covers no other
     label and stays in the axes, for a cluster of points."""
