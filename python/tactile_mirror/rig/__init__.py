@@ -1,9 +1,33 @@
 """The mirror on a real rig: clocked acquisition in blocks, stage drivers that never block the
 loop, and a simulated rig that stands in for the hardware.
 
+- :mod:`~tactile_mirror.rig.stage`: the :class:`StageDriver` protocol and the soft-limit checks;
+- :mod:`~tactile_mirror.rig.dialects`: controller command dialects as data (:class:`Dialect`,
+  :data:`PI_GCS2`, :data:`ZABER_ASCII`);
+- :mod:`~tactile_mirror.rig.sim`: the simulated rig.
+
 Nothing here is imported by ``import tactile_mirror``; pyserial and nidaqmx (the optional
 extras ``rig`` and ``nidaq``) load inside the drivers that use them.
 """
 from __future__ import annotations
 
-__all__: list[str] = []
+from typing import TYPE_CHECKING
+
+from tactile_mirror._lazy import attach
+
+__getattr__, __dir__, __all__ = attach(__name__, {
+    "COMMAND_MODES": "stage", "StageDriver": "stage", "check_reading": "stage", "check_target": "stage",
+    "DIALECTS": "dialects", "PI_GCS2": "dialects", "ZABER_ASCII": "dialects", "ControllerError": "dialects",
+    "Dialect": "dialects", "ReplyError": "dialects",
+})
+
+if TYPE_CHECKING:
+    from tactile_mirror.rig.dialects import (
+        DIALECTS,
+        PI_GCS2,
+        ZABER_ASCII,
+        ControllerError,
+        Dialect,
+        ReplyError,
+    )
+    from tactile_mirror.rig.stage import COMMAND_MODES, StageDriver, check_reading, check_target
