@@ -24,6 +24,7 @@ from __future__ import annotations
 
 import codecs
 import dataclasses
+import functools
 import math
 import numbers
 import re
@@ -198,6 +199,20 @@ class Dialect:
                                  f"(allowed: {', '.join('{' + a + '}' for a in allowed)})")
         if self.set_velocity and "vel" not in self._placeholders("set_velocity", self.set_velocity):
             raise ValueError(f"set_velocity must contain {{vel}}, got {self.set_velocity!r}")
+        _ = self._compiled  # (compiles and checks the reply patterns now)
+        if self.query_error and not self.error_reply:
+            raise ValueError("query_error needs error_reply (the regex of its reply, one group: the code)")
+        if bool(self.query_ready) != bool(self.ready_reply):
+            raise ValueError("query_ready and ready_reply come together (the query and the regex of its reply)")
+        for name in _ANSWERS:
+            unknown = self._placeholders(name, getattr(self, name)) - set(_ANSWER_FIELDS)
+            if unknown:
+                raise ValueError(f"{name}: unknown placeholder {{{min(unknown)}}} in {getattr(self, name)!r}")
+        self._check_answers()
+
+    @functools.cached_property
+    def _compiled(self) -> dict[str, re.Pattern]:
+        """The reply patterns, placeholders filled in, compiled and checked (ValueError naming a bad one)."""
         compiled = {}
         for name, groups in _PATTERNS.items():
             text = getattr(self, name)
@@ -210,17 +225,11 @@ class Dialect:
             if groups is not None and pattern.groups != groups:
                 raise ValueError(f"{name}: {text!r} must have exactly {groups} group(s), has {pattern.groups}")
             compiled[name] = pattern
-        if self.query_error and not self.error_reply:
-            raise ValueError("query_error needs error_reply (the regex of its reply, one group: the code)")
-        if bool(self.query_ready) != bool(self.ready_reply):
-            raise ValueError("query_ready and ready_reply come together (the query and the regex of its reply)")
-        for name in _ANSWERS:
-            unknown = self._placeholders(name, getattr(self, name)) - set(_ANSWER_FIELDS)
-            if unknown:
-                raise ValueError(f"{name}: unknown placeholder {{{min(unknown)}}} in {getattr(self, name)!r}")
-        object.__setattr__(self, "_compiled", compiled)
-        object.__setattr__(self, "_term", self.reply_terminator.encode(self.encoding))
-        self._check_answers()
+        return compiled
+
+    @functools.cached_property
+    def _term(self) -> bytes:
+        return self.reply_terminator.encode(self.encoding)
 
     # -- construction --------------------------------------------------------------------
 
@@ -288,10 +297,13 @@ class Dialect:
         if not template:
             raise ValueError(f"the {self.name} dialect has no {kind!r} command")
         values = {"axis": self.axis, "device": self.device}
-        if kind == "move":
-            values["pos"] = self.units_text(x)
-        elif kind == "set_velocity":
-            values["vel"] = self.format_units(self._to_units(x, "velocity"))
+        if kind in ("move", "set_velocity"):
+            if x is None:
+                raise ValueError(f"the {kind!r} command needs x")
+            if kind == "move":
+                values["pos"] = self.units_text(x)
+            else:
+                values["vel"] = self.format_units(self._to_units(x, "velocity"))
         return (template.format(**values) + self.line_end).encode(self.encoding)
 
     def move_command(self, x: float) -> bytes:
