@@ -4,6 +4,7 @@ loop, and a simulated rig that stands in for the hardware.
 - :mod:`~tactile_mirror.rig.stage`: the :class:`StageDriver` protocol and the soft-limit checks;
 - :mod:`~tactile_mirror.rig.dialects`: controller command dialects as data (:class:`Dialect`,
   :data:`PI_GCS2`, :data:`ZABER_ASCII`);
+- :mod:`~tactile_mirror.rig.serial_stage`: :class:`SerialStage`, a stage driver over a serial line;
 - :mod:`~tactile_mirror.rig.sim`: the simulated rig.
 
 Nothing here is imported by ``import tactile_mirror``; pyserial and nidaqmx (the optional
@@ -19,6 +20,7 @@ __getattr__, __dir__, __all__ = attach(__name__, {
     "COMMAND_MODES": "stage", "StageDriver": "stage", "check_reading": "stage", "check_target": "stage",
     "DIALECTS": "dialects", "PI_GCS2": "dialects", "ZABER_ASCII": "dialects", "ControllerError": "dialects",
     "Dialect": "dialects", "ReplyError": "dialects",
+    "SerialStage": "serial_stage",
 })
 
 if TYPE_CHECKING:
@@ -30,4 +32,5 @@ if TYPE_CHECKING:
         Dialect,
         ReplyError,
     )
+    from tactile_mirror.rig.serial_stage import SerialStage
     from tactile_mirror.rig.stage import COMMAND_MODES, StageDriver, check_reading, check_target

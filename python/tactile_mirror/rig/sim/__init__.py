@@ -1,5 +1,16 @@
 """The simulated rig: a separate process with the FEM pad and the stage in real time, serving the
-stage's serial line on a pseudo-terminal and the acquisition channels as clocked blocks."""
+stage's serial line on a pseudo-terminal and the acquisition channels as clocked blocks.
+
+- :mod:`~tactile_mirror.rig.sim.serial_axis`: :class:`SerialAxis`, a simulated stage controller
+  speaking a command dialect on a pseudo-terminal, paced at the line's baud rate.
+"""
 from __future__ import annotations
 
-__all__: list[str] = []
+from typing import TYPE_CHECKING
+
+from tactile_mirror._lazy import attach
+
+__getattr__, __dir__, __all__ = attach(__name__, {"SerialAxis": "serial_axis"})
+
+if TYPE_CHECKING:
+    from tactile_mirror.rig.sim.serial_axis import SerialAxis
