@@ -12,6 +12,11 @@ per-sample one ("every"): time against error on the paper's scenes, the 6-ridge 
 random scenes, with solves and events, and the stepping's goals; writes Figs. 6-8 and
 realtime_pad.png (the pad's contact resolution: tick time against error) as PNG into DIR. The CPU model is
 printed first; every ratio is between runs of this one process.
+
+``--quick``: every table from small runs (the paper's scenes on a coarse mesh, h = 0.6 mm, sampled at
+250 Hz; short paced runs; coarse meshes against a coarse reference): a smoke run of a few seconds, not
+the figures. ``main`` returns the largest strip-stress difference of the compiled event stepping against
+the compiled per-sample stepping, relative to the peak ("Event stepping in the compiled solver").
 """
 from __future__ import annotations
 
@@ -25,16 +30,28 @@ os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
 
 import numpy as np
 import tactile_mirror as tm
-from _common import table, timed
-from tactile_mirror import _core
+from common import save_figure, table, timed, write_json
 from tactile_mirror.contact import ContactSolver, Pad, ridge_model, simulate
 from tactile_mirror.geometry import RidgeGeometry
+from tactile_mirror.kernels import contact_simd_path, use_contact_baseline
 from tactile_mirror.lab.measure import cpu_model
+
+#: ``--quick``: the paper's scenes on this coarse mesh, sampled at this rate.
+QUICK_GEOMETRY = RidgeGeometry(mesh_size=0.6e-3, contact_mesh_size=0.15e-3)
+QUICK_FS = 250.0
+
+
+def paper(name, quick=False, **overrides):
+    """``tm.scenes.paper(name, **overrides)``; with ``quick`` on :data:`QUICK_GEOMETRY`, sampled at
+    :data:`QUICK_FS`."""
+    if quick:
+        overrides = {"geometry": QUICK_GEOMETRY, "fs": QUICK_FS, **overrides}
+    return tm.scenes.paper(name, **overrides)
 
 
 def bench_backends(quick):
     """The compiled solver against the Python reference, same steps, same process."""
-    scene = tm.scenes.paper("fig6")
+    scene = paper("fig6", quick)
     model = ridge_model(scene.geometry)
     y, z = scene.plate_motion()
     plate_z = model.geometry.height - z
@@ -52,25 +69,20 @@ def bench_backends(quick):
 
     runs = {b: min((per_step(b) for _ in range(1 if quick else 2)), key=np.sum) for b in ("python", "cpp")}
     py, cc = runs["python"], runs["cpp"]
-    simd_path = _core._contact_simd_path()
-    _core._contact_set_baseline(True)  # the same kernel compiled for the x86-64 baseline (SSE2)
+    simd_path = contact_simd_path()
+    use_contact_baseline(True)  # the same kernel compiled for the x86-64 baseline (SSE2)
     try:
         cb = min((per_step("cpp") for _ in range(1 if quick else 2)), key=np.sum)
         t_cb, _ = timed(lambda: simulate(scene, backend="cpp", stepping="every"), repeat=2 if quick else 3)
     finally:
-        _core._contact_set_baseline(False)
-    k = ContactSolver(model, mu, mu_kinetic=mu_k)
-    for i in range(y.size):
-        k.step(y[i], plate_z[i])
-    kern = k._kernel
-    rows = [["mean per step (fig6, 2000 steps)", f"{py.mean() * 1e6:.0f} us", f"{cc.mean() * 1e6:.1f} us",
+        use_contact_baseline(False)
+    rows = [[f"mean per step (fig6, {y.size} steps)", f"{py.mean() * 1e6:.0f} us",
+             f"{cc.mean() * 1e6:.1f} us",
              f"{py.mean() / cc.mean():.1f}x"],
             ["median per step", f"{np.median(py) * 1e6:.0f} us", f"{np.median(cc) * 1e6:.1f} us",
              f"{np.median(py) / np.median(cc):.1f}x"],
             ["p99 per step", f"{np.percentile(py, 99) * 1e6:.0f} us", f"{np.percentile(cc, 99) * 1e6:.0f} us",
              f"{np.percentile(py, 99) / np.percentile(cc, 99):.1f}x"],
-            ["cpp: piece factorisations / bordered updates / affine (O(n)) piece solves", "",
-             f"{kern.factorizations} / {kern.updates} / {kern.affine_steps}", ""],
             ["cpp kernels compiled for the baseline (SSE2): mean / median per step", "",
              f"{cb.mean() * 1e6:.1f} / {np.median(cb) * 1e6:.1f} us",
              f"{py.mean() / cb.mean():.1f}x / {np.median(py) / np.median(cb):.1f}x"]]
@@ -97,7 +109,7 @@ def bench_backends(quick):
 
     n6 = ys.size
     p6 = pad_steps("cpp", n6)
-    q6 = pad_steps("python", 600 if quick else n6)
+    q6 = pad_steps("python", 50 if quick else n6)
     rows.append([f"6-ridge pad step, mean over fig6 ({n6} steps; python: first {q6.size})",
                  f"{q6.mean() * 1e3:.2f} ms", f"{p6.mean() * 1e3:.3f} ms", f"{q6.mean() / p6[:q6.size].mean():.1f}x"])
     spread = f"{np.median(p6) * 1e3:.3f} / {np.percentile(p6, 99) * 1e3:.2f} / {p6.max() * 1e3:.2f} ms"
@@ -108,7 +120,7 @@ def bench_backends(quick):
           ["what", "python", "cpp", "speed-up"], rows)
 
 
-def bench_realtime(duration):
+def bench_realtime(duration, quick=False):
     """The paced loop at 1 kHz against the simulated 6-ridge FEM pad: open loop (the pad
     stands still, the finger slips: the solver's worst case, breakaway cascades over the whole
     contact) and closed loop with the default law (what hardware in the loop runs); the
@@ -135,14 +147,17 @@ def bench_realtime(duration):
     pads = {"default pad": lambda sc: FemPad(6, mu=sc.mu, fs=sc.fs),
             "default pad, 2 threads": lambda sc: FemPad(6, mu=sc.mu, fs=sc.fs, threads=2),
             "FemPad.realtime()": lambda sc: FemPad.realtime(6, mu=sc.mu, fs=sc.fs)}
-    for n_ridges in (1, 6):
+    for n_ridges in (6,) if quick else (1, 6):
         sc = LoopScene(seed=0, duration=duration, press=0.5, plant="fem", trajectory=PLANTS["fem"]["trajectory"])
         run(f"open loop, {n_ridges} ridge{'s' if n_ridges > 1 else ''}, experiment path, default pad", sc,
             FemPad(n_ridges, fs=sc.fs))
     laws, design = law_controllers(weights, 1000.0, limits, 0.001, 0.002, 6, "fem")
-    for law, pad_names in (("open loop", list(pads)), ("default", ["default pad", "FemPad.realtime()"])):
+    laws_pads = (("open loop", list(pads)), ("default", ["default pad", "FemPad.realtime()"]))
+    if quick:
+        laws_pads = (("open loop", ["default pad, 2 threads"]), ("default", ["FemPad.realtime()"]))
+    for law, pad_names in laws_pads:
         for pad_name in pad_names:
-            for v in (0.005, 0.02):
+            for v in (0.005,) if quick else (0.005, 0.02):
                 sc = LoopScene(seed=REPORT_PATHS.first_seed, duration=duration, fs=1000.0, plant="fem",
                                trajectory=REPORT_PATHS.trajectory(v))
                 run(f"{law}, 6 ridges, report path {v * 1e3:g} mm/s, {pad_name}", sc, pads[pad_name](sc), laws[law],
@@ -156,7 +171,7 @@ def bench_realtime(duration):
            "overruns", "late starts"], rows)
 
 
-def bench_realtime_accuracy(duration, figure_path=None):
+def bench_realtime_accuracy(duration, figure_path=None, quick=False):
     """What the real-time pad gives up: the open-loop report paths (finger over a still
     pad, 6 ridges) stepped as fast as possible through pads whose contact elements are
     0.2 (FemPad.realtime(); the largest the default mesh allows: 41 contact nodes), 0.1
@@ -164,7 +179,8 @@ def bench_realtime_accuracy(duration, figure_path=None):
     (sizes in between give one of these meshes)
     against a reference pad with contact elements of 0.025 mm: their strips' L - R stress
     and tangential force compared, with the plant's own time per tick. ``figure_path``:
-    also the figure of error and tick time against the contact nodes."""
+    also the figure of error and tick time against the contact nodes. ``quick``: against the
+    default pad (0.05 mm), the real-time pad and 0.1 mm, one path."""
     from tactile_mirror.contact.plants import REALTIME_CONTACT_MESH_SIZE, FemPad
     from tactile_mirror.lab.loop.envelope import REPORT_PATHS
     from tactile_mirror.loop.scene import LoopScene, gross_slip_events, scene_finger
@@ -173,15 +189,17 @@ def bench_realtime_accuracy(duration, figure_path=None):
         return lambda sc: FemPad(6, mu=sc.mu, fs=sc.fs, geometry=RidgeGeometry(contact_mesh_size=h), **kw)
 
     default_h = RidgeGeometry().contact_mesh_size
-    pads = {"reference (0.025 mm)": (0.025e-3, 1, sized(0.025e-3))}
-    for h in (REALTIME_CONTACT_MESH_SIZE, 0.1e-3, default_h):
+    ref_h = default_h if quick else 0.025e-3
+    pads = {f"reference ({ref_h * 1e3:g} mm)": (ref_h, 1, sized(ref_h))}
+    for h in (REALTIME_CONTACT_MESH_SIZE, 0.1e-3) + (() if quick else (default_h,)):
         label = ("FemPad.realtime()" if h == REALTIME_CONTACT_MESH_SIZE else
                  "default pad" if h == default_h else "contact elements") + f" ({h * 1e3:g} mm)"
         pads[label] = (h, 1, sized(h))
-    pads[f"default pad ({default_h * 1e3:g} mm), 2 threads"] = (default_h, 2, sized(default_h, threads=2))
+    if not quick:
+        pads[f"default pad ({default_h * 1e3:g} mm), 2 threads"] = (default_h, 2, sized(default_h, threads=2))
     pads["FemPad.realtime(threads=2)"] = (REALTIME_CONTACT_MESH_SIZE, 2, sized(REALTIME_CONTACT_MESH_SIZE, threads=2))
     rows, points = [], []
-    for v in (0.005, 0.02):
+    for v in (0.005,) if quick else (0.005, 0.02):
         sc = LoopScene(seed=REPORT_PATHS.first_seed, duration=duration, fs=1000.0, plant="fem",
                        trajectory=REPORT_PATHS.trajectory(v))
         finger = scene_finger(sc)
@@ -212,12 +230,11 @@ def bench_realtime_accuracy(duration, figure_path=None):
                            "fy": None if is_ref else e_fy})
     table(f"The FEM pad's contact resolution against its cost, open loop (finger over a still pad), report paths, "
           f"6 ridges, {duration:g} s, the plant stepped as fast as possible (errors: rms over all ticks and ridges, "
-          "relative to the reference's peak)",
+          f"relative to the {'reference' if not quick else 'default pad'}'s peak)",
           ["path", "pad", "contact nodes a ridge", "plant tick p50 / p99 / max [us]", "mean [us]", "gross slips",
            "L - R stress error", "F_y error"], rows)
     if figure_path:
         realtime_figure(points, figure_path, default_h, REALTIME_CONTACT_MESH_SIZE)
-        from tactile_mirror.files import write_json
         from tactile_mirror.lab.measure import environment
 
         write_json(os.path.splitext(figure_path)[0] + ".json",
@@ -263,8 +280,6 @@ def realtime_figure(points, path, default_h, realtime_h):
                  fontsize=10)
     fig.tight_layout()
     os.makedirs(os.path.dirname(path) or ".", exist_ok=True)
-    from tactile_mirror.lab.figure_files import save_figure
-
     try:
         save_figure(fig, path, dpi=110)
     finally:
@@ -272,8 +287,8 @@ def realtime_figure(points, path, default_h, realtime_h):
     print(f"\nFigure written to {path}")
 
 
-def bench_fig6():
-    scene = tm.scenes.paper("fig6")
+def bench_fig6(quick=False):
+    scene = paper("fig6", quick)
     geom = scene.geometry
     ridge_model.cache_clear()
     t0 = time.perf_counter()
@@ -284,7 +299,8 @@ def bench_fig6():
     cpu, _ = timed(lambda: simulate(scene), clock=time.process_time)
     rows = [["model setup (mesh, assembly, condensation), first run", f"{setup:.2f} s"],
             ["model setup, cached", f"{timed(lambda: ridge_model(geom))[0] * 1e6:.1f} us"],
-            [f"simulate fig6: {res.t.size} steps at 1 kHz, 1 ridge, signals", (f"{t_run:.2f} s "
+            [f"simulate fig6: {res.t.size} steps at {scene.fs / 1e3:g} kHz, 1 ridge, signals",
+             (f"{t_run:.2f} s "
              f"({t_run / res.t.size * 1e3:.3f} ms/step)")],
             ["same, CPU time of the process (one core)", f"{cpu:.2f} s ({cpu / res.t.size * 1e3:.3f} ms/step)"],
             ["Newton (active-set) iterations per step", f"{res.newton_iterations / res.t.size:.2f}"],
@@ -296,8 +312,8 @@ def bench_fig6():
     table("fig6 end to end (goal: <= 1 s on one core)", ["what", "measured"], rows)
 
 
-def bench_reduced_vs_full(n_steps):
-    model = ridge_model(RidgeGeometry())
+def bench_reduced_vs_full(n_steps, quick=False):
+    model = ridge_model(QUICK_GEOMETRY if quick else RidgeGeometry())
     H = model.geometry.height
     t = np.arange(n_steps) / 1000.0 + 1.0
     y = 0.2e-3 * (t - 0.5)
@@ -320,8 +336,8 @@ def bench_reduced_vs_full(n_steps):
            ["speed-up", f"{t_full / t_red:.0f}x (goal >= 30x)", ""]])
 
 
-def bench_outputs():
-    base = tm.scenes.paper("fig6")
+def bench_outputs(quick=False):
+    base = paper("fig6", quick)
     rows = []
     for outs in (("slip",), ("forces", "slip"), ("stress",), ("forces", "slip", "stress", "signals"),
                  ("forces", "slip", "stress", "signals", "state")):
@@ -335,15 +351,16 @@ def bench_outputs():
         s = dataclasses.replace(base.with_outputs("slip", "fields"), field_times=times)
         tt, _ = timed(lambda s=s: simulate(s), repeat=1, clock=time.process_time)
         rows.append([f"slip + full stress fields at {len(times)} time(s)", f"{tt:.3f} s"])
-    table("Cost follows the request (fig6 scene, 2000 steps; the contact solve is shared by all outputs, the rest is paid only when asked)", ["outputs", "CPU time"], rows)
+    table(f"Cost follows the request (fig6 scene, {base.n_samples} steps; the contact solve is shared by all "
+          "outputs, the rest is paid only when asked)", ["outputs", "CPU time"], rows)
 
 
 def bench_mesh(quick):
     """Mesh size against strip-stress error, both readings of the strips against the projected
     reference (the full study, with the error split by phase and the slip time:
     ``bench/mesh_study.py``)."""
-    sizes = (0.4e-3, 0.3e-3, 0.2e-3) if quick else (0.4e-3, 0.3e-3, 0.2e-3, 0.15e-3, 0.1e-3)
-    ref_size = 0.075e-3
+    sizes = (0.6e-3, 0.5e-3) if quick else (0.4e-3, 0.3e-3, 0.2e-3, 0.15e-3, 0.1e-3)
+    ref_size = 0.4e-3 if quick else 0.075e-3
     base = tm.scenes.paper("fig6", duration=1.3, outputs=frozenset({"stress"}))
 
     def run(h, stress_recovery):
@@ -394,9 +411,10 @@ def bench_stepping(quick):
     out = frozenset({"stress", "slip", "state", "forces"})
     rep = 1 if quick else 2
     rows = []
-    named = [("fig6", tm.scenes.paper("fig6", outputs=out)), ("fig7", tm.scenes.paper("fig7", outputs=out)),
-             ("fig8", tm.scenes.paper("fig8", outputs=out)),
-             ("fig6, 6-ridge pad", tm.scenes.paper("fig6", outputs=out, n_ridges=6))]
+    named = [("fig6", paper("fig6", quick, outputs=out)), ("fig7", paper("fig7", quick, outputs=out)),
+             ("fig8", paper("fig8", quick, outputs=out))]
+    if not quick:  # (the Python backend's 6-ridge pad: most of a quick run)
+        named.append(("fig6, 6-ridge pad", paper("fig6", quick, outputs=out, n_ridges=6)))
     ratios = {}
     for name, sc in named:
         te, ta, e, a, err, same_slip, same_states = _both(sc, rep)
@@ -404,10 +422,11 @@ def bench_stepping(quick):
         rows.append([name, f"{te:.2f} s", f"{ta:.3f} s", f"{te / ta:.1f}x", f"{e.solves} / {a.solves}",
                      f"{a.events}", f"{err:.1e}", f"{_slip(e.slip_time)} / {_slip(a.slip_time)}",
                      "yes" if same_states else "NO"])
-    n_random = 8 if quick else 40
+    n_random = 2 if quick else 40
     randoms = tm.scenes.random(n_random, seed=17, friction=(0.3, 1.2), indent=(15e-6, 40e-6),
                                slide_speed=(0.1e-3, 0.6e-3), stop_probability=0.6, stop_length=(0.02, 0.5),
-                               duration=2.5, outputs=out)
+                               duration=2.5, outputs=out,
+                               **({"geometry": QUICK_GEOMETRY, "fs": QUICK_FS} if quick else {}))
     tot_e = tot_a = 0.0
     worst = 0.0
     all_slip = all_states = True
@@ -433,31 +452,32 @@ def bench_stepping(quick):
           "(solve at events only), Python backend, same process (error: max strip-stress difference of auto "
           "against every over all strips and samples, relative to the peak)", header, rows)
     table("Random scenes (seed 17; friction 0.3-1.2, indent 15-40 um, slide 0.1-0.6 mm/s, stops of "
-          "0.02-0.5 s in 60 % of them; 2.5 s at 1 kHz)",
+          f"0.02-0.5 s in 60 % of them; 2.5 s at {randoms[0].fs / 1e3:g} kHz)",
           ["#", "friction", "indent", "slide", "stop", "every", "auto", "solves every / auto", "events",
            "error / peak", "slip time every / auto", "states equal"], per_scene)
 
     # the issue's goals
     goals = []
-    for name in ("fig6", "fig6, 6-ridge pad"):
+    for name in [n for n in ("fig6", "fig6, 6-ridge pad") if n in ratios]:
         goals.append([f"{name}: auto against every end to end", f"{ratios[name]:.1f}x", ">= 10x"])
     slip = frozenset({"slip"})
-    plain = tm.scenes.paper("fig6", outputs=slip, duration=2.0)
-    stopped = tm.scenes.paper("fig6", outputs=slip, duration=2.5, stops=((1.0, 1.5),))
+    plain = paper("fig6", quick, outputs=slip, duration=2.0)
+    stopped = paper("fig6", quick, outputs=slip, duration=2.5, stops=((1.0, 1.5),))
     t_plain, r_plain = timed(lambda: simulate(plain, backend="python"), repeat=rep + 1)
     t_stop, r_stop = timed(lambda: simulate(stopped, backend="python"), repeat=rep + 1)
     goals.append(["fig6 with a 0.5 s stop (1.0-1.5 s) against without, auto",
                   (f"{t_stop / t_plain:.2f}x ({t_stop:.3f} / {t_plain:.3f} s; solves {r_stop.solves} / "
                   f"{r_plain.solves})"), "same cost"])
-    hi = dataclasses.replace(plain, fs=10_000.0)
+    hi = dataclasses.replace(plain, fs=10 * plain.fs)
     t_hi, r_hi = timed(lambda: simulate(hi, backend="python"), repeat=rep)
-    goals.append(["fig6 at 10 kHz against 1 kHz, auto", (f"{t_hi / t_plain:.2f}x ({t_hi:.3f} / {t_plain:.3f} s; "
+    rates = f"{hi.fs / 1e3:g} kHz against {plain.fs / 1e3:g} kHz"
+    goals.append([f"fig6 at {rates}, auto", (f"{t_hi / t_plain:.2f}x ({t_hi:.3f} / {t_plain:.3f} s; "
                   f"solves {r_hi.solves} / {r_plain.solves}; slip {_slip(r_hi.slip_time)} / "
                   f"{_slip(r_plain.slip_time)})"), "<= 1.5x"])
     if not quick:
         te1, _ = timed(lambda: simulate(plain, backend="python", stepping="every"), repeat=1)
         te10, _ = timed(lambda: simulate(hi, backend="python", stepping="every"), repeat=1)
-        goals.append(["fig6 at 10 kHz against 1 kHz, every", f"{te10 / te1:.2f}x ({te10:.2f} / {te1:.2f} s)",
+        goals.append([f"fig6 at {rates}, every", f"{te10 / te1:.2f}x ({te10:.2f} / {te1:.2f} s)",
                       "(about 10x)"])
     table("Goals of the event-driven stepping (Python backend; the compiled solver's: 'Event stepping in the "
           "compiled solver')",
@@ -479,11 +499,14 @@ def figures(folder):
 def bench_cpp_events(quick):
     """The compiled event stepping against the Python reference and against the
     compiled per-sample stepping, same process: end-to-end time, solves and events,
-    and the difference of the strip stresses (relative to their peak)."""
+    and the difference of the strip stresses (relative to their peak). Returns the
+    largest difference of the compiled event stepping's."""
     rows = []
+    worst = 0.0
     names = ("fig6",) if quick else ("fig6", "fig7", "fig8")
+    rounds = 1 if quick else 3
     for name in names:
-        scene = tm.scenes.paper(name)
+        scene = paper(name, quick)
         ref = simulate(scene, backend="cpp", stepping="every")
         peak = np.max(np.abs(ref.stress))
         runs = [("cpp", "auto", 5), ("cpp", "every", 3), ("python", "auto", 1)]
@@ -494,6 +517,8 @@ def bench_cpp_events(quick):
             t, r = timed(lambda b=backend, s=stepping: simulate(scene, backend=b, stepping=s), repeat=rep)
             times[backend, stepping] = t
             err = np.max(np.abs(r.stress - ref.stress)) / peak
+            if (backend, stepping) == ("cpp", "auto"):
+                worst = max(worst, float(err))
             same = r.slip_time == ref.slip_time
             rows.append([name, backend, stepping, f"{t * 1e3:.1f} ms", r.solves, r.events,
                          f"{r.slip_time:.4f} s" + ("" if same else " (differs)"), f"{err:.1e}"])
@@ -508,13 +533,15 @@ def bench_cpp_events(quick):
         re_ = simulate(scene, backend="cpp", stepping="every")
         rows.append([name, "bound on auto vs every", "", f"every / auto solves = {re_.solves / ra.solves:.1f}x "
                      f"({re_.solves} / {ra.solves}; {ra.events} events, {ra.t.size} samples)", "", "", "", ""])
-    table("Event stepping in the compiled solver (simulate, signals; goals: fig6 <= 50 ms end to end with "
+    where = ", coarse mesh, 250 Hz" if quick else ""
+    table(f"Event stepping in the compiled solver (simulate, signals{where}; "
+          "goals: fig6 <= 50 ms end to end with "
           "backend='cpp', stepping='auto'; auto 10x faster than every; stress difference vs cpp every <= 1e-9 of "
           "the peak)", ["scene", "backend", "stepping", "end to end", "solves", "events", "gross slip",
                         "stress diff / peak"], rows)
 
     # 6-ridge pad: the whole trajectory by Pad.follow, one thread against two
-    six = tm.scenes.paper("fig6", n_ridges=6)
+    six = paper("fig6", quick, n_ridges=6)
     y, ind = six.plate_motion()
     rows = []
     res = {}
@@ -527,36 +554,36 @@ def bench_cpp_events(quick):
                 pad.reset()
                 return pad.follow(y, ind)
 
-            t, out = timed(run, repeat=3)
+            t, out = timed(run, repeat=rounds)
             res[stepping, threads] = out
             same = "" if threads == 1 else ("identical" if all(np.array_equal(a, b) for a, b in zip(
                 out, res[stepping, 1]) if a is not None) else "DIFFERENT")
             rows.append([stepping, threads, f"{t * 1e3:.1f} ms", f"{t / y.size * 1e6:.1f} us", pad.solves,
                          pad.events, same])
-    t6, r6 = timed(lambda: simulate(six, backend="cpp", stepping="auto"), repeat=3)
+    t6, r6 = timed(lambda: simulate(six, backend="cpp", stepping="auto"), repeat=rounds)
     rows.append(["simulate(6-ridge fig6), auto", 1, f"{t6 * 1e3:.1f} ms", f"{t6 / y.size * 1e6:.1f} us", r6.solves,
                  r6.events, ""])
     # per sample from Python, as the loop plants step: Pad.advance. Under the curved
-    # finger ridges k and 5 - k have the same path, so the pad computes three of the six
-    # (_ContactPad.sources); the reference steps each ridge's own kernel, one call per
-    # ridge, none shared (the work before the mirror-image sharing)
-    H = Pad.from_scene(six).model.geometry.height
+    # finger ridges k and 5 - k have the same path, so the pad computes three of the six;
+    # the reference steps six one-ridge pads, each at its ridge's indent, one call per
+    # ridge, none shared (the work before the mirror-image sharing, plus five more calls
+    # of Pad.advance from Python)
+    offsets = Pad.from_scene(six).indent_offset
     for stepping in ("auto", "every"):
         best = {}
-        for _ in range(3):
+        for _ in range(rounds):
             pad = Pad.from_scene(six, backend="cpp", stepping=stepping)
-            ref = Pad.from_scene(six, backend="cpp", stepping=stepping)
-            kernels = [s._kernel for s in ref.solvers]
+            singles = [Pad.from_scene(dataclasses.replace(six, n_ridges=1), backend="cpp", stepping=stepping)
+                       for _ in offsets]
             dt = np.empty(y.size)
             dr = np.empty(y.size)
             for i in range(y.size):
                 t0 = time.perf_counter()
                 pad.advance(y[i], ind[i])
                 dt[i] = time.perf_counter() - t0
-                z = H - (ind[i] - ref.indent_offset)
                 t0 = time.perf_counter()
-                for k, kern in enumerate(kernels):
-                    kern.step(y[i], z[k], stepping == "every")
+                for single, off in zip(singles, offsets):
+                    single.advance(y[i], ind[i] - off)
                 dr[i] = time.perf_counter() - t0
             for key, d in (("pad", dt), ("ref", dr)):
                 if key not in best or d.mean() < best[key].mean():
@@ -564,13 +591,13 @@ def bench_cpp_events(quick):
         dt, dr = best["pad"], best["ref"]
         rows.append([f"Pad.advance per sample ({stepping}): mean / p99 / max", 1,
                      f"{dt.mean() * 1e3:.3f} / {np.percentile(dt, 99) * 1e3:.3f} / {dt.max() * 1e3:.2f} ms", "",
-                     pad.solves, pad.events, f"computes ridges {sorted(set(pad._stepper.sources))}"])
-        rows.append([f"six ridge kernels stepped one by one, none shared ({stepping}): mean / p99 / max", 1,
+                     pad.solves, pad.events, ""])
+        rows.append([f"six one-ridge pads stepped one by one, none shared ({stepping}): mean / p99 / max", 1,
                      f"{dr.mean() * 1e3:.3f} / {np.percentile(dr, 99) * 1e3:.3f} / {dr.max() * 1e3:.2f} ms", "",
-                     sum(k.solves for k in kernels), sum(k.events for k in kernels),
+                     sum(p.solves for p in singles), sum(p.events for p in singles),
                      f"Pad.advance {dr.mean() / dt.mean():.1f}x faster (mean)"])
     best2 = None
-    for _ in range(3):  # the closed loop's tick with the pad's worker thread
+    for _ in range(rounds):  # the closed loop's tick with the pad's worker thread
         pad = Pad.from_scene(six, backend="cpp", stepping="auto")
         pad.threads = 2
         dt = np.empty(y.size)
@@ -583,34 +610,39 @@ def bench_cpp_events(quick):
     rows.append(["Pad.advance per sample (auto): mean / median / p99 / max", 2,
                  f"{best2.mean() * 1e3:.3f} / {np.median(best2) * 1e3:.3f} / {np.percentile(best2, 99) * 1e3:.3f} / "
                  f"{best2.max() * 1e3:.2f} ms", "", pad.solves, pad.events, "worker thread kept by the pad"])
-    table("6-ridge pad over fig6 (2000 samples), compiled event stepping: the ridges are independent, threads=2 "
-          "shares them with a second thread, one at a time; a ridge with the path of an earlier one (its mirror image) "
-          "shares its computation (goal: a pad step <= 0.5 ms)",
+    table(f"6-ridge pad over fig6 ({y.size} samples), compiled event stepping: the ridges are independent, "
+          "threads=2 shares them with a second thread, one at a time; a ridge with the path of an earlier "
+          "one (its mirror image) shares its computation (goal: a pad step <= 0.5 ms)",
           ["stepping", "threads", "whole trajectory", "per sample", "solves", "events", "notes"], rows)
 
     # cost against the sample rate and against a stop
     rows = []
-    base = tm.scenes.paper("fig6")
-    for label, sc in (("fig6 at 1 kHz", base), ("fig6 at 10 kHz", dataclasses.replace(base, fs=10_000.0)),
-                      ("fig6 with a 0.5 s stop at 1.0 s", tm.scenes.paper("fig6", stops=((1.0, 1.5),),
-                                                                           duration=2.5))):
-        ta, ra = timed(lambda sc=sc: simulate(sc, backend="cpp", stepping="auto"), repeat=3)
+    base = paper("fig6", quick)
+    hi = dataclasses.replace(base, fs=10 * base.fs)
+    low_rate, high_rate = f"{base.fs / 1e3:g} kHz", f"{hi.fs / 1e3:g} kHz"
+    for label, sc in ((f"fig6 at {low_rate}", base), (f"fig6 at {high_rate}", hi),
+                      ("fig6 with a 0.5 s stop at 1.0 s",
+                       paper("fig6", quick, stops=((1.0, 1.5),), duration=2.5))):
+        ta, ra = timed(lambda sc=sc: simulate(sc, backend="cpp", stepping="auto"), repeat=rounds)
         te, re_ = timed(lambda sc=sc: simulate(sc, backend="cpp", stepping="every"), repeat=1)
         rows.append([label, ra.t.size, f"{ta * 1e3:.1f} ms", ra.solves, ra.events, f"{te * 1e3:.1f} ms",
                      re_.solves])
     ratio = {}
-    for label, sc in (("1 kHz", base), ("10 kHz", dataclasses.replace(base, fs=10_000.0))):
-        ratio[label], _ = timed(lambda sc=sc: simulate(sc, backend="cpp", stepping="auto"), repeat=5)
-    rows.append(["10 kHz against 1 kHz, auto (best of 5 each)", "", f"{ratio['10 kHz'] / ratio['1 kHz']:.2f}x", "", "",
-                 "", ""])
+    n_best = 2 if quick else 5
+    for label, sc in ((low_rate, base), (high_rate, hi)):
+        ratio[label], _ = timed(lambda sc=sc: simulate(sc, backend="cpp", stepping="auto"), repeat=n_best)
+    rows.append([f"{high_rate} against {low_rate}, auto (best of {n_best} each)", "",
+                 f"{ratio[high_rate] / ratio[low_rate]:.2f}x", "", "", "", ""])
     table("Compiled event stepping: cost against the sample rate and a stop (goals: 10 kHz within 1.5x of 1 kHz "
           "with auto; a 0.5 s stop costs nothing; simulate reads proj @ lam per sample, O(q) between events)",
           ["scene", "samples", "auto", "auto solves", "events", "every", "every solves"], rows)
+    return worst
 
 
-def main(argv=None):
+def main(argv=None) -> float:
     p = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    p.add_argument("--quick", action="store_true", help="fewer mesh sizes and steps")
+    p.add_argument("--quick", action="store_true",
+                   help="small runs of every table (coarse mesh, 250 Hz, short paced runs): a smoke run")
     p.add_argument("--figures", default=None,
                    help="folder for the Fig. 6-8 PNGs and realtime_pad.png (default: none)")
     p.add_argument("--solver-only", action="store_true",
@@ -620,29 +652,36 @@ def main(argv=None):
     p.add_argument("--realtime-only", action="store_true",
                    help="only the paced loop and the real-time pad's accuracy")
     args = p.parse_args(argv)
+    quick = args.quick
     print(f"CPU: {cpu_model()} ({os.cpu_count()} logical cores)")
+    if quick:
+        g = QUICK_GEOMETRY
+        print(f"--quick: the paper's scenes on a coarse mesh (h = {g.mesh_size * 1e3:g} mm, contact "
+              f"{g.contact_mesh_size * 1e3:g} mm) at {QUICK_FS:g} Hz; paced runs of 0.7 s")
+    paced = 0.7 if quick else 3.0
     if args.stepping_only:
-        bench_cpp_events(args.quick)
-        bench_stepping(args.quick)
-        return
+        worst = bench_cpp_events(quick)
+        bench_stepping(quick)
+        return worst
     rt_figure = os.path.join(args.figures, "realtime_pad.png") if args.figures else None
     if args.realtime_only:
-        bench_realtime(1.5 if args.quick else 3.0)
-        bench_realtime_accuracy(1.5 if args.quick else 3.0, rt_figure)
-        return
-    bench_backends(args.quick)
-    bench_realtime(1.5 if args.quick else 3.0)
-    bench_realtime_accuracy(1.5 if args.quick else 3.0, rt_figure)
-    bench_cpp_events(args.quick)
+        bench_realtime(paced, quick)
+        bench_realtime_accuracy(paced, rt_figure, quick)
+        return float("nan")
+    bench_backends(quick)
+    bench_realtime(paced, quick)
+    bench_realtime_accuracy(paced, rt_figure, quick)
+    worst = bench_cpp_events(quick)
     if args.solver_only:
-        return
-    bench_fig6()
-    bench_reduced_vs_full(50 if args.quick else 200)
-    bench_outputs()
-    bench_mesh(args.quick)
-    bench_stepping(args.quick)
+        return worst
+    bench_fig6(quick)
+    bench_reduced_vs_full(4 if quick else 200, quick)
+    bench_outputs(quick)
+    bench_mesh(quick)
+    bench_stepping(quick)
     if args.figures:
         figures(args.figures)
+    return worst
 
 
 if __name__ == "__main__":

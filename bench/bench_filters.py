@@ -1,7 +1,7 @@
 """Benchmarks of the SOS engine against scipy.signal, measured in the same run.
 
     python bench/bench_filters.py            # full run (~1-2 min)
-    python bench/bench_filters.py --quick    # smaller sizes, for a smoke run
+    python bench/bench_filters.py --quick    # tiny sizes (a few seconds: a smoke run, not the figures)
 
 Prints markdown tables: block throughput (ratio to scipy.signal.sosfilt), per-sample
 step cost from Python and inside C++, the cost of a decay into the subnormal range,
@@ -20,15 +20,17 @@ os.environ.setdefault("OMP_NUM_THREADS", "1")
 import numpy as np
 import scipy.signal as ss
 import tactile_mirror as tm
-from _common import best_time, header, table
+from common import best_time, header, table
 from tactile_mirror.lab.measure import filter_variants
 
 
-def bench_block(n, channels=12):
+def bench_block(n, channels=12, n_cached=20_000, reps_cached=50):
     sos = ss.butter(8, 0.1, output="sos")  # 4 sections
     rng = np.random.default_rng(0)
     rows = []
-    for label, n_samples, reps in (("1e6 samples (out of cache)", n, 5), ("2e4 samples (in cache)", 20_000, 50)):
+    sizes = ((f"{n:.0e}".replace("e+0", "e") + " samples (out of cache)", n, 5),
+             (f"{n_cached:.0e}".replace("e+0", "e") + " samples (in cache)", n_cached, reps_cached))
+    for label, n_samples, reps in sizes:
         x = rng.standard_normal((channels, n_samples))
         for dt in (np.float64, np.float32):
             xx = x.astype(dt)
@@ -44,11 +46,10 @@ def bench_block(n, channels=12):
           ["size", "dtype", "scipy sosfilt", "SosFilter.process", "speed-up", "tm.sosfilt speed-up"], rows)
 
 
-def bench_step(channels=12):
+def bench_step(channels=12, n=50_000, m=2000, n_cpp=1_000_000):
     sos = ss.butter(8, 0.1, output="sos")
     f = tm.SosFilter(sos, channels)
     sample = np.random.default_rng(1).standard_normal(channels)
-    n = 50_000
 
     def ours():
         for _ in range(n):
@@ -57,7 +58,6 @@ def bench_step(channels=12):
     t_ours = best_time(ours, 3) / n
     zi = np.zeros((sos.shape[0], channels, 2))
     col = sample[:, None]
-    m = 2000
 
     def ref():
         z = zi
@@ -65,8 +65,9 @@ def bench_step(channels=12):
             _, z = ss.sosfilt(sos, col, zi=z)
 
     t_ref = best_time(ref, 3) / m
+
     def cpp_step(dt, thread_ftz):
-        return min(tm.SosFilter(sos, channels, dt)._core.time_step(1_000_000, thread_ftz) for _ in range(3))
+        return min(tm.SosFilter(sos, channels, dt).time_step(n_cpp, thread_ftz) for _ in range(3))
 
     cpp = {dt: [cpp_step(dt, False), cpp_step(dt, True)] for dt in (np.float64, np.float32)}
     table(f"Per-sample step, {channels} channels x 4 sections",
@@ -106,6 +107,7 @@ def bench_subnormal(n):
 
 
 def bench_soak(n_total, chunk=1_000_000):
+    """Returns the float64 (tdf2) filter's largest error over the soak, relative to the peak."""
     r = 1.0 - 1e-6
     th = 2 * np.pi * 2e-5
     sos = np.array([[(1 - r) ** 2 * 4, 0.0, 0.0, 1.0, -2 * r * np.cos(th), r * r]])
@@ -145,6 +147,7 @@ def bench_soak(n_total, chunk=1_000_000):
            ["SosFilter float64 (delta)", f"{worst64d / peak:.2e}", "", ""],
            ["SosFilter float32 (delta)", f"{worst32 / peak:.2e}", "", ""]])
     print(f"\n(soak wall time {time.perf_counter() - t0_all:.1f} s; our float64 filtering {t_ours:.2f} s)")
+    return worst64 / peak
 
 
 def bench_accuracy(n, repeat=3):
@@ -158,17 +161,23 @@ def bench_accuracy(n, repeat=3):
           rows)
 
 
-def main(argv=None):
+def main(argv=None) -> float:
+    """Print the tables; return the soak's float64 (tdf2) error relative to its peak."""
     p = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    p.add_argument("--quick", action="store_true", help="smaller sizes (a smoke run)")
+    p.add_argument("--quick", action="store_true", help="tiny sizes (a smoke run of a few seconds)")
     args = p.parse_args(argv)
     header("SOS engine against scipy.signal")
-    n = 100_000 if args.quick else 1_000_000
-    bench_block(n)
+    if args.quick:
+        bench_block(20_000, n_cached=2_000, reps_cached=5)
+        bench_step(n=2_000, m=200, n_cpp=20_000)
+        bench_subnormal(20_000)
+        bench_accuracy(5_000, repeat=1)
+        return bench_soak(400_000, chunk=200_000)
+    bench_block(1_000_000)
     bench_step()
-    bench_subnormal(200_000 if args.quick else 1_000_000)
-    bench_accuracy(20_000 if args.quick else 200_000)
-    bench_soak(2_000_000 if args.quick else 100_000_000)
+    bench_subnormal(1_000_000)
+    bench_accuracy(200_000)
+    return bench_soak(100_000_000)
 
 
 if __name__ == "__main__":

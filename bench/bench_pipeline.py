@@ -21,9 +21,10 @@ Tables (one run, same machine, same configuration):
    reference; goal <= 500 ns float64 inside C++; then with its inputs compressed, and the
    bundled pad net (``SlipDetector.pad()``, the pad's mean of the bank too).
 
-Run: ``python bench/bench_pipeline.py`` (``--quick``: shorter runs, 1 s latency run;
-``--latency-seconds``). Goals: <= 300 ns per 6-ridge tick in C++ and through the C
-ABI, <= 1.5 us from Python, scipy + numpy >= 100x slower.
+Run: ``python bench/bench_pipeline.py`` (``--quick``: tiny runs, a 0.2 s latency run, a smoke run
+of a few seconds; ``--latency-seconds``). Goals: <= 300 ns per 6-ridge tick in C++ and through the C
+ABI, <= 1.5 us from Python, scipy + numpy >= 100x slower. ``main`` returns the 6-ridge float64 tick
+inside C++, ns (table 2).
 """
 from __future__ import annotations
 
@@ -36,7 +37,7 @@ import time
 from pathlib import Path
 
 import numpy as np
-from _common import best_time, header
+from common import best_time, header
 from tactile_mirror.circuit import PVDFCircuit
 from tactile_mirror.estimator import StressRateEstimator
 from tactile_mirror.filters import simd_path
@@ -224,22 +225,23 @@ def table_bank(n_iter, n_ref):
     return res
 
 
-def main(argv=None):
+def main(argv=None) -> float:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--quick", action="store_true")
+    ap.add_argument("--quick", action="store_true", help="tiny runs (a smoke run of a few seconds)")
     ap.add_argument("--latency-seconds", type=float, default=None)
     args = ap.parse_args(argv)
-    n_iter = 50000 if args.quick else 300000
-    n_py = 20000 if args.quick else 200000
-    n_ref = 300 if args.quick else 2000
-    lat_s = args.latency_seconds if args.latency_seconds is not None else (1.0 if args.quick else 10.0)
+    n_iter = 2000 if args.quick else 300000
+    n_py = 1000 if args.quick else 200000
+    n_ref = 20 if args.quick else 2000
+    lat_s = args.latency_seconds if args.latency_seconds is not None else (0.2 if args.quick else 10.0)
     p = make()
     header("real-time pipeline tick")
     print(f"code paths: filters {simd_path()}; pipeline {p.simd_path}")
     table_scaling(n_iter)
-    table_doors(n_iter, n_py, n_ref)
+    res = table_doors(n_iter, n_py, n_ref)
     table_latency(lat_s)
     table_bank(n_iter, n_ref)
+    return res["C++ inside, float64"]
 
 
 if __name__ == "__main__":

@@ -6,7 +6,7 @@ the gradual onsets the paper's net misses. A recurrent net with a small state ca
 hold 256 ms of lags; a bank of first-order filters can hold their gist. This study
 trains the same classifier (gradient-boosted trees, scikit-learn) on several input sets
 and scores each, by the threshold sweep of ``detector.evaluate.roc`` (alarm: 3 samples
-in a row), on the build's *validation* scenes (seed ``build.VALIDATION_SEED``), never on
+in a row), on the build's *validation* scenes (seed ``build_options.VALIDATION_SEED``), never on
 the held-out seed the nets are reported on:
 
 * ``rates``: the four rates now (what the paper's net sees at one instant);
@@ -24,10 +24,12 @@ the held-out seed the nets are reported on:
 ``--only NAME ...`` runs some of the sets.
 
 Training scenes: the build's training set plus its extra scenes from the held-out ranges
-(``--extra``, seed ``build.EXTRA_TRAIN_SEED``). Noise-free signals (their circuit outputs
+(``--extra``, seed ``build_options.EXTRA_TRAIN_SEED``). Noise-free signals (their circuit outputs
 without noise), and with ``--noise`` 1 mV rms white noise too.
 
-Run: ``python bench/detector_bank_study.py --cache out/scenes [--extra 96] [--noise]``.
+Run: ``python bench/detector_bank_study.py --cache out/scenes [--extra 96] [--noise]`` (``--quick``:
+6 + 4 training and 8 validation scenes simulated here, 20 boosting iterations, a smoke run of a few
+seconds). ``main`` returns the number of rows of the table (condition x input set scored).
 """
 from __future__ import annotations
 
@@ -83,15 +85,21 @@ def feature_sets(x, fs):
 def main(argv=None):
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--cache", default="out/scenes")
-    ap.add_argument("--extra", type=int, default=96)
-    ap.add_argument("--n-validation", type=int, default=120)
+    ap.add_argument("--extra", type=int, default=None, help="extra training scenes (default 96; --quick: 4)")
+    ap.add_argument("--n-validation", type=int, default=None,
+                    help="validation scenes (default 120; --quick: 8)")
     ap.add_argument("--noise", action="store_true", help="also with 1 mV rms white noise")
     ap.add_argument("--only", nargs="*", help="input sets to run (default: all)")
+    ap.add_argument("--quick", action="store_true",
+                    help="6 training scenes and few others, simulated here; few boosting iterations (a smoke "
+                         "run)")
     args = ap.parse_args(argv)
+    args.extra = (4 if args.quick else 96) if args.extra is None else args.extra
+    args.n_validation = (8 if args.quick else 120) if args.n_validation is None else args.n_validation
     sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
-    from _common import fit_bound_classifier, study_training_scenes
+    from common import BOUND_TREES, QUICK_TREES, fit_bound_classifier, simulated, study_training_scenes
     from tactile_mirror.detector.data_prep import features_from_result, targets_from_result
-    from tactile_mirror.lab.detector import build
+    from tactile_mirror.lab.detector import build_options
     from tactile_mirror.lab.detector.evaluation import noise_free as clean
     from tactile_mirror.lab.detector.evaluation import onset_kinds, with_noise
     from tactile_mirror.lab.detector.thresholds import roc
@@ -99,14 +107,15 @@ def main(argv=None):
 
     t0 = time.perf_counter()
     cache = args.cache or None
-    train = study_training_scenes(cache, args.extra)
-    val = build.simulate_cached(args.n_validation, build.VALIDATION_SEED, build.TEST_KWARGS, cache)
+    train = study_training_scenes(cache, args.extra, **({"n_train": 6, "quick": True} if args.quick else {}))
+    val = simulated(args.n_validation, build_options.VALIDATION_SEED, build_options.TEST_KWARGS, cache, quick=args.quick)
     kinds = onset_kinds(val)
     print(f"# CPU: {cpu_model()}; {len(train)} training scenes, {len(val)} validation scenes "
-          f"(seed {build.VALIDATION_SEED}): {kinds.count('release')} release, {kinds.count('gradual')} gradual")
+          f"(seed {build_options.VALIDATION_SEED}): {kinds.count('release')} release, {kinds.count('gradual')} gradual")
     conds = [("noise-free", 0.0)] + ([("1 mV rms white", 1e-3)] if args.noise else [])
     print("\n| condition | inputs | n | detection at 2 % FA (all / release / gradual) | at 3 % | at 5 % |")
     print("|---|---|---|---|---|---|")
+    n_rows = 0
     for ci, (cond, white) in enumerate(conds):
         tr, va = clean(train), clean(val)
         if white:
@@ -119,7 +128,7 @@ def main(argv=None):
             if args.only and name not in args.only:
                 continue
             X = np.vstack([f[name][::2] for f in ftr])
-            clf = fit_bound_classifier(X, Y)
+            clf = fit_bound_classifier(X, Y, max_iter=QUICK_TREES if args.quick else BOUND_TREES)
             probs = [clf.predict_proba(f[name])[:, 1][None] for f in fva]
             curve = roc(probs, val, kinds, consecutive=3)
             cells = []
@@ -127,8 +136,10 @@ def main(argv=None):
                 p = curve.at_false_alarm(fa)
                 cells.append(f"{100 * p['detection_rate']:.1f} / {100 * p['detection_release']:.1f} / {100 * p['detection_gradual']:.1f} (FA {100 * p['false_alarm_rate']:.1f})")
             print(f"| {cond} | {name} | {X.shape[1]} | " + " | ".join(cells) + " |", flush=True)
+            n_rows += 1
     print(f"\n({time.perf_counter() - t0:.0f} s)")
+    return n_rows
 
 
 if __name__ == "__main__":
-    sys.exit(main())
+    main()

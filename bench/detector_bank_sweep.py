@@ -1,16 +1,18 @@
 """Training choices of the filter-bank net, compared on the build's validation scenes only.
 
-Each variant is trained as the build trains (``build.train_selected``: initial seeds,
+Each variant is trained as the build trains (``selection.train_selected``: initial seeds,
 checkpoints every 25 iterations, the best by ``detection - 10 x false alarms`` on the
-validation scenes, seed ``build.VALIDATION_SEED``) on the build's training scenes plus
-its extra scenes from the held-out ranges (seed ``build.EXTRA_TRAIN_SEED``), two noise
+validation scenes, seed ``build_options.VALIDATION_SEED``) on the build's training scenes plus
+its extra scenes from the held-out ranges (seed ``build_options.EXTRA_TRAIN_SEED``), two noise
 copies each. The kept candidate of each variant is then scored on the same validation
 scenes under the noise conditions of the held-out table (the scenes' own noise,
-noise-free, 1 mV rms white). The held-out seed (``build.TEST_SEED``) is not touched:
+noise-free, 1 mV rms white). The held-out seed (``build_options.TEST_SEED``) is not touched:
 the variant chosen here is the one the README reports on it.
 
 Run: ``python bench/detector_bank_sweep.py --cache out/scenes [--out DIR] [--extra 96]`` (about 4 min with
-96 extra scenes; the scenes are simulated first if the cache lacks them).
+96 extra scenes; the scenes are simulated first if the cache lacks them). ``--quick``: 6 + 4 training and 8
+validation scenes simulated here, 10 iterations with checkpoints every 5, a smoke run of a few seconds.
+``main`` returns the number of rows printed (variant x condition).
 """
 from __future__ import annotations
 
@@ -42,17 +44,24 @@ VARIANTS = {
 def main(argv=None):
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--cache", default="out/scenes")
-    ap.add_argument("--maxiter", type=int, default=300)
+    ap.add_argument("--maxiter", type=int, default=None,
+                    help="L-BFGS-B iterations (default 300; --quick: 10)")
     ap.add_argument("--out", default=None, help="directory for the kept weights of each variant")
     ap.add_argument("--only", nargs="*", help="variant names to run")
-    ap.add_argument("--extra", type=int, default=96, help="extra training scenes (seed build.EXTRA_TRAIN_SEED)")
+    ap.add_argument("--extra", type=int, default=None,
+                    help="extra training scenes (seed build_options.EXTRA_TRAIN_SEED; default 96, --quick: 4)")
+    ap.add_argument("--quick", action="store_true",
+                    help="6 training scenes and few others, simulated here; 10 iterations (a smoke run)")
     args = ap.parse_args(argv)
+    args.maxiter = (10 if args.quick else 300) if args.maxiter is None else args.maxiter
+    args.extra = (4 if args.quick else 96) if args.extra is None else args.extra
+    every = 5 if args.quick else 25
     sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
-    from _common import study_training_scenes
+    from common import simulated, study_training_scenes
     from detector_heldout import table_rows
     from tactile_mirror.detector import SlipDetector
     from tactile_mirror.detector.data_prep import features_from_result
-    from tactile_mirror.lab.detector import build
+    from tactile_mirror.lab.detector import build_options, selection
     from tactile_mirror.lab.detector.augment import augment_gains, augment_noise
     from tactile_mirror.lab.detector.evaluation import noise_free as clean
     from tactile_mirror.lab.detector.evaluation import onset_kinds, with_noise
@@ -61,23 +70,25 @@ def main(argv=None):
 
     t0 = time.perf_counter()
     cache = args.cache or None
-    train = study_training_scenes(cache, args.extra, False)
-    val = build.simulate_cached(120, build.VALIDATION_SEED, build.TEST_KWARGS, cache, False)
+    small = {"n_train": 6, "quick": True} if args.quick else {}
+    train = study_training_scenes(cache, args.extra, False, **small)
+    val = simulated(8 if args.quick else 120, build_options.VALIDATION_SEED, build_options.TEST_KWARGS, cache, False,
+                    args.quick)
     kinds = onset_kinds(val)
-    scorer = build.ValidationScorer(val)
+    scorer = selection.ValidationScorer(val)
     conds = {"own noise": val, "noise-free": clean(val), "1 mV rms white": with_noise(clean(val), "1 mV rms white", 7)}
-    print(f"# CPU: {cpu_model()}; {len(train)} training scenes; validation seed {build.VALIDATION_SEED}: "
+    print(f"# CPU: {cpu_model()}; {len(train)} training scenes; validation seed {build_options.VALIDATION_SEED}: "
           f"{kinds.count('release')} release, {kinds.count('gradual')} gradual", flush=True)
     rows = []
     for name, (h, nw, noise, cand, *bank) in VARIANTS.items():
         if args.only and name not in args.only:
             continue
         t1 = time.perf_counter()
-        seqs = augment_noise(train, build.NOISE_COPIES, noise, seed=2)
+        seqs = augment_noise(train, build_options.NOISE_COPIES, noise, seed=2)
         ts = augment_gains(make_training_set(seqs, "stress_rate_bank", bank=bank[0] if bank else None),
                            (0.6, 1.7), seed=1)
-        opts = {**build.TRAIN_OPTIONS, "negative_weight": nw}
-        w, _k, _scores = build.train_selected(ts, h, args.maxiter, 0, cand, 25, scorer, True, False,
+        opts = {**build_options.TRAIN_OPTIONS, "negative_weight": nw}
+        w, _k, _scores = selection.train_selected(ts, h, args.maxiter, 0, cand, every, scorer, True, False,
                                             {"kind": "jordan_bank"}, **opts)
         det = SlipDetector(w)
         if args.out:
@@ -97,7 +108,8 @@ def main(argv=None):
                   f"grad {100 * row['det_gradual']:5.1f} lat {row['lat_release_ms']:.1f}/{row['lat_gradual_ms']:.1f} ms"
                   f"  ({time.perf_counter() - t1:.0f} s)", flush=True)
     print(f"\n({time.perf_counter() - t0:.0f} s)")
+    return len(rows)
 
 
 if __name__ == "__main__":
-    sys.exit(main())
+    main()

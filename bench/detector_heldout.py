@@ -3,7 +3,7 @@
 The three nets (and, with ``--bound``, the bound study's causal classifier and the same
 boosted trees on the filter bank's inputs, both trained on the build's training scenes
 plus the bound study's extra scenes) are scored on the same
-held-out scenes (``build.TEST_SEED``, ``build.TEST_KWARGS`` ranges, disjoint from the
+held-out scenes (``build_options.TEST_SEED``, ``build_options.TEST_KWARGS`` ranges, disjoint from the
 training and validation seeds) with the definitions of ``detector.evaluate``: per
 noise condition (noise-free, 1 mV rms white noise on ``v_out``/``u_out``, and with ``--hum``
 the circuit's thermal floor plus 2 mV of 50 Hz hum, the estimator notching it) the
@@ -15,7 +15,9 @@ the threshold swept (``detector.evaluate.roc``). Then the kernels' tick time for
 
 Run: ``python bench/detector_heldout.py [--cache out/scenes] [--bound] [--bound-extra 96] [--hum]
 [--consecutive 2 3 5]`` (the last: the filter-bank net's curve when an alarm needs that many samples in a
-row over the threshold).
+row over the threshold). ``--quick``: 8 held-out scenes (and with ``--bound`` 6 training scenes) simulated
+here, 20 boosting iterations, short kernel timings: a smoke run of a few seconds. ``main`` returns the
+filter-bank net's detection rate at 2 % false alarms, noise-free.
 """
 from __future__ import annotations
 
@@ -65,9 +67,10 @@ def table_rows(name, scores_pred, results, kinds, cond):
     return out
 
 
-def bank_tree_scores(train, test, notch=None) -> list:
-    """Probabilities of the bound study's boosted trees on the filter bank's inputs (ridge 0)."""
-    from _common import fit_bound_classifier
+def bank_tree_scores(train, test, notch=None, trees: int | None = None) -> list:
+    """Probabilities of the bound study's boosted trees on the filter bank's inputs (ridge 0);
+    ``trees``: boosting iterations (default the bound study's)."""
+    from common import BOUND_TREES, fit_bound_classifier
     from tactile_mirror.detector.data_prep import DEFAULT_ESTIMATOR, features_from_result, targets_from_result
 
     est = dict(DEFAULT_ESTIMATOR, **({} if notch is None else {"notch": notch}))
@@ -77,39 +80,46 @@ def bank_tree_scores(train, test, notch=None) -> list:
 
     X = np.vstack([feats(r)[::2] for r in train])
     Y = np.concatenate([targets_from_result(r)[0][0][::2] for r in train])
-    clf = fit_bound_classifier(X, Y)
+    clf = fit_bound_classifier(X, Y, max_iter=trees or BOUND_TREES)
     return [clf.predict_proba(feats(r))[:, 1] for r in test]
 
 
-def main(argv=None):
+def main(argv=None) -> float:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--cache", default="out/scenes", help="directory of cached simulated scenes ('' for none)")
-    ap.add_argument("--n-test", type=int, default=200)
+    ap.add_argument("--cache", default="out/scenes",
+                    help="directory of cached simulated scenes ('' for none)")
+    ap.add_argument("--n-test", type=int, default=None, help="held-out scenes (default 200; --quick: 8)")
     ap.add_argument("--memory-weights", default=None, help="load-memory weights (default: bundled)")
     ap.add_argument("--bank-weights", default=None, help="filter-bank weights (default: bundled)")
     ap.add_argument("--also-bank", action="append", default=[], metavar="WEIGHTS",
                     help="a further filter-bank net to score beside it (repeatable; rows named by the file)")
     ap.add_argument("--test-seed", type=int, default=None,
-                    help="seed of the held-out scenes (default: the build's, build.TEST_SEED); another seed "
+                    help="seed of the held-out scenes (default: the build's, build_options.TEST_SEED); another seed "
                          "gives scenes that chose nothing, for a comparison decided on the build's")
     ap.add_argument("--bound", action="store_true", help="also the bound study's classifier (scikit-learn)")
     ap.add_argument("--bound-extra", type=int, default=0, help="extra bound training scenes (seed 99)")
     ap.add_argument("--val-threshold", type=float, default=None, metavar="FA",
                     help="also the filter-bank net at the lowest threshold of y_slip whose false-alarm rate on the "
                          "build's validation scenes (their own noise) is at most FA (e.g. 0.01)")
-    ap.add_argument("--hum", action="store_true", help="also the thermal floor + 2 mV 50 Hz hum condition, notched")
+    ap.add_argument("--hum", action="store_true",
+                    help="also the thermal floor + 2 mV 50 Hz hum condition, notched")
     ap.add_argument("--consecutive", type=int, nargs="+", default=[], metavar="K",
                     help="also the filter-bank net's curve with an alarm only after K samples in a row at or above "
                          "the threshold (detector.evaluate.roc's consecutive), for each K")
+    ap.add_argument("--quick", action="store_true",
+                    help="a few scenes simulated here, few boosting iterations, short timings (a smoke run)")
     args = ap.parse_args(argv)
     if any(k < 1 for k in args.consecutive):
         ap.error("--consecutive takes positive sample counts")
+    quick = args.quick
+    if args.n_test is None:
+        args.n_test = 8 if quick else 200
     sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
-    from _common import header
+    from common import QUICK_TREES, header, simulated
     from detector_roc import bound_scores
     from tactile_mirror.detector import SlipDetector
     from tactile_mirror.detector.data_prep import features_from_result
-    from tactile_mirror.lab.detector import build
+    from tactile_mirror.lab.detector import build_options
     from tactile_mirror.lab.detector.evaluation import NOISE_CONDITIONS, onset_kinds, with_noise
     from tactile_mirror.lab.detector.evaluation import condition_estimator as estimator_of
     from tactile_mirror.lab.detector.evaluation import noise_free as clean
@@ -119,8 +129,8 @@ def main(argv=None):
     header("filter-bank and load-memory nets vs the paper's Jordan net on the build's held-out scenes")
     cache = args.cache or None
     t0 = time.perf_counter()
-    test_seed = build.TEST_SEED if args.test_seed is None else args.test_seed
-    test = build.simulate_cached(args.n_test, test_seed, build.TEST_KWARGS, cache)
+    test_seed = build_options.TEST_SEED if args.test_seed is None else args.test_seed
+    test = simulated(args.n_test, test_seed, build_options.TEST_KWARGS, cache, quick=quick)
     kinds = onset_kinds(test)
     print(f"{len(test)} held-out scenes (seed {test_seed}): {kinds.count('release')} release, "
           f"{kinds.count('gradual')} gradual onsets, {kinds.count(None)} sequences without gross slip "
@@ -133,19 +143,19 @@ def main(argv=None):
         + (("load-memory net", memory), ("paper Jordan net", paper))
     train = []
     if args.bound:
-        train = build.simulate_cached(64, build.TRAIN_SEED, build.TRAIN_KWARGS, cache)
+        train = simulated(6 if quick else 64, build_options.TRAIN_SEED, build_options.TRAIN_KWARGS, cache, quick=quick)
         if args.bound_extra:
-            train = train + build.simulate_cached(args.bound_extra, 99, build.TEST_KWARGS, cache)
+            train = train + simulated(args.bound_extra, 99, build_options.TEST_KWARGS, cache, quick=quick)
     rows, curves = [], []
     thr = None
     if args.val_threshold is not None:
-        val = build.simulate_cached(120, build.VALIDATION_SEED, build.TEST_KWARGS, cache)
+        val = simulated(8 if quick else 120, build_options.VALIDATION_SEED, build_options.TEST_KWARGS, cache, quick=quick)
         vk = onset_kinds(val)
         vs = [bank.run(features_from_result(r, bank.features, estimator=bank.metadata.get("estimator")), fs=r.fs)[0]
               for r in val]
         pt = roc(vs, val, vk).at_false_alarm(args.val_threshold)
         thr = pt["threshold"]
-        print(f"validation (seed {build.VALIDATION_SEED}): y_slip >= {thr:.4f} gives {100 * pt['detection_rate']:.1f} % "
+        print(f"validation (seed {build_options.VALIDATION_SEED}): y_slip >= {thr:.4f} gives {100 * pt['detection_rate']:.1f} % "
               f"detection at {100 * pt['false_alarm_rate']:.1f} % false alarms", flush=True)
     conditions = CONDITIONS + ((HUM,) if args.hum else ())
     for ci, cond in enumerate(conditions):
@@ -174,7 +184,7 @@ def main(argv=None):
             noisy_train = clean(train)
             if cond != "noise-free":
                 noisy_train = with_noise(noisy_train, cond_key, seed=2000 + ci)
-            probs = bound_scores(noisy_train, noisy, cond_key)
+            probs = bound_scores(noisy_train, noisy, cond_key, trees=QUICK_TREES if quick else None)
             from detector_bound import debounce
 
             outs = []
@@ -184,7 +194,8 @@ def main(argv=None):
             rows.append(table_rows("bound classifier (p>=0.8, 3 in a row)", outs, test, kinds, cond))
             curves.append((cond, "bound classifier (3 in a row)", roc(probs, test, kinds, consecutive=3)))
             outs = []
-            tree_probs = bank_tree_scores(noisy_train, noisy, NOISE_CONDITIONS[cond][2])
+            tree_probs = bank_tree_scores(noisy_train, noisy, NOISE_CONDITIONS[cond][2],
+                                          trees=QUICK_TREES if quick else None)
             curves.append((cond, "trees on the bank inputs (3 in a row)", roc(tree_probs, test, kinds, consecutive=3)))
             for p in tree_probs:
                 a = debounce(p >= 0.8).astype(float)
@@ -216,12 +227,16 @@ def main(argv=None):
         print(f"{cond:<15} {name:<38} {cells[0]:>14} {cells[1]:>14} {cells[2]:>14}")
     n0 = rows[0]
     print(f"\n{n0['n_seq']} sequences, {n0['n_slip']} slips ({n0['n_release']} release, {n0['n_gradual']} gradual)")
-    print(f"\nkernel tick, 6 ridges, measured in C++ (ns, best of 5 x 200000 ticks); CPU: {cpu_model()}")
+    n_ticks = 20000 if quick else 200000
+    print(f"\nkernel tick, 6 ridges, measured in C++ (ns, best of 5 x {n_ticks} ticks); CPU: {cpu_model()}")
     for dt in (np.float32, np.float64):
         for name, det in nets:
             k = SlipDetector(det.weights, dtype=dt).kernel(6)
-            print(f"  {np.dtype(dt).name:<8} {name:<18} {k.time_step_ns(200000, 5):8.1f} ns  ({k.simd_path})")
+            ns = k.time_step_ns(n_ticks, 5)
+            print(f"  {np.dtype(dt).name:<8} {name:<18} {ns:8.1f} ns  ({k.simd_path})")
+    return next(c for cond, name, c in curves if (cond, name) == ("noise-free", "filter-bank net")
+                ).at_false_alarm(0.02)["detection_rate"]
 
 
 if __name__ == "__main__":
-    sys.exit(main())
+    main()

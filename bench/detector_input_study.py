@@ -22,11 +22,14 @@ each, random gains), on the bank's inputs passed through
 
 and keeps, per variant, the seed and checkpoint with the best detection at 2 % false
 alarms on the first half (``--swap``: the second) of the build's validation scenes (seed
-``build.VALIDATION_SEED``; noise-free and 1 mV rms, averaged). It reports the curves on
+``build_options.VALIDATION_SEED``; noise-free and 1 mV rms, averaged). It reports the curves on
 the *other* half, which chose nothing, next to the bundled net's. The held-out seed is
 not used.
 
-Run: ``python bench/detector_input_study.py --cache out/scenes [--variants linear asinh/median] [--seeds 2]``.
+Run: ``python bench/detector_input_study.py --cache out/scenes [--variants linear asinh/median] [--seeds 2]``
+(``--quick``: 6 + 4 training and 8 validation scenes simulated here, one seed of 10 iterations with
+checkpoints every 5, a smoke run of a few seconds). ``main`` returns the bundled net's detection rate at
+2 % false alarms on the reporting half, noise-free.
 """
 from __future__ import annotations
 
@@ -47,7 +50,7 @@ VARIANTS = ("linear", "asinh/median", "asinh/rms", "softsign/median", "linear, m
 def compression(name: str, x, mask):
     """The transform ``f(x)`` of variant ``name``, its knees fitted on ``x`` (n_seq, n_ch, n) and
     kept as ``f.knee`` (None for the linear variants)."""
-    from tactile_mirror.detector import fit_normalisation
+    from tactile_mirror.lab.detector.training import fit_normalisation
 
     if name.startswith("linear"):
         def f(v):
@@ -84,39 +87,50 @@ def run_net(w, feats):
     return out
 
 
-def main(argv=None):
+def main(argv=None) -> float:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--cache", default="out/scenes")
-    ap.add_argument("--extra", type=int, default=240)
-    ap.add_argument("--n-validation", type=int, default=480)
+    ap.add_argument("--extra", type=int, default=None, help="extra training scenes (default 240; --quick: 4)")
+    ap.add_argument("--n-validation", type=int, default=None,
+                    help="validation scenes (default 480; --quick: 8)")
     ap.add_argument("--variants", nargs="+", default=list(VARIANTS), choices=VARIANTS)
-    ap.add_argument("--seeds", type=int, default=2, help="initial seeds per variant")
-    ap.add_argument("--maxiter", type=int, default=300)
+    ap.add_argument("--seeds", type=int, default=None,
+                    help="initial seeds per variant (default 2; --quick: 1)")
+    ap.add_argument("--maxiter", type=int, default=None,
+                    help="L-BFGS-B iterations (default 300; --quick: 10)")
     ap.add_argument("--hidden", type=int, default=16)
     ap.add_argument("--negative-weight", type=float, default=30.0)
     ap.add_argument("--swap", action="store_true", help="choose on the second half, report on the first")
     ap.add_argument("--ensemble", action="store_true",
                     help="also report each seed's kept net and the mean y_slip of all seeds' kept nets")
     ap.add_argument("--json", default=None, help="write the table's figures here")
+    ap.add_argument("--quick", action="store_true",
+                    help="6 training scenes and few others, simulated here; short trainings (a smoke run)")
     args = ap.parse_args(argv)
+    quick = args.quick
+    for name, full, small in (("extra", 240, 4), ("n_validation", 480, 8), ("seeds", 2, 1),
+                              ("maxiter", 300, 10)):
+        if getattr(args, name) is None:
+            setattr(args, name, small if quick else full)
+    every = 5 if quick else 25
     sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
 
-    from _common import bank_training_set, bank_validation_conditions, study_scenes
+    from common import bank_training_set, bank_validation_conditions, study_scenes, write_json
     from tactile_mirror.detector import SlipDetector
-    from tactile_mirror.files import write_json
-    from tactile_mirror.lab.detector import build
+    from tactile_mirror.lab.detector import build_options
     from tactile_mirror.lab.detector.thresholds import roc
     from tactile_mirror.lab.detector.training import TrainingSet, train_detector
     from tactile_mirror.lab.measure import cpu_model
 
     t0 = time.perf_counter()
-    train, val = study_scenes(args.cache, args.extra, args.n_validation)
+    train, val = study_scenes(args.cache, args.extra, args.n_validation, **({"n_train": 6, "quick": True}
+                                                                           if quick else {}))
     half = len(val) // 2
     sel_val, rep_val = val[:half], val[half:]
     chosen, reported = f"1-{half}", f"{half + 1}-{len(val)}"
     if args.swap:
         sel_val, rep_val, chosen, reported = rep_val, sel_val, reported, chosen
-    print(f"# CPU: {cpu_model()}; {len(train)} training scenes; validation seed {build.VALIDATION_SEED}: "
+    print(f"# CPU: {cpu_model()}; {len(train)} training scenes; validation seed {build_options.VALIDATION_SEED}: "
           f"scenes {chosen} choose, {reported} report")
 
     ts = bank_training_set(train)
@@ -152,7 +166,7 @@ def main(argv=None):
             w_end = train_detector(tsv, args.hidden, seed=seed, maxiter=args.maxiter, negative_weight=args.negative_weight,
                                    pred_weight=4.0,
                                    normalisation="median" if variant.endswith("median scale") else "rms", features="stress_rate_bank", progress=False,
-                                   callback=lambda it, w: cands.append((it, w)), callback_every=25)
+                                   callback=lambda it, w: cands.append((it, w)), callback_every=every)
             cands.append((w_end.metadata["training"]["iterations"], w_end))
             for it, w in cands:
                 c = curves("select", lambda feats: run_net(w, [f(x) for x in feats]))
@@ -193,7 +207,8 @@ def main(argv=None):
     print(f"\n({time.perf_counter() - t0:.0f} s)")
     if args.json:
         write_json(args.json, json.loads(json.dumps(table, default=float)))
+    return rows[0][1]["noise-free"].at_false_alarm(0.02)["detection_rate"]
 
 
 if __name__ == "__main__":
-    sys.exit(main())
+    main()

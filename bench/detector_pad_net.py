@@ -9,7 +9,7 @@ build's loss options: negative weight 30, ``y_pred`` weight 4) on
 * ``pad-trained net, ridge``: the ridge's own 17 inputs (the bundled net's inputs);
 * ``pad-trained net, ridge + pad mean``: plus the pad's mean of the 17 (34 inputs).
 
-Scenes: the build's held-out ranges (``build.TEST_KWARGS``) with six ridges. Training
+Scenes: the build's held-out ranges (``build_options.TEST_KWARGS``) with six ridges. Training
 seed ``PAD_TRAIN_SEED`` (two noise copies of each scene, 0-5 mV rms, and a random gain
 per copy, as the build); the candidates (2 initial seeds, checkpoints every 25
 iterations) are chosen, and ``y_slip``'s decision point calibrated (at most 1.5 % false
@@ -21,7 +21,7 @@ measured on a third seed, ``PAD_TEST_SEED``, which chose nothing. Rates over rid
 ``--save PATH`` (with ``--inputs mean --compress log``): the kept net as a weights file of
 kind ``"jordan_bank"`` whose bank has the pad's mean and the knees
 (``bank["pad_mean"]``, ``bank["knee"]``), its output bias shifted so that ``y_slip >= 0.8``
-is the decision point (the build's rule, ``build.calibrate_slip``); it is then loaded
+is the decision point (the build's rule, ``calibration.calibrate_slip``); it is then loaded
 and run by ``SlipDetector`` (the C++ kernel, from the stress rates) on the test scenes,
 one more row per condition.
 
@@ -31,7 +31,10 @@ a seed no choice has seen, e.g. to measure a net whose design was chosen on this
 both nets' ``y_pred`` at the slips' onsets (noise-free; read as ``bench/detector_pred_bound.py``
 reads it: the last sample before the onset and the onset sample).
 
-Run: ``python bench/detector_pad_net.py --cache out/scenes`` (14 min on 2 cores with the scenes cached).
+Run: ``python bench/detector_pad_net.py --cache out/scenes`` (14 min on 2 cores with the scenes cached;
+``--quick``: 2 training, 3 validation and 2 test pads simulated here, one seed of 10 iterations with
+checkpoints every 5, a smoke run of a few seconds). ``main`` returns the bundled net's detection rate at
+2 % false alarms on the test pads, noise-free.
 """
 from __future__ import annotations
 
@@ -76,14 +79,16 @@ def stack(results, with_mean: bool, gains=None):
     return pad_sequences(xs, ys, ps)
 
 
-def main(argv=None):
+def main(argv=None) -> float:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--cache", default="out/scenes")
-    ap.add_argument("--n-train", type=int, default=160)
-    ap.add_argument("--n-validation", type=int, default=160)
-    ap.add_argument("--n-test", type=int, default=160)
-    ap.add_argument("--maxiter", type=int, default=300)
-    ap.add_argument("--seeds", type=int, default=2)
+    ap.add_argument("--n-train", type=int, default=None, help="training pads (default 160; --quick: 2)")
+    ap.add_argument("--n-validation", type=int, default=None,
+                    help="validation pads (default 160; --quick: 3)")
+    ap.add_argument("--n-test", type=int, default=None, help="test pads (default 160; --quick: 2)")
+    ap.add_argument("--maxiter", type=int, default=None,
+                    help="L-BFGS-B iterations (default 300; --quick: 10)")
+    ap.add_argument("--seeds", type=int, default=None, help="initial seeds (default 2; --quick: 1)")
     ap.add_argument("--calibrate-fa", type=float, default=0.015)
     ap.add_argument("--hidden", type=int, default=16)
     ap.add_argument("--noise-range", type=float, nargs=2, default=list(NOISE_RANGE), metavar=("LOW", "HIGH"),
@@ -111,7 +116,15 @@ def main(argv=None):
                          "pads, as the build's --calibrate-goals: the lowest threshold with at most NOISE_FREE false "
                          "alarms noise-free and NOISY with 1 mV rms white noise and with the hum condition; save it "
                          "to --save and measure it")
+    ap.add_argument("--quick", action="store_true",
+                    help="a few pads simulated here, short trainings (a smoke run, not the figures)")
     args = ap.parse_args(argv)
+    quick = args.quick
+    for name, full, small in (("n_train", 160, 2), ("n_validation", 160, 3), ("n_test", 160, 2),
+                              ("maxiter", 300, 10), ("seeds", 2, 1)):
+        if getattr(args, name) is None:
+            setattr(args, name, small if quick else full)
+    every = 5 if quick else 25
     if args.recalibrate_goals and not (args.weights and args.save):
         ap.error("--recalibrate-goals needs --weights (the net) and --save (where the recalibrated net goes)")
     if args.hum and not args.weights:
@@ -120,13 +133,14 @@ def main(argv=None):
         ap.error("--save needs --compress log and --inputs mean (the library's compressed pad-mean bank)")
     sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
     import scipy.optimize
+    from common import save_figure, simulated
     from detector_input_study import compression
     from detector_pad_study import N_RIDGES, PAD_TRAIN_SEED, PAD_VALIDATION_SEED, SCORED, latency_at
-    from tactile_mirror.detector import DetectorWeights, SlipDetector, fit_normalisation
+    from tactile_mirror.detector import DetectorWeights, SlipDetector
     from tactile_mirror.detector.bank import DEFAULT_BANK
     from tactile_mirror.detector.data_prep import features_from_result, targets_from_result
     from tactile_mirror.detector.network import Params, forward, init_params
-    from tactile_mirror.lab.detector import build
+    from tactile_mirror.lab.detector import build_options, calibration
     from tactile_mirror.lab.detector.augment import augment_noise
     from tactile_mirror.lab.detector.evaluation import (
         condition_estimator,
@@ -135,22 +149,22 @@ def main(argv=None):
         with_noise,
     )
     from tactile_mirror.lab.detector.thresholds import roc
-    from tactile_mirror.lab.detector.training import cpp_loss, loss_weights
+    from tactile_mirror.lab.detector.training import cpp_loss, fit_normalisation, loss_weights
     from tactile_mirror.lab.measure import cpu_model
 
     t0 = time.perf_counter()
-    kw = {**build.TEST_KWARGS, "n_ridges": N_RIDGES}
+    kw = {**build_options.TEST_KWARGS, "n_ridges": N_RIDGES}
     if args.weights:  # nothing is trained or chosen: only the test scenes are needed
         args.inputs, train, val = [], None, []
     else:
-        train = build.simulate_cached(args.n_train, PAD_TRAIN_SEED, kw, args.cache)
-        val = build.simulate_cached(args.n_validation, PAD_VALIDATION_SEED, kw, args.cache)
+        train = simulated(args.n_train, PAD_TRAIN_SEED, kw, args.cache, quick=quick)
+        val = simulated(args.n_validation, PAD_VALIDATION_SEED, kw, args.cache, quick=quick)
     if args.recalibrate_goals:
         # the decision point anew, on validation pads only (the test pads choose nothing)
-        val = build.simulate_cached(args.n_validation, PAD_VALIDATION_SEED, kw, args.cache)
+        val = simulated(args.n_validation, PAD_VALIDATION_SEED, kw, args.cache, quick=quick)
         nf, noisy = args.recalibrate_goals
         goals = {"noise-free": nf, "1 mV rms white": noisy, "thermal + 2 mV 50 Hz hum, notch": noisy}
-        w, info = build.calibrate_slip(build.uncalibrate(SlipDetector.load(args.weights).weights), val, None,
+        w, info = calibration.calibrate_slip(calibration.uncalibrate(SlipDetector.load(args.weights).weights), val, None,
                                        scenes=f"seed {PAD_VALIDATION_SEED}, {len(val)} pads", conditions=goals)
         w.save(args.save)
         print(f"# recalibrated {args.weights} on {len(val)} validation pads: threshold {info['threshold']:.3f} of "
@@ -158,7 +172,7 @@ def main(argv=None):
                   f"{c} {100 * v['validation_detection']:.1f} % at {100 * v['validation_false_alarm']:.1f} %"
                   for c, v in info["conditions"].items()) + f"; saved {args.save}", flush=True)
         args.weights = args.save
-    test = build.simulate_cached(args.n_test, args.test_seed, kw, args.cache)
+    test = simulated(args.n_test, args.test_seed, kw, args.cache, quick=quick)
     kinds = {name: [k for i, k in enumerate(onset_kinds(res)) if i % N_RIDGES in SCORED]
              for name, res in (("val", val), ("test", test))}
     print(f"# CPU: {cpu_model()}; pad scenes ({N_RIDGES} ridges): {len(train or [])} training (seed "
@@ -167,7 +181,7 @@ def main(argv=None):
           f"{kinds['test'].count('release')} release, {kinds['test'].count('gradual')} gradual onsets on ridges "
           f"{SCORED})", flush=True)
     if train is not None:
-        seqs = augment_noise(train, build.NOISE_COPIES, tuple(args.noise_range), seed=2)
+        seqs = augment_noise(train, build_options.NOISE_COPIES, tuple(args.noise_range), seed=2)
         gains = np.exp(np.random.default_rng(1).uniform(np.log(0.6), np.log(1.7), len(seqs)))
     conditions = {"noise-free": noise_free(test)}
     conditions["1 mV rms white"] = with_noise(conditions["noise-free"], "1 mV rms white", seed=9001)
@@ -253,7 +267,7 @@ def main(argv=None):
 
             def cb(xk):
                 count[0] += 1
-                if count[0] % 25 == 0:
+                if count[0] % every == 0:
                     cands.append((count[0], np.array(xk)))
 
             res = scipy.optimize.minimize(fun, init_params(n_in, H, seed).pack(), jac=True, method="L-BFGS-B",
@@ -284,7 +298,7 @@ def main(argv=None):
             # The library's pad-mean bank with these knees: the same inputs (the mean summed in
             # ridge order instead of numpy's mean: round-off), y_slip >= 0.8 at the decision point.
             params = Params.unpack(theta, n_in, H)
-            params.b2[0] += build.bias_shift(thr)
+            params.b2[0] += calibration.bias_shift(thr)
             bank = {**DEFAULT_BANK, "pad_mean": True, "knee": [float(k) for k in compressed.knee]}
             w = DetectorWeights(params, np.zeros(n_in), scale, float(train[0].fs),
                                 {"features": "stress_rate_bank", "bank": bank,
@@ -324,12 +338,13 @@ def main(argv=None):
                 print(line)
     if args.figure:
         from detector_roc import figure
-        from tactile_mirror.lab.figure_files import save_figure
 
         save_figure(figure(curves, len(test)), args.figure, dpi=110)
         print(f"wrote {args.figure}")
     print(f"\n({time.perf_counter() - t0:.0f} s)")
+    return curves["noise-free"]["bundled filter-bank net (single-ridge training)"].at_false_alarm(0.02)[
+        "detection_rate"]
 
 
 if __name__ == "__main__":
-    sys.exit(main())
+    main()

@@ -18,18 +18,19 @@ alarm: 3 samples in a row) on pad training scenes and is scored, with the thresh
 swept (``detector.evaluate.roc``), on pad *validation* scenes of another seed, noise-free
 and with 1 mV rms white noise; the bundled net (per ridge, as it runs in the pipeline)
 is scored on the same scenes. Both seeds are new (used by no build or report set); the
-scene ranges are the build's held-out ranges (``build.TEST_KWARGS``) with six ridges.
+scene ranges are the build's held-out ranges (``build_options.TEST_KWARGS``) with six ridges.
 The pad is symmetric (ridge ``r`` and ``5 - r`` see the same contact, with their own
 noise), so the rates count ridges 0-2 of each scene only.
 
 Run: ``python bench/detector_pad_study.py --cache out/scenes [--n-train 160] [--n-validation 160]``
-(3.5 min on 2 cores with the scenes cached).
+(3.5 min on 2 cores with the scenes cached; ``--quick``: 2 + 3 pad scenes simulated here, 20 boosting
+iterations, a smoke run of a few seconds). ``main`` returns the bundled net's detection rate at 2 %
+false alarms, noise-free.
 """
 from __future__ import annotations
 
 import argparse
 import os
-import sys
 import time
 
 os.environ.setdefault("OMP_NUM_THREADS", "2")
@@ -73,30 +74,37 @@ def latency_at(t, scores, gross, threshold: float, consecutive: int, max_latency
     return float(t[i0 + hit[0]] - t[i0]) if hit.size else np.nan
 
 
-def main(argv=None):
+def main(argv=None) -> float:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--cache", default="out/scenes")
-    ap.add_argument("--n-train", type=int, default=160)
-    ap.add_argument("--n-validation", type=int, default=160)
+    ap.add_argument("--n-train", type=int, default=None, help="training pads (default 160; --quick: 2)")
+    ap.add_argument("--n-validation", type=int, default=None,
+                    help="validation pads (default 160; --quick: 3)")
     ap.add_argument("--train-noise", type=float, nargs=2, default=None, metavar=("LOW", "HIGH"),
                     help="train the trees as the build trains its nets: two copies of every training scene "
                          "with sensor noise drawn from LOW-HIGH V rms (default: the condition's own noise)")
     ap.add_argument("--gains", action="store_true",
                     help="and scale every training copy by a random gain (0.6-1.7), as the build")
+    ap.add_argument("--quick", action="store_true",
+                    help="a few pads simulated here, few boosting iterations (a smoke run)")
     args = ap.parse_args(argv)
-    from _common import fit_bound_classifier
+    quick = args.quick
+    for name, full, small in (("n_train", 160, 2), ("n_validation", 160, 3)):
+        if getattr(args, name) is None:
+            setattr(args, name, small if quick else full)
+    from common import BOUND_TREES, QUICK_TREES, fit_bound_classifier, simulated
     from tactile_mirror.detector import SlipDetector
     from tactile_mirror.detector.data_prep import features_from_result, targets_from_result
-    from tactile_mirror.lab.detector import build
+    from tactile_mirror.lab.detector import build_options
     from tactile_mirror.lab.detector.augment import augment_noise
     from tactile_mirror.lab.detector.evaluation import noise_free, onset_kinds, with_noise
     from tactile_mirror.lab.detector.thresholds import roc
     from tactile_mirror.lab.measure import cpu_model
 
     t0 = time.perf_counter()
-    kw = {**build.TEST_KWARGS, "n_ridges": N_RIDGES}
-    train = build.simulate_cached(args.n_train, PAD_TRAIN_SEED, kw, args.cache)
-    val = build.simulate_cached(args.n_validation, PAD_VALIDATION_SEED, kw, args.cache)
+    kw = {**build_options.TEST_KWARGS, "n_ridges": N_RIDGES}
+    train = simulated(args.n_train, PAD_TRAIN_SEED, kw, args.cache, quick=quick)
+    val = simulated(args.n_validation, PAD_VALIDATION_SEED, kw, args.cache, quick=quick)
     kinds_all = onset_kinds(val)
     kinds = [k for i, k in enumerate(kinds_all) if i % N_RIDGES in SCORED]
     order = []
@@ -105,7 +113,7 @@ def main(argv=None):
         on = [np.flatnonzero(g[i] >= 0.5)[:1] for i in SCORED]
         if all(o.size for o in on):
             order.append((on[1][0] - on[0][0]) / r.fs * 1e3)
-    print(f"# CPU: {cpu_model()}; pad scenes ({N_RIDGES} ridges, build.TEST_KWARGS): {len(train)} training "
+    print(f"# CPU: {cpu_model()}; pad scenes ({N_RIDGES} ridges, build_options.TEST_KWARGS): {len(train)} training "
           f"(seed {PAD_TRAIN_SEED}), {len(val)} validation (seed {PAD_VALIDATION_SEED}); scored ridges {SCORED}: "
           f"{kinds.count('release')} release, {kinds.count('gradual')} gradual onsets, "
           f"{kinds.count(None)} without slip")
@@ -120,6 +128,7 @@ def main(argv=None):
     print("\n| condition | detector | inputs | detection at 1 / 2 / 3 % false alarms: all (gradual) "
           "| gradual latency at 2 % (mean, ms) | at y_slip >= 0.8: detection (gradual) / false alarms |")
     print("|---|---|---|---|---|---|")
+    headline = float("nan")
     for ci, (cond, white) in enumerate((("noise-free", 0.0), ("1 mV rms white", 1e-3))):
         tr, va = noise_free(train), noise_free(val)
         if white:
@@ -157,18 +166,22 @@ def main(argv=None):
                         f"{100 * q['false_alarm_rate']:.1f} %")
             print(f"| {cond} | {name} | {n_in} | " + " / ".join(cells) + f" | "
                   f"{1e3 * glat.mean() if glat.size else float('nan'):.1f} | {last} |", flush=True)
+            return curve
 
-        report("bundled filter-bank net", 17,
-               [net.run(features_from_result(r, net.features, estimator=net.metadata.get("estimator")),
-                        fs=r.fs)[0] for r in va], 1, thr_net)
+        c = report("bundled filter-bank net", 17,
+                   [net.run(features_from_result(r, net.features, estimator=net.metadata.get("estimator")),
+                            fs=r.fs)[0] for r in va], 1, thr_net)
+        if cond == "noise-free":
+            headline = c.at_false_alarm(0.02)["detection_rate"]
         for name in ftr[0]:
             X = np.concatenate([f[name][:, ::2].reshape(-1, f[name].shape[2]) for f in ftr])
-            clf = fit_bound_classifier(X, Y)
+            clf = fit_bound_classifier(X, Y, max_iter=QUICK_TREES if quick else BOUND_TREES)
             probs = [clf.predict_proba(f[name].reshape(-1, f[name].shape[2]))[:, 1].reshape(N_RIDGES, -1)
                      for f in fva]
             report(f"trees: {name}", X.shape[1], probs, 3)
     print(f"\n({time.perf_counter() - t0:.0f} s)")
+    return headline
 
 
 if __name__ == "__main__":
-    sys.exit(main())
+    main()

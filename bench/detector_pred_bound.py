@@ -18,7 +18,9 @@ proper) and the onset sample itself (where the target is already 1 and a net tha
 the slip start answers it); per onset kind (``detector.evaluate.onset_kinds``).
 
 Run: ``python bench/detector_pred_bound.py [--cache out/scenes] [--extra 96]`` (needs
-scikit-learn; about 3 min with the scenes cached).
+scikit-learn; about 3 min with the scenes cached; ``--quick``: 6 + 4 training and 8 held-out scenes
+simulated here, 20 boosting iterations, a smoke run of a few seconds). ``main`` returns the share of
+the bundled net's slips whose ``y_pred`` at the last sample before the onset lies in 0.8 +- 0.1.
 """
 from __future__ import annotations
 
@@ -84,30 +86,38 @@ def pred_table_rows(name: str, vals: dict) -> list:
     return out
 
 
-def main(argv=None):
+def main(argv=None) -> float:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--cache", default="out/scenes", help="directory of cached simulated scenes ('' for none)")
-    ap.add_argument("--n-test", type=int, default=200)
-    ap.add_argument("--extra", type=int, default=96, help="extra training scenes (seed 99, held-out ranges)")
+    ap.add_argument("--cache", default="out/scenes",
+                    help="directory of cached simulated scenes ('' for none)")
+    ap.add_argument("--n-test", type=int, default=None, help="held-out scenes (default 200; --quick: 8)")
+    ap.add_argument("--extra", type=int, default=None,
+                    help="extra training scenes (seed 99, held-out ranges; default 96, --quick: 4)")
     ap.add_argument("--every", type=int, default=4, help="training samples: every n-th")
+    ap.add_argument("--quick", action="store_true",
+                    help="a few scenes simulated here, few boosting iterations (a smoke run)")
     args = ap.parse_args(argv)
+    quick = args.quick
+    for name, full, small in (("n_test", 200, 8), ("extra", 96, 4)):
+        if getattr(args, name) is None:
+            setattr(args, name, small if quick else full)
     sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
-    from _common import header, study_training_scenes
+    from common import QUICK_TREES, header, simulated, study_training_scenes
     from sklearn.ensemble import HistGradientBoostingRegressor
     from tactile_mirror.detector import SlipDetector
     from tactile_mirror.detector.data_prep import features_from_result
-    from tactile_mirror.lab.detector import build
+    from tactile_mirror.lab.detector import build_options
     from tactile_mirror.lab.detector.evaluation import onset_kinds
     from tactile_mirror.lab.measure import cpu_model
 
     header("y_pred at the onset: the bundled net against causal regressors with more information")
     cache = args.cache or None
     t0 = time.perf_counter()
-    train = study_training_scenes(cache, args.extra)
-    test = build.simulate_cached(args.n_test, build.TEST_SEED, build.TEST_KWARGS, cache)
+    train = study_training_scenes(cache, args.extra, **({"n_train": 6, "quick": True} if quick else {}))
+    test = simulated(args.n_test, build_options.TEST_SEED, build_options.TEST_KWARGS, cache, quick=quick)
     kinds = onset_kinds(test)
-    print(f"{len(train)} training scenes (seeds {build.TRAIN_SEED}, {build.EXTRA_TRAIN_SEED}), {len(test)} held-out "
-          f"(seed {build.TEST_SEED}); simulation {time.perf_counter() - t0:.0f} s; CPU: {cpu_model()}")
+    print(f"{len(train)} training scenes (seeds {build_options.TRAIN_SEED}, {build_options.EXTRA_TRAIN_SEED}), {len(test)} held-out "
+          f"(seed {build_options.TEST_SEED}); simulation {time.perf_counter() - t0:.0f} s; CPU: {cpu_model()}")
 
     # y_pred of every model on every held-out ridge: {name: [(n_ridges, n) per scene]}
     preds = {}
@@ -118,7 +128,7 @@ def main(argv=None):
         X = np.vstack([f[:, ::args.every, :ncol].reshape(-1, ncol) for f, _, _ in tr])
         Y = np.concatenate([y[:, ::args.every].ravel() for _, y, _ in tr])
         t1 = time.perf_counter()
-        reg = HistGradientBoostingRegressor(max_iter=300, random_state=0).fit(X, Y)
+        reg = HistGradientBoostingRegressor(max_iter=QUICK_TREES if quick else 300, random_state=0).fit(X, Y)
         preds[name] = [np.clip(reg.predict(f[..., :ncol].reshape(-1, ncol)), 0, 1).reshape(f.shape[:2])
                        for f, _, _ in te]
         print(f"  {name}: {X.shape[0]} samples, {ncol} inputs, fit {time.perf_counter() - t1:.0f} s")
@@ -126,12 +136,17 @@ def main(argv=None):
     print(f"\n| estimator | onset kind | slips | y_pred in 0.8 +- {BAND}: last sample before the onset | at the onset "
           f"sample | median before / at | 10-90 % before |")
     print("|---|---|---:|---:|---:|---:|---:|")
+    in_band = {}
     for name, p in preds.items():
         # kinds are per sequence in the order of onset_kinds: scene by scene, ridge by ridge
         rows = ((yp[k], gross[k]) for yp, (_, _, gross) in zip(p, te) for k in range(yp.shape[0]))
-        for line in pred_table_rows(name, pred_at_onsets((y, g, kind) for (y, g), kind in zip(rows, kinds))):
+        vals = pred_at_onsets((y, g, kind) for (y, g), kind in zip(rows, kinds))
+        before = np.concatenate([b for b, _ in vals.values()])
+        in_band[name] = float(np.mean(np.abs(before - 0.8) <= BAND)) if before.size else float("nan")
+        for line in pred_table_rows(name, vals):
             print(line)
     print(f"\ntotal {time.perf_counter() - t0:.0f} s")
+    return in_band["filter-bank net (bundled)"]
 
 
 if __name__ == "__main__":

@@ -29,7 +29,7 @@ signals and their integrals, 3 samples in a row), trained per noise condition on
 training scenes with that condition's noise; the force ratio (noise-free: a force
 sensor is not this circuit, so its curve is the same in every panel).
 
-Scenes: held-out scenes drawn with the build's held-out ranges (``build.TEST_KWARGS``)
+Scenes: held-out scenes drawn with the build's held-out ranges (``build_options.TEST_KWARGS``)
 from seed :data:`ROC_SEED`, disjoint from the build's training (``TRAIN_SEED``),
 validation (``VALIDATION_SEED``), held-out (``TEST_SEED``) and the bound study's
 extra training seed (99); training scenes of the MLP and the classifier from the
@@ -41,7 +41,10 @@ Run: ``python bench/detector_roc.py [--scenes 80] [--train-scenes 40]`` (needs
 scikit-learn for the bound classifier). Writes ``docs/figures/detector_roc.png``
 and a markdown and a JSON table (``--out``). The default 80 held-out scenes resolve
 false alarms in steps of 1.25 %; the figure in ``docs/figures`` was made with
-``--scenes 200`` (steps of 0.5 %; about 8 min of simulation on 2 cores, then 2 min).
+``--scenes 200`` (steps of 0.5 %; about 8 min of simulation on 2 cores, then 2 min). ``--quick``: 8
+held-out, 6 training and 4 extra scenes simulated here (not cached), a 10-iteration MLP and 20 boosting
+iterations, a smoke run of a few seconds. ``main`` returns the filter-bank net's detection rate at 2 %
+false alarms, noise-free.
 """
 from __future__ import annotations
 
@@ -55,7 +58,7 @@ os.environ.setdefault("OMP_NUM_THREADS", "1")
 os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
 
 import numpy as np
-from tactile_mirror.files import atomic_write
+from tactile_mirror import scenes
 from tactile_mirror.lab.detector.evaluation import NOISE_CONDITIONS, condition_estimator, with_noise
 
 #: Seed of the held-out scenes of this study (disjoint from every seed the build uses).
@@ -63,22 +66,37 @@ ROC_SEED = 5150
 BOUND_EXTRA_SEED = 99
 
 
-def scene_sets(n_test: int, n_train: int):
-    from tactile_mirror.lab.detector import build
+def scene_kwargs() -> tuple[dict, dict]:
+    """The ``scenes.random`` options of the held-out and the training scenes: the build's, noise-free."""
+    from tactile_mirror.lab.detector import build_options
 
     clean = {"noise": (0.0, 0.0)}
-    test = build._random_scenes(n_test, ROC_SEED, **{**build.TEST_KWARGS, **clean})
-    train = build._random_scenes(n_train, build.TRAIN_SEED, **{**build.TRAIN_KWARGS, **clean})
+    return {**build_options.TEST_KWARGS, **clean}, {**build_options.TRAIN_KWARGS, **clean}
+
+
+def scene_sets(n_test: int, n_train: int):
+    from tactile_mirror.lab.detector import build_options
+
+    test_kwargs, train_kwargs = scene_kwargs()
+    test = scenes.random(n_test, seed=ROC_SEED, **test_kwargs)
+    train = scenes.random(n_train, seed=build_options.TRAIN_SEED, **train_kwargs)
     return test, train
 
 
-def simulated(n_test: int, n_train: int, cache: str | None):
-    """(held-out results, training results), from ``cache`` when it holds these scenes."""
-    from tactile_mirror.lab.detector import build
+def simulated(n_test: int, n_train: int, cache: str | None, quick: bool = False):
+    """(held-out results, training results), from ``cache`` when it holds these scenes (``quick``:
+    simulated in this process, not cached)."""
+    from common import quick_results, write_pickle
+    from tactile_mirror.lab.detector import build_options, scene_cache
 
-    key = {"n_test": n_test, "n_train": n_train, "roc_seed": ROC_SEED, "train_seed": build.TRAIN_SEED,
-           "test_kwargs": repr(sorted(build.TEST_KWARGS.items())),
-           "train_kwargs": repr(sorted(build.TRAIN_KWARGS.items()))}
+    if quick:
+        test_kwargs, train_kwargs = scene_kwargs()
+        return (quick_results(n_test, ROC_SEED, test_kwargs),
+                quick_results(n_train, build_options.TRAIN_SEED, train_kwargs))
+
+    key = {"n_test": n_test, "n_train": n_train, "roc_seed": ROC_SEED, "train_seed": build_options.TRAIN_SEED,
+           "test_kwargs": repr(sorted(build_options.TEST_KWARGS.items())),
+           "train_kwargs": repr(sorted(build_options.TRAIN_KWARGS.items()))}
     if cache and os.path.exists(cache):
         with open(cache, "rb") as fh:
             data = pickle.load(fh)
@@ -86,13 +104,12 @@ def simulated(n_test: int, n_train: int, cache: str | None):
             return data["test"], data["train"]
     test_sc, train_sc = scene_sets(n_test, n_train)
     t0 = time.perf_counter()
-    res = build.simulate_scenes(test_sc + train_sc, progress=True)
+    res = scene_cache.simulate_scenes(test_sc + train_sc, progress=True)
     print(f"simulated {len(res)} scenes in {time.perf_counter() - t0:.0f} s", flush=True)
     test, train = res[:n_test], res[n_test:]
     if cache:
         os.makedirs(os.path.dirname(os.path.abspath(cache)), exist_ok=True)
-        with atomic_write(cache, "wb") as fh:
-            pickle.dump({"key": key, "test": test, "train": train}, fh, protocol=pickle.HIGHEST_PROTOCOL)
+        write_pickle(cache, {"key": key, "test": test, "train": train})
     return test, train
 
 
@@ -106,18 +123,19 @@ def net_scores(detector, results, condition: str) -> list:
     return [detector.run(features_from_result(r, detector.features, estimator=est), fs=r.fs)[0] for r in results]
 
 
-def train_mlp(train, progress: bool):
-    """The no-feedback MLP, trained as the build trains it (one seed, no checkpoint selection)."""
-    from tactile_mirror.lab.detector import build
+def train_mlp(train, progress: bool, maxiter: int | None = None):
+    """The no-feedback MLP, trained as the build trains it (one seed, no checkpoint selection;
+    ``maxiter`` default :data:`MLP_MAXITER`)."""
+    from tactile_mirror.lab.detector import build_options
     from tactile_mirror.lab.detector.augment import augment_gains, augment_noise
     from tactile_mirror.lab.detector.training import make_training_set, train_detector
 
-    seqs = augment_noise(train, build.NOISE_COPIES, build.NOISE_RANGE, seed=2)
+    seqs = augment_noise(train, build_options.NOISE_COPIES, build_options.NOISE_RANGE, seed=2)
     ts = augment_gains(make_training_set(seqs), (0.6, 1.7), seed=1)
     from tactile_mirror.detector import SlipDetector
 
-    w = train_detector(ts, n_hidden=16, maxiter=MLP_MAXITER, seed=0, feedback=False, progress=progress,
-                       **build.TRAIN_OPTIONS)
+    w = train_detector(ts, n_hidden=16, maxiter=maxiter or MLP_MAXITER, seed=0, feedback=False,
+                       progress=progress, **build_options.TRAIN_OPTIONS)
     return SlipDetector(w)
 
 
@@ -140,14 +158,15 @@ def bound_features(results, condition: str):
     return out
 
 
-def bound_scores(train, test, condition: str) -> list:
-    """Probabilities of the bound study's classifier, trained on ``train`` with the condition's noise."""
-    from _common import fit_bound_classifier
+def bound_scores(train, test, condition: str, trees: int | None = None) -> list:
+    """Probabilities of the bound study's classifier, trained on ``train`` with the condition's noise
+    (``trees``: boosting iterations, default the bound study's)."""
+    from common import BOUND_TREES, fit_bound_classifier
     from tactile_mirror.detector.data_prep import targets_from_result
 
     X = np.vstack([f[::2] for f in bound_features(train, condition)])
     Y = np.concatenate([targets_from_result(r)[0][0][::2] for r in train])
-    clf = fit_bound_classifier(X, Y)
+    clf = fit_bound_classifier(X, Y, max_iter=trees or BOUND_TREES)
     return [clf.predict_proba(f)[:, 1] for f in bound_features(test, condition)]
 
 
@@ -155,14 +174,19 @@ def pct(x) -> str:
     return "-" if not np.isfinite(x) else f"{100 * x:.1f}"
 
 
-def bound_extra(n: int, cache: str | None):
+def bound_extra(n: int, cache: str | None, quick: bool = False):
     """Extra training scenes of the bound classifier, as the bound study draws them: the held-out
-    ranges, seed :data:`BOUND_EXTRA_SEED` (cached in ``cache`` with ``.extra`` before its extension)."""
-    from tactile_mirror.lab.detector import build
+    ranges, seed :data:`BOUND_EXTRA_SEED` (cached in ``cache`` with ``.extra`` before its extension;
+    ``quick``: simulated in this process, not cached)."""
+    from common import quick_results, write_pickle
+    from tactile_mirror.lab.detector import build_options, scene_cache
 
     if n <= 0:
         return []
-    key = {"n": n, "seed": BOUND_EXTRA_SEED, "test_kwargs": repr(sorted(build.TEST_KWARGS.items()))}
+    kwargs = {**build_options.TEST_KWARGS, "noise": (0.0, 0.0)}
+    if quick:
+        return quick_results(n, BOUND_EXTRA_SEED, kwargs)
+    key = {"n": n, "seed": BOUND_EXTRA_SEED, "test_kwargs": repr(sorted(build_options.TEST_KWARGS.items()))}
     path = None
     if cache:
         root, ext = os.path.splitext(cache)
@@ -172,40 +196,48 @@ def bound_extra(n: int, cache: str | None):
                 data = pickle.load(fh)
             if data.get("key") == key:
                 return data["results"]
-    scenes = build._random_scenes(n, BOUND_EXTRA_SEED, **{**build.TEST_KWARGS, "noise": (0.0, 0.0)})
     t0 = time.perf_counter()
-    res = build.simulate_scenes(scenes, progress=True)
+    res = scene_cache.simulate_scenes(scenes.random(n, seed=BOUND_EXTRA_SEED, **kwargs), progress=True)
     print(f"simulated {len(res)} extra training scenes in {time.perf_counter() - t0:.0f} s", flush=True)
     if path:
-        with atomic_write(path, "wb") as fh:
-            pickle.dump({"key": key, "results": res}, fh, protocol=pickle.HIGHEST_PROTOCOL)
+        write_pickle(path, {"key": key, "results": res})
     return res
 
 
-def main(argv=None):
+def main(argv=None) -> float:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--scenes", type=int, default=80, help="held-out scenes (default 80)")
-    ap.add_argument("--train-scenes", type=int, default=40, help="training scenes of the MLP and classifier")
-    ap.add_argument("--bound-extra", type=int, default=80,
-                    help="extra training scenes of the bound classifier from the held-out ranges (seed 99)")
-    ap.add_argument("--cache", default="out/detector_roc_scenes.pkl", help="simulated-scene cache ('' for none)")
+    ap.add_argument("--scenes", type=int, default=None, help="held-out scenes (default 80; --quick: 8)")
+    ap.add_argument("--train-scenes", type=int, default=None,
+                    help="training scenes of the MLP and classifier (default 40; --quick: 6)")
+    ap.add_argument("--bound-extra", type=int, default=None,
+                    help="extra training scenes of the bound classifier from the held-out ranges (seed 99; "
+                         "default 80, --quick: 4)")
+    ap.add_argument("--cache", default="out/detector_roc_scenes.pkl",
+                    help="simulated-scene cache ('' for none)")
     ap.add_argument("--simulate-only", action="store_true", help="simulate (and cache) the scenes, then stop")
     ap.add_argument("--figure", default="docs/figures/detector_roc.png", help="figure to write")
     ap.add_argument("--out", default="out/detector_roc", help="table path without extension (.md and .json)")
-    ap.add_argument("--memory-weights", default=None, help="load-memory net weights (default: the bundled ones)")
-    ap.add_argument("--bank-weights", default=None, help="filter-bank net weights (default: the bundled ones)")
+    ap.add_argument("--memory-weights", default=None,
+                    help="load-memory net weights (default: the bundled ones)")
+    ap.add_argument("--bank-weights", default=None,
+                    help="filter-bank net weights (default: the bundled ones)")
+    ap.add_argument("--quick", action="store_true",
+                    help="a few scenes simulated here (not cached), short trainings (a smoke run, not the "
+                         "figures)")
     args = ap.parse_args(argv)
-    test, train = simulated(args.scenes, args.train_scenes, args.cache or None)
-    extra = bound_extra(args.bound_extra, args.cache or None)
-    if args.simulate_only:
-        return
+    quick = args.quick
+    for name, full, small in (("scenes", 80, 8), ("train_scenes", 40, 6), ("bound_extra", 80, 4)):
+        if getattr(args, name) is None:
+            setattr(args, name, small if quick else full)
     sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
-    from _common import header
+    test, train = simulated(args.scenes, args.train_scenes, args.cache or None, quick)
+    extra = bound_extra(args.bound_extra, args.cache or None, quick)
+    if args.simulate_only:
+        return float("nan")
+    from common import QUICK_TREES, header, save_figure, write_json, write_text
     from tactile_mirror.detector import SlipDetector
-    from tactile_mirror.files import write_json, write_text
     from tactile_mirror.lab.detector.evaluation import ForceRatioDetector, onset_kinds
     from tactile_mirror.lab.detector.thresholds import roc
-    from tactile_mirror.lab.figure_files import save_figure
     from tactile_mirror.lab.measure import environment, markdown_table
 
     header("slip detection against false alarms, threshold sweeps per noise condition")
@@ -218,7 +250,7 @@ def main(argv=None):
     memory = SlipDetector.load(args.memory_weights) if args.memory_weights else SlipDetector.memory()
     bank = SlipDetector.load(args.bank_weights) if args.bank_weights else SlipDetector.bank()
     early = SlipDetector.early()
-    mlp = train_mlp(train, progress=False)
+    mlp = train_mlp(train, progress=False, maxiter=10 if quick else None)
     print(f"no-feedback MLP trained in {time.perf_counter() - t0:.0f} s", flush=True)
     force = ForceRatioDetector(1.0)
     force_scores = [force.ratio(r) for r in test]
@@ -235,8 +267,9 @@ def main(argv=None):
                                             name="paper Jordan net"),
             "MLP without feedback, y_slip": roc(net_scores(mlp, noisy_test, cond), test, kinds,
                                                 name="MLP without feedback"),
-            "bound classifier, p (3 in a row)": roc(bound_scores(noisy_train, noisy_test, cond), test, kinds,
-                                                    consecutive=3, name="bound classifier"),
+            "bound classifier, p (3 in a row)": roc(bound_scores(noisy_train, noisy_test, cond,
+                                                                 trees=QUICK_TREES if quick else None),
+                                                    test, kinds, consecutive=3, name="bound classifier"),
             "force ratio |Fy|/Fz (noise-free)": roc(force_scores, test, kinds, name="force ratio"),
         }
         print(f"{cond}: done at {time.perf_counter() - t0:.0f} s", flush=True)
@@ -262,7 +295,7 @@ def main(argv=None):
     head += ["det / FA at y_slip 0.8"]
     env = environment()
     c0 = next(iter(next(iter(curves.values())).values()))
-    md = (f"# Slip detection against false alarms\n\n{len(test)} held-out scenes (seed {ROC_SEED}, build.TEST_KWARGS "
+    md = (f"# Slip detection against false alarms\n\n{len(test)} held-out scenes (seed {ROC_SEED}, build_options.TEST_KWARGS "
           f"ranges), {c0.n_sequences} sequences, {c0.n_slip} slips: {c0.n_by_kind.get('release', 0)} release, "
           f"{c0.n_by_kind.get('gradual', 0)} gradual onsets. Detection in %, at the lowest threshold whose "
           f"false-alarm rate is at most 2 % and 3 %.\n\nCPU: {env.get('cpu_model', '?')}\n"
@@ -277,6 +310,7 @@ def main(argv=None):
                                           for cond, cs in curves.items()}})
     save_figure(figure(curves, len(test)), args.figure, dpi=110)
     print(f"wrote {args.figure}, {out}.md, {out}.json in {time.perf_counter() - t0:.0f} s")
+    return curves["noise-free"]["filter-bank net, y_slip"].at_false_alarm(0.02)["detection_rate"]
 
 
 def gradual_latency(c) -> np.ndarray:
@@ -333,4 +367,4 @@ def figure(curves, n_scenes):
 
 
 if __name__ == "__main__":
-    sys.exit(main())
+    main()

@@ -2,11 +2,11 @@
 
 The build trains a few seeds, keeps checkpoints, and keeps the candidate whose threshold
 sweep on the validation scenes reaches furthest at the calibration's false-alarm rate
-(``build.ValidationScorer(at_false_alarm=)``). Nets of one recipe that detect about as
+(``selection.ValidationScorer(at_false_alarm=)``). Nets of one recipe that detect about as
 much can differ by a factor of two in how soon they find a slip that creeps in. This
 study trains the filter-bank recipe (``--onset-weight`` as the build's option), scores
 *every* candidate (seed x checkpoint) on both halves of the build's validation scenes
-(seed ``build.VALIDATION_SEED``; 1-240 and 241-480) and asks:
+(seed ``build_options.VALIDATION_SEED``; 1-240 and 241-480) and asks:
 
 - does a candidate's gradual-onset latency on one half predict it on the other (rank
   correlation)? and its detection?
@@ -18,7 +18,9 @@ Scores are taken as the build takes them, the scenes in their own sensor noise, 
 ``--false-alarm`` (the calibration's noise-free bound, 1.5 %), and reported on the second half
 noise-free and with 1 mV rms white noise at 2 % false alarms. The held-out seed is not used.
 
-Run: ``python bench/detector_selection_study.py --cache out/scenes [--onset-weight 1] [--seeds 4]``.
+Run: ``python bench/detector_selection_study.py --cache out/scenes [--onset-weight 1] [--seeds 4]``
+(``--quick``: 6 + 4 training and 8 validation scenes simulated here, one seed of 10 iterations with
+checkpoints every 5, a smoke run of a few seconds). ``main`` returns the number of distinct candidates.
 """
 from __future__ import annotations
 
@@ -35,13 +37,18 @@ import numpy as np
 import scipy.stats
 
 
-def main(argv=None):
+def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--cache", default="out/scenes", help="directory of cached simulated scenes")
-    ap.add_argument("--extra", type=int, default=240, help="extra training scenes (the bundled recipe: 240)")
-    ap.add_argument("--seeds", type=int, default=4, help="initial seeds (the build's --candidates)")
-    ap.add_argument("--maxiter", type=int, default=300)
-    ap.add_argument("--checkpoint-every", type=int, default=25)
+    ap.add_argument("--extra", type=int, default=None,
+                    help="extra training scenes (the bundled recipe: 240, the default; --quick: 4)")
+    ap.add_argument("--n-validation", type=int, default=None,
+                    help="validation scenes, split in halves (default 480; --quick: 8)")
+    ap.add_argument("--seeds", type=int, default=None,
+                    help="initial seeds (the build's --candidates; default 4, --quick: 1)")
+    ap.add_argument("--maxiter", type=int, default=None,
+                    help="L-BFGS-B iterations (default 300; --quick: 10)")
+    ap.add_argument("--checkpoint-every", type=int, default=None, help="default 25; --quick: 5")
     ap.add_argument("--negative-weight", type=float, default=30.0)
     ap.add_argument("--onset-weight", type=float, default=1.0)
     ap.add_argument("--false-alarm", type=float, default=0.015, help="selection's false-alarm rate")
@@ -49,21 +56,30 @@ def main(argv=None):
                     help="pickle of the trained candidates: read if it exists, else written after training")
     ap.add_argument("--tolerance", type=float, nargs="+", default=[0.01, 0.02],
                     help="detection (a rate) a quicker candidate may give up against the best one")
+    ap.add_argument("--quick", action="store_true",
+                    help="6 training scenes and few others, simulated here; short trainings (a smoke run)")
     args = ap.parse_args(argv)
+    quick = args.quick
+    for name, full, small in (("extra", 240, 4), ("n_validation", 480, 8), ("seeds", 4, 1),
+                              ("maxiter", 300, 10), ("checkpoint_every", 25, 5)):
+        if getattr(args, name) is None:
+            setattr(args, name, small if quick else full)
     sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
 
-    from _common import bank_training_set, bank_validation_conditions, header, study_scenes
+    from common import bank_training_set, bank_validation_conditions, header, study_scenes
     from tactile_mirror.detector import SlipDetector
     from tactile_mirror.detector.data_prep import features_from_result
-    from tactile_mirror.lab.detector import build
+    from tactile_mirror.lab.detector import calibration
     from tactile_mirror.lab.detector.evaluation import NOISE_CONDITIONS, onset_kinds
     from tactile_mirror.lab.detector.thresholds import roc
     from tactile_mirror.lab.detector.training import train_detector
 
     t0 = time.perf_counter()
     header("latency as a selection criterion, on the build's validation halves")
-    train, val = study_scenes(args.cache, args.extra, 480)
-    halves = {"A": val[:240], "B": val[240:]}
+    train, val = study_scenes(args.cache, args.extra, args.n_validation,
+                              **({"n_train": 6, "quick": True} if quick else {}))
+    half = len(val) // 2
+    halves = {"A": val[:half], "B": val[half:]}
     ts = bank_training_set(train)
     est = SlipDetector.default().metadata.get("estimator")
     own = {h: ([features_from_result(r, "stress_rate_bank", estimator=est) for r in rr], rr, onset_kinds(rr))
@@ -126,9 +142,11 @@ def main(argv=None):
               f"{100 * r['det_B']:.1f} %, {r['lat_B']:.1f} |")
 
     def quickest(det, lat, tol):
-        """The row with the lowest ``lat`` among those within ``tol`` of the most ``det``."""
-        top = max(r[det] for r in rows)
-        return min((r for r in rows if r[det] >= top - tol - 1e-12 and np.isfinite(r[lat])), key=lambda r: r[lat])
+        """The row with the lowest ``lat`` among those within ``tol`` of the most ``det`` (the one
+        with the most ``det`` where none of them has a latency: no gradual onset found)."""
+        top = max(rows, key=lambda r: r[det])
+        near = [r for r in rows if r[det] >= top[det] - tol - 1e-12 and np.isfinite(r[lat])]
+        return min(near, key=lambda r: r[lat]) if near else top
 
     rules = [("the build's: most detections on A", max(rows, key=lambda r: r["det_A"])),
              ("most detections on A noise-free and with 1 mV rms (2 % false alarms)", max(rows, key=lambda r: r["goal_A"]))]
@@ -147,13 +165,14 @@ def main(argv=None):
             q = point(r["w"], *report[cond], 0.02)
             cells.append(f"{100 * q['detection_rate']:.1f} ({100 * q['detection_gradual']:.1f}) %, "
                          f"{q['latency_gradual_ms']:.1f}")
-        wc, _ = build.calibrate_slip(r["w"], halves["A"], None, conditions=goals)
+        wc, _ = calibration.calibrate_slip(r["w"], halves["A"], None, conditions=goals)
         p = curve(wc, *report["noise-free"]).at_threshold(0.8)
         cells.append(f"{100 * p['detection_rate']:.1f} % at {100 * p['false_alarm_rate']:.1f} %, gradual "
                      f"{100 * p['detection_gradual']:.1f} % ({p['latency_gradual_ms']:.1f} ms)")
         print(f"| {name} | seed {r['seed']}, {r['it']} it | " + " | ".join(cells) + " |")
     print(f"\n({time.perf_counter() - t0:.0f} s)")
+    return len(rows)
 
 
 if __name__ == "__main__":
-    sys.exit(main())
+    main()

@@ -3,6 +3,7 @@
     python bench/loop_envelope.py --out bench-out/loop            # nominal, 10 paths per class, 4 laws
     python bench/loop_envelope.py --out bench-out/loop --robustness --robustness-laws default
     python bench/loop_envelope.py --tick                          # the tick cost only
+    python bench/loop_envelope.py --quick --out DIR               # one 1.5 s path per law, 5 mm/s
 
 Resumable: rows go to ``OUT/loop_envelope.json`` after every run, and a rerun skips
 the rows already there (run it in the background, interrupt it, run it again). Writes
@@ -22,18 +23,18 @@ load cell's force under the pad (``load cell``: ``MirrorPipeline(force_input=Tru
 ``--tick``: ns per tick of the full 6-ridge float64 pipeline inside C++
 (``MirrorPipeline.time_step_ns``, best of 5) with the previous velocity law, with
 the default (designed) law, and with the default law's design on a load cell's force, in
-the same process.
+the same process (``--quick``: one round of short runs). ``main`` returns the gross slips of all the
+envelope's rows printed (``--tick``: the default law's ns per tick).
 """
 from __future__ import annotations
 
 import argparse
 import os
-import sys
 
 import numpy as np
 
 
-def tick_table(n_iter: int = 200_000) -> dict:
+def tick_table(n_iter: int = 200_000, rounds: int = 4) -> dict:
     from tactile_mirror.circuit import PVDFCircuit
     from tactile_mirror.estimator import StressRateEstimator
     from tactile_mirror.lab.loop.experiment import default_weights, weights_dict
@@ -49,7 +50,7 @@ def tick_table(n_iter: int = 200_000) -> dict:
     cell = design_loop(StageLimits(-0.02, 0.02, 0.03, 1.0), (1.0, 7.6e4), 1000.0, stage_delay=0.001,
                        stage_lag=0.002, sensor="force").controller
     res = {"cpu": cpu_model()}
-    for _ in range(4):  # interleaved, best of four rounds (a VM's tick moves by tens of ns between runs)
+    for _ in range(rounds):  # interleaved, best of four rounds (a VM's tick moves by tens of ns between runs)
         for name, c, force in (("previous velocity law", old, False), ("default (designed) law", new, False),
                                ("default law on a load cell (force_input)", cell, True)):
             est = StressRateEstimator(PVDFCircuit(), 1000.0, 12, order=2, bandwidth=100.0)
@@ -89,7 +90,7 @@ def _windows(data, conditions, paths: str, duration: float) -> None:
             print(f"| {c} | {law} | {v * 1e3:g} | {len(sel)} | {win} | {late} |")
 
 
-def main(argv=None):
+def main(argv=None) -> float:
     from tactile_mirror.lab.loop.envelope import (
         CONDITIONS,
         LAWS,
@@ -101,8 +102,8 @@ def main(argv=None):
 
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--out", default="bench-out/loop")
-    ap.add_argument("--seeds", type=int, default=10)
-    ap.add_argument("--speeds", default="2,5,10,20", help="mm/s")
+    ap.add_argument("--seeds", type=int, default=None, help="paths per class (default 10; --quick: 1)")
+    ap.add_argument("--speeds", default=None, help="mm/s (default 2,5,10,20; --quick: 5)")
     ap.add_argument("--laws", default=",".join(LAWS))
     ap.add_argument("--robustness", action="store_true", help="also the robustness conditions")
     ap.add_argument("--robustness-laws", default="default")
@@ -112,14 +113,24 @@ def main(argv=None):
     ap.add_argument("--conditions", default=None,
                     help="comma-separated conditions to run instead of nominal (+ --robustness), e.g. "
                          "'sweat mu 0.45'; with --duration, the slips are also counted per window after the change")
-    ap.add_argument("--duration", type=float, default=3.0, help="s of each run (the finger moves from 0.5 s)")
+    ap.add_argument("--duration", type=float, default=None,
+                    help="s of each run (the finger moves from 0.5 s; default 3, --quick: 1.5)")
+    ap.add_argument("--quick", action="store_true",
+                    help="one path per law at 5 mm/s, 1.5 s (with --tick: one round of short runs): a smoke "
+                         "run")
     args = ap.parse_args(argv)
+    if args.seeds is None:
+        args.seeds = 1 if args.quick else 10
+    if args.speeds is None:
+        args.speeds = "5" if args.quick else "2,5,10,20"
+    if args.duration is None:
+        args.duration = 1.5 if args.quick else 3.0
     if args.tick:
-        t = tick_table()
+        t = tick_table(*((20_000, 1) if args.quick else ()))
         print(f"CPU: {t.pop('cpu')}\n\n| law | ns per tick (6 ridges, float64, inside C++) |\n|---|---|")
         for k, v in t.items():
             print(f"| {k} | {v:.0f} |")
-        return 0
+        return t["default (designed) law"]
     os.makedirs(args.out, exist_ok=True)
     out = os.path.join(args.out, "loop_envelope.json")
     paths = PATH_SETS[args.paths]
@@ -133,7 +144,8 @@ def main(argv=None):
         # the figure of these conditions alone (e.g. sweat: open loop, the default law, a load cell)
         envelope_figure({**data, "rows": [r for r in data["rows"] if r["condition"] in conds]},
                         os.path.join(args.out, "loop_envelope_conditions.png"), paths=paths.name)
-        return 0
+        return sum(t["gross_slips"] for t in data["table"]
+                   if t["paths"] == paths.name and t["condition"] in conds)
     data = run_envelope(out, speeds=speeds, n_seeds=args.seeds, conditions=("nominal",),
                         laws=tuple(args.laws.split(",")), paths=paths, duration=args.duration)
     if args.robustness:
@@ -146,13 +158,15 @@ def main(argv=None):
     print(f"CPU: {cpu_model()}; paths: {paths}")
     print("\n| condition | law | peak speed mm/s | paths | gross slips | runs with slip | tracking rms mm mean / max "
           "| max settle after slip s | second slips < 100 ms |\n|---|---|---|---|---|---|---|---|---|")
+    slips = 0
     for t in data["table"]:
         if t["paths"] == paths.name:
+            slips += t["gross_slips"]
             print(f"| {t['condition']} | {t['law']} | {t['speed_mm_s']:g} | {t['runs']} | {t['gross_slips']} | "
                   f"{t['runs_with_slip']} | {t['tracking_rms_mm_mean']:.4f} / {t['tracking_rms_mm_max']:.4f} | "
                   f"{t['settle_s_max']:.3f} | {t['second_slips']} |")
-    return 0
+    return slips
 
 
 if __name__ == "__main__":
-    sys.exit(main())
+    main()

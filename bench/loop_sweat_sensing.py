@@ -3,6 +3,7 @@ relative displacement does.
 
     python bench/loop_sweat_sensing.py                        # about 1 min on 2 cores
     python bench/loop_sweat_sensing.py --figure docs/figures/sweat_sensing.png
+    python bench/loop_sweat_sensing.py --quick                # one drop, two offsets (a smoke run)
 
 Two measurements on the 6-ridge FEM pad, the finger held still (no relative motion at all):
 
@@ -33,6 +34,8 @@ Two measurements on the 6-ridge FEM pad, the finger held still (no relative moti
 
 The shear offsets, the ramp and the friction values here are the envelope's sweat
 conditions (mu 0.45 and 0.40) and not a tuning set: nothing is chosen from this output.
+``main`` returns the largest move of the shear signal over the first drop, um (the phantom of
+measurement 1, over all held offsets).
 """
 from __future__ import annotations
 
@@ -40,17 +43,27 @@ import argparse
 
 import numpy as np
 import scipy.signal
-from _common import header, table
+from common import header, save_figure, table
 
 
-def main(argv=None) -> None:
+def main(argv=None) -> float:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    ap.add_argument("--mu", default="0.45,0.40", help="friction after the drop (comma separated)")
-    ap.add_argument("--offsets", default="0,10,20,40,-20", help="shear offsets held during the drop, um")
-    ap.add_argument("--figure", help="also write the figure (PNG): the signal's moves and the still finger's runs")
-    ap.add_argument("--common-mode", action="store_true", help="also measurement 3 (L + R as a second channel)")
-    ap.add_argument("--step-probe", action="store_true", help="also measurement 4 (a small pad step after the drop)")
+    ap.add_argument("--mu", default=None, help="friction after the drop (comma separated; default 0.45,0.40, "
+                                               "--quick: 0.45)")
+    ap.add_argument("--offsets", default=None,
+                    help="shear offsets held during the drop, um (default 0,10,20,40,-20; --quick: 0,20)")
+    ap.add_argument("--quick", action="store_true", help="one drop and two offsets (a smoke run)")
+    ap.add_argument("--figure",
+                    help="also write the figure (PNG): the signal's moves and the still finger's runs")
+    ap.add_argument("--common-mode", action="store_true",
+                    help="also measurement 3 (L + R as a second channel)")
+    ap.add_argument("--step-probe", action="store_true",
+                    help="also measurement 4 (a small pad step after the drop)")
     args = ap.parse_args(argv)
+    if args.mu is None:
+        args.mu = "0.45" if args.quick else "0.45,0.40"
+    if args.offsets is None:
+        args.offsets = "0,20" if args.quick else "0,10,20,40,-20"
     from tactile_mirror.lab.loop.envelope import law_controllers
     from tactile_mirror.lab.loop.experiment import default_weights, still_pad_features, weights_dict
     from tactile_mirror.loop.scene import LoopScene, run_scene
@@ -68,6 +81,7 @@ def main(argv=None) -> None:
     tau = design.controller.asym_tau                  # its integrator's leak, s
 
     rows, traces, runs = [], {}, {}
+    phantom = 0.0
     for mu in mus:
         for d in offsets:
             finger = np.zeros(1400)
@@ -82,6 +96,8 @@ def main(argv=None) -> None:
             move = shear[999:] - shear[999]
             traces[(mu, d)] = shear
             k = int(np.argmax(np.abs(move)))
+            if mu == mus[0]:
+                phantom = max(phantom, abs(float(move[k])) * 1e6)
             rows.append([f"{mu:.2f}", f"{d * 1e6:+.0f}", f"{shear[999] * 1e6:+.1f}",
                          f"{move[k] * 1e6:+.1f}", f"{move[-1] * 1e6:+.1f}"])
     table("Shear signal over a friction drop, finger and pad still (um; a displacement sensor reads 0)",
@@ -106,6 +122,7 @@ def main(argv=None) -> None:
         common_mode(mus, offsets)
     if args.step_probe:
         step_probe(mus, offsets, c, per_m)
+    return phantom
 
 
 def _strip_changes(n=1500, d=0.0, mu=None, move=0.0, dind=0.0):
@@ -223,8 +240,6 @@ def figure(path, fs, traces, runs, mus) -> None:
     ax2.set(xlabel="time (s)", ylabel="stage position (um)", title="Finger held still: the loop follows the phantom")
     ax2.legend(fontsize=8)
     fig.tight_layout()
-    from tactile_mirror.lab.figure_files import save_figure
-
     save_figure(fig, path, dpi=110)
     plt.close(fig)
 

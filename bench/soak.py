@@ -29,6 +29,9 @@ medians over the rounds (and the best). Goal: the guards cost <= 5 % per tick
 every other kernel change made since, and is shown for the record).
 
     python bench/soak.py [--ticks N] [--block B] [--skip-soak] [--skip-guard-cost] [--base REF] [--rounds R]
+    python bench/soak.py --quick    # 1e5 ticks in blocks of 1e4, no guard cost (it compiles the library)
+
+``main`` returns the number of goals missed (0: all met), the exit status of a run.
 """
 from __future__ import annotations
 
@@ -45,7 +48,7 @@ from pathlib import Path
 import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-from _common import table
+from common import table
 from tactile_mirror.lab.measure import cpu_model
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -107,7 +110,7 @@ def bad_block(rng, n, ni, rate):
     return x, counts
 
 
-def soak(n_ticks: int, block: int, rate: float = 0.01) -> bool:
+def soak(n_ticks: int, block: int, rate: float = 0.01, n_inside: int = 200000) -> bool:
     p = make_pipeline()
     rng = np.random.default_rng(2026)
     sent = dict.fromkeys(KINDS, 0)
@@ -139,7 +142,7 @@ def soak(n_ticks: int, block: int, rate: float = 0.01) -> bool:
     table(f"Soak: {n_ticks:.3g} ticks, {N_RIDGES} ridges, {rate:.0%} bad ticks, blocks of {block}",
           ["rejected as", "bad ticks sent", "counted", "exact"], rows)
     ns_block = 1e9 * busy / n_ticks
-    ns_inside = p.time_step_ns(200000)
+    ns_inside = p.time_step_ns(n_inside)
     table("Soak: memory and cost", ["quantity", "value"], [
         ["resident memory after 3 blocks (warm-up)", f"{rss0} KiB"],
         ["resident memory at the end", f"{rss1} KiB"],
@@ -329,20 +332,26 @@ def guard_cost(base: str, rounds: int = 41, n_iter: int = 2000, chunks: int = 5)
 
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--ticks", type=float, default=1e7)
-    ap.add_argument("--block", type=int, default=100000)
+    ap.add_argument("--ticks", type=float, default=None, help="soak ticks (default 1e7; --quick: 1e5)")
+    ap.add_argument("--block", type=int, default=None,
+                    help="ticks per block (default 100000; --quick: 10000)")
     ap.add_argument("--base", default=BASE, help="git revision of the 'before' build for the guard cost")
     ap.add_argument("--skip-soak", action="store_true")
     ap.add_argument("--skip-guard-cost", action="store_true")
     ap.add_argument("--rounds", type=int, default=41, help="alternating rounds of the guard cost")
+    ap.add_argument("--quick", action="store_true",
+                    help="a short soak and no guard cost (a smoke run of a few seconds; the guard cost "
+                         "compiles three builds of the C library)")
     args = ap.parse_args(argv)
-    ok = True
+    ticks = args.ticks if args.ticks is not None else (1e5 if args.quick else 1e7)
+    block = args.block if args.block is not None else (10000 if args.quick else 100000)
+    missed = 0
     if not args.skip_soak:
-        ok &= soak(int(args.ticks), args.block)
-    if not args.skip_guard_cost:
-        ok &= guard_cost(args.base, rounds=args.rounds)
-    return 0 if ok else 1
+        missed += not soak(int(ticks), block, n_inside=20000 if args.quick else 200000)
+    if not (args.skip_guard_cost or args.quick):
+        missed += not guard_cost(args.base, rounds=args.rounds)
+    return missed
 
 
 if __name__ == "__main__":
-    sys.exit(main())
+    sys.exit(1 if main() else 0)

@@ -231,7 +231,7 @@ def test_bench_scripts_time_with_the_shared_functions():
 
     from tactile_mirror.lab import measure
 
-    path = pathlib.Path(__file__).resolve().parents[1] / "bench" / "_common.py"
+    path = pathlib.Path(__file__).resolve().parents[1] / "bench" / "common.py"
     spec = importlib.util.spec_from_file_location("bench_common", path)
     common = importlib.util.module_from_spec(spec)
     spec.loader.exec_module(common)
@@ -260,6 +260,18 @@ def test_measure_timing_and_errors():
     env = measure.environment()
     assert env["cpu_model"] and env["cpu_model"] in measure.environment_line(env)
     assert measure.markdown_table("t", ["a", "b"], [[1, 2]]).splitlines()[-1] == "| 1 | 2 |"
+
+
+def test_reference_helpers_name_bad_arguments():
+    from tactile_mirror.lab import measure
+
+    with pytest.raises(ValueError, match="max_shift"):
+        measure.rel_rms_aligned(np.ones(10), np.ones(10), max_shift=10)
+    with pytest.raises(TypeError, match="max_shift"):
+        measure.rel_rms_aligned(np.ones(10), np.ones(10), max_shift=2.0)
+    assert measure.rel_rms_aligned(np.ones(10), np.ones(10), max_shift=9) == 0.0
+    with pytest.raises(ValueError, match="a0"):
+        measure.extended_sosfilt(np.array([[1.0, 0, 0, 0, 0.1, 0]]), np.ones(4))
 
 
 def test_place_labels_keeps_labels_apart_and_inside():

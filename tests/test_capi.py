@@ -12,7 +12,8 @@ import pytest
 from tactile_mirror.circuit import PVDFCircuit
 from tactile_mirror.estimator import StressRateEstimator
 from tactile_mirror.loop import header_path, library_path
-from tactile_mirror.pipeline import MirrorPipeline, PaperController, VelocityController
+from tactile_mirror.pipeline import MirrorPipeline, PaperController, ReferencePipeline, VelocityController
+from tactile_mirror.pipeline.controller import controller_fields
 
 cffi = pytest.importorskip("cffi")
 from tactile_mirror.loop.capi import CAPIError, CPipeline, load, new_config
@@ -148,6 +149,234 @@ def test_create_errors_name_the_field():
 def test_timing_inside_library():
     with CPipeline(make().config) as c:
         assert c.time_step_ns(1000) > 0
+
+
+# -- wrong output buffers ---------------------------------------------------------------
+
+def test_capi_step_checks_its_buffers(fast_pipeline):
+    c = CPipeline(fast_pipeline().config)
+    x = np.zeros(c.n_inputs)
+    good = np.zeros(c.n_outputs)
+    c.step(x, good)
+    for out, err in [(np.zeros(c.n_outputs, np.float32), TypeError), (np.zeros(c.n_outputs, np.int64), TypeError),
+                     (np.zeros(c.n_outputs - 1), ValueError), (np.zeros(2 * c.n_outputs)[::2], ValueError),
+                     (np.zeros((1, c.n_outputs)), ValueError), ([0.0] * c.n_outputs, TypeError)]:
+        with pytest.raises(err, match="out"):
+            c.step(x, out)
+    ro = np.zeros(c.n_outputs)
+    ro.flags.writeable = False
+    with pytest.raises(ValueError, match="writeable"):
+        c.step(x, ro)
+    for bad, err in [(np.zeros(c.n_inputs, np.float32), TypeError), (np.zeros(c.n_inputs + 1), ValueError),
+                     (np.zeros(2 * c.n_inputs)[::2], ValueError)]:
+        with pytest.raises(err, match="x"):
+            c.step(bad, good)
+    assert c.status["ticks"] == 1
+
+
+# -- the header's contract -----------------------------------------------------------------------
+
+def _c_default_velocity_config(w, est, keep):
+    """A configuration filled the way a C program would: tm_config_init (the header's macro:
+    tm_config_init_sized with the struct's size), the sections and weights,
+    tm_controller_defaults(TM_CONTROLLER_VELOCITY, ...); arrays it points to go to ``keep``."""
+    ffi, lib = load()
+    cfg = new_config(ffi, lib)
+
+    def ptr(a):
+        a = np.ascontiguousarray(a, dtype=np.float64)
+        keep.append(a)
+        return ffi.cast("const double*", ffi.from_buffer(a))
+
+    cfg.n_ridges = 6
+    cfg.sos_v, cfg.n_sos_v = ptr(est.sos_rate), est.sos_rate.shape[0]
+    cfg.sos_u, cfg.n_sos_u = ptr(est.sos_rate2), est.sos_rate2.shape[0]
+    cfg.n_hidden = w["w1"].shape[0]
+    cfg.w1, cfg.b1, cfg.w2, cfg.b2 = ptr(w["w1"]), ptr(w["b1"]), ptr(w["w2"]), ptr(w["b2"])
+    cfg.input_mean, cfg.input_gain = ptr(w["input_mean"]), ptr(w["input_gain"])
+    cfg.weights_fs = FS
+    cfg.activation = 1
+    assert lib.tm_controller_defaults(2, ffi.addressof(cfg.controller)) == 0
+    return ffi, lib, cfg
+
+
+def _c_default_velocity_pipeline(w, est):
+    """A pipeline built from :func:`_c_default_velocity_config`."""
+    keep = []
+    ffi, lib, cfg = _c_default_velocity_config(w, est, keep)
+    h = ffi.new("tm_pipeline*")
+    assert lib.tm_pipeline_create(cfg, h) == 0, ffi.string(lib.tm_last_error())
+    return ffi, lib, h[0], cfg
+
+
+def test_config_init_writes_exactly_the_callers_struct():
+    """tm_config_init_sized fills the given size and no byte beyond; the exported
+    tm_config_init (what programs built against ABI <= 6 headers call) fills an ABI-6
+    struct; sizes outside the accepted range write nothing."""
+    ffi, lib = load()
+    full = ffi.sizeof("tm_config")
+    abi9 = ffi.offsetof("tm_config", "force_limit")
+    abi8 = ffi.offsetof("tm_config", "bank_pad_mean")
+    abi7 = ffi.offsetof("tm_config", "bank_knee")
+    abi6 = ffi.offsetof("tm_config", "planner_decel")
+    abi4 = ffi.offsetof("tm_config", "controller") + ffi.offsetof("tm_controller_params", "slip_confirm")
+    abi3 = ffi.offsetof("tm_config", "controller") + ffi.offsetof("tm_controller_params", "shear_integral")
+
+    def fresh():
+        buf = ffi.new("char[]", full + 16)
+        ffi.memmove(buf, b"\xab" * (full + 16), full + 16)
+        return buf, ffi.cast("tm_config*", buf)
+
+    for size, abi, call in [(full, 10, lambda c: lib.tm_config_init_sized(c, full)),
+                            (abi9, 9, lambda c: lib.tm_config_init_sized(c, abi9)),
+                            (abi8, 8, lambda c: lib.tm_config_init_sized(c, abi8)),
+                            (abi7, 7, lambda c: lib.tm_config_init_sized(c, abi7)),
+                            (abi6, 6, lambda c: lib.tm_config_init(c)),
+                            (abi4, 4, lambda c: lib.tm_config_init_sized(c, abi4)),
+                            (abi3, 3, lambda c: lib.tm_config_init_sized(c, abi3))]:
+        buf, c = fresh()
+        assert call(c) == 0
+        assert c.struct_size == size and c.abi_version == abi and c.v_limit == 15.0 and c.n_ridges == 6
+        assert bytes(ffi.buffer(buf)[size:]) == b"\xab" * (full + 16 - size), size
+    for size in (abi3 - 8, full + 8, 0):
+        buf, c = fresh()
+        assert lib.tm_config_init_sized(c, size) == lib.TM_ERR_VERSION
+        assert bytes(ffi.buffer(buf)) == b"\xab" * (full + 16)
+        assert b"size" in ffi.string(lib.tm_last_error())
+    assert lib.tm_config_init_sized(ffi.NULL, full) == lib.TM_ERR_NULL
+
+
+def test_abi6_struct_runs_without_the_planner_lead():
+    """A program of ABI 6 (tm_config ends before planner_decel) gets no lead, whatever lies
+    beyond its struct: the same outputs, bit for bit, as planner_decel = 0 in a full struct;
+    the same bytes at full size are refused, naming the field."""
+    w = weights()
+    est = StressRateEstimator(PVDFCircuit(), FS, 12, use_u=True)
+    keep = []
+    ffi, lib, cfg = _c_default_velocity_config(w, est, keep)
+    cfg.controller.arm_delay = 0.0
+    x = np.random.default_rng(5).normal(scale=0.05, size=(300, 24))
+    h = ffi.new("tm_pipeline*")
+
+    def run(c):
+        assert lib.tm_pipeline_create(c, h) == 0, ffi.string(lib.tm_last_error())
+        out = np.empty((x.shape[0], 2 + 3 * 6))  # n_outputs = 2 + 3 n_ridges
+        xb = np.ascontiguousarray(x)
+        for k in range(x.shape[0]):
+            assert lib.tm_pipeline_step(h[0], ffi.cast("const double*", ffi.from_buffer(xb[k])), 24,
+                                        ffi.cast("double*", ffi.from_buffer(out[k])), out.shape[1]) == 0
+        assert lib.tm_pipeline_destroy(h[0]) == 0
+        return out
+
+    ref = run(cfg)  # full struct, planner_decel = 0
+    assert np.ptp(ref[:, 0]) > 0  # the stage moves: a lead would show
+    cfg.planner_decel = -5.0
+    assert lib.tm_pipeline_create(cfg, h) == lib.TM_ERR_ARGUMENT and h[0] == 0
+    assert b"planner_decel" in ffi.string(lib.tm_last_error())
+    cfg.struct_size = ffi.offsetof("tm_config", "planner_decel")
+    cfg.abi_version = 6
+    assert np.array_equal(run(cfg).view(np.uint64), ref.view(np.uint64))
+
+
+def test_default_velocity_law_is_bit_identical_from_c_and_python(wave_signals):
+    w = weights()
+    est = StressRateEstimator(PVDFCircuit(), FS, 12, use_u=True)
+    ffi, lib, h, cfg = _c_default_velocity_pipeline(w, est)
+    py = MirrorPipeline(w, FS, 6, estimator=est, controller=VelocityController(), activation="fast")
+    for name in controller_fields():
+        # (ABI 7 keeps the controller parameters added since in tm_config's tail)
+        src = cfg.controller if hasattr(cfg.controller, name) else cfg
+        assert getattr(src, name) == py._core.controller[name], name
+    assert cfg.controller.gain == PaperController().gain
+    assert cfg.v_limit == py.config["v_limit"] and cfg.u_limit == py.config["u_limit"]
+    x = 40 * wave_signals(3000, py.n_inputs, seed=5)  # drives y_pred through the ramp
+    x = np.clip(x, -14.0, 14.0)
+    out_c = np.zeros((len(x), py.n_outputs))
+    try:
+        for t in range(len(x)):
+            row = np.ascontiguousarray(x[t])
+            lib.tm_pipeline_step(h, ffi.from_buffer("double[]", row), row.size,
+                                 ffi.from_buffer("double[]", out_c[t]), py.n_outputs)
+    finally:
+        lib.tm_pipeline_destroy(h)
+    out_py = py.process_block(x)[0]
+    assert np.any(out_py[:, 1] != 0.0)          # the law moved the stage
+    np.testing.assert_array_equal(out_c, out_py)  # bit for bit
+    ref = ReferencePipeline(py.config).process_block(x)
+    np.testing.assert_allclose(ref[:, :2], out_py[:, :2], rtol=1e-6, atol=1e-9)  # fast sigmoid: 5e-10
+
+
+def test_version_string_and_struct_sizes(fast_pipeline):
+    ffi, lib = load()
+    assert ffi.string(lib.tm_version_string()).decode() == f"tactile-mirror C ABI {lib.tm_abi_version()} " \
+        "(pipeline 0.1.0)"
+    p = CPipeline(fast_pipeline().config)
+    # an older status struct (ABI 2: without overflow / last_reason) gets its prefix only
+    old = ffi.offsetof("tm_pipeline_status", "overflow")
+    buf = ffi.new("char[]", ffi.sizeof("tm_pipeline_status"))
+    for i in range(len(buf)):
+        buf[i] = b"\xab"
+    s = ffi.cast("tm_pipeline_status*", buf)
+    s.struct_size = old
+    assert lib.tm_pipeline_get_status(p.handle, s) == 0
+    assert s.struct_size == old and s.ticks == 0
+    assert bytes(ffi.buffer(buf)[old:]) == b"\xab" * (len(buf) - old)
+    # tm_config: sizes beyond this header's are refused; abi_version 2 is accepted
+    cfg = new_config(ffi, lib)
+    h = ffi.new("tm_pipeline*")
+    cfg.struct_size = ffi.sizeof("tm_config") + 8
+    assert lib.tm_pipeline_create(cfg, h) == -6
+    # shorter than ABI 2/3's (which ended at the controller's slip_hold) is refused
+    abi3 = ffi.offsetof("tm_config", "controller") + ffi.offsetof("tm_controller_params", "shear_integral")
+    cfg.struct_size = abi3 - 8
+    assert lib.tm_pipeline_create(cfg, h) == -6
+    assert b"accepts" in ffi.string(lib.tm_last_error())
+    assert lib.tm_config_init_sized(cfg, ffi.sizeof("tm_config")) == 0 and cfg.abi_version == 10 and cfg.v_limit == 15.0
+
+
+def test_c_abi_refuses_bank_fields_out_of_range_or_for_the_papers_net():
+    """bank_pad_mean = 5, or a bank field on the paper's net, were ignored silently; and an
+    ABI-9 struct (ending before force_input) runs without a force input."""
+    w = weights()
+    est = StressRateEstimator(PVDFCircuit(), FS, 12, use_u=True)
+    keep = []
+    ffi, lib, cfg = _c_default_velocity_config(w, est, keep)
+    h = ffi.new("tm_pipeline*")
+    for field, value in (("bank_pad_mean", 5), ("bank_pad_mean", 1)):
+        setattr(cfg, field, value)
+        assert lib.tm_pipeline_create(cfg, h) == lib.TM_ERR_ARGUMENT and h[0] == 0
+        assert b"bank_pad_mean" in ffi.string(lib.tm_last_error())
+    cfg.bank_pad_mean = 0
+    cfg.force_input = 1  # 25 inputs
+    assert lib.tm_pipeline_create(cfg, h) == 0
+    ni, no = ffi.new("size_t*"), ffi.new("size_t*")
+    assert lib.tm_pipeline_sizes(h[0], ni, no) == 0 and ni[0] == 25
+    assert lib.tm_pipeline_destroy(h[0]) == 0
+    # an ABI-9 program's struct: its size is the whole ABI-9 struct, with the 4 bytes of padding
+    # after bank_pad_mean; whatever those hold (1 here), its force_input is the default, 0
+    abi9 = ffi.offsetof("tm_config", "force_limit")
+    assert abi9 % 8 == 0 and abi9 - ffi.offsetof("tm_config", "bank_pad_mean") == 8
+    buf = ffi.buffer(cfg)
+    buf[abi9 - 4:abi9] = (1).to_bytes(4, "little")
+    cfg.struct_size = abi9
+    cfg.abi_version = 9
+    assert lib.tm_pipeline_create(cfg, h) == 0
+    assert lib.tm_pipeline_sizes(h[0], ni, no) == 0 and ni[0] == 24
+    assert lib.tm_pipeline_destroy(h[0]) == 0
+
+
+def test_pipeline_rates_beyond_10_mhz_are_refused_in_python_and_c():
+    import tactile_mirror as tm
+
+    w = dict(weights(), fs=2e7)
+    with pytest.raises(ValueError, match=r"fs must lie in \[1, 1e7\] Hz"):
+        tm.MirrorPipeline(w, 2e7, 6, sos_v=np.array([[1.0, 0, 0, 1, 0, 0]]), sos_u=np.array([[1.0, 0, 0, 1, 0, 0]]))
+    keep = []
+    ffi, lib, cfg = _c_default_velocity_config(weights(), StressRateEstimator(PVDFCircuit(), FS, 12, use_u=True), keep)
+    cfg.fs = cfg.weights_fs = 1e300
+    h = ffi.new("tm_pipeline*")
+    assert lib.tm_pipeline_create(cfg, h) == lib.TM_ERR_ARGUMENT and h[0] == 0
+    assert b"fs must lie in [1, 1e7] Hz" in ffi.string(lib.tm_last_error())
 
 
 def _cc():

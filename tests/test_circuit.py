@@ -428,6 +428,19 @@ def test_bad_load():
         PVDFCircuit(load=5.0)
 
 
+@pytest.mark.parametrize("kw, match", [
+    ({"Rf": 1e-300}, r"Rf \* Cf"), ({"Rs": 1e-300}, r"Rs \* Cd"), ({"Cd": 1e20}, r"Rd \* Cd"),
+    ({"d33": -1e300}, "charge per pascal"), ({"load": (0.0, 0.0, 1e-300)}, "charge per pascal"),
+])
+def test_circuit_values_the_filters_cannot_represent_are_refused_at_construction(kw, match):
+    # (they passed, then failed inside scipy's filter design: a bare AssertionError or
+    # non-finite sections that named no field)
+    import tactile_mirror as tm
+
+    with pytest.raises(ValueError, match=match):
+        tm.PVDFCircuit(**kw)
+
+
 def test_frozen():
     c = PVDFCircuit()
     with pytest.raises(dataclasses.FrozenInstanceError):

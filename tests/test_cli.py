@@ -200,3 +200,50 @@ def test_an_unwritable_figure_format_fails_before_the_work(argv, tmp_path, capsy
     err = capsys.readouterr().err
     assert "'.xyz'" in err and "Traceback" not in err
     assert not out.exists()  # nothing was computed and saved first
+
+
+# -- an --out that cannot be written fails before the work --------------------------------------
+
+def test_commands_with_a_file_as_their_out_folder_fail_before_the_work(tmp_path, capsys):
+    f = tmp_path / "afile"
+    f.write_text("keep")
+    for argv in (["figure", "6"], ["demo"], ["bench", "--quick"]):
+        assert main([*argv, "--out", str(f)]) != 0
+        assert "exists and is not a folder" in capsys.readouterr().err
+    assert f.read_text() == "keep"
+
+
+def _must_not_run(*args, **kwargs):
+    raise AssertionError("the work ran before --out was checked")
+
+
+@pytest.fixture
+def no_loop_work(monkeypatch):
+    from tactile_mirror.contact import plants
+    from tactile_mirror.lab.loop import envelope, experiment
+    from tactile_mirror.loop import scene
+
+    for module, name in ((envelope, "design_law"), (envelope, "law_controllers"), (envelope, "run_envelope"),
+                         (experiment, "calibrate_shear_weights"), (experiment, "calibrate_shear"),
+                         (scene, "run_scene"), (plants, "FemPad")):
+        monkeypatch.setattr(module, name, _must_not_run)
+
+
+@pytest.mark.parametrize("command", ["design", "envelope", "realtime"])
+def test_loop_out_that_is_a_file_fails_before_the_work(command, tmp_path, capsys, no_loop_work):
+    target = tmp_path / "taken"
+    target.write_text("keep me")
+    assert main(["loop", command, "--out", str(target)]) == 1
+    err = capsys.readouterr().err
+    assert err.startswith("error: --out") and str(target) in err and "not a folder" in err
+    assert "Traceback" not in err and "Errno" not in err
+    assert target.read_text() == "keep me"
+
+
+@pytest.mark.parametrize("command, name", [("design", "loop_design.json"), ("realtime", "realtime.json"),
+                                           ("envelope", "loop_envelope.json")])
+def test_loop_output_file_that_is_a_folder_fails_before_the_work(command, name, tmp_path, capsys, no_loop_work):
+    (tmp_path / name).mkdir()
+    assert main(["loop", command, "--out", str(tmp_path)]) == 1
+    err = capsys.readouterr().err
+    assert err.startswith("error:") and name in err and "Traceback" not in err

@@ -5,6 +5,7 @@ import dataclasses
 import numpy as np
 import pytest
 import tactile_mirror as tm
+from tactile_mirror.circuit import PVDFCircuit
 from tactile_mirror.contact import (
     OPEN,
     SLIP,
@@ -18,6 +19,8 @@ from tactile_mirror.contact import (
 from tactile_mirror.contact.solver import BACKENDS
 from tactile_mirror.estimator import estimate_stress_rate
 from tactile_mirror.geometry import RidgeGeometry, wide_block
+
+FS = 1000.0
 
 
 @pytest.fixture(scope="module")
@@ -186,6 +189,45 @@ def test_friction_arguments_are_checked(ridge):
         tm.Scene(kinetic_ratio=1.2)
 
 
+@pytest.mark.parametrize("backend", ["cpp", "python"])
+def test_contact_setters_check_and_keep_every_parameter_on_a_refusal(ridge, backend):
+    s = ContactSolver(ridge, 1.0, mu_kinetic=0.8, backend=backend)
+    before = (s.mu, s.mu_kinetic, s.tol, s.max_iter, s.max_active_set_iter)
+    for name, value, exc in (("mu", float("nan"), ValueError), ("mu", -1.0, ValueError),
+                             ("mu", 0.5, ValueError),  # below mu_kinetic
+                             ("mu_kinetic", 5.0, ValueError), ("mu_kinetic", "0.5", TypeError),
+                             ("tol", 0.5, ValueError), ("max_iter", 2**40, ValueError),
+                             ("max_iter", 2.5, TypeError), ("max_active_set_iter", -1, ValueError)):
+        with pytest.raises(exc, match=name):
+            setattr(s, name, value)
+        assert (s.mu, s.mu_kinetic, s.tol, s.max_iter, s.max_active_set_iter) == before
+    s.mu = 0.9  # and the object still takes good values
+    s.set_friction(0.5, 0.4)
+    assert (s.mu, s.mu_kinetic) == (0.5, 0.4)
+    with pytest.raises(ValueError, match="mu_kinetic"):
+        s.set_friction(0.5, 0.6)
+    assert (s.mu, s.mu_kinetic) == (0.5, 0.4)
+    # NaN friction used to act as infinite friction: no slip where mu = 0.1 slides
+    ref = ContactSolver(ridge, 0.1, backend=backend)
+    s.set_friction(0.1)
+    for solver in (s, ref):
+        solver.reset()
+    np.testing.assert_allclose(s.step(0.0, 20e-6).forces, ref.step(0.0, 20e-6).forces, rtol=0, atol=1e-9)
+
+
+def test_pad_friction_changes_every_ridge_up_and_down(ridge):
+    pad = Pad(ridge, 0.5, n_ridges=3, mu_kinetic=0.4)
+    pad.mu = 1.0  # up: the kinetic coefficient passes the old static one on the way
+    assert [(s.mu, s.mu_kinetic) for s in pad.solvers] == [(1.0, 0.8)] * 3
+    pad.mu = 0.25
+    assert [(s.mu, s.mu_kinetic) for s in pad.solvers] == [(0.25, 0.2)] * 3
+    with pytest.raises(ValueError, match="mu"):
+        pad.mu = float("inf")
+    with pytest.raises(TypeError, match="mu"):
+        pad.mu = "0.5"
+    assert [(s.mu, s.mu_kinetic) for s in pad.solvers] == [(0.25, 0.2)] * 3
+
+
 def test_model_is_cached():
     g = RidgeGeometry()
     assert ridge_model(g) is ridge_model(RidgeGeometry())
@@ -262,6 +304,11 @@ def test_outputs_follow_the_request():
     assert r2.v_out.shape == (1, 2, 600) and r2.node_state.shape[0] == 1 and r2.force_z is None
 
 
+def test_a_field_time_after_the_last_sample_is_the_last_sample():
+    r = tm.simulate(tm.Scene(duration=0.2, outputs={"fields", "forces"}, field_times=(0.0, 0.1, 0.1999)))
+    assert sorted(r.fields) == [0.0, 0.1, 0.1999]  # (0.1999 rounded past the end and was dropped)
+
+
 @pytest.mark.parametrize("backend", BACKENDS)
 def test_pad_advance_matches_simulate_and_inner_ridges_press_deeper(backend):
     s = tm.scenes.paper("fig6", duration=0.8, n_ridges=6)
@@ -290,6 +337,23 @@ def test_scene_validation():
         tm.scenes.paper("fig9")
     with pytest.raises(TypeError, match="scene"):
         simulate("fig6")
+
+
+def test_a_pad_or_scene_of_more_ridges_than_a_finger_covers_is_refused_by_name(ridge):
+    """Scene(n_ridges=100000) ran out of memory in simulate, with no message."""
+    from tactile_mirror.contact import FemPad
+    from tactile_mirror.contact.pad import MAX_RIDGES
+
+    for n in (MAX_RIDGES + 1, 100_000):
+        with pytest.raises(ValueError, match=f"n_ridges must be at most {MAX_RIDGES}"):
+            tm.Scene(n_ridges=n)
+        with pytest.raises(ValueError, match="n_ridges"):
+            Pad(ridge, 0.5, n_ridges=n)
+        with pytest.raises(ValueError, match="n_ridges"):
+            FemPad(n)
+    with pytest.raises(TypeError, match="n_ridges"):
+        FemPad(6.7)  # (was 6 ridges)
+    assert tm.Scene(n_ridges=MAX_RIDGES).n_ridges == MAX_RIDGES
 
 
 def test_random_scenes_are_deterministic_and_varied():
@@ -340,3 +404,25 @@ def test_own_worker_pool_runs_single_threaded_blas(monkeypatch):
     assert "OMP_NUM_THREADS" not in os.environ
     for r, s in zip(res, scenes):
         np.testing.assert_allclose(r.force_z, simulate(s).force_z, rtol=1e-8, atol=1e-12)
+
+
+# ------------------------------------------------------------------ arguments taken silently
+def test_more_arguments_that_were_taken_silently():
+    from tactile_mirror.contact.model import ridge_model
+    from tactile_mirror.contact.pad import Pad
+    from tactile_mirror.lab.measure import rel_max
+
+    with pytest.raises(TypeError, match="use_u must be True or False"):
+        tm.StressRateEstimator(PVDFCircuit(), FS, 2, use_u="False")  # (the string was truthy)
+    with pytest.raises(ValueError, match=r"fs must lie in \[1, 1e7\] Hz"):
+        tm.StressRateEstimator(PVDFCircuit(), 1e300, 2)
+    with pytest.raises(ValueError, match="max_workers"):
+        tm.simulate_many([tm.Scene(duration=0.01)] * 2, max_workers=0)  # (0 meant every core)
+    with pytest.raises(TypeError, match="y must hold real numbers"):
+        rel_max(np.ones(2) + 1j, np.ones(2))
+    model = ridge_model(tm.Scene().geometry)
+    for kw in ({"pitch": float("nan")}, {"pitch": float("inf")}, {"ridge_length": float("inf")}):
+        with pytest.raises(ValueError, match=next(iter(kw))):
+            Pad(model, 0.8, n_ridges=3, **kw)
+    with pytest.raises(TypeError, match="plate_y"):
+        Pad(model, 0.8).advance("0", 1e-5)

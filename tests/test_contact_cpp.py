@@ -2,6 +2,7 @@
 path (same node states at every sample, same solves and events), forces within 1e-10
 of their peak, the same errors, and an unchanged history after an error."""
 import dataclasses
+import threading
 
 import numpy as np
 import pytest
@@ -541,6 +542,30 @@ def test_follow_on_two_threads_equals_one():
         Pad(pad.model, 0.5, threads=0)
 
 
+def test_contact_reads_from_another_thread_never_see_the_middle_of_a_follow(ridge):
+    """get_state, solves and events read the kernel while a pad's follow ran without the
+    GIL: values from the middle of a call. They are claimed now, as writes are."""
+    pad = Pad(ridge, 0.7, n_ridges=2)
+    y = 0.3e-3 * np.sin(np.linspace(0, 6 * np.pi, 6000))
+    z = np.full(y.size, 20e-6)
+    s0 = pad.solvers[0]
+    before = (s0.get_state()["lam"].copy(), s0.solves, s0.events)
+    errors, reads = [], []
+    t = threading.Thread(target=lambda: pad.follow(y, z))
+    t.start()
+    while t.is_alive():
+        try:
+            reads.append((s0.get_state()["lam"].copy(), s0.solves, s0.events))
+        except RuntimeError as e:
+            errors.append(str(e))
+    t.join()
+    after = (s0.get_state()["lam"].copy(), s0.solves, s0.events)
+    assert all("another thread" in e for e in errors)
+    for lam, solves, events in reads:  # a whole state: of before or of after the call
+        assert any(np.array_equal(lam, ref[0]) and (solves, events) == ref[1:] for ref in (before, after))
+    assert after[1] > before[1]
+
+
 @pytest.mark.parametrize("backend", ["cpp", "python"])
 def test_follow_errors_leave_the_history_unchanged(backend):
     scene = tm.scenes.paper("fig6", n_ridges=2)
@@ -581,6 +606,30 @@ def test_follow_errors_leave_the_history_unchanged(backend):
     # factor a piece afresh that the uninterrupted run solved by bordering)
     np.testing.assert_array_equal(a[2], b[2])
     assert np.max(np.abs(a[0] - b[0])) <= RTOL * np.max(np.abs(b[0]))
+
+
+def test_a_status_cycle_at_high_friction_ends_in_both_backends(ridge, monkeypatch):
+    """On a 0.6 mm sine at mu = 1 the node statuses cycle at one load point (the quasi-static
+    problem has no solution there the law can follow). The compiled kernel raised; the
+    Python reference looped for ever, its resolves leading back into the cycle through a
+    set that was not their result. Both raise now, at the same point, the state kept."""
+    from tactile_mirror.contact import reference_path as S
+
+    y = 0.6e-3 * np.sin(np.linspace(0, 4 * np.pi, 8000))
+    z = np.full(y.size, 0.00198)
+    c = ContactSolver(ridge, 1.0)
+    c.follow(y[:3686], z[:3686])
+    state = c.get_state()
+    monkeypatch.setattr(S, "SEEN_CAP", 40)  # (the bound, not its size, is under test: faster)
+    messages = []
+    for backend in ("cpp", "python"):
+        s = ContactSolver(ridge, 1.0, backend=backend)
+        s.set_state(state)
+        with pytest.raises(S.ContactConvergenceError, match="cycle") as err:
+            s.follow(y[3685:3687], z[3685:3687], stepping="every")
+        messages.append(str(err.value).split("(")[0])
+        np.testing.assert_array_equal(s.get_state()["lam"], state["lam"])
+    assert messages[0] == messages[1]
 
 
 # ---- mirror-image ridges and projected outputs of the compiled pad

@@ -7,6 +7,7 @@ import zipfile
 
 import numpy as np
 import pytest
+import tactile_mirror as tm
 from tactile_mirror.detector import (
     DetectorWeights,
     Params,
@@ -21,6 +22,8 @@ from tactile_mirror.lab.detector import TrainingSet, make_training_set, train_de
 from tactile_mirror.lab.detector.synthetic import synthetic_scene
 
 core = pytest.importorskip("tactile_mirror._core")
+
+FS = 1000.0
 
 
 def random_weights(n_hidden=16, seed=0, scale=1.0, fs=1000.0):
@@ -224,6 +227,25 @@ def test_training_set_validation():
             train_detector(small_set(1), progress=False, **kw)
 
 
+def test_seeds_iterations_and_save_folders_are_named_in_their_errors(tmp_path, capsys):
+    from tactile_mirror.cli import main
+    from tactile_mirror.lab.detector.training import make_training_set, train_detector
+
+    with pytest.raises(SystemExit):
+        main(["evaluate", "--seed", "-5"])
+    assert "argument --seed: must be non-negative" in capsys.readouterr().err
+    with pytest.raises(ValueError, match="seed must be a non-negative integer"):
+        tm.SensorNoise().draw(1000.0, 10, seed=-1)
+    ts = make_training_set([synthetic_scene(seed=0, n_ridges=1, duration=0.5)])
+    for kw, match in (({"seed": -1}, "seed"), ({"maxiter": "3"}, "maxiter"), ({"maxiter": float("nan")}, "maxiter")):
+        with pytest.raises(ValueError, match=match):
+            train_detector(ts, n_hidden=2, progress=False, **kw)
+    # the save's message names the file asked for, not the hidden temporary beside it
+    with pytest.raises(FileNotFoundError, match=r"cannot save .*w\.npz.*does not exist") as exc:
+        tm.SlipDetector.default().save(tmp_path / "no" / "sub" / "w.npz")
+    assert ".tmp" not in str(exc.value)
+
+
 # -- C++ kernel parity ------------------------------------------------------------------------
 
 @pytest.mark.parametrize("path", ["generic", "avx2+fma"])
@@ -388,6 +410,76 @@ def test_detector_run_validation_and_fs_check():
         SlipDetector(random_weights(4), backend="torch")
 
 
+def _detector(backend, dtype=np.float64):
+    w = DetectorWeights(init_params(4, 6, seed=0), input_mean=np.zeros(4), input_scale=np.ones(4), fs=FS)
+    return SlipDetector(w, dtype=dtype, backend=backend)
+
+
+@pytest.mark.parametrize("backend,dtype", [("cpp", np.float64), ("cpp", np.float32), ("numpy", np.float64)])
+@pytest.mark.parametrize("value", [np.nan, np.inf, -np.inf])
+def test_non_finite_features_are_refused_naming_the_sample(backend, dtype, value):
+    det = _detector(backend, dtype)
+    x = np.random.default_rng(1).normal(size=(3, 4, 20))
+    first = x[:, :, :10].copy()
+    det.run(first)
+    x[1, 2, 5] = value
+    x[2, 0, 7] = value
+    with pytest.raises(ValueError, match=r"ridge 1, channel 2, sample 5"):
+        det.run(x)
+    with pytest.raises(ValueError, match=r"ridge 1, channel 2, sample 5"):
+        det.run(x, reset=False)
+    # the state is what the last good call left
+    ref = _detector(backend, dtype)
+    ref.run(first)
+    good = np.random.default_rng(2).normal(size=(3, 4, 5))
+    np.testing.assert_array_equal(det.run(good, reset=False)[2], ref.run(good, reset=False)[2])
+    if backend == "cpp":
+        with pytest.raises(ValueError, match="ridge 0, channel 3, sample 0"):
+            det.step(np.array([[0, 0, 0, value], [0, 0, 0, 0], [0, 0, 0, 0]], dtype=float))
+
+
+def _rates(n_ridges, n, seed=0):
+    return np.random.default_rng(seed).normal(0, 1e3, (n_ridges, 4, n))
+
+
+@pytest.mark.parametrize("make", [lambda: tm.SlipDetector.default(), lambda: tm.SlipDetector.memory(),
+                                  lambda: tm.SlipDetector.pad(),
+                                  lambda: tm.SlipDetector.default(backend="numpy"),
+                                  lambda: tm.SlipDetector.memory(backend="numpy")])
+def test_finite_features_that_overflow_a_filter_are_refused_with_the_state_kept(make):
+    """1e308 is finite and passed the NaN/Inf check, but the filter bank's leaky integrals
+    overflowed to inf and every later output was one constant (NaN in numpy) until reset()."""
+    det, ref = make(), make()
+    x = _rates(6, 40)
+    det.run(x[..., :20])
+    ref.run(x[..., :20])
+    with pytest.raises(ValueError, match="overflow"):
+        det.run(np.full((6, 4, 30), 1e308), reset=False)
+    if det.backend == "cpp":
+        with pytest.raises(ValueError, match="overflow"):
+            for _ in range(200):  # a few ticks in a row: the integrals reach inf
+                det.step(np.full((6, 4), 1e308))
+    # the state is what it was: the continuation equals the undisturbed detector's
+    for a, b in zip(det.run(x[..., 20:], reset=False), ref.run(x[..., 20:], reset=False)):
+        np.testing.assert_array_equal(a, b)
+
+
+def test_float32_detector_names_a_value_beyond_float32():
+    det = tm.SlipDetector.default(dtype=np.float32)
+    x = _rates(1, 12)
+    x[0, 2, 7] = 1e300
+    with pytest.raises(ValueError, match="fit float32.*ridge 0, channel 2, sample 7"):
+        det.run(x)
+
+
+def test_numpy_backend_runs_an_empty_block_as_the_compiled_one_does():
+    for backend in ("numpy", "cpp"):
+        det = tm.SlipDetector.paper(backend=backend)
+        det.run(_rates(2, 10))
+        ys, yn, yp = det.run(np.zeros((2, 4, 0)), reset=False)
+        assert ys.shape == yn.shape == yp.shape == (2, 0)
+
+
 def test_no_subnormal_outputs_in_float32_kernel():
     w = random_weights(8, seed=13, scale=50.0)  # saturates everything
     x = random_features(6, 2000, seed=8) * 100
@@ -470,6 +562,21 @@ def test_truncated_and_garbage_files_are_rejected(tmp_path):
         DetectorWeights.load(z)
     with pytest.raises(FileNotFoundError):
         DetectorWeights.load(tmp_path / "missing.npz")
+
+
+def test_weights_with_a_subnormal_scale_are_refused_at_load_naming_the_file(tmp_path):
+    """input_scale = 1e-320 passed "> 0", but the kernel's gain 1 / scale is inf: the first
+    run failed naming input_gain, and the numpy backend returned NaN."""
+    orig = str(tmp_path / "orig.npz")
+    tm.SlipDetector.paper().weights.save(orig)
+    with np.load(orig) as f:
+        data = dict(f)
+    data["input_scale"] = data["input_scale"].copy()
+    data["input_scale"][1] = 1e-320
+    path = str(tmp_path / "w.npz")
+    np.savez(path, **data)
+    with pytest.raises(WeightsError, match=r"w\.npz.*input_scale must be positive and normal"):
+        DetectorWeights.load(path)
 
 
 def test_weights_object_validation():

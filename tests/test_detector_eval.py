@@ -48,6 +48,37 @@ def test_force_ratio_detector():
         ForceRatioDetector(-1.0)
 
 
+def test_force_ratio_fit_refuses_what_it_cannot_fit_on():
+    """fit([]) was numpy's "need at least one array to concatenate"; results without a
+    tangential load an IndexError."""
+    from types import SimpleNamespace
+
+    with pytest.raises(ValueError, match="results must not be empty"):
+        ForceRatioDetector.fit([])
+    flat = SimpleNamespace(force_y=np.zeros(100), force_z=np.ones(100))
+    with pytest.raises(ValueError, match="positive force ratio"):
+        ForceRatioDetector.fit([flat])
+    for kwargs, exc, name in (({"slip_threshold": 1.5}, ValueError, "slip_threshold"),
+                              ({"max_latency": -1.0}, ValueError, "max_latency"),
+                              ({"min_fz_fraction": 1.0}, ValueError, "min_fz_fraction"),
+                              ({"min_fz_fraction": "0.1"}, TypeError, "min_fz_fraction")):
+        with pytest.raises(exc, match=name):
+            ForceRatioDetector.fit([flat], **kwargs)
+    with pytest.raises(TypeError, match="threshold"):
+        ForceRatioDetector("0.3")
+
+
+def test_evaluation_module_is_not_hidden_by_its_function():
+    import importlib
+    import types
+
+    from tactile_mirror.lab import detector
+
+    module = importlib.import_module("tactile_mirror.lab.detector.evaluation")
+    assert isinstance(module, types.ModuleType) and detector.evaluation is module
+    assert detector.evaluate is module.evaluate
+
+
 # -- synthetic end-to-end -------------------------------------------------------------------
 
 @pytest.fixture(scope="module")
@@ -226,6 +257,39 @@ def test_augment_noise_copies(paper_results):
         augment_noise([r], noise=(2e-3, 1e-3))
 
 
+@pytest.mark.parametrize("kwargs, exc, name", [
+    ({"copies": 2.5}, TypeError, "copies"), ({"copies": True}, TypeError, "copies"),
+    ({"copies": None}, TypeError, "copies"), ({"copies": 0}, ValueError, "copies"),
+    ({"noise": 5e-3}, TypeError, "noise"), ({"noise": "low"}, TypeError, "noise"),
+    ({"noise": (0.0, float("inf"))}, ValueError, "noise"), ({"noise": (-1e-3, 1e-3)}, ValueError, "noise"),
+    ({"noise": (0.0, 1e-3, 2e-3)}, ValueError, "noise"), ({"noise": (2e-3, 1e-3)}, ValueError, "noise"),
+])
+def test_augment_noise_names_a_bad_count_or_range(kwargs, exc, name):
+    from tactile_mirror.lab.detector.augment import augment_noise
+
+    with pytest.raises(exc, match=name):
+        augment_noise([object()], **kwargs)  # (refused before the result is read)
+
+
+@pytest.mark.parametrize("gain_range, exc", [
+    (1.5, TypeError), ("ab", TypeError), ((1, 2, 3), ValueError), ((0.0, 1.0), ValueError),
+    ((-1.0, 1.0), ValueError), ((0.6, float("inf")), ValueError), ((1.7, 0.6), ValueError),
+    ((True, 2.0), TypeError),
+])
+def test_augment_gains_names_a_bad_range(gain_range, exc):
+    from tactile_mirror.lab.detector.augment import augment_gains
+
+    with pytest.raises(exc, match="gain_range"):
+        augment_gains(object(), gain_range)
+
+
+def test_augment_gains_names_what_is_not_a_training_set():
+    from tactile_mirror.lab.detector.augment import augment_gains
+
+    with pytest.raises(TypeError, match="ts must be a TrainingSet"):
+        augment_gains(None, (0.6, 1.7))
+
+
 def test_onset_kinds_and_detection_by_onset(paper_results, default_detector):
     import tactile_mirror
     from tactile_mirror import scenes
@@ -237,6 +301,22 @@ def test_onset_kinds_and_detection_by_onset(paper_results, default_detector):
     assert onset_kinds([paper_results["fig6"]], level=1e12) == ["gradual"]
     by = detection_by_onset(default_detector, [paper_results["fig6"], paper_results["fig7"]])
     assert by["release"] == (2, 1.0) and by["gradual"][0] == 0
+
+
+def test_onset_kinds_checks_its_window_and_level_first():
+    """A window that is not a pair, reversed or NaN was a TypeError or numpy's "zero-size
+    array" deep inside; now the window is checked before any result is read."""
+    from tactile_mirror.lab.detector.evaluation import onset_kinds
+
+    for window, exc in ((5, TypeError), ("ab", TypeError), ((0.005, -0.003), ValueError),
+                        ((float("nan"), 0.0), ValueError), ((0.001, 0.005), ValueError),
+                        ((-0.003, 0.0, 0.005), ValueError)):
+        with pytest.raises(exc, match="window"):
+            onset_kinds([object()], window=window)
+    for level, exc in ((float("nan"), ValueError), (-1.0, ValueError), ("1e8", TypeError)):
+        with pytest.raises(exc, match="level"):
+            onset_kinds([object()], level=level)
+    assert onset_kinds([], window=(0.0, 0.0)) == []
 
 
 def test_default_detector_metadata(default_detector):

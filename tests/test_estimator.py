@@ -3,6 +3,7 @@ streaming against offline, input checks."""
 import numpy as np
 import pytest
 import scipy.signal
+import tactile_mirror as tm
 from hypothesis import given, settings
 from hypothesis import strategies as st
 from tactile_mirror.circuit import PVDFCircuit
@@ -12,6 +13,7 @@ from tactile_mirror.estimator import (
     equalizer_sos,
     estimate_stress_rate,
 )
+from tactile_mirror.filters import SosFilter
 from tactile_mirror.lab.testing import known_load
 
 FAST = settings(max_examples=25, deadline=None)
@@ -305,6 +307,19 @@ def test_a_refused_call_leaves_the_estimator_as_it_was(dtype, use_u):
         np.testing.assert_array_equal(a, b)
 
 
+def test_estimator_errors_say_which_input_was_refused():
+    est = tm.StressRateEstimator(tm.PVDFCircuit(), 1000.0, 2)
+    v = np.zeros((2, 5))
+    with pytest.raises(ValueError, match="^u: "):
+        est.process(v, np.full((2, 5), np.inf))
+    with pytest.raises(ValueError, match="^v: "):
+        est.process(np.full((2, 5), np.nan), v)
+    with pytest.raises(ValueError, match="^u_out contains"):
+        tm.estimate_stress_rate(np.zeros((1, 50)), np.full((1, 50), np.inf), tm.PVDFCircuit(), 1000.0)
+    with pytest.raises(ValueError, match="^v_out contains"):
+        tm.estimate_stress_rate(np.full((1, 50), np.nan), None, tm.PVDFCircuit(), 1000.0)
+
+
 def test_bad_offline_arguments():
     c = PVDFCircuit()
     v = np.zeros((2, 50))
@@ -320,3 +335,34 @@ def test_bad_offline_arguments():
         estimate_stress_rate(v, v, None, 1000.0)
     with pytest.raises(ValueError, match="bandwidth"):
         estimate_stress_rate(v, v, c, 1000.0, bandwidth=2000.0)
+
+
+def test_signal_paths_refuse_bools_and_name_the_argument():
+    """SosFilter.process and the estimator took True/False samples while SosFilter.step
+    refused them; an axis of True was taken as axis 1. sosfilt, the drop-in for
+    scipy.signal.sosfilt, casts them as scipy does."""
+    from scipy import signal
+
+    sos = signal.butter(2, 0.1, output="sos")
+    flags = np.array([True, False, True, True])
+    assert np.allclose(tm.sosfilt(sos, flags), signal.sosfilt(sos, flags))
+    filt = SosFilter(sos)
+    with pytest.raises(TypeError, match="block"):
+        filt.process(flags)
+    assert np.all(filt.zi == 0)
+    est = StressRateEstimator(PVDFCircuit(), 1000.0, 2)
+    with pytest.raises(TypeError, match="^v must"):
+        est.process(np.ones((2, 5), bool), np.ones((2, 5)))
+    with pytest.raises(TypeError, match="^u must"):
+        est.process(np.ones((2, 5)), np.ones((2, 5), bool))
+    z = np.zeros((2, 50))
+    with pytest.raises(TypeError, match="v_out"):
+        tm.estimate_stress_rate(z.astype(bool), None, PVDFCircuit(), 1000.0)
+    with pytest.raises(TypeError, match="axis"):
+        tm.estimate_stress_rate(z, z, PVDFCircuit(), 1000.0, axis=True)
+    with pytest.raises(TypeError, match="channels"):
+        StressRateEstimator(PVDFCircuit(), 1000.0, 2.0)
+    with pytest.raises(ValueError, match="channels"):
+        StressRateEstimator(PVDFCircuit(), 1000.0, 0)
+    # ints are numbers, as in scipy
+    assert np.allclose(tm.sosfilt(sos, np.arange(4)), signal.sosfilt(sos, np.arange(4.0)))

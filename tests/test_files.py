@@ -12,6 +12,7 @@ import errno
 import io
 import json
 import os
+import stat
 import struct
 import subprocess
 import sys
@@ -22,6 +23,7 @@ import zlib
 
 import numpy as np
 import pytest
+import tactile_mirror as tm
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 from tactile_mirror import files
@@ -215,6 +217,20 @@ def test_save_past_the_file_size_limit_keeps_the_old_weights(tmp_path):
     assert run.returncode == 0, run.stderr
     assert run.stdout.split() == ["errno", str(errno.EFBIG)]
     assert path.read_bytes() == before and leftovers(tmp_path) == []
+
+
+def test_a_read_only_file_is_not_replaced(tmp_path):
+    w = tm.SlipDetector.paper().weights
+    path = tmp_path / "kept.npz"
+    path.write_bytes(b"keep me")
+    os.chmod(path, stat.S_IRUSR | stat.S_IRGRP)
+    try:
+        with pytest.raises(PermissionError, match="read-only"):
+            w.save(str(path))
+        assert path.read_bytes() == b"keep me"
+        assert sorted(os.listdir(tmp_path)) == ["kept.npz"]
+    finally:
+        os.chmod(path, stat.S_IRUSR | stat.S_IWUSR)
 
 
 def test_interrupted_figure_save_keeps_the_old_figure(tmp_path):

@@ -7,8 +7,9 @@ import scipy.signal as ss
 import tactile_mirror as tm
 from hypothesis import assume, given
 from hypothesis import strategies as st
-from tactile_mirror.filters import POLE_TOLERANCE, UnstableFilterWarning, roundoff_bound
+from tactile_mirror.filters import POLE_TOLERANCE, SosFilter, UnstableFilterWarning, roundoff_bound
 
+DBL_MAX = float(np.finfo(np.float64).max)
 F64_RTOL = 1e-12  # relative to the signal scale
 F32_BOUND_FACTOR = 8.0  # x roundoff_bound(); measured worst 1.6x
 
@@ -330,6 +331,16 @@ def test_roundoff_bound_needs_poles_inside_the_circle():
         roundoff_bound([[1, 0, 0, 1, -1, 0]], np.ones(10))
 
 
+def test_roundoff_bound_refuses_signals_it_cannot_bound():
+    sos = np.array([[1.0, 0, 0, 1, -0.9, 0]])
+    for x, kw, exc in (([1.0, np.nan], {}, ValueError), ([1.0, np.inf], {}, ValueError),
+                       (np.ones(3) + 1j, {}, TypeError), ("abc", {}, TypeError),
+                       (np.ones(3), {"impulse_length": 0}, ValueError), (np.ones(3), {"impulse_length": 1.5}, ValueError),
+                       (np.ones(3), {"impulse_length": True}, ValueError)):
+        with pytest.raises(exc, match="impulse_length" if kw else "x must"):
+            tm.roundoff_bound(sos, x, **kw)
+
+
 def test_a0_is_normalised():
     sos = ss.butter(4, 0.2, output="sos")
     x = signal(0, 300)
@@ -414,6 +425,39 @@ def test_step_rejects_nonfinite_sample_counts_and_holds():
     assert f.rejected == 2
     f.reset()
     assert f.rejected == 0 and not np.any(f.zi)
+
+
+def test_sos_filter_rejects_an_overflowing_sample():
+    f = SosFilter([[1.0, 0.0, 0.0, 1.0, -0.5, 0.0]], channels=2)  # y = x + 0.5 y(t-1)
+    f.step([1.0, 2.0])
+    y0 = f.step([DBL_MAX, -DBL_MAX])      # y still finite: accepted
+    assert np.all(np.isfinite(y0)) and f.rejected == 0
+    z0 = f.zi
+    y = f.step([DBL_MAX, -DBL_MAX])       # y = max + max / 2 overflows: rejected
+    np.testing.assert_array_equal(y, y0)  # the previous output is held
+    np.testing.assert_array_equal(f.zi, z0)
+    assert f.rejected == 1
+    y = f.step([np.nan, 0.0])             # a later NaN holds the last accepted output too
+    np.testing.assert_array_equal(y, y0)
+    assert f.rejected == 2
+    g = SosFilter([[1.0, 0.0, 0.0, 1.0, -0.5, 0.0]], channels=1)
+    g.process(np.ones(3))
+    zg = g.zi
+    with pytest.raises(ValueError, match="overflow"):
+        g.process(np.array([1.0, DBL_MAX, DBL_MAX, 1.0]))
+    np.testing.assert_array_equal(g.zi, zg)
+
+
+def test_a_refused_block_keeps_the_held_output_step_returns():
+    f = tm.SosFilter(ss.butter(2, 0.2, "highpass", output="sos"))
+    held = f.process(np.ones((1, 5)))[0, -1]
+    with pytest.raises(ValueError, match="unchanged"):
+        f.process(np.array([[1.7e308, -1.7e308, 1.7e308]]))
+    assert f.step(np.array([np.nan]))[0] == held
+    # after a step refused for overflow, an accepted block's last output is the held one
+    f.step(np.array([1.7e308]))
+    y = f.process(np.array([[0.5, 0.25]]))
+    assert f.step(np.array([np.nan]))[0] == y[0, -1]
 
 
 @pytest.mark.parametrize("dtype", [np.float64, np.float32])

@@ -1,6 +1,8 @@
 """Loop glue: controllers' validation, the simulated stage, the loop runner, recordings."""
 from __future__ import annotations
 
+import math
+
 import numpy as np
 import pytest
 from tactile_mirror.circuit import PVDFCircuit
@@ -12,6 +14,7 @@ from tactile_mirror.loop import (
     RecordingError,
     SimulatedStage,
     Stage,
+    StageError,
     StageLimits,
 )
 from tactile_mirror.pipeline import MirrorPipeline, PaperController, VelocityController, controller_from_dict
@@ -141,6 +144,141 @@ def test_open_loop_never_commands_the_stage():
     stage = SimulatedStage()
     res = LoopRunner(pipe, stage, ArraySource(samples(300, pipe.n_inputs)), command=False).run(n_ticks=300)
     assert np.all(res.stage_position == 0.0) and stage.status()["moves"] == 0
+
+
+# -- a misbehaving stage driver: stopped, its error named, the ticks run kept -------------------
+
+def make_pipeline():
+    """The pipeline the stage-driver tests run: the paper's law at threshold 0, gain 1."""
+    return make(PaperController(threshold=0.0, gain=1.0))
+
+
+class FaultyStage(SimulatedStage):
+    """A simulated stage whose driver fails on demand: ``move_to`` raises at tick
+    ``fail_move``, ``position`` returns ``bad_position`` from tick ``bad_at`` on."""
+
+    def __init__(self, fail_move=None, bad_position=None, bad_at=None, fail_advance=None, fail_stop=False):
+        super().__init__()
+        self.fail_move, self.bad_position, self.bad_at = fail_move, bad_position, bad_at
+        self.fail_advance, self.fail_stop = fail_advance, fail_stop
+        self.ticks = self.stops = 0
+
+    def position(self):
+        if self.bad_at is not None and self.ticks >= self.bad_at:
+            return self.bad_position
+        return super().position()
+
+    def move_to(self, x):
+        if self.ticks == self.fail_move:
+            raise OSError("driver timeout")
+        super().move_to(x)
+
+    def advance(self, dt):
+        if self.ticks == self.fail_advance:
+            raise ConnectionError("link lost")
+        self.ticks += 1
+        return super().advance(dt)
+
+    def stop(self):
+        self.stops += 1
+        if self.fail_stop:
+            raise OSError("stop not acknowledged")
+        super().stop()
+
+
+def reference(n):
+    """The first ``n`` ticks of an undisturbed run."""
+    pipe = make_pipeline()
+    return LoopRunner(pipe, SimulatedStage(), ArraySource(samples(n, pipe.n_inputs))).run(n_ticks=n)
+
+
+def test_a_failing_move_to_stops_the_stage_and_keeps_the_ticks_run():
+    pipe = make_pipeline()
+    x = samples(50, pipe.n_inputs)
+    stage = FaultyStage(fail_move=12)
+    with pytest.raises(StageError, match=r"stage\.move_to\(.*\) raised at tick 12: OSError: driver timeout") as exc:
+        LoopRunner(pipe, stage, ArraySource(x)).run(n_ticks=50)
+    err = exc.value
+    assert isinstance(err, RuntimeError) and isinstance(err.__cause__, OSError)  # the driver's error, chained
+    assert stage.stops == 1
+    part, ref = err.partial, reference(12)
+    assert len(part.t) == part.samples.shape[0] == part.latency_ns.size == part.tick_ns.size == 12
+    np.testing.assert_array_equal(part.samples, x[:12])
+    np.testing.assert_array_equal(part.outputs, ref.outputs)  # the ticks run, exactly as without the fault
+    np.testing.assert_array_equal(part.stage_position, ref.stage_position)
+    rec = part.to_recording(pipe.config)  # the partial run is a valid recording
+    assert rec.samples.shape == (12, pipe.n_inputs)
+
+
+@pytest.mark.parametrize("bad", [math.nan, math.inf, -math.inf, None, "0.1", np.zeros(2), np.array(0.001), True,
+                                 np.float64("nan"), 1j], ids=repr)
+def test_a_position_that_is_not_a_finite_real_number_is_refused(bad):
+    pipe = make_pipeline()
+    stage = FaultyStage(bad_position=bad, bad_at=5)
+    with pytest.raises(StageError, match=r"stage\.position\(\) returned .* at tick 5: a position must be a finite real"
+                       ) as exc:
+        LoopRunner(pipe, stage, ArraySource(samples(30, pipe.n_inputs))).run(n_ticks=30)
+    assert stage.stops == 1
+    part = exc.value.partial
+    assert len(part.t) == 5 and np.all(np.isfinite(part.stage_position))
+    np.testing.assert_array_equal(part.outputs, reference(5).outputs)
+
+
+def test_a_bad_position_before_the_first_tick():
+    pipe = make_pipeline()
+    stage = FaultyStage(bad_position=math.nan, bad_at=0)
+    with pytest.raises(StageError, match="before the first tick") as exc:
+        LoopRunner(pipe, stage, ArraySource(samples(10, pipe.n_inputs))).run(n_ticks=10)
+    assert stage.stops == 1 and len(exc.value.partial.t) == 0
+    with pytest.raises(TypeError, match="x0"):
+        LoopRunner(pipe, SimulatedStage(), ArraySource(samples(10, pipe.n_inputs))).run(n_ticks=10, x0="0.1")
+
+
+@pytest.mark.parametrize("value", [0, np.float32(0.0), np.int64(0), 0.0])
+def test_real_scalar_positions_are_accepted(value):
+    pipe = make_pipeline()
+    stage = FaultyStage(bad_position=value, bad_at=0)
+    res = LoopRunner(pipe, stage, ArraySource(samples(10, pipe.n_inputs)), command=False).run(n_ticks=10)
+    assert len(res.t) == 10 and res.stage_position.dtype == np.float64 and stage.stops == 0
+
+
+def test_a_failing_advance_keeps_the_tick_it_commanded():
+    pipe = make_pipeline()
+    stage = FaultyStage(fail_advance=7)
+    with pytest.raises(StageError, match=r"stage\.advance\(.*\) raised at tick 7") as exc:
+        LoopRunner(pipe, stage, ArraySource(samples(20, pipe.n_inputs))).run(n_ticks=20)
+    assert isinstance(exc.value.__cause__, ConnectionError) and stage.stops == 1
+    np.testing.assert_array_equal(exc.value.partial.outputs, reference(8).outputs)
+
+
+def test_a_failing_stop_is_reported_with_the_driver_error():
+    pipe = make_pipeline()
+    stage = FaultyStage(fail_move=3, fail_stop=True)
+    with pytest.raises(StageError, match="stage.stop\\(\\) failed too: OSError: stop not acknowledged") as exc:
+        LoopRunner(pipe, stage, ArraySource(samples(20, pipe.n_inputs))).run(n_ticks=20)
+    assert len(exc.value.partial.t) == 3
+
+
+@pytest.mark.parametrize("error", [ValueError("bad sample"), KeyboardInterrupt()], ids=lambda e: type(e).__name__)
+def test_any_other_error_stops_the_stage_and_propagates_unchanged(error):
+    class Source(ArraySource):
+        def read(self, stage_position, t):
+            if self.i == 4:
+                raise error
+            return super().read(stage_position, t)
+
+    pipe = make_pipeline()
+    stage = FaultyStage()
+    with pytest.raises(type(error)) as exc:
+        LoopRunner(pipe, stage, Source(samples(20, pipe.n_inputs))).run(n_ticks=20)
+    assert exc.value is error and stage.stops == 1
+
+
+def test_a_normal_run_leaves_the_stage_on_its_target():
+    pipe = make_pipeline()
+    stage = FaultyStage()
+    res = LoopRunner(pipe, stage, ArraySource(samples(20, pipe.n_inputs))).run(n_ticks=20)
+    assert len(res.t) == 20 and stage.stops == 0
 
 
 def test_recording_round_trip_and_bit_identical_replay(tmp_path):

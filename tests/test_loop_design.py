@@ -1,13 +1,17 @@
 """The default loop law: designed from the stage, the calibration and the rate only; its C++ form,
-its C ABI parameters, and its closed-loop behaviour against the design's prediction."""
+its C ABI parameters, its closed-loop behaviour against the design's prediction, and the envelope
+that sweeps the laws over speeds and conditions."""
 from __future__ import annotations
 
 import dataclasses
 import inspect
+import json
+import os
 
 import numpy as np
 import pytest
 from tactile_mirror.circuit import PVDFCircuit
+from tactile_mirror.cli import main
 from tactile_mirror.estimator import StressRateEstimator
 from tactile_mirror.loop import StageLimits
 from tactile_mirror.loop.design import LoopDesign, design_loop, loop_response
@@ -423,7 +427,7 @@ def test_planner_decel_is_checked_and_carried_by_the_c_abi():
     np.testing.assert_allclose(out[:, :2], ref[:, :2], rtol=1e-9, atol=1e-12)
     with CPipeline(pipe.config) as cp:  # through tm.h: bit for bit
         assert np.array_equal(cp.process_block(x)[0].view(np.uint64), out.view(np.uint64))
-    # (an ABI-6 program's struct, without planner_decel: tests/test_bad_input.py)
+    # (an ABI-6 program's struct, without planner_decel: tests/test_capi.py)
     cfg = new_config(ffi, lib)
     assert cfg.planner_decel == 0.0 and cfg.abi_version == 10
     # through tm.h a bad value is refused, naming it
@@ -485,3 +489,143 @@ def test_envelope_rows_record_when_each_gross_slip_starts(tmp_path):
     assert row["gross_slips"] >= 1 and len(starts) == row["gross_slips"]
     assert starts == sorted(starts) and 0.5 <= starts[0] and starts[-1] < 1.5
     assert all(abs(t * 1000.0 - round(t * 1000.0)) < 1e-9 for t in starts)  # whole ticks at 1 kHz
+
+
+# -- the envelope: its results file, repeated classes, capped speeds and the plant -------------------
+
+@pytest.fixture
+def fake_envelope(monkeypatch):
+    """run_envelope with the design and every scene faked: counts the scenes run."""
+    from types import SimpleNamespace
+
+    from tactile_mirror.lab.loop import envelope
+    from tactile_mirror.loop import scene
+
+    calls = []
+    design = SimpleNamespace(summary=lambda: {"fake": True}, shear_weights=None, controller=None)
+
+    def laws(*args, **kwargs):
+        calls.append("design")
+        return {"open loop": None, "paper": None, "default": None}, design
+
+    def run_scene(sc, *args, **kwargs):
+        calls.append(sc.seed)
+        n = round(sc.duration * sc.fs)
+        t = np.arange(n) / sc.fs
+        finger = 1e-3 * np.sin(t)
+        log = {"slip_fraction": np.zeros((2, n)), "pad": np.zeros(n), "force_y": np.ones(n), "force_z": np.ones(n)}
+        summary = {"gross_slips": 0, "gross_slip_time_s": 0.0, "tracking_rms_mm": 0.5, "tracking_max_mm": 1.0}
+        return SimpleNamespace(t=t, finger=finger, log=log, summary=lambda: summary)
+
+    monkeypatch.setattr(envelope, "law_controllers", laws)
+    monkeypatch.setattr(scene, "run_scene", run_scene)
+    return calls
+
+
+def _envelope(path, **kw):
+    from tactile_mirror.lab.loop.envelope import run_envelope
+
+    return run_envelope(path, speeds=(0.005,), n_seeds=2, laws=("open loop",), duration=1.0, weights={},
+                        progress=False, **kw)
+
+
+GOOD_ROW = {"condition": "nominal", "law": "open loop", "speed": 0.005, "seed": 0, "paths": "report",
+            "gross_slips": 0, "tracking_rms_mm": 0.5, "finger_peak_acceleration": 0.1}
+
+
+@pytest.mark.parametrize("text, problem", [
+    ('{"rows": [{"condition": "nominal", ', "not valid JSON"),
+    ("", "not valid JSON"),
+    ("[]", "JSON list, not an object"),
+    ("{}", "has no 'rows'"),
+    ('{"rows": {}}', "'rows' of type dict"),
+    ('{"rows": [{"condition": "nominal", "law": "paper"}]}', "row 0 lacks 'speed'"),
+    (json.dumps({"rows": [GOOD_ROW, {**GOOD_ROW, "speed": "fast"}]}), "row 1 has speed='fast', not a number"),
+    (json.dumps({"rows": [GOOD_ROW, 3]}), "row 1 is a int"),
+    (json.dumps({"rows": [{**GOOD_ROW, "seed": 1.5}]}), "row 0 has seed=1.5, not an integer"),
+    (json.dumps({"rows": [GOOD_ROW], "path_sets": []}), "'path_sets' is a list"),
+])
+def test_a_damaged_results_file_is_named_before_the_design(text, problem, tmp_path, fake_envelope):
+    path = tmp_path / "env.json"
+    path.write_text(text)
+    with pytest.raises(ValueError, match="envelope results file") as exc:
+        _envelope(str(path))
+    assert str(path) in str(exc.value) and problem in str(exc.value)
+    assert fake_envelope == []  # neither the design nor a scene ran
+    assert path.read_text() == text  # the file is as it was
+
+
+def test_the_envelope_saves_atomically_and_resumes(tmp_path, fake_envelope):
+    path = tmp_path / "env.json"
+    (tmp_path / "env.json.tmp").mkdir()  # the old fixed temporary name: in the way, and not used any more
+    data = _envelope(path)  # a pathlib.Path is fine too
+    assert fake_envelope == ["design", 0, 1] and len(data["rows"]) == 2
+    assert json.loads(path.read_text()) == data
+    assert sorted(os.listdir(tmp_path)) == ["env.json", "env.json.tmp"]  # no temporary left behind
+    fake_envelope.clear()
+    again = _envelope(str(path))
+    assert fake_envelope == ["design"] and again["rows"] == data["rows"]  # nothing rerun
+
+
+def test_an_unwritable_results_file_is_found_before_the_design(tmp_path, fake_envelope):
+    (tmp_path / "env.json").mkdir()
+    with pytest.raises(IsADirectoryError, match="env.json"):
+        _envelope(str(tmp_path / "env.json"))
+    assert fake_envelope == []
+
+
+def test_repeated_speeds_laws_and_conditions_run_once_with_a_warning(tmp_path, fake_envelope):
+    """A repeated --speeds or --laws value ran its class twice (and the table counted its rows
+    twice)."""
+    from tactile_mirror.lab.loop.envelope import run_envelope
+
+    with pytest.warns(UserWarning, match="given more than once") as record:
+        data = run_envelope(str(tmp_path / "env.json"), speeds=(0.005, 0.005, 0.0050000001), n_seeds=2,
+                            laws=("open loop", "open loop"), conditions=("nominal", "nominal"), duration=1.0,
+                            weights={}, progress=False)
+    assert fake_envelope == ["design", 0, 1] and len(data["rows"]) == 2
+    (t,) = data["table"]
+    assert t["runs"] == 2
+    assert {str(w.message).split(":")[0] for w in record} == {"speeds (m/s)", "laws", "conditions"}
+
+
+def test_the_envelope_reports_the_speed_its_paths_ran_and_warns_when_capped(tmp_path, fake_envelope):
+    """Where the path set's acceleration limit binds, the paths peak below the class's speed;
+    the rows and table named only the class's (asked) speed."""
+    import warnings
+
+    from tactile_mirror.lab.loop.envelope import PATH_SETS, envelope_table, run_envelope
+
+    fast = PATH_SETS["tuning-fast2"]
+    with pytest.warns(UserWarning, match=r"acceleration limit \(0.5 m/s\^2\).*20 mm/s: 2 of 2 paths peak at 1"):
+        run_envelope(str(tmp_path / "fast.json"), speeds=(0.005, 0.02), n_seeds=2, laws=("open loop",),
+                     paths=fast, duration=3.0, weights={}, progress=False)
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")  # a class its paths reach: no warning
+        run_envelope(str(tmp_path / "slow.json"), speeds=(0.005,), n_seeds=2, laws=("open loop",),
+                     paths=fast, duration=3.0, weights={}, progress=False)
+    row = {"paths": "tuning-fast2", "condition": "nominal", "law": "open loop", "speed": 0.02, "gross_slips": 0,
+           "tracking_rms_mm": 0.01, "finger_peak_acceleration": 0.5, "seed": 0}
+    (t,) = envelope_table([dict(row, finger_peak_speed=0.016), dict(row, seed=1, finger_peak_speed=0.018)])
+    assert t["speed_mm_s"] == pytest.approx(20.0) and t["capped_runs"] == 2
+    assert (t["peak_speed_run_mm_s_min"], t["peak_speed_run_mm_s_max"]) == pytest.approx((16.0, 18.0))
+    (t,) = envelope_table([dict(row, finger_peak_speed=0.02)])
+    assert t["capped_runs"] == 0 and t["peak_speed_run_mm_s_max"] == pytest.approx(20.0)
+
+
+def test_the_envelope_command_prints_the_speed_run_and_its_notes(tmp_path, fake_envelope, capsys):
+    assert main(["loop", "envelope", "--out", str(tmp_path), "--speeds", "5,20,20", "--seeds", "1",
+                 "--laws", "open loop,open loop", "--paths", "tuning-fast2", "--quiet"]) == 0
+    out, err = capsys.readouterr()
+    assert "| peak speed mm/s | peak speed run mm/s |" in out
+    assert len([line for line in out.splitlines() if line.startswith("| nominal | open loop |")]) == 2
+    notes = err.splitlines()
+    assert len(notes) == 3 and all(line.startswith("warning: ") for line in notes)
+    assert "[0.02] given more than once" in notes[0] and "['open loop'] given more than once" in notes[1]
+    assert "acceleration limit" in notes[2] and "20 mm/s: 1 of 1 paths" in notes[2]
+
+
+def test_an_unknown_plant_is_named_before_the_design(tmp_path, fake_envelope):
+    with pytest.raises(ValueError, match=r"plant must be one of \['brush', 'fem'\], got 'rubber'"):
+        _envelope(str(tmp_path / "env.json"), plant="rubber")
+    assert fake_envelope == []

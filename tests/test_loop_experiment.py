@@ -3,10 +3,13 @@ runs, the experiment's options, and the names that moved out of the experiment m
 from __future__ import annotations
 
 import dataclasses
+import math
 
 import numpy as np
 import pytest
+from tactile_mirror.circuit import PVDFCircuit
 from tactile_mirror.contact.brush import BrushRidges
+from tactile_mirror.lab.loop import experiment
 from tactile_mirror.lab.loop.experiment import ExperimentOptions, calibrate_direction, run_experiment
 from tactile_mirror.loop.finger import finger_trajectory, pressed_finger_path
 from tactile_mirror.loop.scene import LoopScene as Scene
@@ -52,6 +55,22 @@ def test_brush_ridges_partial_then_gross_slip():
     assert np.sign(st.stress[0, 0] - st.stress[0, 1]) != 0
 
 
+def test_brush_ridges_refuse_what_they_cannot_mean_and_keep_their_state():
+    b, ref = BrushRidges(), BrushRidges()
+    for m in (b, ref):
+        m.advance(1e-4)
+        m.advance(2e-4)
+    for bad, exc in ((float("nan"), ValueError), (float("inf"), ValueError), (2.0, ValueError), ("0", TypeError)):
+        with pytest.raises(exc, match="dy"):
+            b.advance(bad)
+    assert b.advance(2e-4).force_y == ref.advance(2e-4).force_y  # (an inf was kept in the slid offsets)
+    for kw, exc in (({"normal_load": float("nan")}, ValueError), ({"normal_load": -1.0}, ValueError),
+                    ({"n_points": 0}, ValueError), ({"n_ridges": 2.7}, ValueError), ({"mu": "0.5"}, TypeError),
+                    ({"mu": True}, TypeError)):
+        with pytest.raises(exc, match=next(iter(kw))):
+            BrushRidges(**kw)
+
+
 def test_finger_trajectory_within_limits_and_seeded():
     y = finger_trajectory(3, 2.0, FS, v_max=0.01, a_max=0.2)
     v = np.gradient(y, 1 / FS)
@@ -70,6 +89,42 @@ def test_finger_paths_too_short_are_refused_by_name():
     with pytest.raises(ValueError, match="longer than the press"):
         pressed_finger_path(0, 0.2, FS, press=0.5)
     assert pressed_finger_path(0, 0.6, FS, press=0.5).size == round(0.6 * FS)
+
+
+def test_loop_simulation_pieces_refuse_what_they_cannot_mean(fast_pipeline):
+    # Each of these ran and gave numbers (NaN positions, a clock stuck at inf, a mirrored
+    # or NaN finger path, negative friction or stiffness, a drop rate over 1).
+    from tactile_mirror.loop import ArraySource, LoopRunner, SimulatedStage
+    from tactile_mirror.loop.scene import LoopScene
+
+    stage = SimulatedStage()
+    stage.advance(0.001)
+    for bad, error in ((float("nan"), ValueError), (float("inf"), ValueError), (1.0, ValueError), ("0", TypeError)):
+        with pytest.raises(error, match="x0"):
+            stage.reset(bad)
+    for bad, error in ((float("inf"), ValueError), (0.0, ValueError), (True, TypeError)):
+        with pytest.raises(error, match="dt"):
+            stage.advance(bad)
+    assert stage.t == 0.001 and np.isfinite(stage.position())
+    runner = LoopRunner(fast_pipeline(), stage, ArraySource(np.zeros((5, fast_pipeline().n_inputs))))
+    for bad, match in ((float("inf"), "duration"), (1e-9, "at least one tick")):
+        with pytest.raises(ValueError, match=match):
+            runner.run(duration=bad)
+    for kw in ({"amplitude": -1e-3}, {"v_max": -0.01}, {"ramp": 0.0}, {"amplitude": float("nan")}):
+        with pytest.raises(ValueError, match=next(iter(kw))):
+            finger_trajectory(0, 1.0, 1000.0, **kw)
+    for kw, match in (({"drop_rate": 1.5}, "drop_rate"), ({"mount_stiffness": -1.0}, "mount_stiffness"),
+                      ({"mu_change": (0.1, -5.0)}, "mu_change mu"), ({"mu_change": (0.1,)}, "mu_change"),
+                      ({"plant": "glass"}, "plant"), ({"seed": -1}, "seed")):
+        with pytest.raises(ValueError, match=match):
+            LoopScene(**kw)
+    assert LoopScene(mu_change=[1.75, 0.45]).mu_change == (1.75, 0.45)
+    with pytest.raises(ValueError, match="mu"):
+        BrushRidges(6, mu=float("nan"))
+    brush = BrushRidges(6)
+    with pytest.raises(ValueError, match="mu"):
+        brush.set_mu(-5.0)
+    assert np.all(brush.mu == 1.0)
 
 
 def test_gross_slip_events():
@@ -118,6 +173,30 @@ def test_fem_pad_plant_short_closed_loop():
     assert np.ptp(r.stage) > 0
 
 
+@pytest.mark.parametrize("bad", [math.nan, None, "0.1"], ids=repr)
+def test_plant_source_names_the_stage_position(bad):
+    from tactile_mirror.loop.scene import LoopScene, PlantSource, make_plant, scene_finger
+
+    sc = LoopScene(seed=1, duration=0.05, plant="brush")
+    source = PlantSource(sc, make_plant(sc, 2), PVDFCircuit(), scene_finger(sc))
+    source.read(0.0, 0.0)
+    with pytest.raises((TypeError, ValueError), match=r"stage_position \(the stage's position\)"):
+        source.read(bad, 0.001)
+    assert source.k == 1  # nothing was stepped
+    assert source.read(0.0, 0.001).shape == (8,)
+
+
+@pytest.mark.parametrize("stiffness", [1e-3, 1.0, 999.0])
+def test_a_mount_too_soft_for_the_model_is_named_at_the_scene(stiffness):
+    """mount_stiffness=1e-3 carried the pad metres off the stage and failed mid-run as the
+    plant's "dy must lie within 1 m"."""
+    from tactile_mirror.loop.scene import MIN_MOUNT_STIFFNESS, LoopScene
+
+    with pytest.raises(ValueError, match=f"mount_stiffness must be at least {MIN_MOUNT_STIFFNESS:g} N/m"):
+        LoopScene(mount_stiffness=stiffness)
+    assert LoopScene(mount_stiffness=MIN_MOUNT_STIFFNESS).mount_stiffness == MIN_MOUNT_STIFFNESS
+
+
 def test_experiment_options_are_frozen_and_normalised():
     o = ExperimentOptions(seeds=range(3), duration=1, plant="fem")
     assert o.seeds == (0, 1, 2) and isinstance(o.duration, float)
@@ -134,3 +213,11 @@ def test_run_experiment_takes_options():
         run_experiment([1])
     with pytest.raises(TypeError):
         run_experiment(nope=1)  # type: ignore[call-arg]
+
+
+@pytest.mark.parametrize("call", ["make_laws", "default_weights", "train_detector_on_brush", "open_and_closed"])
+def test_an_unknown_plant_is_a_value_error_listing_the_plants(call):
+    """An unknown plant name was a bare KeyError."""
+    kwargs = {"make_laws": {"weights": {}}, "open_and_closed": {"weights": {}}}.get(call, {})
+    with pytest.raises(ValueError, match=r"plant must be one of \['brush', 'fem'\], got 'rubber'"):
+        getattr(experiment, call)(plant="rubber", **kwargs)

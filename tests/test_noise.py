@@ -133,6 +133,14 @@ def test_bad_parameters_name_the_argument(kwargs, name):
         SensorNoise(**kwargs)
 
 
+@pytest.mark.parametrize("kw", [{"e_n": 1e200}, {"i_n": 1e160}, {"cable_capacitance": 1e300}, {"hum": 1e200}])
+def test_noise_densities_beyond_any_part_are_refused(kw):
+    import tactile_mirror as tm
+
+    with pytest.raises(ValueError, match=f"{next(iter(kw))} must be at most"):
+        tm.SensorNoise(**kw)
+
+
 def test_bad_draw_and_spectrum_arguments_name_the_argument():
     model = SensorNoise()
     with pytest.raises(TypeError, match="circuit"):

@@ -3,9 +3,12 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+import tactile_mirror as tm
 from tactile_mirror import _core
 from tactile_mirror.circuit import PVDFCircuit
+from tactile_mirror.detector.core import SlipDetector
 from tactile_mirror.estimator import StressRateEstimator
+from tactile_mirror.loop.capi import CAPIError, CPipeline
 from tactile_mirror.pipeline import (
     MirrorPipeline,
     NoController,
@@ -13,8 +16,10 @@ from tactile_mirror.pipeline import (
     ReferencePipeline,
     VelocityController,
 )
+from tactile_mirror.pipeline.controller import controller_fields
 
 FS = 1000.0
+DBL_MAX = float(np.finfo(np.float64).max)
 
 
 def weights(h=8, seed=0, fs=FS, features="stress_rate"):
@@ -299,3 +304,153 @@ def test_from_config_round_trip():
     partial = {k: v for k, v in pipe.config.items() if k != "w1"}
     with pytest.raises(ValueError, match="config lacks w1"):
         MirrorPipeline.from_config(partial)
+
+
+# -- limits, overflow and refused samples (through pybind11 and the C ABI) ------------------------
+
+def test_default_limits_are_the_front_end_swing_and_infinite_limits_are_refused(fast_pipeline):
+    p = fast_pipeline(VelocityController(shear_gain=1e-4))
+    assert p.config["v_limit"] == p.config["u_limit"] == 15.0
+    for bad in (np.inf, np.nan, -1.0):
+        with pytest.raises(ValueError, match="v_limit"):
+            fast_pipeline(v_limit=bad)
+    cfg = fast_pipeline().config
+    cfg["v_limit"] = np.inf
+    with pytest.raises(ValueError, match="v_limit"):
+        CPipeline(cfg)  # checked in Python first
+    with pytest.raises(CAPIError) as e:
+        CPipeline(cfg, check=False)  # and by the C ABI itself
+    assert e.value.code == -3 and "v_limit" in str(e.value)
+
+
+@pytest.mark.parametrize("backend", ["pybind", "capi"])
+@pytest.mark.parametrize("limit", [None, DBL_MAX], ids=["default", "dbl_max"])
+@pytest.mark.parametrize("net", ["jordan", "jordan_bank"])
+def test_one_huge_sample_does_not_poison_the_loop(backend, limit, net, fast_pipeline, wave_signals):
+    """The issue's case: one sample of 1.7e308 V. With the default limits it is out
+    of range; with no limit (DBL_MAX) the update overflows and the tick is rejected
+    as such (for the filter-bank net, its bank's states too). Either way every later
+    output is finite and equals the run without it."""
+    kw = {} if limit is None else {"v_limit": limit, "u_limit": limit}
+    if net == "jordan_bank":
+        kw["detector"] = SlipDetector.bank()
+    p = fast_pipeline(VelocityController(shear_gain=1e-4), **kw)
+    clean = fast_pipeline(VelocityController(shear_gain=1e-4), **kw)
+    if backend == "capi":
+        p = CPipeline(p.config)
+        clean = CPipeline(clean.config)
+    x = wave_signals(600, p.n_inputs)
+    x[100, 0] = 1.7e308
+    x[101, :12:2] = 1.7e308   # L strips up, R strips down: the L-R asymmetry overflows
+    x[101, 1:12:2] = -1.7e308
+    out, acc = p.process_block(x, accepted=True)
+    assert np.all(np.isfinite(out))
+    s = p.status
+    assert s["rejected"] == np.count_nonzero(~acc) >= 1
+    assert s["rejected"] == s["nonfinite"] + s["out_of_range"] + s["overflow"]
+    assert s["last_reason"] == ("out_of_range" if limit is None else "overflow")
+    assert not s["fault"]
+    # the state after a rejected tick is as if the tick never came (controller: the
+    # held outputs drive it for that tick, as for a NaN tick)
+    x2 = x.copy()
+    x2[~acc] = np.nan
+    ref, acc2 = clean.process_block(x2, accepted=True)
+    np.testing.assert_array_equal(acc, acc2)
+    np.testing.assert_array_equal(out, ref)
+
+
+def test_reference_pipeline_rejects_the_same_overflow(fast_pipeline, wave_signals):
+    p = fast_pipeline(VelocityController(shear_gain=1e-4), activation="exact", v_limit=DBL_MAX, u_limit=DBL_MAX)
+    ref = ReferencePipeline(p.config)
+    x = wave_signals(200, p.n_inputs)
+    x[50, :12:2], x[50, 1:12:2] = DBL_MAX, -DBL_MAX
+    x[51, :12:2], x[51, 1:12:2] = DBL_MAX, -DBL_MAX
+    out = p.process_block(x)[0]
+    r = ref.process_block(x)
+    assert np.all(np.isfinite(r))
+    assert ref.rejected["overflow"] == p.status["overflow"] >= 1
+    np.testing.assert_allclose(r, out, rtol=1e-9, atol=1e-12)
+
+
+def test_float32_pipeline_refuses_a_sample_beyond_float32_as_out_of_range():
+    """With v_limit = 1e308 a float32 pipeline counted 1e300 as accepted while its v filter
+    dropped it: the filters fell a tick apart from the detector and controller."""
+    def make():
+        est = tm.StressRateEstimator(tm.PVDFCircuit(), 1000.0, 2, dtype=np.float32)
+        return tm.MirrorPipeline(tm.SlipDetector.default(), 1000.0, 1, estimator=est, dtype=np.float32,
+                                 v_limit=1e308, u_limit=1e308)
+
+    p, ref = make(), make()
+    x = np.zeros((8, p.n_inputs))
+    x[:, 0] = np.linspace(0, 1, 8)
+    p.process_block(x)
+    ref.process_block(x)
+    bad = x[-1].copy()
+    bad[0] = 1e300
+    p.step(bad)
+    assert not p.last_accepted
+    assert p.status["out_of_range"] == 1
+    # a rejected tick holds: the next ticks match a pipeline that saw the same hold
+    ref.step(np.full(ref.n_inputs, np.nan))
+    np.testing.assert_array_equal(p.process_block(x)[0], ref.process_block(x)[0])
+
+
+@pytest.mark.parametrize("value", [np.nan, np.inf, -np.inf])
+def test_non_finite_positions_are_refused_on_both_paths(value, fast_pipeline, wave_signals):
+    p = fast_pipeline(VelocityController())
+    p.process_block(wave_signals(50, p.n_inputs))
+    before = (p.controller_state, p.status)
+    with pytest.raises(ValueError, match="x0"):
+        p.reset(value)
+    with pytest.raises(ValueError, match="x"):
+        p.set_position(value)
+    with pytest.raises(ValueError, match="x0"):
+        p._core.reset(value)                # the binding itself refuses too
+    with pytest.raises(ValueError, match="x"):
+        p._core.set_position(value)
+    assert (p.controller_state, p.status) == before
+    out = np.zeros(p.n_outputs)
+    p.step(np.zeros(p.n_inputs), out)
+    assert np.all(np.isfinite(out))
+    c = CPipeline(p.config)
+    for call in (c.reset, c.set_position):
+        with pytest.raises(CAPIError) as e:
+            call(value)
+        assert e.value.code == -3
+
+
+def test_process_block_refuses_bool_samples_as_step_does():
+    est = tm.StressRateEstimator(tm.PVDFCircuit(), 1000.0, 4)
+    pipe = tm.MirrorPipeline(tm.SlipDetector.default(), 1000.0, 2, estimator=est)
+    x = np.zeros((5, pipe.n_inputs), dtype=bool)
+    with pytest.raises(TypeError, match="x must hold real numbers"):
+        pipe.process_block(x)
+    with pytest.raises(TypeError):
+        pipe.step(x[0])
+    assert pipe.status["ticks"] == 0
+
+
+def test_time_step_ns_checks_its_counts():
+    p = tm.MirrorPipeline(tm.SlipDetector.default(), 1000.0, 1,
+                          estimator=tm.StressRateEstimator(tm.PVDFCircuit(), 1000.0, 2))
+    for bad, exc in ((2**63, ValueError), ("10", TypeError), (1.5, TypeError), (0, ValueError)):
+        with pytest.raises(exc, match="n_iter"):
+            p.time_step_ns(bad, 1)
+    assert p.time_step_ns(100, 1) > 0
+
+
+# -- one definition of the controller parameters --------------------------------------------
+
+def test_controller_dataclasses_take_fields_and_defaults_from_cpp(random_net):
+    fields = [f[0] for f in _core.controller_fields()]
+    assert list(controller_fields()) == fields
+    for cls, kind in [(NoController, "none"), (PaperController, "paper"), (VelocityController, "velocity")]:
+        d = _core.controller_defaults(kind)
+        obj = cls()
+        for k, v in obj.params().items():
+            assert d[k] == v, (kind, k)
+        law_fields = set(controller_fields(kind))
+        assert law_fields <= set(obj.params()) - {"kind"}
+    p = MirrorPipeline(random_net, FS, 6, estimator=StressRateEstimator(PVDFCircuit(), FS, 12),
+                       controller=VelocityController())
+    assert {k: v for k, v in p._core.controller.items()} == {**_core.controller_defaults("velocity")}

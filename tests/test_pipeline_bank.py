@@ -5,7 +5,7 @@ The pipeline runs the bank (detector_bank.hpp) on its own stress rates, so a
 scipy + numpy reference pipeline, against ``SlipDetector.run`` on the pipeline's own
 features, through the C ABI bit for bit and through recordings. The overflow guard
 with the bank (its undo, and the window bounds over the bank's states) is tested with
-the paper's net in test_bad_input.py and test_rt_safety.py.
+the paper's net in test_pipeline.py and test_rt_safety.py.
 """
 from __future__ import annotations
 

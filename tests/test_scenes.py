@@ -65,6 +65,19 @@ def test_what_simulate_would_fail_on_is_refused_at_construction(kw, error, name)
     assert tm.Scene(finger_radius=np.inf, n_ridges=6).finger_radius == np.inf
 
 
+@pytest.mark.parametrize("kw, exc, match", [
+    ({"stops": ("12",)}, TypeError, r"stops\[0\]"), ({"stops": "12"}, TypeError, "stops"),
+    ({"stops": ((True, 2.0),)}, TypeError, r"stops\[0\]"), ({"n_ridges": True}, TypeError, "n_ridges"),
+    ({"n_ridges": float("inf")}, TypeError, "n_ridges"), ({"n_ridges": None}, TypeError, "n_ridges"),
+    ({"seed": True}, TypeError, "seed"), ({"duration": 1e300, "fs": 1e300}, ValueError, "at most 1e"),
+    ({"circuit": None}, TypeError, "circuit"), ({"geometry": None}, TypeError, "geometry"),
+    ({"duration": 0.2, "outputs": {"fields"}, "field_times": (0.1, 0.2)}, ValueError, r"field_times\[1\]"),
+])
+def test_scene_fields_are_checked_at_construction(kw, exc, match):
+    with pytest.raises(exc, match=match):
+        tm.Scene(**kw)
+
+
 def test_random_scenes_stay_in_their_ranges_and_take_overrides():
     scenes = tm.scenes.random(20, seed=1, friction=(0.5, 0.6), n_ridges=6, stop_probability=1.0)
     assert len(scenes) == 20
@@ -77,6 +90,23 @@ def test_random_scenes_stay_in_their_ranges_and_take_overrides():
         tm.scenes.random(2, stop_probability=2.0)
     with pytest.raises(ValueError, match="n must"):
         tm.scenes.random(-1)
+
+
+def test_random_scenes_from_the_cli_and_their_ranges():
+    """`simulate --scene random` always failed (its scalar --noise reached a (low, high) range)."""
+    from tactile_mirror import scenes
+    from tactile_mirror.cli import build_parser, scene_from_args
+
+    args = build_parser().parse_args(["simulate", "--scene", "random", "--friction", "0.5", "--seed", "3"])
+    sc = scene_from_args(args)
+    assert sc.friction == 0.5 and sc.noise == args.noise  # the options given are fixed values
+    assert repr(scenes.random(2, seed=7)) == repr(scenes.random(2, seed=7, friction=(0.45, 0.85)))  # as before
+    for kw, exc, match in (({"friction": (0.9, 0.4)}, ValueError, "friction"), ({"noise": "ab"}, TypeError, "noise"),
+                           ({"duration": 0.5}, ValueError, "duration must be at least 0.9 s"),
+                           ({"seed": 1.7}, ValueError, "seed"), ({"n": True}, ValueError, "n must be")):
+        n = kw.pop("n", 1)
+        with pytest.raises(exc, match=match):
+            scenes.random(n, **kw)
 
 
 # ---------------------------------------------------------------- validity of the model

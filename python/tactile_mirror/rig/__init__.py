@@ -6,6 +6,10 @@ loop, and a simulated rig that stands in for the hardware.
 - :mod:`~tactile_mirror.rig.analog_stage`: the stage on the DAQ's analog output and encoder
   counter (:class:`AnalogStage`);
 - :mod:`~tactile_mirror.rig.nidaq`: the NI-DAQmx adapters;
+- :mod:`~tactile_mirror.rig.stage`: the :class:`StageDriver` protocol and the soft-limit checks;
+- :mod:`~tactile_mirror.rig.dialects`: controller command dialects as data (:class:`Dialect`,
+  :data:`PI_GCS2`, :data:`ZABER_ASCII`);
+- :mod:`~tactile_mirror.rig.serial_stage`: :class:`SerialStage`, a stage driver over a serial line;
 - :mod:`~tactile_mirror.rig.sim`: the simulated rig.
 
 Nothing here is imported by ``import tactile_mirror``; pyserial and nidaqmx (the optional
@@ -22,9 +26,23 @@ __getattr__, __dir__, __all__ = attach(__name__, {
     "StageIO": "daq", "input_names": "daq",
     "AnalogStage": "analog_stage",
     "NiAnalogInput": "nidaq", "NiDaq": "nidaq", "NiStageIO": "nidaq",
+    "COMMAND_MODES": "stage", "StageDriver": "stage", "check_reading": "stage", "check_target": "stage",
+    "DIALECTS": "dialects", "PI_GCS2": "dialects", "ZABER_ASCII": "dialects", "ControllerError": "dialects",
+    "Dialect": "dialects", "ReplyError": "dialects",
+    "SerialStage": "serial_stage",
 })
 
 if TYPE_CHECKING:
     from tactile_mirror.rig.analog_stage import AnalogStage
     from tactile_mirror.rig.daq import Block, BlockSource, Daq, InputChannel, Overrun, StageIO, input_names
+    from tactile_mirror.rig.dialects import (
+        DIALECTS,
+        PI_GCS2,
+        ZABER_ASCII,
+        ControllerError,
+        Dialect,
+        ReplyError,
+    )
     from tactile_mirror.rig.nidaq import NiAnalogInput, NiDaq, NiStageIO
+    from tactile_mirror.rig.serial_stage import SerialStage
+    from tactile_mirror.rig.stage import COMMAND_MODES, StageDriver, check_reading, check_target

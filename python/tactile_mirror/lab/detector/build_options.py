@@ -98,11 +98,11 @@ class BuildOptions:
         default :data:`TRAIN_OPTIONS`.
     gain_range : (float, float) or None
         Gain augmentation of the training sequences
-        (:func:`~tactile_mirror.lab.detector.training.augment_gains`), as factors.
+        (:func:`~tactile_mirror.lab.detector.augment.augment_gains`), as factors.
         Default (0.6, 1.7); None: none.
     noise_copies : int
         Each training scene enters ``noise_copies`` times with fresh sensor noise
-        (:func:`~tactile_mirror.lab.detector.training.augment_noise`; 0: the scenes' own
+        (:func:`~tactile_mirror.lab.detector.augment.augment_noise`; 0: the scenes' own
         noise). Default :data:`NOISE_COPIES`.
     noise_range : (float, float)
         Range of that noise, V rms. Default :data:`NOISE_RANGE`.

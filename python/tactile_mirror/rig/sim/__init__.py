@@ -7,7 +7,9 @@ stage's serial line on a pseudo-terminal and the acquisition channels as clocked
   (:class:`SimRigLog`), the faults it can make (:data:`FAULTS`);
 - :mod:`~tactile_mirror.rig.sim.axis`: the axis hook (:class:`SimAxis`) and the analog path's
   axis (:class:`AnalogAxis`);
-- :mod:`~tactile_mirror.rig.sim.process`: the process (:class:`SimulatedRig`).
+- :mod:`~tactile_mirror.rig.sim.process`: the process (:class:`SimulatedRig`);
+- :mod:`~tactile_mirror.rig.sim.serial_axis`: :class:`SerialAxis`, a simulated stage controller
+  speaking a command dialect on a pseudo-terminal, paced at the line's baud rate.
 """
 from __future__ import annotations
 
@@ -20,6 +22,7 @@ __getattr__, __dir__, __all__ = attach(__name__, {
     "FAULTS": "config", "SimRigConfig": "config", "SimRigLog": "config",
     "AnalogAxis": "axis", "SimAxis": "axis",
     "SimulatedRig": "process",
+    "SerialAxis": "serial_axis",
 })
 
 if TYPE_CHECKING:
@@ -27,3 +30,4 @@ if TYPE_CHECKING:
     from tactile_mirror.rig.sim.config import FAULTS, SimRigConfig, SimRigLog
     from tactile_mirror.rig.sim.daq_shm import DaqRing, ShmBlockSource, ShmDaq
     from tactile_mirror.rig.sim.process import SimulatedRig
+    from tactile_mirror.rig.sim.serial_axis import SerialAxis
