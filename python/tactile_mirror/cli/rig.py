@@ -92,6 +92,7 @@ def cmd_rig_check(args) -> int:
     with session:
         stage, src = session.stage, session.source
         print(f"connected: {session.adapters()['acquisition']}; {session.adapters()['stage']}")
+        session.start_stage()   # (a serial driver reads the position from now on; no command is sent)
         session.start_acquisition()
         trips = []
         blocks = []

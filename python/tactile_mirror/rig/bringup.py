@@ -364,7 +364,9 @@ def bring_up(session, supervisor: Supervisor, detector, log=print) -> BringUpRes
         if fn is not None and (name == "enable" or config.stage["home"]):
             fn()
             homed = homed or name == "home"
-            _hold(drain, stage, sup, 0.05)
+            drain()
+    session.start_stage()
+    _hold(drain, stage, sup, 0.05)
     steps["enable_home_s"] = time.monotonic() - t
     # the slow move to the start
     t = time.monotonic()

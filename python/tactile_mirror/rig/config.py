@@ -177,7 +177,7 @@ _SCHEMA: dict[str, dict] = {
                 "symmetric": (_bool, True), "delay_steps": (_int(1, 100), 3),
                 "delay_step": (_POS, 20e-6)},
     "safety": {"watchdog": (_POS, 0.02), "max_position_age": (_POS, 0.02), "comm_timeout": (_POS, 0.1),
-               "late_block": (_POS, 0.005), "late_blocks": (_int(1), 3), "position_margin": (_NONNEG, 0.5e-3)},
+               "late_block": (_POS, 0.01), "late_blocks": (_int(1), 3), "position_margin": (_NONNEG, 0.5e-3)},
     "simulation": {"plant": (_choice("realtime", "fem", "brush"), "realtime"), "seed": (_int(0), 0),
                    "finger_speed": (_POS, 0.01), "finger_amplitude": (_POS, 0.01), "finger_bandwidth": (_POS, 2.0),
                    "finger_a_max": (_POS, 0.5), "finger_duration": (_POS, 120.0), "mu": (_POS, None),

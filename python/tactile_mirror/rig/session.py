@@ -46,16 +46,12 @@ def simulated_rig_config(config: RigConfig, **overrides):
 
 def _serial_axis(config: RigConfig) -> dict:
     """The simulated rig's settings for a serial controller's axis (its dialect on a pty)."""
-    try:
-        from tactile_mirror.rig.sim import serial_axis
-    except ImportError:
-        raise RuntimeError("stage.kind = 'serial' needs the serial stage driver and its simulated controller "
-                           "(tactile_mirror.rig.serial_stage, tactile_mirror.rig.sim.serial_axis), which this "
-                           "installation does not have") from None
+    from tactile_mirror.rig.sim.serial_path import serial_path_options
+
     s = config.serial
     baud = config.simulation["baud"] or s["baud"]
-    return serial_axis.sim_rig_settings(dialect=s["dialect"], units_per_m=s["units_per_m"], baud=baud,
-                                        axis=s["axis"], device=s["device"], generic=s["generic"])
+    return serial_path_options(s["generic"] if s["dialect"] == "generic" else s["dialect"], s["units_per_m"], baud,
+                               s["axis"], s["device"])
 
 
 class RigSession:
@@ -85,6 +81,7 @@ class RigSession:
         self.source = None
         self.stage = None
         self._started = False
+        self._stage_started = False
 
     # ------------------------------------------------------------------ open, close
     def open(self) -> RigSession:
@@ -130,14 +127,23 @@ class RigSession:
                   else {"volts_per_m_s": a["volts_per_m_s"]})
             return AnalogStage(self.daq, c.limits, a["counts_per_m"], mode=a["mode"], gain=a["gain"],
                                offset=a["offset"], **kw)
-        try:
-            from tactile_mirror.rig.serial_stage import SerialStage
-        except ImportError:
-            raise RuntimeError("stage.kind = 'serial' needs the serial stage driver "
-                               "(tactile_mirror.rig.serial_stage), which this installation does not have") from None
+        from tactile_mirror.rig.serial_stage import SerialStage
+        from tactile_mirror.rig.sim.serial_path import make_dialect
+
         s = c.serial
         port = self.sim.axis_info["port"] if self.sim is not None else s["port"]
-        return SerialStage.from_config(s, c.limits, port=port)
+        dialect = make_dialect(s["generic"] if s["dialect"] == "generic" else s["dialect"], s["units_per_m"],
+                               s["axis"], s["device"])
+        return SerialStage(port, dialect, c.limits, baudrate=s["baud"], timeout=s["timeout"],
+                           position_margin=c.safety["position_margin"])
+
+    def start_stage(self) -> None:
+        """Start the stage driver's own I/O (a serial driver's thread: it reads the position
+        from then on; before it, bring-up's enable and home); nothing for a driver without."""
+        start = getattr(self.stage, "start", None)
+        if start is not None and not self._stage_started:
+            start()
+        self._stage_started = True
 
     def start_acquisition(self) -> None:
         """Start the sample clock (once)."""

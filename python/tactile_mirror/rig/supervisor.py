@@ -101,14 +101,15 @@ class RigError(RuntimeError):
 
 
 def fault_cause(text: str) -> str:
-    """The cause (:data:`CAUSES`) of a driver's latched fault, from its words: a closed port,
-    a timeout, a position out of limits, else a controller error."""
+    """The cause (:data:`CAUSES`) of a driver's latched fault, from its words: a closed port
+    (or a device gone), a communication timeout, a position reading outside the soft limits,
+    else a controller error (an error reply, a malformed reply, a failed write)."""
     t = text.lower()
-    if "closed" in t or "removed" in t or "gone" in t or "oserror" in t:
+    if "port closed" in t or "closed port" in t or "removed" in t or "is gone" in t:
         return "closed port"
-    if "timeout" in t or "timed out" in t or "no reply" in t or "silent" in t:
+    if "communication timeout" in t or "no reply" in t or "timed out" in t:
         return "communication timeout"
-    if "limit" in t and "position" in t:
+    if t.startswith("position out of limits") or "outside the soft limits" in t:
         return "position outside soft limits"
     return "controller error"
 

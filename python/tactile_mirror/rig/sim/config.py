@@ -248,8 +248,9 @@ class SimRigLog:
     def stop_after(self, t_ns: int) -> tuple[int, str] | None:
         """When the axis was stopped after ``t_ns`` (``monotonic_ns``), and how: ``"stop
         received"`` (the first command the axis took that the host sent at ``t_ns`` or later:
-        the stop; a command log with ``stop_ns`` gives the stops themselves) or ``"watchdog"``
-        (its communication watchdog); None if neither happened."""
+        the stop; a command log with ``stop_ns`` gives the stops themselves, a serial
+        controller's) or ``"watchdog"`` (a communication watchdog: the process's, or the
+        controller's own, ``watchdog_ns``); None if neither happened."""
         out = []
         cmd = self.commands
         if "stop_ns" in cmd:
@@ -257,6 +258,10 @@ class SimRigLog:
             s = s[s >= t_ns]
             if s.size:
                 out.append((int(s.min()), "stop received"))
+            w = np.asarray(cmd.get("watchdog_ns", ()), dtype=np.int64)
+            w = w[w >= t_ns]
+            if w.size:
+                out.append((int(w.min()), "watchdog"))
         elif "t_ns" in cmd and "seen_ns" in cmd:
             sent = np.asarray(cmd["t_ns"], dtype=np.int64)
             k = np.flatnonzero(sent >= t_ns)

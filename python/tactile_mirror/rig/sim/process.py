@@ -462,6 +462,12 @@ class _Simulation:
 
 def _process_main(name: str, config: SimRigConfig, conn, control) -> None:
     """The simulated rig's process: build, wait for the clock, run, report."""
+    import sys
+
+    # A thread of this process serves a serial controller's line (the serial path): it must get
+    # the interpreter within a fraction of a millisecond, not after the default 5 ms switch
+    # interval of the tick loop's thread.
+    sys.setswitchinterval(1e-4)
     parent = multiprocessing.parent_process()
     ring = DaqRing.attach(name)
     sim = None
