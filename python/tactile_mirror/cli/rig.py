@@ -71,9 +71,37 @@ class LiveView:
             self.lines += 1
 
 
+class _SwitchInterval:
+    """While inside: the interpreter switches threads every ``interval`` s (a stage driver's
+    I/O thread must get it within a fraction of a millisecond of its reply, not after the
+    default 5 ms the loop's thread may hold it)."""
+
+    def __init__(self, interval: float = 2e-4):
+        self.interval = interval
+
+    def __enter__(self):
+        self.previous = sys.getswitchinterval()
+        sys.setswitchinterval(self.interval)
+
+    def __exit__(self, *exc):
+        sys.setswitchinterval(self.previous)
+
+
 def cmd_rig_check(args) -> int:
     """``tactile-mirror rig check``: connect, print what the rig is, measure the position
     query's round trip and the first blocks; nothing moves. Returns the exit status."""
+    with _SwitchInterval():
+        return _rig_check(args)
+
+
+def cmd_rig_run(args) -> int:
+    """``tactile-mirror rig run``: bring-up, then the loop for ``--duration`` s, recorded in
+    ``--out``. Returns the exit status (1 after a fault, 130 / 143 after SIGINT / SIGTERM)."""
+    with _SwitchInterval():
+        return _rig_run(args)
+
+
+def _rig_check(args) -> int:
     import numpy as np
 
     from tactile_mirror.rig.session import RigSession
@@ -122,9 +150,7 @@ def cmd_rig_check(args) -> int:
     return 0
 
 
-def cmd_rig_run(args) -> int:
-    """``tactile-mirror rig run``: bring-up, then the loop for ``--duration`` s, recorded in
-    ``--out``. Returns the exit status (1 after a fault, 130 / 143 after SIGINT / SIGTERM)."""
+def _rig_run(args) -> int:
     from tactile_mirror.cli.arguments import load_detector
     from tactile_mirror.files import write_json
     from tactile_mirror.rig.bringup import bring_up

@@ -72,8 +72,9 @@ class RigResult:
         The fault that stopped the run (None: it ran its course).
     status : dict
         The pipeline's status at the end.
-    skipped : int
-        Blocks acquired before the run started, read and not run (``catch_up``).
+    skipped, lost_before : int
+        Blocks acquired before the run started, read and not run (``catch_up``), and the
+        samples lost before them.
     """
 
     fs: float
@@ -101,6 +102,7 @@ class RigResult:
     trip: Trip | None = None
     status: dict = field(default_factory=dict)
     skipped: int = 0
+    lost_before: int = 0
 
     @property
     def n_ticks(self) -> int:
@@ -132,6 +134,7 @@ class RigResult:
                 "block_to_command_ms": self.latency_ms(), "largest_position_age_ms": 1e3 * self.largest_position_age,
                 "command_mode": self.command_mode, "command_interval_ms": 1e3 * self.command_interval,
                 "rejected": int(self.status.get("rejected", 0)), "blocks_before_the_start": int(self.skipped),
+                "lost_before_the_start": int(self.lost_before),
                 "stopped": None if self.trip is None else {"cause": self.trip.cause, "detail": self.trip.detail}}
 
     def to_recording(self, metadata: dict | None = None) -> Recording:
@@ -215,9 +218,9 @@ class RigRunner:
         :class:`RigResult` so far) when the supervisor stopped the run.
 
         ``catch_up``: the blocks the acquisition already holds when the run starts (acquired
-        while bring-up computed) are read first and not run (their loss, if any, is an
-        overrun); the run starts with the next block, on time. :attr:`RigResult.skipped`
-        counts them.
+        while bring-up computed) are read first and not run; the run starts with the next
+        block, on time. :attr:`RigResult.skipped` counts them (and samples lost before them,
+        outside the run, are in the summary's ``lost_before_the_start``).
 
         ``cues``: ``(t, fn)`` pairs: ``fn()`` is called once, after the block whose last sample
         is ``t`` s or more into the run (e.g. telling the operator to start moving the finger
@@ -257,9 +260,10 @@ class RigRunner:
                              command_x=cmds_x[:nc], x0=x_start, config=pipe.config, command_mode=self.command_mode,
                              command_interval=max(self.command_interval, _driver_interval(stage)),
                              largest_position_age=sup.largest_age, late_blocks=sup.late_total,
-                             trip=sup.tripped, status=dict(pipe.status), skipped=skipped)
+                             trip=sup.tripped, status=dict(pipe.status), skipped=skipped,
+                             lost_before=lost_before)
 
-        skipped = 0
+        skipped = lost_before = 0
         cues = sorted(((float(t), fn) for t, fn in cues), key=lambda c: c[0])
         try:
             while catch_up:
@@ -268,9 +272,7 @@ class RigRunner:
                 except TimeoutError:
                     break
                 skipped += 1
-                if block.lost:
-                    sup.check_block(block, time.monotonic_ns())
-                    raise RigError(sup.tripped, result())
+                lost_before += block.lost
             p = stage.position()
             if sup.check_stage(p):
                 raise RigError(sup.tripped, result())

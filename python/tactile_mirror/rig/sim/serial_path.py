@@ -74,11 +74,14 @@ class SerialPathAxis:
         self._ticks = 0
         self._history: list[tuple[int, float]] = []   # (sample time ns, pad m) of the ticks ahead
         self._reading = True      # the controller reports the pad (until a fault says otherwise)
+        self._closed_ns = -1      # when the line was found closed
         controller.report_position(config.x0)
         controller.start()
 
     def poll(self, now_ns: int) -> None:
         c = self.controller
+        if c.closed and self._closed_ns < 0:
+            self._closed_ns = now_ns
         if self._reading and self.ring.t0_ns:
             h = self._history
             k = 0
@@ -111,7 +114,9 @@ class SerialPathAxis:
         return self._model.position()
 
     def last_command_ns(self) -> int:
-        return -1   # (the controller keeps its own communication watchdog)
+        # The controller keeps its own communication watchdog while it serves the line; once the
+        # line is closed nothing comes any more: the time it closed arms the process's watchdog.
+        return self._closed_ns
 
     def stop(self) -> None:
         self._model.stop()
