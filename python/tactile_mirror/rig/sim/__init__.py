@@ -9,7 +9,9 @@ stage's serial line on a pseudo-terminal and the acquisition channels as clocked
   axis (:class:`AnalogAxis`);
 - :mod:`~tactile_mirror.rig.sim.process`: the process (:class:`SimulatedRig`);
 - :mod:`~tactile_mirror.rig.sim.serial_axis`: :class:`SerialAxis`, a simulated stage controller
-  speaking a command dialect on a pseudo-terminal, paced at the line's baud rate.
+  speaking a command dialect on a pseudo-terminal, paced at the line's baud rate;
+- :mod:`~tactile_mirror.rig.sim.serial_path`: the simulated rig's serial path (:class:`SerialPathAxis`,
+  the ``axis_factory`` :func:`~tactile_mirror.rig.sim.serial_path.serial_axis`).
 """
 from __future__ import annotations
 
@@ -22,7 +24,7 @@ __getattr__, __dir__, __all__ = attach(__name__, {
     "FAULTS": "config", "SimRigConfig": "config", "SimRigLog": "config",
     "AnalogAxis": "axis", "SimAxis": "axis",
     "SimulatedRig": "process",
-    "SerialAxis": "serial_axis",
+    "SerialAxis": "serial_axis", "SerialPathAxis": "serial_path",
 })
 
 if TYPE_CHECKING:
@@ -31,3 +33,4 @@ if TYPE_CHECKING:
     from tactile_mirror.rig.sim.daq_shm import DaqRing, ShmBlockSource, ShmDaq
     from tactile_mirror.rig.sim.process import SimulatedRig
     from tactile_mirror.rig.sim.serial_axis import SerialAxis
+    from tactile_mirror.rig.sim.serial_path import SerialPathAxis
