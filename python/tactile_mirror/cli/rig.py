@@ -167,6 +167,7 @@ def _rig_run(args) -> int:
     summary = {"config": c.source, "simulated": args.simulate, "duration_s": args.duration}
     status, result, error = 0, None, None
     live = None
+    part = "bringup_partial"
     session.open()
     try:
         summary["adapters"] = session.adapters()
@@ -178,6 +179,7 @@ def _rig_run(args) -> int:
                                                 ).save(out / "sensors_only.npz")
                 sensor = bring.design.sensor
                 cols = c.pipeline_columns(sensor)
+                part = "recording"
                 if args.live != "off" and (args.live == "text" or sys.stdout.isatty()):
                     live = LiveView(c.fs, R, 4 * R).start()
                 runner = RigRunner(bring.pipeline, session.stage, session.source, sup, columns=cols,
@@ -195,11 +197,13 @@ def _rig_run(args) -> int:
     meta = {"rig": {"adapters": summary.get("adapters"), "block_size": c.block_size, "fs": c.fs,
                     "command_rate_hz": c.loop["command_rate"], "config": c.source}}
     if result is not None:
-        rec = result.to_recording(meta)
-        rec.save(out / "recording.npz")
-        summary["run"] = result.summary()
-        print(f"wrote {out / 'recording.npz'} ({result.n_ticks} samples"
-              f"{', partial' if error is not None else ''})")
+        summary["run" if part == "recording" else "bringup_partial"] = result.summary()
+        try:
+            result.to_recording(meta).save(out / f"{part}.npz")
+        except (ValueError, OSError) as exc:
+            print(f"warning: the recording was not written: {exc}", file=sys.stderr)
+        else:
+            print(f"wrote {out / (part + '.npz')} ({result.n_ticks} samples{', partial' if error is not None else ''})")
     if session.sim_log is not None:
         summary["simulator"] = _sim_summary(session.sim_log, error)
     if error is not None:

@@ -13,8 +13,10 @@ the pipeline and commands the stage once the block's ticks are computed:
   :meth:`MirrorPipeline.process_block <tactile_mirror.MirrorPipeline.process_block>` (the same
   ticks, bit for bit), then its last command.
 
-A command is sent at most every ``command_interval`` (the configured rate, and the driver's
-own measured interval); one that comes sooner waits for the next block. The
+A command goes to the driver at most every ``command_interval`` (the configured rate); one that
+comes sooner waits for the next block. A driver with a mailbox (a serial line's) takes every
+block's target and sends the latest when its line allows, at most at its own measured
+``command_interval``: the target it sends is at most a block old. The
 :class:`~tactile_mirror.rig.supervisor.Supervisor` sees every block, position reading,
 pipeline status and target; at its first fault the stage is stopped and :meth:`RigRunner.run`
 raises :class:`~tactile_mirror.rig.supervisor.RigError` carrying the partial
@@ -58,12 +60,13 @@ class RigResult:
     command_row, command_t_ns, command_x : ndarray
         Per command sent: the row it came from, when ``move_to`` returned, the target (m).
     x0 : float
-        The controller's start position, m.
+        The controller's start position, m (0 if the run stopped before it had one).
     config : dict
         The pipeline's configuration.
     command_mode : str
     command_interval : float
-        The shortest interval between commands the run kept, s.
+        The shortest interval between commands the stage received, s: the configured one, or
+        the driver's own (measured) if longer.
     largest_position_age : float
         s, over the run's position readings.
     late_blocks : int
@@ -257,7 +260,8 @@ class RigRunner:
                              stage_position=pos[:row], aux=aux[:row], aux_names=self.aux_names, block_row=b[:, 0],
                              block_index=b[:, 1], block_lost=b[:, 2], block_t_ns=b[:, 3], block_read_ns=b[:, 4],
                              block_latency_ns=b[:, 5], command_row=cmds_row[:nc], command_t_ns=cmds_t[:nc],
-                             command_x=cmds_x[:nc], x0=x_start, config=pipe.config, command_mode=self.command_mode,
+                             command_x=cmds_x[:nc], x0=x_start if math.isfinite(x_start) else 0.0,
+                             config=pipe.config, command_mode=self.command_mode,
                              command_interval=max(self.command_interval, _driver_interval(stage)),
                              largest_position_age=sup.largest_age, late_blocks=sup.late_total,
                              trip=sup.tripped, status=dict(pipe.status), skipped=skipped,
@@ -334,7 +338,7 @@ class RigRunner:
                 if not stop and self.command:
                     cmd = float(outputs[r1 - 1, 0])
                     now = time.monotonic_ns()
-                    if now - last_cmd >= max(interval_ns, round(_driver_interval(stage) * 1e9)):
+                    if now - last_cmd >= interval_ns:
                         if sup.check_target(cmd):
                             break
                         try:
