@@ -151,6 +151,8 @@ def _rig_check(args) -> int:
 
 
 def _rig_run(args) -> int:
+    import numpy as np
+
     from tactile_mirror.cli.arguments import load_detector
     from tactile_mirror.files import write_json
     from tactile_mirror.rig.bringup import bring_up
@@ -205,7 +207,13 @@ def _rig_run(args) -> int:
         else:
             print(f"wrote {out / (part + '.npz')} ({result.n_ticks} samples{', partial' if error is not None else ''})")
     if session.sim_log is not None:
-        summary["simulator"] = _sim_summary(session.sim_log, error)
+        log = session.sim_log
+        summary["simulator"] = _sim_summary(log, error)
+        summary["simulator"]["commands"] = _commands_received(log, c)
+        cmd = log.commands
+        np.savez(out / "simulator.npz", t0_ns=log.t0_ns, fs=log.fs, finger_start=log.finger_start, finger=log.finger,
+                 pad=log.pad, slip_fraction=log.slip_fraction, command_t_ns=np.asarray(cmd["t_ns"], dtype=np.int64),
+                 command=np.asarray(cmd["volts"] if "volts" in cmd else cmd["x"], dtype=np.float64))
     if error is not None:
         summary["stopped"] = {"cause": error.cause, "detail": error.trip.detail}
         status = _SIGNAL_STATUS.get(error.cause, 1)
@@ -216,6 +224,30 @@ def _rig_run(args) -> int:
     _print_summary(summary)
     print(f"wrote {out / 'run.json'}")
     return status
+
+
+def _commands_received(log, c) -> dict:
+    """What the simulated axis received: how many commands, the shortest interval between two
+    (the last, the stop when the rig closes, left out: a stop never waits), the largest target,
+    and how many lay outside the soft limits (none should)."""
+    import numpy as np
+
+    cmd = log.commands
+    if "volts" in cmd:   # the analog path: each value written, as a target (position) or a speed
+        t = np.asarray(cmd["t_ns"], dtype=np.int64)
+        v = np.asarray(cmd["volts"], dtype=np.float64)
+        a = c.analog or {}
+        x = (v - a.get("volts_offset", 0.0)) / a["volts_per_m"] if a.get("mode") == "position" else None
+    else:                # a serial controller: the moves it received
+        t = np.asarray(cmd["t_ns"], dtype=np.int64)
+        x = np.asarray(cmd["x"], dtype=np.float64)
+    gaps = np.diff(np.sort(t))[:-1]
+    out = {"received": int(t.size), "min_interval_ms": float(gaps.min()) / 1e6 if gaps.size else None}
+    if x is not None and x.size:
+        lim = c.limits
+        out["largest_target_mm"] = 1e3 * float(np.abs(x).max())
+        out["outside_soft_limits"] = int(np.count_nonzero((x < lim.x_min) | (x > lim.x_max)))
+    return out
 
 
 def _sim_summary(log, error) -> dict:
@@ -264,7 +296,8 @@ def add_parser(sub) -> None:
     q = add_command(rsub, "run", cmd_rig_run, help="bring-up, then the loop for --duration s, recorded in --out")
     q.add_argument("--config", required=True, help="the rig's TOML configuration")
     q.add_argument("--duration", type=positive(float), default=30.0, help="seconds of the loop (default: 30)")
-    q.add_argument("--out", required=True, help="output folder: recording.npz, sensors_only.npz, run.json")
+    q.add_argument("--out", required=True, help="output folder: recording.npz, sensors_only.npz, run.json (and "
+                                                "with --simulate the simulator's finger, pad and slip: simulator.npz)")
     q.add_argument("--simulate", action="store_true", help="the simulated rig in place of the devices")
     q.add_argument("--live", choices=("auto", "text", "off"), default="auto",
                    help="the live status line (auto: when the output is a terminal)")

@@ -153,6 +153,24 @@ class _Background(threading.Thread):
             raise self.error
 
 
+class _Paced:
+    """The stage, its ``move_to`` never called closer than ``interval`` s (the configured command
+    rate holds through bring-up too: a call that comes sooner waits the rest)."""
+
+    def __init__(self, stage, interval: float):
+        self._stage, self._interval, self._last = stage, float(interval), -math.inf
+
+    def move_to(self, x: float) -> None:
+        wait = self._last + self._interval - time.monotonic()
+        if wait > 0:
+            time.sleep(wait)
+        self._stage.move_to(x)
+        self._last = time.monotonic()
+
+    def __getattr__(self, name):
+        return getattr(self._stage, name)
+
+
 def _hold(drain: _Drain, stage, sup: Supervisor, seconds: float) -> None:
     """Keep reading blocks (and checking the stage) for ``seconds``."""
     end = time.monotonic() + seconds
@@ -352,7 +370,8 @@ def bring_up(session, supervisor: Supervisor, detector, log=print) -> BringUpRes
     stage stopped) at a fault."""
     from tactile_mirror.loop.design import design_loop
 
-    config, stage, source, sup = session.config, session.stage, session.source, supervisor
+    config, source, sup = session.config, session.source, supervisor
+    stage = _Paced(session.stage, config.command_interval)
     steps = {}
     t = time.monotonic()
     session.start_acquisition()
@@ -399,7 +418,7 @@ def bring_up(session, supervisor: Supervisor, detector, log=print) -> BringUpRes
     # the sensors-only run: the stage is never commanded
     t = time.monotonic()
     R = config.n_ridges
-    runner = RigRunner(build_pipeline(config, detector), stage, source, sup, columns=list(range(4 * R)),
+    runner = RigRunner(build_pipeline(config, detector), session.stage, source, sup, columns=list(range(4 * R)),
                        aux_columns=(4 * R, 4 * R + 1), aux_names=("force_y", "force_z"), command=False)
     sensors = runner.run(config.bringup["sensors_only"], x0=stage.position())
     noise = _noise(sensors, R)
