@@ -164,7 +164,8 @@ def _rig_run(args) -> int:
     c = _config(args.config)
     detector = load_detector(c.loop["weights"])
     R = c.n_ridges
-    sim_kw = {"duration": max(args.duration + 5.0, c.simulation["finger_duration"])} if args.simulate else {}
+    # (the simulated finger's path lasts the run: its peak speed and acceleration fall within it)
+    sim_kw = {"duration": min(args.duration, c.simulation["finger_duration"])} if args.simulate else {}
     session = RigSession(c, simulate=args.simulate, **sim_kw)
     summary = {"config": c.source, "simulated": args.simulate, "duration_s": args.duration}
     status, result, error = 0, None, None

@@ -302,7 +302,7 @@ class RigRunner:
                     break
                 t_read = time.monotonic_ns()
                 waited_since = time.monotonic()
-                stop = sup.check_block(block, t_read)
+                stop = sup.check_block(block, t_read, late=self.command)   # (lateness matters to commands)
                 if not stop:
                     try:
                         p = stage.position()

@@ -218,15 +218,16 @@ class Supervisor:
             self.trip(name, f"{name} received: stopped on request", t)
         return self.trip_ is not None
 
-    def check_block(self, block, t_read_ns: int) -> bool:
-        """A block as the loop got it at ``t_read_ns``: lost samples (an overrun), lateness."""
+    def check_block(self, block, t_read_ns: int, late: bool = True) -> bool:
+        """A block as the loop got it at ``t_read_ns``: lost samples (an overrun), lateness
+        (``late=False``: not judged, for a run that commands nothing)."""
         if block.lost:
             self.overruns += 1
             self.lost += int(block.lost)
             self.trip("overrun", f"{block.lost} samples lost before sample {block.index} (the acquisition's "
                                  f"buffer overflowed: the loop fell behind)", block.t_ns)
             return True
-        if t_read_ns - block.t_ns > self.late_block_ns:
+        if late and t_read_ns - block.t_ns > self.late_block_ns:
             self._late_run += 1
             self.late_total += 1
             if self._late_run >= self.late_blocks:
