@@ -14,7 +14,8 @@ the pipeline and commands the stage once the block's ticks are computed:
   ticks, bit for bit), then its last command.
 
 A command goes to the driver at most every ``command_interval`` (the configured rate); one that
-comes sooner waits for the next block. A driver with a mailbox (a serial line's) takes every
+comes sooner (blocks handled in a burst after the loop was held up) is sent as soon as the
+interval allows, unless a newer block's command replaces it first. A driver with a mailbox (a serial line's) takes every
 block's target and sends the latest when its line allows, at most at its own measured
 ``command_interval``: the target it sends is at most a block old. The
 :class:`~tactile_mirror.rig.supervisor.Supervisor` sees every block, position reading,
@@ -284,9 +285,34 @@ class RigRunner:
             if reset:
                 pipe.reset(x_start)
             waited_since = time.monotonic()
+            pending = None   # (target, row, block index): a command the interval held back
             while nb < n_blocks:
+                if pending is not None:
+                    wait = (last_cmd + interval_ns - time.monotonic_ns()) / 1e9
+                    try:   # a block that comes first replaces it
+                        block = src.read_block(max(wait, 0.0))
+                    except TimeoutError:
+                        cmd, crow, cblock = pending
+                        pending = None
+                        try:
+                            stage.move_to(cmd)
+                        except Exception as exc:  # noqa: BLE001
+                            sup.trip("controller error", f"stage.move_to({cmd!r}) raised {type(exc).__name__}: {exc}")
+                            break
+                        last_cmd = time.monotonic_ns()
+                        cmds_row[nc], cmds_t[nc], cmds_x[nc] = crow, last_cmd, cmd
+                        nc += 1
+                        blocks[cblock, 5] = last_cmd - blocks[cblock, 3]
+                        continue
+                    except (EOFError, Overrun, OSError):
+                        pending = None
+                        continue
+                    pending = None
+                else:
+                    block = None
                 try:
-                    block = src.read_block(timeout)
+                    if block is None:
+                        block = src.read_block(timeout)
                 except TimeoutError:
                     if sup.check_timeout(time.monotonic() - waited_since):
                         break
@@ -337,10 +363,12 @@ class RigRunner:
                         stop = sup.check_pipeline(status, _fault_time(accepted[:r1], max_hold, block, fs))
                 if not stop and self.command:
                     cmd = float(outputs[r1 - 1, 0])
+                    if sup.check_target(cmd):
+                        break
                     now = time.monotonic_ns()
-                    if now - last_cmd >= interval_ns:
-                        if sup.check_target(cmd):
-                            break
+                    if now - last_cmd < interval_ns:
+                        pending = (cmd, r1 - 1, nb - 1)
+                    else:
                         try:
                             stage.move_to(cmd)
                         except Exception as exc:  # noqa: BLE001
