@@ -91,42 +91,13 @@ public:
         : n_(n), n2_(2 * n), C_(compliance, compliance + 4 * n * n), z0_(node_z, node_z + n),
           w_(weights, weights + n), w_tol_(w_tol), r_(r) {
         z0_max_ = z0_[0];
-        argmax_z0_ = 0;
         for (std::size_t i = 1; i < n; ++i)
-            if (z0_[i] > z0_max_) { z0_max_ = z0_[i]; argmax_z0_ = i; }
-        auto vec = [](std::size_t k) { return std::vector<double>(k, 0.0); };
-        lam_ = vec(n2_); uy_prev_ = vec(n); sign_ = vec(n);
+            if (z0_[i] > z0_max_) z0_max_ = z0_[i];
+        lam_.assign(n2_, 0.0); uy_prev_.assign(n, 0.0); sign_.assign(n, 0.0); pu_.assign(n2_, 0.0);
         state_.assign(n, kContactOpen); sliding_.assign(n, 0);
-        c_lam_ = vec(n2_); c_u_ = vec(n2_); c_sign_ = vec(n); c_forces_ = vec(n2_);
-        c_state_.assign(n, kContactOpen); c_reported_.assign(n, kContactOpen);
-        mu_node_ = vec(n); F_ = vec(n2_); F2_ = vec(n2_); u2_ = vec(n2_); lam2_ = vec(n2_); d_ = vec(n2_);
-        ws_state_.assign(n, kContactOpen); ws_sign_ = vec(n); ws_state2_.assign(n, kContactOpen); ws_sign2_ = vec(n);
-        rhs_ = vec(n2_); M_ = vec(n2_ * n2_); piv_.assign(n2_, 0); J_ = vec(n2_ * n2_); jpiv_.assign(n2_, 0);
-        bnode_.assign(n2_, 0); bkind_.assign(n2_, 0);
-        pos_ln_.assign(n, -1); pos_lt_.assign(n, -1);
-        base_state_.assign(n, kContactOpen); base_coef_ = vec(n);
-        vcol_.assign(kMaxBorder, nullptr); vslot_.assign(kMaxBorder, 0); slot_used_.assign(kColCache, 0); Wt_ = vec(kMaxBorder * n2_); S_ = vec(kMaxBorder * kMaxBorder);
-        vnew_ = vec(kMaxBorder * n2_); new_col_.assign(kMaxBorder, 0);
-        spiv_.assign(kMaxBorder, 0); by_ = vec(kMaxBorder); brow_.resize(kMaxBorder); bcol_.resize(kMaxBorder);
-        vcache_ = vec(kColCache * n2_); ccol_.resize(kColCache);
-        obrow_.resize(kMaxBorder); obcol_.resize(kMaxBorder); orcoef_ = vec(kMaxBorder); occoef_ = vec(kMaxBorder);
-        Wt2_ = vec(kMaxBorder * n2_); S0_ = vec(kMaxBorder * kMaxBorder); S1_ = vec(kMaxBorder * kMaxBorder);
-        rmap_.assign(kMaxBorder, -1); cmap_.assign(kMaxBorder, -1);
-        node_head_.assign(n, -1); chain_next_.assign(kMaxBorder, -1);
-        cache_next_.assign(kColCache, -1); trow_.resize(kMaxBorder); tcol_.resize(kMaxBorder);
-        rhs_in_ = vec(n2_); rhs_out_ = vec(n2_);
-        aff_lam_ = vec(n2_); aff_u_ = vec(n2_); aff_lz_ = vec(n2_); aff_uz_ = vec(n2_); aff_ly_ = vec(n2_);
-        aff_uy_ = vec(n2_); aff_v_ = vec(n);
-        key_state_.assign(n, kContactOpen); key_coef_ = vec(n);
-        slip_coef_ = vec(n);
-        plam_ = vec(n2_); free_rows_.assign(n2_, 0);
-        pu_ = vec(n2_); pl1_ = vec(n2_); pu1_ = vec(n2_); rs_ = vec(n2_); rz_ = vec(n2_); us_ = vec(n2_);
-        uz_ = vec(n2_); ukey_sign_ = vec(n); ev_frac_ = vec(4 * n); prev_sign_ = vec(n);
-        sv_lam_ = vec(n2_); sv_u_ = vec(n2_); sv_sign_ = vec(n); o_lam_ = vec(n2_); o_u_ = vec(n2_); zunit_ = vec(2 * n2_);
-        fl_lam_ = vec(n2_); fl_u_ = vec(n2_); fl_sign_ = vec(n); fl_state_.assign(n, kContactOpen);
-        ukey_state_.assign(n, kContactOpen); ev_kind_.assign(4 * n, 0); prev_state_.assign(n, kContactOpen);
-        sv_state_.assign(n, kContactOpen); ev_node_.assign(4 * n, 0);
-        seen_.assign(kSeenCap * n, 0); key_.assign(n, 0); seen_resolved_.assign(kSeenCap, false);
+        saved_.allocate(n); stepped_.allocate(n); solved_.allocate(n); act_.allocate(n); newton_.allocate(n);
+        piece_.allocate(n); base_.allocate(n); border_.allocate(n); cols_.allocate(n); aff_.allocate(n);
+        unit_.allocate(n); ev_.allocate(n); disp_.allocate(n);
         // event tolerances of the reference for w_tol = 1e-11 H: gaps 1e-14 H (m),
         // forces 1e-12 r H (N/m); set_event_tolerances sets them exactly
         g_tol_ = 1e-3 * w_tol;
@@ -170,14 +141,13 @@ public:
     // Back to the undeformed, unloaded state.
     void reset() noexcept {
         fill(pu_, 0.0);
-        z_prev_ = 0.0; has_z_ = false; unit_valid_ = false;
+        z_prev_ = 0.0; has_z_ = false; unit_.valid = false;
         solves_ = 0; events_ = 0;
         fill(lam_, 0.0); fill(uy_prev_, 0.0); fill(sign_, 0.0);
         fill8(state_, kContactOpen); fill8(sliding_, 0);
         s_prev_ = 0.0;
-        lu_valid_ = false;
-        aff_stage_ = 0;
-        has_candidate_ = false;
+        base_.valid = false;
+        aff_.stage = 0;
         pristine_ = true;
         fr_mu_ = params.mu; fr_muk_ = params.mu_kinetic;
     }
@@ -191,11 +161,11 @@ public:
     // is unchanged.
     ContactStatus step(double plate_y, double plate_z, bool every = true) noexcept {
         const long s0 = solves_;
-        const ContactStatus s = follow(&plate_y, &plate_z, 1, every, o_lam_.data(), o_u_.data(), c_reported_.data(),
+        const ContactStatus s = follow(&plate_y, &plate_z, 1, every, stepped_.lam.data(), stepped_.u.data(), stepped_.state.data(),
                                        0, 0);
         if (s != ContactStatus::ok) return s;
-        report(o_lam_.data(), c_reported_.data(), c_forces_.data(), c_frac_);
-        c_iterations_ = static_cast<int>(solves_ - s0);
+        report(stepped_.lam.data(), stepped_.state.data(), stepped_.forces.data(), stepped_.slip_fraction);
+        stepped_.iterations = static_cast<int>(solves_ - s0);
         return s;
     }
 
@@ -215,10 +185,10 @@ public:
         frac = total > 0 ? slipping / total : 0.0;
     }
 
-    // Solve the step to (plate_y, plate_z) with the cones mu_node_, from the
-    // classification (st, sg) (which must be ws_state_ / ws_sign_: they are used as
+    // Solve the step to (plate_y, plate_z) with the cones act_.mu, from the
+    // classification (st, sg) (which must be act_.state / act_.sign: they are used as
     // workspace): active-set iterations, then the damped Newton method if they cycle.
-    // The result is in c_lam_, c_u_, c_state_, c_sign_; `it` counts the iterations.
+    // The result is in solved_.lam, solved_.u, solved_.state, solved_.sign; `it` counts the iterations.
     // exact: go on while the classification still changes, even once the residual is
     // within atol (the exact solution of its piece); if the pieces cycle, the first
     // answer within the tolerance.
@@ -226,25 +196,25 @@ public:
                              int& it, bool exact = false) noexcept {
         const std::size_t n = n_;
         it = 0;
-        std::int8_t* nst = ws_state2_.data();
-        double* nsg = ws_sign2_.data();
+        std::int8_t* nst = act_.next_state.data();
+        double* nsg = act_.next_sign.data();
         bool have_first = false;
         for (int k = 1; k <= params.max_active_set_iter; ++k) {
             it = k;
-            const int info = piece_response(st, sg, plate_z, plate_y, ds, c_lam_.data(), c_u_.data());
-            if (info != 0) { err_info_ = info; return ContactStatus::singular_piece; }
-            const double fmax = classify(c_lam_.data(), c_u_.data(), plate_z, ds, F_.data(), nst, nsg);
+            const int info = piece_response(st, sg, plate_z, plate_y, ds, solved_.lam.data(), solved_.u.data());
+            if (info != 0) { err_.info = info; return ContactStatus::singular_piece; }
+            const double fmax = classify(solved_.lam.data(), solved_.u.data(), plate_z, ds, act_.F.data(), nst, nsg);
             bool same = true;
             for (std::size_t i = 0; i < n && same; ++i)
                 same = nst[i] == st[i] && (st[i] != kContactSlip || nsg[i] == sg[i]);
             if (fmax <= atol) {
                 if (!exact || same) {
-                    copy8(nst, c_state_.data()); copy(nsg, c_sign_.data());
+                    copy8(nst, solved_.state.data()); copy(nsg, solved_.sign.data());
                     return ContactStatus::ok;
                 }
                 if (!have_first) {
-                    copy(c_lam_.data(), fl_lam_.data(), n2_); copy(c_u_.data(), fl_u_.data(), n2_);
-                    copy8(nst, fl_state_.data()); copy(nsg, fl_sign_.data());
+                    copy(solved_.lam.data(), act_.first_lam.data(), n2_); copy(solved_.u.data(), act_.first_u.data(), n2_);
+                    copy8(nst, act_.first_state.data()); copy(nsg, act_.first_sign.data());
                     have_first = true;
                 }
             } else if (same) {
@@ -254,43 +224,43 @@ public:
             double* tg = sg; sg = nsg; nsg = tg;
         }
         if (have_first) {
-            copy(fl_lam_.data(), c_lam_.data(), n2_); copy(fl_u_.data(), c_u_.data(), n2_);
-            copy8(fl_state_.data(), c_state_.data()); copy(fl_sign_.data(), c_sign_.data());
+            copy(act_.first_lam.data(), solved_.lam.data(), n2_); copy(act_.first_u.data(), solved_.u.data(), n2_);
+            copy8(act_.first_state.data(), solved_.state.data()); copy(act_.first_sign.data(), solved_.sign.data());
             return ContactStatus::ok;
         }
         int it2 = 0;
         const ContactStatus s = damped_newton(plate_z, ds, atol, it2);
         it += it2;
         if (s != ContactStatus::ok) return s;
-        classify(c_lam_.data(), c_u_.data(), plate_z, ds, F_.data(), c_state_.data(), c_sign_.data());
+        classify(solved_.lam.data(), solved_.u.data(), plate_z, ds, act_.F.data(), solved_.state.data(), solved_.sign.data());
         return ContactStatus::ok;
     }
 
     // ---- results of the last solve (valid after it returned ok; kept by commit)
-    const double* forces() const noexcept { return c_forces_.data(); }        // (2n) f = (lt, -ln), N/m
-    const double* displacement() const noexcept { return o_u_.data(); }       // (2n) (u_y, u_z), m
-    const std::int8_t* reported_state() const noexcept { return c_reported_.data(); }  // (n)
-    double slip_fraction() const noexcept { return c_frac_; }
-    int iterations() const noexcept { return c_iterations_; }
+    const double* forces() const noexcept { return stepped_.forces.data(); }        // (2n) f = (lt, -ln), N/m
+    const double* displacement() const noexcept { return stepped_.u.data(); }       // (2n) (u_y, u_z), m
+    const std::int8_t* reported_state() const noexcept { return stepped_.state.data(); }  // (n)
+    double slip_fraction() const noexcept { return stepped_.slip_fraction; }
+    int iterations() const noexcept { return stepped_.iterations; }
     // Piece factorisations since construction (a step that reuses the factors adds none).
-    long factorizations() const noexcept { return n_factorizations_; }
+    long factorizations() const noexcept { return stats_.factorizations; }
     // Pieces solved by bordering the factored base piece instead of refactoring.
-    long updates() const noexcept { return n_updates_; }
+    long updates() const noexcept { return stats_.updates; }
     // Times the base was extended by the nodes a piece added (extend_base) instead of
     // refactored.
-    long extensions() const noexcept { return n_extensions_; }
+    long extensions() const noexcept { return stats_.extensions; }
     // Bordered updates that kept every border row and column of the last one and added to
     // it (the border's W^T rows and Schur complement extended in place, extend_s).
-    long border_extensions() const noexcept { return n_border_ext_; }
+    long border_extensions() const noexcept { return stats_.border_extensions; }
     // Piece solves served by the affine response of an unchanged piece (O(n) each).
-    long affine_steps() const noexcept { return n_affine_; }
+    long affine_steps() const noexcept { return stats_.affine; }
     // Base solves of a load's right-hand side served by the last one (same base, same
     // right-hand side: the iterations of one point).
-    long rhs_reuses() const noexcept { return n_rhs_reused_; }
+    long rhs_reuses() const noexcept { return stats_.rhs_reuses; }
     // ---- error details of the last failed solve
-    long error_info() const noexcept { return err_info_; }
-    double error_residual() const noexcept { return err_residual_; }
-    double error_tolerance() const noexcept { return err_atol_; }
+    long error_info() const noexcept { return err_.info; }
+    double error_residual() const noexcept { return err_.residual; }
+    double error_tolerance() const noexcept { return err_.atol; }
 
     // ---- committed contact history (read / restore)
     const double* lam() const noexcept { return lam_.data(); }
@@ -305,8 +275,7 @@ public:
         copy8(state, state_.data());
         for (std::size_t i = 0; i < n_; ++i) sliding_[i] = sliding[i] ? 1 : 0;
         s_prev_ = s_prev;
-        aff_stage_ = 0;
-        has_candidate_ = false;
+        aff_.stage = 0;
         pristine_ = false;
         fr_mu_ = params.mu; fr_muk_ = params.mu_kinetic;  // a given history holds under the current friction
     }
@@ -336,18 +305,18 @@ public:
     ContactStatus follow(const double* ys, const double* zs, std::size_t N, bool every, double* lam_out,
                          double* u_out, std::int8_t* state_out, std::size_t out_stride2,
                          std::size_t out_stride1) noexcept {
-        err_info_ = 0; err_residual_ = 0.0; err_atol_ = 0.0;
+        err_.info = 0; err_.residual = 0.0; err_.atol = 0.0;
         for (std::size_t k = 0; k < N; ++k) {
             // (NaN fails the comparison too)
             if (!(std::fabs(ys[k]) <= kMaxPlatePosition && std::fabs(zs[k]) <= kMaxPlatePosition)) {
-                err_info_ = static_cast<long>(k);
+                err_.info = static_cast<long>(k);
                 return ContactStatus::non_finite_position;
             }
         }
         save();
         if (N) pristine_ = false;
-        out_lam_ = lam_out; out_u_ = u_out; out_state_ = state_out;
-        out_s2_ = out_stride2; out_s1_ = out_stride1;
+        out_.lam = lam_out; out_.u = u_out; out_.state = state_out;
+        out_.stride2 = out_stride2; out_.stride1 = out_stride1;
         if (N && !has_z_) {  // first placement: from above, no lower than the crown
             s_prev_ = ys[0];
             z_prev_ = zs[0] > z0_max_ ? zs[0] : z0_max_;
@@ -364,7 +333,7 @@ public:
         while (k < N) {
             const std::size_t end = every ? k + 1 : segment_end(ys, zs, N, k);
             const std::size_t L = end - k;
-            out_row0_ = k;
+            out_.row0 = k;
             // a segment of several samples: the end of each piece by a direct solve (its
             // own accuracy, not the unit responses' extrapolated over the segment)
             const ContactStatus s =
@@ -392,21 +361,21 @@ public:
     };
     // P: (q, 2n) row-major, applied to lam = (lt, ln). Allocates: call it before stepping.
     void set_projection(const double* P, std::size_t q) {
-        q_ = q;
-        Pt_.assign(q * n2_, 0.0);  // column-major: the q entries of column j together
+        out_.q = q;
+        out_.Pt.assign(q * n2_, 0.0);  // column-major: the q entries of column j together
         for (std::size_t a = 0; a < q; ++a)
-            for (std::size_t j = 0; j < n2_; ++j) Pt_[j * q + a] = P[a * n2_ + j];
-        pc_.assign(q, 0.0);
-        pd_.assign(q, 0.0);
+            for (std::size_t j = 0; j < n2_; ++j) out_.Pt[j * q + a] = P[a * n2_ + j];
+        out_.pc.assign(q, 0.0);
+        out_.pd.assign(q, 0.0);
     }
-    std::size_t projection_size() const noexcept { return q_; }
+    std::size_t projection_size() const noexcept { return out_.q; }
     ContactStatus follow(const double* ys, const double* zs, std::size_t N, bool every, double* lam_out,
                          double* u_out, std::int8_t* state_out, std::size_t out_stride2, std::size_t out_stride1,
                          const Extra& extra) noexcept {
-        ex_ = extra;
-        if (!q_) ex_.proj = nullptr;
+        out_.extra = extra;
+        if (!out_.q) out_.extra.proj = nullptr;
         const ContactStatus s = follow(ys, zs, N, every, lam_out, u_out, state_out, out_stride2, out_stride1);
-        ex_ = Extra{};
+        out_.extra = Extra{};
         return s;
     }
 
@@ -418,27 +387,27 @@ public:
     bool placed() const noexcept { return has_z_; }
     const double* path_displacement() const noexcept { return pu_.data(); }
     // Load point of the last failure of follow (for the error message).
-    double error_y() const noexcept { return err_y_; }
-    double error_z() const noexcept { return err_z_; }
+    double error_y() const noexcept { return err_.y; }
+    double error_z() const noexcept { return err_.z; }
 
     // The history in one slot (save) and back (restore): follow saves at its start, so
     // a caller stepping several ridges can undo the ones that succeeded.
     void save() noexcept {
-        copy(lam_.data(), sv_lam_.data(), n2_); copy(pu_.data(), sv_u_.data(), n2_);
-        copy8(state_.data(), sv_state_.data()); copy(sign_.data(), sv_sign_.data());
-        sv_s_ = s_prev_; sv_z_ = z_prev_; sv_has_z_ = has_z_; sv_solves_ = solves_; sv_events_ = events_;
-        sv_pristine_ = pristine_;
-        sv_fr_mu_ = fr_mu_; sv_fr_muk_ = fr_muk_;
+        copy(lam_.data(), saved_.lam.data(), n2_); copy(pu_.data(), saved_.u.data(), n2_);
+        copy8(state_.data(), saved_.state.data()); copy(sign_.data(), saved_.sign.data());
+        saved_.s_prev = s_prev_; saved_.z_prev = z_prev_; saved_.has_z = has_z_; saved_.solves = solves_; saved_.events = events_;
+        saved_.pristine = pristine_;
+        saved_.fr_mu = fr_mu_; saved_.fr_muk = fr_muk_;
     }
     void restore() noexcept {
-        copy(sv_lam_.data(), lam_.data(), n2_); copy(sv_u_.data(), pu_.data(), n2_);
+        copy(saved_.lam.data(), lam_.data(), n2_); copy(saved_.u.data(), pu_.data(), n2_);
         copy(pu_.data(), uy_prev_.data());
-        copy8(sv_state_.data(), state_.data()); copy(sv_sign_.data(), sign_.data());
+        copy8(saved_.state.data(), state_.data()); copy(saved_.sign.data(), sign_.data());
         for (std::size_t i = 0; i < n_; ++i) sliding_[i] = state_[i] == kContactSlip;
-        s_prev_ = sv_s_; z_prev_ = sv_z_; has_z_ = sv_has_z_; solves_ = sv_solves_; events_ = sv_events_;
-        pristine_ = sv_pristine_;
-        fr_mu_ = sv_fr_mu_; fr_muk_ = sv_fr_muk_;
-        unit_valid_ = false;
+        s_prev_ = saved_.s_prev; z_prev_ = saved_.z_prev; has_z_ = saved_.has_z; solves_ = saved_.solves; events_ = saved_.events;
+        pristine_ = saved_.pristine;
+        fr_mu_ = saved_.fr_mu; fr_muk_ = saved_.fr_muk;
+        unit_.valid = false;
         // the affine response of the current piece (piece_response) stays: it holds while
         // the piece and its stuck nodes' offsets do, and both are checked where it is
         // used; the restored history is then served as the uninterrupted one would be
@@ -466,9 +435,8 @@ public:
         } else {
             z_prev_ = 0.0; has_z_ = false;
         }
-        unit_valid_ = false;
-        aff_stage_ = 0;
-        has_candidate_ = false;
+        unit_.valid = false;
+        aff_.stage = 0;
         pristine_ = false;
         fr_mu_ = params.mu; fr_muk_ = params.mu_kinetic;
     }
@@ -495,19 +463,19 @@ private:
         if (a >= b) return;
         double frac = 0.0;
         std::int8_t flags = 0;
-        if (ex_.proj) {  // P lc and P (l1 - lc), once for the rows
-            const std::size_t q = q_;
-            double* pc = pc_.data();
-            double* pd = pd_.data();
+        if (out_.extra.proj) {  // P lc and P (l1 - lc), once for the rows
+            const std::size_t q = out_.q;
+            double* pc = out_.pc.data();
+            double* pd = out_.pd.data();
             for (std::size_t c = 0; c < q; ++c) pc[c] = pd[c] = 0.0;
             for (std::size_t j = 0; j < n2; ++j) {
-                const double* col = Pt_.data() + j * q;
+                const double* col = out_.Pt.data() + j * q;
                 const double x = lc[j], d = l1 ? l1[j] - lc[j] : 0.0;
                 if (x != 0.0) for (std::size_t c = 0; c < q; ++c) pc[c] += col[c] * x;
                 if (d != 0.0) for (std::size_t c = 0; c < q; ++c) pd[c] += col[c] * d;
             }
         }
-        if (ex_.frac || ex_.flags) {
+        if (out_.extra.frac || out_.extra.flags) {
             report(lc, state_.data(), nullptr, frac);
             bool touch = false, stick = false;
             for (std::size_t i = 0; i < n_; ++i) {
@@ -517,53 +485,53 @@ private:
             flags = static_cast<std::int8_t>((touch ? 1 : 0) | (touch && !stick ? 2 : 0));
         }
         for (std::size_t k = a; k < b; ++k) {
-            const std::size_t row = out_row0_ + k;
+            const std::size_t row = out_.row0 + k;
             double f = 0.0;
             if (l1) f = (static_cast<double>(k + 1) / static_cast<double>(L) - th) / (1.0 - th);
-            if (ex_.proj) {
-                double* o = ex_.proj + row * ex_.stride_q;
-                for (std::size_t c = 0; c < q_; ++c) o[c] = pc_[c] + f * pd_[c];
+            if (out_.extra.proj) {
+                double* o = out_.extra.proj + row * out_.extra.stride_q;
+                for (std::size_t c = 0; c < out_.q; ++c) o[c] = out_.pc[c] + f * out_.pd[c];
             }
-            if (ex_.frac) ex_.frac[row * ex_.stride_f] = frac;
-            if (ex_.flags) ex_.flags[row * ex_.stride_f] = flags;
-            if (out_lam_) {
-                double* o = out_lam_ + row * out_s2_;
+            if (out_.extra.frac) out_.extra.frac[row * out_.extra.stride_f] = frac;
+            if (out_.extra.flags) out_.extra.flags[row * out_.extra.stride_f] = flags;
+            if (out_.lam) {
+                double* o = out_.lam + row * out_.stride2;
                 if (l1) for (std::size_t i = 0; i < n2; ++i) o[i] = lc[i] + f * (l1[i] - lc[i]);
                 else copy(lc, o, n2);
             }
-            if (out_u_) {
-                double* o = out_u_ + row * out_s2_;
+            if (out_.u) {
+                double* o = out_.u + row * out_.stride2;
                 if (l1) for (std::size_t i = 0; i < n2; ++i) o[i] = uc[i] + f * (u1[i] - uc[i]);
                 else copy(uc, o, n2);
             }
-            if (out_state_) copy8(state_.data(), out_state_ + row * out_s1_);
+            if (out_.state) copy8(state_.data(), out_.state + row * out_.stride1);
         }
     }
 
     void set_path_cones() noexcept {
-        for (std::size_t i = 0; i < n_; ++i) mu_node_[i] = state_[i] == kContactSlip ? params.mu_kinetic : params.mu;
+        for (std::size_t i = 0; i < n_; ++i) act_.mu[i] = state_[i] == kContactSlip ? params.mu_kinetic : params.mu;
     }
 
     // Responses (rs, us) to a unit plate displacement along y and (rz, uz) to a unit
     // rise of the plate for the current statuses, kept while they and mu do not change.
     int unit_response() noexcept {
         const std::size_t n = n_;
-        if (unit_valid_ && ukey_mu_ == params.mu && ukey_muk_ == params.mu_kinetic) {
+        if (unit_.valid && unit_.mu == params.mu && unit_.mu_kinetic == params.mu_kinetic) {
             bool same = true;
-            for (std::size_t i = 0; i < n && same; ++i) same = ukey_state_[i] == state_[i] && ukey_sign_[i] == sign_[i];
+            for (std::size_t i = 0; i < n && same; ++i) same = unit_.state[i] == state_[i] && unit_.sign[i] == sign_[i];
             if (same) return 0;
         }
-        unit_valid_ = false;
+        unit_.valid = false;
         set_path_cones();
         const int info = factor_piece(state_.data(), sign_.data());
         if (info != 0) return info;
-        solve_prepared(0.0, 0.0, rs_.data(), true, 0.0, 1.0);
-        solve_prepared(0.0, 0.0, rz_.data(), true, 1.0, 0.0);
-        piece_displacement(rs_.data(), us_.data(), true, 0.0, 1.0, 0.0, 0.0);
-        piece_displacement(rz_.data(), uz_.data(), true, 1.0, 0.0, 0.0, 0.0);
-        copy8(state_.data(), ukey_state_.data()); copy(sign_.data(), ukey_sign_.data());
-        ukey_mu_ = params.mu; ukey_muk_ = params.mu_kinetic;
-        unit_valid_ = true;
+        solve_prepared(0.0, 0.0, unit_.lam_dy.data(), true, 0.0, 1.0);
+        solve_prepared(0.0, 0.0, unit_.lam_dz.data(), true, 1.0, 0.0);
+        piece_displacement(unit_.lam_dy.data(), unit_.u_dy.data(), true, 0.0, 1.0, 0.0, 0.0);
+        piece_displacement(unit_.lam_dz.data(), unit_.u_dz.data(), true, 1.0, 0.0, 0.0, 0.0);
+        copy8(state_.data(), unit_.state.data()); copy(sign_.data(), unit_.sign.data());
+        unit_.mu = params.mu; unit_.mu_kinetic = params.mu_kinetic;
+        unit_.valid = true;
         ++solves_;
         return 0;
     }
@@ -575,16 +543,16 @@ private:
             key[i] = static_cast<std::int8_t>(3 * state_[i] + (sign_[i] > 0 ? 2 : (sign_[i] < 0 ? 0 : 1)));
     }
     bool seen_has(const std::int8_t* key, bool resolved) const noexcept {
-        for (std::size_t q = 0; q < n_seen_; ++q) {
-            if (seen_resolved_[q] != resolved) continue;
-            if (std::memcmp(seen_.data() + q * n_, key, n_) == 0) return true;
+        for (std::size_t q = 0; q < ev_.n_seen; ++q) {
+            if (ev_.seen_resolved[q] != resolved) continue;
+            if (std::memcmp(ev_.seen.data() + q * n_, key, n_) == 0) return true;
         }
         return false;
     }
     bool seen_add(const std::int8_t* key, bool resolved) noexcept {
-        if (n_seen_ >= kSeenCap) return false;
-        std::memcpy(seen_.data() + n_seen_ * n_, key, n_);
-        seen_resolved_[n_seen_++] = resolved;
+        if (ev_.n_seen >= kSeenCap) return false;
+        std::memcpy(ev_.seen.data() + ev_.n_seen * n_, key, n_);
+        ev_.seen_resolved[ev_.n_seen++] = resolved;
         return true;
     }
 
@@ -593,7 +561,7 @@ private:
     // together by resolve_point; a second return is a cycle (status_cycle).
     ContactStatus changed(double tiny_y, double tiny_z) noexcept {
         ++events_;
-        std::int8_t* key = key_.data();
+        std::int8_t* key = ev_.key.data();
         encode_statuses(key);
         if (!seen_has(key, false)) {
             if (!seen_add(key, false)) return cycle_error();
@@ -608,8 +576,8 @@ private:
     }
 
     ContactStatus cycle_error() noexcept {
-        err_info_ = static_cast<long>(n_seen_);
-        err_y_ = s_prev_; err_z_ = z_prev_;
+        err_.info = static_cast<long>(ev_.n_seen);
+        err_.y = s_prev_; err_.z = z_prev_;
         return ContactStatus::status_cycle;
     }
 
@@ -618,12 +586,12 @@ private:
     // tolerance, and the working classification copied from the accepted one. Returns
     // the absolute tolerance of the Alart-Curnier residual.
     double begin_point_solve(double zp) noexcept {
-        copy8(state_.data(), prev_state_.data());
-        copy(sign_.data(), prev_sign_.data());
+        copy8(state_.data(), act_.prev_state.data());
+        copy(sign_.data(), act_.prev_sign.data());
         set_path_cones();
         set_scale_len(zp);
-        copy8(state_.data(), ws_state_.data());
-        copy(sign_.data(), ws_sign_.data());
+        copy8(state_.data(), act_.state.data());
+        copy(sign_.data(), act_.sign.data());
         return params.tol * (r_ * scale_len_);
     }
 
@@ -649,20 +617,20 @@ private:
         const double sc = s_prev_, zc = z_prev_;
         const double ds = tiny_y, zp = zc + tiny_z;
         const double atol = begin_point_solve(zp);
-        std::int8_t* st = ws_state_.data();
-        double* sg = ws_sign_.data();
+        std::int8_t* st = act_.state.data();
+        double* sg = act_.sign.data();
         int it = 0;
         const ContactStatus s = solve_load(st, sg, zp, sc + ds, ds, atol, it, true);
-        if (s != ContactStatus::ok) { err_y_ = sc + ds; err_z_ = zp; return s; }
+        if (s != ContactStatus::ok) { err_.y = sc + ds; err_.z = zp; return s; }
         ++solves_;
-        const double* u = c_u_.data();
+        const double* u = solved_.u.data();
         for (std::size_t i = 0; i < n; ++i) {
-            const std::int8_t cs = c_state_[i], p = prev_state_[i];
+            const std::int8_t cs = solved_.state[i], p = act_.prev_state[i];
             const double gap = zp - (z0_[i] + u[n + i]);
             const bool grazing = cs == kContactOpen && p != kContactOpen && gap <= g_tol_;
             const std::int8_t ns = grazing ? p : cs;
             state_[i] = ns;
-            sign_[i] = ns == kContactSlip ? (cs == kContactSlip ? c_sign_[i] : prev_sign_[i]) : 0.0;
+            sign_[i] = ns == kContactSlip ? (cs == kContactSlip ? solved_.sign[i] : act_.prev_sign[i]) : 0.0;
             sliding_[i] = ns == kContactSlip;
         }
         return ContactStatus::ok;
@@ -678,7 +646,7 @@ private:
         double th = 0.0;
         std::size_t j = 0;
         const std::size_t ns = L;
-        n_seen_ = 0;  // status sets met at the current point
+        ev_.n_seen = 0;  // status sets met at the current point
         const double tiny_y = 1e3 * eps * (s1 - s0), tiny_z = 1e3 * eps * (z1 - z0p);  // 1e-6 of a sample
         if (s1 == s0 && z1 == z0p) {  // the load does not move: nothing slides
             bool any = false;
@@ -694,8 +662,8 @@ private:
             fill_rows(0, ns, lam_.data(), pu_.data(), nullptr, nullptr, 0.0, L);
             return ContactStatus::ok;
         }
-        double* l1 = pl1_.data();
-        double* u1 = pu1_.data();
+        double* l1 = ev_.lam_end.data();
+        double* u1 = ev_.u_end.data();
         while (true) {
             if (th >= 1.0) {
                 fill_rows(j, ns, lam_.data(), pu_.data(), nullptr, nullptr, 0.0, L);
@@ -722,15 +690,15 @@ private:
                         piece_displacement(l1, u1, false, 0.0, 0.0, z1, s1 - sc);
                     }
                 }
-                if (info != 0) { err_info_ = info; return ContactStatus::singular_piece; }
+                if (info != 0) { err_.info = info; return ContactStatus::singular_piece; }
                 ++solves_;
             } else {
                 const int info = unit_response();
-                if (info != 0) { err_info_ = info; return ContactStatus::singular_piece; }
+                if (info != 0) { err_.info = info; return ContactStatus::singular_piece; }
                 const double ds = s1 - sc, dz = z1 - zc;
                 for (std::size_t i = 0; i < n2; ++i) {
-                    l1[i] = lc[i] + ds * rs_[i] + dz * rz_[i];
-                    u1[i] = uc[i] + ds * us_[i] + dz * uz_[i];
+                    l1[i] = lc[i] + ds * unit_.lam_dy[i] + dz * unit_.lam_dz[i];
+                    u1[i] = uc[i] + ds * unit_.u_dy[i] + dz * unit_.u_dz[i];
                 }
             }
             // a sliding node whose slip over the rest of the segment does not oppose its
@@ -776,7 +744,7 @@ private:
             copy(pu_.data(), uy_prev_.data());
             s_prev_ = te < 1.0 ? s0 + te * (s1 - s0) : s1;
             z_prev_ = te < 1.0 ? z0p + te * (z1 - z0p) : z1;
-            if (te > th) n_seen_ = 0;
+            if (te > th) ev_.n_seen = 0;
             th = te;
             std::size_t count = 0;
             ContactStatus s = apply_events(n_ev, count);
@@ -787,7 +755,7 @@ private:
     }
 
     // First point frac in [0, 1 + eps] of the piece (lc, uc) -> (l1, u1) where a node's
-    // status must change; the events there go to ev_node_ / ev_kind_ (kind 0 contact, 1
+    // status must change; the events there go to ev_.node / ev_.kind (kind 0 contact, 1
     // separation, 2 / 3 breakaway with the friction force along +y / -y), kind-major as
     // the reference orders them. n_ev = 0: none.
     double first_event(const double* lc, const double* uc, const double* l1, const double* u1, double zc, double z1,
@@ -795,12 +763,12 @@ private:
         const std::size_t n = n_;
         const double mu = params.mu, tg = evt_g_tol_, tf = evt_f_tol_;
         // one pass over the nodes (each node's status decides which of its functions
-        // count), the crossings of kind k at ev_frac_[k n + i], INFINITY where none
+        // count), the crossings of kind k at ev_.frac[k n + i], INFINITY where none
         auto cross = [](double pc, double p1, double tol) {
             const double drop = pc - p1;
             return drop > tol && p1 < 0 ? (pc > 0.0 ? pc : 0.0) / drop : INFINITY;
         };
-        double* f0 = ev_frac_.data();
+        double* f0 = ev_.frac.data();
         double *f1 = f0 + n, *f2 = f1 + n, *f3 = f2 + n;
         double first = INFINITY;
         for (std::size_t i = 0; i < n; ++i) {
@@ -824,9 +792,9 @@ private:
         n_ev = 0;
         if (!(first <= 1.0 + eps)) return first;
         for (std::size_t q = 0; q < 4 * n; ++q) {
-            if (ev_frac_[q] <= first + eps) {
-                ev_kind_[n_ev] = static_cast<std::int8_t>(q / n);
-                ev_node_[n_ev] = q % n;
+            if (ev_.frac[q] <= first + eps) {
+                ev_.kind[n_ev] = static_cast<std::int8_t>(q / n);
+                ev_.node[n_ev] = q % n;
                 ++n_ev;
             }
         }
@@ -838,8 +806,8 @@ private:
         double broke_ln = -INFINITY;
         bool any_broke = false;
         for (std::size_t e = 0; e < n_ev; ++e) {
-            const std::size_t i = ev_node_[e];
-            const int kind = ev_kind_[e];
+            const std::size_t i = ev_.node[e];
+            const int kind = ev_.kind[e];
             if (kind == 0) { state_[i] = kContactStick; sign_[i] = 0.0; }
             else if (kind == 1) {
                 // the displacements at the event point are the piece's (pu_, C P lam_ to
@@ -856,9 +824,9 @@ private:
             else { state_[i] = kContactSlip; sign_[i] = kind == 2 ? 1.0 : -1.0; }
         }
         for (std::size_t e = 0; e < n_ev; ++e) {  // pressures after all of this point's changes
-            if (ev_kind_[e] >= 2) {
+            if (ev_.kind[e] >= 2) {
                 any_broke = true;
-                const double ln = lam_[n + ev_node_[e]];
+                const double ln = lam_[n + ev_.node[e]];
                 if (ln > broke_ln) broke_ln = ln;
             }
         }
@@ -889,9 +857,8 @@ private:
             const ContactStatus s = cascade(changes);
             if (s != ContactStatus::ok) return s;
             if (changes) ++events_;
-            unit_valid_ = false;
-            aff_stage_ = 0;
-            has_candidate_ = false;
+            unit_.valid = false;
+            aff_.stage = 0;
         }
         fr_mu_ = params.mu; fr_muk_ = params.mu_kinetic;
         return ContactStatus::ok;
@@ -903,29 +870,29 @@ private:
         const double mu_k = params.mu_kinetic;
         const double zp = z_prev_, sp = s_prev_;
         const double atol = begin_point_solve(zp);
-        std::int8_t* st = ws_state_.data();
-        double* sg = ws_sign_.data();
+        std::int8_t* st = act_.state.data();
+        double* sg = act_.sign.data();
         for (std::size_t round = 0; round <= n; ++round) {
             int it = 0;
             const ContactStatus s = solve_load(st, sg, zp, sp, 0.0, atol, it, true);
-            if (s != ContactStatus::ok) { err_y_ = sp; err_z_ = zp; return s; }
+            if (s != ContactStatus::ok) { err_.y = sp; err_.z = zp; return s; }
             ++solves_;
             bool broke = false;
             for (std::size_t i = 0; i < n; ++i) {
-                const bool moving = std::fabs(c_u_[i] - uy_prev_[i]) > w_tol_;
-                if (c_state_[i] == kContactSlip && moving && mu_node_[i] > mu_k) { mu_node_[i] = mu_k; broke = true; }
+                const bool moving = std::fabs(solved_.u[i] - uy_prev_[i]) > w_tol_;
+                if (solved_.state[i] == kContactSlip && moving && act_.mu[i] > mu_k) { act_.mu[i] = mu_k; broke = true; }
             }
             if (!broke) break;
-            st = ws_state_.data(); sg = ws_sign_.data();
-            copy8(c_state_.data(), st); copy(c_sign_.data(), sg);
+            st = act_.state.data(); sg = act_.sign.data();
+            copy8(solved_.state.data(), st); copy(solved_.sign.data(), sg);
         }
-        const double* lam = c_lam_.data();
-        const double* u = c_u_.data();
+        const double* lam = solved_.lam.data();
+        const double* u = solved_.u.data();
         changes = 0;
         for (std::size_t i = 0; i < n; ++i) {
             const bool moving = std::fabs(u[i] - uy_prev_[i]) > w_tol_;
             const bool on_kinetic = std::fabs(lam[i]) >= mu_k * lam[n + i] - f_tol_;
-            const std::int8_t s = c_state_[i], p = prev_state_[i];
+            const std::int8_t s = solved_.state[i], p = act_.prev_state[i];
             const bool slide_moved = s == kContactSlip && moving;
             const bool slide_kept = p == kContactSlip && s != kContactOpen && !moving && on_kinetic;
             const double gap = zp - (z0_[i] + u[n + i]);
@@ -933,8 +900,8 @@ private:
             std::int8_t ns = s == kContactOpen ? static_cast<std::int8_t>(kContactOpen)
                                                : (slide_moved || slide_kept ? static_cast<std::int8_t>(kContactSlip)
                                                                             : static_cast<std::int8_t>(kContactStick));
-            double nsg = slide_moved ? c_sign_[i] : (slide_kept ? prev_sign_[i] : 0.0);
-            if (grazing) { ns = p; nsg = prev_sign_[i]; }
+            double nsg = slide_moved ? solved_.sign[i] : (slide_kept ? act_.prev_sign[i] : 0.0);
+            if (grazing) { ns = p; nsg = act_.prev_sign[i]; }
             changes += ns != p;
             state_[i] = ns;
             sign_[i] = nsg;
@@ -964,17 +931,17 @@ public:
     void piece_displacement(const double* lam, double* u, bool unit, double az, double ay, double plate_z,
                             double ds) noexcept {
         const std::size_t n = n_, n2 = n2_;
-        double* pl = plam_.data();
+        double* pl = disp_.plam.data();
         for (std::size_t i = 0; i < n; ++i) { pl[i] = lam[i]; pl[n + i] = -lam[n + i]; }
-        std::size_t* fr = free_rows_.data();
+        std::size_t* fr = disp_.free_rows.data();
         std::size_t nf = 0;
         for (std::size_t i = 0; i < n; ++i) {
-            const std::int8_t s = key_state_[i];
+            const std::int8_t s = piece_.state[i];
             if (s == kContactStick) u[i] = unit ? ay : uy_prev_[i] + ds;
             else fr[nf++] = i;
         }
         for (std::size_t i = 0; i < n; ++i) {
-            if (key_state_[i] != kContactOpen) u[n + i] = unit ? az : plate_z - z0_[i];
+            if (piece_.state[i] != kContactOpen) u[n + i] = unit ? az : plate_z - z0_[i];
             else fr[nf++] = n + i;
         }
         // P lam is zero off the touching nodes: the dot products run over the span of
@@ -1016,7 +983,7 @@ public:
             const double w = (u[i] - uy_prev_[i]) - ds;
             const double an = ln - r * g;
             const bool act = an > 0;
-            const double b = mu_node_[i] * (act ? an : 0.0);
+            const double b = act_.mu[i] * (act ? an : 0.0);
             const double tau = lt - r * w;
             const bool stick = act && std::fabs(tau) <= b;
             const bool slip = act && !stick;
@@ -1036,54 +1003,54 @@ public:
     int factor_piece(const std::int8_t* state, const double* sign) noexcept {
         const std::size_t n = n_;
         for (std::size_t i = 0; i < n; ++i)
-            slip_coef_[i] = state[i] == kContactSlip ? mu_node_[i] * sign[i] : 0.0;
-        if (lu_valid_) {
+            piece_.slip_coef[i] = state[i] == kContactSlip ? act_.mu[i] * sign[i] : 0.0;
+        if (base_.valid) {
             bool same = true;
             for (std::size_t i = 0; i < n && same; ++i)
-                same = key_state_[i] == state[i] && key_coef_[i] == slip_coef_[i];
+                same = piece_.state[i] == state[i] && piece_.coef[i] == piece_.slip_coef[i];
             if (same) return 0;
             if (update_piece(state) || (extend_base(state) && update_piece(state))) {
-                copy8(state, key_state_.data());
-                copy(slip_coef_.data(), key_coef_.data());
-                ++n_updates_;
-                ++piece_id_;
+                copy8(state, piece_.state.data());
+                copy(piece_.slip_coef.data(), piece_.coef.data());
+                ++stats_.updates;
+                ++piece_.id;
                 return 0;
             }
         }
         return refactor_piece(state);
     }
 
-    // Factor the piece (state, slip_coef_) as the new base, no border.
+    // Factor the piece (state, piece_.slip_coef) as the new base, no border.
     int refactor_piece(const std::int8_t* state) noexcept {
         const std::size_t n = n_;
-        ++piece_id_;
+        ++piece_.id;
         base_changing();
         std::size_t m = 0;
-        for (std::size_t i = 0; i < n; ++i) pos_ln_[i] = pos_lt_[i] = -1;
+        for (std::size_t i = 0; i < n; ++i) base_.pos_ln[i] = base_.pos_lt[i] = -1;
         for (std::size_t i = 0; i < n; ++i)
-            if (state[i] != kContactOpen) { bnode_[m] = i; bkind_[m] = 0; pos_ln_[i] = static_cast<long>(m++); }
+            if (state[i] != kContactOpen) { base_.node[m] = i; base_.kind[m] = 0; base_.pos_ln[i] = static_cast<long>(m++); }
         for (std::size_t i = 0; i < n; ++i)
-            if (state[i] == kContactStick) { bnode_[m] = i; bkind_[m] = 1; pos_lt_[i] = static_cast<long>(m++); }
-        mB_ = m;
-        double* M = M_.data();
+            if (state[i] == kContactStick) { base_.node[m] = i; base_.kind[m] = 1; base_.pos_lt[i] = static_cast<long>(m++); }
+        base_.m = m;
+        double* M = base_.M.data();
         // rows: g on the active nodes, then w on the stuck ones; columns: ln_A, lt_T
         for (std::size_t k = 0; k < m; ++k) {
             const double* c = C_.data() + eq_row(k) * n2_;
             double* mk = M + k * n2_;
             for (std::size_t j = 0; j < m; ++j) {
-                const std::size_t i = bnode_[j];
-                mk[j] = bkind_[j] ? c[i] : c[i] * slip_coef_[i] - c[n + i];
+                const std::size_t i = base_.node[j];
+                mk[j] = base_.kind[j] ? c[i] : c[i] * piece_.slip_coef[i] - c[n + i];
             }
         }
-        ++n_factorizations_;
-        const int info = lu_factor(M, m, n2_, piv_.data());
+        ++stats_.factorizations;
+        const int info = lu_factor(M, m, n2_, base_.piv.data());
         if (info != 0) return info;
-        copy8(state, key_state_.data());
-        copy(slip_coef_.data(), key_coef_.data());
-        copy8(state, base_state_.data());
-        copy(slip_coef_.data(), base_coef_.data());
-        lu_valid_ = true;
-        ++piece_id_;
+        copy8(state, piece_.state.data());
+        copy(piece_.slip_coef.data(), piece_.coef.data());
+        copy8(state, base_.state.data());
+        copy(piece_.slip_coef.data(), base_.coef.data());
+        base_.valid = true;
+        ++piece_.id;
         return 0;
     }
 
@@ -1093,14 +1060,14 @@ public:
     // unit: the right-hand side is az on every contact equation and ay on every stick
     // equation (the response to a unit plate motion), instead of the plate's gaps.
     void solve_prepared(double plate_z, double ds, double* lam, bool unit, double az, double ay) noexcept {
-        const std::size_t n = n_, m = mB_, nb = nB_;
+        const std::size_t n = n_, m = base_.m, nb = border_.n;
         auto rhs_g = [&](std::size_t i) { return unit ? az : plate_z - z0_[i]; };
         auto rhs_w = [&](std::size_t i) { return unit ? ay : uy_prev_[i] + ds; };
-        double* b = rhs_.data();
-        double* c = by_.data();
-        for (std::size_t k = 0; k < m; ++k) b[k] = bkind_[k] ? rhs_w(bnode_[k]) : rhs_g(bnode_[k]);
+        double* b = base_.rhs.data();
+        double* c = border_.rhs.data();
+        for (std::size_t k = 0; k < m; ++k) b[k] = base_.kind[k] ? rhs_w(base_.node[k]) : rhs_g(base_.node[k]);
         for (std::size_t r = 0; r < nb; ++r) {
-            const BorderRow& br = brow_[r];
+            const BorderRow& br = border_.rows[r];
             c[r] = br.kind == kAddG ? rhs_g(br.node) : (br.kind == kAddW ? rhs_w(br.node) : 0.0);
         }
         // the base solve of a unit right-hand side depends on the base only: kept
@@ -1108,11 +1075,11 @@ public:
         // O(m nb) besides its compliance product
         const int which = !unit ? -1 : (az == 1.0 && ay == 0.0 ? 0 : (az == 0.0 && ay == 1.0 ? 1 : -1));
         if (which >= 0) {
-            double* zc = zunit_.data() + static_cast<std::size_t>(which) * n2_;
-            if (!zunit_valid_[which]) {
-                lu_solve(M_.data(), m, n2_, piv_.data(), b);
+            double* zc = base_.unit_z.data() + static_cast<std::size_t>(which) * n2_;
+            if (!base_.unit_valid[which]) {
+                lu_solve(base_.M.data(), m, n2_, base_.piv.data(), b);
                 copy(b, zc, m);
-                zunit_valid_[which] = true;
+                base_.unit_valid[which] = true;
             } else {
                 copy(zc, b, m);
             }
@@ -1135,81 +1102,81 @@ public:
                        double* lam, double* u) noexcept {
         const int info = factor_piece(state, sign);
         if (info != 0) return info;
-        if (aff_stage_ > 0 && aff_piece_ == piece_id_ && stick_offsets_unchanged()) {
-            const double dz = plate_z - aff_z_, dy = plate_y - aff_y_;
-            if (aff_stage_ == 1 && (dz != 0.0 || dy != 0.0)) {
-                solve_prepared(0.0, 0.0, aff_lz_.data(), true, 1.0, 0.0);
-                piece_displacement(aff_lz_.data(), aff_uz_.data(), true, 1.0, 0.0, 0.0, 0.0);
-                solve_prepared(0.0, 0.0, aff_ly_.data(), true, 0.0, 1.0);
-                piece_displacement(aff_ly_.data(), aff_uy_.data(), true, 0.0, 1.0, 0.0, 0.0);
-                aff_stage_ = 2;
+        if (aff_.stage > 0 && aff_.piece == piece_.id && stick_offsets_unchanged()) {
+            const double dz = plate_z - aff_.plate_z, dy = plate_y - aff_.plate_y;
+            if (aff_.stage == 1 && (dz != 0.0 || dy != 0.0)) {
+                solve_prepared(0.0, 0.0, aff_.lam_dz.data(), true, 1.0, 0.0);
+                piece_displacement(aff_.lam_dz.data(), aff_.u_dz.data(), true, 1.0, 0.0, 0.0, 0.0);
+                solve_prepared(0.0, 0.0, aff_.lam_dy.data(), true, 0.0, 1.0);
+                piece_displacement(aff_.lam_dy.data(), aff_.u_dy.data(), true, 0.0, 1.0, 0.0, 0.0);
+                aff_.stage = 2;
             }
-            if (aff_stage_ == 2) {
+            if (aff_.stage == 2) {
                 for (std::size_t i = 0; i < n2_; ++i) {
-                    lam[i] = aff_lam_[i] + dz * aff_lz_[i] + dy * aff_ly_[i];
-                    u[i] = aff_u_[i] + dz * aff_uz_[i] + dy * aff_uy_[i];
+                    lam[i] = aff_.lam[i] + dz * aff_.lam_dz[i] + dy * aff_.lam_dy[i];
+                    u[i] = aff_.u[i] + dz * aff_.u_dz[i] + dy * aff_.u_dy[i];
                 }
             } else {
-                copy(aff_lam_.data(), lam, n2_);
-                copy(aff_u_.data(), u, n2_);
+                copy(aff_.lam.data(), lam, n2_);
+                copy(aff_.u.data(), u, n2_);
             }
             for (std::size_t i = 0; i < n_; ++i)  // exact zeros stay exact
-                if (key_state_[i] == kContactOpen) lam[i] = lam[n_ + i] = 0.0;
-            ++n_affine_;
+                if (piece_.state[i] == kContactOpen) lam[i] = lam[n_ + i] = 0.0;
+            ++stats_.affine;
             return 0;
         }
         solve_prepared(plate_z, ds, lam);
         piece_displacement(lam, u, false, 0.0, 0.0, plate_z, ds);
-        copy(lam, aff_lam_.data(), n2_);
-        copy(u, aff_u_.data(), n2_);
-        aff_z_ = plate_z;
-        aff_y_ = plate_y;
-        for (std::size_t i = 0; i < n_; ++i) aff_v_[i] = uy_prev_[i] - s_prev_;
-        aff_piece_ = piece_id_;
-        aff_stage_ = 1;
+        copy(lam, aff_.lam.data(), n2_);
+        copy(u, aff_.u.data(), n2_);
+        aff_.plate_z = plate_z;
+        aff_.plate_y = plate_y;
+        for (std::size_t i = 0; i < n_; ++i) aff_.stick_offset[i] = uy_prev_[i] - s_prev_;
+        aff_.piece = piece_.id;
+        aff_.stage = 1;
         return 0;
     }
 
     // x of the prepared piece for right-hand sides b (base equations, overwritten) and
     // c (border rows, overwritten), as forces lam (2n).
     void solve_bordered(double* b, double* c, double* lam, bool base_solved = false) noexcept {
-        const std::size_t n = n_, m = mB_, nb = nB_;
+        const std::size_t n = n_, m = base_.m, nb = border_.n;
         double* z = b;
         if (!base_solved) {
             // The iterations of one point (the active-set steps of a solve, the rounds of a
             // breakaway cascade) border the same base with the same right-hand side: its
             // base solve is kept and reused while both are unchanged (the same bits)
-            if (rhs_valid_ && std::memcmp(rhs_in_.data(), b, m * sizeof(double)) == 0) {
-                copy(rhs_out_.data(), z, m);
-                ++n_rhs_reused_;
+            if (base_.load_valid && std::memcmp(base_.load_rhs.data(), b, m * sizeof(double)) == 0) {
+                copy(base_.load_z.data(), z, m);
+                ++stats_.rhs_reuses;
             } else {
-                copy(b, rhs_in_.data(), m);
-                lu_solve(M_.data(), m, n2_, piv_.data(), z);
-                copy(z, rhs_out_.data(), m);
-                rhs_valid_ = true;
+                copy(b, base_.load_rhs.data(), m);
+                lu_solve(base_.M.data(), m, n2_, base_.piv.data(), z);
+                copy(z, base_.load_z.data(), m);
+                base_.load_valid = true;
             }
         }
         double* y = c;
         if (nb > 0) {  // Schur complement: S y = c - W^T M0^-1 b, x = M0^-1 b - (M0^-1 V) y
             for (std::size_t r = 0; r < nb; ++r) y[r] -= border_row_dot(r, z);
-            lu_solve(S_.data(), nb, kMaxBorder, spiv_.data(), y);
+            lu_solve(border_.S_lu.data(), nb, kMaxBorder, border_.piv.data(), y);
             // (the columns' addresses from their slots: a kernel copied from another
             // (a pad's shadow ridge detached from its master) has its own cache)
-            for (std::size_t c = 0; c < nb; ++c) vcol_[c] = vcache_.data() + vslot_[c] * n2_;
-            sub_columns(z, m, vcol_.data(), y, nb);
+            for (std::size_t c = 0; c < nb; ++c) border_.vcol[c] = cols_.data.data() + border_.vslot[c] * n2_;
+            sub_columns(z, m, border_.vcol.data(), y, nb);
         }
         for (std::size_t i = 0; i < n2_; ++i) lam[i] = 0.0;
         // base unknowns (those fixed to zero by the border come out as ~zero and are
         // overwritten below)
-        for (std::size_t k = 0; k < m; ++k) lam[bkind_[k] ? bnode_[k] : n + bnode_[k]] = z[k];
+        for (std::size_t k = 0; k < m; ++k) lam[base_.kind[k] ? base_.node[k] : n + base_.node[k]] = z[k];
         for (std::size_t col = 0; col < nb; ++col) {
-            const BorderCol& bc = bcol_[col];
+            const BorderCol& bc = border_.cols[col];
             if (bc.kind == kAddLn) lam[n + bc.node] = y[col];
             else if (bc.kind == kAddLt) lam[bc.node] = y[col];
         }
         for (std::size_t i = 0; i < n; ++i) {
-            if (key_state_[i] == kContactSlip) lam[i] = key_coef_[i] * lam[n + i];  // lt = mu sign ln
-            else if (key_state_[i] == kContactOpen) lam[i] = lam[n + i] = 0.0;     // exactly, not ~0 from the border
+            if (piece_.state[i] == kContactSlip) lam[i] = piece_.coef[i] * lam[n + i];  // lt = mu sign ln
+            else if (piece_.state[i] == kContactOpen) lam[i] = lam[n + i] = 0.0;     // exactly, not ~0 from the border
         }
     }
 
@@ -1223,8 +1190,8 @@ public:
     bool stick_offsets_unchanged() const noexcept {
         const double tol = 1e-13 * scale_len_;
         for (std::size_t i = 0; i < n_; ++i) {
-            if (key_state_[i] != kContactStick) continue;
-            const double v = uy_prev_[i] - s_prev_, ref = aff_v_[i];
+            if (piece_.state[i] != kContactStick) continue;
+            const double v = uy_prev_[i] - s_prev_, ref = aff_.stick_offset[i];
             if (std::fabs(v - ref) > tol) return false;
         }
         return true;
@@ -1253,7 +1220,7 @@ public:
                 for (std::size_t j = 0; j < n; ++j) { jt[j] = r * cy[j]; jt[n + j] = r * -cy[n + j]; }
             } else if (state[i] == kContactSlip) {
                 // e_t - mu s (e_n - r dg) = e_t - mu s (e_n + r CP[n+i, :])
-                const double ms = mu_node_[i] * sign[i];
+                const double ms = act_.mu[i] * sign[i];
                 for (std::size_t j = 0; j < n; ++j) {
                     jt[j] = -ms * (r * cz[j]);
                     jt[n + j] = -ms * (r * -cz[n + j]);
@@ -1284,7 +1251,7 @@ private:
     // ---- bordered update of the base factorisation
     //
     // The base piece P0 (unknowns ln_A0, lt_T0; equations g_A0, w_T0) is factored in
-    // M_. A nearby piece P1 is solved as the bordered system
+    // base_.M. A nearby piece P1 is solved as the bordered system
     //     [M0  V] [x]   [b]
     //     [W^T Z] [y] = [c]
     // with one border row and column per difference: an unknown of P0 that P1 lacks
@@ -1315,32 +1282,32 @@ private:
     // until the change succeeds, and the border and every solve kept with the old base (the
     // M0^-1 V columns, the unit and load right-hand sides' base solves) are forgotten.
     void base_changing() noexcept {
-        lu_valid_ = false;
-        nB_ = 0;
-        n_cached_ = 0;
-        onb_ = 0;
-        s_lu_ok_ = false;
-        zunit_valid_[0] = zunit_valid_[1] = false;
-        rhs_valid_ = false;
+        base_.valid = false;
+        border_.n = 0;
+        cols_.n = 0;
+        border_.last_n = 0;
+        border_.lu_ok = false;
+        base_.unit_valid[0] = base_.unit_valid[1] = false;
+        base_.load_valid = false;
     }
 
     std::size_t eq_row(std::size_t k) const noexcept {  // C row of base equation k
-        return bkind_[k] ? bnode_[k] : n_ + bnode_[k];
+        return base_.kind[k] ? base_.node[k] : n_ + base_.node[k];
     }
-    // Border row r of W^T (Wt_) against x (length mB_). The rows of the force laws are
+    // Border row r of W^T (border_.Wt) against x (length base_.m). The rows of the force laws are
     // zero but at one entry (kFix: the unknown fixed to zero) or two (kSlipRow: lt_i and
     // ln_i), so they cost those entries, not a dot product over the base: with the
     // slip front moving, most border rows are of this kind, and the dot products were
     // a bordered solve's largest cost after its base solve.
     double border_row_dot(std::size_t r, const double* x) const noexcept {
-        const BorderRow& br = brow_[r];
-        const double* w = Wt_.data() + r * n2_;
+        const BorderRow& br = border_.rows[r];
+        const double* w = border_.Wt.data() + r * n2_;
         if (br.kind == kFix) return w[br.pos] * x[br.pos];
         if (br.kind == kSlipRow) {
-            const std::size_t q = static_cast<std::size_t>(pos_ln_[br.node]);
+            const std::size_t q = static_cast<std::size_t>(base_.pos_ln[br.node]);
             return w[br.pos] * x[br.pos] + w[q] * x[q];
         }
-        return dot(w, x, mB_);
+        return dot(w, x, base_.m);
     }
     // coefficient of unknown (ln_i with slip coefficient coef, or lt_i) in C row r
     double coef_ln(std::size_t r, std::size_t i, double coef) const noexcept {
@@ -1350,8 +1317,8 @@ private:
     double coef_lt(std::size_t r, std::size_t i) const noexcept { return C_[r * n2_ + i]; }
     // coefficient of base unknown k in C row r
     double base_coef(std::size_t r, std::size_t k) const noexcept {
-        const std::size_t i = bnode_[k];
-        return bkind_[k] ? coef_lt(r, i) : coef_ln(r, i, base_coef_[i]);
+        const std::size_t i = base_.node[k];
+        return base_.kind[k] ? coef_lt(r, i) : coef_ln(r, i, base_.coef[i]);
     }
 
     // Per-node chains over entries e[0, count) (border rows, border columns, cached
@@ -1371,62 +1338,62 @@ private:
         for (std::size_t q = 0; q < count; ++q) head[e[q].node] = -1;
     }
 
-    // Border the base for the piece (state, slip_coef_); false if it needs more than
+    // Border the base for the piece (state, piece_.slip_coef); false if it needs more than
     // kMaxBorder borders or its Schur complement is singular (then refactor).
     bool update_piece(const std::int8_t* state) noexcept {
-        const std::size_t n = n_, m = mB_;
+        const std::size_t n = n_, m = base_.m;
         std::size_t nr = 0, nc = 0;
         auto add_row = [&](std::uint8_t kind, std::size_t node, std::size_t pos) {
-            if (nr < kMaxBorder) brow_[nr] = {kind, node, pos};
+            if (nr < kMaxBorder) border_.rows[nr] = {kind, node, pos};
             ++nr;
         };
         auto add_col = [&](std::uint8_t kind, std::size_t node, std::size_t pos) {
-            if (nc < kMaxBorder) bcol_[nc] = {kind, node, pos};
+            if (nc < kMaxBorder) border_.cols[nc] = {kind, node, pos};
             ++nc;
         };
         for (std::size_t i = 0; i < n; ++i) {
-            const std::int8_t s0 = base_state_[i], s1 = state[i];
+            const std::int8_t s0 = base_.state[i], s1 = state[i];
             const bool a0 = s0 != kContactOpen, a1 = s1 != kContactOpen;
             const bool t0 = s0 == kContactStick, t1 = s1 == kContactStick;
             if (t0 && s1 == kContactSlip) {  // stuck in the base, sliding now: the slip law as a row
-                add_row(kSlipRow, i, static_cast<std::size_t>(pos_lt_[i]));
-                add_col(kSlack, i, static_cast<std::size_t>(pos_lt_[i]));  // w_i is base equation pos_lt
+                add_row(kSlipRow, i, static_cast<std::size_t>(base_.pos_lt[i]));
+                add_col(kSlack, i, static_cast<std::size_t>(base_.pos_lt[i]));  // w_i is base equation pos_lt
                 if (nr > kMaxBorder || nc > kMaxBorder) return false;
                 continue;
             }
-            const bool same_ln = a0 && a1 && base_coef_[i] == slip_coef_[i];
-            if (a0 && !same_ln) add_row(kFix, i, static_cast<std::size_t>(pos_ln_[i]));
+            const bool same_ln = a0 && a1 && base_.coef[i] == piece_.slip_coef[i];
+            if (a0 && !same_ln) add_row(kFix, i, static_cast<std::size_t>(base_.pos_ln[i]));
             if (a1 && !same_ln) add_col(kAddLn, i, 0);
-            if (t0 && !t1) add_row(kFix, i, static_cast<std::size_t>(pos_lt_[i]));
+            if (t0 && !t1) add_row(kFix, i, static_cast<std::size_t>(base_.pos_lt[i]));
             if (t1 && !t0) add_col(kAddLt, i, 0);
-            if (a0 && !a1) add_col(kSlack, i, static_cast<std::size_t>(pos_ln_[i]));  // g_i is base equation pos_ln
+            if (a0 && !a1) add_col(kSlack, i, static_cast<std::size_t>(base_.pos_ln[i]));  // g_i is base equation pos_ln
             if (a1 && !a0) add_row(kAddG, i, 0);
-            if (t0 && !t1) add_col(kSlack, i, static_cast<std::size_t>(pos_lt_[i]));  // w_i is base equation pos_lt
+            if (t0 && !t1) add_col(kSlack, i, static_cast<std::size_t>(base_.pos_lt[i]));  // w_i is base equation pos_lt
             if (t1 && !t0) add_row(kAddW, i, 0);
             if (nr > kMaxBorder || nc > kMaxBorder) return false;
         }
         if (nr != nc) return false;  // cannot happen (both pieces are square); be safe
         const std::size_t nb = nr;
         const std::size_t K = kMaxBorder;
-        auto row_coef = [&](const BorderRow& br) { return br.kind == kSlipRow ? slip_coef_[br.node] : 0.0; };
-        auto col_coef = [&](const BorderCol& bc) { return bc.kind == kAddLn ? slip_coef_[bc.node] : 0.0; };
+        auto row_coef = [&](const BorderRow& br) { return br.kind == kSlipRow ? piece_.slip_coef[br.node] : 0.0; };
+        auto col_coef = [&](const BorderCol& bc) { return bc.kind == kAddLn ? piece_.slip_coef[bc.node] : 0.0; };
         // where a border row (column) of this piece was one of the last piece's, with the
         // same coefficient: its entries are kept (-1: new)
         // (found through per-node chains of the old entries: a node has at most two
         // border rows and two columns, so a lookup is a step or two; a scan of the last
         // border costs a fifth of a bordered update's own time on the open-loop paths)
-        long* head = node_head_.data();
+        long* head = border_.node_head.data();
         auto kept = [&](const auto& b, double coef, const auto& old, const auto& old_coef) -> long {
-            for (long q = head[b.node]; q >= 0; q = chain_next_[static_cast<std::size_t>(q)])
+            for (long q = head[b.node]; q >= 0; q = border_.chain_next[static_cast<std::size_t>(q)])
                 if (old[q].kind == b.kind && old[q].pos == b.pos && old_coef[q] == coef) return q;
             return -1;
         };
-        link_chains(obrow_.data(), onb_, head, chain_next_.data());
-        for (std::size_t r = 0; r < nb; ++r) rmap_[r] = kept(brow_[r], row_coef(brow_[r]), obrow_, orcoef_);
-        unlink_chains(obrow_.data(), onb_, head);
-        link_chains(obcol_.data(), onb_, head, chain_next_.data());
-        for (std::size_t c = 0; c < nb; ++c) cmap_[c] = kept(bcol_[c], col_coef(bcol_[c]), obcol_, occoef_);
-        unlink_chains(obcol_.data(), onb_, head);
+        link_chains(border_.last_rows.data(), border_.last_n, head, border_.chain_next.data());
+        for (std::size_t r = 0; r < nb; ++r) border_.row_map[r] = kept(border_.rows[r], row_coef(border_.rows[r]), border_.last_rows, border_.last_row_coef);
+        unlink_chains(border_.last_rows.data(), border_.last_n, head);
+        link_chains(border_.last_cols.data(), border_.last_n, head, border_.chain_next.data());
+        for (std::size_t c = 0; c < nb; ++c) border_.col_map[c] = kept(border_.cols[c], col_coef(border_.cols[c]), border_.last_cols, border_.last_col_coef);
+        unlink_chains(border_.last_cols.data(), border_.last_n, head);
         // (the rows of the force laws are read at their one or two entries only,
         // border_row_dot: the others are not written)
         // when every row and column of the last border is kept (nodes added to the
@@ -1434,73 +1401,73 @@ private:
         // go first in their old order and the factors of the last S are extended by
         // the new rows and columns (extend_s), O(nb^2 k) for k new ones instead of O(nb^3)
         std::size_t kept_r = 0, kept_c = 0;
-        for (std::size_t r = 0; r < nb; ++r) kept_r += rmap_[r] >= 0;
-        for (std::size_t c = 0; c < nb; ++c) kept_c += cmap_[c] >= 0;
-        const bool extend = s_lu_ok_ && onb_ > 0 && kept_r == onb_ && kept_c == onb_;  // (so nb >= onb_)
+        for (std::size_t r = 0; r < nb; ++r) kept_r += border_.row_map[r] >= 0;
+        for (std::size_t c = 0; c < nb; ++c) kept_c += border_.col_map[c] >= 0;
+        const bool extend = border_.lu_ok && border_.last_n > 0 && kept_r == border_.last_n && kept_c == border_.last_n;  // (so nb >= border_.last_n)
         if (extend) {
-            std::size_t qr = onb_, qc = onb_;
+            std::size_t qr = border_.last_n, qc = border_.last_n;
             for (std::size_t r = 0; r < nb; ++r) {
-                const std::size_t d = rmap_[r] >= 0 ? static_cast<std::size_t>(rmap_[r]) : qr++;
-                trow_[d] = brow_[r];
+                const std::size_t d = border_.row_map[r] >= 0 ? static_cast<std::size_t>(border_.row_map[r]) : qr++;
+                border_.tmp_rows[d] = border_.rows[r];
             }
             for (std::size_t c = 0; c < nb; ++c) {
-                const std::size_t d = cmap_[c] >= 0 ? static_cast<std::size_t>(cmap_[c]) : qc++;
-                tcol_[d] = bcol_[c];
+                const std::size_t d = border_.col_map[c] >= 0 ? static_cast<std::size_t>(border_.col_map[c]) : qc++;
+                border_.tmp_cols[d] = border_.cols[c];
             }
             for (std::size_t r = 0; r < nb; ++r) {
-                brow_[r] = trow_[r];
-                bcol_[r] = tcol_[r];
-                rmap_[r] = cmap_[r] = r < onb_ ? static_cast<long>(r) : -1;
+                border_.rows[r] = border_.tmp_rows[r];
+                border_.cols[r] = border_.tmp_cols[r];
+                border_.row_map[r] = border_.col_map[r] = r < border_.last_n ? static_cast<long>(r) : -1;
             }
         }
         // M0^-1 V: columns already solved for this base (the same border column of an
         // earlier nearby piece) come from the column cache; the others are gathered to
-        // the front of vnew_ and solved together (one pass over the factors for all)
+        // the front of border_.vnew and solved together (one pass over the factors for all)
         std::size_t nnew = 0;
-        for (std::size_t q = 0; q < kColCache; ++q) slot_used_[q] = 0;
-        link_chains(ccol_.data(), n_cached_, head, cache_next_.data());
+        for (std::size_t q = 0; q < kColCache; ++q) cols_.used[q] = 0;
+        link_chains(cols_.key.data(), cols_.n, head, cols_.chain_next.data());
         for (std::size_t c = 0; c < nb; ++c) {
-            const BorderCol& bc = bcol_[c];
+            const BorderCol& bc = border_.cols[c];
             const double coef = col_coef(bc);
             std::size_t hit = kColCache;
-            for (long q = head[bc.node]; q >= 0; q = cache_next_[static_cast<std::size_t>(q)]) {
-                const CachedCol& cc = ccol_[static_cast<std::size_t>(q)];
+            for (long q = head[bc.node]; q >= 0; q = cols_.chain_next[static_cast<std::size_t>(q)]) {
+                const CachedCol& cc = cols_.key[static_cast<std::size_t>(q)];
                 if (cc.kind == bc.kind && cc.pos == bc.pos && cc.coef == coef) { hit = static_cast<std::size_t>(q); break; }
             }
             if (hit < kColCache) {  // the border reads the cached column in place
-                vcol_[c] = vcache_.data() + hit * n2_;
-                vslot_[c] = hit;
-                slot_used_[hit] = 1;
+                border_.vcol[c] = cols_.data.data() + hit * n2_;
+                border_.vslot[c] = hit;
+                cols_.used[hit] = 1;
                 continue;
             }
-            double* w = vnew_.data() + nnew * n2_;
+            double* w = border_.vnew.data() + nnew * n2_;
             for (std::size_t k = 0; k < m; ++k) {
                 if (bc.kind == kSlack) w[k] = k == bc.pos ? 1.0 : 0.0;
                 else if (bc.kind == kAddLn) w[k] = coef_ln(eq_row(k), bc.node, coef);
                 else w[k] = coef_lt(eq_row(k), bc.node);
             }
-            new_col_[nnew++] = c;
+            border_.new_col[nnew++] = c;
         }
-        unlink_chains(ccol_.data(), n_cached_, head);
-        if (nnew > 0) lu_solve(M_.data(), m, n2_, piv_.data(), vnew_.data(), n2_, nnew);
+        unlink_chains(cols_.key.data(), cols_.n, head);
+        if (nnew > 0) lu_solve(base_.M.data(), m, n2_, base_.piv.data(), border_.vnew.data(), n2_, nnew);
         // the new columns go to free slots of the cache, or replace columns this border
         // does not use (kColCache >= 2 kMaxBorder: there is always one)
         for (std::size_t q = 0; q < nnew; ++q) {
-            const std::size_t c = new_col_[q];
-            const BorderCol& bc = bcol_[c];
+            const std::size_t c = border_.new_col[q];
+            const BorderCol& bc = border_.cols[c];
             const double coef = col_coef(bc);
             std::size_t slot;
-            if (n_cached_ < kColCache) {
-                slot = n_cached_++;
+            if (cols_.n < kColCache) {
+                slot = cols_.n++;
             } else {
-                do slot = next_slot_++ % kColCache; while (slot_used_[slot]);
+                do slot = cols_.next_slot++ % kColCache; while (cols_.used[slot]);
             }
-            slot_used_[slot] = 1;
-            ccol_[slot] = {bc.kind, bc.node, bc.pos, coef};
-            double* v = vcache_.data() + slot * n2_;
-            std::memcpy(v, vnew_.data() + q * n2_, m * sizeof(double));
-            vcol_[c] = v;
-            vslot_[c] = slot;
+            cols_.used[slot] = 1;
+            cols_.key[slot] = {bc.kind, bc.node, bc.pos, coef};
+            double* v = cols_.data.data() + slot * n2_;
+            std::memcpy(v, border_.vnew.data() + q * n2_, m * sizeof(double));
+            border_.vcol[c] = v;
+            border_.vslot[c] = slot;
         }
         // W^T rows over the base unknowns, and S = Z - W^T (M0^-1 V). The rows of the
         // force laws (kFix: an unknown is zero; kSlipRow: lt - mu s ln = 0) are written
@@ -1520,88 +1487,88 @@ private:
         // are the same bits as computed afresh.
         const double law = 1.0 / r_;
         // Extended (every entry of the last border kept, in its place): its W^T rows and
-        // the leading onb_ x onb_ block of S stay where they are, only the new rows of
+        // the leading border_.last_n x border_.last_n block of S stay where they are, only the new rows of
         // W^T and the new rows and columns of S are written. Else both are rebuilt into
         // the spare buffers, the kept entries copied from their old places.
-        const std::size_t r0 = extend ? onb_ : 0;
-        n_border_ext_ += extend;
-        double* wt = extend ? Wt_.data() : Wt2_.data();
-        double* sb = extend ? S0_.data() : S1_.data();
+        const std::size_t r0 = extend ? border_.last_n : 0;
+        stats_.border_extensions += extend;
+        double* wt = extend ? border_.Wt.data() : border_.Wt_spare.data();
+        double* sb = extend ? border_.S.data() : border_.S_spare.data();
         for (std::size_t r = r0; r < nb; ++r) {
-            const BorderRow& br = brow_[r];
+            const BorderRow& br = border_.rows[r];
             double* w = wt + r * n2_;
             if (br.kind == kFix) {
                 w[br.pos] = law;
             } else if (br.kind == kSlipRow) {  // lt_i - mu s ln_i (ln_i has slip coefficient 0 in the base)
                 w[br.pos] = law;
-                w[static_cast<std::size_t>(pos_ln_[br.node])] = -slip_coef_[br.node] * law;
-            } else if (rmap_[r] >= 0) {
-                std::memcpy(w, Wt_.data() + static_cast<std::size_t>(rmap_[r]) * n2_, m * sizeof(double));
+                w[static_cast<std::size_t>(base_.pos_ln[br.node])] = -piece_.slip_coef[br.node] * law;
+            } else if (border_.row_map[r] >= 0) {
+                std::memcpy(w, border_.Wt.data() + static_cast<std::size_t>(border_.row_map[r]) * n2_, m * sizeof(double));
             } else {
                 const std::size_t row = br.kind == kAddG ? n + br.node : br.node;
                 for (std::size_t k = 0; k < m; ++k) w[k] = base_coef(row, k);
             }
         }
-        if (!extend) Wt_.swap(Wt2_);
+        if (!extend) border_.Wt.swap(border_.Wt_spare);
         for (std::size_t r = 0; r < nb; ++r) {
-            const BorderRow& br = brow_[r];
+            const BorderRow& br = border_.rows[r];
             double* srow = sb + r * K;
-            const double* orow = rmap_[r] >= 0 ? S0_.data() + static_cast<std::size_t>(rmap_[r]) * K : nullptr;
+            const double* orow = border_.row_map[r] >= 0 ? border_.S.data() + static_cast<std::size_t>(border_.row_map[r]) * K : nullptr;
             for (std::size_t c = r < r0 ? r0 : 0; c < nb; ++c) {
-                if (orow && cmap_[c] >= 0) {
-                    srow[c] = orow[cmap_[c]];
+                if (orow && border_.col_map[c] >= 0) {
+                    srow[c] = orow[border_.col_map[c]];
                     continue;
                 }
-                const BorderCol& bc = bcol_[c];
+                const BorderCol& bc = border_.cols[c];
                 double z = 0.0;
                 if (br.kind != kFix && br.kind != kSlipRow && bc.kind != kSlack) {
                     const std::size_t row = br.kind == kAddG ? n + br.node : br.node;
-                    z = bc.kind == kAddLn ? coef_ln(row, bc.node, slip_coef_[bc.node]) : coef_lt(row, bc.node);
+                    z = bc.kind == kAddLn ? coef_ln(row, bc.node, piece_.slip_coef[bc.node]) : coef_lt(row, bc.node);
                 }
-                srow[c] = z - border_row_dot(r, vcol_[c]);
+                srow[c] = z - border_row_dot(r, border_.vcol[c]);
             }
         }
-        if (!extend) S0_.swap(S1_);
-        const std::size_t nb0 = onb_;
+        if (!extend) border_.S.swap(border_.S_spare);
+        const std::size_t nb0 = border_.last_n;
         for (std::size_t r = 0; r < nb; ++r) {
-            obrow_[r] = brow_[r];
-            orcoef_[r] = row_coef(brow_[r]);
-            obcol_[r] = bcol_[r];
-            occoef_[r] = col_coef(bcol_[r]);
+            border_.last_rows[r] = border_.rows[r];
+            border_.last_row_coef[r] = row_coef(border_.rows[r]);
+            border_.last_cols[r] = border_.cols[r];
+            border_.last_col_coef[r] = col_coef(border_.cols[r]);
         }
-        onb_ = nb;
-        nB_ = nb;
+        border_.last_n = nb;
+        border_.n = nb;
         const bool ok = extend ? extend_s(nb0, nb) : factor_s(nb);
-        s_lu_ok_ = ok;
-        if (!ok) nB_ = 0;
+        border_.lu_ok = ok;
+        if (!ok) border_.n = 0;
         return ok;
     }
 
-    // LU of the border's Schur complement S0_ (nb square, ld kMaxBorder) into S_.
+    // LU of the border's Schur complement border_.S (nb square, ld kMaxBorder) into border_.S_lu.
     bool factor_s(std::size_t nb) noexcept {
         const std::size_t K = kMaxBorder;
-        for (std::size_t r = 0; r < nb; ++r) copy(S0_.data() + r * K, S_.data() + r * K, nb);
-        return nb == 0 || lu_factor(S_.data(), nb, K, spiv_.data()) == 0;
+        for (std::size_t r = 0; r < nb; ++r) copy(border_.S.data() + r * K, border_.S_lu.data() + r * K, nb);
+        return nb == 0 || lu_factor(border_.S_lu.data(), nb, K, border_.piv.data()) == 0;
     }
 
-    // S_ holds the factors of S0_'s leading nb0 x nb0 block (the last border's S):
-    // extend them to all of S0_ (nb square), as extend_base extends the base: with
+    // border_.S_lu holds the factors of border_.S's leading nb0 x nb0 block (the last border's S):
+    // extend them to all of border_.S (nb square), as extend_base extends the base: with
     // P0 S00 = L0 U0, the new columns through P0 and L0 (Y), the new rows through U0
     // (X), and the LU of Z - X Y with partial pivoting within the new block.
     bool extend_s(std::size_t nb0, std::size_t nb) noexcept {
         const std::size_t K = kMaxBorder, k = nb - nb0;
         if (k == 0) return true;
-        double* S = S_.data();
-        const double* S0 = S0_.data();
-        double* t = vnew_.data();  // the new columns, column-major (ld K)
+        double* S = border_.S_lu.data();
+        const double* S0 = border_.S.data();
+        double* t = border_.vnew.data();  // the new columns, column-major (ld K)
         for (std::size_t c = 0; c < k; ++c)
             for (std::size_t r = 0; r < nb0; ++r) t[c * K + r] = S0[r * K + nb0 + c];
-        if (nb0 > 0) lu_forward(S, nb0, K, spiv_.data(), t, K, k);
+        if (nb0 > 0) lu_forward(S, nb0, K, border_.piv.data(), t, K, k);
         for (std::size_t c = 0; c < k; ++c)
             for (std::size_t r = 0; r < nb0; ++r) S[r * K + nb0 + c] = t[c * K + r];
         for (std::size_t r = nb0; r < nb; ++r) copy(S0 + r * K, S + r * K, nb);
         if (nb0 > 0) lu_right_upper(S, nb0, K, S + nb0 * K, K, k);
-        return finish_extension(S, K, nb0, k, spiv_.data());
+        return finish_extension(S, K, nb0, k, border_.piv.data());
     }
 
     // The last step of extending an LU (P0 A00 = L0 U0, leading m0 x m0 of A, ld lda) by k
@@ -1633,7 +1600,7 @@ private:
         return true;
     }
 
-    // Append to the base the nodes the piece (state, slip_coef_) touches and the base
+    // Append to the base the nodes the piece (state, piece_.slip_coef) touches and the base
     // leaves open (the contact growing under the press, a node touching down), their
     // ln (and lt, if stuck) as new unknowns and g (and w) as new equations, when the
     // piece's other differences then fit a border; false if there is nothing to append,
@@ -1647,40 +1614,40 @@ private:
     // contact of a press is then factored once instead of once per kMaxBorder / 2
     // nodes.
     bool extend_base(const std::int8_t* state) noexcept {
-        const std::size_t n = n_, n2 = n2_, m = mB_;
+        const std::size_t n = n_, n2 = n2_, m = base_.m;
         std::size_t rows = 0, add = 0;  // border rows of the other differences; positions to append
         for (std::size_t i = 0; i < n; ++i) {
-            const std::int8_t s0 = base_state_[i], s1 = state[i];
+            const std::int8_t s0 = base_.state[i], s1 = state[i];
             const bool a0 = s0 != kContactOpen, a1 = s1 != kContactOpen;
             const bool t0 = s0 == kContactStick, t1 = s1 == kContactStick;
             if (!a0 && a1) { add += t1 ? 2 : 1; continue; }
             if (t0 && s1 == kContactSlip) { ++rows; continue; }
-            const bool same_ln = a0 && a1 && base_coef_[i] == slip_coef_[i];
+            const bool same_ln = a0 && a1 && base_.coef[i] == piece_.slip_coef[i];
             rows += (a0 && !same_ln) + (t0 && !t1) + (t1 && !t0);
         }
         if (add == 0 || rows > kMaxBorder) return false;
         const std::size_t me = m + add;
         for (std::size_t i = 0, q = m; i < n; ++i) {
-            if (base_state_[i] != kContactOpen || state[i] == kContactOpen) continue;
-            bnode_[q] = i; bkind_[q] = 0; pos_ln_[i] = static_cast<long>(q++);
-            if (state[i] == kContactStick) { bnode_[q] = i; bkind_[q] = 1; pos_lt_[i] = static_cast<long>(q++); }
-            base_state_[i] = state[i];
-            base_coef_[i] = slip_coef_[i];
+            if (base_.state[i] != kContactOpen || state[i] == kContactOpen) continue;
+            base_.node[q] = i; base_.kind[q] = 0; base_.pos_ln[i] = static_cast<long>(q++);
+            if (state[i] == kContactStick) { base_.node[q] = i; base_.kind[q] = 1; base_.pos_lt[i] = static_cast<long>(q++); }
+            base_.state[i] = state[i];
+            base_.coef[i] = piece_.slip_coef[i];
         }
         // from here on the base is changed: a failure must refactor
         base_changing();
-        double* M = M_.data();
+        double* M = base_.M.data();
         // Y: the new columns over the base equations, through P0 and L0, in chunks of
-        // kMaxBorder columns gathered into vnew_
+        // kMaxBorder columns gathered into border_.vnew
         for (std::size_t c0 = m; c0 < me; c0 += kMaxBorder) {
             const std::size_t kc = me - c0 < kMaxBorder ? me - c0 : kMaxBorder;
             for (std::size_t c = 0; c < kc; ++c) {
-                double* v = vnew_.data() + c * n2;
+                double* v = border_.vnew.data() + c * n2;
                 for (std::size_t k = 0; k < m; ++k) v[k] = base_coef(eq_row(k), c0 + c);
             }
-            lu_forward(M, m, n2, piv_.data(), vnew_.data(), n2, kc);
+            lu_forward(M, m, n2, base_.piv.data(), border_.vnew.data(), n2, kc);
             for (std::size_t c = 0; c < kc; ++c) {
-                const double* v = vnew_.data() + c * n2;
+                const double* v = border_.vnew.data() + c * n2;
                 for (std::size_t k = 0; k < m; ++k) M[k * n2 + c0 + c] = v[k];
             }
         }
@@ -1697,56 +1664,56 @@ private:
             double* sr = M + r * n2 + m;
             for (std::size_t c = 0; c < add; ++c) sr[c] = base_coef(row, m + c);
         }
-        if (!finish_extension(M, n2, m, add, piv_.data())) return false;
-        mB_ = me;
-        lu_valid_ = true;
-        ++n_extensions_;
-        ++piece_id_;
+        if (!finish_extension(M, n2, m, add, base_.piv.data())) return false;
+        base_.m = me;
+        base_.valid = true;
+        ++stats_.extensions;
+        ++piece_.id;
         return true;
     }
 
     // The damped semismooth Newton method on F from the committed forces, result in
-    // c_lam_ / c_u_ (the classification is redone by the caller).
+    // solved_.lam / solved_.u (the classification is redone by the caller).
     ContactStatus damped_newton(double plate_z, double ds, double atol, int& it) noexcept {
         const std::size_t n2 = n2_;
-        double* lam = c_lam_.data();
-        double* u = c_u_.data();
+        double* lam = solved_.lam.data();
+        double* u = solved_.u.data();
         copy(lam_.data(), lam, n2);
         displacement(lam, u);
-        double* F = F_.data();
-        std::int8_t* st = ws_state_.data();
-        double* sg = ws_sign_.data();
+        double* F = act_.F.data();
+        std::int8_t* st = act_.state.data();
+        double* sg = act_.sign.data();
         double norm = classify(lam, u, plate_z, ds, F, st, sg);
         it = 0;
         while (norm > atol) {
             if (it >= params.max_iter) {
-                err_residual_ = norm; err_atol_ = atol; err_info_ = params.max_iter;
+                err_.residual = norm; err_.atol = atol; err_.info = params.max_iter;
                 return ContactStatus::no_convergence;
             }
-            jacobian(st, sg, J_.data());
+            jacobian(st, sg, newton_.J.data());
             double merit = 0.0;
-            for (std::size_t i = 0; i < n2; ++i) { d_[i] = -F[i]; merit += F[i] * F[i]; }
-            if (lu_factor(J_.data(), n2, n2, jpiv_.data()) != 0) {
-                err_info_ = it;
+            for (std::size_t i = 0; i < n2; ++i) { newton_.step[i] = -F[i]; merit += F[i] * F[i]; }
+            if (lu_factor(newton_.J.data(), n2, n2, newton_.piv.data()) != 0) {
+                err_.info = it;
                 return ContactStatus::singular_jacobian;
             }
-            lu_solve(J_.data(), n2, n2, jpiv_.data(), d_.data());
+            lu_solve(newton_.J.data(), n2, n2, newton_.piv.data(), newton_.step.data());
             double t = 1.0;
-            double* F2 = F2_.data();
-            std::int8_t* st2 = ws_state2_.data();
-            double* sg2 = ws_sign2_.data();
+            double* F2 = newton_.F.data();
+            std::int8_t* st2 = act_.next_state.data();
+            double* sg2 = act_.next_sign.data();
             double norm2 = 0.0;
             while (true) {
-                for (std::size_t i = 0; i < n2; ++i) lam2_[i] = lam[i] + t * d_[i];
-                displacement(lam2_.data(), u2_.data());
-                norm2 = classify(lam2_.data(), u2_.data(), plate_z, ds, F2, st2, sg2);
+                for (std::size_t i = 0; i < n2; ++i) newton_.lam[i] = lam[i] + t * newton_.step[i];
+                displacement(newton_.lam.data(), newton_.u.data());
+                norm2 = classify(newton_.lam.data(), newton_.u.data(), plate_z, ds, F2, st2, sg2);
                 double m2 = 0.0;
                 for (std::size_t i = 0; i < n2; ++i) m2 += F2[i] * F2[i];
                 if (m2 <= (1 - 1e-4 * t) * merit || t < 1e-6) break;
                 t *= 0.5;
             }
-            copy(lam2_.data(), lam, n2);
-            copy(u2_.data(), u, n2);
+            copy(newton_.lam.data(), lam, n2);
+            copy(newton_.u.data(), u, n2);
             copy(F2, F, n2);
             for (std::size_t i = 0; i < n_; ++i) { st[i] = st2[i]; sg[i] = sg2[i]; }
             norm = norm2;
@@ -1755,104 +1722,273 @@ private:
         return ContactStatus::ok;
     }
 
-    std::size_t n_, n2_;
-    std::vector<double> C_, z0_, w_;
-    double w_tol_, r_ = 0.0, z0_max_ = 0.0;
+    // ---- the model (fixed at construction)
+    std::size_t n_, n2_;              // contact nodes; unknowns (lt, ln) and displacements (u_y, u_z)
+    std::vector<double> C_, z0_, w_;  // compliance (2n x 2n, row-major); node heights; node weights
+    double w_tol_, r_ = 0.0, z0_max_ = 0.0;  // slip increment tolerance; Alart-Curnier stiffness; crown height
+    // event tolerances (set_event_tolerances): the cascade's and the cycle rule's zero
+    // tests of gaps and forces, and the event search's "decreasing" thresholds
+    double g_tol_ = 0.0, f_tol_ = 0.0, evt_g_tol_ = 0.0, evt_f_tol_ = 0.0;
+
+    // ---- the committed history (what follow leaves and restore brings back)
+    std::vector<double> lam_, uy_prev_, sign_;  // forces (lt, ln); u_y at the last load; slip signs
+    std::vector<std::int8_t> state_;            // node statuses (open / stick / slip)
+    std::vector<std::uint8_t> sliding_;         // state_ == slip, as the reference's flags
+    std::vector<double> pu_;                    // displacements (u_y, u_z) of the state
+    double s_prev_ = 0.0, z_prev_ = 0.0;        // plate position (y) and height (z) of the state
+    bool has_z_ = false, pristine_ = true;      // placed; no history since construction / reset
+    double fr_mu_ = 0.0, fr_muk_ = 0.0;         // friction the state was solved with (settle_friction)
+    long solves_ = 0, events_ = 0;              // solves and events of the path following since reset
     double scale_len_ = 1e-9;  // the length scale of the current step (m), see stick_offsets_unchanged
-    std::size_t argmax_z0_ = 0;
-    // committed history
-    std::vector<double> lam_, uy_prev_, sign_;
-    std::vector<std::int8_t> state_;
-    std::vector<std::uint8_t> sliding_;
-    double s_prev_ = 0.0;
-    // candidate
-    std::vector<double> c_lam_, c_u_, c_sign_, c_forces_;
-    std::vector<std::int8_t> c_state_, c_reported_;
-    double c_frac_ = 0.0, c_plate_y_ = 0.0;
-    int c_iterations_ = 0;
-    bool has_candidate_ = false;
-    // friction coefficients the current state was solved with (settle_friction)
-    double fr_mu_ = 0.0, fr_muk_ = 0.0, sv_fr_mu_ = 0.0, sv_fr_muk_ = 0.0;
-    // workspaces
-    std::vector<double> mu_node_, F_, F2_, u2_, lam2_, d_, ws_sign_, ws_sign2_, rhs_, M_, J_, slip_coef_, key_coef_;
-    std::vector<std::int8_t> ws_state_, ws_state2_, key_state_;
-    std::vector<double> plam_;  // P lam (piece_displacement)
-    std::vector<std::size_t> free_rows_;
-    std::vector<int> piv_, jpiv_;
-    // the base piece's unknowns / equations: position k is ln (kind 0, with equation
-    // g) or lt (kind 1, with equation w) of node bnode_[k]; mB_ of them
-    std::vector<std::size_t> bnode_;
-    std::vector<std::uint8_t> bkind_;
-    std::size_t mB_ = 0;
-    long n_extensions_ = 0;
-    long n_border_ext_ = 0;
-    // base piece and its border
-    std::vector<long> pos_ln_, pos_lt_;
-    std::vector<std::int8_t> base_state_;
-    std::vector<double> base_coef_, Wt_, S_, by_, vnew_;
-    std::vector<std::size_t> vslot_;   // M0^-1 V: column c of the border is slot vslot_[c] of vcache_
-    std::vector<const double*> vcol_;  // its address (set where it is used)
-    std::vector<std::uint8_t> slot_used_;
-    std::vector<std::size_t> new_col_;
-    std::vector<int> spiv_;
-    std::vector<BorderRow> brow_;
-    std::vector<BorderCol> bcol_;
-    std::size_t nB_ = 0;
-    // the last border's rows and columns (with their coefficients), its W^T rows and its
-    // Schur complement before factoring (ld kMaxBorder), kept with the base (update_piece)
-    std::vector<BorderRow> obrow_;
-    std::vector<BorderCol> obcol_;
-    std::vector<double> orcoef_, occoef_, Wt2_, S0_, S1_;
-    std::vector<long> rmap_, cmap_;
-    std::vector<long> node_head_;  // per node: the first entry of its chain (-1 between uses)
-    std::vector<long> chain_next_, cache_next_;  // the chains of the last border's entries, of the cached columns
-    std::size_t onb_ = 0;
-    bool s_lu_ok_ = false;  // S_ holds the factors of the last border's S (extend_s may extend them)
-    std::vector<BorderRow> trow_;
-    std::vector<BorderCol> tcol_;
-    long n_updates_ = 0;
-    std::vector<double> vcache_;
-    std::vector<CachedCol> ccol_;
-    std::size_t n_cached_ = 0, next_slot_ = 0;
-    // affine response of the current piece (piece_response)
-    std::vector<double> aff_lam_, aff_u_, aff_lz_, aff_uz_, aff_ly_, aff_uy_, aff_v_;
-    double aff_z_ = 0.0, aff_y_ = 0.0;
-    long piece_id_ = 0, aff_piece_ = -1, n_affine_ = 0;
-    int aff_stage_ = 0;
-    bool lu_valid_ = false;
-    long err_info_ = 0;
-    long n_factorizations_ = 0;
-    double err_residual_ = 0.0, err_atol_ = 0.0;
-    // path following (follow): displacements of the current state, the plate height,
-    // the end of the current piece, the unit responses and their key, the events of a
-    // point, the cascade's previous statuses, the saved history and the outputs
-    std::vector<double> pu_, pl1_, pu1_, rs_, rz_, us_, uz_, ukey_sign_, ev_frac_, prev_sign_;
-    std::vector<double> sv_lam_, sv_u_, sv_sign_, o_lam_, o_u_, zunit_;
-    bool zunit_valid_[2] = {false, false};  // base solves of the unit right-hand sides (solve_prepared)
-    // the last base solve of a load's right-hand side (solve_bordered): input and solution
-    std::vector<double> rhs_in_, rhs_out_;
-    bool rhs_valid_ = false;
-    long n_rhs_reused_ = 0;
-    std::vector<std::int8_t> ukey_state_, ev_kind_, prev_state_, sv_state_;
-    std::vector<std::size_t> ev_node_;
+
+    // The history as follow found it (save / restore): a failed call puts it back.
+    struct Snapshot {
+        std::vector<double> lam, u, sign;  // lam_, pu_, sign_
+        std::vector<std::int8_t> state;    // state_
+        double s_prev = 0.0, z_prev = 0.0, fr_mu = 0.0, fr_muk = 0.0;
+        bool has_z = false, pristine = true;
+        long solves = 0, events = 0;
+        void allocate(std::size_t n) {
+            lam.assign(2 * n, 0.0); u.assign(2 * n, 0.0); sign.assign(n, 0.0);
+            state.assign(n, kContactOpen);
+        }
+    };
+    Snapshot saved_;
+
+    // The results of the last step() (forces(), displacement(), reported_state(), ...).
+    struct StepResult {
+        std::vector<double> lam, u, forces;  // forces (lt, ln); displacements; f = (lt, -ln)
+        std::vector<std::int8_t> state;      // the reported statuses
+        double slip_fraction = 0.0;
+        int iterations = 0;                  // solves the step took
+        void allocate(std::size_t n) {
+            lam.assign(2 * n, 0.0); u.assign(2 * n, 0.0); forces.assign(2 * n, 0.0);
+            state.assign(n, kContactOpen);
+        }
+    };
+    StepResult stepped_;
+
+    // The solution of solve_load at one load point, before the caller accepts it.
+    struct LoadSolution {
+        std::vector<double> lam, u, sign;  // forces, displacements, slip signs
+        std::vector<std::int8_t> state;    // its classification
+        void allocate(std::size_t n) {
+            lam.assign(2 * n, 0.0); u.assign(2 * n, 0.0); sign.assign(n, 0.0);
+            state.assign(n, kContactOpen);
+        }
+    };
+    LoadSolution solved_;
+
+    // The active-set iteration of a load point (solve_load, resolve_point, cascade).
+    struct ActiveSet {
+        std::vector<double> mu;                             // each node's cone this step (static / kinetic)
+        std::vector<std::int8_t> state, next_state;         // the classification and the next one
+        std::vector<double> sign, next_sign;                // their slip signs
+        std::vector<double> F;                              // Alart-Curnier residual (2n)
+        std::vector<std::int8_t> prev_state;                // the accepted statuses at the point's start
+        std::vector<double> prev_sign;                      // and their signs
+        std::vector<double> first_lam, first_u, first_sign; // solve_load(exact): the first answer within tolerance
+        std::vector<std::int8_t> first_state;
+        void allocate(std::size_t n) {
+            mu.assign(n, 0.0); F.assign(2 * n, 0.0);
+            state.assign(n, kContactOpen); next_state.assign(n, kContactOpen);
+            sign.assign(n, 0.0); next_sign.assign(n, 0.0);
+            prev_state.assign(n, kContactOpen); prev_sign.assign(n, 0.0);
+            first_lam.assign(2 * n, 0.0); first_u.assign(2 * n, 0.0); first_sign.assign(n, 0.0);
+            first_state.assign(n, kContactOpen);
+        }
+    };
+    ActiveSet act_;
+
+    // The damped Newton fallback (damped_newton).
+    struct Newton {
+        std::vector<double> J;        // generalised Jacobian (2n x 2n), then its LU
+        std::vector<int> piv;         // its pivots
+        std::vector<double> step;     // Newton direction
+        std::vector<double> lam, u, F;  // trial point of the line search and its residual
+        void allocate(std::size_t n) {
+            J.assign(4 * n * n, 0.0); piv.assign(2 * n, 0); step.assign(2 * n, 0.0);
+            lam.assign(2 * n, 0.0); u.assign(2 * n, 0.0); F.assign(2 * n, 0.0);
+        }
+    };
+    Newton newton_;
+
+    // The prepared piece (factor_piece): its statuses and slip coefficients mu s.
+    struct PieceKey {
+        std::vector<std::int8_t> state;  // statuses of the prepared piece
+        std::vector<double> coef;        // its slip coefficients
+        std::vector<double> slip_coef;   // those of the piece being prepared
+        long id = 0;                     // changes whenever the prepared piece does
+        void allocate(std::size_t n) {
+            state.assign(n, kContactOpen); coef.assign(n, 0.0); slip_coef.assign(n, 0.0);
+        }
+    };
+    PieceKey piece_;
+
+    // The factored base piece. Position k of its unknowns / equations is ln (kind 0, with
+    // equation g) or lt (kind 1, with equation w) of node node[k]; m of them.
+    struct BaseFactors {
+        std::vector<double> M;              // LU factors (ld 2n)
+        std::vector<int> piv;               // their pivots
+        std::vector<std::size_t> node;      // node of each position
+        std::vector<std::uint8_t> kind;     // kind of each position
+        std::size_t m = 0;
+        std::vector<long> pos_ln, pos_lt;   // per node: the position of its ln / lt (-1: none)
+        std::vector<std::int8_t> state;     // the base piece's statuses
+        std::vector<double> coef;           // and slip coefficients
+        bool valid = false;                 // M holds factors
+        std::vector<double> rhs;            // the base right-hand side of a solve (solve_prepared)
+        std::vector<double> unit_z;         // base solves of the unit right-hand sides (az, ay) = (1, 0), (0, 1)
+        bool unit_valid[2] = {false, false};
+        std::vector<double> load_rhs, load_z;  // the last base solve of a load's right-hand side (solve_bordered)
+        bool load_valid = false;
+        void allocate(std::size_t n) {
+            const std::size_t n2 = 2 * n;
+            M.assign(n2 * n2, 0.0); piv.assign(n2, 0); node.assign(n2, 0); kind.assign(n2, 0);
+            pos_ln.assign(n, -1); pos_lt.assign(n, -1); state.assign(n, kContactOpen); coef.assign(n, 0.0);
+            rhs.assign(n2, 0.0); unit_z.assign(2 * n2, 0.0); load_rhs.assign(n2, 0.0); load_z.assign(n2, 0.0);
+        }
+    };
+    BaseFactors base_;
+
+    // The border of the prepared piece over the base (update_piece), and the last one's,
+    // whose rows, columns and Schur complement entries the next border keeps.
+    struct Border {
+        std::vector<BorderRow> rows;        // its rows and columns, n of each
+        std::vector<BorderCol> cols;
+        std::size_t n = 0;
+        std::vector<double> Wt;             // W^T rows over the base unknowns (ld 2n)
+        std::vector<double> S;              // Schur complement before factoring (ld kMaxBorder)
+        std::vector<double> S_lu;           // its LU factors
+        std::vector<int> piv;               // their pivots
+        bool lu_ok = false;                 // S_lu holds the factors of the last border's S (extend_s may extend them)
+        std::vector<double> Wt_spare, S_spare;  // rebuild buffers (swapped with Wt, S)
+        std::vector<double> rhs;            // right-hand side of the border rows, then their unknowns
+        std::vector<std::size_t> vslot;     // M0^-1 V: column c of the border is slot vslot[c] of the column cache
+        std::vector<const double*> vcol;    // its address (set where it is used)
+        std::vector<double> vnew;           // new columns to solve / extend (kMaxBorder x 2n)
+        std::vector<std::size_t> new_col;   // the border column of each of them
+        std::vector<BorderRow> last_rows;   // the last border's rows and columns, their coefficients, count
+        std::vector<BorderCol> last_cols;
+        std::vector<double> last_row_coef, last_col_coef;
+        std::size_t last_n = 0;
+        std::vector<long> row_map, col_map; // per row / column: its place in the last border (-1: new)
+        std::vector<BorderRow> tmp_rows;    // reordering scratch
+        std::vector<BorderCol> tmp_cols;
+        std::vector<long> node_head;        // per node: the first entry of its chain (-1 between uses)
+        std::vector<long> chain_next;       // the chains of the last border's entries
+        void allocate(std::size_t n_nodes) {
+            const std::size_t n2 = 2 * n_nodes, K = kMaxBorder;
+            rows.resize(K); cols.resize(K);
+            Wt.assign(K * n2, 0.0); S.assign(K * K, 0.0); S_lu.assign(K * K, 0.0); piv.assign(K, 0);
+            Wt_spare.assign(K * n2, 0.0); S_spare.assign(K * K, 0.0); rhs.assign(K, 0.0);
+            vslot.assign(K, 0); vcol.assign(K, nullptr); vnew.assign(K * n2, 0.0); new_col.assign(K, 0);
+            last_rows.resize(K); last_cols.resize(K); last_row_coef.assign(K, 0.0); last_col_coef.assign(K, 0.0);
+            row_map.assign(K, -1); col_map.assign(K, -1); tmp_rows.resize(K); tmp_cols.resize(K);
+            node_head.assign(n_nodes, -1); chain_next.assign(K, -1);
+        }
+    };
+    Border border_;
+
+    // Solved border columns M0^-1 V of the current base, kept for the next borders.
+    struct ColumnCache {
+        std::vector<double> data;          // kColCache columns (ld 2n)
+        std::vector<CachedCol> key;        // what each slot holds
+        std::size_t n = 0, next_slot = 0;  // slots in use; the next slot to replace
+        std::vector<std::uint8_t> used;    // slots the current border reads
+        std::vector<long> chain_next;      // per-node chains over the slots
+        void allocate(std::size_t n_nodes) {
+            data.assign(kColCache * 2 * n_nodes, 0.0); key.resize(kColCache);
+            used.assign(kColCache, 0); chain_next.assign(kColCache, -1);
+        }
+    };
+    ColumnCache cols_;
+
+    // The affine response of the current piece (piece_response): the reference solution
+    // at (plate_z, plate_y) and the responses to unit plate motions.
+    struct AffineResponse {
+        std::vector<double> lam, u;          // the reference solution
+        std::vector<double> lam_dz, u_dz;    // response to a unit rise of the plate
+        std::vector<double> lam_dy, u_dy;    // response to a unit plate motion along y
+        std::vector<double> stick_offset;    // uy_prev - s_prev of the reference
+        double plate_z = 0.0, plate_y = 0.0;
+        long piece = -1;                     // piece_.id it holds for
+        int stage = 0;                       // 0 none, 1 reference only, 2 with the unit responses
+        void allocate(std::size_t n) {
+            for (auto* v : {&lam, &u, &lam_dz, &u_dz, &lam_dy, &u_dy}) v->assign(2 * n, 0.0);
+            stick_offset.assign(n, 0.0);
+        }
+    };
+    AffineResponse aff_;
+
+    // The unit responses of the current statuses (unit_response) and their key.
+    struct UnitResponse {
+        std::vector<double> lam_dy, u_dy;  // response to a unit plate displacement along y
+        std::vector<double> lam_dz, u_dz;  // response to a unit rise of the plate
+        std::vector<std::int8_t> state;    // the statuses, signs and friction they hold for
+        std::vector<double> sign;
+        double mu = 0.0, mu_kinetic = 0.0;
+        bool valid = false;
+        void allocate(std::size_t n) {
+            for (auto* v : {&lam_dy, &u_dy, &lam_dz, &u_dz}) v->assign(2 * n, 0.0);
+            state.assign(n, kContactOpen); sign.assign(n, 0.0);
+        }
+    };
+    UnitResponse unit_;
+
+    // Scratch of the path following: the end of the current piece, the events found
+    // there and the status sets met at the current point.
     static constexpr std::size_t kSeenCap = 256;  // status sets kept per point (more: status_cycle)
-    std::vector<std::int8_t> seen_, key_;
-    std::vector<bool> seen_resolved_;
-    std::size_t n_seen_ = 0;
-    double z_prev_ = 0.0, sv_s_ = 0.0, sv_z_ = 0.0, ukey_mu_ = 0.0, ukey_muk_ = 0.0;
-    double g_tol_ = 0.0, f_tol_ = 0.0, evt_g_tol_ = 0.0, evt_f_tol_ = 0.0, err_y_ = 0.0, err_z_ = 0.0;
-    std::vector<double> fl_lam_, fl_u_, fl_sign_;  // solve_load(exact): the first answer within tolerance
-    std::vector<std::int8_t> fl_state_;
-    bool has_z_ = false, sv_has_z_ = false, unit_valid_ = false, pristine_ = true, sv_pristine_ = true;
-    long solves_ = 0, events_ = 0, sv_solves_ = 0, sv_events_ = 0;
-    double* out_lam_ = nullptr;
-    double* out_u_ = nullptr;
-    std::int8_t* out_state_ = nullptr;
-    std::size_t out_s2_ = 0, out_s1_ = 0, out_row0_ = 0;
-    // projected outputs (set_projection, follow with Extra)
-    std::size_t q_ = 0;
-    std::vector<double> Pt_, pc_, pd_;
-    Extra ex_;
+    struct EventScratch {
+        std::vector<double> lam_end, u_end;  // the piece's solution at the segment's end
+        std::vector<double> frac;            // crossing of each kind and node (kind-major, 4n)
+        std::vector<std::int8_t> kind;       // the events at the first crossing: kind and node
+        std::vector<std::size_t> node;
+        std::vector<std::int8_t> seen, key;  // status sets met at the point (kSeenCap x n); one set's key
+        std::vector<bool> seen_resolved;     // per set: a "resolved" entry
+        std::size_t n_seen = 0;
+        void allocate(std::size_t n) {
+            lam_end.assign(2 * n, 0.0); u_end.assign(2 * n, 0.0); frac.assign(4 * n, 0.0);
+            kind.assign(4 * n, 0); node.assign(4 * n, 0);
+            seen.assign(kSeenCap * n, 0); key.assign(n, 0); seen_resolved.assign(kSeenCap, false);
+        }
+    };
+    EventScratch ev_;
+
+    // Where follow writes its samples, and the projected outputs (set_projection).
+    struct Outputs {
+        double* lam = nullptr;           // row k at lam + (row0 + k) * stride2, likewise u
+        double* u = nullptr;
+        std::int8_t* state = nullptr;    // row k at state + (row0 + k) * stride1
+        std::size_t stride2 = 0, stride1 = 0, row0 = 0;
+        Extra extra;                     // projections, slip fraction, flags (follow with Extra)
+        std::size_t q = 0;               // projection rows
+        std::vector<double> Pt;          // the projection, column-major (q x 2n)
+        std::vector<double> pc, pd;      // P lam at the piece's start and its change
+    };
+    Outputs out_;
+
+    // P lam and the rows piece_displacement computes.
+    struct DisplacementScratch {
+        std::vector<double> plam;
+        std::vector<std::size_t> free_rows;
+        void allocate(std::size_t n) { plam.assign(2 * n, 0.0); free_rows.assign(2 * n, 0); }
+    };
+    DisplacementScratch disp_;
+
+    // Counters since construction (factorizations(), updates(), ...).
+    struct Counters {
+        long factorizations = 0, updates = 0, extensions = 0, border_extensions = 0, affine = 0, rhs_reuses = 0;
+    };
+    Counters stats_;
+
+    // Details of the last failure (error_info(), error_residual(), ...).
+    struct ErrorDetail {
+        long info = 0;
+        double residual = 0.0, atol = 0.0;  // Newton's residual and tolerance (no_convergence)
+        double y = 0.0, z = 0.0;            // the load point of a path-following failure
+    };
+    ErrorDetail err_;
 };
 
 }  // namespace tactile
