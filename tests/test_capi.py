@@ -7,6 +7,7 @@ import subprocess
 import sys
 from pathlib import Path
 
+import _native_build as nb
 import numpy as np
 import pytest
 from tactile_mirror.circuit import PVDFCircuit
@@ -20,6 +21,7 @@ from tactile_mirror.loop.capi import CAPIError, CPipeline, load, new_config
 
 FS = 1000.0
 HERE = Path(__file__).resolve().parent
+CAPI_ASAN = nb.capi_asan()  # the sanitizer build run by tests/run_sanitizers.py
 
 
 def weights(h=8, seed=3, fs=FS):
@@ -402,7 +404,11 @@ def test_c_program(tmp_path):
 
 @pytest.mark.slow
 @pytest.mark.skipif(shutil.which("cmake") is None or _cc() is None, reason="needs cmake and a C compiler")
+@pytest.mark.native_build(CAPI_ASAN)
 def test_sanitizers():
+    # The build is shared with the other test process and later runs
+    # (tests/_native_build.py): made or waited for here, then reused by the script.
+    CAPI_ASAN.build()
     r = subprocess.run([sys.executable, str(HERE / "run_sanitizers.py")], capture_output=True, text=True,
                        timeout=300, check=False)
     assert r.returncode == 0, r.stdout + r.stderr

@@ -1,37 +1,47 @@
 """The header-only C++ kernels, built stand-alone with AddressSanitizer and UBSan
 and checked against references computed here with scipy."""
 import os
-import pathlib
-import shutil
 import subprocess
 
+import _native_build as nb
 import numpy as np
 import pytest
 import scipy.signal as ss
 
-ROOT = pathlib.Path(__file__).resolve().parents[1]
-CXX = shutil.which("c++") or shutil.which("g++") or shutil.which("clang++")
+CXX = nb.cxx_compiler()
 pytestmark = pytest.mark.skipif(CXX is None, reason="no C++ compiler on PATH")
 
 
-def build(tmp_path, source, sanitize=True, opt="-O1", sanitizers="address,undefined", debug=True):
-    exe = tmp_path / pathlib.Path(source).stem
-    flags = ["-std=c++17", opt, *(["-g"] if debug else []), "-Wall", "-Wextra", "-Wno-psabi", "-ffp-contract=fast",
-             "-pthread"]
-    if sanitize:
-        flags += [f"-fsanitize={sanitizers}", "-fno-omit-frame-pointer", "-DTM_LEAN_UNROLL"]
-        if "undefined" in sanitizers:
-            flags += ["-fno-sanitize-recover=undefined"]
-    cmd = [CXX, *flags, f"-I{ROOT / 'src' / 'cpp'}", str(ROOT / "tests" / "cpp" / source), "-o", str(exe)]
-    subprocess.run(cmd, check=True, capture_output=True, text=True)
-    return exe
+# The programs, built once per run by whichever test process needs one first (the other
+# waits for it), started ahead of the tests (the native_build marks; costliest first,
+# cost in seconds of one core, roughly) and kept under build/native-tests/ for later
+# runs while the sources, headers and flags stay the same (tests/_native_build.py).
+SOS = nb.kernel_program("test_sos.cpp", cost=40)
+BPTT = nb.kernel_program("test_bptt.cpp", cost=4)
+# -O2 as the extension is built: the float exp of the AVX2 variant relies on the fused
+# multiply-adds that -O2 forms.
+SIMD = nb.kernel_program("test_simd.cpp", opt="-O2", cost=4)
+# AddressSanitizer only, without debug info: with UBSan and -g the many kernel
+# instantiations took 4-6 min to compile; this way about 2.5 min of one core, in three
+# translation units (main, the float checks, the double checks) compiled side by side.
+JORDAN = nb.kernel_program(["test_jordan.cpp", "test_jordan_float.cpp", "test_jordan_double.cpp"],
+                           sanitizers="address", debug=False, cost=160)
+SHARED_LIST = {s: nb.kernel_program("test_shared_list.cpp", sanitizers=s, cost=5)
+               for s in ("thread", "address,undefined")}
+CONTACT = nb.kernel_program("test_contact.cpp", cost=17)
 
 
+def build(spec):
+    """The program's path, built (or waited for) now."""
+    return spec.build()
+
+
+@pytest.mark.native_build(SOS)
 def test_sos_kernel_under_sanitizers(tmp_path):
     # One test over the cases, so that one worker builds the program once (as separate
     # parametrized tests, pytest-xdist ran them on both workers and each built it).
     try:
-        exe = build(tmp_path, "test_sos.cpp")
+        exe = build(SOS)
     except subprocess.CalledProcessError as exc:
         raise AssertionError(f"building tests/cpp/test_sos.cpp with sanitizers failed:\n{exc.stderr}") from exc
     sos = ss.ellip(6, 0.5, 50, [0.02, 0.3], "bandpass", output="sos")
@@ -49,11 +59,12 @@ def test_sos_kernel_under_sanitizers(tmp_path):
         assert "ok: 0 failures" in out.stdout
 
 
+@pytest.mark.native_build(BPTT)
 def test_bptt_kernel_under_sanitizers(tmp_path):
     from tactile_mirror.detector.network import loss_and_grad
 
     try:
-        exe = build(tmp_path, "test_bptt.cpp")
+        exe = build(BPTT)
     except subprocess.CalledProcessError as exc:
         raise AssertionError(f"building tests/cpp/test_bptt.cpp with sanitizers failed:\n{exc.stderr}") from exc
     rng = np.random.default_rng(4)
@@ -79,11 +90,10 @@ def test_bptt_kernel_under_sanitizers(tmp_path):
     assert "ok: 0 failures" in out.stdout
 
 
-def test_simd_layer_under_sanitizers(tmp_path):
-    # -O2 as the extension is built: the float exp of the AVX2 variant relies on
-    # the fused multiply-adds that -O2 forms.
+@pytest.mark.native_build(SIMD)
+def test_simd_layer_under_sanitizers():
     try:
-        exe = build(tmp_path, "test_simd.cpp", opt="-O2")
+        exe = build(SIMD)
     except subprocess.CalledProcessError as exc:
         raise AssertionError(f"building tests/cpp/test_simd.cpp with sanitizers failed:\n{exc.stderr}") from exc
     out = subprocess.run([str(exe)], check=False, capture_output=True, text=True, timeout=120)
@@ -91,14 +101,14 @@ def test_simd_layer_under_sanitizers(tmp_path):
     assert "ok: 0 failures" in out.stdout
 
 
-def test_jordan_kernels_under_address_sanitizer(tmp_path):
+@pytest.mark.native_build(JORDAN)
+def test_jordan_kernels_under_address_sanitizer():
     # Block runs (projections, staging, ghost instances) against step() bit for bit and
     # against the scalar step_one(), every code variant, both activations, 4/5/8/17
     # inputs, 1-13 instances, and the filter-bank front end. AddressSanitizer only,
-    # without debug info: with UBSan and -g the many kernel instantiations took 4-6 min
-    # to compile; this way about 2 min.
+    # without debug info (JORDAN).
     try:
-        exe = build(tmp_path, "test_jordan.cpp", sanitizers="address", debug=False)
+        exe = build(JORDAN)
     except subprocess.CalledProcessError as exc:
         raise AssertionError(f"building tests/cpp/test_jordan.cpp with AddressSanitizer failed:\n{exc.stderr}") from exc
     out = subprocess.run([str(exe)], check=False, capture_output=True, text=True, timeout=300)
@@ -114,7 +124,8 @@ def _thread_sanitizer_runs(tmp_path) -> bool:
     return p.returncode == 0 and subprocess.run([str(tmp_path / "probe")], check=False).returncode == 0
 
 
-@pytest.mark.parametrize("sanitizers", ["thread", "address,undefined"])
+@pytest.mark.parametrize("sanitizers", [pytest.param(s, marks=pytest.mark.native_build(spec))
+                                        for s, spec in SHARED_LIST.items()])
 def test_shared_list_under_sanitizers(tmp_path, sanitizers):
     # the work sharing behind a pad's two threads (Pad.threads = 2), on synthetic items:
     # 20000 lists of random cost, failing items, pauses that put the second thread to
@@ -125,7 +136,7 @@ def test_shared_list_under_sanitizers(tmp_path, sanitizers):
     if sanitizers == "thread" and not _thread_sanitizer_runs(tmp_path):
         pytest.skip("the compiler cannot build or run ThreadSanitizer programs here")
     try:
-        exe = build(tmp_path, "test_shared_list.cpp", sanitizers=sanitizers)
+        exe = build(SHARED_LIST[sanitizers])
     except subprocess.CalledProcessError as exc:
         raise AssertionError(f"building tests/cpp/test_shared_list.cpp with {sanitizers} failed:\n{exc.stderr}") from exc
     env = {**os.environ, "TSAN_OPTIONS": "halt_on_error=1", "ASAN_OPTIONS": "detect_stack_use_after_return=1"}
@@ -135,6 +146,7 @@ def test_shared_list_under_sanitizers(tmp_path, sanitizers):
     assert "ThreadSanitizer" not in out.stderr
 
 
+@pytest.mark.native_build(CONTACT)
 def test_contact_kernel_under_sanitizers(tmp_path):
     # The contact kernel (contact_solver.hpp) on fig6 with a coarse contact mesh (41
     # nodes) up to 0.125 s after gross slip: the press, partial slip (the first
@@ -148,7 +160,7 @@ def test_contact_kernel_under_sanitizers(tmp_path):
     from tactile_mirror.geometry import RidgeGeometry
 
     try:
-        exe = build(tmp_path, "test_contact.cpp")
+        exe = build(CONTACT)
     except subprocess.CalledProcessError as exc:
         raise AssertionError(f"building tests/cpp/test_contact.cpp with sanitizers failed:\n{exc.stderr}") from exc
     scene = scenes.paper("fig6", geometry=RidgeGeometry(contact_mesh_size=0.2e-3))

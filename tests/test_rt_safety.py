@@ -10,6 +10,7 @@ import textwrap
 import threading
 from pathlib import Path
 
+import _native_build as nb
 import numpy as np
 import pytest
 from hypothesis import given, settings
@@ -28,6 +29,7 @@ from tactile_mirror.loop.capi import CAPIError, CPipeline
 
 FS = 1000.0
 HERE = Path(__file__).resolve().parent
+CAPI_TSAN = nb.capi_tsan()  # the sanitizer build run by tests/run_sanitizers.py --thread
 BUSY = -9  # TM_ERR_BUSY
 HANDLE = -2  # TM_ERR_HANDLE
 
@@ -473,7 +475,14 @@ def test_tick_path_allocates_nothing_and_takes_no_lock(tmp_path, net):
 
 @pytest.mark.slow
 @pytest.mark.skipif(_cc() is None or not sys.platform.startswith("linux"), reason="needs a C compiler on Linux")
+@pytest.mark.native_build(CAPI_TSAN)
 def test_threads_under_thread_sanitizer():
+    # The build is shared with the other test process and later runs
+    # (tests/_native_build.py): made or waited for here (where ThreadSanitizer
+    # programs run at all), then reused by the script.
+    cc, cxx = nb.cc_cxx()
+    if cc and cxx and nb.thread_sanitizer_runs(cc, ".c"):
+        CAPI_TSAN.build()
     r = subprocess.run([sys.executable, str(HERE / "run_sanitizers.py"), "--thread"], capture_output=True,
                        text=True, timeout=900, check=False)
     if r.returncode == 77:

@@ -81,7 +81,7 @@ ControllerKind kind_from(const std::string& v) {
     throw py::value_error("controller.kind must be 'none', 'paper' or 'velocity', got '" + v + "'");
 }
 
-// The parameters come from the one list in pipeline.hpp (TM_CONTROLLER_FIELDS).
+// The parameters come from the one list in controller.hpp (TM_CONTROLLER_FIELDS).
 ControllerParams controller_from(const py::dict& d) {
     ControllerParams p;
     std::size_t nf = 0;

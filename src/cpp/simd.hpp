@@ -17,6 +17,9 @@
 //     #endif
 //     ... if (isa == simd::Isa::avx2_fma) kernel_avx2(...); else kernel_base(...);
 //
+// simd::Dispatch<K> writes the two variants and the choice once for a kernel struct K
+// (its body a static member template run<B>); the contact solver's kernels use it.
+//
 // Every function a variant inlines must be always-inline (TM_ALWAYS_INLINE), so
 // that it is compiled for that variant's instruction set; the 32-byte x86
 // builtins below are only ever expanded inside an AVX2 variant (or a native AVX2
@@ -137,6 +140,33 @@ inline bool parse_isa(const std::string& name, Isa* isa) noexcept {
     }
     return true;
 }
+
+// The pattern above as one helper: K is a kernel whose static member template
+// K::run<B> is its body over B-byte vectors (always inline); base and avx2 are its two
+// compiled variants and run() calls the AVX2+FMA one when told to (and it exists),
+// else the baseline. The arguments are passed on to K::run as given.
+template <class K>
+struct Dispatch {
+    template <class... A>
+    static auto base(A... a) noexcept {
+        return K::template run<kBaseBytes>(a...);
+    }
+#if TM_HAVE_DISPATCH
+    template <class... A>
+    TM_TARGET_AVX2 static auto avx2(A... a) noexcept {
+        return K::template run<32>(a...);
+    }
+#endif
+    template <class... A>
+    static auto run(bool use_avx2, A... a) noexcept {
+#if TM_HAVE_DISPATCH
+        if (use_avx2) return avx2(a...);
+#else
+        (void)use_avx2;
+#endif
+        return base(a...);
+    }
+};
 
 // ---- vector types ----------------------------------------------------------------
 

@@ -1,12 +1,13 @@
 // The stand-alone kernel tests' check: report a failed condition and count it
-// (the program then prints "ok: N failures" and exits non-zero if N > 0).
+// (the program then prints "ok: N failures" and exits non-zero if N > 0). One
+// count per program, also when it is built from several translation units.
 #pragma once
 
 #include <cstdio>
 #include <cstdlib>
 #include <vector>
 
-static int failures = 0;
+inline int failures = 0;
 #define CHECK(cond, ...)                                              \
     do {                                                              \
         if (!(cond)) {                                                \

@@ -62,7 +62,7 @@ __all__ = ["Controller", "NoController", "PaperController", "VelocityController"
            "controller_from_dict"]
 
 # The parameters, their defaults and the laws that read them are defined once, in
-# C++ (TM_CONTROLLER_FIELDS in pipeline.hpp); the C ABI (tm_controller_defaults),
+# C++ (TM_CONTROLLER_FIELDS in controller.hpp); the C ABI (tm_controller_defaults),
 # the pipeline and these dataclasses all take them from there.
 _FIELDS = tuple(_core.controller_fields())
 _DEFAULTS = {kind: _core.controller_defaults(kind) for kind in ("none", "paper", "velocity")}
