@@ -12,6 +12,7 @@ import importlib.util
 import inspect
 import pathlib
 import pkgutil
+import re
 import sys
 
 import tactile_mirror
@@ -30,9 +31,12 @@ def _public_modules() -> list[str]:
 
 def _signature(obj) -> str:
     try:
-        return str(inspect.signature(obj))
+        text = str(inspect.signature(obj))
     except (TypeError, ValueError):
         return "(...)"
+    # a frozenset default prints in hash order, which changes from run to run: sort it
+    return re.sub(r"frozenset\(\{([^}]*)\}\)", lambda m: "frozenset({%s})" % ", ".join(sorted(m.group(1).split(", "))),
+                  text)
 
 
 def _describe(qualname: str, obj) -> list[str]:
