@@ -17,7 +17,8 @@ Every process holds a shared lock on the ``.lock`` of each build it uses until i
 exits; a directory is removed as stale only by a process that gets that lock
 exclusively, so never under a user. At most ``TM_NATIVE_TEST_JOBS`` (default 2)
 compilers run at once over all these processes: each compiler holds one of that many
-slot locks. ccache is used when it is on the PATH (never required).
+slot locks, taken in turn (those of a build a test is waiting for first). ccache is
+used when it is on the PATH (never required).
 
 The compile and link steps are separate commands (ccache caches compiles only), and
 a program built from several translation units has them compiled in parallel. The
@@ -48,6 +49,7 @@ SRC = ROOT / "src" / "cpp"
 TESTS = ROOT / "tests"
 STAMP = "BUILT"
 LOCK = ".lock"
+WANTED = ".wanted"
 
 
 def cache_root() -> Path:
@@ -78,6 +80,7 @@ class BuildError(subprocess.CalledProcessError):
 
 # -- the compiler commands ---------------------------------------------------------------
 
+_tls = threading.local()  # .background: a background build; .building: the directory being built
 _procs: set[subprocess.Popen] = set()
 _procs_lock = threading.Lock()
 _cancelled = threading.Event()
@@ -91,26 +94,63 @@ def _slot_dir() -> Path:
     return d
 
 
+def _take_slot(background: bool, building: Path | None) -> int:
+    """Wait for one of the jobs() compiler slots shared by every process using the
+    cache, in turn: the waiters queue up (a ticket file each), the commands of builds
+    a test is waiting for (``WANTED`` in the build's directory) before those of
+    background builds, each kind first come first served. Returns the slot's locked
+    descriptor."""
+    n, d = jobs(), _slot_dir()
+    q = d / "queue"
+    q.mkdir(exist_ok=True)
+
+    def rank() -> int:
+        return int(background and not (building is not None and (building / WANTED).exists()))
+
+    tail = f"{time.time_ns():020d}-{os.getpid()}-{threading.get_ident()}"
+    ticket = f"{rank()}-{tail}"
+    (q / ticket).touch()
+    try:
+        while True:
+            if ticket[0] == "1" and rank() == 0:  # a test now waits for this build
+                with contextlib.suppress(FileNotFoundError):
+                    os.rename(q / ticket, q / f"0-{tail}")
+                ticket = f"0-{tail}"
+            if not _waiter_ahead(q, ticket):
+                for k in range(n):
+                    fd = os.open(d / f"{k}.lock", os.O_RDWR | os.O_CREAT, 0o666)
+                    if _flock(fd, fcntl.LOCK_EX, wait=False):
+                        return fd
+                    os.close(fd)
+            time.sleep(0.05)
+    finally:
+        with contextlib.suppress(FileNotFoundError):
+            (q / ticket).unlink()
+
+
+def _waiter_ahead(q: Path, ticket: str) -> bool:
+    for t in sorted(os.listdir(q)):
+        if t >= ticket:
+            return False
+        try:
+            os.kill(int(t.split("-")[2]), 0)
+        except (ValueError, IndexError, ProcessLookupError):  # left by a process that died
+            with contextlib.suppress(FileNotFoundError):
+                (q / t).unlink()
+            continue
+        except PermissionError:
+            pass
+        return True
+    return False
+
+
 @contextlib.contextmanager
 def _slot():
-    """Hold one of the jobs() compiler slots shared by every process using the cache."""
-    n, d = jobs(), _slot_dir()
-    while True:
-        for k in range(n):
-            fd = os.open(d / f"{k}.lock", os.O_RDWR | os.O_CREAT, 0o666)
-            try:
-                fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
-            except OSError as e:
-                os.close(fd)
-                if e.errno in (errno.EAGAIN, errno.EACCES):
-                    continue
-                raise
-            try:
-                yield
-            finally:
-                os.close(fd)
-            return
-        time.sleep(0.05)
+    fd = _take_slot(getattr(_tls, "background", False), getattr(_tls, "building", None))
+    try:
+        yield
+    finally:
+        os.close(fd)
 
 
 def _log(line: str) -> None:
@@ -150,8 +190,14 @@ def run_all(cmds: Sequence[Sequence[str]]) -> None:
         for c in cmds:
             run(c)
         return
+    context = (getattr(_tls, "background", False), getattr(_tls, "building", None))
+
+    def one(cmd):
+        _tls.background, _tls.building = context
+        run(cmd)
+
     with ThreadPoolExecutor(max_workers=min(jobs(), len(cmds))) as ex:
-        for f in [ex.submit(run, c) for c in cmds]:
+        for f in [ex.submit(one, c) for c in cmds]:
             f.result()
 
 
@@ -226,8 +272,8 @@ class Spec:
     """One build: ``make(dir)`` builds into ``dir``; ``artefact`` names its result there.
 
     ``parts`` (commands, flags, compilers' identity) and ``inputs`` (files, besides
-    ``headers()`` and this module) make the key. ``cost`` (seconds, roughly) orders the
-    builds started ahead of the tests; ``needs_tsan`` names the compiler (and source
+    ``headers()`` and this module) make the key. ``cost`` (seconds of its longest
+    compile, roughly) orders the builds started ahead of the tests; ``needs_tsan`` names the compiler (and source
     suffix) that must run ThreadSanitizer programs for the build to be worth starting."""
 
     def __init__(self, name: str, make: Callable[[Path], None], artefact: str, parts: Callable[[], list[str]],
@@ -299,8 +345,11 @@ def _ensure(d: Path, key: str, make: Callable[[Path], None], wait: bool, prune: 
     ``.build``, held exclusively while the build is made."""
     with _table_lock:
         tl = _thread_locks.setdefault(d, threading.Lock())
-    if not tl.acquire(blocking=wait):
-        return False
+    if not tl.acquire(blocking=False):
+        if not wait:
+            return False
+        _want(d)  # this process's background thread is making it
+        tl.acquire()
     try:
         held = _held.get(d)
         if held is not None and held[1] == key:
@@ -312,18 +361,27 @@ def _ensure(d: Path, key: str, make: Callable[[Path], None], wait: bool, prune: 
             return False
         try:
             if _stamp(d) != key:
-                b = _open_locked(d / ".build", fcntl.LOCK_EX, wait)
+                b = _open_locked(d / ".build", fcntl.LOCK_EX, wait=False)
                 if b is None:  # another process is making it
-                    os.close(use)
-                    return False
+                    if not wait:
+                        os.close(use)
+                        return False
+                    _want(d)
+                    b = _open_locked(d / ".build", fcntl.LOCK_EX, wait=True)
                 try:
                     if _stamp(d) != key:
                         with contextlib.suppress(FileNotFoundError):
                             (d / STAMP).unlink()
-                        make(d)
+                        _tls.building = d
+                        try:
+                            make(d)
+                        finally:
+                            _tls.building = None
                         tmp = d / (STAMP + ".tmp")
                         tmp.write_text(key + "\n")
                         os.replace(tmp, d / STAMP)
+                    with contextlib.suppress(FileNotFoundError):
+                        (d / WANTED).unlink()
                 finally:
                     os.close(b)
         except BaseException:
@@ -335,6 +393,13 @@ def _ensure(d: Path, key: str, make: Callable[[Path], None], wait: bool, prune: 
     if prune:
         _prune(prune, d)
     return True
+
+
+def _want(d: Path) -> None:
+    """Mark ``d`` as waited for by a test: its commands go first for the compiler slots."""
+    with contextlib.suppress(OSError):
+        d.mkdir(parents=True, exist_ok=True)
+        (d / WANTED).touch()
 
 
 def _prune(name: str, keep: Path) -> None:
@@ -368,6 +433,7 @@ def start_background(specs: Iterable[Spec]) -> threading.Thread | None:
         return None
 
     def work():
+        _tls.background = True
         for s in todo:
             if _no_more.is_set():
                 return

@@ -14,7 +14,7 @@ pytestmark = pytest.mark.skipif(CXX is None, reason="no C++ compiler on PATH")
 
 # The programs, built once per run by whichever test process needs one first (the other
 # waits for it), started ahead of the tests (the native_build marks; costliest first,
-# cost in seconds of one core, roughly) and kept under build/native-tests/ for later
+# cost: seconds of the longest compile, roughly) and kept under build/native-tests/ for later
 # runs while the sources, headers and flags stay the same (tests/_native_build.py).
 SOS = nb.kernel_program("test_sos.cpp", cost=40)
 BPTT = nb.kernel_program("test_bptt.cpp", cost=4)
@@ -25,7 +25,7 @@ SIMD = nb.kernel_program("test_simd.cpp", opt="-O2", cost=4)
 # instantiations took 4-6 min to compile; this way about 2.5 min of one core, in three
 # translation units (main, the float checks, the double checks) compiled side by side.
 JORDAN = nb.kernel_program(["test_jordan.cpp", "test_jordan_float.cpp", "test_jordan_double.cpp"],
-                           sanitizers="address", debug=False, cost=160)
+                           sanitizers="address", debug=False, cost=90)
 SHARED_LIST = {s: nb.kernel_program("test_shared_list.cpp", sanitizers=s, cost=5)
                for s in ("thread", "address,undefined")}
 CONTACT = nb.kernel_program("test_contact.cpp", cost=17)
