@@ -255,6 +255,19 @@ class RigRunner:
         x_start = math.nan
         timeout = min(sup.comm_timeout, 1.0)
 
+        def send(cmd: float, cmd_row: int) -> bool:
+            """Command the stage and log it; False (the supervisor tripped) if the driver raised."""
+            nonlocal last_cmd, nc
+            try:
+                stage.move_to(cmd)
+            except Exception as exc:  # noqa: BLE001
+                sup.trip("controller error", f"stage.move_to({cmd!r}) raised {type(exc).__name__}: {exc}")
+                return False
+            last_cmd = time.monotonic_ns()
+            cmds_row[nc], cmds_t[nc], cmds_x[nc] = cmd_row, last_cmd, cmd
+            nc += 1
+            return True
+
         def result() -> RigResult:
             b = blocks[:nb]
             return RigResult(fs=fs, samples=samples[:row], outputs=outputs[:row], accepted=accepted[:row],
@@ -294,14 +307,8 @@ class RigRunner:
                     except TimeoutError:
                         cmd, crow, cblock = pending
                         pending = None
-                        try:
-                            stage.move_to(cmd)
-                        except Exception as exc:  # noqa: BLE001
-                            sup.trip("controller error", f"stage.move_to({cmd!r}) raised {type(exc).__name__}: {exc}")
+                        if not send(cmd, crow):
                             break
-                        last_cmd = time.monotonic_ns()
-                        cmds_row[nc], cmds_t[nc], cmds_x[nc] = crow, last_cmd, cmd
-                        nc += 1
                         blocks[cblock, 5] = last_cmd - blocks[cblock, 3]
                         continue
                     except (EOFError, Overrun, OSError):
@@ -369,14 +376,8 @@ class RigRunner:
                     if now - last_cmd < interval_ns:
                         pending = (cmd, r1 - 1, nb - 1)
                     else:
-                        try:
-                            stage.move_to(cmd)
-                        except Exception as exc:  # noqa: BLE001
-                            sup.trip("controller error", f"stage.move_to({cmd!r}) raised {type(exc).__name__}: {exc}")
+                        if not send(cmd, r1 - 1):
                             break
-                        last_cmd = time.monotonic_ns()
-                        cmds_row[nc], cmds_t[nc], cmds_x[nc] = r1 - 1, last_cmd, cmd
-                        nc += 1
                         blocks[nb - 1, 5] = last_cmd - block.t_ns
                 if stop or sup.check_signal():
                     break
