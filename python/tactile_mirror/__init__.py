@@ -41,7 +41,7 @@ __getattr__, __dir__, __all__ = attach(__name__, {
     "MirrorPipeline": "pipeline", "PaperController": "pipeline", "ReferencePipeline": "pipeline",
     "VelocityController": "pipeline",
     "Scene": "scenes",
-}, submodules=("circuit", "contact", "detector", "estimator", "filters", "geometry", "kernels", "loop", "noise",
+}, submodules=("circuit", "contact", "detector", "engine", "estimator", "filters", "geometry", "kernels", "loop", "noise",
                "pipeline", "scenes"))
 __all__ += ["__version__"]
 
@@ -50,6 +50,7 @@ if TYPE_CHECKING:  # what type checkers and IDEs see; at run time the names load
         circuit,
         contact,
         detector,
+        engine,
         estimator,
         filters,
         geometry,

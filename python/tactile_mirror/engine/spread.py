@@ -1,0 +1,312 @@
+"""One way to spread a sweep over workers: :func:`run_tasks`.
+
+Every big job of the library submits its items through here, so each gets the same
+guarantees: results collected in item order whatever order they finish in, each task's
+BLAS/OpenMP pools pinned, the build checked on an outside executor's workers before a
+result is used, an error raised with the item it came from (or the sweep carried on and
+the failures listed), results handed to a ``sink`` as they arrive (the driver need not
+hold a sweep in memory), a progress bar.
+
+Lost workers: dask reschedules the tasks of a worker that dies (its
+``distributed.scheduler.allowed-failures``, 3 by default). The standard process pool
+cannot: a dying worker breaks the whole pool, so the pool :func:`run_tasks` makes itself
+(``workers=N``) is started again and the unfinished items resubmitted, up to ``retries``
+times; an outside pool that breaks is an error naming the first unfinished item.
+"""
+from __future__ import annotations
+
+import concurrent.futures
+import contextlib
+import dataclasses
+import os
+import warnings
+from collections.abc import Callable, Iterable, Iterator
+from typing import Any
+
+from tactile_mirror.engine.identity import BuildMismatch, build_identity, identity_differences
+from tactile_mirror.engine.threads import pinned_threads
+
+__all__ = ["ON_ERROR", "TaskError", "TaskFailure", "TaskResults", "open_executor", "run_tasks"]
+
+#: What a failed task does: stop the sweep, or carry on and list the failures at the end.
+ON_ERROR = ("raise", "continue")
+
+
+class TaskError(RuntimeError):
+    """A task failed; ``index`` and ``item`` say which, ``__cause__`` is its own error."""
+
+    def __init__(self, index: int, item: Any, error: BaseException):
+        self.index, self.item, self.error = index, item, error
+        super().__init__(f"task {index} failed on item {_brief(item)}: {type(error).__name__}: {error}")
+
+    def __reduce__(self):
+        return type(self), (self.index, self.item, self.error)
+
+
+@dataclasses.dataclass(frozen=True)
+class TaskFailure:
+    """A task that failed in a sweep run with ``on_error="continue"``."""
+
+    index: int
+    item: Any
+    error: BaseException
+
+    def __str__(self) -> str:
+        return f"task {self.index} ({_brief(self.item)}): {type(self.error).__name__}: {self.error}"
+
+
+class TaskResults(list):
+    """The results in item order (``None`` where a task failed or ``keep=False``);
+    ``failures`` lists the tasks that failed, in item order."""
+
+    failures: list[TaskFailure]
+
+
+def _brief(item: Any, width: int = 120) -> str:
+    text = repr(item)
+    return text if len(text) <= width else text[:width - 3] + "..."
+
+
+def run_task(fn: Callable, item: Any, threads: int, expected: dict | None, portable: bool) -> Any:
+    """One task as a worker runs it: the build compared with ``expected`` (the driver's
+    identity; ``None`` skips the check), the thread pools pinned to ``threads``, the
+    baseline kernels when ``portable``, then ``fn(item)``."""
+    if expected is not None:
+        differences = identity_differences(expected, build_identity(), portable)
+        if differences:
+            raise BuildMismatch(differences, worker=f"worker {_worker_name()}")
+    with pinned_threads(threads), _baseline_kernels(portable):
+        return fn(item)
+
+
+def _worker_name() -> str:
+    import socket
+
+    return f"{socket.gethostname()}:{os.getpid()}"
+
+
+@contextlib.contextmanager
+def _baseline_kernels(on: bool) -> Iterator[None]:
+    if not on:
+        yield
+        return
+    from tactile_mirror.kernels import use_baseline
+
+    use_baseline(True)
+    try:
+        yield
+    finally:
+        use_baseline(False)
+
+
+def _check_options(on_error, threads, workers, retries) -> None:
+    if on_error not in ON_ERROR:
+        raise ValueError(f"on_error must be one of {ON_ERROR}, got {on_error!r}")
+    if isinstance(threads, bool) or not isinstance(threads, int) or threads < 1:
+        raise ValueError(f"threads must be a positive integer, got {threads!r}")
+    if workers is not None and (isinstance(workers, bool) or not isinstance(workers, int) or workers < 1):
+        raise ValueError(f"workers must be a positive integer or None, got {workers!r}")
+    if isinstance(retries, bool) or not isinstance(retries, int) or retries < 0:
+        raise ValueError(f"retries must be a non-negative integer, got {retries!r}")
+
+
+def _local_pool(workers: int) -> concurrent.futures.ProcessPoolExecutor:
+    import multiprocessing
+
+    # spawn: safe with threads in the parent; the workers read the thread variables at start
+    with pinned_threads(1):
+        return concurrent.futures.ProcessPoolExecutor(max_workers=workers,
+                                                      mp_context=multiprocessing.get_context("spawn"))
+
+
+def run_tasks(fn: Callable[[Any], Any], items: Iterable[Any], *, executor: concurrent.futures.Executor | None = None,
+              workers: int | None = None, sink: Callable[[int, Any], None] | None = None, ordered: bool = False,
+              keep: bool = True, on_error: str = "raise", threads: int = 1, portable: bool = False,
+              check_build: bool = True, retries: int = 2, progress: bool = True, desc: str = "tasks"
+              ) -> TaskResults:
+    """``[fn(item) for item in items]``, spread over workers, with the same bits wherever it runs.
+
+    ``fn`` must be picklable (a module-level function or a ``functools.partial`` of one)
+    for anything but the serial run. Where it runs:
+
+    - ``executor``: any :class:`concurrent.futures.Executor` (a thread or process pool,
+      dask's ``Client.get_executor()``, ``mpi4py.futures``, loky). On a process or remote
+      executor each task first checks its worker's :func:`build_identity` against this
+      process's (``check_build``) and refuses with both sides named;
+    - else ``workers=N`` (N > 1): a local pool of N spawned processes, shut down at the end;
+    - else in this process, one item after another.
+
+    Every task runs with its BLAS/OpenMP pools pinned to ``threads`` (1), whatever the
+    parent's settings, so all of these give identical arrays. ``portable`` runs the
+    baseline kernels everywhere (no AVX2+FMA), for workers whose CPUs differ.
+
+    ``sink(index, result)`` is called in this process as each result arrives (in item order
+    with ``ordered=True``, holding back the early ones); with ``keep=False`` results are
+    not kept once sunk. ``on_error="raise"`` raises :class:`TaskError` (item named, the
+    task's error as its cause) at the first failure and cancels the rest;
+    ``"continue"`` carries on, warns with the failures at the end and lists them in
+    ``TaskResults.failures``. A build mismatch is always raised. ``retries``: how often a
+    broken pool of our own is restarted. ``progress`` shows a bar labelled ``desc``.
+    """
+    if not callable(fn):
+        raise TypeError(f"fn must be callable, got {type(fn).__name__}")
+    if executor is not None and not callable(getattr(executor, "submit", None)):
+        raise TypeError(f"executor must be a concurrent.futures.Executor (with submit), got {type(executor).__name__}")
+    if sink is not None and not callable(sink):
+        raise TypeError(f"sink must be callable or None, got {type(sink).__name__}")
+    _check_options(on_error, threads, workers, retries)
+    items = list(items)
+    results = TaskResults([None] * len(items))
+    results.failures = []
+    if not items:
+        return results
+
+    bar = None
+    if progress:
+        from tqdm.auto import tqdm
+
+        bar = tqdm(total=len(items), desc=desc, unit="task")
+    collector = _Collector(items, results, sink, ordered, keep, on_error, bar)
+    try:
+        if executor is None and (workers is None or workers == 1):
+            for k, item in enumerate(items):
+                try:
+                    value = run_task(fn, item, threads, None, portable)
+                except Exception as e:  # noqa: BLE001  (reported with its item)
+                    collector.failed(k, e)
+                else:
+                    collector.done(k, value)
+        elif executor is not None:
+            expected = build_identity() if check_build and not isinstance(
+                executor, concurrent.futures.ThreadPoolExecutor) else None
+            _submit_all(executor, fn, items, range(len(items)), threads, expected, portable, collector)
+        else:
+            _run_on_own_pool(workers, fn, items, threads, portable, retries, collector)
+    finally:
+        if bar is not None:
+            bar.close()
+    collector.finish()
+    return results
+
+
+def _submit_all(executor, fn, items, indices, threads, expected, portable, collector) -> None:
+    futures = {executor.submit(run_task, fn, items[k], threads, expected, portable): k for k in indices}
+    try:
+        for f in concurrent.futures.as_completed(futures):
+            k = futures.pop(f)
+            try:
+                value = f.result()
+            except BuildMismatch:
+                raise
+            except concurrent.futures.process.BrokenProcessPool:
+                futures[f] = k
+                raise
+            except Exception as e:  # noqa: BLE001
+                collector.failed(k, e)
+            else:
+                collector.done(k, value)
+    finally:
+        for f in futures:
+            f.cancel()
+
+
+def _run_on_own_pool(workers, fn, items, threads, portable, retries, collector) -> None:
+    expected = build_identity()
+    for attempt in range(retries + 1):
+        pending = collector.pending()
+        pool = _local_pool(min(workers, len(pending)))
+        try:
+            _submit_all(pool, fn, items, pending, threads, expected, portable, collector)
+            return
+        except concurrent.futures.process.BrokenProcessPool as e:
+            if attempt == retries:
+                k = collector.pending()[0]
+                raise TaskError(k, items[k], e) from e
+            warnings.warn(f"a worker process died; restarting the pool for the {len(collector.pending())} "
+                          f"unfinished tasks ({attempt + 1} of {retries} retries)", RuntimeWarning, stacklevel=3)
+        finally:
+            pool.shutdown(wait=True, cancel_futures=True)
+
+
+class _Collector:
+    """Puts each result in its place, feeds the sink, and applies the error policy."""
+
+    def __init__(self, items, results, sink, ordered, keep, on_error, bar):
+        self.items, self.results, self.sink, self.ordered, self.keep = items, results, sink, ordered, keep
+        self.on_error, self.bar = on_error, bar
+        self.finished = [False] * len(items)
+        self.held: dict[int, Any] = {}
+        self.next_sink = 0
+
+    def pending(self) -> list[int]:
+        return [k for k, done in enumerate(self.finished) if not done]
+
+    def done(self, k: int, value: Any) -> None:
+        self.finished[k] = True
+        if self.keep:
+            self.results[k] = value
+        if self.sink is not None:
+            if self.ordered:
+                self.held[k] = value
+                self._drain()
+            else:
+                self.sink(k, value)
+        self._tick()
+
+    def failed(self, k: int, error: Exception) -> None:
+        if self.on_error == "raise":
+            raise TaskError(k, self.items[k], error) from error
+        self.finished[k] = True
+        self.results.failures.append(TaskFailure(k, self.items[k], error))
+        if self.ordered:
+            self.held[k] = _FAILED
+            self._drain()
+        self._tick()
+
+    def _drain(self) -> None:
+        while self.next_sink in self.held:
+            value = self.held.pop(self.next_sink)
+            if value is not _FAILED:
+                self.sink(self.next_sink, value)
+            self.next_sink += 1
+
+    def _tick(self) -> None:
+        if self.bar is not None:
+            self.bar.update(1)
+
+    def finish(self) -> None:
+        self.results.failures.sort(key=lambda f: f.index)
+        if self.results.failures:
+            listed = "\n  ".join(map(str, self.results.failures))
+            warnings.warn(f"{len(self.results.failures)} of {len(self.items)} tasks failed:\n  {listed}",
+                          RuntimeWarning, stacklevel=3)
+
+
+_FAILED = object()
+
+
+@contextlib.contextmanager
+def open_executor(scheduler: str | None = None, workers: int | None = None
+                  ) -> Iterator[concurrent.futures.Executor | None]:
+    """The executor the command line's ``--scheduler ADDRESS`` / ``--workers N`` ask for:
+    a dask client's executor for a scheduler address (dask is needed then), a local
+    process pool for N > 1 workers, or ``None`` (serial) for neither; closed at the end."""
+    if scheduler is not None and workers is not None:
+        raise ValueError("give scheduler or workers, not both")
+    if scheduler is not None:
+        try:
+            from dask.distributed import Client
+        except ImportError as e:
+            raise ImportError("--scheduler needs dask.distributed: pip install 'dask[distributed]'") from e
+        with Client(scheduler) as client:
+            yield client.get_executor()
+        return
+    _check_options("raise", 1, workers, 0)
+    if workers is None or workers == 1:
+        yield None
+        return
+    pool = _local_pool(workers)
+    try:
+        yield pool
+    finally:
+        pool.shutdown(wait=True, cancel_futures=True)
