@@ -12,7 +12,7 @@ every error path of the C ABI. Exit status 0 when the build and the run are
 clean. The build takes about two minutes of one core.
 
 ``--thread`` builds the library and ``tests/c/close_while_stepping.c`` with
-ThreadSanitizer (the compiler directly, ``-O1 -g``) and runs it with
+ThreadSanitizer (the compiler directly, ``-O0 -g``) and runs it with
 ``halt_on_error=1``: threads stepping, reading and destroying one handle at once.
 Exit status 77 (skipped) when the compiler or the system cannot run
 ThreadSanitizer programs. The build takes about three minutes of one core.
