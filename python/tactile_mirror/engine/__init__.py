@@ -5,7 +5,8 @@ studies) goes through :func:`run_tasks`: items are submitted to any
 :class:`concurrent.futures.Executor` (the standard pools, dask's ``Client.get_executor()``,
 ``mpi4py.futures``, loky) or run in this process, collected in order, each task with its
 BLAS/OpenMP thread pools pinned (:func:`pinned_threads`) and, on an outside executor, run
-only on a worker whose build matches this one (:func:`build_identity`).
+only on a worker whose build matches this one (:func:`build_identity`); in the portable
+mode every task runs the baseline kernels.
 """
 from __future__ import annotations
 
@@ -15,6 +16,7 @@ from tactile_mirror._lazy import attach
 
 __getattr__, __dir__, __all__ = attach(__name__, {
     "BuildMismatch": "identity", "build_identity": "identity", "identity_differences": "identity",
+    "task_identity": "identity",
     "TaskError": "spread", "TaskFailure": "spread", "TaskResults": "spread", "open_executor": "spread",
     "run_tasks": "spread",
     "pinned_threads": "threads",
@@ -22,7 +24,12 @@ __getattr__, __dir__, __all__ = attach(__name__, {
 
 if TYPE_CHECKING:
     from tactile_mirror.engine import identity, spread, threads
-    from tactile_mirror.engine.identity import BuildMismatch, build_identity, identity_differences
+    from tactile_mirror.engine.identity import (
+        BuildMismatch,
+        build_identity,
+        identity_differences,
+        task_identity,
+    )
     from tactile_mirror.engine.spread import (
         TaskError,
         TaskFailure,
