@@ -6,7 +6,9 @@ studies) goes through :func:`run_tasks`: items are submitted to any
 ``mpi4py.futures``, loky) or run in this process, collected in order, each task with its
 BLAS/OpenMP thread pools pinned (:func:`pinned_threads`) and, on an outside executor, run
 only on a worker whose build matches this one (:func:`build_identity`); in the portable
-mode every task runs the baseline kernels.
+mode every task runs the baseline kernels. Results can be kept in a
+:class:`ResultStore`, a folder shared by every machine of a cluster, one file per result.
+See ``docs/cluster.md``.
 """
 from __future__ import annotations
 
@@ -19,11 +21,12 @@ __getattr__, __dir__, __all__ = attach(__name__, {
     "task_identity": "identity",
     "TaskError": "spread", "TaskFailure": "spread", "TaskResults": "spread", "open_executor": "spread",
     "run_tasks": "spread",
+    "ResultStore": "store", "StoreWarning": "store",
     "pinned_threads": "threads",
-}, submodules=("identity", "spread", "threads"))
+}, submodules=("identity", "spread", "store", "threads"))
 
 if TYPE_CHECKING:
-    from tactile_mirror.engine import identity, spread, threads
+    from tactile_mirror.engine import identity, spread, store, threads
     from tactile_mirror.engine.identity import (
         BuildMismatch,
         build_identity,
@@ -37,4 +40,5 @@ if TYPE_CHECKING:
         open_executor,
         run_tasks,
     )
+    from tactile_mirror.engine.store import ResultStore, StoreWarning
     from tactile_mirror.engine.threads import pinned_threads
