@@ -33,7 +33,7 @@ import tactile_mirror as tm
 from common import save_figure, table, timed, write_json
 from tactile_mirror.contact import ContactSolver, Pad, ridge_model, simulate
 from tactile_mirror.geometry import RidgeGeometry
-from tactile_mirror.kernels import contact_simd_path, use_contact_baseline
+from tactile_mirror.kernels import contact_simd_path, use_baseline
 from tactile_mirror.lab.measure import cpu_model
 
 #: ``--quick``: the paper's scenes on this coarse mesh, sampled at this rate.
@@ -70,12 +70,12 @@ def bench_backends(quick):
     runs = {b: min((per_step(b) for _ in range(1 if quick else 2)), key=np.sum) for b in ("python", "cpp")}
     py, cc = runs["python"], runs["cpp"]
     simd_path = contact_simd_path()
-    use_contact_baseline(True)  # the same kernel compiled for the x86-64 baseline (SSE2)
+    use_baseline(True)  # the same kernel compiled for the x86-64 baseline (SSE2)
     try:
         cb = min((per_step("cpp") for _ in range(1 if quick else 2)), key=np.sum)
         t_cb, _ = timed(lambda: simulate(scene, backend="cpp", stepping="every"), repeat=2 if quick else 3)
     finally:
-        use_contact_baseline(False)
+        use_baseline(False)
     rows = [[f"mean per step (fig6, {y.size} steps)", f"{py.mean() * 1e6:.0f} us",
              f"{cc.mean() * 1e6:.1f} us",
              f"{py.mean() / cc.mean():.1f}x"],

@@ -1,16 +1,12 @@
 """BuildOptions: what build_default builds, checked on construction; the old keyword
-form of build_default is gone. ``tactile-mirror train``'s build options map onto them; the scene cache."""
+form of build_default is gone. ``tactile-mirror train``'s build options map onto them."""
 from __future__ import annotations
 
 import dataclasses
-import hashlib
-import os
-import pickle
 
-import numpy as np
 import pytest
 from tactile_mirror.cli import main
-from tactile_mirror.lab.detector import build, calibration, scene_cache
+from tactile_mirror.lab.detector import build, calibration
 from tactile_mirror.lab.detector.build import build_default
 from tactile_mirror.lab.detector.build_options import (
     TEST_KWARGS,
@@ -18,8 +14,6 @@ from tactile_mirror.lab.detector.build_options import (
     TRAIN_OPTIONS,
     BuildOptions,
 )
-
-FS = 1000.0
 
 
 @pytest.fixture
@@ -202,80 +196,3 @@ def test_train_command_passes_the_cache_and_refuses_what_the_build_cannot_do(mon
         err = capsys.readouterr().err
         assert err.startswith("usage: tactile-mirror train") and message in err
     assert seen["runs"] == 1
-
-
-# -- the scene cache (simulate_cached): damaged files, an unusable folder, the key -----------------
-
-@pytest.fixture
-def fake_simulation(monkeypatch):
-    """simulate_cached with the simulation faked (tiny real SimulationResults); counts the simulations."""
-    from tactile_mirror.contact.simulation import SimulationResult
-
-    calls = []
-
-    def simulate_scenes(scenes, progress=True, executor=None):
-        calls.append(len(scenes))
-        return [SimulationResult(scene=None, t=np.arange(3) / FS, fs=FS, plate_y=np.zeros(3), indent=np.full(3, i))
-                for i in range(len(scenes))]
-
-    monkeypatch.setattr(scene_cache, "simulate_scenes", simulate_scenes)
-    monkeypatch.setattr(scene_cache, "random_scenes", lambda n, seed, **kwargs: list(range(n)))
-    return calls
-
-
-def _only_file(folder):
-    (name,) = os.listdir(folder)
-    return folder / name
-
-
-@pytest.mark.parametrize("damage", ["truncated", "empty", "dict", "short list", "foreign items"])
-def test_a_damaged_cache_file_is_a_miss_that_is_replaced(damage, tmp_path, fake_simulation):
-    from tactile_mirror.lab.detector.scene_cache import simulate_cached
-
-    first = simulate_cached(3, 7, {"duration": 1.0}, tmp_path, progress=False)
-    cache = _only_file(tmp_path)
-    good = cache.read_bytes()
-    cache.write_bytes({"truncated": good[: len(good) // 2], "empty": b"",
-                       "dict": pickle.dumps({"rows": []}), "short list": pickle.dumps(first[:2]),
-                       "foreign items": pickle.dumps([1, 2, 3])}[damage])
-    with pytest.warns(RuntimeWarning, match=f"scene cache '{cache}'.*simulating the scenes again"):
-        res = simulate_cached(3, 7, {"duration": 1.0}, tmp_path, progress=False)
-    assert fake_simulation == [3, 3] and len(res) == 3
-    assert [r.indent[0] for r in res] == [0, 1, 2]
-    assert _only_file(tmp_path) == cache  # replaced in place, no temporary left behind
-    again = simulate_cached(3, 7, {"duration": 1.0}, tmp_path, progress=False)  # a hit again
-    assert fake_simulation == [3, 3] and [r.indent[0] for r in again] == [0, 1, 2]
-
-
-def test_a_cache_dir_that_is_a_file_fails_before_simulating(tmp_path, fake_simulation):
-    from tactile_mirror.lab.detector.scene_cache import simulate_cached
-
-    target = tmp_path / "cache"
-    target.write_text("not a folder")
-    with pytest.raises(NotADirectoryError, match=f"cache_dir '{target}' is a file"):
-        simulate_cached(2, 1, {}, target, progress=False)
-    with pytest.raises(OSError, match="cache_dir"):
-        simulate_cached(2, 1, {}, target / "sub", progress=False)  # its parent is a file
-    with pytest.raises(TypeError, match="cache_dir"):
-        simulate_cached(2, 1, {}, 3.5, progress=False)
-    assert fake_simulation == []
-
-
-def test_the_cache_key_covers_arrays_in_full_and_keeps_the_existing_keys():
-    from tactile_mirror import __version__
-
-    a, b = np.zeros(5000), np.zeros(5000)
-    b[2500] = 1.0
-    assert repr(a) == repr(b)  # what collided
-
-    def key(kw):
-        return scene_cache.cache_key(3, 1, kw, __version__)
-
-    assert key({"x": a}) != key({"x": b})
-    assert key({"x": a}) == key({"x": a.copy()})  # the content, not the object
-    assert key({"x": a}) != key({"x": a.astype(np.float32)}) != key({"x": a.reshape(50, 100)})
-    assert key({"x": (a,)}) != key({"x": (b,)})
-    # plain options keep the key the existing caches were saved under
-    for kw in (TRAIN_KWARGS, TEST_KWARGS, {**TEST_KWARGS, "n_ridges": 6}, {}):
-        old = hashlib.sha256(repr((3, 1, sorted(kw.items()), __version__)).encode()).hexdigest()[:16]
-        assert key(kw) == old

@@ -377,33 +377,22 @@ def test_simulate_many_with_a_dask_executor():
         tm.simulate_many(scenes, executor=object(), progress=False)
 
 
-def test_own_worker_pool_runs_single_threaded_blas(monkeypatch):
-    import concurrent.futures
-    import multiprocessing
+def test_own_worker_pool_gives_the_bits_of_this_process_whatever_its_thread_settings(monkeypatch):
     import os
 
-    from tactile_mirror.contact.simulation import WORKER_THREAD_VARS, _worker_env
+    from threadpoolctl import threadpool_limits
 
     monkeypatch.delenv("OMP_NUM_THREADS", raising=False)
-    monkeypatch.setenv("OPENBLAS_NUM_THREADS", "3")  # the user's choice is kept
-    ex = concurrent.futures.ProcessPoolExecutor(1, mp_context=multiprocessing.get_context("spawn"))
-    try:
-        with _worker_env(WORKER_THREAD_VARS):
-            f_omp = ex.submit(os.getenv, "OMP_NUM_THREADS")
-            f_blas = ex.submit(os.getenv, "OPENBLAS_NUM_THREADS")
-        assert "OMP_NUM_THREADS" not in os.environ  # restored in the parent
-        assert f_omp.result(timeout=60) == "1" and f_blas.result(timeout=60) == "3"
-    finally:
-        ex.shutdown()
-    assert os.environ["OPENBLAS_NUM_THREADS"] == "3"
-    # And the pool simulate_many makes for itself gives the direct results (to round-off:
-    # another BLAS thread count may sum in another order, and the event points of the
-    # event stepping carry that round-off along the path).
+    monkeypatch.setenv("OPENBLAS_NUM_THREADS", "3")
     scenes = [tm.scenes.paper("fig6", duration=0.2, outputs=frozenset({"forces"}), friction=f) for f in (0.5, 0.7)]
-    res = tm.simulate_many(scenes, progress=False, max_workers=2)
-    assert "OMP_NUM_THREADS" not in os.environ
-    for r, s in zip(res, scenes):
-        np.testing.assert_allclose(r.force_z, simulate(s).force_z, rtol=1e-8, atol=1e-12)
+    with threadpool_limits(limits=2):  # the parent's BLAS threaded: every task pins its own to 1
+        pool = tm.simulate_many(scenes, progress=False, max_workers=2)
+        here = tm.simulate_many(scenes, progress=False, max_workers=1)  # in this process
+    assert "OMP_NUM_THREADS" not in os.environ and os.environ["OPENBLAS_NUM_THREADS"] == "3"  # restored
+    for p, h, s in zip(pool, here, scenes):
+        assert p.scene == s and h.scene is s
+        np.testing.assert_array_equal(p.force_z, h.force_z)
+        assert (p.slip_time, p.events) == (h.slip_time, h.events)
 
 
 # ------------------------------------------------------------------ arguments taken silently

@@ -421,13 +421,13 @@ def test_baseline_kernels_equal_python():
     # one name per variant, shared with the filters and the detector
     assert _core._contact_simd_path() in ("avx2+fma", "sse2", "generic", "native")
     detected = _core._contact_simd_path()
-    _core._contact_set_baseline(True)
+    _core._set_baseline(True)
     try:
         assert _core._contact_simd_path() in ("sse2", "generic", "native")
         assert detected != "avx2+fma" or _core._contact_simd_path() != detected
         assert_same_run(tm.scenes.paper("fig6", duration=1.2), rtol=RTOL_PATH)
     finally:
-        _core._contact_set_baseline(False)
+        _core._set_baseline(False)
 
 
 # ---- the event-driven path following, whole trajectories

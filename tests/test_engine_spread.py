@@ -84,6 +84,16 @@ def test_own_pool_restarts_when_a_worker_dies(tmp_path):
     assert list(out) == list(range(5))
 
 
+def test_an_outside_pool_broken_by_a_lost_worker_names_the_first_unfinished_item(tmp_path):
+    import multiprocessing
+
+    marker = str(tmp_path / "died")
+    with concurrent.futures.ProcessPoolExecutor(1, mp_context=multiprocessing.get_context("spawn")) as ex:
+        with pytest.raises(TaskError, match=r"task \d failed on item \(\d, .*BrokenProcessPool") as info:
+            run_tasks(die_once, [(x, marker) for x in range(4)], executor=ex, progress=False)
+    assert info.value.index >= 2  # items 0 and 1 were done before the worker died
+
+
 def test_tasks_run_with_pinned_threads_whatever_the_parent_has(pool):
     from threadpoolctl import threadpool_limits
 

@@ -79,7 +79,13 @@ class _SosCascade32(_SosCascade[np.float32]):
     """Multi-channel SOS cascade in float32. Use tactile_mirror.SosFilter instead."""
 
 def simd_path() -> _Isa:
-    """The code variant of the SIMD layer (simd.hpp) that every C++ kernel runs on this CPU."""
+    """The code variant of the SIMD layer (simd.hpp) that every C++ kernel built now runs."""
+
+def _set_baseline(on: bool) -> None:
+    """Hold every kernel of this process to the baseline variant (on=True), or return to the CPU's best."""
+
+def _baseline_forced() -> bool:
+    """Whether the kernels are held to the baseline variant now (_set_baseline, TM_SIMD=baseline)."""
 
 # ---- Jordan MLP slip detector (bind_detector.cpp) ------------------------------------
 
@@ -275,7 +281,7 @@ def detector_sigmoid(
     a: npt.NDArray[np.float64], activation: _Activation = "fast", path: _DetectorPathArg = "avx2+fma"
 ) -> npt.NDArray[np.float64]: ...
 def detector_cpu_has_avx2_fma() -> bool:
-    """True if the kernels' AVX2+FMA variant can run on this CPU (and this build has one)."""
+    """True if the kernels' AVX2+FMA variant can run now (this CPU and build have one, no baseline switch)."""
 
 def jordan_loss_grad(
     theta: npt.NDArray[np.float64],
@@ -568,7 +574,4 @@ class _ContactPad:
         bit 0 touching, bit 1 gross slip); returns (status, failing ridge, solves, events)."""
 
 def _contact_simd_path() -> str:
-    """The variant the contact kernels run, by simd_path()'s names: 'avx2+fma' or the base variant."""
-
-def _contact_set_baseline(on: bool) -> None:
-    """Run the baseline contact kernels even on AVX2 hardware (tests and benchmarks)."""
+    """The variant the contact kernels run now, by simd_path()'s names: 'avx2+fma' or the base variant."""

@@ -75,7 +75,8 @@ _CASCADES = {np.dtype(np.float64): _core._SosCascade64, np.dtype(np.float32): _c
 
 def simd_path() -> str:
     """Name of the code variant every C++ kernel (filters, detector, training
-    gradient, pipeline) runs on this CPU: one SIMD layer chooses it once.
+    gradient, pipeline) built now runs: one SIMD layer chooses it, the CPU's best
+    unless :func:`tactile_mirror.kernels.use_baseline` holds the kernels to the baseline.
 
     ``"avx2+fma"`` or ``"sse2"`` for the portable build (chosen at run time),
     ``"native"`` for a build with ``-DTM_NATIVE=ON``, ``"generic"`` off x86.

@@ -7,9 +7,16 @@ sample rate, sensor noise and the outputs wanted; :func:`tactile_mirror.simulate
 0.06 mm/s for 0.5 s (30 um indent), then sideways at 0.2 mm/s; ``"fig6"`` never stops,
 ``"fig7"`` stops at A (t = 1.00-1.05 s), ``"fig8"`` stops at B (t = 1.40-1.45 s, just
 before slip). ``random(n, seed, ...)`` draws training and test scenes.
+
+Scenes compare and hash by content (arrays included): a scene that went to a worker and
+came back in its result equals the one sent, and :attr:`Scene.content_key` names a
+scene's content in caches.
 """
 from __future__ import annotations
 
+import dataclasses
+import functools
+import hashlib
 import math
 import numbers
 from dataclasses import dataclass, field, replace
@@ -60,9 +67,56 @@ MAX_SAMPLES = 1e9
 _DEFAULT_OUTPUTS = frozenset({"forces", "slip", "stress", "signals"})
 
 
+def _feed_content(h, value) -> None:
+    """Feed ``value``'s content to the hash ``h``, type-tagged and unambiguous: real numbers
+    by value (``2`` and ``2.0`` alike, as they compare), arrays by dtype, shape and bytes,
+    sequences and sets element by element, dataclasses field by field."""
+    if value is None:
+        h.update(b"N")
+    elif isinstance(value, (bool, np.bool_)):
+        h.update(b"B1" if value else b"B0")
+    elif isinstance(value, numbers.Integral):
+        h.update(f"I{int(value)};".encode())
+    elif isinstance(value, numbers.Real):
+        v = float(value)
+        h.update(f"I{int(v)};".encode() if v.is_integer() else f"F{v.hex()};".encode())
+    elif isinstance(value, str):
+        data = value.encode()
+        h.update(f"S{len(data)};".encode() + data)
+    elif isinstance(value, np.ndarray):
+        if value.dtype.hasobject:
+            raise TypeError("a scene's arrays must hold numbers, not objects")
+        h.update(f"A{value.dtype.str};{value.shape};".encode())
+        h.update(np.ascontiguousarray(value).tobytes())
+    elif isinstance(value, (tuple, list)):
+        h.update(f"T{len(value)};".encode())
+        for v in value:
+            _feed_content(h, v)
+    elif isinstance(value, (frozenset, set)):
+        parts = []
+        for v in value:
+            sub = hashlib.sha256()
+            _feed_content(sub, v)
+            parts.append(sub.digest())
+        h.update(f"U{len(parts)};".encode() + b"".join(sorted(parts)))
+    elif dataclasses.is_dataclass(value) and not isinstance(value, type):
+        fields = dataclasses.fields(value)
+        h.update(f"D{type(value).__module__}.{type(value).__qualname__};{len(fields)};".encode())
+        for f in fields:
+            _feed_content(h, f.name)
+            _feed_content(h, getattr(value, f.name))
+    else:
+        raise TypeError(f"cannot name the content of a {type(value).__name__} in a scene")
+
+
 @dataclass(frozen=True, eq=False)
 class Scene:
     """One contact experiment.
+
+    Scenes are immutable and compare and hash by content: two scenes are equal when every
+    field is (arrays by dtype, shape and bytes; numbers by value, so ``duration=2`` equals
+    ``duration=2.0``), whichever process made them. :attr:`content_key` is the hex digest
+    of that content.
 
     Motion (SI units): the plate indents at ``indent_speed`` for ``indent_duration``,
     then slides along ``y`` at ``slide_speed``, standing still during each
@@ -233,6 +287,31 @@ class Scene:
                 f"{what}: the plate would indent {deepest * 1e6:.4g} um, beyond the model's small-strain limit "
                 f"of {limit * 1e6:.4g} um (MAX_INDENT_STRAIN = {MAX_INDENT_STRAIN:g} of the {height * 1e3:g} mm "
                 f"ridge height; the contact model is linear elasticity, which stops holding at larger strain)")
+
+    @functools.cached_property
+    def content_key(self) -> str:
+        """The scene's content as 64 hex digits (SHA-256): equal for equal scenes, in any
+        process and on any machine, and different when any field differs. Computed once."""
+        h = hashlib.sha256(b"tactile_mirror.scenes.Scene content 1\0")
+        for f in dataclasses.fields(self):
+            _feed_content(h, f.name)
+            _feed_content(h, getattr(self, f.name))
+        return h.hexdigest()
+
+    def __eq__(self, other: object) -> bool:
+        if other is self:
+            return True
+        if type(other) is not type(self):
+            return NotImplemented
+        return self.content_key == other.content_key
+
+    def __hash__(self) -> int:
+        return hash(self.content_key)
+
+    def __getstate__(self) -> dict:
+        state = dict(self.__dict__)
+        state.pop("content_key", None)  # (recomputed where it is needed)
+        return state
 
     @property
     def n_samples(self) -> int:

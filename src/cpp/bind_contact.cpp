@@ -22,8 +22,8 @@
 //   A ridge with the configuration, history and plate path of an earlier ridge of the
 //   pad (the mirror-image ridges under a symmetric finger) is that ridge's shadow: it
 //   gets its results without computing them (see PyContact); sources tells which.
-// _contact_simd_path(), _contact_set_baseline(on): the kernel variant (AVX2+FMA or
-//   baseline) and a switch to force the baseline.
+// _contact_simd_path(): the kernel variant (AVX2+FMA or baseline) the contact kernels
+//   run now (the process-wide baseline switch, module.cpp's _set_baseline, forces the baseline).
 // The Python-facing classes are tactile_mirror.contact.ContactSolver and Pad, which
 // validate arguments and turn a status into the reference implementation's exceptions.
 #include <pybind11/numpy.h>
@@ -601,7 +601,5 @@ void tm_bind_contact(py::module_& m) {
              "(the same bits) without computing them. Returns (status, ridge, solves, events); on a failure "
              "(status != 0, of the first failing ridge) every ridge keeps the history it had before the call.");
     m.def("_contact_simd_path", [] { return std::string(tactile::contact_simd_path()); },
-          "The variant the contact kernels run, by simd_path()'s names: 'avx2+fma' or the base variant.");
-    m.def("_contact_set_baseline", [](bool on) { tactile::set_contact_baseline(on); }, py::arg("on"),
-          "Run the baseline contact kernels even on AVX2 hardware (for tests and benchmarks).");
+          "The variant the contact kernels run now, by simd_path()'s names: 'avx2+fma' or the base variant.");
 }

@@ -52,13 +52,18 @@ std::string shape_str(const py::array& a) {
     return s.str();
 }
 
-// A code variant by name (simd::parse_isa's names), one this CPU can run.
+// A code variant by name (simd::parse_isa's names), one this CPU can run now.
 simd::Isa parse_path(const std::string& name) {
     simd::Isa isa;
     if (!simd::parse_isa(name, &isa))
         throw py::value_error("path must be '" + std::string(simd::isa_name(simd::Isa::baseline)) +
                               "' (or 'generic'), 'avx2+fma' or 'native', got '" + name + "'");
-    if (!simd::isa_supported(isa)) throw py::value_error("path '" + name + "' is not supported by this CPU or build");
+    if (!simd::isa_supported(isa))
+        throw py::value_error("path '" + name + "' is not supported by this CPU or build" +
+                              (simd::baseline_forced() && simd::cpu_isa() == isa
+                                   ? std::string(", or while the kernels are held to the baseline "
+                                                 "(tactile_mirror.kernels.use_baseline, TM_SIMD=baseline)")
+                                   : std::string()));
     return isa;
 }
 
@@ -739,5 +744,6 @@ void tm_bind_detector(py::module_& m) {
         "network.loss_and_grad in C++, each sequence run for its first length[s] samples. Returns (loss, grad).");
     m.def(
         "detector_cpu_has_avx2_fma", []() { return simd::isa_supported(simd::Isa::avx2_fma); },
-        "True if the kernels' AVX2+FMA variant can run on this CPU (and this build has one).");
+        "True if the kernels' AVX2+FMA variant can run now: this CPU and build have one and the kernels are "
+        "not held to the baseline.");
 }

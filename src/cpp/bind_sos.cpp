@@ -293,6 +293,7 @@ void tm_bind_sos(py::module_& m) {
     bind_cascade<double>(m, "_SosCascade64");
     bind_cascade<float>(m, "_SosCascade32");
     m.def("simd_path", []() { return std::string(tactile::simd::isa_name(tactile::simd::detect_isa())); },
-          "The code variant of the SIMD layer (simd.hpp) that every C++ kernel runs on this CPU: "
-          "'avx2+fma', 'sse2' (x86-64 baseline), 'native' (-DTM_NATIVE=ON build) or 'generic' (other CPUs).");
+          "The code variant of the SIMD layer (simd.hpp) that every C++ kernel built now runs: "
+          "'avx2+fma', 'sse2' (x86-64 baseline, also while the baseline switch is on), 'native' "
+          "(-DTM_NATIVE=ON build) or 'generic' (other CPUs).");
 }

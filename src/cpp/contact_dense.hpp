@@ -5,7 +5,7 @@
 // Each kernel is a struct K whose static member template K::run<B> is the kernel over
 // B-byte vectors, written once; simd::Dispatch<K> compiles it for the x86-64 baseline
 // and for AVX2+FMA, and the entry points below (lu_factor, lu_solve, ...) pick the
-// variant at run time (contact_detail::use_avx2; set_contact_baseline forces the
+// variant at run time (contact_detail::use_avx2; simd::set_baseline forces the
 // baseline). All of them allocate nothing and throw nothing.
 #pragma once
 
@@ -435,16 +435,12 @@ struct ComplianceProduct {
 };
 
 namespace contact_detail {
-// The AVX2+FMA variants run when the CPU has them (decided once), unless
-// set_contact_baseline(true) forces the baseline (for tests and benchmarks).
-inline bool& force_baseline() noexcept {
-    static bool b = false;
-    return b;
-}
+// The AVX2+FMA variants run when the SIMD layer's choice is AVX2+FMA: the CPU has
+// them and the process-wide baseline switch (simd::set_baseline) is off. Consulted
+// at every call, so the switch acts on solvers already built.
 inline bool use_avx2() noexcept {
 #if TM_HAVE_DISPATCH
-    static const bool has = simd::detect_isa() == simd::Isa::avx2_fma;
-    return has && !force_baseline();
+    return simd::detect_isa() == simd::Isa::avx2_fma;
 #else
     return false;
 #endif
@@ -461,18 +457,9 @@ struct Dispatched {
 };
 }  // namespace contact_detail
 
-// Run the baseline variants of the contact kernels even on AVX2 hardware (true), or
-// the detected variant again (false). Not thread-safe against running steps.
-inline void set_contact_baseline(bool on) noexcept { contact_detail::force_baseline() = on; }
-// The variant the contact kernels run, by the SIMD layer's names (simd::isa_name):
+// The variant the contact kernels run now, by the SIMD layer's names (simd::isa_name):
 // "avx2+fma", or the base variant ("sse2" on x86-64, "native" in a TM_NATIVE build).
-inline const char* contact_simd_path() noexcept {
-#if TM_HAVE_DISPATCH
-    return simd::isa_name(contact_detail::use_avx2() ? simd::Isa::avx2_fma : simd::Isa::baseline);
-#else
-    return simd::isa_name(simd::detect_isa());
-#endif
-}
+inline const char* contact_simd_path() noexcept { return simd::isa_name(simd::detect_isa()); }
 
 // The kernels' entry points, called as functions (arguments as K::run's).
 inline constexpr contact_detail::Dispatched<LuFactor> lu_factor{};

@@ -160,7 +160,7 @@ public:
     const PipelineStatus& status() const noexcept { return st_; }
     const double* last_output() const noexcept { return out_.data(); }
     const char* simd_path() const noexcept { return simd::isa_name(mlp_->isa()); }
-    simd::Isa filter_isa() const noexcept { return simd::detect_isa(); }
+    simd::Isa filter_isa() const noexcept { return filter_isa_; }
 
     // Features of the last accepted tick: (n_ridges, 4) [rate_L, rate_R, rate2_L, rate2_R]
     // (in the detector's precision).
@@ -810,6 +810,7 @@ private:
     double f_new_ = 0.0, f_prev_ = 0.0;  // this tick's force; the last accepted one
     bool have_f_ = false;                // f_prev_ holds an accepted force
     std::unique_ptr<SosCascade<T>> rate_f_, rate2_f_;
+    simd::Isa filter_isa_ = simd::detect_isa();  // the cascades' variant, chosen when they are built
     std::unique_ptr<Mlp> mlp_own_;  // the paper's net (detector_kind 0)
     std::unique_ptr<Bank> bank_;    // the filter-bank net (detector_kind 1)
     Mlp* mlp_ = nullptr;            // the net that runs: mlp_own_ or the bank's

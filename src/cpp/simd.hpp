@@ -6,7 +6,9 @@
 // Kernels are written once over GCC/Clang vector extensions (`Vec<T, B>::type`:
 // B bytes, 16 or 32). Each hot entry point is compiled twice: for the x86-64
 // baseline (SSE2; 32-byte operations split into two halves) and for AVX2+FMA
-// (`TM_TARGET_AVX2`), and the variant is chosen once at run time (`detect_isa`).
+// (`TM_TARGET_AVX2`), and the variant is chosen at run time (`detect_isa`): the
+// CPU's best, unless the process-wide baseline switch (`set_baseline`, or the
+// environment variable TM_SIMD=baseline) holds every kernel to the baseline.
 // A build with TM_NATIVE (-march=native) has a single variant tuned for the build
 // host (`Isa::native`); off x86 there is one portable variant. The pattern:
 //
@@ -31,6 +33,7 @@
 // and AlignedBuffer.
 #pragma once
 
+#include <atomic>
 #include <chrono>
 #include <cmath>
 #include <cstddef>
@@ -97,8 +100,8 @@ inline bool cpu_has_avx2_fma() noexcept {
 #endif
 }
 
-// The variant the kernels use on this CPU (decided once).
-inline Isa detect_isa() noexcept {
+// The best variant this CPU and build offer (decided once).
+inline Isa cpu_isa() noexcept {
 #if defined(TM_NATIVE_BUILD)
     return Isa::native;
 #elif TM_HAVE_DISPATCH
@@ -108,8 +111,42 @@ inline Isa detect_isa() noexcept {
 #endif
 }
 
-// Whether a kernel can be told to run `isa` here: the detected variant or the
-// baseline (in a native build the baseline is the native code).
+// The process-wide baseline switch. While it is on, detect_isa() is the baseline:
+// every kernel object built from then on (filters, detector nets, pipelines) and
+// every call that dispatches per call (the contact solver, the training gradient)
+// runs the baseline variant, so that machines with and without AVX2+FMA round
+// alike. Objects built before keep their variant. Its first value comes from the
+// environment variable TM_SIMD ("baseline": on; unset, empty or "auto": off), read
+// when the switch is first consulted (the Python module consults it at import).
+// A TM_NATIVE build has a single variant, which the switch leaves as it is.
+namespace simd_detail {
+inline bool baseline_requested_by_environment() noexcept {
+    const char* v = std::getenv("TM_SIMD");
+    return v != nullptr && std::strcmp(v, "baseline") == 0;
+}
+inline std::atomic<bool>& baseline_switch() noexcept {
+    static std::atomic<bool> on{baseline_requested_by_environment()};
+    return on;
+}
+}  // namespace simd_detail
+
+inline bool baseline_forced() noexcept { return simd_detail::baseline_switch().load(std::memory_order_relaxed); }
+// Turn the baseline switch on or off for the whole process. Switch between runs,
+// not while another thread is inside a kernel (a contact solve would mix variants).
+inline void set_baseline(bool on) noexcept { simd_detail::baseline_switch().store(on, std::memory_order_relaxed); }
+
+// The variant the kernels use now: cpu_isa(), or the baseline while the switch is on.
+inline Isa detect_isa() noexcept {
+#if defined(TM_NATIVE_BUILD)
+    return Isa::native;
+#else
+    return baseline_forced() ? Isa::baseline : cpu_isa();
+#endif
+}
+
+// Whether a kernel can be told to run `isa` here now: the detected variant or the
+// baseline (in a native build the baseline is the native code). While the baseline
+// switch is on, AVX2+FMA cannot be chosen.
 inline bool isa_supported(Isa isa) noexcept { return isa == Isa::baseline || isa == detect_isa(); }
 
 // The one name of each variant, as tactile_mirror.simd_path() reports it.

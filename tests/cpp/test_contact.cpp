@@ -502,10 +502,10 @@ int main(int argc, char** argv) {
         CHECK(g >= 50 && g + 25 <= N, "%s: gross slip at %zu", tag, g);
         if (g >= 50 && g + 25 <= N) check_restore(S, rf, every, g - 50, g + 25, what);
         // the baseline kernels (16-byte vectors, no FMA) on the same path
-        tactile::set_contact_baseline(true);
+        tactile::simd::set_baseline(true);
         std::snprintf(what, sizeof what, "%s follow (%s)", tag, tactile::contact_simd_path());
         run_follow(S, rf, every, what);
-        tactile::set_contact_baseline(false);
+        tactile::simd::set_baseline(false);
     }
     std::printf("%s: %d failures\n", failures ? "FAILED" : "ok", failures);
     return failures ? 1 : 0;

@@ -129,6 +129,18 @@ int main() {
     CHECK(simd::isa_supported(simd::Isa::baseline), "the baseline always runs");
     CHECK(simd::isa_supported(simd::detect_isa()), "the detected variant runs");
     std::printf("detected variant: %s\n", simd::isa_name(simd::detect_isa()));
+    // The baseline switch: while on, the baseline is what runs and AVX2+FMA cannot be chosen.
+    const simd::Isa detected = simd::detect_isa();
+    const bool forced = simd::baseline_forced();  // (TM_SIMD=baseline in the environment)
+    simd::set_baseline(true);
+#if !defined(TM_NATIVE_BUILD)
+    CHECK(simd::detect_isa() == simd::Isa::baseline, "the baseline switch holds detect_isa to the baseline");
+    CHECK(!simd::isa_supported(simd::Isa::avx2_fma), "AVX2+FMA cannot be chosen under the baseline switch");
+#endif
+    simd::set_baseline(false);
+    CHECK(simd::detect_isa() == simd::cpu_isa(), "the switch off gives the CPU's best variant");
+    simd::set_baseline(forced);
+    CHECK(simd::detect_isa() == detected, "the switch restored");
 
     CHECK(shuffles_base() == 0, "transpose / reduce_lanes / bcast / clamp_sym, baseline variant");
     check_accuracy<float>(simd::Isa::baseline);

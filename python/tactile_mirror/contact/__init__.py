@@ -14,6 +14,8 @@ Pieces, each usable on its own:
   ``ContactStep``, ``ContactConvergenceError``
 * :mod:`.pad`       several ridges under a curved finger, stepped with ``advance``
 * :mod:`.simulation`  scenes -> signals (``simulate``, ``simulate_many``)
+* :mod:`.result_arrays`  a simulation result as plain arrays and JSON, and back (what a
+  result store keeps, :class:`tactile_mirror.engine.ResultStore`)
 * :mod:`.plants`    the contact models of the closed loop behind one interface
   (``ContactPlant``, ``ContactState``) and the FEM pad with a pressing finger (``FemPad``)
 * :mod:`.brush`     the reduced brush model of the ridges (``BrushRidges``), the other plant

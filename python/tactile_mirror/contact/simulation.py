@@ -1,13 +1,14 @@
 """Run scenes: the contact model stepped over a plate trajectory, then the PVDF circuit.
 
 ``simulate(scene)`` returns a :class:`SimulationResult`; ``simulate_many(scenes)`` runs
-a sweep on any ``concurrent.futures.Executor`` with a progress bar. Only what the scene
-asks for is computed (:data:`tactile_mirror.scenes.OUTPUTS`).
+a sweep on any ``concurrent.futures.Executor`` with a progress bar
+(:func:`tactile_mirror.engine.run_tasks`). Only what the scene asks for is computed
+(:data:`tactile_mirror.scenes.OUTPUTS`).
 """
 from __future__ import annotations
 
 import concurrent.futures
-import contextlib
+import functools
 import os
 from collections.abc import Iterable
 from dataclasses import dataclass, field
@@ -236,37 +237,31 @@ def _run_events(pad, plate_y, indent, scene, want_stress, want_state, field_idx,
     return end, slip_time
 
 
-def _simulate_quiet(scene, stepping="auto", backend="cpp"):
-    return simulate(scene, progress=False, stepping=stepping, backend=backend)
-
-
-#: Thread-count variables set to 1 for the worker processes of simulate_many's own pool
-#: (unless the user has set them).
-WORKER_THREAD_VARS = ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS")
-
-
-@contextlib.contextmanager
-def _worker_env(names):
-    """Set the unset variables of ``names`` to "1" in os.environ for the block, then remove them."""
-    added = [n for n in names if n not in os.environ]
-    os.environ.update(dict.fromkeys(added, "1"))
-    try:
-        yield
-    finally:
-        for n in added:
-            os.environ.pop(n, None)
-
-
 def simulate_many(scenes: Iterable[Scene], executor: concurrent.futures.Executor | None = None, progress: bool = True,
-                  max_workers: int | None = None, stepping: str = "auto",
-                  backend: str = "cpp") -> list[SimulationResult]:
+                  max_workers: int | None = None, stepping: str = "auto", backend: str = "cpp", *,
+                  portable: bool = False) -> list[SimulationResult]:
     """Simulate many scenes, in order, on ``executor`` (default: a local process pool).
 
     ``stepping`` and ``backend`` are passed to :func:`simulate` for every scene.
 
     Any :class:`concurrent.futures.Executor` works, e.g. ``dask.distributed.Client(...)
-    .get_executor()`` to spread a sweep over a cluster. Shows a progress bar.
+    .get_executor()`` to spread a sweep over a cluster. Without one, a pool of
+    ``max_workers`` spawned processes (default: one per core, at most one per scene; 1:
+    in this process) is started and shut down at the end. The sweep runs through
+    :func:`tactile_mirror.engine.run_tasks`: every scene with its BLAS/OpenMP pools pinned
+    to one thread, so that every executor gives the same bits; a worker of an outside
+    process or cluster executor runs only if its build is this one's
+    (:class:`~tactile_mirror.engine.BuildMismatch` names both); ``portable`` runs the
+    baseline kernels in every task, for workers whose CPUs differ. A failed scene raises
+    :class:`~tactile_mirror.engine.TaskError` naming it. Shows a progress bar.
+
+    A lost worker: the pool of our own is started again and the unfinished scenes sent
+    again (twice at most); dask's scheduler sends a lost worker's scenes to others (up to
+    its ``allowed-failures``, then a ``KilledWorker`` error names the scene); an outside
+    ``ProcessPoolExecutor`` is broken for good by a lost worker (``TaskError`` naming the
+    first unfinished scene); a thread pool has no worker to lose.
     """
+    from tactile_mirror.engine import run_tasks
     from tactile_mirror.scenes import Scene
 
     if stepping not in STEPPINGS:
@@ -277,39 +272,21 @@ def simulate_many(scenes: Iterable[Scene], executor: concurrent.futures.Executor
     for k, s in enumerate(scenes):
         if not isinstance(s, Scene):
             raise TypeError(f"scenes[{k}] must be a Scene, got {type(s).__name__}")
+    if executor is not None and not callable(getattr(executor, "submit", None)):
+        raise TypeError(f"executor must be a concurrent.futures.Executor (with submit), got {type(executor).__name__}")
+    if max_workers is not None and (isinstance(max_workers, bool) or not isinstance(max_workers, int)
+                                    or max_workers < 1):  # (0 meant every core)
+        raise ValueError(f"max_workers must be a positive integer or None, got {max_workers!r}")
+    if not isinstance(portable, (bool, np.bool_)):
+        raise TypeError(f"portable must be a bool, got {type(portable).__name__}")
     if not scenes:
         return []
-    own = executor is None
-    if not own and not callable(getattr(executor, "submit", None)):
-        raise TypeError(f"executor must be a concurrent.futures.Executor (with submit), got {type(executor).__name__}")
-    if own:
-        import multiprocessing
-
-        if max_workers is not None and (isinstance(max_workers, bool) or not isinstance(max_workers, int)
-                                        or max_workers < 1):  # (0 meant every core)
-            raise ValueError(f"max_workers must be a positive integer or None, got {max_workers!r}")
+    workers = None
+    if executor is None:
         workers = max_workers or min(len(scenes), os.cpu_count() or 1)
-        ctx = multiprocessing.get_context("spawn")  # safe with threads in the parent
-        executor = concurrent.futures.ProcessPoolExecutor(max_workers=workers, mp_context=ctx)
-    try:
-        # Own pool: one BLAS/OpenMP thread per worker process. The workers already fill
-        # the cores, and threaded BLAS on these small solves measured 3-10x slower. The
-        # spawned workers read the variables when they start, i.e. during submit().
-        with _worker_env(WORKER_THREAD_VARS) if own else contextlib.nullcontext():
-            futures = [executor.submit(_simulate_quiet, s, stepping, backend) for s in scenes]
-        index = {f: k for k, f in enumerate(futures)}
-        results: list = [None] * len(scenes)
-        done = concurrent.futures.as_completed(futures)
-        if progress:
-            from tqdm.auto import tqdm
-
-            done = tqdm(done, total=len(futures), desc="scenes", unit="scene")
-        for f in done:
-            results[index[f]] = f.result()
-        return results
-    finally:
-        if own:
-            executor.shutdown()
+    task = functools.partial(simulate, progress=False, stepping=stepping, backend=backend)
+    return list(run_tasks(task, scenes, executor=executor, workers=workers, progress=progress, desc="scenes",
+                          portable=bool(portable)))
 
 
 def calibrate_friction(target_slip_time: float, scene: Scene | None = None,

@@ -12,7 +12,7 @@ import hashlib
 import platform
 from importlib import metadata
 
-__all__ = ["IDENTITY_KEYS", "BuildMismatch", "build_identity", "identity_differences"]
+__all__ = ["IDENTITY_KEYS", "BuildMismatch", "build_identity", "identity_differences", "task_identity"]
 
 #: The entries of an identity, in the order they are reported.
 IDENTITY_KEYS = ("package", "core", "simd", "numpy", "scipy", "scikit-fem", "python")
@@ -51,17 +51,37 @@ def _version(dist: str) -> str:
         return "absent"
 
 
+@functools.lru_cache(maxsize=1)
+def _fixed_identity() -> tuple:
+    """The entries that cannot change while a process runs (hashed and looked up once)."""
+    import tactile_mirror
+
+    return (("package", tactile_mirror.__version__), ("core", _core_digest()), ("numpy", _version("numpy")),
+            ("scipy", _version("scipy")), ("scikit-fem", _version("scikit-fem")),
+            ("python", platform.python_version()))
+
+
 def build_identity() -> dict:
     """This process's identity: ``package`` (tactile-mirror's version), ``core`` (a hash of
     the compiled core's file), ``simd`` (the path each kernel family runs now, as
     :func:`tactile_mirror.kernels.simd_paths`), the ``numpy``, ``scipy`` and
-    ``scikit-fem`` versions, and the ``python`` version. Plain strings and dicts (JSON)."""
-    import tactile_mirror
+    ``scikit-fem`` versions, and the ``python`` version. Plain strings and dicts (JSON).
+    All but ``simd`` are computed once per process, so a check per task costs microseconds."""
     from tactile_mirror.kernels import simd_paths
 
-    return {"package": tactile_mirror.__version__, "core": _core_digest(), "simd": simd_paths(),
-            "numpy": _version("numpy"), "scipy": _version("scipy"), "scikit-fem": _version("scikit-fem"),
-            "python": platform.python_version()}
+    fixed = dict(_fixed_identity())
+    fixed["simd"] = simd_paths()
+    return {k: fixed[k] for k in IDENTITY_KEYS}
+
+
+def task_identity(portable: bool = False) -> dict:
+    """What a task's result depends on: :func:`build_identity`, with ``simd`` the word
+    ``"baseline"`` when ``portable`` (every worker then runs the baseline kernels, whatever
+    paths this process has). Keys a result in a :class:`~tactile_mirror.engine.store.ResultStore`."""
+    identity = build_identity()
+    if portable:
+        identity["simd"] = "baseline"
+    return identity
 
 
 def identity_differences(driver: dict, worker: dict, portable: bool = False) -> dict:

@@ -19,6 +19,7 @@ import concurrent.futures
 import contextlib
 import dataclasses
 import os
+import threading
 import warnings
 from collections.abc import Callable, Iterable, Iterator
 from typing import Any
@@ -85,18 +86,32 @@ def _worker_name() -> str:
     return f"{socket.gethostname()}:{os.getpid()}"
 
 
+_baseline_lock = threading.Lock()
+_baseline_state: dict = {"depth": 0, "before": False}
+
+
 @contextlib.contextmanager
 def _baseline_kernels(on: bool) -> Iterator[None]:
+    """Hold the kernels to the baseline for the block, then restore the switch as it was
+    (a worker started with ``TM_SIMD=baseline`` stays there). Blocks of a thread pool's
+    tasks overlap: the first to start sets the switch, the last to end restores it."""
     if not on:
         yield
         return
-    from tactile_mirror.kernels import use_baseline
+    from tactile_mirror.kernels import baseline_in_use, use_baseline
 
-    use_baseline(True)
+    with _baseline_lock:
+        if not _baseline_state["depth"]:
+            _baseline_state["before"] = baseline_in_use()
+            use_baseline(True)
+        _baseline_state["depth"] += 1
     try:
         yield
     finally:
-        use_baseline(False)
+        with _baseline_lock:
+            _baseline_state["depth"] -= 1
+            if not _baseline_state["depth"]:
+                use_baseline(_baseline_state["before"])
 
 
 def _check_options(on_error, threads, workers, retries) -> None:
@@ -110,13 +125,25 @@ def _check_options(on_error, threads, workers, retries) -> None:
         raise ValueError(f"retries must be a non-negative integer, got {retries!r}")
 
 
+def _noop() -> None:
+    return None
+
+
 def _local_pool(workers: int) -> concurrent.futures.ProcessPoolExecutor:
+    """A pool of ``workers`` spawned processes (safe with threads in the parent), started now
+    with the thread variables at 1, so that no worker sizes its BLAS/OpenMP pools to the
+    machine (the tasks pin them anyway; this spares the idle threads)."""
     import multiprocessing
 
-    # spawn: safe with threads in the parent; the workers read the thread variables at start
-    with pinned_threads(1):
-        return concurrent.futures.ProcessPoolExecutor(max_workers=workers,
-                                                      mp_context=multiprocessing.get_context("spawn"))
+    pool = concurrent.futures.ProcessPoolExecutor(max_workers=workers, mp_context=multiprocessing.get_context("spawn"))
+    try:
+        with pinned_threads(1):  # a process starts at a submit while none is idle: start them all here
+            started = [pool.submit(_noop) for _ in range(workers)]
+        concurrent.futures.wait(started)
+    except BaseException:
+        pool.shutdown(wait=False, cancel_futures=True)
+        raise
+    return pool
 
 
 def run_tasks(fn: Callable[[Any], Any], items: Iterable[Any], *, executor: concurrent.futures.Executor | None = None,
@@ -133,12 +160,15 @@ def run_tasks(fn: Callable[[Any], Any], items: Iterable[Any], *, executor: concu
       dask's ``Client.get_executor()``, ``mpi4py.futures``, loky). On a process or remote
       executor each task first checks its worker's :func:`build_identity` against this
       process's (``check_build``) and refuses with both sides named;
-    - else ``workers=N`` (N > 1): a local pool of N spawned processes, shut down at the end;
+    - else ``workers=N`` (N > 1): a local pool of N spawned processes, shut down at the end
+      (``workers`` is not used with an ``executor``);
     - else in this process, one item after another.
 
     Every task runs with its BLAS/OpenMP pools pinned to ``threads`` (1), whatever the
-    parent's settings, so all of these give identical arrays. ``portable`` runs the
-    baseline kernels everywhere (no AVX2+FMA), for workers whose CPUs differ.
+    parent's settings, so all of these give identical arrays. ``portable`` runs every task
+    on the baseline kernels (:func:`tactile_mirror.kernels.use_baseline`, no AVX2+FMA; the
+    switch is restored after the task), for workers whose CPUs differ; the kernel paths
+    are then left out of the build check.
 
     ``sink(index, result)`` is called in this process as each result arrives (in item order
     with ``ordered=True``, holding back the early ones); with ``keep=False`` results are
@@ -179,7 +209,11 @@ def run_tasks(fn: Callable[[Any], Any], items: Iterable[Any], *, executor: concu
         elif executor is not None:
             expected = build_identity() if check_build and not isinstance(
                 executor, concurrent.futures.ThreadPoolExecutor) else None
-            _submit_all(executor, fn, items, range(len(items)), threads, expected, portable, collector)
+            try:
+                _submit_all(executor, fn, items, range(len(items)), threads, expected, portable, collector)
+            except concurrent.futures.process.BrokenProcessPool as e:
+                k = collector.pending()[0]
+                raise TaskError(k, items[k], e) from e
         else:
             _run_on_own_pool(workers, fn, items, threads, portable, retries, collector)
     finally:
@@ -190,8 +224,10 @@ def run_tasks(fn: Callable[[Any], Any], items: Iterable[Any], *, executor: concu
 
 
 def _submit_all(executor, fn, items, indices, threads, expected, portable, collector) -> None:
-    futures = {executor.submit(run_task, fn, items[k], threads, expected, portable): k for k in indices}
+    futures: dict = {}
     try:
+        for k in indices:
+            futures[executor.submit(run_task, fn, items[k], threads, expected, portable)] = k
         for f in concurrent.futures.as_completed(futures):
             k = futures.pop(f)
             try:
@@ -200,6 +236,7 @@ def _submit_all(executor, fn, items, indices, threads, expected, portable, colle
                 raise
             except concurrent.futures.process.BrokenProcessPool:
                 futures[f] = k
+                _salvage(futures, collector)
                 raise
             except Exception as e:  # noqa: BLE001
                 collector.failed(k, e)
@@ -208,6 +245,14 @@ def _submit_all(executor, fn, items, indices, threads, expected, portable, colle
     finally:
         for f in futures:
             f.cancel()
+
+
+def _salvage(futures: dict, collector: _Collector) -> None:
+    """Collect the results that finished before a pool broke (they are not computed again)."""
+    for f, k in list(futures.items()):
+        if f.done() and not f.cancelled() and f.exception() is None:
+            del futures[f]
+            collector.done(k, f.result())
 
 
 def _run_on_own_pool(workers, fn, items, threads, portable, retries, collector) -> None:
