@@ -500,7 +500,7 @@ def capi_asan() -> Spec:
         return [v, compiler_id(cc), compiler_id(cxx), *cfg]
 
     return Spec("capi-asan", make, "tm_c_example", parts,
-                [ROOT / "CMakeLists.txt", SRC / "tm_capi.cpp", TESTS / "c" / "example.c"], cost=115)
+                [ROOT / "CMakeLists.txt", SRC / "tm_capi.cpp", TESTS / "c" / "example.c"], cost=130)
 
 
 # -O0: ThreadSanitizer sees every access at any optimisation level, and the C ABI compiles
@@ -527,7 +527,7 @@ def capi_tsan() -> Spec:
              str(d / "close_while_stepping")])
 
     return Spec("capi-tsan", make, "close_while_stepping",
-                lambda: [compiler_id(cc), compiler_id(cxx), *TSAN_FLAGS], [SRC / "tm_capi.cpp", test], cost=180,
+                lambda: [compiler_id(cc), compiler_id(cxx), *TSAN_FLAGS], [SRC / "tm_capi.cpp", test], cost=31,
                 needs_tsan=(cc, ".c") if cc else None)
 
 

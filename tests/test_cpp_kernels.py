@@ -26,7 +26,7 @@ SIMD = nb.kernel_program("test_simd.cpp", opt="-O2", cost=4)
 # -O0 the three translation units (main, the float checks, the double checks), compiled
 # side by side, take about a minute, and the checks run in about 10 s.
 JORDAN = nb.kernel_program(["test_jordan.cpp", "test_jordan_float.cpp", "test_jordan_double.cpp"],
-                           sanitizers="address", debug=False, opt="-O0", cost=45)
+                           sanitizers="address", debug=False, opt="-O0", cost=65)
 SHARED_LIST = {s: nb.kernel_program("test_shared_list.cpp", sanitizers=s, cost=5)
                for s in ("thread", "address,undefined")}
 CONTACT = nb.kernel_program("test_contact.cpp", cost=17)
