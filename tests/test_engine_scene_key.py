@@ -64,3 +64,12 @@ def test_a_scene_sent_through_any_executor_comes_back_equal_with_the_same_key():
             assert [s for s, _ in out] == scenes
             assert [k for _, k in out] == keys  # the same key in another process (another hash seed)
 
+
+
+def test_a_float32_field_is_not_the_float64_scene_and_an_unpickled_scene_stays_read_only():
+    # simulate computes a float32 friction otherwise than the float64 of its value
+    assert tm.Scene(friction=np.float32(0.5)) != tm.Scene(friction=0.5)
+    assert tm.Scene(friction=np.float32(0.5)) == tm.Scene(friction=np.float32(0.5))
+    back = pickle.loads(pickle.dumps(with_trajectory()))
+    assert not back.trajectory[0].flags.writeable and not back.trajectory[1].flags.writeable
+    assert back == pickle.loads(pickle.dumps(back))

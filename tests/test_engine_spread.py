@@ -2,7 +2,10 @@
 from __future__ import annotations
 
 import concurrent.futures
+import multiprocessing
 import os
+import subprocess
+import sys
 
 import numpy as np
 import pytest
@@ -94,14 +97,34 @@ def test_an_outside_pool_broken_by_a_lost_worker_names_the_first_unfinished_item
     assert info.value.index >= 2  # items 0 and 1 were done before the worker died
 
 
-def test_tasks_run_with_pinned_threads_whatever_the_parent_has(pool):
+def test_tasks_run_with_pinned_threads_whatever_the_parent_has(monkeypatch):
     from threadpoolctl import threadpool_limits
 
-    with threadpool_limits(limits=2):
+    # the parent at 2 threads, in its pools and in the variables its workers start with
+    for name in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS"):
+        monkeypatch.setenv(name, "2")
+    outside = concurrent.futures.ProcessPoolExecutor(1, mp_context=multiprocessing.get_context("spawn"))
+    with outside, threadpool_limits(limits=2), concurrent.futures.ThreadPoolExecutor(2) as threads:
+        assert outside.submit(blas_threads, 0).result()[1] == "2"  # unpinned, the worker has the parent's
         serial = run_tasks(blas_threads, [0], progress=False, threads=1)[0]
-        remote = run_tasks(blas_threads, [0], executor=pool, progress=False, threads=1)[0]
-    assert serial == remote
+        in_threads = run_tasks(blas_threads, [0, 1], executor=threads, progress=False, threads=1)
+        remote = run_tasks(blas_threads, [0], executor=outside, progress=False, threads=1)[0]
+    assert serial == remote == in_threads[0] == in_threads[1]
     assert serial[1] == "1" and serial[0] in ([1], [])  # [] where numpy has no BLAS pool to report
+
+
+def test_a_task_failing_on_a_thread_pool_names_its_item_in_a_fresh_process():
+    # (a fresh interpreter: no other module has loaded concurrent.futures.process)
+    code = ("import concurrent.futures as cf\n"
+            "from tactile_mirror.engine import TaskError, run_tasks\n"
+            "def bad(x):\n"
+            "    if x == 1: raise KeyError(x)\n"
+            "    return x\n"
+            "try:\n"
+            "    with cf.ThreadPoolExecutor(2) as ex: run_tasks(bad, range(3), executor=ex, progress=False)\n"
+            "except TaskError as e: print('TaskError', e.index)\n")
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120)
+    assert out.stdout.strip() == "TaskError 1", out.stderr
 
 
 def test_pinned_threads_restores_the_parent_and_refuses_a_second_count():

@@ -107,3 +107,25 @@ def test_settings_come_from_arguments_then_the_environment(tmp_path, monkeypatch
     with pytest.raises(TypeError, match="meta must be JSON-serialisable"):
         store.save("k", ID, {}, {"x": object()})
     assert not os.path.exists(tmp_path / "s") or os.listdir(tmp_path / "s") == []
+
+
+def test_a_result_larger_than_the_limit_is_not_kept_and_costs_no_other_file(tmp_path):
+    store = ResultStore(tmp_path, limit=100_000)
+    kept = [store.save(f"input-{k}", ID, *payload(k)) for k in range(3)]
+    with pytest.warns(StoreWarning, match="larger than the store's limit of 100000 bytes: not kept"):
+        assert store.save("huge", ID, {"y": np.zeros(20_000), "n": np.array(0)}, {}) is None
+    assert sorted(os.listdir(tmp_path)) == sorted(os.path.basename(p) for p in kept)
+    # the file just written is never the one trimmed, and a replaced file is counted once
+    small = ResultStore(tmp_path, limit=os.path.getsize(kept[0]) + 10)
+    path = small.save("input-9", ID, *payload(9))
+    assert os.listdir(tmp_path) == [os.path.basename(path)]
+    assert small.save("input-9", ID, *payload(9)) == path and os.path.exists(path)
+
+
+def test_keys_a_file_cannot_hold_are_refused_when_saved_not_missed_forever(tmp_path):
+    store = ResultStore(tmp_path)
+    with pytest.raises(ValueError, match="content_key has 300 characters, more than the 256"):
+        store.save("k" * 300, ID, *payload(1))
+    with pytest.raises(ValueError, match="identity takes .* more than the 8192"):
+        store.save("k", {"huge": "x" * 9000}, *payload(1))
+    assert os.listdir(tmp_path) == []

@@ -93,7 +93,8 @@ def test_sets_that_overlap_share_their_scenes_and_read_back_the_same_bits(tmp_pa
     other = scene_cache.random_scenes(2, 10, **KW)
     mixed = simulate_scenes([big[4].scene, other[0], big[0].scene], progress=False, workers=1, cache_dir=tmp_path)
     assert counted.calls[5:] == [other[0]]
-    assert_same(mixed[0], big[4]) and assert_same(mixed[2], big[0])
+    assert_same(mixed[0], big[4])
+    assert_same(mixed[2], big[0])
     # the portable mode's results are kept apart (other bits on an AVX2 machine)
     simulate_scenes([other[0]], progress=False, workers=1, cache_dir=tmp_path, portable=True)
     assert counted.calls[6:] == [other[0]]
@@ -168,3 +169,19 @@ def test_the_cache_folder_is_checked_before_simulating_and_comes_from_the_enviro
     monkeypatch.delenv("TM_CACHE_DIR")
     simulate_cached(1, 1, KW, progress=False)  # no folder: nothing kept, simulated again
     assert len(counted.calls) == 2
+
+
+def test_a_run_that_stopped_before_its_field_times_reads_back_from_the_cache(tmp_path, counted):
+    import warnings
+
+    from tactile_mirror.scenes import Scene
+
+    s = Scene(duration=2.0, outputs=frozenset({"stress", "fields"}), field_times=(1.9,), stop_after_slip=0.0,
+              friction=0.3)
+    first = simulate_scenes([s], progress=False, workers=1, cache_dir=tmp_path)[0]
+    assert first.fields == {} and first.t[-1] < 1.9  # slipped and stopped before 1.9 s
+    with warnings.catch_warnings():
+        warnings.simplefilter("error", StoreWarning)
+        again = simulate_scenes([s], progress=False, workers=1, cache_dir=tmp_path)[0]
+    assert len(counted.calls) == 1 and again.fields == {}
+    np.testing.assert_array_equal(again.stress, first.stress)

@@ -69,7 +69,8 @@ _DEFAULT_OUTPUTS = frozenset({"forces", "slip", "stress", "signals"})
 
 def _feed_content(h, value) -> None:
     """Feed ``value``'s content to the hash ``h``, type-tagged and unambiguous: real numbers
-    by value (``2`` and ``2.0`` alike, as they compare), arrays by dtype, shape and bytes,
+    by value (``2`` and ``2.0`` alike, as they compare; a numpy float of another width than
+    64 bits as the array it is, since it computes otherwise), arrays by dtype, shape and bytes,
     sequences and sets element by element, dataclasses field by field."""
     if value is None:
         h.update(b"N")
@@ -77,6 +78,9 @@ def _feed_content(h, value) -> None:
         h.update(b"B1" if value else b"B0")
     elif isinstance(value, numbers.Integral):
         h.update(f"I{int(value)};".encode())
+    elif isinstance(value, np.floating) and value.dtype != np.float64:
+        # a float32 computes otherwise than the float64 of the same value: not the same scene
+        h.update(f"A{value.dtype.str};();".encode() + value.tobytes())
     elif isinstance(value, numbers.Real):
         v = float(value)
         h.update(f"I{int(v)};".encode() if v.is_integer() else f"F{v.hex()};".encode())
@@ -312,6 +316,15 @@ class Scene:
         state = dict(self.__dict__)
         state.pop("content_key", None)  # (recomputed where it is needed)
         return state
+
+    def __setstate__(self, state: dict) -> None:
+        # pickling drops numpy's read-only flag: an unpickled scene stays immutable too
+        if state.get("trajectory") is not None:
+            y, z = (np.array(a) for a in state["trajectory"])
+            y.setflags(write=False)
+            z.setflags(write=False)
+            state = {**state, "trajectory": (y, z)}
+        self.__dict__.update(state)
 
     @property
     def n_samples(self) -> int:

@@ -111,10 +111,13 @@ def result_from_arrays(scene: Scene, arrays: dict[str, np.ndarray], meta: dict) 
     if not 1 <= n <= scene.n_samples:
         raise ValueError(f"t has {n} samples, the scene at most {scene.n_samples}")
     fields = {}
-    if "fields" in scene.outputs and scene.field_times:
+    if "fields" in scene.outputs and scene.field_times and "field_times" in arrays:
+        # (no field arrays: a run that stopped before the first field time has none)
         times, stress, centroids = arrays["field_times"], arrays["field_stress"], arrays["field_centroids"]
         if stress.shape[0] != times.shape[0] or centroids.shape != (times.shape[0], 2, stress.shape[2]):
             raise ValueError("the stress fields' arrays disagree in shape")
+        if not set(times.tolist()) <= set(map(float, scene.field_times)):
+            raise ValueError("the stress fields are at times the scene does not ask for")
         fields = {float(t): (stress[i], centroids[i]) for i, t in enumerate(times)}
     elif any(name in arrays for name in ("field_times", "field_stress", "field_centroids")):
         raise ValueError("stress fields present, the scene asks for none")

@@ -22,6 +22,7 @@ import os
 import threading
 import warnings
 from collections.abc import Callable, Iterable, Iterator
+from concurrent.futures.process import BrokenProcessPool
 from typing import Any
 
 from tactile_mirror.engine.identity import BuildMismatch, build_identity, identity_differences
@@ -129,15 +130,15 @@ def _noop() -> None:
     return None
 
 
-def _local_pool(workers: int) -> concurrent.futures.ProcessPoolExecutor:
+def _local_pool(workers: int, threads: int = 1) -> concurrent.futures.ProcessPoolExecutor:
     """A pool of ``workers`` spawned processes (safe with threads in the parent), started now
-    with the thread variables at 1, so that no worker sizes its BLAS/OpenMP pools to the
+    with the thread variables at ``threads``, so that no worker sizes its BLAS/OpenMP pools to the
     machine (the tasks pin them anyway; this spares the idle threads)."""
     import multiprocessing
 
     pool = concurrent.futures.ProcessPoolExecutor(max_workers=workers, mp_context=multiprocessing.get_context("spawn"))
     try:
-        with pinned_threads(1):  # a process starts at a submit while none is idle: start them all here
+        with pinned_threads(threads):  # a process starts at a submit while none is idle: start them all here
             started = [pool.submit(_noop) for _ in range(workers)]
         concurrent.futures.wait(started)
     except BaseException:
@@ -168,7 +169,9 @@ def run_tasks(fn: Callable[[Any], Any], items: Iterable[Any], *, executor: concu
     parent's settings, so all of these give identical arrays. ``portable`` runs every task
     on the baseline kernels (:func:`tactile_mirror.kernels.use_baseline`, no AVX2+FMA; the
     switch is restored after the task), for workers whose CPUs differ; the kernel paths
-    are then left out of the build check.
+    are then left out of the build check. It holds for the kernels built inside the task
+    (a filter, detector or pad that ``fn`` makes), not for one built before and passed in
+    with the item, which keeps the path it was built with: make the models inside ``fn``.
 
     ``sink(index, result)`` is called in this process as each result arrives (in item order
     with ``ordered=True``, holding back the early ones); with ``keep=False`` results are
@@ -191,13 +194,17 @@ def run_tasks(fn: Callable[[Any], Any], items: Iterable[Any], *, executor: concu
     if not items:
         return results
 
-    bar = None
-    if progress:
-        from tqdm.auto import tqdm
+    # Pinned in this process too, for the whole sweep: a task on a thread of this process
+    # cannot pin the BLAS pool itself while this thread holds another limit (OpenBLAS keeps
+    # the one this thread set), so the driver's limit must already be the tasks' one.
+    with contextlib.ExitStack() as stack:
+        stack.enter_context(pinned_threads(threads))
+        bar = None
+        if progress:
+            from tqdm.auto import tqdm
 
-        bar = tqdm(total=len(items), desc=desc, unit="task")
-    collector = _Collector(items, results, sink, ordered, keep, on_error, bar)
-    try:
+            bar = stack.enter_context(tqdm(total=len(items), desc=desc, unit="task"))
+        collector = _Collector(items, results, sink, ordered, keep, on_error, bar)
         if executor is None and (workers is None or workers == 1):
             for k, item in enumerate(items):
                 try:
@@ -211,14 +218,11 @@ def run_tasks(fn: Callable[[Any], Any], items: Iterable[Any], *, executor: concu
                 executor, concurrent.futures.ThreadPoolExecutor) else None
             try:
                 _submit_all(executor, fn, items, range(len(items)), threads, expected, portable, collector)
-            except concurrent.futures.process.BrokenProcessPool as e:
+            except BrokenProcessPool as e:
                 k = collector.pending()[0]
                 raise TaskError(k, items[k], e) from e
         else:
             _run_on_own_pool(workers, fn, items, threads, portable, retries, collector)
-    finally:
-        if bar is not None:
-            bar.close()
     collector.finish()
     return results
 
@@ -234,7 +238,7 @@ def _submit_all(executor, fn, items, indices, threads, expected, portable, colle
                 value = f.result()
             except BuildMismatch:
                 raise
-            except concurrent.futures.process.BrokenProcessPool:
+            except BrokenProcessPool:
                 futures[f] = k
                 _salvage(futures, collector)
                 raise
@@ -259,11 +263,11 @@ def _run_on_own_pool(workers, fn, items, threads, portable, retries, collector) 
     expected = build_identity()
     for attempt in range(retries + 1):
         pending = collector.pending()
-        pool = _local_pool(min(workers, len(pending)))
+        pool = _local_pool(min(workers, len(pending)), threads)
         try:
             _submit_all(pool, fn, items, pending, threads, expected, portable, collector)
             return
-        except concurrent.futures.process.BrokenProcessPool as e:
+        except BrokenProcessPool as e:
             if attempt == retries:
                 k = collector.pending()[0]
                 raise TaskError(k, items[k], e) from e

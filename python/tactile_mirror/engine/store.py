@@ -21,6 +21,7 @@ Settings: the folder (``folder``; default the environment variable
 """
 from __future__ import annotations
 
+import contextlib
 import hashlib
 import json
 import os
@@ -34,7 +35,8 @@ import numpy as np
 
 from tactile_mirror._npzfile import Member, read_versioned, write_versioned
 
-__all__ = ["DEFAULT_LIMIT", "FOLDER_VARIABLE", "FORMAT", "FORMAT_VERSION", "LIMIT_VARIABLE", "ResultStore",
+__all__ = ["DEFAULT_LIMIT", "FOLDER_VARIABLE", "FORMAT", "FORMAT_VERSION", "LIMIT_VARIABLE", "MAX_CONTENT_KEY",
+           "MAX_IDENTITY", "ResultStore",
            "StoreWarning", "default_folder", "parse_size"]
 
 #: The environment variable that sets a store's folder when none is given.
@@ -53,7 +55,11 @@ _STALE_TEMPORARY = 3600.0
 _NAME = re.compile(r"^[0-9a-f]{64}\.npz$")
 _TEMPORARY = re.compile(r"^\.[0-9a-f]{64}\.npz\.[0-9a-f]+\.tmp$")
 _PREFIX = "x_"  # the payload's members, apart from the store's own
-_HEADER = {"content": Member("U", 0, max_itemsize=4 * 256), "identity": Member("U", 0, max_itemsize=4 * 8192),
+#: The longest content key and identity (characters) a file holds.
+MAX_CONTENT_KEY = 256
+MAX_IDENTITY = 8192
+_HEADER = {"content": Member("U", 0, max_itemsize=4 * MAX_CONTENT_KEY),
+           "identity": Member("U", 0, max_itemsize=4 * MAX_IDENTITY),
            "meta": Member("U", 0, max_itemsize=4 * 65536)}
 _SIZE = re.compile(r"^\s*([0-9]+(?:\.[0-9]*)?)\s*([KMGT]?)i?B?\s*$", re.IGNORECASE)
 
@@ -146,8 +152,15 @@ class ResultStore:
         (a JSON dict): 64 hex digits."""
         if not isinstance(content_key, str) or not content_key:
             raise TypeError(f"content_key must be a non-empty str, got {content_key!r}")
+        if len(content_key) > MAX_CONTENT_KEY:
+            raise ValueError(f"content_key has {len(content_key)} characters, more than the {MAX_CONTENT_KEY} a "
+                             "store file holds (pass a digest of the content)")
+        canonical = _canonical(identity)
+        if len(canonical) > MAX_IDENTITY:
+            raise ValueError(f"identity takes {len(canonical)} characters as JSON, more than the {MAX_IDENTITY} a "
+                             "store file holds")
         h = hashlib.sha256(b"tactile_mirror.engine.store key 1\0")
-        h.update(content_key.encode() + b"\0" + _canonical(identity).encode())
+        h.update(content_key.encode() + b"\0" + canonical.encode())
         return h.hexdigest()
 
     def path(self, content_key: str, identity: dict) -> str:
@@ -212,11 +225,12 @@ class ResultStore:
             pass
         return value
 
-    def save(self, content_key: str, identity: dict, arrays: dict[str, np.ndarray], meta: dict) -> str:
+    def save(self, content_key: str, identity: dict, arrays: dict[str, np.ndarray], meta: dict) -> str | None:
         """Write the result of ``content_key`` by ``identity``: ``arrays`` (numeric or text
         numpy arrays, no objects) and ``meta`` (a JSON dict), atomically, replacing any file
-        of the same key; then remove the oldest files if the folder is over the limit.
-        Returns the file's path."""
+        of the same key; then remove the oldest other files if the folder is over the limit.
+        Returns the file's path, or ``None`` (with a :class:`StoreWarning`) when the one
+        file is larger than the limit: it is not kept, and nothing else is removed for it."""
         for name, a in arrays.items():
             if not isinstance(a, np.ndarray) or a.dtype.hasobject:
                 raise TypeError(f"arrays[{name!r}] must be a numpy array of numbers or text")
@@ -226,18 +240,29 @@ class ResultStore:
             raise TypeError(f"meta must be JSON-serialisable: {exc}") from None
         path = self.path(content_key, identity)
         os.makedirs(self.folder, exist_ok=True)
+        try:
+            replaced = os.path.getsize(path)
+        except OSError:
+            replaced = 0
         write_versioned(path, FORMAT, FORMAT_VERSION, content=np.array(content_key),
                         identity=np.array(_canonical(identity)), meta=np.array(meta_text),
                         **{_PREFIX + k: v for k, v in arrays.items()})
+        try:
+            size = os.path.getsize(path)
+        except OSError:  # (removed meanwhile by another writer's trim)
+            size = 0
+        if size > self.limit:
+            with contextlib.suppress(OSError):
+                os.unlink(path)
+            warnings.warn(f"a result of {size} bytes is larger than the store's limit of {self.limit} bytes: "
+                          "not kept", StoreWarning, stacklevel=2)
+            return None
         if self._total is None:
             self._total = self._scan()[1]
         else:
-            try:
-                self._total += os.path.getsize(path)
-            except OSError:
-                pass
+            self._total += size - replaced
         if self._total > self.limit:
-            self.trim()
+            self.trim(keep=path)
         return path
 
     # -- size
@@ -266,16 +291,23 @@ class ResultStore:
         """The bytes the folder's store files take now."""
         return self._scan()[1]
 
-    def trim(self, limit: int | None = None) -> int:
+    def trim(self, limit: int | None = None, keep: str | None = None) -> int:
         """Remove the store files read or written longest ago until they take at most
-        ``limit`` bytes (default: the store's limit); also temporaries left by writers that
-        died over an hour ago. Returns the number of files removed."""
+        ``limit`` bytes (default: the store's limit), never the file ``keep`` (the one just
+        written); also temporaries left by writers that died over an hour ago. Returns the
+        number of files removed.
+
+        Each writer counts the bytes it wrote since its last look at the folder, so with
+        many writers the folder may exceed the limit by what the others wrote since then,
+        until one of them trims again."""
         limit = self.limit if limit is None else parse_size(limit, "limit")
         entries, total = self._scan()
         removed = 0
         for _, size, path in sorted(entries):
             if total <= limit:
                 break
+            if keep is not None and os.path.abspath(path) == os.path.abspath(keep):
+                continue
             try:
                 os.unlink(path)
             except FileNotFoundError:

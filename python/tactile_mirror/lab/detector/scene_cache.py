@@ -100,7 +100,14 @@ def simulate_scenes(scenes, progress: bool = True, executor=None, workers: int |
         results[k] = result
         if store is not None:
             arrays, meta = result_arrays(result)
-            store.save(f"{_TASK} {scenes[k].content_key}", identity, arrays, meta)
+            try:
+                store.save(f"{_TASK} {scenes[k].content_key}", identity, arrays, meta)
+            except OSError as exc:  # a full or read-only disk costs the cache, not the sweep
+                import warnings
+
+                from tactile_mirror.engine.store import StoreWarning
+
+                warnings.warn(f"scene {k} not cached: {exc}", StoreWarning, stacklevel=2)
 
     if executor is None and workers is None:
         workers = min(len(missing), os.cpu_count() or 1)
