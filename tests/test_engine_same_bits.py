@@ -211,3 +211,22 @@ def test_the_envelope_takes_an_executor_or_workers_not_both(tmp_path):
         run_envelope(tmp_path / "envelope.json", executor=concurrent.futures.ThreadPoolExecutor(1), workers=2,
                      **ENVELOPE)
     assert not (tmp_path / "envelope.json").exists()
+
+
+def test_the_training_gradients_threads_do_not_change_the_weights():
+    """Each training task runs the C++ gradient with the thread count the driver fixes (1 on
+    workers, up to 2 here): the kept weights must not depend on it."""
+    from tactile_mirror.lab.detector.selection import ValidationScorer, task_threads, train_selected
+    from tactile_mirror.lab.detector.synthetic import synthetic_scene
+    from tactile_mirror.lab.detector.training import make_training_set
+
+    ts = make_training_set([synthetic_scene(seed=s, n_ridges=2, duration=1.2) for s in range(3)])
+    scorer = ValidationScorer([synthetic_scene(seed=50 + s, n_ridges=1, duration=1.2) for s in range(2)])
+    kept = [train_selected(ts, 3, 8, 0, 2, 4, scorer, progress=False, n_threads=n) for n in (1, 2, 3)]
+    for w, k, scores in kept[1:]:
+        assert k == kept[0][1]
+        np.testing.assert_equal(scores, kept[0][2])
+        for name in ("w1", "b1", "w2", "b2"):
+            np.testing.assert_array_equal(getattr(w.params, name), getattr(kept[0][0].params, name))
+    assert task_threads({}, spread=True) == 1 and task_threads({"n_threads": 3}, spread=True) == 3
+    assert task_threads({}, spread=False) == min(2, os.cpu_count() or 1)
