@@ -314,4 +314,3 @@ def test_the_cache_key_covers_arrays_in_full_and_keeps_the_existing_keys():
     for kw in (TRAIN_KWARGS, TEST_KWARGS, {**TEST_KWARGS, "n_ridges": 6}, {}):
         old = hashlib.sha256(repr((3, 1, sorted(kw.items()), __version__)).encode()).hexdigest()[:16]
         assert key(kw) == old
-
