@@ -24,6 +24,7 @@ two jobs gave the serial run's bits on the cluster (2).
 from __future__ import annotations
 
 import argparse
+import concurrent.futures
 import contextlib
 import hashlib
 import os
@@ -89,16 +90,28 @@ def build_scene_sets(scale: float, quick: bool) -> list[tuple]:
             (sizes[2], VALIDATION_SEED, TEST_KWARGS)]
 
 
+class InThisProcess(concurrent.futures.Executor):
+    """Runs each task here as it is submitted: the serial run of the scene simulation (which,
+    given no executor, starts a pool of this machine's cores), through the same code path."""
+
+    def submit(self, fn, /, *args, **kwargs):
+        future = concurrent.futures.Future()
+        try:
+            future.set_result(fn(*args, **kwargs))
+        except BaseException as exc:  # noqa: BLE001  (the future carries it)
+            future.set_exception(exc)
+        return future
+
+
 def simulate_sets(sets, executor=None) -> str:
-    """The build's simulation of ``sets`` on ``executor`` (None: here), as a digest of every
-    result's arrays (the results themselves are not kept)."""
+    """The build's simulation of ``sets`` on ``executor`` (None: here, one scene after the
+    other), as a digest of every result's arrays (the results themselves are not kept)."""
     import numpy as np
     from tactile_mirror.lab.detector.scene_cache import random_scenes, simulate_scenes
 
     h = hashlib.sha256()
     for n, seed, kwargs in sets:
-        spread = {} if executor is None else {"executor": executor}
-        for r in simulate_scenes(random_scenes(n, seed, **kwargs), False, **spread):
+        for r in simulate_scenes(random_scenes(n, seed, **kwargs), False, executor=executor or InThisProcess()):
             for name in ("t", "stress", "v_out", "u_out", "slip_fraction", "force_y", "force_z"):
                 h.update(np.ascontiguousarray(getattr(r, name)).tobytes())
     return h.hexdigest()
@@ -124,9 +137,11 @@ def main(argv=None) -> int:
     n_scenes = sum(n for n, _, _ in sets)
     env = QUICK_ENVELOPE if args.quick else ENVELOPE
     runs = len(env["speeds"]) * env["n_seeds"] * len(env.get("laws", (0, 0, 0)))
-    jobs = {"envelope": (f"envelope: nominal, {len(env['speeds'])} classes x {env['n_seeds']} paths "
-                         f"({runs} runs of {env['duration']:g} s)"),
-            "simulation": f"the build's scene simulation: {n_scenes} scenes ({args.scale:g}x the build's sets)"}
+    speeds = ", ".join(f"{v * 1e3:g}" for v in env["speeds"])
+    sizes = "a few of each of the build's sets" if args.quick else f"{args.scale:g}x the build's sets"
+    jobs = {"envelope": (f"envelope: nominal, {speeds} mm/s x {env['n_seeds']} paths ({runs} runs of "
+                         f"{env['duration']:g} s)"),
+            "simulation": f"the build's scene simulation: {n_scenes} scenes ({sizes})"}
     rows, same = [], 0
     with tempfile.TemporaryDirectory() as folder:
         for job, what in jobs.items():
