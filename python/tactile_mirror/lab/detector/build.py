@@ -79,7 +79,9 @@ def build_default(out_path, options: BuildOptions | None = None, *, report_path=
         build's; the report's ``*_seconds`` are not.
     workers : int, optional
         Instead of ``executor``: one pool of that many local processes for the whole build.
-        Neither: everything runs in this process.
+        Neither: the scenes on a pool of this machine's cores (as
+        :func:`~tactile_mirror.lab.detector.scene_cache.simulate_cached` does by default), the
+        rest in this process.
 
     Returns
     -------

@@ -179,7 +179,8 @@ def recalibrate(weights_path, out_path, conditions: dict, n_validation: int = 48
     ``out_path``. The scene sets are kept in ``cache_dir`` if given
     (:func:`~tactile_mirror.lab.detector.scene_cache.simulate_cached`). ``executor`` or
     ``workers`` (one local process pool for the whole job) spread the scene simulation and
-    the calibration's runs of the net (:func:`calibrate_slip`).
+    the calibration's runs of the net (:func:`calibrate_slip`); neither: the scenes on a pool
+    of this machine's cores, the rest here.
 
     Returns ``(weights, info)``: the calibrated weights and :func:`calibrate_slip`'s record.
     """
