@@ -127,16 +127,16 @@ def load_detector(path):
     return SlipDetector.load(path)
 
 
-def add_workers_options(parser) -> None:
+def add_workers_options(parser, default: str = "in this process, one after the other") -> None:
     """Add ``--scheduler ADDRESS`` and ``--workers N`` (one or the other) to a command that
-    runs a sweep: where its tasks run (:func:`open_workers`)."""
+    runs a sweep: where its tasks run (:func:`open_workers`); ``default`` says, in the help,
+    where they run without either."""
     group = parser.add_mutually_exclusive_group()
     group.add_argument("--scheduler", metavar="ADDRESS", default=None,
                        help="run the tasks on the workers of the dask scheduler at ADDRESS, e.g. tcp://host:8786 "
                             "(needs dask.distributed and the same tactile-mirror on every worker; docs/cluster.md)")
     group.add_argument("--workers", metavar="N", type=positive(int), default=None,
-                       help="run the tasks on N local worker processes (default: in this process, one after the "
-                            "other)")
+                       help=f"run the tasks on N local worker processes (default: {default})")
 
 
 def open_workers(args):

@@ -131,6 +131,10 @@ def build_options_from_args(args):
         raise _option_error(exc) from None
 
 
+#: Where ``train`` and ``evaluate`` run their tasks without ``--scheduler`` or ``--workers``.
+_SCENES_ON_CORES = "the scenes on a pool of this machine's cores, the rest in this process"
+
+
 def _on(executor) -> dict:
     """``executor=`` for a lab function when ``--scheduler`` / ``--workers`` gave one (else its default)."""
     return {} if executor is None else {"executor": executor}
@@ -276,7 +280,7 @@ def add_parser(sub) -> None:
                    help="do not train: calibrate the net in WEIGHTS anew (--calibrate-goals or "
                         "--calibrate-condition, on --n-validation scenes; its held-out record on --n-test scenes) "
                         "and write it to --out")
-    add_workers_options(p)
+    add_workers_options(p, _SCENES_ON_CORES)
 
     p = add_command(sub, "evaluate", cmd_evaluate, help="evaluate a slip detector on held-out scenes",
                     description="Simulate randomized held-out scenes and report detection rate, false "
@@ -284,4 +288,4 @@ def add_parser(sub) -> None:
     p.add_argument("--weights", default=None, help=WEIGHTS_HELP % "default")
     p.add_argument("--scenes", type=positive(int), default=20, help="held-out scenes (default: 20)")
     p.add_argument("--seed", type=nonnegative_int, default=None, help="scene seed (default: the held-out seed)")
-    add_workers_options(p)
+    add_workers_options(p, _SCENES_ON_CORES)
