@@ -60,8 +60,8 @@ def task_threads(train_options: dict, spread: bool) -> int:
     """The ``n_threads`` of the C++ training gradient each training task runs with, fixed by
     the driver: ``train_options["n_threads"]`` if given, else 1 where the runs are spread
     over workers (each worker a core) and ``min(2, os.cpu_count())`` in this process. The
-    gradient sums its blocks in a fixed order, so the weights do not depend on it (the
-    same-bits test trains with 2 threads serially and 1 on workers)."""
+    gradient sums its blocks in a fixed order, so the weights do not depend on it (1, 2 and
+    3 threads are tested to give the same bits); only the speed does."""
     n = train_options.get("n_threads")
     if n is not None:
         return n
