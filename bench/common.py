@@ -8,6 +8,10 @@ files, and gives the detector studies their scene sets, training set and classif
 ``--quick`` runs of the detector studies simulate a few scenes in this process
 (:func:`quick_results`, kept for the life of the process: several studies run in one
 process share them) instead of the build's cached sets, which a process pool simulates.
+
+The studies take ``--scheduler ADDRESS`` (a dask scheduler) or ``--workers N``
+(``tactile_mirror.cli.arguments.add_workers_options``, as the command line): their scene sets
+and training runs then go to those workers (the same results; docs/cluster.md).
 """
 from __future__ import annotations
 
@@ -18,9 +22,9 @@ import tempfile
 from tactile_mirror.lab.measure import best_time, best_times, environment_line, markdown_table, timed
 
 __all__ = ["BOUND_TREES", "QUICK_TREES", "bank_training_set", "bank_validation_conditions", "best_time",
-           "best_times", "environment_line", "fit_bound_classifier", "header", "quick_results", "save_figure",
-           "simulated", "study_scenes", "study_training_scenes", "table", "timed", "write_json",
-           "write_pickle", "write_text"]
+           "best_times", "environment_line", "fit_bound_classifier", "header", "on", "quick_results", "save_figure",
+           "simulated", "study_scenes", "study_training_scenes", "table", "timed", "write_json", "write_pickle",
+           "write_text"]
 
 #: Boosting iterations of the bound study's classifier, and of a ``--quick`` run's.
 BOUND_TREES = 300
@@ -93,6 +97,11 @@ def fit_bound_classifier(X, Y, seed: int = 0, max_iter: int = BOUND_TREES):
     return HistGradientBoostingClassifier(max_iter=max_iter, random_state=seed).fit(X, Y, sample_weight=w)
 
 
+def on(executor) -> dict:
+    """``{"executor": executor}`` for a lab function's keyword, or ``{}`` for None (this process)."""
+    return {} if executor is None else {"executor": executor}
+
+
 _QUICK_RESULTS: dict = {}
 
 
@@ -110,26 +119,28 @@ def quick_results(n: int, seed: int, kwargs: dict) -> list:
 
 
 def simulated(n: int, seed: int, kwargs: dict, cache=None, progress: bool = True,
-              quick: bool = False) -> list:
+              quick: bool = False, executor=None) -> list:
     """The results of ``scenes.random(n, seed=seed, **kwargs)``: the build's
-    ``simulate_cached`` (kept in ``cache``), or with ``quick`` :func:`quick_results`."""
+    ``simulate_cached`` (kept in ``cache``; on ``executor`` if given), or with ``quick``
+    :func:`quick_results`."""
     if quick:
         return quick_results(n, seed, kwargs)
     from tactile_mirror.lab.detector import scene_cache
 
-    return scene_cache.simulate_cached(n, seed, kwargs, cache, progress)
+    return scene_cache.simulate_cached(n, seed, kwargs, cache, progress, **on(executor))
 
 
 def study_training_scenes(cache, extra: int, progress: bool = True, n_train: int = 64,
-                          quick: bool = False) -> list:
+                          quick: bool = False, executor=None) -> list:
     """The detector studies' training scenes: the build's ``n_train`` (64) training scenes and
     ``extra`` scenes drawn from the held-out ranges with ``build_options.EXTRA_TRAIN_SEED`` (cached in
-    ``cache``; with ``quick`` simulated here, :func:`quick_results`)."""
+    ``cache``, simulated on ``executor`` if given; with ``quick`` simulated here, :func:`quick_results`)."""
     from tactile_mirror.lab.detector import build_options
 
-    train = simulated(n_train, build_options.TRAIN_SEED, build_options.TRAIN_KWARGS, cache, progress, quick)
+    train = simulated(n_train, build_options.TRAIN_SEED, build_options.TRAIN_KWARGS, cache, progress, quick, executor)
     if extra:
-        train = train + simulated(extra, build_options.EXTRA_TRAIN_SEED, build_options.TEST_KWARGS, cache, progress, quick)
+        train = train + simulated(extra, build_options.EXTRA_TRAIN_SEED, build_options.TEST_KWARGS, cache, progress,
+                                  quick, executor)
     return train
 
 
@@ -158,11 +169,12 @@ def bank_validation_conditions(results, estimator) -> dict:
 
 
 def study_scenes(cache, extra: int, n_validation: int, n_train: int = 64,
-                 quick: bool = False) -> tuple[list, list]:
+                 quick: bool = False, executor=None) -> tuple[list, list]:
     """The detector studies' training scenes (:func:`study_training_scenes`) and the build's
     first ``n_validation`` validation scenes (``build_options.VALIDATION_SEED``), cached in ``cache``
-    (with ``quick`` simulated here)."""
+    (simulated on ``executor`` if given; with ``quick`` simulated here)."""
     from tactile_mirror.lab.detector import build_options
 
-    train = study_training_scenes(cache, extra, n_train=n_train, quick=quick)
-    return train, simulated(n_validation, build_options.VALIDATION_SEED, build_options.TEST_KWARGS, cache, quick=quick)
+    train = study_training_scenes(cache, extra, n_train=n_train, quick=quick, executor=executor)
+    return train, simulated(n_validation, build_options.VALIDATION_SEED, build_options.TEST_KWARGS, cache,
+                            quick=quick, executor=executor)

@@ -42,6 +42,7 @@ os.environ.setdefault("OMP_NUM_THREADS", "1")
 os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
 
 import numpy as np
+from tactile_mirror.cli.arguments import add_workers_options, open_workers
 
 #: A smaller bank: three low-passes, no |d| channels (13 inputs with the four rates).
 LEAN_BANK = {"lp_taus": [0.008, 0.032, 0.128], "abs_taus": [], "load_tau": 0.5, "peak_tau": 2.0}
@@ -93,6 +94,7 @@ def main(argv=None):
     ap.add_argument("--quick", action="store_true",
                     help="6 training scenes and few others, simulated here; few boosting iterations (a smoke "
                          "run)")
+    add_workers_options(ap)
     args = ap.parse_args(argv)
     args.extra = (4 if args.quick else 96) if args.extra is None else args.extra
     args.n_validation = (8 if args.quick else 120) if args.n_validation is None else args.n_validation
@@ -107,8 +109,11 @@ def main(argv=None):
 
     t0 = time.perf_counter()
     cache = args.cache or None
-    train = study_training_scenes(cache, args.extra, **({"n_train": 6, "quick": True} if args.quick else {}))
-    val = simulated(args.n_validation, build_options.VALIDATION_SEED, build_options.TEST_KWARGS, cache, quick=args.quick)
+    with open_workers(args) as executor:
+        train = study_training_scenes(cache, args.extra, executor=executor,
+                                      **({"n_train": 6, "quick": True} if args.quick else {}))
+        val = simulated(args.n_validation, build_options.VALIDATION_SEED, build_options.TEST_KWARGS, cache,
+                        quick=args.quick, executor=executor)
     kinds = onset_kinds(val)
     print(f"# CPU: {cpu_model()}; {len(train)} training scenes, {len(val)} validation scenes "
           f"(seed {build_options.VALIDATION_SEED}): {kinds.count('release')} release, {kinds.count('gradual')} gradual")

@@ -34,6 +34,7 @@ from types import SimpleNamespace
 
 import numpy as np
 from tactile_mirror import scenes
+from tactile_mirror.cli.arguments import add_workers_options, open_workers
 from tactile_mirror.detector import SlipDetector
 from tactile_mirror.detector.data_prep import features_from_result, targets_from_result
 from tactile_mirror.lab.detector import build_options, scene_cache
@@ -83,6 +84,7 @@ def main(argv=None) -> float:
     ap.add_argument("--quick", action="store_true",
                     help="a few scenes simulated here, few boosting iterations (a smoke run, not the "
                          "figures)")
+    add_workers_options(ap)
     args = ap.parse_args(argv)
     from common import BOUND_TREES, QUICK_TREES, fit_bound_classifier, quick_results
 
@@ -94,10 +96,14 @@ def main(argv=None) -> float:
         train += quick_results(n_extra, 99, build_options.TEST_KWARGS)
         test = quick_results(n_test, build_options.TEST_SEED, build_options.TEST_KWARGS)
     else:
-        train = scene_cache.simulate_scenes(scenes.random(n_train, seed=build_options.TRAIN_SEED, **build_options.TRAIN_KWARGS),
-                                      True)
-        train += scene_cache.simulate_scenes(scenes.random(n_extra, seed=99, **build_options.TEST_KWARGS), True)
-        test = scene_cache.simulate_scenes(scenes.random(n_test, seed=build_options.TEST_SEED, **build_options.TEST_KWARGS), True)
+        with open_workers(args) as executor:
+            spread = {} if executor is None else {"executor": executor}
+            train = scene_cache.simulate_scenes(scenes.random(n_train, seed=build_options.TRAIN_SEED,
+                                                              **build_options.TRAIN_KWARGS), True, **spread)
+            train += scene_cache.simulate_scenes(scenes.random(n_extra, seed=99, **build_options.TEST_KWARGS), True,
+                                                 **spread)
+            test = scene_cache.simulate_scenes(scenes.random(n_test, seed=build_options.TEST_SEED,
+                                                             **build_options.TEST_KWARGS), True, **spread)
     print(f"simulated {len(train)} training and {len(test)} held-out scenes in {time.perf_counter() - t0:.0f} s")
     kinds = onset_kinds(test)
     print(f"held-out onsets: {kinds.count('release')} release, {kinds.count('gradual')} gradual, "

@@ -30,6 +30,7 @@ os.environ.setdefault("OMP_NUM_THREADS", "2")
 os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
 
 import numpy as np
+from tactile_mirror.cli.arguments import add_workers_options, open_workers
 
 
 def main(argv=None):
@@ -40,6 +41,7 @@ def main(argv=None):
                     help="validation scenes reported on, 1-based and inclusive (default: 241 480; "
                          "--quick: 1 8)")
     ap.add_argument("--quick", action="store_true", help="validation scenes 1-8 simulated here (a smoke run)")
+    add_workers_options(ap)
     args = ap.parse_args(argv)
     first, last = args.part or ((1, 8) if args.quick else (241, 480))
     if not 1 <= first <= last:
@@ -53,7 +55,9 @@ def main(argv=None):
 
     t0 = time.perf_counter()
     header(f"filter-bank nets on validation scenes {first}-{last} (seed {build_options.VALIDATION_SEED})")
-    val = simulated(last, build_options.VALIDATION_SEED, build_options.TEST_KWARGS, args.cache, quick=args.quick)[first - 1:]
+    with open_workers(args) as executor:
+        val = simulated(last, build_options.VALIDATION_SEED, build_options.TEST_KWARGS, args.cache, quick=args.quick,
+                        executor=executor)[first - 1:]
     nets = {"bundled net": SlipDetector.default()}
     for path in args.weights:
         nets[os.path.basename(path)] = SlipDetector.load(path)

@@ -37,6 +37,7 @@ os.environ.setdefault("OMP_NUM_THREADS", "2")
 os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
 
 import numpy as np
+from tactile_mirror.cli.arguments import add_workers_options, open_workers
 
 
 def teacher_targets(ts, groups, folds: int = 4, stride: int = 2, seed: int = 0, trees: int | None = None):
@@ -100,6 +101,7 @@ def main(argv=None) -> float:
     ap.add_argument("--save", default=None, help="directory to keep each variant's selected weights in")
     ap.add_argument("--quick", action="store_true",
                     help="6 training scenes and few others, simulated here; short trainings (a smoke run)")
+    add_workers_options(ap)
     args = ap.parse_args(argv)
     quick = args.quick
     for name, full, small in (("extra", 240, 4), ("n_validation", 480, 8), ("seeds", 2, 1),
@@ -119,8 +121,12 @@ def main(argv=None) -> float:
     from tactile_mirror.lab.measure import cpu_model
 
     t0 = time.perf_counter()
-    train = study_training_scenes(args.cache, args.extra, **({"n_train": 6, "quick": True} if quick else {}))
-    val = simulated(args.n_validation, build_options.VALIDATION_SEED, build_options.TEST_KWARGS, args.cache, quick=quick)
+    # (the scenes only: the trainings replace train_detector's loss weights in this process)
+    with open_workers(args) as executor:
+        train = study_training_scenes(args.cache, args.extra, executor=executor,
+                                      **({"n_train": 6, "quick": True} if quick else {}))
+        val = simulated(args.n_validation, build_options.VALIDATION_SEED, build_options.TEST_KWARGS, args.cache,
+                        quick=quick, executor=executor)
     kinds = onset_kinds(val)
     print(f"# CPU: {cpu_model()}; {len(train)} training scenes, {len(val)} validation scenes "
           f"(seed {build_options.VALIDATION_SEED}): {kinds.count('release')} release, {kinds.count('gradual')} gradual")

@@ -30,6 +30,7 @@ os.environ.setdefault("OMP_NUM_THREADS", "1")
 os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
 
 import numpy as np
+from tactile_mirror.cli.arguments import add_workers_options, open_workers
 
 CONDITIONS = ("noise-free", "1 mV rms white")
 #: The third condition of ``--hum`` (``detector.evaluate.NOISE_CONDITIONS``: the circuit's thermal floor, 2 mV of
@@ -108,6 +109,7 @@ def main(argv=None) -> float:
                          "the threshold (detector.evaluate.roc's consecutive), for each K")
     ap.add_argument("--quick", action="store_true",
                     help="a few scenes simulated here, few boosting iterations, short timings (a smoke run)")
+    add_workers_options(ap)
     args = ap.parse_args(argv)
     if any(k < 1 for k in args.consecutive):
         ap.error("--consecutive takes positive sample counts")
@@ -130,33 +132,37 @@ def main(argv=None) -> float:
     cache = args.cache or None
     t0 = time.perf_counter()
     test_seed = build_options.TEST_SEED if args.test_seed is None else args.test_seed
-    test = simulated(args.n_test, test_seed, build_options.TEST_KWARGS, cache, quick=quick)
-    kinds = onset_kinds(test)
-    print(f"{len(test)} held-out scenes (seed {test_seed}): {kinds.count('release')} release, "
-          f"{kinds.count('gradual')} gradual onsets, {kinds.count(None)} sequences without gross slip "
-          f"({time.perf_counter() - t0:.0f} s)", flush=True)
-    memory = SlipDetector.load(args.memory_weights) if args.memory_weights else SlipDetector.memory()
-    paper = SlipDetector.paper()
-    bank = SlipDetector.load(args.bank_weights) if args.bank_weights else SlipDetector.bank()
-    nets = (("filter-bank net", bank),) + tuple(
-        (f"filter-bank net {os.path.splitext(os.path.basename(p))[0]}", SlipDetector.load(p)) for p in args.also_bank) \
-        + (("load-memory net", memory), ("paper Jordan net", paper))
-    train = []
-    if args.bound:
-        train = simulated(6 if quick else 64, build_options.TRAIN_SEED, build_options.TRAIN_KWARGS, cache, quick=quick)
-        if args.bound_extra:
-            train = train + simulated(args.bound_extra, 99, build_options.TEST_KWARGS, cache, quick=quick)
-    rows, curves = [], []
-    thr = None
-    if args.val_threshold is not None:
-        val = simulated(8 if quick else 120, build_options.VALIDATION_SEED, build_options.TEST_KWARGS, cache, quick=quick)
-        vk = onset_kinds(val)
-        vs = [bank.run(features_from_result(r, bank.features, estimator=bank.metadata.get("estimator")), fs=r.fs)[0]
-              for r in val]
-        pt = roc(vs, val, vk).at_false_alarm(args.val_threshold)
-        thr = pt["threshold"]
-        print(f"validation (seed {build_options.VALIDATION_SEED}): y_slip >= {thr:.4f} gives {100 * pt['detection_rate']:.1f} % "
-              f"detection at {100 * pt['false_alarm_rate']:.1f} % false alarms", flush=True)
+    with open_workers(args) as executor:
+        test = simulated(args.n_test, test_seed, build_options.TEST_KWARGS, cache, quick=quick, executor=executor)
+        kinds = onset_kinds(test)
+        print(f"{len(test)} held-out scenes (seed {test_seed}): {kinds.count('release')} release, "
+              f"{kinds.count('gradual')} gradual onsets, {kinds.count(None)} sequences without gross slip "
+              f"({time.perf_counter() - t0:.0f} s)", flush=True)
+        memory = SlipDetector.load(args.memory_weights) if args.memory_weights else SlipDetector.memory()
+        paper = SlipDetector.paper()
+        bank = SlipDetector.load(args.bank_weights) if args.bank_weights else SlipDetector.bank()
+        nets = (("filter-bank net", bank),) + tuple(
+            (f"filter-bank net {os.path.splitext(os.path.basename(p))[0]}", SlipDetector.load(p)) for p in args.also_bank) \
+            + (("load-memory net", memory), ("paper Jordan net", paper))
+        train = []
+        if args.bound:
+            train = simulated(6 if quick else 64, build_options.TRAIN_SEED, build_options.TRAIN_KWARGS, cache, quick=quick,
+                              executor=executor)
+            if args.bound_extra:
+                train = train + simulated(args.bound_extra, 99, build_options.TEST_KWARGS, cache, quick=quick,
+                                          executor=executor)
+        rows, curves = [], []
+        thr = None
+        if args.val_threshold is not None:
+            val = simulated(8 if quick else 120, build_options.VALIDATION_SEED, build_options.TEST_KWARGS, cache,
+                            quick=quick, executor=executor)
+            vk = onset_kinds(val)
+            vs = [bank.run(features_from_result(r, bank.features, estimator=bank.metadata.get("estimator")), fs=r.fs)[0]
+                  for r in val]
+            pt = roc(vs, val, vk).at_false_alarm(args.val_threshold)
+            thr = pt["threshold"]
+            print(f"validation (seed {build_options.VALIDATION_SEED}): y_slip >= {thr:.4f} gives {100 * pt['detection_rate']:.1f} % "
+                  f"detection at {100 * pt['false_alarm_rate']:.1f} % false alarms", flush=True)
     conditions = CONDITIONS + ((HUM,) if args.hum else ())
     for ci, cond in enumerate(conditions):
         noisy = clean(test)  # the scenes' own noise removed: the circuit outputs of their stresses

@@ -43,6 +43,7 @@ os.environ.setdefault("OMP_NUM_THREADS", "2")
 os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
 
 import numpy as np
+from tactile_mirror.cli.arguments import add_workers_options, open_workers
 
 VARIANTS = ("linear", "asinh/median", "asinh/rms", "softsign/median", "linear, median scale", "log/median")
 
@@ -106,6 +107,7 @@ def main(argv=None) -> float:
     ap.add_argument("--json", default=None, help="write the table's figures here")
     ap.add_argument("--quick", action="store_true",
                     help="6 training scenes and few others, simulated here; short trainings (a smoke run)")
+    add_workers_options(ap)
     args = ap.parse_args(argv)
     quick = args.quick
     for name, full, small in (("extra", 240, 4), ("n_validation", 480, 8), ("seeds", 2, 1),
@@ -123,8 +125,9 @@ def main(argv=None) -> float:
     from tactile_mirror.lab.measure import cpu_model
 
     t0 = time.perf_counter()
-    train, val = study_scenes(args.cache, args.extra, args.n_validation, **({"n_train": 6, "quick": True}
-                                                                           if quick else {}))
+    with open_workers(args) as executor:
+        train, val = study_scenes(args.cache, args.extra, args.n_validation, executor=executor,
+                                  **({"n_train": 6, "quick": True} if quick else {}))
     half = len(val) // 2
     sel_val, rep_val = val[:half], val[half:]
     chosen, reported = f"1-{half}", f"{half + 1}-{len(val)}"

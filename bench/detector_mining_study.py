@@ -37,6 +37,7 @@ os.environ.setdefault("OMP_NUM_THREADS", "2")
 os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
 
 import numpy as np
+from tactile_mirror.cli.arguments import add_workers_options, open_workers
 
 
 def run_net(w, feats):
@@ -77,6 +78,7 @@ def main(argv=None) -> float:
     ap.add_argument("--json", default=None, help="write the tables' figures here")
     ap.add_argument("--quick", action="store_true",
                     help="6 training scenes and few others, simulated here; short trainings (a smoke run)")
+    add_workers_options(ap)
     args = ap.parse_args(argv)
     quick = args.quick
     for name, full, small in (("extra", 240, 4), ("n_validation", 480, 8), ("seeds", 2, 1),
@@ -93,8 +95,9 @@ def main(argv=None) -> float:
     from tactile_mirror.lab.measure import cpu_model
 
     t0 = time.perf_counter()
-    train, val = study_scenes(args.cache, args.extra, args.n_validation, **({"n_train": 6, "quick": True}
-                                                                           if quick else {}))
+    with open_workers(args) as executor:
+        train, val = study_scenes(args.cache, args.extra, args.n_validation, executor=executor,
+                                  **({"n_train": 6, "quick": True} if quick else {}))
     half = len(val) // 2
     halves = {"A": (val[:half], f"1-{half}"), "B": (val[half:], f"{half + 1}-{len(val)}")}
     print(f"# CPU: {cpu_model()}; {len(train)} training scenes; validation seed {build_options.VALIDATION_SEED}, "

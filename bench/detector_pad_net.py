@@ -48,6 +48,7 @@ os.environ.setdefault("OMP_NUM_THREADS", "1")
 os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
 
 import numpy as np
+from tactile_mirror.cli.arguments import add_workers_options, open_workers
 
 PAD_TEST_SEED = 60603
 #: Sensor noise of the training copies, V rms (the build's ``NOISE_RANGE``).
@@ -118,6 +119,7 @@ def main(argv=None) -> float:
                          "to --save and measure it")
     ap.add_argument("--quick", action="store_true",
                     help="a few pads simulated here, short trainings (a smoke run, not the figures)")
+    add_workers_options(ap)
     args = ap.parse_args(argv)
     quick = args.quick
     for name, full, small in (("n_train", 160, 2), ("n_validation", 160, 3), ("n_test", 160, 2),
@@ -154,25 +156,27 @@ def main(argv=None) -> float:
 
     t0 = time.perf_counter()
     kw = {**build_options.TEST_KWARGS, "n_ridges": N_RIDGES}
-    if args.weights:  # nothing is trained or chosen: only the test scenes are needed
-        args.inputs, train, val = [], None, []
-    else:
-        train = simulated(args.n_train, PAD_TRAIN_SEED, kw, args.cache, quick=quick)
-        val = simulated(args.n_validation, PAD_VALIDATION_SEED, kw, args.cache, quick=quick)
-    if args.recalibrate_goals:
-        # the decision point anew, on validation pads only (the test pads choose nothing)
-        val = simulated(args.n_validation, PAD_VALIDATION_SEED, kw, args.cache, quick=quick)
-        nf, noisy = args.recalibrate_goals
-        goals = {"noise-free": nf, "1 mV rms white": noisy, "thermal + 2 mV 50 Hz hum, notch": noisy}
-        w, info = calibration.calibrate_slip(calibration.uncalibrate(SlipDetector.load(args.weights).weights), val, None,
-                                       scenes=f"seed {PAD_VALIDATION_SEED}, {len(val)} pads", conditions=goals)
-        w.save(args.save)
-        print(f"# recalibrated {args.weights} on {len(val)} validation pads: threshold {info['threshold']:.3f} of "
-              "the net as trained; validation " + ", ".join(
-                  f"{c} {100 * v['validation_detection']:.1f} % at {100 * v['validation_false_alarm']:.1f} %"
-                  for c, v in info["conditions"].items()) + f"; saved {args.save}", flush=True)
-        args.weights = args.save
-    test = simulated(args.n_test, args.test_seed, kw, args.cache, quick=quick)
+    with open_workers(args) as executor:
+        if args.weights:  # nothing is trained or chosen: only the test scenes are needed
+            args.inputs, train, val = [], None, []
+        else:
+            train = simulated(args.n_train, PAD_TRAIN_SEED, kw, args.cache, quick=quick, executor=executor)
+            val = simulated(args.n_validation, PAD_VALIDATION_SEED, kw, args.cache, quick=quick, executor=executor)
+        if args.recalibrate_goals:
+            # the decision point anew, on validation pads only (the test pads choose nothing)
+            val = simulated(args.n_validation, PAD_VALIDATION_SEED, kw, args.cache, quick=quick, executor=executor)
+            nf, noisy = args.recalibrate_goals
+            goals = {"noise-free": nf, "1 mV rms white": noisy, "thermal + 2 mV 50 Hz hum, notch": noisy}
+            w, info = calibration.calibrate_slip(calibration.uncalibrate(SlipDetector.load(args.weights).weights), val, None,
+                                                 scenes=f"seed {PAD_VALIDATION_SEED}, {len(val)} pads", conditions=goals,
+                                                 executor=executor)
+            w.save(args.save)
+            print(f"# recalibrated {args.weights} on {len(val)} validation pads: threshold {info['threshold']:.3f} of "
+                  "the net as trained; validation " + ", ".join(
+                      f"{c} {100 * v['validation_detection']:.1f} % at {100 * v['validation_false_alarm']:.1f} %"
+                      for c, v in info["conditions"].items()) + f"; saved {args.save}", flush=True)
+            args.weights = args.save
+        test = simulated(args.n_test, args.test_seed, kw, args.cache, quick=quick, executor=executor)
     kinds = {name: [k for i, k in enumerate(onset_kinds(res)) if i % N_RIDGES in SCORED]
              for name, res in (("val", val), ("test", test))}
     print(f"# CPU: {cpu_model()}; pad scenes ({N_RIDGES} ridges): {len(train or [])} training (seed "

@@ -37,6 +37,7 @@ os.environ.setdefault("OMP_NUM_THREADS", "2")
 os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
 
 import numpy as np
+from tactile_mirror.cli.arguments import add_workers_options, open_workers
 
 #: Seeds of the study's pad scenes (disjoint from every seed of the build and the reports).
 PAD_TRAIN_SEED = 60601
@@ -87,6 +88,7 @@ def main(argv=None) -> float:
                     help="and scale every training copy by a random gain (0.6-1.7), as the build")
     ap.add_argument("--quick", action="store_true",
                     help="a few pads simulated here, few boosting iterations (a smoke run)")
+    add_workers_options(ap)
     args = ap.parse_args(argv)
     quick = args.quick
     for name, full, small in (("n_train", 160, 2), ("n_validation", 160, 3)):
@@ -103,8 +105,9 @@ def main(argv=None) -> float:
 
     t0 = time.perf_counter()
     kw = {**build_options.TEST_KWARGS, "n_ridges": N_RIDGES}
-    train = simulated(args.n_train, PAD_TRAIN_SEED, kw, args.cache, quick=quick)
-    val = simulated(args.n_validation, PAD_VALIDATION_SEED, kw, args.cache, quick=quick)
+    with open_workers(args) as executor:
+        train = simulated(args.n_train, PAD_TRAIN_SEED, kw, args.cache, quick=quick, executor=executor)
+        val = simulated(args.n_validation, PAD_VALIDATION_SEED, kw, args.cache, quick=quick, executor=executor)
     kinds_all = onset_kinds(val)
     kinds = [k for i, k in enumerate(kinds_all) if i % N_RIDGES in SCORED]
     order = []

@@ -33,6 +33,7 @@ os.environ.setdefault("OMP_NUM_THREADS", "1")
 os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
 
 import numpy as np
+from tactile_mirror.cli.arguments import add_workers_options, open_workers
 
 BAND = 0.1  # y_pred within 0.8 +- BAND
 
@@ -96,6 +97,7 @@ def main(argv=None) -> float:
     ap.add_argument("--every", type=int, default=4, help="training samples: every n-th")
     ap.add_argument("--quick", action="store_true",
                     help="a few scenes simulated here, few boosting iterations (a smoke run)")
+    add_workers_options(ap)
     args = ap.parse_args(argv)
     quick = args.quick
     for name, full, small in (("n_test", 200, 8), ("extra", 96, 4)):
@@ -113,8 +115,11 @@ def main(argv=None) -> float:
     header("y_pred at the onset: the bundled net against causal regressors with more information")
     cache = args.cache or None
     t0 = time.perf_counter()
-    train = study_training_scenes(cache, args.extra, **({"n_train": 6, "quick": True} if quick else {}))
-    test = simulated(args.n_test, build_options.TEST_SEED, build_options.TEST_KWARGS, cache, quick=quick)
+    with open_workers(args) as executor:
+        train = study_training_scenes(cache, args.extra, executor=executor,
+                                      **({"n_train": 6, "quick": True} if quick else {}))
+        test = simulated(args.n_test, build_options.TEST_SEED, build_options.TEST_KWARGS, cache, quick=quick,
+                         executor=executor)
     kinds = onset_kinds(test)
     print(f"{len(train)} training scenes (seeds {build_options.TRAIN_SEED}, {build_options.EXTRA_TRAIN_SEED}), {len(test)} held-out "
           f"(seed {build_options.TEST_SEED}); simulation {time.perf_counter() - t0:.0f} s; CPU: {cpu_model()}")

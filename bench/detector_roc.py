@@ -59,6 +59,7 @@ os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
 
 import numpy as np
 from tactile_mirror import scenes
+from tactile_mirror.cli.arguments import add_workers_options, open_workers
 from tactile_mirror.lab.detector.evaluation import NOISE_CONDITIONS, condition_estimator, with_noise
 
 #: Seed of the held-out scenes of this study (disjoint from every seed the build uses).
@@ -83,9 +84,9 @@ def scene_sets(n_test: int, n_train: int):
     return test, train
 
 
-def simulated(n_test: int, n_train: int, cache: str | None, quick: bool = False):
-    """(held-out results, training results), from ``cache`` when it holds these scenes (``quick``:
-    simulated in this process, not cached)."""
+def simulated(n_test: int, n_train: int, cache: str | None, quick: bool = False, executor=None):
+    """(held-out results, training results), from ``cache`` when it holds these scenes, else
+    simulated (on ``executor`` if given; ``quick``: in this process, not cached)."""
     from common import quick_results, write_pickle
     from tactile_mirror.lab.detector import build_options, scene_cache
 
@@ -104,7 +105,8 @@ def simulated(n_test: int, n_train: int, cache: str | None, quick: bool = False)
             return data["test"], data["train"]
     test_sc, train_sc = scene_sets(n_test, n_train)
     t0 = time.perf_counter()
-    res = scene_cache.simulate_scenes(test_sc + train_sc, progress=True)
+    res = scene_cache.simulate_scenes(test_sc + train_sc, progress=True, **({} if executor is None else
+                                                                             {"executor": executor}))
     print(f"simulated {len(res)} scenes in {time.perf_counter() - t0:.0f} s", flush=True)
     test, train = res[:n_test], res[n_test:]
     if cache:
@@ -174,10 +176,10 @@ def pct(x) -> str:
     return "-" if not np.isfinite(x) else f"{100 * x:.1f}"
 
 
-def bound_extra(n: int, cache: str | None, quick: bool = False):
+def bound_extra(n: int, cache: str | None, quick: bool = False, executor=None):
     """Extra training scenes of the bound classifier, as the bound study draws them: the held-out
     ranges, seed :data:`BOUND_EXTRA_SEED` (cached in ``cache`` with ``.extra`` before its extension;
-    ``quick``: simulated in this process, not cached)."""
+    simulated on ``executor`` if given; ``quick``: in this process, not cached)."""
     from common import quick_results, write_pickle
     from tactile_mirror.lab.detector import build_options, scene_cache
 
@@ -197,7 +199,8 @@ def bound_extra(n: int, cache: str | None, quick: bool = False):
             if data.get("key") == key:
                 return data["results"]
     t0 = time.perf_counter()
-    res = scene_cache.simulate_scenes(scenes.random(n, seed=BOUND_EXTRA_SEED, **kwargs), progress=True)
+    res = scene_cache.simulate_scenes(scenes.random(n, seed=BOUND_EXTRA_SEED, **kwargs), progress=True,
+                                      **({} if executor is None else {"executor": executor}))
     print(f"simulated {len(res)} extra training scenes in {time.perf_counter() - t0:.0f} s", flush=True)
     if path:
         write_pickle(path, {"key": key, "results": res})
@@ -224,14 +227,16 @@ def main(argv=None) -> float:
     ap.add_argument("--quick", action="store_true",
                     help="a few scenes simulated here (not cached), short trainings (a smoke run, not the "
                          "figures)")
+    add_workers_options(ap)
     args = ap.parse_args(argv)
     quick = args.quick
     for name, full, small in (("scenes", 80, 8), ("train_scenes", 40, 6), ("bound_extra", 80, 4)):
         if getattr(args, name) is None:
             setattr(args, name, small if quick else full)
     sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
-    test, train = simulated(args.scenes, args.train_scenes, args.cache or None, quick)
-    extra = bound_extra(args.bound_extra, args.cache or None, quick)
+    with open_workers(args) as executor:
+        test, train = simulated(args.scenes, args.train_scenes, args.cache or None, quick, executor)
+        extra = bound_extra(args.bound_extra, args.cache or None, quick, executor)
     if args.simulate_only:
         return float("nan")
     from common import QUICK_TREES, header, save_figure, write_json, write_text

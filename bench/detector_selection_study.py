@@ -35,6 +35,7 @@ os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
 
 import numpy as np
 import scipy.stats
+from tactile_mirror.cli.arguments import add_workers_options, open_workers
 
 
 def main(argv=None) -> int:
@@ -58,6 +59,7 @@ def main(argv=None) -> int:
                     help="detection (a rate) a quicker candidate may give up against the best one")
     ap.add_argument("--quick", action="store_true",
                     help="6 training scenes and few others, simulated here; short trainings (a smoke run)")
+    add_workers_options(ap)
     args = ap.parse_args(argv)
     quick = args.quick
     for name, full, small in (("extra", 240, 4), ("n_validation", 480, 8), ("seeds", 4, 1),
@@ -76,8 +78,10 @@ def main(argv=None) -> int:
 
     t0 = time.perf_counter()
     header("latency as a selection criterion, on the build's validation halves")
-    train, val = study_scenes(args.cache, args.extra, args.n_validation,
-                              **({"n_train": 6, "quick": True} if quick else {}))
+    # (the scenes; the candidates' trainings, with their checkpoints, run here)
+    with open_workers(args) as executor:
+        train, val = study_scenes(args.cache, args.extra, args.n_validation, executor=executor,
+                                  **({"n_train": 6, "quick": True} if quick else {}))
     half = len(val) // 2
     halves = {"A": val[:half], "B": val[half:]}
     ts = bank_training_set(train)

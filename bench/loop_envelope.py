@@ -6,7 +6,8 @@
     python bench/loop_envelope.py --quick --out DIR               # one 1.5 s path per law, 5 mm/s
 
 Resumable: rows go to ``OUT/loop_envelope.json`` after every run, and a rerun skips
-the rows already there (run it in the background, interrupt it, run it again). Writes
+the rows already there (run it in the background, interrupt it, run it again).
+``--workers N`` or ``--scheduler ADDRESS`` runs the rows on those workers (the same file). Writes
 ``OUT/loop_envelope.png`` and prints the table (markdown) with the CPU model.
 
 Reported paths: :data:`tactile_mirror.lab.loop.envelope.REPORT_PATHS` (seeds 0.., 10 mm rms,
@@ -30,8 +31,10 @@ from __future__ import annotations
 
 import argparse
 import os
+import sys
 
 import numpy as np
+from tactile_mirror.cli.arguments import add_workers_options, open_workers
 
 
 def tick_table(n_iter: int = 200_000, rounds: int = 4) -> dict:
@@ -100,6 +103,9 @@ def main(argv=None) -> float:
     )
     from tactile_mirror.lab.measure import cpu_model
 
+    sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
+    from common import on
+
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--out", default="bench-out/loop")
     ap.add_argument("--seeds", type=int, default=None, help="paths per class (default 10; --quick: 1)")
@@ -118,6 +124,7 @@ def main(argv=None) -> float:
     ap.add_argument("--quick", action="store_true",
                     help="one path per law at 5 mm/s, 1.5 s (with --tick: one round of short runs): a smoke "
                          "run")
+    add_workers_options(ap)
     args = ap.parse_args(argv)
     if args.seeds is None:
         args.seeds = 1 if args.quick else 10
@@ -135,25 +142,27 @@ def main(argv=None) -> float:
     out = os.path.join(args.out, "loop_envelope.json")
     paths = PATH_SETS[args.paths]
     speeds = [float(v) * 1e-3 for v in args.speeds.split(",")]
-    if args.conditions:
-        conds = tuple(c.strip() for c in args.conditions.split(","))
-        data = run_envelope(out, speeds=speeds, n_seeds=args.seeds, conditions=conds,
-                            laws=tuple(args.laws.split(",")), paths=paths, duration=args.duration)
-        print(f"CPU: {cpu_model()}; paths: {paths}; {args.duration:g} s per run")
-        _windows(data, conds, paths.name, args.duration)
-        # the figure of these conditions alone (e.g. sweat: open loop, the default law, a load cell)
-        envelope_figure({**data, "rows": [r for r in data["rows"] if r["condition"] in conds]},
-                        os.path.join(args.out, "loop_envelope_conditions.png"), paths=paths.name)
-        return sum(t["gross_slips"] for t in data["table"]
-                   if t["paths"] == paths.name and t["condition"] in conds)
-    data = run_envelope(out, speeds=speeds, n_seeds=args.seeds, conditions=("nominal",),
-                        laws=tuple(args.laws.split(",")), paths=paths, duration=args.duration)
-    if args.robustness:
-        laws_r = args.robustness_laws.split(",")
-        # (the cell's noise acts on the load cell's law alone: for the others it is the nominal run again)
-        conds = tuple(c for c in CONDITIONS if c != "nominal" and (not c.startswith("cell") or "load cell" in laws_r))
-        data = run_envelope(out, speeds=speeds, n_seeds=args.robustness_seeds or args.seeds, conditions=conds,
-                            laws=tuple(args.robustness_laws.split(",")), paths=paths, duration=args.duration)
+    with open_workers(args) as executor:
+        if args.conditions:
+            conds = tuple(c.strip() for c in args.conditions.split(","))
+            data = run_envelope(out, speeds=speeds, n_seeds=args.seeds, conditions=conds,
+                                laws=tuple(args.laws.split(",")), paths=paths, duration=args.duration, **on(executor))
+            print(f"CPU: {cpu_model()}; paths: {paths}; {args.duration:g} s per run")
+            _windows(data, conds, paths.name, args.duration)
+            # the figure of these conditions alone (e.g. sweat: open loop, the default law, a load cell)
+            envelope_figure({**data, "rows": [r for r in data["rows"] if r["condition"] in conds]},
+                            os.path.join(args.out, "loop_envelope_conditions.png"), paths=paths.name)
+            return sum(t["gross_slips"] for t in data["table"]
+                       if t["paths"] == paths.name and t["condition"] in conds)
+        data = run_envelope(out, speeds=speeds, n_seeds=args.seeds, conditions=("nominal",),
+                            laws=tuple(args.laws.split(",")), paths=paths, duration=args.duration, **on(executor))
+        if args.robustness:
+            laws_r = args.robustness_laws.split(",")
+            # (the cell's noise acts on the load cell's law alone: for the others it is the nominal run again)
+            conds = tuple(c for c in CONDITIONS if c != "nominal" and (not c.startswith("cell") or "load cell" in laws_r))
+            data = run_envelope(out, speeds=speeds, n_seeds=args.robustness_seeds or args.seeds, conditions=conds,
+                                laws=tuple(args.robustness_laws.split(",")), paths=paths, duration=args.duration,
+                                **on(executor))
     envelope_figure(data, os.path.join(args.out, "loop_envelope.png"), paths=paths.name)
     print(f"CPU: {cpu_model()}; paths: {paths}")
     print("\n| condition | law | peak speed mm/s | paths | gross slips | runs with slip | tracking rms mm mean / max "

@@ -105,6 +105,13 @@ def test_loop_sweat_sensing(run):
     assert 20.0 < run("loop_sweat_sensing") < 300.0
 
 
+# ---------------------------------------------------------------- spreading over workers
+def test_engine_speedup(run):
+    pytest.importorskip("dask.distributed", reason="the cluster is dask's (a test dependency)")
+    # both jobs, the envelope and the build's scene simulation, give the serial run's bits on the cluster
+    assert run("engine_speedup") == 2
+
+
 # ---------------------------------------------------------------- the detector studies
 def test_detector_bound(run):
     sklearn()

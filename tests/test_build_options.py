@@ -78,6 +78,41 @@ def test_build_default_takes_only_options(tmp_path):
         build_default(tmp_path / "w.npz", n_hidden=4)  # type: ignore[call-arg]
 
 
+class _Stop(Exception):
+    pass
+
+
+@pytest.mark.parametrize("where", ["here", "executor", "workers"])
+def test_the_build_simulates_its_scenes_where_it_is_told(where, monkeypatch, tmp_path):
+    """build_default(executor=) hands the executor to the scene simulation; workers=N starts one
+    pool of N processes for the whole build; neither simulates here (no executor passed on)."""
+    import concurrent.futures
+
+    seen = []
+
+    def fake_simulate_cached(n, seed, kwargs, cache_dir=None, progress=True, **spread):
+        seen.append(spread)
+        raise _Stop
+
+    monkeypatch.setattr(build, "simulate_cached", fake_simulate_cached)
+    given = {"here": {}, "executor": {"executor": concurrent.futures.ThreadPoolExecutor(1)},
+             "workers": {"workers": 2}}[where]
+    with pytest.raises(_Stop):
+        build_default(tmp_path / "w.npz", BuildOptions(progress=False), **given)
+    (spread,) = seen
+    if where == "here":
+        assert spread == {}
+    elif where == "executor":
+        assert spread == given
+    else:
+        assert isinstance(spread["executor"], concurrent.futures.ProcessPoolExecutor)
+        with pytest.raises(RuntimeError, match="shutdown"):  # the build's pool is closed with it
+            spread["executor"].submit(pow, 2, 3)
+    with pytest.raises(ValueError, match="give executor or workers, not both"):
+        build_default(tmp_path / "w.npz", BuildOptions(progress=False), workers=2,
+                      executor=concurrent.futures.ThreadPoolExecutor(1))
+
+
 def test_train_command_maps_onto_options(monkeypatch, tmp_path):
     seen = {}
 

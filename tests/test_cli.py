@@ -247,3 +247,97 @@ def test_loop_output_file_that_is_a_folder_fails_before_the_work(command, name, 
     assert main(["loop", command, "--out", str(tmp_path)]) == 1
     err = capsys.readouterr().err
     assert err.startswith("error:") and name in err and "Traceback" not in err
+
+
+# -- where a sweep runs: --scheduler ADDRESS or --workers N -------------------------------------------
+
+@pytest.fixture
+def executors_seen(monkeypatch):
+    """The build, the recalibration, the envelope and the evaluation's simulation faked: each
+    records the executor it was given (None: none) after running a task on it."""
+    import tactile_mirror
+    from tactile_mirror.lab.detector import build, calibration
+    from tactile_mirror.lab.loop import envelope
+
+    seen = []
+
+    def record(executor):
+        if executor is not None:
+            assert executor.submit(pow, 2, 3).result() == 8  # (open while the command runs)
+        seen.append(executor)
+
+    def fake_build(out_path, options, report_path=None, figure_path=None, executor=None):
+        record(executor)
+        return None, {"evaluation_table": "", "total_seconds": 0.0}
+
+    def fake_recalibrate(*args, executor=None):
+        record(executor)
+        return None, {}
+
+    def fake_envelope(out, executor=None, **kwargs):
+        record(executor)
+        return {"rows": [], "table": []}
+
+    def fake_simulate_many(scenes, progress=True, executor=None):
+        record(executor)
+        raise SystemExit(0)  # (the evaluation itself is tested elsewhere)
+
+    monkeypatch.setattr(build, "build_default", fake_build)
+    monkeypatch.setattr(calibration, "recalibrate", fake_recalibrate)
+    monkeypatch.setattr(envelope, "run_envelope", fake_envelope)
+    monkeypatch.setattr(envelope, "envelope_figure", lambda *args, **kwargs: None)
+    monkeypatch.setattr(tactile_mirror, "simulate_many", fake_simulate_many)
+    return seen
+
+
+SWEEPS = [["train", "--out", "w.npz"], ["train", "--recalibrate", "in.npz", "--calibrate-goals", "0.01", "0.02"],
+          ["loop", "envelope", "--out", "env", "--quiet"], ["evaluate"]]
+
+
+@pytest.mark.parametrize("command", SWEEPS, ids=lambda c: " ".join(c[:2]))
+def test_sweeps_run_here_or_on_local_worker_processes(command, executors_seen, tmp_path, monkeypatch, capsys):
+    import concurrent.futures
+
+    monkeypatch.chdir(tmp_path)
+    for extra in ([], ["--workers", "2"]):
+        try:
+            assert main([*command, *extra]) == 0
+        except SystemExit as exc:  # (the faked evaluation's end)
+            assert exc.code == 0
+    assert executors_seen[0] is None and isinstance(executors_seen[1], concurrent.futures.ProcessPoolExecutor)
+    with pytest.raises(RuntimeError, match="shutdown"):  # closed when the command ended
+        executors_seen[1].submit(pow, 2, 3)
+
+
+def test_sweeps_run_on_a_dask_scheduler(executors_seen, tmp_path, monkeypatch):
+    distributed = pytest.importorskip("dask.distributed")
+
+    monkeypatch.chdir(tmp_path)
+    with distributed.LocalCluster(n_workers=1, threads_per_worker=1, processes=False,
+                                  dashboard_address=None) as cluster:
+        for command in SWEEPS[:3]:
+            assert main([*command, "--scheduler", cluster.scheduler_address]) == 0
+    assert [type(e).__name__ for e in executors_seen] == ["ClientExecutor"] * 3
+
+
+@pytest.mark.parametrize("extra, message", [
+    (["--workers", "0"], "argument --workers: must be positive"),
+    (["--workers", "2", "--scheduler", "tcp://127.0.0.1:8786"], "not allowed with argument"),
+])
+@pytest.mark.parametrize("command", SWEEPS, ids=lambda c: " ".join(c[:2]))
+def test_bad_worker_options_are_a_usage_error(command, extra, message, executors_seen, capsys):
+    with pytest.raises(SystemExit) as exc:
+        main([*command, *extra])
+    assert exc.value.code == 2 and message in capsys.readouterr().err
+    assert executors_seen == []
+
+
+def test_a_scheduler_without_dask_is_an_error_not_a_traceback(executors_seen, monkeypatch, capsys):
+    import importlib.util
+
+    find_spec = importlib.util.find_spec
+    monkeypatch.setattr(importlib.util, "find_spec", lambda name, *a: None if name == "distributed" else
+                        find_spec(name, *a))
+    assert main(["train", "--out", "w.npz", "--scheduler", "tcp://127.0.0.1:8786"]) == 1
+    assert "error: --scheduler needs dask.distributed" in capsys.readouterr().err
+    assert executors_seen == []

@@ -10,7 +10,9 @@
     tactile-mirror rig check / run            the mirror on a rig (or --simulate): connect; bring up and run
 
 Every subcommand has ``--help``. Bad options print a message and exit with status 2;
-errors while running print ``error: ...`` and exit with status 1.
+errors while running print ``error: ...`` and exit with status 1. The sweeps (``train``,
+``evaluate``, ``loop envelope``) run on N local worker processes with ``--workers N`` or on
+a dask scheduler's workers with ``--scheduler ADDRESS``, with the same results.
 
 Each command group is a module with an ``add_parser(subparsers)`` that adds its
 subcommands: :mod:`.scenes` (demo, simulate, figure), :mod:`.detector` (train, evaluate),

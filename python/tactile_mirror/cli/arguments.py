@@ -14,9 +14,11 @@ __all__ = [
     "CommandError",
     "UsageError",
     "add_command",
+    "add_workers_options",
     "load_detector",
     "names",
     "nonnegative_int",
+    "open_workers",
     "out_files",
     "out_folder",
     "positive",
@@ -123,3 +125,29 @@ def load_detector(path):
     if path in BUNDLED_NETS:
         return getattr(SlipDetector, path)()
     return SlipDetector.load(path)
+
+
+def add_workers_options(parser, default: str = "in this process, one after the other") -> None:
+    """Add ``--scheduler ADDRESS`` and ``--workers N`` (one or the other) to a command that
+    runs a sweep: where its tasks run (:func:`open_workers`); ``default`` says, in the help,
+    where they run without either."""
+    group = parser.add_mutually_exclusive_group()
+    group.add_argument("--scheduler", metavar="ADDRESS", default=None,
+                       help="run the tasks on the workers of the dask scheduler at ADDRESS, e.g. tcp://host:8786 "
+                            "(needs dask.distributed and the same tactile-mirror on every worker; docs/cluster.md)")
+    group.add_argument("--workers", metavar="N", type=positive(int), default=None,
+                       help=f"run the tasks on N local worker processes (default: {default})")
+
+
+def open_workers(args):
+    """The executor of ``--scheduler`` / ``--workers`` (:func:`add_workers_options`), as a
+    context manager closing it at the end: a dask client's executor, a pool of N local
+    processes, or ``None`` (in this process); :func:`tactile_mirror.engine.open_executor`.
+    :class:`CommandError` when ``--scheduler`` is given without dask.distributed installed."""
+    import importlib.util
+
+    from tactile_mirror.engine import open_executor
+
+    if args.scheduler is not None and importlib.util.find_spec("distributed") is None:
+        raise CommandError("--scheduler needs dask.distributed: pip install 'dask[distributed]'")
+    return open_executor(args.scheduler, args.workers)

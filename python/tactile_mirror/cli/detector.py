@@ -8,8 +8,10 @@ from tactile_mirror.cli.arguments import (
     WEIGHTS_HELP,
     UsageError,
     add_command,
+    add_workers_options,
     load_detector,
     nonnegative_int,
+    open_workers,
     positive,
 )
 
@@ -129,6 +131,15 @@ def build_options_from_args(args):
         raise _option_error(exc) from None
 
 
+#: Where ``train`` and ``evaluate`` run their tasks without ``--scheduler`` or ``--workers``.
+_SCENES_ON_CORES = "the scenes on a pool of this machine's cores, the rest in this process"
+
+
+def _on(executor) -> dict:
+    """``executor=`` for a lab function when ``--scheduler`` / ``--workers`` gave one (else its default)."""
+    return {} if executor is None else {"executor": executor}
+
+
 def _recalibrate(args) -> int:
     """``train --recalibrate WEIGHTS``: the net in WEIGHTS calibrated anew, written to ``--out``."""
     import json
@@ -140,7 +151,9 @@ def _recalibrate(args) -> int:
     if goals is None:
         raise UsageError("--recalibrate needs --calibrate-goals or --calibrate-condition")
     check_writable(args.out, make_folder=True)  # fail before the work, not after
-    _w, info = recalibrate(args.recalibrate, args.out, goals, args.n_validation, args.n_test, args.cache)
+    with open_workers(args) as executor:
+        _w, info = recalibrate(args.recalibrate, args.out, goals, args.n_validation, args.n_test, args.cache,
+                               **_on(executor))
     print(json.dumps(info, indent=1))
     print(f"wrote {args.out}")
     return 0
@@ -150,7 +163,8 @@ def cmd_train(args) -> int:
     """``tactile-mirror train``: simulate the scene sets, train, select among the candidates,
     calibrate if asked, evaluate on the held-out scenes and write the weights to ``--out``
     (the evaluation table, and the hidden-size study if asked, on stdout); with
-    ``--recalibrate``, calibrate a trained net anew instead. Returns the exit status."""
+    ``--recalibrate``, calibrate a trained net anew instead. ``--scheduler`` / ``--workers``:
+    where the build's tasks run (the weights are the same bits). Returns the exit status."""
     from tactile_mirror.files import check_writable
     from tactile_mirror.lab.detector.build import build_default
     from tactile_mirror.lab.figure_files import check_figure_path
@@ -165,7 +179,9 @@ def cmd_train(args) -> int:
     if args.figure is not None:
         check_figure_path(args.figure, make_folder=True)
     extra = {} if args.cache is None else {"cache_dir": args.cache}
-    _, report = build_default(out, options, report_path=args.report, figure_path=args.figure, **extra)
+    with open_workers(args) as executor:
+        _, report = build_default(out, options, report_path=args.report, figure_path=args.figure, **extra,
+                                  **_on(executor))
     print(report["evaluation_table"])
     for row in report.get("hidden_size_study", ()):
         print(row)
@@ -175,7 +191,9 @@ def cmd_train(args) -> int:
 
 def cmd_evaluate(args) -> int:
     """``tactile-mirror evaluate``: a detector on random held-out scenes; the evaluation table
-    and the detection by onset kind on stdout. Returns the exit status."""
+    and the detection by onset kind on stdout. The scenes are simulated on ``--scheduler``'s
+    or ``--workers``' workers if given, else on a pool of this machine's cores. Returns the
+    exit status."""
     from tactile_mirror import simulate_many
     from tactile_mirror.lab.detector import evaluate
     from tactile_mirror.lab.detector.build_options import TEST_KWARGS, TEST_SEED
@@ -184,7 +202,8 @@ def cmd_evaluate(args) -> int:
 
     det = load_detector(args.weights)
     scenes = random(args.scenes, seed=TEST_SEED if args.seed is None else args.seed, **TEST_KWARGS)
-    results = simulate_many(scenes, progress=True)
+    with open_workers(args) as executor:
+        results = simulate_many(scenes, progress=True, **_on(executor))
     report = evaluate(det, results)
     print(report.table())
     by = detection_by_onset(det, results)
@@ -261,6 +280,7 @@ def add_parser(sub) -> None:
                    help="do not train: calibrate the net in WEIGHTS anew (--calibrate-goals or "
                         "--calibrate-condition, on --n-validation scenes; its held-out record on --n-test scenes) "
                         "and write it to --out")
+    add_workers_options(p, _SCENES_ON_CORES)
 
     p = add_command(sub, "evaluate", cmd_evaluate, help="evaluate a slip detector on held-out scenes",
                     description="Simulate randomized held-out scenes and report detection rate, false "
@@ -268,3 +288,4 @@ def add_parser(sub) -> None:
     p.add_argument("--weights", default=None, help=WEIGHTS_HELP % "default")
     p.add_argument("--scenes", type=positive(int), default=20, help="held-out scenes (default: 20)")
     p.add_argument("--seed", type=nonnegative_int, default=None, help="scene seed (default: the held-out seed)")
+    add_workers_options(p, _SCENES_ON_CORES)

@@ -12,9 +12,11 @@ from tactile_mirror.cli.arguments import (
     CommandError,
     UsageError,
     add_command,
+    add_workers_options,
     load_detector,
     names,
     nonnegative_int,
+    open_workers,
     out_files,
     positive,
 )
@@ -84,20 +86,23 @@ def _weights(w):
 
 def cmd_loop_envelope(args) -> int:
     """``tactile-mirror loop envelope``: gross slips and tracking error against peak finger
-    speed for each law and condition (JSON, plot, a table on stdout). Returns the exit status."""
+    speed for each law and condition (JSON, plot, a table on stdout); the runs on
+    ``--scheduler``'s or ``--workers``' workers if given (the same file). Returns the exit
+    status."""
     from tactile_mirror.lab.loop.envelope import PATH_SETS, envelope_figure, run_envelope
 
     paths = PATH_SETS[args.paths]
     weights = None if args.weights is None else load_detector(args.weights).weights
     out = out_files(args.out, "loop_envelope.json", "loop_envelope.png")  # before the work, not after
-    with warnings.catch_warnings():
+    with warnings.catch_warnings(), open_workers(args) as executor:
         # run_envelope's notes (repeated values dropped, classes capped by the paths' acceleration)
         # as plain lines, when they arise: before the runs
         warnings.showwarning = lambda message, *_args, **_kw: print(f"warning: {message}", file=sys.stderr)
         data = run_envelope(str(out / "loop_envelope.json"), speeds=[v * 1e-3 for v in args.speeds],
                             n_seeds=args.seeds, conditions=args.conditions, laws=args.laws, paths=paths,
                             duration=args.duration, limits=_stage_from_args(args), stage_delay=args.delay * 1e-3,
-                            stage_lag=args.lag * 1e-3, weights=weights, progress=not args.quiet)
+                            stage_lag=args.lag * 1e-3, weights=weights, progress=not args.quiet,
+                            **({} if executor is None else {"executor": executor}))
     envelope_figure(data, str(out / "loop_envelope.png"), paths=paths.name)
     # the class's asked peak speed, and the speeds its paths ran at (lower where the path set's
     # acceleration limit capped them)
@@ -287,6 +292,7 @@ def add_parser(sub) -> None:
             q.add_argument("--duration", type=positive(float), default=3.0, help="seconds per run, 0.5 s press "
                            "included (default: 3)")
             q.add_argument("--quiet", action="store_true", help="no progress bar")
+            add_workers_options(q)
 
     q = add_command(lsub, "experiment", cmd_loop_experiment,
                     help="open against closed loop over seeded finger paths and the robustness scenes")

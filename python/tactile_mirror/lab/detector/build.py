@@ -17,6 +17,13 @@ options and seeds (:mod:`~tactile_mirror.lab.detector.build_options`), the choic
 candidates (:mod:`~tactile_mirror.lab.detector.selection`), the hidden-size study
 (:mod:`~tactile_mirror.lab.detector.size_study`) and the decision point's calibration
 (:mod:`~tactile_mirror.lab.detector.calibration`).
+
+On workers: ``build_default(..., executor=client.get_executor())`` (dask) or ``workers=N``
+(``tactile-mirror train --scheduler ADDRESS`` / ``--workers N``) spreads the scene
+simulation, the training runs (one task per seed and hidden size), the scoring of their
+checkpoints and the calibration's runs of the net through
+:func:`tactile_mirror.engine.run_tasks`; the chosen net is bit-identical to the serial
+build's (docs/cluster.md).
 """
 from __future__ import annotations
 
@@ -26,6 +33,7 @@ import time
 import numpy as np
 
 from tactile_mirror.detector.core import SlipDetector
+from tactile_mirror.engine import pinned_threads
 from tactile_mirror.files import write_text
 from tactile_mirror.lab.detector.augment import augment_gains, augment_noise, compress_training_set
 from tactile_mirror.lab.detector.build_options import (
@@ -38,7 +46,7 @@ from tactile_mirror.lab.detector.build_options import (
 from tactile_mirror.lab.detector.calibration import calibrate_slip
 from tactile_mirror.lab.detector.evaluation import ForceRatioDetector, evaluate
 from tactile_mirror.lab.detector.scene_cache import simulate_cached, simulate_scenes
-from tactile_mirror.lab.detector.selection import ValidationScorer, train_selected
+from tactile_mirror.lab.detector.selection import ValidationScorer, spread_executor, train_selected
 from tactile_mirror.lab.detector.size_study import hidden_size_study, subset
 from tactile_mirror.lab.detector.training import make_training_set
 from tactile_mirror.lab.figure_files import save_figure
@@ -47,7 +55,7 @@ __all__ = ["build_default"]
 
 
 def build_default(out_path, options: BuildOptions | None = None, *, report_path=None, figure_path=None,
-                  results=None, cache_dir=None):
+                  results=None, cache_dir=None, executor=None, workers: int | None = None):
     """Simulate, train and evaluate the default detector; save its weights.
 
     Parameters
@@ -63,6 +71,17 @@ def build_default(out_path, options: BuildOptions | None = None, *, report_path=
     cache_dir : path, optional
         Keep the simulated scene sets there between builds
         (:func:`~tactile_mirror.lab.detector.scene_cache.simulate_cached`).
+    executor : concurrent.futures.Executor, optional
+        Where the build's tasks run (a process pool, dask's ``Client.get_executor()``, ...):
+        the scene simulation, the training runs (one task per seed and hidden size), the
+        scoring of their checkpoints, the calibration's runs of the net
+        (:func:`tactile_mirror.engine.run_tasks`). The weights are bit-identical to the serial
+        build's; the report's ``*_seconds`` are not.
+    workers : int, optional
+        Instead of ``executor``: one pool of that many local processes for the whole build.
+        Neither: the scenes on a pool of this machine's cores (as
+        :func:`~tactile_mirror.lab.detector.scene_cache.simulate_cached` does by default), the
+        rest in this process.
 
     Returns
     -------
@@ -74,10 +93,14 @@ def build_default(out_path, options: BuildOptions | None = None, *, report_path=
     elif not isinstance(options, BuildOptions):
         raise TypeError(f"options must be a BuildOptions, got {type(options).__name__}")
     extra = {} if cache_dir is None else {"cache_dir": cache_dir}
-    return _build(out_path, options, report_path, figure_path, results, **extra)
+    # the driver's own numerics (training sets, scorers, evaluation) on one thread too, as the tasks'
+    with pinned_threads(1), spread_executor(executor, workers) as ex:
+        if ex is not None:
+            extra["executor"] = ex
+        return _build(out_path, options, report_path, figure_path, results, **extra)
 
 
-def _build(out_path, options: BuildOptions, report_path, figure_path, results, cache_dir=None):
+def _build(out_path, options: BuildOptions, report_path, figure_path, results, cache_dir=None, executor=None):
     o = options
     n_train, n_test, n_hidden, maxiter = o.n_train, o.n_test, o.n_hidden, o.maxiter
     ridges_per_scene, seed, study_sizes, progress = o.ridges_per_scene, o.seed, o.study_sizes, o.progress
@@ -88,18 +111,20 @@ def _build(out_path, options: BuildOptions, report_path, figure_path, results, c
     # never None after BuildOptions.__post_init__
     train_kwargs, test_kwargs = dict(o.train_kwargs or {}), dict(o.test_kwargs or {})
     opts = dict(o.train_options or {})
+    spread = {} if executor is None else {"executor": executor}
     t0 = time.perf_counter()
     results = list(results) if results is not None else []
     train_res = list(results[0]) if len(results) > 0 else simulate_cached(
-        n_train, TRAIN_SEED, train_kwargs, cache_dir, progress)
+        n_train, TRAIN_SEED, train_kwargs, cache_dir, progress, **spread)
     test_res = list(results[1]) if len(results) > 1 else simulate_cached(
-        n_test, TEST_SEED, test_kwargs, cache_dir, progress)
+        n_test, TEST_SEED, test_kwargs, cache_dir, progress, **spread)
     val_res = []
     if selecting:
         val_res = list(results[2]) if len(results) > 2 else simulate_cached(
-            n_validation, VALIDATION_SEED, test_kwargs, cache_dir, progress)
+            n_validation, VALIDATION_SEED, test_kwargs, cache_dir, progress, **spread)
     if o.n_extra_train:
-        train_res = train_res + simulate_cached(o.n_extra_train, EXTRA_TRAIN_SEED, test_kwargs, cache_dir, progress)
+        train_res = train_res + simulate_cached(o.n_extra_train, EXTRA_TRAIN_SEED, test_kwargs, cache_dir, progress,
+                                                **spread)
     t_sim = time.perf_counter() - t0
     n_ridges = np.asarray(train_res[0].v_out).shape[0]
     seqs = augment_noise(train_res, noise_copies, noise_range, seed=2) if noise_copies else train_res
@@ -129,7 +154,7 @@ def _build(out_path, options: BuildOptions, report_path, figure_path, results, c
         if scorer is None:
             raise ValueError("study_sizes needs validation scenes: candidates > 1 or checkpoint_every > 0")
         report["hidden_size_study"] = hidden_size_study(ts, scorer, study_sizes, maxiter, seed, candidates,
-                                                        checkpoint_every, progress, **opts)
+                                                        checkpoint_every, progress, executor=executor, **opts)
     meta = {"scenes": f"scenes.random({n_train}, seed={TRAIN_SEED}, **{train_kwargs})",
             "ridges_per_scene": ridges_per_scene, "kind": o.kind}
     if o.n_extra_train:
@@ -137,7 +162,7 @@ def _build(out_path, options: BuildOptions, report_path, figure_path, results, c
 
     def train(feedback):
         return train_selected(ts, n_hidden, maxiter, seed, candidates, checkpoint_every, scorer, feedback,
-                              progress, meta, **opts)
+                              progress, meta, executor=executor, **opts)
 
     t0 = time.perf_counter()
     w, k_best, scores = train(True)
@@ -154,7 +179,7 @@ def _build(out_path, options: BuildOptions, report_path, figure_path, results, c
         tr_meta["selection"] = dict(report["candidates"], seeds=int(candidates), fa_cost=10.0)
     if o.calibrate_fa is not None or o.calibrate_conditions is not None:
         w, report["slip_calibration"] = calibrate_slip(
-            w, val_res, o.calibrate_fa, conditions=o.calibrate_conditions,
+            w, val_res, o.calibrate_fa, conditions=o.calibrate_conditions, executor=executor,
             scenes=f"scenes.random({n_validation}, seed={VALIDATION_SEED}, **{test_kwargs})")
     force = ForceRatioDetector.fit(train_res)
     det = SlipDetector(w)

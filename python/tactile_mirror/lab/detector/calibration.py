@@ -5,16 +5,31 @@ another level, exactly (:func:`bias_shift`). :func:`calibrate_slip` finds the sh
 keeps the validation scenes within a false-alarm rate (in their own noise or in named
 sensor conditions), :func:`uncalibrate` undoes a recorded one, and :func:`recalibrate`
 calibrates a saved net anew and refreshes its held-out evaluation.
+
+The detector's runs over the validation scenes (one task per sensor condition and block of
+scenes) and the scene sets spread over workers with ``executor=`` / ``workers=``
+(:func:`tactile_mirror.engine.run_tasks`), with the same result wherever they ran.
 """
 from __future__ import annotations
 
+import functools
+
 from tactile_mirror.detector.core import SlipDetector
+from tactile_mirror.engine import pinned_threads, run_tasks
 from tactile_mirror.lab.detector.build_options import TEST_KWARGS, TEST_SEED, VALIDATION_SEED
 from tactile_mirror.lab.detector.evaluation import evaluate
 from tactile_mirror.lab.detector.scene_cache import simulate_cached
-from tactile_mirror.lab.detector.selection import check_false_alarm_rate, condition_names, condition_results
+from tactile_mirror.lab.detector.selection import (
+    check_false_alarm_rate,
+    condition_names,
+    condition_results,
+    spread_executor,
+)
 
 __all__ = ["bias_shift", "calibrate_slip", "recalibrate", "uncalibrate"]
+
+#: Validation scenes per task of :func:`calibrate_slip`'s detector runs.
+_BLOCK = 40
 
 
 def bias_shift(threshold: float, slip_threshold: float = 0.8) -> float:
@@ -26,8 +41,18 @@ def bias_shift(threshold: float, slip_threshold: float = 0.8) -> float:
     return math.log(slip_threshold / (1 - slip_threshold)) - math.log(threshold / (1 - threshold))
 
 
+def _detector_scores(weights, block: tuple) -> list:
+    """A task of :func:`calibrate_slip`: ``y_slip`` of the net ``weights`` over each result
+    of ``block = (results, estimator)``, the features made with that estimator."""
+    from tactile_mirror.detector.data_prep import features_from_result
+
+    results, estimator = block
+    det = SlipDetector(weights)
+    return [det.run(features_from_result(r, det.features, estimator=estimator), fs=r.fs)[0] for r in results]
+
+
 def calibrate_slip(weights, validation, false_alarm: float | None, slip_threshold: float = 0.8, scenes: str = "",
-                   conditions=None, seed: int = 5000):
+                   conditions=None, seed: int = 5000, *, executor=None, workers: int | None = None):
     """Weights whose ``y_slip >= slip_threshold`` alarms at most ``false_alarm`` of the
     validation sequences without slip in time.
 
@@ -49,13 +74,17 @@ def calibrate_slip(weights, validation, false_alarm: float | None, slip_threshol
     leaves room for the difference between two scene sets: the standard error of a rate
     near 2 % is 0.6 points on 480 sequences, 1 point on 200.
 
+    ``executor`` (any :class:`concurrent.futures.Executor`) or ``workers`` (N local
+    processes) run the net over the validation scenes as tasks (one per condition and block
+    of 40 scenes; :func:`tactile_mirror.engine.run_tasks`); default here. The result is the
+    same wherever they ran.
+
     Returns ``(weights, info)``; ``info`` (threshold found, bias shift, the validation's
     detection and false-alarm rates, per condition if given) is also stored in
     ``metadata["slip_calibration"]``.
     """
     import copy
 
-    from tactile_mirror.detector.data_prep import features_from_result
     from tactile_mirror.lab.detector.evaluation import condition_estimator, onset_kinds
     from tactile_mirror.lab.detector.thresholds import roc
 
@@ -80,10 +109,14 @@ def calibrate_slip(weights, validation, false_alarm: float | None, slip_threshol
             check_false_alarm_rate(conditions[name], f"conditions[{name!r}]")
         copies = condition_results(validation, names, seed)
         runs = {name: (copies[name], condition_estimator(det, name), float(conditions[name])) for name in names}
+    blocks = [(name, k) for name, (res, _, _) in runs.items() for k in range(0, len(res), _BLOCK)]
+    outs = run_tasks(functools.partial(_detector_scores, weights),
+                     [(runs[name][0][k:k + _BLOCK], runs[name][1]) for name, k in blocks],
+                     executor=executor, workers=workers, progress=False, desc="calibrate")
     curves = {}
     t = 0.0
     for name, (res, est, fa) in runs.items():
-        scores = [det.run(features_from_result(r, det.features, estimator=est), fs=r.fs)[0] for r in res]
+        scores = [y for (block_name, _), out in zip(blocks, outs) if block_name == name for y in out]
         curves[name] = roc(scores, validation, kinds)
         if curves[name].n_slip == 0:
             raise ValueError("validation has no slipping sequence: its detection rate, which the calibration "
@@ -133,7 +166,7 @@ def uncalibrate(weights, slip_threshold: float = 0.8):
 
 
 def recalibrate(weights_path, out_path, conditions: dict, n_validation: int = 480, n_test: int = 200,
-                cache_dir=None, progress: bool = True):
+                cache_dir=None, progress: bool = True, *, executor=None, workers: int | None = None):
     """Calibrate a trained net's decision point anew and save it.
 
     The net in ``weights_path`` loses its recorded shift (:func:`uncalibrate`), is
@@ -144,18 +177,23 @@ def recalibrate(weights_path, out_path, conditions: dict, n_validation: int = 48
     :data:`~tactile_mirror.lab.detector.build_options.TEST_SEED`, as
     :func:`~tactile_mirror.lab.detector.build.build_default` writes it) and is saved to
     ``out_path``. The scene sets are kept in ``cache_dir`` if given
-    (:func:`~tactile_mirror.lab.detector.scene_cache.simulate_cached`).
+    (:func:`~tactile_mirror.lab.detector.scene_cache.simulate_cached`). ``executor`` or
+    ``workers`` (one local process pool for the whole job) spread the scene simulation and
+    the calibration's runs of the net (:func:`calibrate_slip`); neither: the scenes on a pool
+    of this machine's cores, the rest here.
 
     Returns ``(weights, info)``: the calibrated weights and :func:`calibrate_slip`'s record.
     """
     from tactile_mirror.detector.weights import DetectorWeights
 
     w = uncalibrate(DetectorWeights.load(weights_path))
-    val = simulate_cached(n_validation, VALIDATION_SEED, TEST_KWARGS, cache_dir, progress)
-    w, info = calibrate_slip(w, val, None, conditions=conditions,
-                             scenes=f"scenes.random({n_validation}, seed={VALIDATION_SEED}, **{TEST_KWARGS})")
-    test = simulate_cached(n_test, TEST_SEED, TEST_KWARGS, cache_dir, progress)
-    rep = evaluate(SlipDetector(w), test, {})
+    with pinned_threads(1), spread_executor(executor, workers) as ex:
+        spread = {} if ex is None else {"executor": ex}
+        val = simulate_cached(n_validation, VALIDATION_SEED, TEST_KWARGS, cache_dir, progress, **spread)
+        w, info = calibrate_slip(w, val, None, conditions=conditions, executor=ex,
+                                 scenes=f"scenes.random({n_validation}, seed={VALIDATION_SEED}, **{TEST_KWARGS})")
+        test = simulate_cached(n_test, TEST_SEED, TEST_KWARGS, cache_dir, progress, **spread)
+        rep = evaluate(SlipDetector(w), test, {})
     w.metadata["evaluation"] = dict(w.metadata.get("evaluation") or {},
                                     scenes=f"scenes.random({n_test}, seed={TEST_SEED}, **{TEST_KWARGS})",
                                     detector=rep["detector"].as_dict())

@@ -6,47 +6,157 @@ loss still falls. :func:`train_selected` trains a few seeds with checkpoints and
 candidate :func:`select_candidate` finds best by a :class:`ValidationScorer`, on validation
 scenes that are neither the training nor the held-out set. The scores can be stated in
 named sensor conditions (:func:`condition_names`, :func:`condition_results`).
+
+The training runs (one task per seed and hidden size) and the scoring of their candidates
+(one task per run) are spread over workers by :func:`tactile_mirror.engine.run_tasks`
+(``executor=`` / ``workers=``); the chosen net is bit-identical wherever they ran.
 """
 from __future__ import annotations
+
+import functools
+import os
+import time
 
 import numpy as np
 
 from tactile_mirror.checks import integer
 from tactile_mirror.detector.core import SlipDetector
+from tactile_mirror.engine import open_executor, run_tasks
 from tactile_mirror.lab.detector.evaluation import evaluate
 from tactile_mirror.lab.detector.training import train_detector
 
 __all__ = [
     "ValidationScorer",
+    "best_candidate",
     "check_false_alarm_rate",
     "condition_names",
     "condition_results",
     "select_candidate",
+    "spread_executor",
+    "task_threads",
     "train_selected",
+    "train_selected_sizes",
 ]
 
 
+def spread_executor(executor=None, workers: int | None = None):
+    """The executor a job of several sweeps runs all of them on: ``executor`` itself if given,
+    else for ``workers`` > 1 one local process pool for the whole job (started once, not per
+    sweep; :func:`tactile_mirror.engine.open_executor`), else ``None`` (in this process).
+    A context manager; a pool it started is shut down at the end.
+
+    A worker process of that pool that dies fails the job (a pool shared by several sweeps
+    is not restarted); a dask scheduler reschedules the tasks of a lost worker."""
+    if executor is not None:
+        if workers is not None:
+            raise ValueError("give executor or workers, not both")
+        import contextlib
+
+        return contextlib.nullcontext(executor)
+    return open_executor(None, workers)
+
+
+def task_threads(train_options: dict, spread: bool) -> int:
+    """The ``n_threads`` of the C++ training gradient each training task runs with, fixed by
+    the driver: ``train_options["n_threads"]`` if given, else 1 where the runs are spread
+    over workers (each worker a core) and ``min(2, os.cpu_count())`` in this process. The
+    gradient sums its blocks in a fixed order, so the weights do not depend on it (1, 2 and
+    3 threads are tested to give the same bits); only the speed does."""
+    n = train_options.get("n_threads")
+    if n is not None:
+        return n
+    return 1 if spread else min(2, os.cpu_count() or 1)
+
+
+def _train_run(ts, maxiter: int, checkpoint_every: int, feedback: bool, metadata, progress: bool,
+               train_options: dict, run: tuple) -> tuple[list, float]:
+    """One training run, a task: ``run = (n_hidden, seed)``. Returns its candidates (the
+    checkpoints every ``checkpoint_every`` iterations, if > 0, then the final weights) and
+    the seconds it took."""
+    n_hidden, seed = run
+    t0 = time.perf_counter()
+    got: list = []
+    cb = (lambda it, wk: got.append(wk)) if checkpoint_every else None
+    got.append(train_detector(ts, n_hidden=int(n_hidden), maxiter=maxiter, seed=seed, feedback=feedback,
+                              progress=progress, metadata=metadata, callback=cb,
+                              callback_every=checkpoint_every or 1, **train_options))
+    return got, time.perf_counter() - t0
+
+
+def _score_run(scorer, candidates: list) -> tuple[list, float]:
+    """The scores of one run's candidates, a task; and the seconds they took."""
+    t0 = time.perf_counter()
+    return [scorer(w) for w in candidates], time.perf_counter() - t0
+
+
+def train_selected_sizes(ts, sizes, maxiter: int, seed: int, candidates: int, checkpoint_every: int, scorer,
+                         feedback: bool = True, progress: bool = True, metadata=None, *, executor=None,
+                         workers: int | None = None, **train_options) -> list[tuple]:
+    """:func:`train_selected` for each hidden size of ``sizes``, the runs of all sizes spread
+    together: one training task per (size, seed), then one scoring task per run.
+
+    ``executor`` (any :class:`concurrent.futures.Executor`: a process pool, dask's
+    ``Client.get_executor()``, ...) or ``workers`` (N local processes) spread the tasks
+    (:func:`tactile_mirror.engine.run_tasks`); neither runs them here, one after the other.
+    Every task runs with its thread pools pinned and the C++ gradient's threads fixed by
+    :func:`task_threads`; the candidates come back in (size, seed) order, so the kept
+    weights are bit-identical wherever the tasks ran.
+
+    Returns
+    -------
+    list of (weights, index of the kept candidate, candidate scores, seconds), one per size
+        ``seconds``: the size's training and scoring tasks' own seconds, summed.
+    """
+    sizes = [int(h) for h in sizes]
+    seeds = [seed + k for k in range(max(1, int(candidates)))]
+    runs = [(h, s) for h in sizes for s in seeds]
+    checkpoints = checkpoint_every if scorer is not None else 0
+    with spread_executor(executor, workers) as ex:
+        spread = ex is not None
+        options = dict(train_options, n_threads=task_threads(train_options, spread))
+        train = functools.partial(_train_run, ts, maxiter, checkpoints, feedback, metadata,
+                                  progress and not spread, options)
+        trained = run_tasks(train, runs, executor=ex, progress=progress, desc="train")
+        scored = None
+        if scorer is not None:
+            scored = run_tasks(functools.partial(_score_run, scorer), [ws for ws, _ in trained], executor=ex,
+                               progress=progress, desc="score")
+    out = []
+    for i in range(len(sizes)):
+        k0, k1 = i * len(seeds), (i + 1) * len(seeds)
+        ws = [w for run_ws, _ in trained[k0:k1] for w in run_ws]
+        seconds = sum(t for _, t in trained[k0:k1])
+        if scored is None:
+            out.append((ws[-1], len(ws) - 1, [], seconds))
+            continue
+        scores = [sc for run_scores, _ in scored[k0:k1] for sc in run_scores]
+        seconds += sum(t for _, t in scored[k0:k1])
+        best = best_candidate(scores)
+        out.append((ws[best], best, scores, seconds))
+    return out
+
+
 def train_selected(ts, n_hidden: int, maxiter: int, seed: int, candidates: int, checkpoint_every: int, scorer,
-                   feedback: bool = True, progress: bool = True, metadata=None, **train_options):
+                   feedback: bool = True, progress: bool = True, metadata=None, *, executor=None,
+                   workers: int | None = None, **train_options):
     """Train ``candidates`` seeds (``seed``, ``seed + 1``, ...) and keep the best on ``scorer``.
 
     With ``checkpoint_every`` > 0 the iterates every that many L-BFGS-B
     iterations are candidates too (early stopping). Without a scorer the last
     seed's final weights are returned.
 
+    ``executor`` / ``workers``: where the training runs (one task per seed) and the
+    scoring of their candidates (one task per run) go, as in :func:`train_selected_sizes`;
+    the kept weights are the same bits wherever they ran.
+
     Returns
     -------
     weights, index of the kept candidate, list of candidate scores (empty without a scorer)
     """
-    ws = []
-    for k in range(max(1, int(candidates))):
-        cb = (lambda it, wk: ws.append(wk)) if scorer is not None and checkpoint_every else None
-        ws.append(train_detector(ts, n_hidden=int(n_hidden), maxiter=maxiter, seed=seed + k, feedback=feedback,
-                                 progress=progress, metadata=metadata, callback=cb,
-                                 callback_every=checkpoint_every or 1, **train_options))
-    if scorer is None:
-        return ws[-1], len(ws) - 1, []
-    return select_candidate(ws, scorer)
+    w, k, scores, _ = train_selected_sizes(ts, [n_hidden], maxiter, seed, candidates, checkpoint_every, scorer,
+                                           feedback, progress, metadata, executor=executor, workers=workers,
+                                           **train_options)[0]
+    return w, k, scores
 
 
 def condition_names(conditions, name: str) -> tuple[str, ...]:
@@ -169,7 +279,7 @@ class ValidationScorer:
         return out
 
 
-def select_candidate(candidates, validation, fa_cost: float = 10.0):
+def select_candidate(candidates, validation, fa_cost: float = 10.0, *, executor=None, workers: int | None = None):
     """The candidate weights with the best validation score, and every score.
 
     Training a recurrent net by L-BFGS-B from different initial weights ends in
@@ -179,24 +289,40 @@ def select_candidate(candidates, validation, fa_cost: float = 10.0):
     run to 800 iterations raised 12-29 % false alarms where their own
     100-iteration checkpoints raised 1-5 %). So the build trains a few seeds,
     keeps checkpoints, and takes the candidate scoring best on a validation set
-    that is neither the training nor the held-out set:
-    ``detection_rate - fa_cost * false_alarm_rate`` (a false alarm moves the stage
-    for nothing; ``fa_cost`` = 10 prices one like ten misses), ties broken by
-    fewer false-alarm samples, then by the y_pred lead.
+    that is neither the training nor the held-out set (:func:`best_candidate`).
 
     Parameters
     ----------
     candidates : sequence of DetectorWeights
     validation : ValidationScorer or sequence of simulation results
+    executor, workers
+        Score the candidates as tasks (one each) on this executor or on that many local
+        processes (:func:`tactile_mirror.engine.run_tasks`); default here, one after the other.
+        Each task receives the scorer, validation results included.
     """
     candidates = list(candidates)
     if not candidates:
         raise ValueError("candidates must not be empty")
     scorer = validation if isinstance(validation, ValidationScorer) else ValidationScorer(validation, fa_cost)
-    scores = [scorer(w) for w in candidates]
-    best = max(range(len(candidates)), key=lambda i: (scores[i]["score"], -scores[i]["false_alarm_samples"],
-                                                      scores[i]["pred_lead_mean_ms"]))
+    scored = run_tasks(functools.partial(_score_run, scorer), [[w] for w in candidates], executor=executor,
+                       workers=workers, progress=False, desc="score")
+    scores = [run_scores[0] for run_scores, _ in scored]
+    best = best_candidate(scores)
     return candidates[best], best, scores
+
+
+def best_candidate(scores) -> int:
+    """The index of the best of the candidates' validation ``scores`` (dicts of
+    :class:`ValidationScorer`): the highest ``score`` (``detection_rate - fa_cost *
+    false_alarm_rate``, or the detection at the calibration's false-alarm rate; a false
+    alarm moves the stage for nothing, ``fa_cost`` = 10 prices one like ten misses), ties
+    broken by fewer false-alarm samples, then by the longer y_pred lead, then by the
+    earlier candidate."""
+    scores = list(scores)
+    if not scores:
+        raise ValueError("scores must not be empty")
+    return max(range(len(scores)), key=lambda i: (scores[i]["score"], -scores[i]["false_alarm_samples"],
+                                                  scores[i]["pred_lead_mean_ms"]))
 
 
 def check_false_alarm_rate(value, name: str) -> None:

@@ -8,6 +8,11 @@ appending one JSON row per run to a results file so that an interrupted run resu
 where it stopped. :func:`envelope_table` sums the rows per (condition, law, speed);
 :func:`envelope_figure` plots them. ``tactile-mirror loop envelope`` is the command.
 
+On workers (``executor=`` / ``workers=``; ``--scheduler ADDRESS`` / ``--workers N``) each
+row is a task (:func:`tactile_mirror.engine.run_tasks`); this process designs the laws,
+stays the only writer of the results file and writes the rows in the jobs' order as they
+arrive, so the file is byte for byte the serial run's whatever ran the rows.
+
 Finger paths are :func:`~tactile_mirror.loop.finger.finger_trajectory` with
 ``v_max`` = the class's peak speed and ``a_max`` = 0.5 m/s^2 (band-limited noise
 scaled down until both hold). Where the acceleration limit binds first, a path is
@@ -22,6 +27,7 @@ envelope.
 """
 from __future__ import annotations
 
+import functools
 import json
 import math
 import os
@@ -33,6 +39,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from tactile_mirror.engine import pinned_threads, run_tasks
 from tactile_mirror.files import check_writable, write_json
 from tactile_mirror.lab.figure_files import save_figure
 from tactile_mirror.loop.stage import StageLimits
@@ -253,12 +260,51 @@ def _settle_after_slips(res, fs, window: float = 0.1) -> dict:
     return {"settle_s": worst, "second_slip_within_100ms": second}
 
 
+@dataclass(frozen=True)
+class _RowSetup:
+    """What every row's task shares: the detector, the laws and the scenes' settings."""
+
+    weights: dict
+    laws: dict
+    shear_weights: object
+    paths: PathSet
+    plant: str
+    duration: float
+    fs: float
+    limits: StageLimits
+    n_ridges: int
+
+
+def _envelope_row(setup: _RowSetup, job: tuple) -> dict:
+    """One row of the envelope, a task: ``job = (condition, speed, seed, law)``."""
+    from tactile_mirror.loop.scene import LoopScene, gross_slip_starts, run_scene
+
+    c, v, s, name = job
+    fs = setup.fs
+    sc = LoopScene(seed=s, duration=setup.duration, fs=fs, plant=setup.plant, trajectory=setup.paths.trajectory(v),
+                   label=c, load_cell=name == "load cell", **CONDITIONS[c])
+    res = run_scene(sc, setup.weights, setup.laws[name], limits=setup.limits, n_ridges=setup.n_ridges,
+                    shear_weights=setup.shear_weights if name == "default" else None)
+    sm = res.summary()
+    fv = np.gradient(res.finger, 1.0 / fs)
+    return {"condition": c, "law": name, "speed": v, "seed": s, "paths": setup.paths.name,
+            "gross_slips": sm["gross_slips"], "gross_slip_time_s": sm["gross_slip_time_s"],
+            "gross_slip_starts_s": [float(k / fs) for k in gross_slip_starts(res.log["slip_fraction"][:, : res.t.size])],
+            "tracking_rms_mm": sm["tracking_rms_mm"], "tracking_max_mm": sm["tracking_max_mm"],
+            "finger_peak_speed": float(np.abs(fv).max()),
+            "finger_peak_acceleration": float(np.abs(np.gradient(fv, 1.0 / fs)).max()),
+            "force_y_max": float(np.abs(res.log["force_y"]).max()),
+            "force_z_mean": float(np.mean(res.log["force_z"][round(0.5 * fs):])),
+            **_settle_after_slips(res, fs)}
+
+
 def run_envelope(out: str | os.PathLike, speeds: Sequence[float] = (0.002, 0.005, 0.01, 0.02), n_seeds: int = 10,
                  conditions: Sequence[str] = ("nominal",), laws: Sequence[str] = DEFAULT_LAWS,
                  paths: PathSet = REPORT_PATHS,
                  plant: str = "fem", duration: float = 3.0, fs: float = 1000.0,
                  limits: StageLimits | None = None, stage_delay: float = 0.001, stage_lag: float = 0.002,
-                 n_ridges: int = 6, weights=None, progress: bool = True) -> dict:
+                 n_ridges: int = 6, weights=None, progress: bool = True, *, executor=None,
+                 workers: int | None = None) -> dict:
     """Run (or resume) the envelope; rows are appended to the JSON file ``out``.
 
     Parameters
@@ -287,11 +333,19 @@ def run_envelope(out: str | os.PathLike, speeds: Sequence[float] = (0.002, 0.005
         The contact model (:data:`~tactile_mirror.lab.loop.experiment.PLANTS`).
     limits : StageLimits
         The stage (default +-20 mm, 30 mm/s, 1 m/s^2); ``stage_delay``, ``stage_lag`` in s.
+    executor : concurrent.futures.Executor, optional
+        Run the rows as tasks there, one per row (a process pool, dask's
+        ``Client.get_executor()``, ...; :func:`tactile_mirror.engine.run_tasks`). The laws
+        are designed here, once; this process alone writes ``out``, each row as soon as
+        the rows before it are in, so the file is byte for byte the serial run's and an
+        interrupted run resumes from the rows written.
+    workers : int, optional
+        Instead of ``executor``: that many local processes (a dead one is replaced and its
+        rows run again). Neither: the rows run here, one after the other.
 
     Returns the results dict (as written).
     """
     from tactile_mirror.lab.loop.experiment import default_weights, plant_settings, weights_dict
-    from tactile_mirror.loop.scene import LoopScene, gross_slip_starts, run_scene
 
     for c in conditions:
         if c not in CONDITIONS:
@@ -304,6 +358,8 @@ def run_envelope(out: str | os.PathLike, speeds: Sequence[float] = (0.002, 0.005
     speeds = [float(v) for v in speeds]
     if not speeds or any(not (math.isfinite(v) and v > 0) for v in speeds):
         raise ValueError(f"speeds must be positive finite m/s, got {speeds!r}")
+    if executor is not None and workers is not None:
+        raise ValueError("give executor or workers, not both")
     plant_settings(plant)
     # (a repeat ran its class, law or condition twice, and the table counted its rows twice)
     speeds = _unique(speeds, "speeds (m/s)", key=lambda v: round(v * 1e6))  # (the rows are keyed to the um/s)
@@ -321,7 +377,9 @@ def run_envelope(out: str | os.PathLike, speeds: Sequence[float] = (0.002, 0.005
     data = read_results(out)
     weights = default_weights(plant, fs) if weights is None else weights
     w = weights_dict(weights) if not isinstance(weights, dict) else weights
-    law_objs, design = law_controllers(w, fs, limits, stage_delay, stage_lag, n_ridges, plant, load_cell="load cell" in laws)
+    with pinned_threads(1):  # the design's calibration runs on the pad: one thread, as the rows' tasks
+        law_objs, design = law_controllers(w, fs, limits, stage_delay, stage_lag, n_ridges, plant,
+                                           load_cell="load cell" in laws)
     done = {_key(r) for r in data["rows"]}
     data["design"] = design.summary()
     data["setup"] = {"plant": plant, "duration_s": duration, "fs": fs, "n_ridges": n_ridges,
@@ -331,23 +389,11 @@ def run_envelope(out: str | os.PathLike, speeds: Sequence[float] = (0.002, 0.005
                                                    "bandwidth_hz": paths.bandwidth, "a_max": paths.a_max}
     jobs = [(c, v, s, name) for c in conditions for v in speeds for s in paths.seeds(n_seeds) for name in laws]
     todo = [j for j in jobs if (j[0], j[3], round(j[1] * 1e6), j[2], paths.name) not in done]
+    setup = _RowSetup(w, {name: law_objs[name] for name in laws}, design.shear_weights, paths, plant, float(duration),
+                      float(fs), limits, n_ridges)
     t0 = time.monotonic()
-    for i, (c, v, s, name) in enumerate(todo):
-        sc = LoopScene(seed=s, duration=duration, fs=fs, plant=plant, trajectory=paths.trajectory(v),
-                       label=c, load_cell=name == "load cell", **CONDITIONS[c])
-        res = run_scene(sc, w, law_objs[name], limits=limits, n_ridges=n_ridges,
-                        shear_weights=design.shear_weights if name == "default" else None)
-        sm = res.summary()
-        fv = np.gradient(res.finger, 1.0 / fs)
-        row = {"condition": c, "law": name, "speed": v, "seed": s, "paths": paths.name,
-               "gross_slips": sm["gross_slips"], "gross_slip_time_s": sm["gross_slip_time_s"],
-               "gross_slip_starts_s": [float(k / fs) for k in gross_slip_starts(res.log["slip_fraction"][:, : res.t.size])],
-               "tracking_rms_mm": sm["tracking_rms_mm"], "tracking_max_mm": sm["tracking_max_mm"],
-               "finger_peak_speed": float(np.abs(fv).max()),
-               "finger_peak_acceleration": float(np.abs(np.gradient(fv, 1.0 / fs)).max()),
-               "force_y_max": float(np.abs(res.log["force_y"]).max()),
-               "force_z_mean": float(np.mean(res.log["force_z"][round(0.5 * fs):])),
-               **_settle_after_slips(res, fs)}
+
+    def sink(i: int, row: dict) -> None:  # in job order: the file grows as a serial run's does
         data["rows"].append(row)
         write_json(out, data, indent=1)  # atomically: an interrupted save keeps the rows before it
         if progress:
@@ -355,9 +401,12 @@ def run_envelope(out: str | os.PathLike, speeds: Sequence[float] = (0.002, 0.005
             el = time.monotonic() - t0
             bar = "#" * round(30 * k / len(todo))
             sys.stderr.write(f"\r[{bar:<30}] {k}/{len(todo)} {el:.0f}s elapsed, ~{el / k * (len(todo) - k):.0f}s "
-                             f"left | {c}, {name}, {v * 1e3:g} mm/s, seed {s}: {row['gross_slips']} slips, "
-                             f"{row['tracking_rms_mm']:.3f} mm   ")
+                             f"left | {row['condition']}, {row['law']}, {row['speed'] * 1e3:g} mm/s, seed "
+                             f"{row['seed']}: {row['gross_slips']} slips, {row['tracking_rms_mm']:.3f} mm   ")
             sys.stderr.flush()
+
+    run_tasks(functools.partial(_envelope_row, setup), todo, executor=executor, workers=workers, sink=sink,
+              ordered=True, keep=False, progress=False, desc="envelope")
     if progress and todo:
         sys.stderr.write("\n")
     data["table"] = envelope_table(data["rows"])
