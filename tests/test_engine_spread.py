@@ -157,3 +157,17 @@ def test_a_failing_task_of_a_numpy_sweep_reports_its_array_briefly():
     with pytest.raises(TaskError, match=r"item array\(\[") as info:
         run_tasks(np.linalg.inv, [np.eye(2), np.zeros((2, 2))], progress=False)
     assert info.value.index == 1
+
+
+@pytest.mark.parametrize("chunk", [1, 3, 4, 100])
+def test_chunks_keep_each_items_result_error_and_sink_call(chunk, pool):
+    seen = []
+    with pytest.warns(RuntimeWarning, match=r"1 of 10 tasks failed:\n  task 3 \(3\): ValueError"):
+        out = run_tasks(fail_on_three, range(10), executor=pool, chunk=chunk, sink=lambda k, v: seen.append((k, v)),
+                        ordered=True, on_error="continue", progress=False)
+    assert list(out) == [0, 1, 2, None, 4, 5, 6, 7, 8, 9]
+    assert seen == [(k, k) for k in range(10) if k != 3]
+    with pytest.raises(TaskError, match="task 3 failed on item 3"):
+        run_tasks(fail_on_three, range(10), workers=2, chunk=chunk, progress=False)
+    with pytest.raises(ValueError, match="chunk must be a positive integer or .auto."):
+        run_tasks(square, [1], chunk=0, progress=False)

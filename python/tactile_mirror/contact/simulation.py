@@ -286,7 +286,7 @@ def simulate_many(scenes: Iterable[Scene], executor: concurrent.futures.Executor
         workers = max_workers or min(len(scenes), os.cpu_count() or 1)
     task = functools.partial(simulate, progress=False, stepping=stepping, backend=backend)
     return list(run_tasks(task, scenes, executor=executor, workers=workers, progress=progress, desc="scenes",
-                          portable=bool(portable)))
+                          chunk="auto", portable=bool(portable)))
 
 
 def calibrate_friction(target_slip_time: float, scene: Scene | None = None,

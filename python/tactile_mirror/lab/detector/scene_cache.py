@@ -113,7 +113,7 @@ def simulate_scenes(scenes, progress: bool = True, executor=None, workers: int |
         workers = min(len(missing), os.cpu_count() or 1)
     task = functools.partial(simulation.simulate, progress=False)
     run_tasks(task, [scenes[k] for k in missing], executor=executor, workers=workers, sink=keep, keep=False,
-              progress=progress, desc="simulate", portable=bool(portable))
+              chunk="auto", progress=progress, desc="simulate", portable=bool(portable))
     return results
 
 
