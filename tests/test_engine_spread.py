@@ -9,7 +9,7 @@ import sys
 
 import numpy as np
 import pytest
-from tactile_mirror.engine import TaskError, open_executor, pinned_threads, run_tasks
+from tactile_mirror.engine import TaskError, open_executor, pinned_threads, run_tasks, warm_workers
 
 
 def square(x):
@@ -171,3 +171,36 @@ def test_chunks_keep_each_items_result_error_and_sink_call(chunk, pool):
         run_tasks(fail_on_three, range(10), workers=2, chunk=chunk, progress=False)
     with pytest.raises(ValueError, match="chunk must be a positive integer or .auto."):
         run_tasks(square, [1], chunk=0, progress=False)
+
+
+class RecordingExecutor(concurrent.futures.ThreadPoolExecutor):
+    """A thread pool that records the items in the order their tasks were submitted."""
+
+    def __init__(self):
+        super().__init__(1)
+        self.submitted = []
+
+    def submit(self, fn, /, *args, **kwargs):
+        self.submitted.append(args[1])
+        return super().submit(fn, *args, **kwargs)
+
+
+def test_order_sets_the_submission_order_and_nothing_else(tmp_path):
+    seen = []
+    with RecordingExecutor() as ex:
+        out = run_tasks(square, [1, 2, 3, 4], executor=ex, order=[3, 1, 0, 2], sink=lambda k, v: seen.append(k),
+                        ordered=True, progress=False)
+    assert ex.submitted == [4, 2, 1, 3]
+    assert list(out) == [1, 4, 9, 16] and seen == [0, 1, 2, 3]
+    for bad in ([0, 1, 2], [0, 0, 1, 2], [1, 2, 3, 4]):
+        with pytest.raises(ValueError, match="order must be a permutation of the 4 item indices"):
+            run_tasks(square, [1, 2, 3, 4], order=bad, progress=False)
+    with pytest.raises(ValueError, match="order and chunk > 1 do not go together"):
+        run_tasks(square, [1, 2, 3, 4], order=[0, 1, 2, 3], chunk=2, progress=False)
+
+
+def test_warm_workers_submits_one_call_per_worker_with_pinned_threads(pool):
+    futures = warm_workers(pool, blas_threads, 0)
+    assert len(futures) == 2
+    assert all(f.result()[1] == "1" for f in futures)
+    assert warm_workers(None, blas_threads, 0) == []

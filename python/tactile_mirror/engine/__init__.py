@@ -20,7 +20,7 @@ __getattr__, __dir__, __all__ = attach(__name__, {
     "BuildMismatch": "identity", "build_identity": "identity", "identity_differences": "identity",
     "task_identity": "identity",
     "TaskError": "spread", "TaskFailure": "spread", "TaskResults": "spread", "open_executor": "spread",
-    "run_tasks": "spread",
+    "run_tasks": "spread", "warm_workers": "spread",
     "ResultStore": "store", "StoreWarning": "store",
     "pinned_threads": "threads",
 }, submodules=("identity", "spread", "store", "threads"))
@@ -39,6 +39,7 @@ if TYPE_CHECKING:
         TaskResults,
         open_executor,
         run_tasks,
+        warm_workers,
     )
     from tactile_mirror.engine.store import ResultStore, StoreWarning
     from tactile_mirror.engine.threads import pinned_threads

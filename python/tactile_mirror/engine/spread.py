@@ -29,7 +29,7 @@ from typing import Any
 from tactile_mirror.engine.identity import BuildMismatch, build_identity, identity_differences
 from tactile_mirror.engine.threads import pinned_threads
 
-__all__ = ["ON_ERROR", "TaskError", "TaskFailure", "TaskResults", "open_executor", "run_tasks"]
+__all__ = ["ON_ERROR", "TaskError", "TaskFailure", "TaskResults", "open_executor", "run_tasks", "warm_workers"]
 
 #: What a failed task does: stop the sweep, or carry on and list the failures at the end.
 ON_ERROR = ("raise", "continue")
@@ -151,8 +151,8 @@ def _local_pool(workers: int, threads: int = 1) -> concurrent.futures.ProcessPoo
 def run_tasks(fn: Callable[[Any], Any], items: Iterable[Any], *, executor: concurrent.futures.Executor | None = None,
               workers: int | None = None, sink: Callable[[int, Any], None] | None = None, ordered: bool = False,
               keep: bool = True, on_error: str = "raise", threads: int = 1, portable: bool = False,
-              check_build: bool = True, retries: int = 2, chunk: int | str = 1, progress: bool = True,
-              desc: str = "tasks") -> TaskResults:
+              check_build: bool = True, retries: int = 2, chunk: int | str = 1,
+              order: Iterable[int] | None = None, progress: bool = True, desc: str = "tasks") -> TaskResults:
     """``[fn(item) for item in items]``, spread over workers, with the same bits wherever it runs.
 
     ``fn`` must be picklable (a module-level function or a ``functools.partial`` of one)
@@ -184,7 +184,10 @@ def run_tasks(fn: Callable[[Any], Any], items: Iterable[Any], *, executor: concu
     items; each still has its own result, error and sink call), so that short items do not
     pay a task's overhead each; the results do not depend on it. ``"auto"``: one item a task
     up to 127 items, then about 64 tasks, of at most 16 items each (for sweeps of many short
-    items, such as scenes of a few seconds). ``progress`` shows a bar labelled ``desc``.
+    items, such as scenes of a few seconds). ``order``: the item indices in the order their
+    tasks are submitted (a permutation; default item order), e.g. the costliest first, so
+    that no long task is left to run alone at the end; results, sinks and errors keep item
+    order (not with ``chunk`` > 1). ``progress`` shows a bar labelled ``desc``.
     """
     if not callable(fn):
         raise TypeError(f"fn must be callable, got {type(fn).__name__}")
@@ -198,6 +201,12 @@ def run_tasks(fn: Callable[[Any], Any], items: Iterable[Any], *, executor: concu
     items = list(items)
     if chunk == "auto":
         chunk = max(1, min(16, len(items) // 64))
+    if order is not None:
+        order = list(order)
+        if sorted(order) != list(range(len(items))):
+            raise ValueError(f"order must be a permutation of the {len(items)} item indices")
+        if chunk > 1:
+            raise ValueError("order and chunk > 1 do not go together: a chunk's items are consecutive")
     results = TaskResults([None] * len(items))
     results.failures = []
     if not items:
@@ -232,12 +241,13 @@ def run_tasks(fn: Callable[[Any], Any], items: Iterable[Any], *, executor: concu
             expected = build_identity() if check_build and not isinstance(
                 executor, concurrent.futures.ThreadPoolExecutor) else None
             try:
-                _submit_all(executor, task_fn, tasks, range(len(tasks)), threads, expected, portable, collector)
+                _submit_all(executor, task_fn, tasks, order or range(len(tasks)), threads, expected, portable,
+                            collector)
             except BrokenProcessPool as e:
                 k, item = collector.first_pending()
                 raise TaskError(k, item, e) from e
         else:
-            _run_on_own_pool(workers, task_fn, tasks, threads, portable, retries, collector)
+            _run_on_own_pool(workers, task_fn, tasks, threads, portable, retries, collector, order)
     collector.finish()
     return results
 
@@ -274,10 +284,13 @@ def _salvage(futures: dict, collector: _Collector) -> None:
             collector.done(k, f.result())
 
 
-def _run_on_own_pool(workers, fn, items, threads, portable, retries, collector) -> None:
+def _run_on_own_pool(workers, fn, items, threads, portable, retries, collector, order=None) -> None:
     expected = build_identity()
     for attempt in range(retries + 1):
         pending = collector.pending()
+        if order is not None:
+            left = set(pending)
+            pending = [k for k in order if k in left]
         pool = _local_pool(min(workers, len(pending)), threads)
         try:
             _submit_all(pool, fn, items, pending, threads, expected, portable, collector)
@@ -422,3 +435,24 @@ def open_executor(scheduler: str | None = None, workers: int | None = None
         yield pool
     finally:
         pool.shutdown(wait=True, cancel_futures=True)
+
+
+def warm_workers(executor: concurrent.futures.Executor | None, fn: Callable, *args: Any, copies: int | None = None
+                 ) -> list[concurrent.futures.Future]:
+    """Submit ``copies`` calls ``fn(*args)`` to ``executor`` and return at once, so that its
+    workers pay their first-task costs (imports, models built once per process) while this
+    process still prepares the sweep. ``copies``: the pool's size where the executor says
+    (the standard pools), else the machine's core count. Failures are left in the returned
+    futures (a real task meets the same cause and reports it); ``None`` does nothing."""
+    if executor is None:
+        return []
+    if copies is None:
+        copies = getattr(executor, "_max_workers", None) or os.cpu_count() or 1
+    # as a task runs: with its thread pools pinned (a model it builds and keeps is the one
+    # the tasks would have built)
+    call = functools.partial(_call, fn, args)
+    return [executor.submit(run_task, call, None, 1, None, False) for _ in range(copies)]
+
+
+def _call(fn: Callable, args: tuple, _item: Any) -> Any:
+    return fn(*args)

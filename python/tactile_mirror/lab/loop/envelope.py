@@ -39,7 +39,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from tactile_mirror.engine import pinned_threads, run_tasks
+from tactile_mirror.engine import open_executor, pinned_threads, run_tasks, warm_workers
 from tactile_mirror.files import check_writable, write_json
 from tactile_mirror.lab.figure_files import save_figure
 from tactile_mirror.loop.stage import StageLimits
@@ -275,6 +275,23 @@ class _RowSetup:
     n_ridges: int
 
 
+def _warm_row(plant: str, fs: float, n_ridges: int) -> None:
+    """A worker's first-row costs, paid while this process designs the laws: the loop's
+    modules and the contact plant's model (built once per process)."""
+    from tactile_mirror.circuit import PVDFCircuit
+    from tactile_mirror.loop.scene import LoopScene, make_plant
+
+    make_plant(LoopScene(plant=plant, fs=fs), n_ridges)
+    PVDFCircuit().stream(fs)
+
+
+def _row_cost(job: tuple) -> float:
+    """A row's run time, roughly (s per s of path): the open loop slides most (events), then
+    the faster classes."""
+    _, v, _, name = job
+    return v * (4.0 if name == "open loop" else 1.0)
+
+
 def _envelope_row(setup: _RowSetup, job: tuple) -> dict:
     """One row of the envelope, a task: ``job = (condition, speed, seed, law)``."""
     from tactile_mirror.loop.scene import LoopScene, gross_slip_starts, run_scene
@@ -361,6 +378,11 @@ def run_envelope(out: str | os.PathLike, speeds: Sequence[float] = (0.002, 0.005
     if executor is not None and workers is not None:
         raise ValueError("give executor or workers, not both")
     plant_settings(plant)
+    if workers is not None and workers > 1:  # a pool of this call's own, started now to warm up below
+        with open_executor(workers=workers) as pool:
+            return run_envelope(out, speeds, n_seeds, conditions, laws, paths, plant, duration, fs, limits,
+                                stage_delay, stage_lag, n_ridges, weights, progress, executor=pool)
+    warm_workers(executor, _warm_row, plant, float(fs), n_ridges)
     # (a repeat ran its class, law or condition twice, and the table counted its rows twice)
     speeds = _unique(speeds, "speeds (m/s)", key=lambda v: round(v * 1e6))  # (the rows are keyed to the um/s)
     conditions = _unique(conditions, "conditions")
@@ -406,7 +428,8 @@ def run_envelope(out: str | os.PathLike, speeds: Sequence[float] = (0.002, 0.005
             sys.stderr.flush()
 
     run_tasks(functools.partial(_envelope_row, setup), todo, executor=executor, workers=workers, sink=sink,
-              ordered=True, keep=False, progress=False, desc="envelope")
+              ordered=True, keep=False, progress=False, desc="envelope",
+              order=sorted(range(len(todo)), key=lambda i: -_row_cost(todo[i])))  # the longest rows first
     if progress and todo:
         sys.stderr.write("\n")
     data["table"] = envelope_table(data["rows"])
