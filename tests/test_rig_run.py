@@ -51,12 +51,14 @@ def _config(**sections):
 
 
 def _serial(dialect="pi_gcs2", **extra):
-    """The example on a serial controller. A line at 115200 Bd reads the position every few ms
-    and a loaded machine delays its threads now and then (the test suite compiles its sanitizer
-    builds beside these tests): the position may age 0.1 s before it stops the run, and the
-    driver waits 0.2 s for a write or a reply (a silent controller is found as a stale position)."""
+    """The example on a serial controller. A loaded machine delays the simulated controller's
+    and the driver's threads now and then (the test suite compiles its sanitizer builds beside
+    these tests): an answer may come 50 ms after its due time before it is a communication
+    timeout (5 ms by default), the position may age 0.1 s before it stops the run, and the
+    driver waits 0.2 s for a write."""
     units = {"units_per_m": 1000.0} if dialect == "pi_gcs2" else {"counts_per_m": 1e7}
-    return _config(stage={"kind": "serial"}, **{"stage.serial": {"dialect": dialect, "port": "/dev/null", "timeout": 0.2, **units}},
+    return _config(stage={"kind": "serial"}, **{"stage.serial": {"dialect": dialect, "port": "/dev/null", "timeout": 0.2,
+                                                                 "reply_overdue": 0.05, **units}},
                    safety={"max_position_age": 0.1, **extra})
 
 
@@ -90,6 +92,7 @@ def test_the_example_configuration():
     ("safety", "late_blocks", 1.5, r"safety\.late_blocks: expected an integer >= 1"),
     ("safety", "comm_timeout", 0.001, r"safety\.comm_timeout: expected more than one block period"),
     ("simulation", "travel", [-0.01, 0.01], r"simulation\.travel: expected the simulated axis's end stops"),
+    ("simulation", "processing", -1e-3, r"simulation\.processing: expected a number >= 0"),
     ("bringup", "calibration_band", [0.3, 600.0], r"bringup\.calibration_band: expected 0 < low < high"),
 ])
 def test_config_errors_name_the_key(section, key, value, match):
@@ -122,6 +125,15 @@ def test_config_errors_missing_keys_sections_and_files(tmp_path):
     with pytest.raises(FileNotFoundError):
         load_config(tmp_path / "missing.toml")
     assert _serial().serial["units_per_m"] == 1000.0 and _serial("zaber_ascii").serial["units_per_m"] == 1e7
+
+
+def test_serial_keys_reach_the_driver_and_are_checked():
+    c = _config(stage={"kind": "serial"}, **{"stage.serial": {
+        "dialect": "zaber_ascii", "port": "/dev/null", "counts_per_m": 1e7, "reply_overdue": 0.003}})
+    assert c.serial["reply_overdue"] == 0.003 and c.serial["target_age"] == 0.008
+    with pytest.raises(ConfigError, match=r"stage\.serial\.reply_overdue: expected a positive number"):
+        _config(stage={"kind": "serial"}, **{"stage.serial": {"dialect": "pi_gcs2", "port": "/dev/null",
+                                                              "units_per_m": 1000.0, "reply_overdue": 0.0}})
 
 
 def test_rig_modules_stay_out_of_the_package_import():
@@ -370,7 +382,7 @@ def test_sigint_ends_the_run_cleanly():
 
 
 @pytest.mark.parametrize("fault, causes", [
-    ("silent", ("stale position", "communication timeout")),
+    ("silent", ("communication timeout",)),
     ("error_reply", ("controller error",)),
     ("out_of_limit", ("position outside soft limits",)),
     ("closed_port", ("closed port",)),

@@ -164,6 +164,7 @@ _SCHEMA: dict[str, dict] = {
                      "units_per_m": (_nonzero("controller units per metre (e.g. 1000 for mm; not 0)"), None),
                      "counts_per_m": (_nonzero("controller counts per metre (the data sheet; not 0)"), None),
                      "axis": (_str, "1"), "device": (_str, ""), "timeout": (_POS, 0.05),
+                     "reply_overdue": (_POS, 0.005), "target_age": (_POS, 0.008),
                      "generic": (_table, None)},
     "loop": {"command_rate": (_POS, 1000.0), "sensor": (_choice("strips", "force"), "strips"),
              "weights": (_str, "paper"), "estimator_order": (_int(1, 8), 2), "estimator_bandwidth": (_POS, 100.0),
@@ -176,13 +177,14 @@ _SCHEMA: dict[str, dict] = {
                 "calibration_band": (_pair("a pair [low, high] of Hz with 0 < low < high"), (0.3, 15.0)),
                 "symmetric": (_bool, True), "delay_steps": (_int(1, 100), 3),
                 "delay_step": (_POS, 20e-6)},
-    "safety": {"watchdog": (_POS, 0.02), "max_position_age": (_POS, 0.02), "comm_timeout": (_POS, 0.1),
+    "safety": {"watchdog": (_POS, 0.015), "max_position_age": (_POS, 0.02), "comm_timeout": (_POS, 0.1),
                "late_block": (_POS, 0.01), "late_blocks": (_int(1), 3), "position_margin": (_NONNEG, 0.5e-3)},
     "simulation": {"plant": (_choice("realtime", "fem", "brush"), "realtime"), "seed": (_int(0), 0),
                    "finger_speed": (_POS, 0.01), "finger_amplitude": (_POS, 0.01), "finger_bandwidth": (_POS, 2.0),
                    "finger_a_max": (_POS, 0.5), "finger_duration": (_POS, 120.0), "mu": (_POS, None),
                    "hum": (_NONNEG, 2e-3), "force_noise": (_NONNEG, 2e-3), "travel": (_pair(), (-0.02, 0.02)),
-                   "x0": (_ANY, 0.0), "lead": (_POS, None), "baud": (_int(300, 10_000_000), None)},
+                   "x0": (_ANY, 0.0), "lead": (_POS, None), "baud": (_int(300, 10_000_000), None),
+                   "processing": (_NONNEG, 0.5e-3)},
 }
 _REQUIRED_SECTIONS = ("acquisition", "force_sensor", "stage")
 

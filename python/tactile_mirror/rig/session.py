@@ -51,7 +51,7 @@ def _serial_axis(config: RigConfig) -> dict:
     s = config.serial
     baud = config.simulation["baud"] or s["baud"]
     return serial_path_options(s["generic"] if s["dialect"] == "generic" else s["dialect"], s["units_per_m"], baud,
-                               s["axis"], s["device"])
+                               s["axis"], s["device"], processing=config.simulation["processing"])
 
 
 class RigSession:
@@ -135,6 +135,7 @@ class RigSession:
         dialect = make_dialect(s["generic"] if s["dialect"] == "generic" else s["dialect"], s["units_per_m"],
                                s["axis"], s["device"])
         return SerialStage(port, dialect, c.limits, baudrate=s["baud"], timeout=s["timeout"],
+                           reply_overdue=s["reply_overdue"], target_age=s["target_age"],
                            position_margin=c.safety["position_margin"])
 
     def start_stage(self) -> None:

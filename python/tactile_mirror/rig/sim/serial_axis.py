@@ -4,15 +4,18 @@
 :attr:`SerialAxis.port` (what the driver opens) and, in its own thread, reads the commands of
 a :class:`~tactile_mirror.rig.dialects.Dialect` on the master side and answers them as the
 controller would. A pty moves bytes instantly whatever the baud rate, so the simulator paces
-the line itself: 10 bits per byte (8N1) at ``baudrate``; a command counts as received when its
-last byte would have arrived, and each byte of an answer is written no earlier than it would
-have been sent (86.8 us per byte at 115200 Bd).
+the line itself: 10 bits per byte (8N1) at ``baudrate``, each direction on its own (full
+duplex); a command counts as received when its last byte would have arrived, commands are
+handled one at a time in the order they came (``latency`` each), answers go out in that
+order, and an answer is written (whole) when its last byte would have gone out (86.8 us per
+byte at 115200 Bd).
 
 The axis is a :class:`tactile_mirror.loop.SimulatedStage` (speed and acceleration limits,
 servo lag) advanced on the wall clock; a target outside the controller's own travel is refused
 with the dialect's error (``bad_target_code``: answered at once, or latched for the error query
 of a dialect such as PI GCS); a communication watchdog stops the axis when no byte has come for
-``watchdog`` seconds. Faults are injected for tests (:meth:`SerialAxis.go_silent`,
+``watchdog`` seconds (also once the port has closed: it counts from the last byte received).
+Faults are injected for tests (:meth:`SerialAxis.go_silent`,
 :meth:`~SerialAxis.answer_error`, :meth:`~SerialAxis.send_malformed`,
 :meth:`~SerialAxis.truncate_next`, :meth:`~SerialAxis.close_port`,
 :meth:`~SerialAxis.report_position`, :meth:`~SerialAxis.set_flag`,
@@ -64,7 +67,10 @@ class SerialAxis:
     home_position : float
         Where ``home`` takes the axis, m.
     latency : float
-        The controller's time between a command's last byte and its answer's first, s.
+        The controller's processing time per command, s: it handles one command at a time,
+        each once its last byte is in and the one before is done; the answer's first byte goes
+        out then (or once the answers before it are out). The two directions of the line are
+        paced independently (full duplex): commands keep coming in while answers go out.
     """
 
     def __init__(self, dialect: Dialect, limits: StageLimits | None = None, *, baudrate: int = 115200,
@@ -256,9 +262,11 @@ class SerialAxis:
     def _serve(self) -> None:
         clock = time.monotonic
         bt = self.byte_time
-        rx_free = tx_free = 0.0
+        rx_free = tx_free = busy = 0.0
         lines: collections.deque = collections.deque()  # (arrival s, command bytes)
-        tx: collections.deque = collections.deque()     # (due s, byte)
+        # answers, each written whole when its last byte would have gone out (the host reads
+        # whole lines: a byte at a time would only wake both sides 11520 times a second)
+        tx: collections.deque = collections.deque()     # (due s, bytes)
         partial = bytearray()
         last_rx: float | None = None  # the watchdog arms at the first byte received
         dog_fired = False
@@ -271,22 +279,26 @@ class SerialAxis:
                 return
             if close:
                 self._close_fds()
+                # the line is gone, the controller is not: its watchdog still counts from the last byte
+                if self.watchdog is not None and last_rx is not None and not dog_fired:
+                    self._watch_after_close(last_rx + self.watchdog)
                 return
             now = clock()
             answers = []
             while lines and lines[0][0] <= now:
                 arrival, line = lines.popleft()
-                answers.append(self._handle(line, arrival))
+                # one command at a time: each is handled once it is in and the one before is done
+                busy = max(busy, arrival) + self.latency
+                answers.append((busy, self._handle(line, arrival)))
             if extra:
-                answers.append(extra)
-            for data in answers:
+                answers.append((now, extra))
+            for ready, data in answers:
                 if data:
-                    start = max(tx_free, now + self.latency)
-                    tx.extend((start + (i + 1) * bt, b) for i, b in enumerate(data))
-                    tx_free = start + len(data) * bt
+                    tx_free = max(tx_free, ready) + len(data) * bt
+                    tx.append((tx_free, data))
             out = bytearray()
             while tx and tx[0][0] <= now:
-                out.append(tx.popleft()[1])
+                out += tx.popleft()[1]
             if out:
                 try:
                     n = os.write(master, out)
@@ -327,7 +339,6 @@ class SerialAxis:
                     data = b""
                 if data:
                     t = clock()
-                    last_rx, dog_fired = t, False
                     arrival = max(rx_free, t)
                     for b in data:
                         arrival += bt
@@ -336,6 +347,22 @@ class SerialAxis:
                             lines.append((arrival, bytes(partial)))
                             partial.clear()
                     rx_free = arrival
+                    last_rx, dog_fired = arrival, False   # (the last byte's arrival on the line)
+
+    def _watch_after_close(self, due: float) -> None:
+        """The port has closed: stop the axis at ``due`` (the watchdog's time) unless told to quit."""
+        while True:
+            with self._lock:
+                if self._quit:
+                    return
+            now = time.monotonic()
+            if now >= due:
+                self._advance(now)
+                self._stage.stop()
+                with self._lock:
+                    self._watchdog_stops.append(time.monotonic_ns())
+                return
+            time.sleep(min(due - now, 0.01))
 
     def _handle(self, line: bytes, arrival: float) -> bytes:
         """Act on one command line; the answer's bytes (b"" for none)."""

@@ -12,10 +12,12 @@ at the time it arrived (so the plant sees a smooth motion, not the steps of a mo
 each command). The controller answers its position queries with that pad's position at the
 last tick whose time has come (``SerialAxis.report_position``, updated every tick), as an
 encoder on the carriage would: the ticks are computed ahead of their time, so a command acts
-on the pad a little later than on the controller's own model, and the reading must show it. ``axis_options`` holds the
-dialect (a built-in's name, or a table for :meth:`Dialect.generic
-<tactile_mirror.rig.dialects.Dialect.generic>`), ``units_per_m``, ``baud``, ``axis`` and
-``device``; :func:`serial_path_options` makes them.
+on the pad a little later than on the controller's own model, and the reading must show it.
+
+``axis_options`` holds the dialect (a built-in's name, or a table for :meth:`Dialect.generic
+<tactile_mirror.rig.dialects.Dialect.generic>`), ``units_per_m``, ``baud``, ``axis``,
+``device`` and ``processing`` (the controller's time per command);
+:func:`serial_path_options` makes them.
 """
 from __future__ import annotations
 
@@ -44,11 +46,13 @@ def make_dialect(dialect, units_per_m: float, axis: str = "", device: str = ""):
     return dataclasses.replace(d, **changes) if changes else d
 
 
-def serial_path_options(dialect, units_per_m: float, baud: int, axis: str = "", device: str = "") -> dict:
-    """``SimRigConfig`` fields for a serial controller: ``axis_factory`` and ``axis_options``."""
+def serial_path_options(dialect, units_per_m: float, baud: int, axis: str = "", device: str = "",
+                        processing: float = 0.5e-3) -> dict:
+    """``SimRigConfig`` fields for a serial controller: ``axis_factory`` and ``axis_options``
+    (``processing``: the controller's time per command, s)."""
     return {"axis_factory": serial_axis,
             "axis_options": {"dialect": dialect, "units_per_m": float(units_per_m), "baud": int(baud),
-                             "axis": axis, "device": device}}
+                             "axis": axis, "device": device, "processing": float(processing)}}
 
 
 def serial_axis(config, ring) -> SerialPathAxis:
@@ -58,7 +62,7 @@ def serial_axis(config, ring) -> SerialPathAxis:
     o = config.axis_options
     d = make_dialect(o["dialect"], o["units_per_m"], o.get("axis", ""), o.get("device", ""))
     controller = SerialAxis(d, config.limits, baudrate=o["baud"], watchdog=config.watchdog, x0=config.x0,
-                            lag=config.lag, home_position=config.x0)
+                            lag=config.lag, home_position=config.x0, latency=o.get("processing", 0.5e-3))
     return SerialPathAxis(controller, config, ring)
 
 
