@@ -136,6 +136,27 @@ def test_serial_keys_reach_the_driver_and_are_checked():
                                                               "units_per_m": 1000.0, "reply_overdue": 0.0}})
 
 
+def test_gc_paused_and_raised_priority_leave_the_process_as_they_found_it():
+    import gc
+
+    from tactile_mirror.rig.realtime import gc_paused, raised_priority
+
+    frozen = gc.get_freeze_count()
+    assert gc.isenabled()
+    with gc_paused():
+        assert not gc.isenabled() and gc.get_freeze_count() > frozen
+        with gc_paused():               # (nested: nothing more, nothing undone)
+            assert not gc.isenabled()
+        assert not gc.isenabled() and gc.get_freeze_count() > frozen
+    assert gc.isenabled() and gc.get_freeze_count() == frozen
+    before = os.nice(0)
+    with raised_priority(before - 1) as nice:
+        assert nice in (before - 1, before) and os.nice(0) == nice   # lowered where permitted
+    assert os.nice(0) == before
+    with raised_priority(before + 5) as nice:                         # never raised
+        assert nice == before == os.nice(0)
+
+
 def test_rig_modules_stay_out_of_the_package_import():
     import subprocess
 

@@ -96,9 +96,21 @@ def cmd_rig_check(args) -> int:
 
 def cmd_rig_run(args) -> int:
     """``tactile-mirror rig run``: bring-up, then the loop for ``--duration`` s, recorded in
-    ``--out``. Returns the exit status (1 after a fault, 130 / 143 after SIGINT / SIGTERM)."""
-    with _SwitchInterval():
-        return _rig_run(args)
+    ``--out``. Returns the exit status (1 after a fault, 130 / 143 after SIGINT / SIGTERM). The
+    process runs at a higher scheduling priority where the system permits it
+    (:func:`~tactile_mirror.rig.realtime.raised_priority`), its garbage collector off from the
+    rig's opening to its closing (:func:`~tactile_mirror.rig.realtime.gc_paused`)."""
+    import gc
+
+    from tactile_mirror.rig.realtime import gc_paused, raised_priority
+
+    with raised_priority() as nice, _SwitchInterval():
+        gc.collect()   # (before the rig's threads start: a collection holds them all up)
+        try:
+            with gc_paused():
+                return _rig_run(args, nice)
+        finally:
+            gc.collect()
 
 
 def _rig_check(args) -> int:
@@ -150,7 +162,7 @@ def _rig_check(args) -> int:
     return 0
 
 
-def _rig_run(args) -> int:
+def _rig_run(args, nice) -> int:
     import numpy as np
 
     from tactile_mirror.cli.arguments import load_detector
@@ -167,7 +179,7 @@ def _rig_run(args) -> int:
     # (the simulated finger's path lasts the run: its peak speed and acceleration fall within it)
     sim_kw = {"duration": min(args.duration, c.simulation["finger_duration"])} if args.simulate else {}
     session = RigSession(c, simulate=args.simulate, **sim_kw)
-    summary = {"config": c.source, "simulated": args.simulate, "duration_s": args.duration}
+    summary = {"config": c.source, "simulated": args.simulate, "duration_s": args.duration, "nice": nice}
     status, result, error = 0, None, None
     live = None
     part = "bringup_partial"

@@ -41,6 +41,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from tactile_mirror.rig.realtime import gc_paused
 from tactile_mirror.rig.runner import RigResult, RigRunner
 from tactile_mirror.rig.supervisor import RigError, Supervisor
 
@@ -406,7 +407,8 @@ def bring_up(session, supervisor: Supervisor, detector, log=print) -> BringUpRes
     log(f"stage: at the start {start * 1e3:.3f} mm (from {p0 * 1e3:.3f} mm, {time.monotonic() - t:.1f} s)")
     steps["approach_s"] = time.monotonic() - t
     t = time.monotonic()
-    delays = _measure_delay(drain, stage, sup, config, log)
+    with gc_paused():
+        delays = _measure_delay(drain, stage, sup, config, log)
     _move(drain, stage, sup, lambda dt, p: start if dt < 0.1 else None)
     steps["delay_s"] = time.monotonic() - t
     t = time.monotonic()
@@ -427,7 +429,8 @@ def bring_up(session, supervisor: Supervisor, detector, log=print) -> BringUpRes
         f" mN rms; lost samples {sensors.lost_samples}")
     steps["sensors_only_s"] = time.monotonic() - t
     t = time.monotonic()
-    cal = _calibrate(drain, stage, sup, source, config, detector, log)
+    with gc_paused():
+        cal = _calibrate(drain, stage, sup, source, config, detector, log)
     _move(drain, stage, sup, lambda dt, p: start if dt < 0.1 else None)
     steps["calibration_s"] = time.monotonic() - t
     # the law, from the rig's numbers; the acquisition is drained while it is designed

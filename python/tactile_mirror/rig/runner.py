@@ -35,6 +35,7 @@ import numpy as np
 from tactile_mirror.checks import real_number
 from tactile_mirror.loop.recording import Recording, RigTrace
 from tactile_mirror.rig.daq import Overrun
+from tactile_mirror.rig.realtime import gc_paused
 from tactile_mirror.rig.supervisor import RigError, Supervisor, Trip
 
 __all__ = ["RigResult", "RigRunner"]
@@ -228,8 +229,15 @@ class RigRunner:
 
         ``cues``: ``(t, fn)`` pairs: ``fn()`` is called once, after the block whose last sample
         is ``t`` s or more into the run (e.g. telling the operator to start moving the finger
-        once the law has armed)."""
+        once the law has armed).
+
+        The cyclic garbage collector is off during the run (:func:`~tactile_mirror.rig.realtime.gc_paused`:
+        a collection of the host's heap holds the loop and the stage driver up for tens of ms)."""
         duration = real_number(duration, "duration", unit="s", positive=True)
+        with gc_paused():
+            return self._run(duration, x0, reset, catch_up, cues)
+
+    def _run(self, duration: float, x0, reset: bool, catch_up: bool, cues) -> RigResult:
         pipe, stage, src, sup = self.pipeline, self.stage, self.source, self.supervisor
         fs, n = float(src.fs), int(src.block_size)
         n_blocks = max(1, math.ceil(round(duration * fs) / n))

@@ -40,6 +40,7 @@ in :class:`~tactile_mirror.rig.sim.config.SimRigConfig` builds any axis in the p
 """
 from __future__ import annotations
 
+import gc
 import math
 import multiprocessing
 import time
@@ -48,6 +49,7 @@ import traceback
 import numpy as np
 
 from tactile_mirror.rig.daq import input_names
+from tactile_mirror.rig.realtime import gc_paused, raised_priority
 from tactile_mirror.rig.sim.axis import analog_axis
 from tactile_mirror.rig.sim.config import FAULTS, SimRigConfig, SimRigLog
 from tactile_mirror.rig.sim.daq_shm import DEVICE_ERROR, DEVICE_REMOVED, DaqRing, RingState, ShmDaq
@@ -279,7 +281,7 @@ class _Simulation:
         self._stress0 = None
         self._force0 = np.zeros(2)
         self._tare_force = False
-        self._pads = [0.0, 0.0]
+        self._pad0 = self._pad1 = 0.0   # the pad at the last two ticks, m
         self._watchdog_ns = round(c.watchdog * 1e9)
         self._tripped = False
         self._frozen = False          # the encoder stopped counting
@@ -306,10 +308,10 @@ class _Simulation:
             now = time.monotonic_ns()
             if message[0] == "place":
                 if math.isnan(self.anchor):
-                    self.anchor = self._pads[1]
+                    self.anchor = self._pad1
             elif message[0] == "finger":
                 if math.isnan(self.anchor):
-                    self.anchor = self._pads[1]
+                    self.anchor = self._pad1
                 if self.finger_start < 0:
                     self.finger_start = self._n_ticks
             elif message[0] == "reset":
@@ -427,9 +429,9 @@ class _Simulation:
         m = i % self.noise_v.shape[1]
         row[:2 * R] = v + self.noise_v[:, m]
         row[2 * R:4 * R] = u + self.noise_u[:, m]
-        p0, p1 = self._pads
+        p0, p1 = self._pad0, self._pad1
         acc = (pad - 2.0 * p1 + p0) * fs * fs if i >= 2 else 0.0
-        self._pads = [p1, pad]
+        self._pad0, self._pad1 = p1, pad
         fy = st.force_y - c.pad_mass * acc
         if self._tare_force:
             self._force0[:] = (fy, st.force_z)
@@ -468,19 +470,27 @@ def _process_main(name: str, config: SimRigConfig, conn, control) -> None:
     # the interpreter within a fraction of a millisecond, not after the default 5 ms switch
     # interval of the tick loop's thread.
     sys.setswitchinterval(1e-4)
+    with raised_priority():   # (a simulator that stands in for hardware must not wait behind other work)
+        _serve(name, config, conn, control)
+
+
+def _serve(name: str, config: SimRigConfig, conn, control) -> None:
+    """Build the simulation, tell the host it is ready, run on the clock, send the log."""
     parent = multiprocessing.parent_process()
     ring = DaqRing.attach(name)
     sim = None
     try:
         sim = _Simulation(config, ring)
+        gc.collect()   # (now, before the host talks to the process: a collection later holds it up)
         ring.set_state(RingState.READY)
         conn.send(("ready", sim.axis.info()))
-        while not ring.t0_ns and not ring.shutdown_requested:
-            if parent is not None and not parent.is_alive():
-                return
-            time.sleep(5e-4)
-        if ring.t0_ns and not ring.stop_requested:
-            sim.run(parent, control)
+        with gc_paused():
+            while not ring.t0_ns and not ring.shutdown_requested:
+                if parent is not None and not parent.is_alive():
+                    return
+                time.sleep(5e-4)
+            if ring.t0_ns and not ring.stop_requested:
+                sim.run(parent, control)
         sim.axis.stop()
         why = "shutdown" if ring.shutdown_requested else "acquisition stopped"
         sim.stops.append((time.monotonic_ns(), why))
