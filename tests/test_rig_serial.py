@@ -582,8 +582,8 @@ def test_every_fault_latches_with_its_cause_and_stops_the_axis(line, d, fault):
 @pty_only
 @pytest.mark.parametrize("d", BOTH)
 def test_a_silent_controller_is_found_once_its_answer_is_overdue(line, d):
-    # the driver's default bound: an answer 5 ms past its due time (its bytes at the baud rate
-    # behind those before it, and the controller's processing) is a communication timeout
+    # an answer 5 ms past its due time (its bytes at the baud rate behind those before it, and
+    # the controller's processing) is a communication timeout
     for _ in range(3):   # (a loaded machine may hold the controller's thread longer: try again)
         sim, stage = line(d, stage={"reply_overdue": 0.005}, sim={"latency": 0.0005})
         stage.move_to(0.002)

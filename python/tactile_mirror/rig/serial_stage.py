@@ -12,10 +12,11 @@ writes:
   :attr:`~SerialStage.command_interval`, confirmed by the controller's answer (``ack_reply``)
   or, for a dialect whose set commands are not answered (PI GCS), by its error query written
   right behind it;
-- a position query riding behind every ``k``-th move (``k`` the largest that keeps the
-  reading's age within ``target_age`` while moves stream at the top rate), and one whenever
-  both directions of the line are idle (at most one such query at a time, ``poll_interval``
-  apart);
+- a position query riding behind a move whenever the next move would come too late to keep
+  the reading's age within ``target_age``, at least behind every ``k``-th (``k`` the most moves
+  per query that keep it so at the top rate); while no moves stream, a query whenever its
+  answer would follow the one on its way back to back (``poll_interval`` apart). While moves
+  stream, no query is put on the line between them: it would hold the next move up;
 - the error query every ``error_interval`` for a dialect whose errors latch (PI GCS).
 
 The driver paces itself on the line's clock: it knows the bytes it wrote and the baud rate, so
@@ -119,7 +120,8 @@ class SerialStage:
         Interval of the error query of a dialect whose errors latch (``query_error`` without
         ``ack_reply``), s; moves are confirmed by it at once regardless.
     max_in_flight : int
-        Most commands whose answers are outstanding.
+        Most commands whose answers are outstanding (a move, its confirmation and a position
+        query may go in one write: at least 2).
     position_margin : float
         How far beyond the soft limits a reading may lie (the servo's following error), m.
     max_speed : float, optional
@@ -136,7 +138,7 @@ class SerialStage:
     command_mode = "per_block"  # a serial line carries a command per block, not per 1 kHz tick
 
     def __init__(self, port: str, dialect: Dialect, limits: StageLimits, *, baudrate: int = 115200,
-                 timeout: float = 0.1, reply_overdue: float = 0.005, processing: float | None = None,
+                 timeout: float = 0.1, reply_overdue: float = 0.01, processing: float | None = None,
                  target_age: float = 0.008, poll_interval: float = 0.0, error_interval: float = 0.1,
                  max_in_flight: int = 4, position_margin: float = 1e-4, max_speed: float | None = None,
                  max_reply: int = 256):
@@ -453,13 +455,15 @@ class SerialStage:
         pending = self._pending
         query, query_label = self._query, self._query_label
         backlog = self._move_bytes * bt        # the most bytes' time written ahead of the line
+        age = self._target_age
+        latency = self._processing + self._sizes["position"] * bt   # a query's arrival -> its answer
         while not self._stop_request.is_set():
             self._receive()
             now = clock()
             if pending and now > pending[0].due + self._overdue:
                 self._overdue_fault()
             wake = now + 0.05
-            if len(pending) < self._max_in_flight and self._tx_free - now <= backlog:
+            if len(pending) + 2 <= self._max_in_flight and self._tx_free - now <= backlog:
                 if by_error_query and now >= last_error + self._error_interval:
                     self._send([(self._error_query, self._label(self._error_query), "error")])
                     self._counts["error_queries"] += 1
@@ -471,7 +475,10 @@ class SerialStage:
                             x, self._slot = self._slot, None
                         parts = self._move_parts(x)
                         moves_since_query += 1
-                        if moves_since_query >= self._k:
+                        # a query rides behind this move if the next move (as far off as this one
+                        # came after the last) would bring the reading too late, at most every k-th
+                        spacing = min(now - last_move, age)
+                        if moves_since_query >= self._k or now + spacing - last_poll > age - latency:
                             parts.append((query, query_label, "position"))
                             moves_since_query = 0
                             last_poll = now
@@ -485,14 +492,20 @@ class SerialStage:
                             last_error = now
                         continue
                     wake = min(wake, last_move + self._interval)
-                elif (self._tx_free <= now and self._rx_free <= now + (len(query) * bt + self._processing)
-                      and not any(p.kind == "position" for p in pending)):
-                    if now >= last_poll + self._poll_interval:
+                elif now < last_move + age and now < last_poll + age:
+                    # moves stream and queries ride behind them: the line stays free for the next
+                    # move (a query put on it now would hold that move up by its bytes)
+                    wake = min(wake, last_move + age, last_poll + age)
+                elif sum(p.kind == "position" for p in pending) < 2:
+                    # the next query once its answer would come right behind the one on its way
+                    t_next = max(self._tx_free, self._rx_free - (len(query) * bt + self._processing),
+                                 last_poll + self._poll_interval)
+                    if now >= t_next:
                         self._send([(query, query_label, "position")])
                         moves_since_query = 0
                         last_poll = now
                         continue
-                    wake = min(wake, last_poll + self._poll_interval)
+                    wake = min(wake, t_next)
                 if by_error_query:
                     wake = min(wake, last_error + self._error_interval)
             else:
