@@ -151,12 +151,17 @@ def test_gc_paused_and_raised_priority_leave_the_process_as_they_found_it():
             assert not gc.isenabled()
         assert not gc.isenabled() and gc.get_freeze_count() > frozen
     assert gc.isenabled() and gc.get_freeze_count() == frozen
-    before = os.nice(0)
-    with raised_priority(before - 1) as nice:
-        assert nice in (before - 1, before) and os.nice(0) == nice   # lowered where permitted
+    before, policy = os.nice(0), os.sched_getscheduler(0)
+    with raised_priority(before - 1) as p:
+        assert p["nice"] in (before - 1, before) and os.nice(0) == p["nice"]   # lowered where permitted
+        assert p["rt_priority"] == 0 and os.sched_getscheduler(0) == policy
     assert os.nice(0) == before
-    with raised_priority(before + 5) as nice:                         # never raised
-        assert nice == before == os.nice(0)
+    with raised_priority(before + 5) as p:                                    # never raised
+        assert p["nice"] == before == os.nice(0)
+    with raised_priority(rt_priority=3) as p:                                 # real-time where permitted
+        assert p["rt_priority"] in (0, 3)
+        assert os.sched_getscheduler(0) == (os.SCHED_RR if p["rt_priority"] else policy)
+    assert os.sched_getscheduler(0) == policy and os.nice(0) == before
 
 
 def test_rig_modules_stay_out_of_the_package_import():
@@ -447,7 +452,7 @@ def _config_file(tmp_path, **replace) -> str:
     text = open(EXAMPLE).read()
     for key, value in replace.items():
         lines = text.splitlines()
-        hit = [i for i, line in enumerate(lines) if line.startswith(f"{key} =")]
+        hit = [i for i, line in enumerate(lines) if line.startswith((f"{key} =", f"# {key} ="))]   # (set, or uncommented)
         assert hit, key
         lines[hit[0]] = f"{key} = {value}"
         text = "\n".join(lines) + "\n"
@@ -473,8 +478,10 @@ def test_rig_run_simulate_brings_up_and_records(tmp_path, capsys):
     from tactile_mirror.cli import main
 
     # (bounds a loaded machine's stalls stay within: this checks bring-up and the recording)
+    # (the loop's process is this test process: at its ordinary priority, while it designs the law too)
     cfg = _config_file(tmp_path, sensors_only="0.3", calibration_cycles="1", approach_speed="0.004",
-                       delay_steps="1", finger_speed="0.005", max_position_age="0.1", late_block="0.05")
+                       delay_steps="1", finger_speed="0.005", max_position_age="0.1", late_block="0.05",
+                       rt_priority="0")
     out = tmp_path / "run"
     status = main(["rig", "run", "--config", cfg, "--duration", "1.5", "--out", str(out), "--simulate",
                    "--live", "text"])

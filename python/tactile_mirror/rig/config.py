@@ -176,7 +176,8 @@ _SCHEMA: dict[str, dict] = {
              "weights": (_str, "paper"), "estimator_order": (_int(1, 8), 2), "estimator_bandwidth": (_POS, 100.0),
              "notch": (_reals(), ()), "arm_delay": (_NONNEG, 0.5), "phase_margin": (_NONNEG, 45.0),
              "gain_margin": (_NONNEG, 6.0), "max_sensitivity": (_number(1.0, lo_open=True, what="a number > 1"), 2.0),
-             "planner": (_bool, True), "max_hold_ticks": (_int(1, 100_000), 50)},
+             "planner": (_bool, True), "max_hold_ticks": (_int(1, 100_000), 50),
+             "rt_priority": (_int(0, 99), 0)},
     "bringup": {"sensors_only": (_POS, 1.0),
                 "calibration_amplitudes": (_reals(), (20e-6, 40e-6, 60e-6, 80e-6)),
                 "calibration_speed": (_POS, 0.5e-3), "calibration_cycles": (_int(1, 100), 3),
@@ -190,7 +191,7 @@ _SCHEMA: dict[str, dict] = {
                    "finger_a_max": (_POS, 0.5), "finger_duration": (_POS, 120.0), "mu": (_POS, None),
                    "hum": (_NONNEG, 2e-3), "force_noise": (_NONNEG, 2e-3), "travel": (_pair(), (-0.02, 0.02)),
                    "x0": (_ANY, 0.0), "lead": (_POS, None), "baud": (_int(300, 10_000_000), None),
-                   "processing": (_NONNEG, 0.5e-3)},
+                   "processing": (_NONNEG, 0.5e-3), "rt_priority": (_int(0, 99), 0)},
 }
 _REQUIRED_SECTIONS = ("acquisition", "force_sensor", "stage")
 

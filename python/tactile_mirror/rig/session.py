@@ -33,7 +33,8 @@ def simulated_rig_config(config: RigConfig, **overrides):
                          "v_max": sim["finger_speed"], "a_max": sim["finger_a_max"]},
           "noise": SensorNoise(circuit=config.circuit(), hum=sim["hum"]), "circuit": dict(config.front_end) or None,
           "force_noise": sim["force_noise"], "limits": StageLimits(lo, hi, stage["v_max"], stage["a_max"]),
-          "lag": stage["lag"], "x0": sim["x0"], "lead": sim["lead"], "watchdog": config.safety["watchdog"]}
+          "lag": stage["lag"], "x0": sim["x0"], "lead": sim["lead"], "watchdog": config.safety["watchdog"],
+          "rt_priority": sim["rt_priority"]}
     if config.stage["kind"] == "analog":
         kw.update(ao_mode=a["mode"], counts_per_m=a["counts_per_m"], ao_range=a["ao_range"],
                   volts_offset=a["volts_offset"])

@@ -294,7 +294,10 @@ class _Simulation:
         self.block_compute: list[int] = []
         self.missed: list[int] = []
         self.lateness: list[int] = []
-        self._ticks = np.zeros((max(1024, round(4 * c.fs)), R + 2))   # finger, pad, slip fraction
+        # finger, pad, slip fraction per tick, in chunks of a second: a new chunk costs
+        # microseconds, where growing one array copied it whole (10 ms at 8 s, in the tick path)
+        self._chunk = max(1, round(c.fs))
+        self._ticks = [np.zeros((self._chunk, R + 2))]
         self._n_ticks = 0
 
     # ------------------------------------------------------------------ host's requests
@@ -442,16 +445,18 @@ class _Simulation:
             row[:4 * R] = math.nan
             self._nan_left -= 1
         t = self._n_ticks
-        if t == self._ticks.shape[0]:
-            self._ticks = np.concatenate([self._ticks, np.zeros_like(self._ticks)])
-        self._ticks[t, 0] = finger
-        self._ticks[t, 1] = pad
-        self._ticks[t, 2:] = st.slip_fraction
+        k, r = divmod(t, self._chunk)
+        if k == len(self._ticks):
+            self._ticks.append(np.zeros_like(self._ticks[0]))
+        rec = self._ticks[k]
+        rec[r, 0] = finger
+        rec[r, 1] = pad
+        rec[r, 2:] = st.slip_fraction
         self._n_ticks = t + 1
 
     def record(self) -> dict:
         c, ring = self.config, self.ring
-        ticks = self._ticks[:self._n_ticks]
+        ticks = np.concatenate(self._ticks)[:self._n_ticks]
         return {"fs": c.fs, "block_size": c.block_size, "t0_ns": ring.t0_ns, "blocks": ring.published,
                 "block_compute_ns": np.asarray(self.block_compute, dtype=np.int64),
                 "missed_blocks": np.asarray(self.missed, dtype=np.int64),
@@ -470,7 +475,8 @@ def _process_main(name: str, config: SimRigConfig, conn, control) -> None:
     # the interpreter within a fraction of a millisecond, not after the default 5 ms switch
     # interval of the tick loop's thread.
     sys.setswitchinterval(1e-4)
-    with raised_priority():   # (a simulator that stands in for hardware must not wait behind other work)
+    # a simulator that stands in for hardware must not wait behind the machine's other work
+    with raised_priority():
         _serve(name, config, conn, control)
 
 
@@ -490,7 +496,8 @@ def _serve(name: str, config: SimRigConfig, conn, control) -> None:
                     return
                 time.sleep(5e-4)
             if ring.t0_ns and not ring.stop_requested:
-                sim.run(parent, control)
+                with raised_priority(rt_priority=config.rt_priority):   # (the clock runs: the ticks wait on it)
+                    sim.run(parent, control)
         sim.axis.stop()
         why = "shutdown" if ring.shutdown_requested else "acquisition stopped"
         sim.stops.append((time.monotonic_ns(), why))

@@ -229,20 +229,20 @@ class SerialAxis:
         with self._lock:
             return list(self._log)
 
-    def targets(self) -> list[tuple[int, float, bool]]:
-        """``(monotonic_ns, target m, accepted)`` of every move received."""
+    def targets(self, start: int = 0) -> list[tuple[int, float, bool]]:
+        """``(monotonic_ns, target m, accepted)`` of every move received (from the ``start``-th on)."""
         with self._lock:
-            return list(self._targets)
+            return self._targets[start:]
 
-    def stop_times(self) -> list[int]:
-        """monotonic_ns of every stop command received."""
+    def stop_times(self, start: int = 0) -> list[int]:
+        """monotonic_ns of every stop command received (from the ``start``-th on)."""
         with self._lock:
-            return list(self._stops)
+            return self._stops[start:]
 
-    def watchdog_stops(self) -> list[int]:
-        """monotonic_ns of every stop by the communication watchdog."""
+    def watchdog_stops(self, start: int = 0) -> list[int]:
+        """monotonic_ns of every stop by the communication watchdog (from the ``start``-th on)."""
         with self._lock:
-            return list(self._watchdog_stops)
+            return self._watchdog_stops[start:]
 
     def rejected(self) -> list[tuple[int, str, str]]:
         """``(monotonic_ns, command, code)`` of every command refused with an error."""

@@ -94,13 +94,17 @@ class SerialPathAxis:
             if k:
                 c.report_position(h[k - 1][1])
                 del h[:k - 1]
-        moves, stops, dog = c.targets(), c.stop_times(), c.watchdog_stops()
-        events = [(t, "move", x) for t, x, ok in moves[self._seen["moves"]:] if ok]
-        events += [(t, "stop", 0.0) for t in stops[self._seen["stops"]:]]
-        events += [(t, "stop", 0.0) for t in dog[self._seen["dog"]:]]
-        if not events:
+        seen = self._seen
+        # (only what is new: the logs grow by hundreds of entries a second, the ticks come at 1 kHz)
+        moves, stops, dog = c.targets(seen["moves"]), c.stop_times(seen["stops"]), c.watchdog_stops(seen["dog"])
+        if not (moves or stops or dog):
             return
-        self._seen.update(moves=len(moves), stops=len(stops), dog=len(dog))
+        seen["moves"] += len(moves)
+        seen["stops"] += len(stops)
+        seen["dog"] += len(dog)
+        events = [(t, "move", x) for t, x, ok in moves if ok]
+        events += [(t, "stop", 0.0) for t in stops]
+        events += [(t, "stop", 0.0) for t in dog]
         for _, kind, x in sorted(events, key=lambda e: e[0]):
             if kind == "move":
                 self._model.move_to(x)
@@ -140,7 +144,7 @@ class SerialPathAxis:
                 "watchdog_ns": np.array(c.watchdog_stops(), dtype=np.int64),
                 "command_t_ns": np.array([t for t, _ in cmds], dtype=np.int64),
                 "commands": [text for _, text in cmds],
-                "rejected": [list(r) for r in c.rejected()]}
+                "rejected": [list(r) for r in c.rejected()], "dropped": int(c.dropped)}
 
     def close(self) -> None:
         self.controller.close()
