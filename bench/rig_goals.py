@@ -248,9 +248,10 @@ def fault_run(stage: str, fault: str, config_dir: Path, plant: str, loose: bool)
     t_fault = min([t for t, _ in log.faults], default=err.trip.t_fault_ns)
     if err.cause in ("pipeline fault", "SIGINT"):
         t_fault = err.trip.t_fault_ns
-    # (from the fault: a serial driver sends the stop itself the moment it finds the fault,
-    # before the supervisor sees it at the next block)
-    stop = log.stop_after(t_fault)
+    # a serial driver sends the stop itself the moment it finds the fault, before the supervisor
+    # sees it (the stops are logged as such: from the fault); on the analog path every output
+    # written counts as a command, and the stop is the first written after the supervisor saw it
+    stop = log.stop_after(t_fault if "stop_ns" in log.commands else err.trip.t_detect_ns)
     if stop is not None:
         row.update(stop_ms=(stop[0] - t_fault) / 1e6, how=stop[1])
     return row

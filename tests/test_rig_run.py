@@ -268,7 +268,9 @@ def _stop_latency(session, err) -> tuple[float, str]:
     t_fault = min([t for t, _ in log.faults], default=err.trip.t_fault_ns)
     if err.cause == "pipeline fault":
         t_fault = err.trip.t_fault_ns
-    stop = log.stop_after(t_fault)   # (a serial driver stops the axis itself before the supervisor looks)
+    # (a serial driver stops the axis itself before the supervisor looks: its stops are logged as
+    # such; on the analog path the stop is the first output written after the supervisor saw it)
+    stop = log.stop_after(t_fault if "stop_ns" in log.commands else err.trip.t_detect_ns)
     assert stop is not None, "the axis was never stopped"
     return (stop[0] - t_fault) / 1e6, stop[1]
 

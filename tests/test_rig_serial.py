@@ -508,6 +508,22 @@ def test_targets_outside_the_soft_limits_are_never_sent(line, d):
 
 
 @pty_only
+def test_a_target_at_a_soft_limit_is_written_inside_it(line):
+    # 15 mm is 314960.63 microsteps: rounded to the controller's resolution it would lie 8 nm
+    # outside; the driver writes the step inside instead
+    limits = StageLimits(-0.015, 0.015, 0.1, 5.0)
+    sim, stage = line(ZABER, limits=limits)
+    for x in (0.015, -0.015):
+        stage.move_to(x)
+        time.sleep(0.02)
+    assert _wait(lambda: len(sim.targets()) == 2)
+    stage.close()
+    written = [t for _, t, _ in sim.targets()]
+    assert all(limits.x_min <= t <= limits.x_max for t in written), written
+    assert written == pytest.approx([0.015, -0.015], abs=1.0 / ZABER_UNITS)
+
+
+@pty_only
 @pytest.mark.parametrize("d", BOTH)
 def test_the_controller_refuses_a_target_outside_its_own_limits(line, d):
     wide = StageLimits(-0.08, 0.08, 0.1, 5.0)  # soft limits wider than the controller's travel

@@ -273,7 +273,10 @@ def _sim_summary(log, error) -> dict:
     s["faults"] = [[t, k] for t, k in log.faults]
     if error is not None:
         t_fault = min([t for t, _ in log.faults], default=error.trip.t_fault_ns)
-        stop = log.stop_after(min(t_fault, error.trip.t_detect_ns))   # (a serial driver stops before the supervisor looks)
+        # (a serial driver stops the axis itself before the supervisor looks; on the analog path
+        # the stop is the first output written after the supervisor saw the fault)
+        stop = log.stop_after(min(t_fault, error.trip.t_detect_ns) if "stop_ns" in log.commands
+                              else error.trip.t_detect_ns)
         if stop is not None:
             s["stop"] = {"how": stop[1], "after_fault_ms": (stop[0] - t_fault) / 1e6}
     return s

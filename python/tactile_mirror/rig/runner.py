@@ -36,7 +36,7 @@ from tactile_mirror.checks import integer, real_number
 from tactile_mirror.loop.recording import Recording, RigTrace
 from tactile_mirror.rig.daq import Overrun
 from tactile_mirror.rig.realtime import gc_paused, raised_priority
-from tactile_mirror.rig.supervisor import RigError, Supervisor, Trip
+from tactile_mirror.rig.supervisor import RigError, Supervisor, Trip, fault_cause
 
 __all__ = ["RigResult", "RigRunner"]
 
@@ -274,7 +274,11 @@ class RigRunner:
             try:
                 stage.move_to(cmd)
             except Exception as exc:  # noqa: BLE001
-                sup.trip("controller error", f"stage.move_to({cmd!r}) raised {type(exc).__name__}: {exc}")
+                fault = getattr(stage, "fault", lambda: None)()
+                if fault:   # (the driver latched its fault since the last check: that is the cause)
+                    sup.trip(fault_cause(fault), f"the stage driver reports: {fault}")
+                else:
+                    sup.trip("controller error", f"stage.move_to({cmd!r}) raised {type(exc).__name__}: {exc}")
                 return False
             last_cmd = time.monotonic_ns()
             cmds_row[nc], cmds_t[nc], cmds_x[nc] = cmd_row, last_cmd, cmd

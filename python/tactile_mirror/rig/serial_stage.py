@@ -521,7 +521,7 @@ class SerialStage:
 
     def _move_parts(self, x: float) -> list:
         d = self._dialect
-        data = d.command("move", x)
+        data = self._move_command(x)
         label = self._label(data)
         if d.ack_reply:
             return [(data, label, "ack")]
@@ -529,6 +529,16 @@ class SerialStage:
             self._counts["error_queries"] += 1
             return [(data, label, None), (self._error_query, f"{label} + {self._label(self._error_query)}", "error")]
         return [(data, label, None)]
+
+    def _move_command(self, x: float) -> bytes:
+        """The move to ``x`` as written, its position rounded to the controller's resolution
+        and, where rounding took it past a soft limit, one step back inside."""
+        d, lim = self._dialect, self._limits
+        written = float(d.units_text(x)) / d.units_per_m
+        if not lim.x_min <= written <= lim.x_max:
+            step = 10.0 ** -d.decimals / d.units_per_m
+            x = x - step if written > lim.x_max else x + step
+        return d.command("move", x)
 
     def _sleep(self, until: float, watch_port: bool) -> None:
         """Wait until ``until`` (monotonic s) or a wake-up (a target, a stop); with
