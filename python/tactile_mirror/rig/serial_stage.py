@@ -15,8 +15,10 @@ writes:
 - a position query riding behind a move whenever the next move would come too late to keep
   the reading's age within ``target_age``, at least behind every ``k``-th (``k`` the most moves
   per query that keep it so at the top rate); while no moves stream, a query whenever its
-  answer would follow the one on its way back to back (``poll_interval`` apart). While moves
-  stream, no query is put on the line between them: it would hold the next move up;
+  answer would follow the one on its way back to back (``poll_interval`` apart), with the
+  line let go quiet every ``error_interval`` (an answer nobody asked for would otherwise shift
+  the answers behind it unseen). While moves stream, no query is put on the line between
+  them: it would hold the next move up;
 - the error query every ``error_interval`` for a dialect whose errors latch (PI GCS).
 
 The driver paces itself on the line's clock: it knows the bytes it wrote and the baud rate, so
@@ -118,7 +120,8 @@ class SerialStage:
         soon as both directions are free).
     error_interval : float
         Interval of the error query of a dialect whose errors latch (``query_error`` without
-        ``ack_reply``), s; moves are confirmed by it at once regardless.
+        ``ack_reply``), s; moves are confirmed by it at once regardless. Also the longest the
+        line goes without a quiet moment while only queries go.
     max_in_flight : int
         Most commands whose answers are outstanding (a move, its confirmation and a position
         query may go in one write: at least 2).
@@ -457,11 +460,23 @@ class SerialStage:
         backlog = self._move_bytes * bt        # the most bytes' time written ahead of the line
         age = self._target_age
         latency = self._processing + self._sizes["position"] * bt   # a query's arrival -> its answer
+        # a quiet line now and then (nothing due for as long as the longest answer takes): a
+        # line nobody asked for that looks like the answer expected would otherwise shift every
+        # answer behind it by one, unseen while only position queries go; on a quiet line it is
+        # a fault (unexpected bytes)
+        guard = max(self._sizes.values()) * bt + self._processing + 1e-3
+        last_quiet, quiet_since = clock(), None
         while not self._stop_request.is_set():
             self._receive()
             now = clock()
-            if pending and now > pending[0].due + self._overdue:
-                self._overdue_fault()
+            if not pending:
+                quiet_since = now if quiet_since is None else quiet_since
+                if now >= quiet_since + guard:
+                    last_quiet = now
+            else:
+                quiet_since = None
+                if now > pending[0].due + self._overdue:
+                    self._overdue_fault()
             wake = now + 0.05
             if len(pending) + 2 <= self._max_in_flight and self._tx_free - now <= backlog:
                 if by_error_query and now >= last_error + self._error_interval:
@@ -496,6 +511,9 @@ class SerialStage:
                     # moves stream and queries ride behind them: the line stays free for the next
                     # move (a query put on it now would hold that move up by its bytes)
                     wake = min(wake, last_move + age, last_poll + age)
+                elif now > last_quiet + self._error_interval:
+                    if quiet_since is not None:   # (the line is quiet: until the guard has passed)
+                        wake = min(wake, quiet_since + guard)
                 elif sum(p.kind == "position" for p in pending) < 2:
                     # the next query once its answer would come right behind the one on its way
                     t_next = max(self._tx_free, self._rx_free - (len(query) * bt + self._processing),

@@ -66,6 +66,14 @@ class SerialAxis:
         The servo's time constant, s (:class:`~tactile_mirror.loop.SimulatedStage`).
     home_position : float
         Where ``home`` takes the axis, m.
+    on_event : callable, optional
+        Called from the serving thread with ``("move", t_ns, x, accepted)``, ``("stop", t_ns)``,
+        ``("watchdog", t_ns)`` and ``("closed", t_ns)`` as they happen (the simulated rig's
+        axis, in another process, learns the controller's moves so).
+    position_source : callable, optional
+        ``position_source(t_ns) -> float or None``: the position the controller reports to a
+        query that arrived at ``t_ns`` (the pad's encoder; None: its own model's), unless
+        :meth:`report_position` forces one.
     latency : float
         The controller's processing time per command, s: it handles one command at a time,
         each once its last byte is in and the one before is done; the answer's first byte goes
@@ -75,7 +83,7 @@ class SerialAxis:
 
     def __init__(self, dialect: Dialect, limits: StageLimits | None = None, *, baudrate: int = 115200,
                  watchdog: float | None = None, x0: float = 0.0, lag: float = 0.0, home_position: float = 0.0,
-                 latency: float = 0.0):
+                 latency: float = 0.0, on_event=None, position_source=None):
         if os.name != "posix":
             raise OSError("SerialAxis needs a pseudo-terminal (os.openpty, POSIX)")
         if not isinstance(dialect, Dialect):
@@ -95,6 +103,8 @@ class SerialAxis:
         self.byte_time = 10.0 / self.baudrate
         self.watchdog = None if watchdog is None else real_number(watchdog, "watchdog", unit="s", positive=True)
         self.latency = real_number(latency, "latency", unit="s", nonnegative=True)
+        self._on_event = on_event
+        self._source = position_source
         self.home_position = real_number(home_position, "home_position", unit="m")
         self._stage = SimulatedStage(self.limits, lag=lag, x0=x0)
         self._patterns = [(k, p) for k in _KINDS if (p := dialect.command_pattern(k)) is not None]
@@ -312,8 +322,7 @@ class SerialAxis:
                 self._advance(now)
                 self._stage.stop()
                 dog_fired = True
-                with self._lock:
-                    self._watchdog_stops.append(time.monotonic_ns())
+                self._record_watchdog()
             wake = now + 0.05
             if lines:
                 wake = min(wake, lines[0][0])
@@ -359,10 +368,19 @@ class SerialAxis:
             if now >= due:
                 self._advance(now)
                 self._stage.stop()
-                with self._lock:
-                    self._watchdog_stops.append(time.monotonic_ns())
+                self._record_watchdog()
                 return
             time.sleep(min(due - now, 0.01))
+
+    def _record_watchdog(self) -> None:
+        t = time.monotonic_ns()
+        with self._lock:
+            self._watchdog_stops.append(t)
+        self._event(("watchdog", t))
+
+    def _event(self, event: tuple) -> None:
+        if self._on_event is not None:
+            self._on_event(event)
 
     def _handle(self, line: bytes, arrival: float) -> bytes:
         """Act on one command line; the answer's bytes (b"" for none)."""
@@ -400,6 +418,7 @@ class SerialAxis:
             ok = forced is None and self.limits.x_min <= x <= self.limits.x_max
             with self._lock:
                 self._targets.append((t_ns, x, ok))
+            self._event(("move", t_ns, x, ok))
             if forced is not None:
                 answer = refuse(forced)
             elif not ok:
@@ -413,12 +432,17 @@ class SerialAxis:
             answer = refuse(d.bad_command_code)
         elif kind == "query_position":
             with self._lock:
-                x = self._reported if self._reported is not None else st.position()
+                x = self._reported
+            if x is None and self._source is not None:
+                x = self._source(t_ns)
+            if x is None:
+                x = st.position()
             answer = d.answer("position", pos=d.format_units(x * self._units), **fields)
         elif kind == "stop":
             st.stop()
             with self._lock:
                 self._stops.append(t_ns)
+            self._event(("stop", t_ns))
             answer = ack
         elif kind == "query_error":
             with self._lock:
@@ -481,6 +505,7 @@ class SerialAxis:
                     os.close(fd)
                 except OSError:
                     pass
+        self._event(("closed", time.monotonic_ns()))
 
     def __repr__(self) -> str:
         return f"SerialAxis({self.dialect.name}, port={self.port!r}, {self.baudrate} Bd)"
