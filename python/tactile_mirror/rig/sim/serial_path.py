@@ -128,9 +128,10 @@ def serve_controller(fd: int) -> None:
     :class:`~tactile_mirror.rig.sim.serial_axis.SerialAxis` on its pty, sends what the
     controller does (moves, stops, watchdog stops, its port closing) and takes what it is told
     (faults, its log, quit). It ends when told to or when the other end closes."""
+    import gc
     from multiprocessing.connection import Connection
 
-    from tactile_mirror.rig.realtime import raised_priority
+    from tactile_mirror.rig.realtime import gc_paused, raised_priority
     from tactile_mirror.rig.sim.serial_axis import SerialAxis
 
     conn = Connection(fd)
@@ -147,7 +148,11 @@ def serve_controller(fd: int) -> None:
 
     d = make_dialect(options["dialect"], options["units_per_m"], options.get("axis", ""), options.get("device", ""))
     controller = None
-    priority = raised_priority(rt_priority=c["rt_priority"])   # (a device of its own: it only ever waits)
+    # a device of its own: it only ever waits, and its log grows by hundreds of lines a second,
+    # whose collections by the garbage collector held it up 15 ms after 3 s
+    gc.collect()
+    paused, priority = gc_paused(), raised_priority(rt_priority=c["rt_priority"])
+    paused.__enter__()
     priority.__enter__()
     try:
         controller = SerialAxis(d, pickle.loads(c["limits"]), baudrate=options["baud"], watchdog=c["watchdog"],
@@ -184,6 +189,7 @@ def serve_controller(fd: int) -> None:
         ring.close()
         conn.close()
         priority.__exit__(None, None, None)
+        paused.__exit__(None, None, None)
 
 
 class SerialPathAxis:
