@@ -22,7 +22,8 @@ Faults are injected for tests (:meth:`SerialAxis.go_silent`,
 :meth:`~SerialAxis.send_unsolicited`). Every command received is logged with the
 ``time.monotonic_ns()`` of its arrival, with the stops and the watchdog's stops.
 
-Runs in a thread here; the simulated rig runs it inside its own process.
+Runs in a thread here; the simulated rig runs it in a process of its own
+(:func:`~tactile_mirror.rig.sim.serial_path.serve_controller`).
 """
 from __future__ import annotations
 
