@@ -100,6 +100,13 @@ def test_loop_envelope(run, tmp_path):
     assert (tmp_path / "loop_envelope.json").is_file() and (tmp_path / "loop_envelope.png").is_file()
 
 
+def test_rig_goals(run, tmp_path):
+    # checks missed on the simulated rig: the short goal run stopped by a fault, the silent
+    # controller not ending its run as a communication timeout with the axis stopped
+    assert run("rig_goals", "--out", tmp_path) == 0
+    assert (tmp_path / "rig_goals.json").is_file()
+
+
 def test_loop_sweat_sensing(run):
     # the shear signal's phantom over a friction drop to 0.45, finger and pad still, um
     assert 20.0 < run("loop_sweat_sensing") < 300.0

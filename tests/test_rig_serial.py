@@ -15,6 +15,7 @@ import math
 import os
 import re
 import socket
+import sys
 import threading
 import time
 
@@ -303,35 +304,86 @@ def line():
         made.append(axis)
         if not driver:
             return axis, None
-        driver = SerialStage(axis.port, dialect, limits, **{"baudrate": BAUD, "timeout": 0.25, **(stage or {})})
+        # (the simulated controller is a thread of this process, on a machine the suite shares:
+        # an answer may come 50 ms late without the controller having gone silent)
+        kw = {"baudrate": BAUD, "timeout": 0.25, "reply_overdue": 0.05, **(stage or {})}
+        driver = SerialStage(axis.port, dialect, limits, **kw)
         made.append(driver)
         if start:
             driver.start()
         return axis, driver
 
-    yield make
-    for obj in reversed(made):
-        obj.close()
+    # the controller's thread, the driver's and the test's share the interpreter: switch often,
+    # as the command line and the simulated rig's process do, and no collection of this process's
+    # heap (a test process's takes up to 250 ms) holds the controller and the driver up together
+    import gc
+
+    from tactile_mirror.rig.realtime import gc_paused
+    previous = sys.getswitchinterval()
+    sys.setswitchinterval(1e-4)
+    gc.collect()
+    try:
+        with gc_paused():
+            yield make
+    finally:
+        sys.setswitchinterval(previous)
+        for obj in reversed(made):
+            obj.close()
 
 
-def _cycle_bytes(d: Dialect, sim) -> int:
-    """The fewest bytes on the line between two moves: the shortest move sent, its confirmation
-    (answer, or error query and its reply) and the position query with the shortest answer."""
-    shortest_move = min(len(text) for _, text in sim.commands() if d.command_pattern("move").fullmatch(text))
-    poll = len(d.command("query_position")) + len(d.answer("position", pos=d.format_units(0.0)))
-    return shortest_move + len(d.line_end) + _confirmation_bytes(d) + poll
-
-
-def _confirmation_bytes(d: Dialect) -> int:
-    """The bytes confirming a set command: its answer, or the error query and its reply."""
+def _confirmation_bytes(d: Dialect) -> tuple[int, int]:
+    """The bytes confirming a set command, host to controller and back: its answer, or the
+    error query and its reply."""
     if d.ack_reply:
-        return len(d.answer("ack"))
-    return len(d.command("query_error")) + len(d.answer("error", code=d.no_error))
+        return 0, len(d.answer("ack"))
+    return len(d.command("query_error")), len(d.answer("error", code=d.no_error))
+
+
+def _per_move_bytes(d: Dialect, move: int, k: int) -> tuple[float, float]:
+    """Bytes per move on each direction of the line: the move and its confirmation, and a
+    ``1 / k`` share of a position query and its shortest answer."""
+    tx, rx = _confirmation_bytes(d)
+    query = len(d.command("query_position"))
+    answer = len(d.answer("position", pos=d.format_units(0.0)))
+    return move + tx + query / k, rx + answer / k
+
+
+@pty_only
+def test_the_simulated_controller_paces_each_direction_on_its_own(line):
+    # three commands in one write: they come in back to back at the baud rate (the answers going
+    # out meanwhile hold nothing up), are handled one at a time (0.5 ms each) and answered in order
+    import serial
+    sim, _ = line(PI, sim={"latency": 0.0005}, driver=False)
+    port = serial.serial_for_url(sim.port, baudrate=BAUD, timeout=0.5)
+    q, e = PI.command("query_position"), PI.command("query_error")
+    got, done = b"", []
+    try:
+        t0 = time.monotonic()
+        port.write(q + e + q)
+        while len(done) < 3 and time.monotonic() < t0 + 2.0:
+            data = port.read(1)
+            got += data
+            if data == b"\n":
+                done.append(time.monotonic() - t0)
+    finally:
+        port.close()
+    assert got.split(b"\n")[:3] == [b"1=0.000000", b"0", b"1=0.000000"]
+    arrivals = np.array([t for t, _ in sim.commands()], dtype=np.float64) / 1e9
+    assert np.allclose(np.diff(arrivals), [len(e) * BYTE, len(q) * BYTE], atol=2e-6)
+    # no answer before its command was in and handled, nor before the answers ahead of it were out
+    answers = [len(PI.answer("position", pos="0.000000")), len(PI.answer("error", code="0"))] + \
+        [len(PI.answer("position", pos="0.000000"))]
+    arrive = np.cumsum([len(q), len(e), len(q)]) * BYTE
+    ready = out = 0.0
+    for k in range(3):
+        ready = max(ready, arrive[k]) + 0.0005   # (one command at a time)
+        out = max(out, ready) + answers[k] * BYTE
+        assert done[k] >= out - 2e-4, (k, done, out)   # (the host's clock read after the write: 0.2 ms)
 
 
 @pty_only
 @pytest.mark.parametrize("d", BOTH)
-def test_moves_reach_the_target_at_the_pace_of_the_line(line, d):
+def test_moves_stream_pipelined_at_the_pace_of_the_line(line, d):
     sim, stage = line(d, sim={"watchdog": 0.5})
     assert isinstance(stage, StageDriver) and isinstance(stage, Stage)
     assert stage.command_mode in COMMAND_MODES
@@ -342,6 +394,7 @@ def test_moves_reach_the_target_at_the_pace_of_the_line(line, d):
     assert abs(sim.position() - 0.01) <= resolution
     # stream targets faster than the line carries them: they are coalesced
     ages = []
+    n0 = len(sim.targets())
     t_end = time.monotonic() + 0.4
     k = 0
     while time.monotonic() < t_end:
@@ -349,6 +402,7 @@ def test_moves_reach_the_target_at_the_pace_of_the_line(line, d):
         ages.append(stage.position_age())
         k += 1
         time.sleep(0.0005)
+    streamed = len(sim.targets()) - n0
     stage.move_to(-0.02)
     assert _wait(lambda: abs(stage.position() + 0.02) <= resolution), stage.status()
     status = stage.status()
@@ -356,21 +410,34 @@ def test_moves_reach_the_target_at_the_pace_of_the_line(line, d):
     stage.close()
     assert stage.fault() is None, stage.fault()
     assert status["coalesced"] > 0 and status["moves"] >= 3
+    # pipelined: commands went out while answers to earlier ones were still due
+    assert status["max_in_flight"] >= 2, status
+    # the interval: a move's share of the busier direction of the line, never less
+    k = stage.moves_per_query
+    move = min(len(text) + len(d.line_end) for _, text in sim.commands() if d.command_pattern("move").fullmatch(text))
+    per_move = max(_per_move_bytes(d, move, k)) * BYTE
+    assert stage.command_interval >= per_move and status["min_move_spacing"] >= per_move, (status, per_move)
+    # and less than one exchange at a time: the move, its confirmation, a query and its answer in turn
+    tx, rx = _confirmation_bytes(d)
+    one_at_a_time = (move + tx + rx + len(d.command("query_position")) + len(d.answer("position", pos="0"))) * BYTE
+    assert stage.command_interval - stage.processing() < one_at_a_time, (stage.command_interval, one_at_a_time)
+    # k moves per query keep the reading's age at the top rate within the driver's target (8 ms)
+    assert k == 1 or k * stage.command_interval <= 0.008
+    print(f"{d.name}: {k} moves per query, command interval {stage.command_interval * 1e3:.2f} ms (one exchange at "
+          f"a time: {one_at_a_time * 1e3:.2f} ms), {streamed / 0.4:.0f} moves/s streamed, position age median "
+          f"{np.median(ages) * 1e3:.1f} ms, max {max(ages) * 1e3:.1f} ms")
+    assert streamed >= 0.2 * 0.4 / stage.command_interval   # (a shared machine starves threads now and then)
     # a few ms on a quiet machine; the suite's sanitizer builds beside it starved the driver's
     # thread to a median of 57 ms once: the bound is what a driver that polls keeps under that load
     assert np.median(ages) < 0.1 and max(ages) < 0.5, (np.median(ages), max(ages))
-    # the driver's measured interval holds at least one command's wire time, indeed a whole cycle
-    cycle = _cycle_bytes(d, sim) * BYTE
-    assert stage.command_interval >= len(d.move_command(0.01)) * BYTE
-    assert stage.command_interval >= cycle and status["min_move_spacing"] >= cycle, (status, cycle)
     assert stage.round_trip() >= (len(d.command("query_position")) + len(d.answer("position", pos="0"))) * BYTE
     # what the controller saw: no target outside the soft limits, no two moves closer than a
-    # cycle on the wire, no command before the previous one's bytes could have arrived
+    # move's bytes on the wire, no command before the previous one's bytes could have arrived
     assert _wait(lambda: sim.stop_times() != [])
     targets = sim.targets()
     assert all(SOFT.x_min <= x <= SOFT.x_max and ok for _, x, ok in targets)
     t_moves = np.array([t for t, _, _ in targets])
-    assert np.diff(t_moves).min() >= cycle * 1e9, (np.diff(t_moves).min() / 1e9, cycle)
+    assert np.diff(t_moves).min() >= move * BYTE * 1e9 - 1.0
     log = sim.commands()
     gaps = np.diff([t for t, _ in log])
     wire = np.array([(len(text) + len(d.line_end)) * BYTE * 1e9 for _, text in log[1:]])
@@ -381,8 +448,8 @@ def test_moves_reach_the_target_at_the_pace_of_the_line(line, d):
 
 @pty_only
 @pytest.mark.parametrize("d", BOTH)
-def test_with_a_slower_poll_moves_go_back_to_back(line, d):
-    sim, stage = line(d, stage={"poll_interval": 0.02})
+def test_a_longer_target_age_puts_more_moves_per_query(line, d):
+    sim, stage = line(d, stage={"target_age": 0.05, "poll_interval": 0.02})
     t_end = time.monotonic() + 0.3
     k = 0
     while time.monotonic() < t_end:
@@ -392,11 +459,14 @@ def test_with_a_slower_poll_moves_go_back_to_back(line, d):
     status = stage.status()
     stage.close()
     assert stage.fault() is None, stage.fault()
-    assert status["moves"] > status["polls"] and status["polls"] <= 0.3 / 0.02 + 5, status
-    exchange = (len(d.move_command(0.0)) + _confirmation_bytes(d)) * BYTE  # (0: the shortest move)
-    assert stage.command_interval >= exchange and status["min_move_spacing"] >= exchange
+    k = stage.moves_per_query
+    assert k > 1 and status["moves"] > status["polls"], status
+    assert status["polls"] <= status["moves"] / k + 0.3 / 0.02 + 5, status
+    move = len(d.move_command(0.0))  # (0: the shortest move)
+    per_move = max(_per_move_bytes(d, move, k)) * BYTE
+    assert stage.command_interval >= per_move and status["min_move_spacing"] >= per_move
     t_moves = np.array([t for t, _, _ in sim.targets()])
-    assert np.diff(t_moves).min() >= exchange * 1e9
+    assert np.diff(t_moves).min() >= move * BYTE * 1e9 - 1.0
 
 
 @pty_only
@@ -444,6 +514,22 @@ def test_targets_outside_the_soft_limits_are_never_sent(line, d):
 
 
 @pty_only
+def test_a_target_at_a_soft_limit_is_written_inside_it(line):
+    # 15 mm is 314960.63 microsteps: rounded to the controller's resolution it would lie 8 nm
+    # outside; the driver writes the step inside instead
+    limits = StageLimits(-0.015, 0.015, 0.1, 5.0)
+    sim, stage = line(ZABER, limits=limits)
+    for x in (0.015, -0.015):
+        stage.move_to(x)
+        time.sleep(0.02)
+    assert _wait(lambda: len(sim.targets()) == 2)
+    stage.close()
+    written = [t for _, t, _ in sim.targets()]
+    assert all(limits.x_min <= t <= limits.x_max for t in written), written
+    assert written == pytest.approx([0.015, -0.015], abs=1.0 / ZABER_UNITS)
+
+
+@pty_only
 @pytest.mark.parametrize("d", BOTH)
 def test_the_controller_refuses_a_target_outside_its_own_limits(line, d):
     wide = StageLimits(-0.08, 0.08, 0.1, 5.0)  # soft limits wider than the controller's travel
@@ -462,7 +548,7 @@ def test_the_controller_refuses_a_target_outside_its_own_limits(line, d):
 
 FAULTS = ["silent", "error", "malformed", "truncated", "unsolicited", "position", "closed", "fault flag"]
 WORDS = {"silent": "communication timeout", "error": "controller", "malformed": "malformed",
-         "truncated": "truncated reply", "unsolicited": "unexpected bytes|malformed", "position": "position out of limits",
+         "truncated": "truncated reply|malformed", "unsolicited": "unexpected bytes|malformed|implausible", "position": "position out of limits",
          "closed": "port closed", "fault flag": "controller fault FS"}
 
 
@@ -513,6 +599,29 @@ def test_every_fault_latches_with_its_cause_and_stops_the_axis(line, d, fault):
     assert stage.fault() == words  # latched: the first cause stays
     assert isinstance(stage.position(), float) and stage.position_age() > 0
     stage.stop()  # again: harmless
+
+
+@pty_only
+@pytest.mark.parametrize("d", BOTH)
+def test_a_silent_controller_is_found_once_its_answer_is_overdue(line, d):
+    # an answer 5 ms past its due time (its bytes at the baud rate behind those before it, and
+    # the controller's processing) is a communication timeout
+    for _ in range(3):   # (a loaded machine may hold the controller's thread longer: try again)
+        sim, stage = line(d, stage={"reply_overdue": 0.005}, sim={"latency": 0.0005})
+        stage.move_to(0.002)
+        time.sleep(0.1)
+        if stage.fault() is None:
+            break
+    assert stage.fault() is None, stage.fault()
+    t0 = time.monotonic_ns()
+    sim.go_silent()
+    assert _wait(lambda: stage.fault() is not None)
+    assert re.search("communication timeout: no reply to .* ms after it was due", stage.fault()), stage.fault()
+    assert _wait(lambda: sim.stop_times() != [])
+    found = (sim.stop_times()[-1] - t0) / 1e6
+    print(f"{d.name}: silent controller, stop received {found:.1f} ms after it fell silent")
+    # a few answers on their way (at most 4, some ms of the line) and the 5 ms bound: about 10 ms
+    assert found < 100.0
 
 
 @pty_only
@@ -595,7 +704,7 @@ def test_a_latched_controller_error_is_found_without_a_move(line):
     sim, stage = line(PI, stage={"error_interval": 0.05})
     sim.answer_error("1024")  # e.g. a following error, reported by nobody until asked
     assert _wait(lambda: stage.fault() is not None, 1.0)
-    assert "error 1024" in stage.fault()
+    assert "error 1024" in stage.fault(), stage.fault()
     assert _wait(lambda: sim.stop_times() != [])
 
 

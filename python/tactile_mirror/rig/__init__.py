@@ -15,6 +15,8 @@ loop, and a simulated rig that stands in for the hardware.
 - :mod:`~tactile_mirror.rig.supervisor`: the safety supervisor (:class:`Supervisor`, :class:`RigError`);
 - :mod:`~tactile_mirror.rig.runner`: the loop paced by the acquisition (:class:`RigRunner`, :class:`RigResult`);
 - :mod:`~tactile_mirror.rig.bringup`: bring-up on the rig, to a designed law (:func:`bring_up`);
+- :mod:`~tactile_mirror.rig.realtime`: the garbage collector off during a run (:func:`gc_paused`)
+  and a higher scheduling priority where permitted (:func:`raised_priority`);
 - :mod:`~tactile_mirror.rig.sim`: the simulated rig.
 
 Nothing here is imported by ``import tactile_mirror``; pyserial and nidaqmx (the optional
@@ -38,6 +40,7 @@ __getattr__, __dir__, __all__ = attach(__name__, {
     "ConfigError": "config", "RigConfig": "config", "load_config": "config", "parse_config": "config",
     "RigSession": "session", "RigError": "supervisor", "Supervisor": "supervisor", "Trip": "supervisor",
     "RigResult": "runner", "RigRunner": "runner", "BringUpResult": "bringup", "bring_up": "bringup",
+    "gc_paused": "realtime", "raised_priority": "realtime",
 })
 
 if TYPE_CHECKING:
@@ -54,6 +57,7 @@ if TYPE_CHECKING:
         ReplyError,
     )
     from tactile_mirror.rig.nidaq import NiAnalogInput, NiDaq, NiStageIO
+    from tactile_mirror.rig.realtime import gc_paused, raised_priority
     from tactile_mirror.rig.runner import RigResult, RigRunner
     from tactile_mirror.rig.serial_stage import SerialStage
     from tactile_mirror.rig.session import RigSession

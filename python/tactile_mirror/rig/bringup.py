@@ -41,6 +41,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from tactile_mirror.rig.realtime import gc_paused, raised_priority
 from tactile_mirror.rig.runner import RigResult, RigRunner
 from tactile_mirror.rig.supervisor import RigError, Supervisor
 
@@ -297,21 +298,12 @@ def _noise(res: RigResult, R: int) -> dict:
 
 
 # ---------------------------------------------------------------------- the calibration move
-def _calibrate(drain, stage, sup, source, config, detector, log) -> dict:
-    from tactile_mirror.loop.calibration import fit_shear_scale, fit_shear_weights, triangle_path
-
-    b, R, fs = config.bringup, config.n_ridges, config.fs
-    probe = build_pipeline(config, detector)
-    one = triangle_path(b["calibration_amplitudes"], b["calibration_speed"] / fs)
-    path = np.concatenate([one] + [one[1:]] * (b["calibration_cycles"] - 1))
-    settle = round(0.3 * fs)
-    x_start = stage.position()
-    total = settle + path.size + round(0.2 * fs)
-    cols = list(range(4 * R))
-    feats, force, t_s, tx, xx = [], [], [], [], []
-    probe.reset(0.0)
+def _calibration_moves(stage, sup, source, config, probe, path, settle, total, cols, out, x_start) -> None:
+    """The calibration's moves, a target per block, and what it records (``out``: the lists of
+    the features, the force, the samples' times, the readings' times and positions)."""
+    feats, force, t_s, tx, xx = out
+    R, fs = config.n_ridges, config.fs
     ticks = 0
-    drain()
     while ticks < total:
         try:
             block = source.read_block(sup.comm_timeout)
@@ -336,6 +328,25 @@ def _calibrate(drain, stage, sup, source, config, detector, log) -> dict:
         if sup.check_target(target):
             raise RigError(sup.tripped)
         stage.move_to(target)
+
+
+def _calibrate(drain, stage, sup, source, config, detector, log) -> dict:
+    from tactile_mirror.loop.calibration import fit_shear_scale, fit_shear_weights, triangle_path
+
+    b, R, fs = config.bringup, config.n_ridges, config.fs
+    probe = build_pipeline(config, detector)
+    one = triangle_path(b["calibration_amplitudes"], b["calibration_speed"] / fs)
+    path = np.concatenate([one] + [one[1:]] * (b["calibration_cycles"] - 1))
+    settle = round(0.3 * fs)
+    x_start = stage.position()
+    total = settle + path.size + round(0.2 * fs)
+    cols = list(range(4 * R))
+    feats, force, t_s, tx, xx = [], [], [], [], []
+    probe.reset(0.0)
+    drain()
+    with raised_priority(rt_priority=config.loop["rt_priority"]):
+        _calibration_moves(stage, sup, source, config, probe, path, settle, total, cols, (feats, force, t_s, tx, xx),
+                           x_start)
     feats = np.concatenate(feats).reshape(-1, R, 4)
     force = np.concatenate(force)
     t_s = np.concatenate(t_s).astype(np.float64)
@@ -406,7 +417,9 @@ def bring_up(session, supervisor: Supervisor, detector, log=print) -> BringUpRes
     log(f"stage: at the start {start * 1e3:.3f} mm (from {p0 * 1e3:.3f} mm, {time.monotonic() - t:.1f} s)")
     steps["approach_s"] = time.monotonic() - t
     t = time.monotonic()
-    delays = _measure_delay(drain, stage, sup, config, log)
+    rt = config.loop["rt_priority"]   # (real time for the steps that wait on the rig, not for those that compute)
+    with gc_paused(), raised_priority(rt_priority=rt):
+        delays = _measure_delay(drain, stage, sup, config, log)
     _move(drain, stage, sup, lambda dt, p: start if dt < 0.1 else None)
     steps["delay_s"] = time.monotonic() - t
     t = time.monotonic()
@@ -419,7 +432,8 @@ def bring_up(session, supervisor: Supervisor, detector, log=print) -> BringUpRes
     t = time.monotonic()
     R = config.n_ridges
     runner = RigRunner(build_pipeline(config, detector), session.stage, source, sup, columns=list(range(4 * R)),
-                       aux_columns=(4 * R, 4 * R + 1), aux_names=("force_y", "force_z"), command=False)
+                       aux_columns=(4 * R, 4 * R + 1), aux_names=("force_y", "force_z"), command=False,
+                       rt_priority=rt)
     sensors = runner.run(config.bringup["sensors_only"], x0=stage.position())
     noise = _noise(sensors, R)
     log(f"sensors only ({sensors.n_ticks} samples, stage never commanded): v_out {noise['v_out_rms_V'] * 1e3:.3g} mV "
@@ -427,7 +441,8 @@ def bring_up(session, supervisor: Supervisor, detector, log=print) -> BringUpRes
         f" mN rms; lost samples {sensors.lost_samples}")
     steps["sensors_only_s"] = time.monotonic() - t
     t = time.monotonic()
-    cal = _calibrate(drain, stage, sup, source, config, detector, log)
+    with gc_paused():
+        cal = _calibrate(drain, stage, sup, source, config, detector, log)   # (real time inside, for its moves)
     _move(drain, stage, sup, lambda dt, p: start if dt < 0.1 else None)
     steps["calibration_s"] = time.monotonic() - t
     # the law, from the rig's numbers; the acquisition is drained while it is designed

@@ -31,11 +31,17 @@ from dataclasses import dataclass, field
 from tactile_mirror.loop.stage import StageLimits
 from tactile_mirror.rig.daq import TERMINAL_CONFIGS, InputChannel, input_names
 
-__all__ = ["DIALECT_NAMES", "ConfigError", "RigConfig", "load_config", "parse_config"]
+__all__ = ["DIALECT_NAMES", "MAX_POSITION_AGE", "ConfigError", "RigConfig", "load_config", "parse_config"]
 
 #: Dialects ``stage.serial.dialect`` names: the built-ins and ``"generic"`` (its strings in
 #: ``[stage.serial.generic]``).
 DIALECT_NAMES = ("pi_gcs2", "zaber_ascii", "generic")
+
+#: ``safety.max_position_age`` where the file gives none, s, per ``stage.kind``: the analog
+#: path's encoder is read every block (a reading some ms old at most; 12 ms stops a frozen
+#: counter within 20 ms), a serial line's position every few ms behind the moves (up to about
+#: 10 ms old at 115200 baud; a silent controller is found by its overdue answer instead).
+MAX_POSITION_AGE = {"analog": 0.012, "serial": 0.025}
 
 _REQUIRED = object()
 
@@ -164,25 +170,28 @@ _SCHEMA: dict[str, dict] = {
                      "units_per_m": (_nonzero("controller units per metre (e.g. 1000 for mm; not 0)"), None),
                      "counts_per_m": (_nonzero("controller counts per metre (the data sheet; not 0)"), None),
                      "axis": (_str, "1"), "device": (_str, ""), "timeout": (_POS, 0.05),
+                     "reply_overdue": (_POS, 0.01), "target_age": (_POS, 0.008),
                      "generic": (_table, None)},
     "loop": {"command_rate": (_POS, 1000.0), "sensor": (_choice("strips", "force"), "strips"),
              "weights": (_str, "paper"), "estimator_order": (_int(1, 8), 2), "estimator_bandwidth": (_POS, 100.0),
              "notch": (_reals(), ()), "arm_delay": (_NONNEG, 0.5), "phase_margin": (_NONNEG, 45.0),
              "gain_margin": (_NONNEG, 6.0), "max_sensitivity": (_number(1.0, lo_open=True, what="a number > 1"), 2.0),
-             "planner": (_bool, True), "max_hold_ticks": (_int(1, 100_000), 50)},
+             "planner": (_bool, True), "max_hold_ticks": (_int(1, 100_000), 50),
+             "rt_priority": (_int(0, 99), 0)},
     "bringup": {"sensors_only": (_POS, 1.0),
                 "calibration_amplitudes": (_reals(), (20e-6, 40e-6, 60e-6, 80e-6)),
                 "calibration_speed": (_POS, 0.5e-3), "calibration_cycles": (_int(1, 100), 3),
                 "calibration_band": (_pair("a pair [low, high] of Hz with 0 < low < high"), (0.3, 15.0)),
                 "symmetric": (_bool, True), "delay_steps": (_int(1, 100), 3),
                 "delay_step": (_POS, 20e-6)},
-    "safety": {"watchdog": (_POS, 0.02), "max_position_age": (_POS, 0.02), "comm_timeout": (_POS, 0.1),
+    "safety": {"watchdog": (_POS, 0.015), "max_position_age": (_POS, None), "comm_timeout": (_POS, 0.1),
                "late_block": (_POS, 0.01), "late_blocks": (_int(1), 3), "position_margin": (_NONNEG, 0.5e-3)},
     "simulation": {"plant": (_choice("realtime", "fem", "brush"), "realtime"), "seed": (_int(0), 0),
                    "finger_speed": (_POS, 0.01), "finger_amplitude": (_POS, 0.01), "finger_bandwidth": (_POS, 2.0),
                    "finger_a_max": (_POS, 0.5), "finger_duration": (_POS, 120.0), "mu": (_POS, None),
                    "hum": (_NONNEG, 2e-3), "force_noise": (_NONNEG, 2e-3), "travel": (_pair(), (-0.02, 0.02)),
-                   "x0": (_ANY, 0.0), "lead": (_POS, None), "baud": (_int(300, 10_000_000), None)},
+                   "x0": (_ANY, 0.0), "lead": (_POS, None), "baud": (_int(300, 10_000_000), None),
+                   "processing": (_NONNEG, 0.5e-3), "rt_priority": (_int(0, 99), 0)},
 }
 _REQUIRED_SECTIONS = ("acquisition", "force_sensor", "stage")
 
@@ -349,6 +358,8 @@ def parse_config(raw: dict, source: str = "") -> RigConfig:
         raise ConfigError("simulation.lead", f"expected at most one block ({acq['block_size'] / acq['fs']:g} s), "
                                              f"got {sim['lead']!r}", source)
     safety = s["safety"]
+    if safety["max_position_age"] is None:
+        safety["max_position_age"] = MAX_POSITION_AGE[kind]
     lo_b, hi_b = s["bringup"]["calibration_band"]
     if not 0 < lo_b < hi_b < acq["fs"] / 2:
         raise ConfigError("bringup.calibration_band", f"expected 0 < low < high < fs / 2 = {acq['fs'] / 2:g} Hz, "

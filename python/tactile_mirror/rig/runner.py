@@ -32,10 +32,11 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from tactile_mirror.checks import real_number
+from tactile_mirror.checks import integer, real_number
 from tactile_mirror.loop.recording import Recording, RigTrace
 from tactile_mirror.rig.daq import Overrun
-from tactile_mirror.rig.supervisor import RigError, Supervisor, Trip
+from tactile_mirror.rig.realtime import gc_paused, raised_priority
+from tactile_mirror.rig.supervisor import RigError, Supervisor, Trip, fault_cause
 
 __all__ = ["RigResult", "RigRunner"]
 
@@ -183,11 +184,14 @@ class RigRunner:
     on_block : callable, optional
         ``on_block(block, outputs, position)`` after each block (``outputs``: its rows of
         the outputs): a live view takes its values here; it must return quickly.
+    rt_priority : int
+        During :meth:`run`, every thread of the process at this real-time priority where the
+        system permits it (0: none; :func:`~tactile_mirror.rig.realtime.raised_priority`).
     """
 
     def __init__(self, pipeline, stage, source, supervisor: Supervisor | None = None, *, columns=None,
                  aux_columns=(), aux_names=(), command: bool = True, command_interval: float = 0.0,
-                 on_block=None):
+                 on_block=None, rt_priority: int = 0):
         for name in ("step", "process_block", "n_inputs", "n_outputs", "fs", "reset", "status"):
             if not hasattr(pipeline, name):
                 raise TypeError(f"pipeline must have {name!r} (a MirrorPipeline), got {type(pipeline).__name__}")
@@ -214,6 +218,7 @@ class RigRunner:
         if self.command_mode not in ("per_tick", "per_block"):
             raise ValueError(f"stage.command_mode must be 'per_tick' or 'per_block', got {self.command_mode!r}")
         self.on_block = on_block
+        self.rt_priority = integer(rt_priority, "rt_priority", 0, 99)
 
     def run(self, duration: float, x0: float | None = None, reset: bool = True, catch_up: bool = True,
             cues=()) -> RigResult:
@@ -228,8 +233,16 @@ class RigRunner:
 
         ``cues``: ``(t, fn)`` pairs: ``fn()`` is called once, after the block whose last sample
         is ``t`` s or more into the run (e.g. telling the operator to start moving the finger
-        once the law has armed)."""
+        once the law has armed).
+
+        The cyclic garbage collector is off during the run (:func:`~tactile_mirror.rig.realtime.gc_paused`:
+        a collection of the host's heap holds the loop and the stage driver up for tens of ms),
+        and the process's threads run at ``rt_priority``."""
         duration = real_number(duration, "duration", unit="s", positive=True)
+        with gc_paused(), raised_priority(rt_priority=self.rt_priority):
+            return self._run(duration, x0, reset, catch_up, cues)
+
+    def _run(self, duration: float, x0, reset: bool, catch_up: bool, cues) -> RigResult:
         pipe, stage, src, sup = self.pipeline, self.stage, self.source, self.supervisor
         fs, n = float(src.fs), int(src.block_size)
         n_blocks = max(1, math.ceil(round(duration * fs) / n))
@@ -261,7 +274,11 @@ class RigRunner:
             try:
                 stage.move_to(cmd)
             except Exception as exc:  # noqa: BLE001
-                sup.trip("controller error", f"stage.move_to({cmd!r}) raised {type(exc).__name__}: {exc}")
+                fault = getattr(stage, "fault", lambda: None)()
+                if fault:   # (the driver latched its fault since the last check: that is the cause)
+                    sup.trip(fault_cause(fault), f"the stage driver reports: {fault}")
+                else:
+                    sup.trip("controller error", f"stage.move_to({cmd!r}) raised {type(exc).__name__}: {exc}")
                 return False
             last_cmd = time.monotonic_ns()
             cmds_row[nc], cmds_t[nc], cmds_x[nc] = cmd_row, last_cmd, cmd

@@ -33,7 +33,8 @@ def simulated_rig_config(config: RigConfig, **overrides):
                          "v_max": sim["finger_speed"], "a_max": sim["finger_a_max"]},
           "noise": SensorNoise(circuit=config.circuit(), hum=sim["hum"]), "circuit": dict(config.front_end) or None,
           "force_noise": sim["force_noise"], "limits": StageLimits(lo, hi, stage["v_max"], stage["a_max"]),
-          "lag": stage["lag"], "x0": sim["x0"], "lead": sim["lead"], "watchdog": config.safety["watchdog"]}
+          "lag": stage["lag"], "x0": sim["x0"], "lead": sim["lead"], "watchdog": config.safety["watchdog"],
+          "rt_priority": sim["rt_priority"]}
     if config.stage["kind"] == "analog":
         kw.update(ao_mode=a["mode"], counts_per_m=a["counts_per_m"], ao_range=a["ao_range"],
                   volts_offset=a["volts_offset"])
@@ -51,7 +52,7 @@ def _serial_axis(config: RigConfig) -> dict:
     s = config.serial
     baud = config.simulation["baud"] or s["baud"]
     return serial_path_options(s["generic"] if s["dialect"] == "generic" else s["dialect"], s["units_per_m"], baud,
-                               s["axis"], s["device"])
+                               s["axis"], s["device"], processing=config.simulation["processing"])
 
 
 class RigSession:
@@ -135,6 +136,7 @@ class RigSession:
         dialect = make_dialect(s["generic"] if s["dialect"] == "generic" else s["dialect"], s["units_per_m"],
                                s["axis"], s["device"])
         return SerialStage(port, dialect, c.limits, baudrate=s["baud"], timeout=s["timeout"],
+                           reply_overdue=s["reply_overdue"], target_age=s["target_age"],
                            position_margin=c.safety["position_margin"])
 
     def start_stage(self) -> None:

@@ -10,8 +10,9 @@ stage's serial line on a pseudo-terminal and the acquisition channels as clocked
 - :mod:`~tactile_mirror.rig.sim.process`: the process (:class:`SimulatedRig`);
 - :mod:`~tactile_mirror.rig.sim.serial_axis`: :class:`SerialAxis`, a simulated stage controller
   speaking a command dialect on a pseudo-terminal, paced at the line's baud rate;
-- :mod:`~tactile_mirror.rig.sim.serial_path`: the simulated rig's serial path (:class:`SerialPathAxis`,
-  the ``axis_factory`` :func:`~tactile_mirror.rig.sim.serial_path.serial_axis`).
+- :mod:`~tactile_mirror.rig.sim.serial_path`: the simulated rig's serial path, its controller in
+  a process of its own (:class:`SerialPathAxis`, the ``axis_factory``
+  :func:`~tactile_mirror.rig.sim.serial_path.serial_axis`).
 """
 from __future__ import annotations
 

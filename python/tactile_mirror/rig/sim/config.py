@@ -80,6 +80,9 @@ class SimRigConfig:
         picklable: a module-level function); None: :func:`~tactile_mirror.rig.sim.axis.analog_axis`.
     axis_options
         Settings an ``axis_factory`` reads (e.g. a serial axis's dialect and baud rate).
+    rt_priority
+        The process's real-time (``SCHED_RR``) priority where the system permits it, 0: none
+        (:func:`~tactile_mirror.rig.realtime.raised_priority`; a raised nice value either way).
     """
 
     fs: float = 1000.0
@@ -111,6 +114,7 @@ class SimRigConfig:
     watchdog: float = 0.1
     axis_factory: Callable | None = None
     axis_options: dict = field(default_factory=dict)
+    rt_priority: int = 0
 
     def __post_init__(self) -> None:
         sample_rate(self.fs)
@@ -118,6 +122,7 @@ class SimRigConfig:
         integer(self.buffer_blocks, "buffer_blocks", 1)
         integer(self.n_ridges, "n_ridges", 1, 64)
         integer(self.seed, "seed", 0)
+        integer(self.rt_priority, "rt_priority", 0, 99)
         if self.plant not in SIM_PLANTS:
             raise ValueError(f"plant must be one of {SIM_PLANTS}, got {self.plant!r}")
         if self.ao_mode not in ("velocity", "position"):

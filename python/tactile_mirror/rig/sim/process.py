@@ -40,6 +40,7 @@ in :class:`~tactile_mirror.rig.sim.config.SimRigConfig` builds any axis in the p
 """
 from __future__ import annotations
 
+import gc
 import math
 import multiprocessing
 import time
@@ -48,6 +49,7 @@ import traceback
 import numpy as np
 
 from tactile_mirror.rig.daq import input_names
+from tactile_mirror.rig.realtime import gc_paused, raised_priority
 from tactile_mirror.rig.sim.axis import analog_axis
 from tactile_mirror.rig.sim.config import FAULTS, SimRigConfig, SimRigLog
 from tactile_mirror.rig.sim.daq_shm import DEVICE_ERROR, DEVICE_REMOVED, DaqRing, RingState, ShmDaq
@@ -279,7 +281,7 @@ class _Simulation:
         self._stress0 = None
         self._force0 = np.zeros(2)
         self._tare_force = False
-        self._pads = [0.0, 0.0]
+        self._pad0 = self._pad1 = 0.0   # the pad at the last two ticks, m
         self._watchdog_ns = round(c.watchdog * 1e9)
         self._tripped = False
         self._frozen = False          # the encoder stopped counting
@@ -292,7 +294,10 @@ class _Simulation:
         self.block_compute: list[int] = []
         self.missed: list[int] = []
         self.lateness: list[int] = []
-        self._ticks = np.zeros((max(1024, round(4 * c.fs)), R + 2))   # finger, pad, slip fraction
+        # finger, pad, slip fraction per tick, in chunks of a second: a new chunk costs
+        # microseconds, where growing one array copied it whole (10 ms at 8 s, in the tick path)
+        self._chunk = max(1, round(c.fs))
+        self._ticks = [np.zeros((self._chunk, R + 2))]
         self._n_ticks = 0
 
     # ------------------------------------------------------------------ host's requests
@@ -306,10 +311,10 @@ class _Simulation:
             now = time.monotonic_ns()
             if message[0] == "place":
                 if math.isnan(self.anchor):
-                    self.anchor = self._pads[1]
+                    self.anchor = self._pad1
             elif message[0] == "finger":
                 if math.isnan(self.anchor):
-                    self.anchor = self._pads[1]
+                    self.anchor = self._pad1
                 if self.finger_start < 0:
                     self.finger_start = self._n_ticks
             elif message[0] == "reset":
@@ -427,9 +432,9 @@ class _Simulation:
         m = i % self.noise_v.shape[1]
         row[:2 * R] = v + self.noise_v[:, m]
         row[2 * R:4 * R] = u + self.noise_u[:, m]
-        p0, p1 = self._pads
+        p0, p1 = self._pad0, self._pad1
         acc = (pad - 2.0 * p1 + p0) * fs * fs if i >= 2 else 0.0
-        self._pads = [p1, pad]
+        self._pad0, self._pad1 = p1, pad
         fy = st.force_y - c.pad_mass * acc
         if self._tare_force:
             self._force0[:] = (fy, st.force_z)
@@ -440,16 +445,18 @@ class _Simulation:
             row[:4 * R] = math.nan
             self._nan_left -= 1
         t = self._n_ticks
-        if t == self._ticks.shape[0]:
-            self._ticks = np.concatenate([self._ticks, np.zeros_like(self._ticks)])
-        self._ticks[t, 0] = finger
-        self._ticks[t, 1] = pad
-        self._ticks[t, 2:] = st.slip_fraction
+        k, r = divmod(t, self._chunk)
+        if k == len(self._ticks):
+            self._ticks.append(np.zeros_like(self._ticks[0]))
+        rec = self._ticks[k]
+        rec[r, 0] = finger
+        rec[r, 1] = pad
+        rec[r, 2:] = st.slip_fraction
         self._n_ticks = t + 1
 
     def record(self) -> dict:
         c, ring = self.config, self.ring
-        ticks = self._ticks[:self._n_ticks]
+        ticks = np.concatenate(self._ticks)[:self._n_ticks]
         return {"fs": c.fs, "block_size": c.block_size, "t0_ns": ring.t0_ns, "blocks": ring.published,
                 "block_compute_ns": np.asarray(self.block_compute, dtype=np.int64),
                 "missed_blocks": np.asarray(self.missed, dtype=np.int64),
@@ -468,19 +475,29 @@ def _process_main(name: str, config: SimRigConfig, conn, control) -> None:
     # the interpreter within a fraction of a millisecond, not after the default 5 ms switch
     # interval of the tick loop's thread.
     sys.setswitchinterval(1e-4)
+    # a simulator that stands in for hardware must not wait behind the machine's other work
+    with raised_priority():
+        _serve(name, config, conn, control)
+
+
+def _serve(name: str, config: SimRigConfig, conn, control) -> None:
+    """Build the simulation, tell the host it is ready, run on the clock, send the log."""
     parent = multiprocessing.parent_process()
     ring = DaqRing.attach(name)
     sim = None
     try:
         sim = _Simulation(config, ring)
+        gc.collect()   # (now, before the host talks to the process: a collection later holds it up)
         ring.set_state(RingState.READY)
         conn.send(("ready", sim.axis.info()))
-        while not ring.t0_ns and not ring.shutdown_requested:
-            if parent is not None and not parent.is_alive():
-                return
-            time.sleep(5e-4)
-        if ring.t0_ns and not ring.stop_requested:
-            sim.run(parent, control)
+        with gc_paused():
+            while not ring.t0_ns and not ring.shutdown_requested:
+                if parent is not None and not parent.is_alive():
+                    return
+                time.sleep(5e-4)
+            if ring.t0_ns and not ring.stop_requested:
+                with raised_priority(rt_priority=config.rt_priority):   # (the clock runs: the ticks wait on it)
+                    sim.run(parent, control)
         sim.axis.stop()
         why = "shutdown" if ring.shutdown_requested else "acquisition stopped"
         sim.stops.append((time.monotonic_ns(), why))

@@ -4,22 +4,26 @@
 :attr:`SerialAxis.port` (what the driver opens) and, in its own thread, reads the commands of
 a :class:`~tactile_mirror.rig.dialects.Dialect` on the master side and answers them as the
 controller would. A pty moves bytes instantly whatever the baud rate, so the simulator paces
-the line itself: 10 bits per byte (8N1) at ``baudrate``; a command counts as received when its
-last byte would have arrived, and each byte of an answer is written no earlier than it would
-have been sent (86.8 us per byte at 115200 Bd).
+the line itself: 10 bits per byte (8N1) at ``baudrate``, each direction on its own (full
+duplex); a command counts as received when its last byte would have arrived, commands are
+handled one at a time in the order they came (``latency`` each), answers go out in that
+order, and an answer is written (whole) when its last byte would have gone out (86.8 us per
+byte at 115200 Bd).
 
 The axis is a :class:`tactile_mirror.loop.SimulatedStage` (speed and acceleration limits,
 servo lag) advanced on the wall clock; a target outside the controller's own travel is refused
 with the dialect's error (``bad_target_code``: answered at once, or latched for the error query
 of a dialect such as PI GCS); a communication watchdog stops the axis when no byte has come for
-``watchdog`` seconds. Faults are injected for tests (:meth:`SerialAxis.go_silent`,
+``watchdog`` seconds (also once the port has closed: it counts from the last byte received).
+Faults are injected for tests (:meth:`SerialAxis.go_silent`,
 :meth:`~SerialAxis.answer_error`, :meth:`~SerialAxis.send_malformed`,
 :meth:`~SerialAxis.truncate_next`, :meth:`~SerialAxis.close_port`,
 :meth:`~SerialAxis.report_position`, :meth:`~SerialAxis.set_flag`,
 :meth:`~SerialAxis.send_unsolicited`). Every command received is logged with the
 ``time.monotonic_ns()`` of its arrival, with the stops and the watchdog's stops.
 
-Runs in a thread here; the simulated rig runs it inside its own process.
+Runs in a thread here; the simulated rig runs it in a process of its own
+(:func:`~tactile_mirror.rig.sim.serial_path.serve_controller`).
 """
 from __future__ import annotations
 
@@ -63,13 +67,24 @@ class SerialAxis:
         The servo's time constant, s (:class:`~tactile_mirror.loop.SimulatedStage`).
     home_position : float
         Where ``home`` takes the axis, m.
+    on_event : callable, optional
+        Called from the serving thread with ``("move", t_ns, x, accepted)``, ``("stop", t_ns)``,
+        ``("watchdog", t_ns)`` and ``("closed", t_ns)`` as they happen (the simulated rig's
+        axis, in another process, learns the controller's moves so).
+    position_source : callable, optional
+        ``position_source(t_ns) -> float or None``: the position the controller reports to a
+        query that arrived at ``t_ns`` (the pad's encoder; None: its own model's), unless
+        :meth:`report_position` forces one.
     latency : float
-        The controller's time between a command's last byte and its answer's first, s.
+        The controller's processing time per command, s: it handles one command at a time,
+        each once its last byte is in and the one before is done; the answer's first byte goes
+        out then (or once the answers before it are out). The two directions of the line are
+        paced independently (full duplex): commands keep coming in while answers go out.
     """
 
     def __init__(self, dialect: Dialect, limits: StageLimits | None = None, *, baudrate: int = 115200,
                  watchdog: float | None = None, x0: float = 0.0, lag: float = 0.0, home_position: float = 0.0,
-                 latency: float = 0.0):
+                 latency: float = 0.0, on_event=None, position_source=None):
         if os.name != "posix":
             raise OSError("SerialAxis needs a pseudo-terminal (os.openpty, POSIX)")
         if not isinstance(dialect, Dialect):
@@ -89,6 +104,8 @@ class SerialAxis:
         self.byte_time = 10.0 / self.baudrate
         self.watchdog = None if watchdog is None else real_number(watchdog, "watchdog", unit="s", positive=True)
         self.latency = real_number(latency, "latency", unit="s", nonnegative=True)
+        self._on_event = on_event
+        self._source = position_source
         self.home_position = real_number(home_position, "home_position", unit="m")
         self._stage = SimulatedStage(self.limits, lag=lag, x0=x0)
         self._patterns = [(k, p) for k in _KINDS if (p := dialect.command_pattern(k)) is not None]
@@ -223,20 +240,20 @@ class SerialAxis:
         with self._lock:
             return list(self._log)
 
-    def targets(self) -> list[tuple[int, float, bool]]:
-        """``(monotonic_ns, target m, accepted)`` of every move received."""
+    def targets(self, start: int = 0) -> list[tuple[int, float, bool]]:
+        """``(monotonic_ns, target m, accepted)`` of every move received (from the ``start``-th on)."""
         with self._lock:
-            return list(self._targets)
+            return self._targets[start:]
 
-    def stop_times(self) -> list[int]:
-        """monotonic_ns of every stop command received."""
+    def stop_times(self, start: int = 0) -> list[int]:
+        """monotonic_ns of every stop command received (from the ``start``-th on)."""
         with self._lock:
-            return list(self._stops)
+            return self._stops[start:]
 
-    def watchdog_stops(self) -> list[int]:
-        """monotonic_ns of every stop by the communication watchdog."""
+    def watchdog_stops(self, start: int = 0) -> list[int]:
+        """monotonic_ns of every stop by the communication watchdog (from the ``start``-th on)."""
         with self._lock:
-            return list(self._watchdog_stops)
+            return self._watchdog_stops[start:]
 
     def rejected(self) -> list[tuple[int, str, str]]:
         """``(monotonic_ns, command, code)`` of every command refused with an error."""
@@ -256,9 +273,11 @@ class SerialAxis:
     def _serve(self) -> None:
         clock = time.monotonic
         bt = self.byte_time
-        rx_free = tx_free = 0.0
+        rx_free = tx_free = busy = 0.0
         lines: collections.deque = collections.deque()  # (arrival s, command bytes)
-        tx: collections.deque = collections.deque()     # (due s, byte)
+        # answers, each written whole when its last byte would have gone out (the host reads
+        # whole lines: a byte at a time would only wake both sides 11520 times a second)
+        tx: collections.deque = collections.deque()     # (due s, bytes)
         partial = bytearray()
         last_rx: float | None = None  # the watchdog arms at the first byte received
         dog_fired = False
@@ -271,22 +290,26 @@ class SerialAxis:
                 return
             if close:
                 self._close_fds()
+                # the line is gone, the controller is not: its watchdog still counts from the last byte
+                if self.watchdog is not None and last_rx is not None and not dog_fired:
+                    self._watch_after_close(last_rx + self.watchdog)
                 return
             now = clock()
             answers = []
             while lines and lines[0][0] <= now:
                 arrival, line = lines.popleft()
-                answers.append(self._handle(line, arrival))
+                # one command at a time: each is handled once it is in and the one before is done
+                busy = max(busy, arrival) + self.latency
+                answers.append((busy, self._handle(line, arrival)))
             if extra:
-                answers.append(extra)
-            for data in answers:
+                answers.append((now, extra))
+            for ready, data in answers:
                 if data:
-                    start = max(tx_free, now + self.latency)
-                    tx.extend((start + (i + 1) * bt, b) for i, b in enumerate(data))
-                    tx_free = start + len(data) * bt
+                    tx_free = max(tx_free, ready) + len(data) * bt
+                    tx.append((tx_free, data))
             out = bytearray()
             while tx and tx[0][0] <= now:
-                out.append(tx.popleft()[1])
+                out += tx.popleft()[1]
             if out:
                 try:
                     n = os.write(master, out)
@@ -300,8 +323,7 @@ class SerialAxis:
                 self._advance(now)
                 self._stage.stop()
                 dog_fired = True
-                with self._lock:
-                    self._watchdog_stops.append(time.monotonic_ns())
+                self._record_watchdog()
             wake = now + 0.05
             if lines:
                 wake = min(wake, lines[0][0])
@@ -327,7 +349,6 @@ class SerialAxis:
                     data = b""
                 if data:
                     t = clock()
-                    last_rx, dog_fired = t, False
                     arrival = max(rx_free, t)
                     for b in data:
                         arrival += bt
@@ -336,6 +357,31 @@ class SerialAxis:
                             lines.append((arrival, bytes(partial)))
                             partial.clear()
                     rx_free = arrival
+                    last_rx, dog_fired = arrival, False   # (the last byte's arrival on the line)
+
+    def _watch_after_close(self, due: float) -> None:
+        """The port has closed: stop the axis at ``due`` (the watchdog's time) unless told to quit."""
+        while True:
+            with self._lock:
+                if self._quit:
+                    return
+            now = time.monotonic()
+            if now >= due:
+                self._advance(now)
+                self._stage.stop()
+                self._record_watchdog()
+                return
+            time.sleep(min(due - now, 0.01))
+
+    def _record_watchdog(self) -> None:
+        t = time.monotonic_ns()
+        with self._lock:
+            self._watchdog_stops.append(t)
+        self._event(("watchdog", t))
+
+    def _event(self, event: tuple) -> None:
+        if self._on_event is not None:
+            self._on_event(event)
 
     def _handle(self, line: bytes, arrival: float) -> bytes:
         """Act on one command line; the answer's bytes (b"" for none)."""
@@ -373,6 +419,7 @@ class SerialAxis:
             ok = forced is None and self.limits.x_min <= x <= self.limits.x_max
             with self._lock:
                 self._targets.append((t_ns, x, ok))
+            self._event(("move", t_ns, x, ok))
             if forced is not None:
                 answer = refuse(forced)
             elif not ok:
@@ -386,12 +433,17 @@ class SerialAxis:
             answer = refuse(d.bad_command_code)
         elif kind == "query_position":
             with self._lock:
-                x = self._reported if self._reported is not None else st.position()
+                x = self._reported
+            if x is None and self._source is not None:
+                x = self._source(t_ns)
+            if x is None:
+                x = st.position()
             answer = d.answer("position", pos=d.format_units(x * self._units), **fields)
         elif kind == "stop":
             st.stop()
             with self._lock:
                 self._stops.append(t_ns)
+            self._event(("stop", t_ns))
             answer = ack
         elif kind == "query_error":
             with self._lock:
@@ -454,6 +506,7 @@ class SerialAxis:
                     os.close(fd)
                 except OSError:
                     pass
+        self._event(("closed", time.monotonic_ns()))
 
     def __repr__(self) -> str:
         return f"SerialAxis({self.dialect.name}, port={self.port!r}, {self.baudrate} Bd)"
