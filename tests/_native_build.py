@@ -482,7 +482,10 @@ def cc_cxx() -> tuple[str | None, str | None]:
 def capi_asan() -> Spec:
     """The C ABI library and tests/c/example.c with AddressSanitizer and UBSan: CMake's
     ``TM_C_ONLY``/``TM_SANITIZE``/``TM_BUILD_C_TESTS`` Debug build. Artefact: tm_c_example."""
-    cfg = ["-DTM_C_ONLY=ON", "-DTM_SANITIZE=ON", "-DTM_BUILD_C_TESTS=ON", "-DCMAKE_BUILD_TYPE=Debug"]
+    cfg = ["-DTM_C_ONLY=ON", "-DTM_SANITIZE=ON", "-DTM_BUILD_C_TESTS=ON", "-DCMAKE_BUILD_TYPE=Debug",
+           # UBSan without pointer-overflow: a third of the compile time (130 s of one core
+           # against 84 s); ASan still catches the out-of-bounds accesses it would lead to
+           "-DTM_SANITIZE_FLAGS=-fsanitize=address,undefined;-fno-sanitize=pointer-overflow"]
 
     def make(d: Path) -> None:
         cmake = shutil.which("cmake")
@@ -500,7 +503,7 @@ def capi_asan() -> Spec:
         return [v, compiler_id(cc), compiler_id(cxx), *cfg]
 
     return Spec("capi-asan", make, "tm_c_example", parts,
-                [ROOT / "CMakeLists.txt", SRC / "tm_capi.cpp", TESTS / "c" / "example.c"], cost=130)
+                [ROOT / "CMakeLists.txt", SRC / "tm_capi.cpp", TESTS / "c" / "example.c"], cost=85)
 
 
 # -O0: ThreadSanitizer sees every access at any optimisation level, and the C ABI compiles
