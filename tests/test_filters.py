@@ -5,7 +5,7 @@ import numpy as np
 import pytest
 import scipy.signal as ss
 import tactile_mirror as tm
-from hypothesis import assume, given
+from hypothesis import assume, example, given
 from hypothesis import strategies as st
 from tactile_mirror.filters import POLE_TOLERANCE, SosFilter, UnstableFilterWarning, roundoff_bound
 
@@ -476,6 +476,8 @@ def test_step_converts_any_real_sample(dtype):
 
 @given(sos=stable_sos(max_sections=6), channels=st.integers(1, 20), n=st.integers(1, 300),
        dtype=st.sampled_from([np.float64, np.float32]), seed=st.integers(0, 2**31))
+@example(sos=np.array([[1.0, 0, 0, 1, 1.983375, 0.98339062], [1, 0, 0, 1, 0, 0]]), channels=1, n=132,
+         dtype=np.float32, seed=0)  # poles at radius 0.992: float32 error 0.046, 1e-4 of the scale 0.042
 def test_baseline_kernels_match_dispatched(sos, channels, n, dtype, seed):
     """The portable (SSE2/generic) clone computes what the dispatched one does."""
     x = signal(seed, (channels, n)).astype(dtype)
@@ -484,7 +486,10 @@ def test_baseline_kernels_match_dispatched(sos, channels, n, dtype, seed):
     y, yb = f.process(x), base.process(x)
     ref = ss.sosfilt(sos, x.astype(np.float64))
     x64 = x.astype(np.float64)
-    tol = f64_tolerance(sos, x64) if dtype == np.float64 else 1e-4 * cascade_scale(sos, x64)
+    # float32: 1e-4 of the cascade's largest signal, or twice the first-order bound where poles
+    # near the unit circle amplify round-off beyond that (measured errors stay below 1.6x it)
+    tol = f64_tolerance(sos, x64) if dtype == np.float64 else max(
+        1e-4 * cascade_scale(sos, x64), 2 * max(roundoff_bound(sos, row, np.float32) for row in x64))
     np.testing.assert_allclose(yb, ref, rtol=0, atol=tol)
     np.testing.assert_allclose(yb, y, rtol=0, atol=tol)
     base.reset()

@@ -473,8 +473,12 @@ def test_a_longer_target_age_puts_more_moves_per_query(line, d):
 @pytest.mark.parametrize("d", BOTH)
 def test_move_to_returns_in_microseconds_while_the_line_is_busy(line, d):
     _, stage = line(d)
-    worst = []
-    for _ in range(3):  # (a preempted process on a shared machine is not a blocking call)
+    # A call that waited for the line would take an exchange's time (1.5-4 ms at 115200 Bd)
+    # every time: the median and the 99th percentile stay far below that. Not the largest
+    # call: on a loaded machine a few of 1000 calls wait for the interpreter (the I/O thread
+    # holds it up to its 5 ms switch interval) or are preempted, which is not a blocking call.
+    quantiles = []
+    for _ in range(3):
         status = stage.status()
         exchanges0 = status["moves"] + status["polls"]
         calls = np.empty(1000, dtype=np.int64)
@@ -486,10 +490,10 @@ def test_move_to_returns_in_microseconds_while_the_line_is_busy(line, d):
             time.sleep(0.0001)
         status = stage.status()
         assert status["moves"] + status["polls"] - exchanges0 >= 3  # the line was busy meanwhile
-        worst.append(calls.max())
-        if calls.max() < 1_000_000:
+        quantiles.append((np.median(calls), np.percentile(calls, 99)))
+        if quantiles[-1][0] < 100_000 and quantiles[-1][1] < 1_000_000:
             break
-    assert min(worst) < 1_000_000, worst
+    assert min(m for m, _ in quantiles) < 100_000 and min(p for _, p in quantiles) < 1_000_000, quantiles
     assert stage.fault() is None
 
 
