@@ -5,6 +5,7 @@ the CPU model it prints with its tables. Smoke runs of the studies behind the do
 measure is tested elsewhere; here, that they still run end to end and give sane numbers.
 No timing is asserted beyond a finite positive time."""
 import importlib
+import json
 import math
 import pathlib
 import sys
@@ -102,9 +103,15 @@ def test_loop_envelope(run, tmp_path):
 
 def test_rig_goals(run, tmp_path):
     # checks missed on the simulated rig: the short goal run stopped by a fault, the silent
-    # controller not ending its run as a communication timeout with the axis stopped
-    assert run("rig_goals", "--out", tmp_path) == 0
-    assert (tmp_path / "rig_goals.json").is_file()
+    # controller not ending its run as a communication timeout with the axis stopped. A
+    # real-time run: a stall of the loaded test machine (the suite's compilers beside it)
+    # can stop one run, so a miss is run once more; two in a row fail with what was missed.
+    for attempt in range(2):
+        missed = run("rig_goals", "--out", tmp_path / str(attempt))
+        if missed == 0:
+            break
+    report = json.loads((tmp_path / str(attempt) / "rig_goals.json").read_text())
+    assert missed == 0, {k: report.get(k) for k in ("runs", "faults")}
 
 
 def test_loop_sweat_sensing(run):
