@@ -380,8 +380,10 @@ def run_envelope(out: str | os.PathLike, speeds: Sequence[float] = (0.002, 0.005
     plant_settings(plant)
     if workers is not None and workers > 1:  # a pool of this call's own, started now to warm up below
         with open_executor(workers=workers) as pool:
-            return run_envelope(out, speeds, n_seeds, conditions, laws, paths, plant, duration, fs, limits,
-                                stage_delay, stage_lag, n_ridges, weights, progress, executor=pool)
+            return run_envelope(out, speeds=speeds, n_seeds=n_seeds, conditions=conditions, laws=laws, paths=paths,
+                                plant=plant, duration=duration, fs=fs, limits=limits, stage_delay=stage_delay,
+                                stage_lag=stage_lag, n_ridges=n_ridges, weights=weights, progress=progress,
+                                executor=pool)
     warm_workers(executor, _warm_row, plant, float(fs), n_ridges)
     # (a repeat ran its class, law or condition twice, and the table counted its rows twice)
     speeds = _unique(speeds, "speeds (m/s)", key=lambda v: round(v * 1e6))  # (the rows are keyed to the um/s)
