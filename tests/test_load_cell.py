@@ -293,3 +293,32 @@ def test_a_reference_of_a_config_without_the_force_limit_uses_the_default():
     x[10, 8] = 150.0  # beyond the default 100 N
     ref.process_block(x)
     assert ref.rejected["out_of_range"] == 1
+
+
+def test_the_load_cell_law_has_no_slip_guard_and_unloads_the_contact_after_a_slip():
+    """A finger jump of 0.2 mm in 8 ms (more than the contact carries) on a path of 20 mm/s
+    peak (seed 9201: in no tuning or reported set). The force law, without the strips' slip
+    guard, brings the force back near zero; with the guard, its re-tare takes the sliding
+    friction as the reference and the contact ends at its friction limit."""
+    import dataclasses
+
+    from tactile_mirror.contact.plants import FemPad
+    from tactile_mirror.lab.loop.envelope import law_controllers
+    from tactile_mirror.lab.loop.experiment import default_weights, weights_dict
+    from tactile_mirror.loop.scene import LoopScene, run_scene, scene_finger
+
+    w = weights_dict(default_weights("fem"))
+    stage = StageLimits(-0.015, 0.015, 0.03, 1.0)
+    laws, design = law_controllers(w, FS, stage, 0.002, 0.002, 6, "fem", load_cell=True)
+    law = laws["load cell"]
+    assert law.slip_hold == 0.0 and design.controller.slip_hold > 0.0   # (the strips' law keeps its guard)
+    sc = LoopScene(seed=9201, duration=2.5, plant="fem", load_cell=True,
+                   trajectory={"amplitude": 10e-3, "bandwidth": 2.0, "v_max": 0.02, "a_max": 0.5})
+    f = scene_finger(sc)
+    f = f + 0.2e-3 * np.clip((np.arange(f.size) / FS - 1.3) / 0.008, 0.0, 1.0)
+    end = {}
+    for name, ctl in (("no guard", law), ("guard", dataclasses.replace(law, slip_hold=0.1))):
+        r = run_scene(sc, w, ctl, limits=stage, finger=f, plant=FemPad.realtime(6, fs=FS))
+        end[name] = (r.gross_slips, float(np.abs(r.log["load_cell"][-300:]).max()))
+    assert end["no guard"][0] <= 1 and end["no guard"][1] < 1.0, end     # measured: 0 slips, 0.36 N
+    assert end["guard"][1] > 5.0, end                                       # measured: 2 slips, 8.97 N

@@ -228,7 +228,8 @@ def _rig_run(args, c, priority) -> int:
         cmd = log.commands
         np.savez(out / "simulator.npz", t0_ns=log.t0_ns, fs=log.fs, finger_start=log.finger_start, finger=log.finger,
                  pad=log.pad, slip_fraction=log.slip_fraction, command_t_ns=np.asarray(cmd["t_ns"], dtype=np.int64),
-                 command=np.asarray(cmd["volts"] if "volts" in cmd else cmd["x"], dtype=np.float64))
+                 command=np.asarray(cmd["volts"] if "volts" in cmd else cmd["x"], dtype=np.float64),
+                 block_compute_ns=log.block_compute_ns, missed_blocks=log.missed_blocks, lateness_ns=log.lateness_ns)
     if error is not None:
         summary["stopped"] = {"cause": error.cause, "detail": error.trip.detail}
         status = _SIGNAL_STATUS.get(error.cause, 1)

@@ -67,7 +67,9 @@ Limits and partial slip
     detector reports gross slip (the L/R asymmetry no longer measures the relative
     displacement while the ridges' edges slide: it answers with the wrong sign); during
     the hold the stage decelerates at ``a_max`` with ``w`` cleared, then the shear is
-    re-tared and the loop starts again from the re-stuck contact.
+    re-tared and the loop starts again from the re-stuck contact. The strips' law only: a
+    load cell's force keeps its sign while the contact slides and needs no re-tare, and a
+    re-tare there made the sliding friction the loop's reference (``design_loop``).
 
 What the design cannot hold: a change of friction under load (sweat)
     The shear signal is the strips' stress, calibrated as a displacement in full stick.
@@ -427,7 +429,16 @@ def design_loop(limits: StageLimits, calibration, fs: float, *, stage_delay: flo
     # Slip guard: 100 ms, at least four closed-loop time constants (1 / crossover). Chosen on
     # the tuning paths (sweat mu 0.45 / 0.40 at 20 mm/s): 25 ms let the re-engaged loop act on
     # a still-sliding contact and run the stage to its travel limit, 100 ms did not.
-    slip_hold = max(0.1, round(4.0 / (2 * math.pi * fc) * fs) / fs)
+    #
+    # A load cell needs no guard (slip_hold 0): its force keeps its sign while the contact
+    # slides (it is the sliding friction, pointing the way the finger slips), so the loop
+    # acting on it brings the pad back under the finger; and it needs no re-tare, being
+    # absolute. The guard's re-tare made the sliding friction, near the contact's limit, the
+    # new reference: after a disturbance that ended in gross slip, the re-engaged loop held
+    # the contact at that limit and it slid again and again (chosen on tuning seeds 7001-7006,
+    # 10 and 20 mm/s, a 0.2 / 0.4 mm finger jump: 10 / 21 gross slips with the guard, 0 / 12
+    # without; the tuned force left at the end, mean |F| 7.9 N against 3.3 N).
+    slip_hold = 0.0 if sensor == "force" else max(0.1, round(4.0 / (2 * math.pi * fc) * fs) / fs)
     # A slip counts after 10 ms of y_slip over its threshold: chosen on the fast tuning paths
     # (20 mm/s, 4 Hz band, up to 0.46 m/s^2), where one-tick peaks of y_slip at the fastest
     # changes of the shear started the guard, and the stopped stage made 4 gross slips (none
