@@ -17,6 +17,9 @@ and the faults' stops (run as ``python bench/rig_goals.py``).
    and on PI GCS 2.0 and Zaber ASCII at 115200 Bd with ``loop.command_rate`` their measured top
    rate: rig overruns and lost samples, simulator missed deadlines, gross slips, block-to-
    command latency, largest position age, the command interval, the commands the axis received.
+   Beside each run, a probe process above the simulator's priority (:class:`StallProbe`)
+   notes the machine's own stalls (a 1 ms sleep that took over 2.5 ms), and the table counts
+   the simulator's missed deadlines that fell in one.
 3. **The faults**: each fault of the supervisor injected into the simulated rig (``--repeats``
    times, 3): the cause the run ended with, what stopped the axis (the stop received, or the
    controller's watchdog where the line is down) and how long after the fault (the pipeline's
@@ -90,8 +93,9 @@ def _toml(table_: dict, prefix: str = "") -> str:
 
 
 def rig_config(path: Path, stage: str, command_rate: float | None = None, quick: bool = False,
-               loose: bool = False) -> Path:
-    """The example configuration on ``stage`` (``"analog"`` or a dialect's name), written to ``path``."""
+               loose: bool = False, lead: float | None = None, simulation: dict | None = None) -> Path:
+    """The example configuration on ``stage`` (``"analog"`` or a dialect's name), written to ``path``;
+    ``simulation`` replaces keys of its ``[simulation]``."""
     if sys.version_info >= (3, 11):
         import tomllib
     else:  # pragma: no cover
@@ -111,6 +115,9 @@ def rig_config(path: Path, stage: str, command_rate: float | None = None, quick:
         raw["stage"]["approach_speed"] = 0.004
     if loose:
         raw["safety"].update(max_position_age=0.1, late_block=0.05)
+    if lead is not None:
+        raw["simulation"]["lead"] = float(lead)
+    raw["simulation"].update(simulation or {})
     path.write_text(_toml(raw))
     return path
 
@@ -158,20 +165,95 @@ def top_rate(name: str, seconds: float) -> dict:
             "fault": status["fault"]}
 
 
+# ---------------------------------------------------------------- the machine's own stalls
+#: A process of its own, above the simulated rig's priority, that sleeps 1 ms at a time and
+#: notes every wake-up more than 1.5 ms late: the stalls of the machine itself (its
+#: scheduler, a virtual machine's host), which no process on it can avoid. On SIGTERM it
+#: prints them (monotonic_ns of the sleep's start, ns it took) as JSON.
+_PROBE = r"""
+import json, os, signal, sys, time
+try:
+    os.sched_setscheduler(0, os.SCHED_RR, os.sched_param(int(sys.argv[1])))
+except (AttributeError, OSError, ValueError):
+    pass
+stop = []
+signal.signal(signal.SIGTERM, lambda *a: stop.append(1))
+stalls = []
+last = time.monotonic_ns()
+while not stop:
+    time.sleep(1e-3)
+    now = time.monotonic_ns()
+    if now - last > 2_500_000:
+        stalls.append((last, now - last))
+    last = now
+print(json.dumps(stalls))
+"""
+
+
+class StallProbe:
+    """:data:`_PROBE` beside a run: ``with StallProbe(priority) as probe: ...``, then
+    ``probe.stalls`` (list of ``(start ns, length ns)``, monotonic_ns)."""
+
+    def __init__(self, priority: int = 30):
+        self.priority = int(priority)
+        self.stalls: list = []
+
+    def __enter__(self) -> StallProbe:
+        import subprocess
+
+        self._proc = subprocess.Popen([sys.executable, "-c", _PROBE, str(self.priority)], stdout=subprocess.PIPE,
+                                      text=True)
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self._proc.terminate()
+        out, _ = self._proc.communicate(timeout=10)
+        try:
+            self.stalls = [tuple(x) for x in json.loads(out)]
+        except ValueError:
+            self.stalls = []
+
+
+def stall_summary(stalls: list, sim: Path | None) -> dict:
+    """The probe's stalls over the simulator's run (all of them without its log), and how many
+    of the simulator's missed deadlines a probe stall overlapped: one that began in the 10 ms
+    before the block was due, or while it was late."""
+    import numpy as np
+
+    out = {"stalls": len(stalls), "largest_ms": max((g for _, g in stalls), default=0) / 1e6,
+           "misses_in_a_machine_stall": None}
+    if sim is None or not sim.exists():
+        return out
+    with np.load(sim) as d:
+        t0, fs, size = int(d["t0_ns"]), float(d["fs"]), int(d["block_size"])
+        missed, late = d["missed_blocks"], d["lateness_ns"]
+        n = d["block_compute_ns"].size
+    block_ns = round(1e9 * size / fs)
+    end = t0 + n * block_ns
+    inside = [(a, g) for a, g in stalls if t0 <= a <= end]
+    due = t0 + (missed + 1) * block_ns
+    hit = sum(any(d0 - 10_000_000 <= a <= d0 + dl for a, _ in inside) for d0, dl in zip(due.tolist(), late.tolist()))
+    out.update(stalls=len(inside), largest_ms=max((g for _, g in inside), default=0) / 1e6,
+               misses_in_a_machine_stall=int(hit))
+    return out
+
+
 # ---------------------------------------------------------------- 2. the goal runs
-def goal_run(stage: str, out: Path, duration: float, command_rate: float | None, quick: bool, loose: bool) -> dict:
+def goal_run(stage: str, out: Path, duration: float, command_rate: float | None, quick: bool, loose: bool,
+             lead: float | None = None) -> dict:
     """``tactile-mirror rig run --simulate`` on ``stage``; its run.json, the command's output in run.log."""
     from tactile_mirror.cli import main as cli
 
     out.mkdir(parents=True, exist_ok=True)
-    cfg = rig_config(out / "rig.toml", stage, command_rate, quick, loose)
+    cfg = rig_config(out / "rig.toml", stage, command_rate, quick, loose, lead)
     text = io.StringIO()
     t = time.monotonic()
-    with contextlib.redirect_stdout(text), contextlib.redirect_stderr(text):
+    with StallProbe() as probe, contextlib.redirect_stdout(text), contextlib.redirect_stderr(text):
         status = cli(["rig", "run", "--config", str(cfg), "--duration", str(duration), "--out", str(out / "run"),
                       "--simulate", "--live", "off"])
     (out / "run.log").write_text(text.getvalue())
     summary = json.loads((out / "run" / "run.json").read_text())
+    summary["machine_stalls"] = stall_summary(probe.stalls, out / "run" / "simulator.npz")
     summary["exit_status"] = status
     summary["wall_s"] = time.monotonic() - t
     return summary
@@ -278,8 +360,11 @@ def print_tables(env: dict, rates: dict, runs: dict, faults: list) -> None:
             lat = run.get("block_to_command_ms", {})
             cmd = sim.get("commands", {})
             stopped = (s.get("stopped") or {}).get("cause", "")
+            ms = s.get("machine_stalls") or {}
             rows.append([name, f"{run.get('overruns', '-')} / {run.get('lost_samples', '-')}",
                          f"{sim.get('missed_deadlines', '-')} of {sim.get('blocks', '-')}",
+                         f"{ms.get('stalls', '-')} ({_f(ms.get('largest_ms'), '.1f')} ms), "
+                         f"{ms.get('misses_in_a_machine_stall', '-')}",
                          f"{sim.get('gross_slips', '-')} ({_f(sim.get('tracking_rms_mm'), '.3f')} mm)",
                          f"{_f(lat.get('p50'))} / {_f(lat.get('p99'))} / {_f(lat.get('max'))}",
                          _f(run.get("largest_position_age_ms"), ".1f"), _f(run.get("command_interval_ms")),
@@ -288,7 +373,7 @@ def print_tables(env: dict, rates: dict, runs: dict, faults: list) -> None:
         table("Goal runs: rig run --simulate, 6-ridge FEM pad (real time), 1 kHz in blocks of 5, the law from "
               "bring-up on the force sensor, 10 mm/s finger path",
               ["stage path", "overruns / lost samples", "simulator missed deadlines (of blocks)",
-               "gross slips (tracking rms)", "block to command p50 / p99 / max, ms", "largest position age, ms",
+               "machine stalls > 2.5 ms (largest), simulator misses during one", "gross slips (tracking rms)", "block to command p50 / p99 / max, ms", "largest position age, ms",
                "command interval, ms", "commands received: shortest interval ms, outside soft limits",
                "designed stage delay, ms", "stopped by a fault"], rows)
     if faults:
@@ -331,6 +416,9 @@ def main(argv=None) -> int:
     ap.add_argument("--repeats", type=int, default=None, help="runs per fault (default 3; --quick 1)")
     ap.add_argument("--skip-runs", action="store_true", help="no goal runs")
     ap.add_argument("--skip-faults", action="store_true", help="no fault runs")
+    ap.add_argument("--lead", type=float, default=None,
+                    help="s the simulator computes its ticks ahead of their time (simulation.lead: its slack "
+                         "against the machine's stalls, and the simulated stage's dead time; default 2 ticks)")
     ap.add_argument("--loose", action="store_true", help="the supervisor's bounds widened for a loaded machine")
     ap.add_argument("--quick", action="store_true",
                     help="a smoke run: short top-rate streams, one 2.5 s goal run (PI GCS 2.0) with a short "
@@ -356,7 +444,7 @@ def main(argv=None) -> int:
     if not args.skip_runs:
         for stage in stages:
             rate = None if stage == "analog" else 1e3 / rates[stage]["interval_ms"]
-            runs[NAMES[stage]] = goal_run(stage, out / stage, duration, rate, quick, loose)
+            runs[NAMES[stage]] = goal_run(stage, out / stage, duration, rate, quick, loose, args.lead)
             print(f"goal run {NAMES[stage]}: done in {runs[NAMES[stage]]['wall_s']:.0f} s", flush=True)
     faults = []
     if not args.skip_faults:

@@ -629,3 +629,25 @@ def test_an_unknown_plant_is_named_before_the_design(tmp_path, fake_envelope):
     with pytest.raises(ValueError, match=r"plant must be one of \['brush', 'fem'\], got 'rubber'"):
         _envelope(str(tmp_path / "env.json"), plant="rubber")
     assert fake_envelope == []
+
+
+def test_max_error_bounds_the_crossover_by_the_stage_acceleration():
+    """``max_error`` keeps ``w_c^2 max_error <= a_max`` (ACCEL_HEADROOM 1): a bound below the
+    margins' crossover binds and the margins still hold; one above it changes nothing."""
+    import math
+
+    from tactile_mirror.loop.design import ACCEL_HEADROOM
+
+    free = design(calibration=(1.0, 2e3))
+    lim = free.limits
+    bound = math.sqrt(ACCEL_HEADROOM * lim.a_max / 1e-4) / (2 * math.pi)
+    assert bound < free.crossover_hz            # (the nominal design lies above it)
+    capped = design(calibration=(1.0, 2e3), max_error=1e-4)
+    assert capped.crossover_hz <= bound and capped.crossover_hz > 0.8 * bound
+    assert capped.phase_margin_deg >= 45.0 and capped.gain_margin_db >= 6.0 and capped.max_sensitivity <= 2.0
+    loose = design(calibration=(1.0, 2e3), max_error=1e-9)      # a bound far above: the same design
+    assert loose.crossover_hz == free.crossover_hz and loose.kp == free.kp
+    with pytest.raises(ValueError, match="max_error"):
+        design(calibration=(1.0, 2e3), max_error=-1.0)
+    with pytest.raises(ValueError, match="max_error too large"):
+        design(calibration=(1.0, 2e3), max_error=1e6)

@@ -94,6 +94,8 @@ def test_the_example_configuration():
     ("simulation", "travel", [-0.01, 0.01], r"simulation\.travel: expected the simulated axis's end stops"),
     ("simulation", "processing", -1e-3, r"simulation\.processing: expected a number >= 0"),
     ("bringup", "calibration_band", [0.3, 600.0], r"bringup\.calibration_band: expected 0 < low < high"),
+    ("bringup", "phase_frequency", 60.0, r"bringup\.phase_frequency: expected at most a quarter of the block rate"),
+    ("loop", "max_error", 0.0, r"loop\.max_error: expected a positive number"),
 ])
 def test_config_errors_name_the_key(section, key, value, match):
     with pytest.raises(ConfigError, match=match) as info:
@@ -449,6 +451,25 @@ def test_fit_delay_finds_a_known_dead_time():
     assert fit_delay(t[::7], x[::7], 20e-6, lim, 0.002) == pytest.approx(0.003, abs=3e-4)
 
 
+@pytest.mark.parametrize("delay, lag", [(0.0, 0.0), (0.004, 0.002), (0.0115, 0.001)])
+def test_sine_phase_finds_the_dead_time_behind_a_servo_lag(delay, lag):
+    """Readings of a lag ``1 / (1 + s lag)`` behind a dead time, at their own (jittered) times:
+    the dead time comes back within 0.1 ms, the gain is the lag's."""
+    from tactile_mirror.rig.bringup import sine_phase
+
+    f0, w = 20.0, 2 * np.pi * 20.0
+    rng = np.random.default_rng(1)
+    t = np.arange(200) * 5e-3
+    tp = t + rng.uniform(0.0, 2e-3, t.size)                 # each reading's own time
+    g = 1.0 / np.hypot(1.0, w * lag)
+    x_pos = 2.0 + g * np.sin(w * (tp - delay) - np.arctan(w * lag))
+    out = sine_phase(t, np.sin(w * t), tp, x_pos, f0, lag)
+    assert out["loop_delay_ms"] == pytest.approx(1e3 * delay, abs=0.1)
+    assert out["gain"] == pytest.approx(g, rel=1e-6)
+    # the phase lag is read modulo a period: a lag the servo alone would exceed gives 0, not < 0
+    assert sine_phase(t, np.sin(w * t), t, np.sin(w * t), f0, 0.002)["loop_delay_ms"] == 0.0
+
+
 # ---------------------------------------------------------------------- the commands
 def _config_file(tmp_path, **replace) -> str:
     text = open(EXAMPLE).read()
@@ -495,6 +516,10 @@ def test_rig_run_simulate_brings_up_and_records(tmp_path, capsys):
     assert b["calibration"]["direction_sign"] in (1.0, -1.0) and b["calibration"]["asym_per_m"] > 0
     assert b["calibration"]["force_n_per_m"] > 0 and b["design"]["phase_margin_deg"] >= 44.0
     assert b["stage_delay_ms"] > 0 and b["noise"]["nonfinite"] == 0
+    # the loop's delay from the sine: more than the stage's own dead time (the block's hold, the host)
+    ph = b["phase"]
+    assert ph["frequency_hz"] == 20.0 and 0.5 < ph["gain"] < 1.5
+    assert b["stage_delay_ms"] == pytest.approx(ph["loop_delay_ms"] - 1.0) and b["stage_delay_ms"] > b["command_delay_ms"]
     run = summary["run"]
     assert run["ticks"] == 1500 and run["lost_samples"] == 0 and run["stopped"] is None
     rec = Recording.load(out / "recording.npz")

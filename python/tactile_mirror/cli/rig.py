@@ -226,7 +226,7 @@ def _rig_run(args, c, priority) -> int:
         summary["simulator"] = _sim_summary(log, error)
         summary["simulator"]["commands"] = _commands_received(log, c)
         cmd = log.commands
-        np.savez(out / "simulator.npz", t0_ns=log.t0_ns, fs=log.fs, finger_start=log.finger_start, finger=log.finger,
+        np.savez(out / "simulator.npz", t0_ns=log.t0_ns, fs=log.fs, block_size=log.block_size, finger_start=log.finger_start, finger=log.finger,
                  pad=log.pad, slip_fraction=log.slip_fraction, command_t_ns=np.asarray(cmd["t_ns"], dtype=np.int64),
                  command=np.asarray(cmd["volts"] if "volts" in cmd else cmd["x"], dtype=np.float64),
                  block_compute_ns=log.block_compute_ns, missed_blocks=log.missed_blocks, lateness_ns=log.lateness_ns)

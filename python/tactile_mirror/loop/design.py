@@ -306,6 +306,19 @@ class LoopDesign:
 #: on 10 paths, 1 mV noise at 20 mm/s 29 / 28 / 19, sweat mu 0.45 at 5 mm/s 6 / 6 / 6 on 5).
 SLIP_MIN_SHEAR = 0.04e-3
 
+#: ``design_loop(max_error=E)`` keeps the crossover ``w_c`` at or below ``sqrt(ACCEL_HEADROOM
+#: a_max / E)``: an error oscillating at the crossover with amplitude ``E`` asks the stage for
+#: about ``w_c^2 E`` of acceleration, and 1 keeps that within ``a_max``. Beyond it the slewed
+#: command lags (the acceleration limit's phase lag), and after a disturbance near the
+#: contact's capacity the loop settles into a limit cycle that slides the contact one way and
+#: the other. Measured with ``E`` = 0.1 mm and ``a_max`` = 1 m/s^2 on the tuning runs: on the
+#: simulated rig's analog path (the example configuration's finger, seed 0; the loop stalled
+#: 15 ms every 2 s, ``bench/rig_stalls.py``) the cycle appeared at ``w_c^2 E / a_max`` = 1.55
+#: and 2.0 (156 and 339 gross-slip events in 12 and 20 s) and not at 1.0 (0); on the FEM pad
+#: with per-tick commands (force law, seeds 7001-7004, a finger jump of 0.1-0.4 mm) it
+#: appeared at 4.7 and above and not at 3.4 and below.
+ACCEL_HEADROOM = 1.0
+
 
 def _estimator_group_delay(fs, order, bandwidth, f0=1.0):
     import scipy.signal
@@ -322,7 +335,7 @@ def design_loop(limits: StageLimits, calibration, fs: float, *, stage_delay: flo
                 estimator_order: int = 2, estimator_bandwidth: float = 100.0, arm_delay: float = 0.5,
                 phase_margin: float = 45.0, gain_margin: float = 6.0, max_sensitivity: float = 2.0,
                 asym_tau: float = 1.0, shear_weights=None, planner: bool = True,
-                sensor: str = "strips") -> LoopDesign:
+                sensor: str = "strips", max_error: float | None = None) -> LoopDesign:
     """Design the default shear loop from the stage's data sheet, the calibration and the rate.
 
     Parameters
@@ -368,6 +381,12 @@ def design_loop(limits: StageLimits, calibration, fs: float, *, stage_delay: flo
         force has no estimator delay (half a tick of backward difference instead of the
         equaliser's group delay), and it holds through a friction change under load, where the
         strips do not (module docstring).
+    max_error : float, optional
+        The largest finger-pad displacement (m) the loop must answer without asking the
+        stage for more than ``limits.a_max``: the crossover is kept at or below
+        ``sqrt(ACCEL_HEADROOM * a_max / max_error)`` (see :data:`ACCEL_HEADROOM`). The contact's
+        carrying capacity is the natural choice (about 0.1 mm on the FEM pad). None: no
+        such bound (the margins alone).
 
     Returns
     -------
@@ -402,6 +421,10 @@ def design_loop(limits: StageLimits, calibration, fs: float, *, stage_delay: flo
     if sensor not in ("strips", "force"):
         raise ValueError(f"sensor must be 'strips' or 'force', got {sensor!r}")
 
+    fc_max = math.inf
+    if max_error is not None:
+        max_error = _positive(max_error, "max_error")
+        fc_max = math.sqrt(ACCEL_HEADROOM * limits.a_max / max_error) / (2 * math.pi)
     f = np.geomspace(0.05, 0.499 * fs, 1500)
     best = None
     for kv in (0.0, 0.1, 0.2, 0.3, 0.4, 0.5):
@@ -412,7 +435,7 @@ def design_loop(limits: StageLimits, calibration, fs: float, *, stage_delay: flo
                 L = loop_response(f, kp, ratio * kp, kv, fs, stage_delay, stage_lag, estimator_order,
                                   estimator_bandwidth, asym_tau, sensor=sensor)
                 fc, pm, gm, ms = _margins(f, L)
-                if pm >= phase_margin and gm >= gain_margin and ms <= max_sensitivity:
+                if pm >= phase_margin and gm >= gain_margin and ms <= max_sensitivity and fc <= fc_max:
                     lo, ok = kp, (kp, fc, pm, gm, ms)
                 else:
                     hi = kp
@@ -423,8 +446,8 @@ def design_loop(limits: StageLimits, calibration, fs: float, *, stage_delay: flo
             if best is None or ka > best[0]:
                 best = (ka, kp, ratio * kp, kv, fc, pm, gm, ms)
     if best is None:
-        raise ValueError("no gain meets the margins: stage_delay and stage_lag are too long (the loop needs a "
-                         "crossover of at least 1 rad/s)")
+        raise ValueError("no gain meets the margins: stage_delay and stage_lag are too long, or max_error too "
+                         "large for a_max (the loop needs a crossover of at least 1 rad/s)")
     _, kp, z, kv, fc, pm, gm, ms = best
     # Slip guard: 100 ms, at least four closed-loop time constants (1 / crossover). Chosen on
     # the tuning paths (sweat mu 0.45 / 0.40 at 20 mm/s): 25 ms let the re-engaged loop act on

@@ -8,7 +8,13 @@
 2. **the slow move to the start** (``stage.start`` at ``stage.approach_speed``);
 3. **the command delay**: ``bringup.delay_steps`` small steps each way; each response is
    matched to the stage's model (its planner at ``a_max`` and its servo ``lag``) shifted in
-   time, and the shift that fits best is the delay (the median over the steps);
+   time, and the shift that fits best is the delay (the median over the steps); then **the
+   loop's delay**: a small sine (``bringup.phase_amplitude`` at ``bringup.phase_frequency``)
+   commanded once per block as the loop commands (from each block's last sample time, through
+   the driver and its pacing, with the planner's braking lead), and its phase lag in the
+   encoder's readings, less the servo lag's, as a dead time: everything between the law's
+   tick and the stage's motion (the block's hold, the host, the line, the controller) at a
+   frequency near the loop's crossover;
 4. **the finger on the pad** (the operator places it and keeps it still), then **the
    charge amplifiers' reset** (:meth:`RigSession.reset_amplifiers
    <tactile_mirror.rig.session.RigSession.reset_amplifiers>`: a digital line, the operator,
@@ -26,7 +32,7 @@
    encoder knows one, so the calibration moves the stage, slowly and by less than the
    contact carries (80 um of about 150 um);
 7. **the law**: :func:`~tactile_mirror.loop.design.design_loop` from the soft limits, that
-   calibration and the measured delay (plus the block's hold and the host's latency), and
+   calibration and the loop's measured delay (``loop.max_error`` bounding its crossover), and
    the loop's pipeline with it.
 
 The acquisition runs throughout; between steps its blocks are read and checked (a loss is
@@ -45,7 +51,7 @@ from tactile_mirror.rig.realtime import gc_paused, raised_priority
 from tactile_mirror.rig.runner import RigResult, RigRunner
 from tactile_mirror.rig.supervisor import RigError, Supervisor
 
-__all__ = ["BringUpResult", "bring_up", "build_pipeline", "fit_delay"]
+__all__ = ["BringUpResult", "bring_up", "build_pipeline", "fit_delay", "sine_phase"]
 
 
 @dataclass
@@ -59,8 +65,13 @@ class BringUpResult:
     command_delay : float
         The stage's measured command delay (dead time), s; ``delay_steps`` each step's.
     stage_delay : float
-        The delay the law was designed for, s: the command delay, half the command period
-        beyond one tick (the block's hold), and the host's median latency.
+        The delay the law was designed for, s: the loop's delay measured by the sine, less the
+        tick the design counts itself.
+    phase : dict
+        The sine's measurement: ``frequency_hz``, ``amplitude_m``, ``phase_lag_deg``, ``gain``,
+        ``loop_delay_ms`` (the dead time its phase lag means, the servo lag's taken out) and
+        ``steps_estimate_ms`` (the stage delay the step fit, the block's hold and the host's
+        latency would have given).
     noise : dict
         The sensors-only run: rms per channel group (``v_out``, ``u_out`` V, ``force_y``,
         ``force_z`` N) and the force channels' offsets.
@@ -85,6 +96,7 @@ class BringUpResult:
     pipeline: object
     sensors_only: RigResult | None = None
     steps: dict = field(default_factory=dict)
+    phase: dict = field(default_factory=dict)
 
     def summary(self) -> dict:
         """The numbers (JSON-friendly)."""
@@ -93,7 +105,7 @@ class BringUpResult:
         d = self.design
         return {"start_m": self.start, "command_delay_ms": 1e3 * self.command_delay,
                 "delay_steps_ms": [1e3 * v for v in self.delay_steps], "stage_delay_ms": 1e3 * self.stage_delay,
-                "noise": self.noise, "calibration": cal, "steps": self.steps,
+                "phase": dict(self.phase), "noise": self.noise, "calibration": cal, "steps": self.steps,
                 "design": {"sensor": d.sensor, "crossover_hz": d.crossover_hz, "phase_margin_deg": d.phase_margin_deg,
                            "gain_margin_db": d.gain_margin_db, "kp_per_s": d.kp, "integral_per_s": d.z, "kv": d.kv,
                            "delays_ms": {k: 1e3 * v for k, v in d.delays.items()}}}
@@ -267,6 +279,70 @@ def _measure_delay(drain, stage, sup, config, log) -> list[float]:
     return out
 
 
+def _measure_phase(drain, stage, sup, config, log) -> dict:
+    """The loop's delay: a sine commanded once per block, from each block's last sample time,
+    and its phase lag in the stage's position readings (at their own times)."""
+    b, lim = config.bringup, config.limits
+    f0 = b["phase_frequency"]
+    w = 2 * math.pi * f0
+    amp = min(b["phase_amplitude"], 0.25 * lim.a_max / (w * w))   # (a quarter of a_max at most)
+    decel = lim.a_max if config.loop["planner"] else 0.0
+    x0 = stage.position()
+    t_first = None
+    rows = []   # (command time, command, reading time, reading)
+    while True:
+        block = drain(wait=0.05)
+        if block is None:
+            continue
+        t = block.t_ns / 1e9
+        if t_first is None:
+            t_first = t
+        tt = t - t_first
+        if tt > b["phase_duration"]:
+            break
+        v = amp * w * math.cos(w * tt)
+        x = amp * math.sin(w * tt)
+        target = x0 + x + (v * abs(v) / (2 * decel) if decel > 0 else 0.0)   # (the law's braking lead)
+        if sup.check_target(target):
+            raise RigError(sup.tripped)
+        stage.move_to(target)
+        p = stage.position()
+        if sup.check_stage(p):
+            raise RigError(sup.tripped)
+        age = stage.position_age() if hasattr(stage, "position_age") else 0.0
+        rows.append((tt, x, time.monotonic() - age - t_first, p - x0))
+    r = np.array(rows)
+    keep = r[:, 0] >= min(0.25, 0.3 * b["phase_duration"])   # (past the start's transient)
+    out = sine_phase(r[keep, 0], r[keep, 1], r[keep, 2], r[keep, 3], f0, config.stage["lag"])
+    out["amplitude_m"] = amp
+    log(f"loop delay: {out['loop_delay_ms']:.2f} ms (a {amp * 1e6:.3g} um sine at {f0:g} Hz: phase lag "
+        f"{out['phase_lag_deg']:.1f} deg, gain {out['gain']:.2f})")
+    return out
+
+
+def sine_phase(t_cmd, x_cmd, t_pos, x_pos, frequency: float, lag: float) -> dict:
+    """Phase lag and gain of the readings ``x_pos`` (at times ``t_pos``, s) behind the commanded
+    sine ``x_cmd`` (at ``t_cmd``) at ``frequency`` (Hz), each fitted by least squares with a
+    constant; and the dead time that lag means once a servo lag ``lag`` (s) is taken out:
+    ``loop_delay_ms = (phase - atan(w lag)) / w``, 0 at least (the phase read in [-90, 270) deg)."""
+    w = 2 * math.pi * frequency
+
+    def fit(t, y):
+        t, y = np.asarray(t, dtype=np.float64), np.asarray(y, dtype=np.float64)
+        a = np.column_stack([np.sin(w * t), np.cos(w * t), np.ones_like(t)])
+        (s_, c_, _), *_ = np.linalg.lstsq(a, y, rcond=None)
+        return math.atan2(c_, s_), math.hypot(s_, c_)
+
+    pc, ac = fit(t_cmd, x_cmd)
+    pp, ap = fit(t_pos, x_pos)
+    # (read in [-90, 270) deg: a reading a hair ahead is 0, not a period behind; 270 deg at 20 Hz
+    # is a 37 ms delay, far beyond any loop's)
+    lag_phase = (pc - pp + math.pi / 2) % (2 * math.pi) - math.pi / 2
+    delay = max((lag_phase - math.atan(w * lag)) / w, 0.0)
+    return {"frequency_hz": float(frequency), "phase_lag_deg": math.degrees(lag_phase),
+            "gain": ap / ac if ac > 0 else math.nan, "loop_delay_ms": 1e3 * delay}
+
+
 # ---------------------------------------------------------------------- pipelines
 def build_pipeline(config, detector, controller=None, shear_weights=None, force_input: bool = False):
     """The rig's pipeline: the configured estimator on the front end's circuit (its notch),
@@ -420,6 +496,8 @@ def bring_up(session, supervisor: Supervisor, detector, log=print) -> BringUpRes
     rt = config.loop["rt_priority"]   # (real time for the steps that wait on the rig, not for those that compute)
     with gc_paused(), raised_priority(rt_priority=rt):
         delays = _measure_delay(drain, stage, sup, config, log)
+        _move(drain, stage, sup, lambda dt, p: start if dt < 0.1 else None)
+        phase = _measure_phase(drain, stage, sup, config, log)
     _move(drain, stage, sup, lambda dt, p: start if dt < 0.1 else None)
     steps["delay_s"] = time.monotonic() - t
     t = time.monotonic()
@@ -450,12 +528,15 @@ def bring_up(session, supervisor: Supervisor, detector, log=print) -> BringUpRes
     delay = float(np.median(delays))
     t_cmd = max(config.block_period, config.command_interval, float(getattr(stage, "command_interval", 0.0) or 0.0))
     host = noise["block_read_latency_ms"]["p50"] / 1e3
-    stage_delay = delay + max(t_cmd - 1.0 / config.fs, 0.0) / 2 + (host if math.isfinite(host) else 0.0)
+    steps_estimate = delay + max(t_cmd - 1.0 / config.fs, 0.0) / 2 + (host if math.isfinite(host) else 0.0)
+    phase["steps_estimate_ms"] = 1e3 * steps_estimate
+    # the sine measured the loop's whole delay; the design adds one tick of its own
+    stage_delay = max(phase["loop_delay_ms"] / 1e3 - 1.0 / config.fs, 0.0)
     lp = config.loop
     kw = {"stage_delay": stage_delay, "stage_lag": config.stage["lag"], "estimator_order": lp["estimator_order"],
           "estimator_bandwidth": lp["estimator_bandwidth"], "arm_delay": lp["arm_delay"],
           "phase_margin": lp["phase_margin"], "gain_margin": lp["gain_margin"],
-          "max_sensitivity": lp["max_sensitivity"], "planner": lp["planner"]}
+          "max_sensitivity": lp["max_sensitivity"], "planner": lp["planner"], "max_error": lp["max_error"]}
     background = _Background(drain)
     background.start()
     try:
@@ -471,8 +552,10 @@ def bring_up(session, supervisor: Supervisor, detector, log=print) -> BringUpRes
     finally:
         background.stop()
     steps["design_s"] = time.monotonic() - t
-    log(f"law ({design.sensor}): stage delay {stage_delay * 1e3:.2f} ms (measured {delay * 1e3:.2f} ms), crossover "
+    log(f"law ({design.sensor}): stage delay {stage_delay * 1e3:.2f} ms (the steps' estimate {steps_estimate * 1e3:.2f} "
+        f"ms), crossover "
         f"{design.crossover_hz:.1f} Hz, phase margin {design.phase_margin_deg:.1f} deg, gain margin "
         f"{design.gain_margin_db:.1f} dB")
     return BringUpResult(start=start, command_delay=delay, delay_steps=delays, stage_delay=stage_delay, noise=noise,
-                         calibration=cal, design=design, pipeline=pipeline, sensors_only=sensors, steps=steps)
+                         calibration=cal, design=design, pipeline=pipeline, sensors_only=sensors, steps=steps,
+                         phase=phase)

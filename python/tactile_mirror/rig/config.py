@@ -177,13 +177,14 @@ _SCHEMA: dict[str, dict] = {
              "notch": (_reals(), ()), "arm_delay": (_NONNEG, 0.5), "phase_margin": (_NONNEG, 45.0),
              "gain_margin": (_NONNEG, 6.0), "max_sensitivity": (_number(1.0, lo_open=True, what="a number > 1"), 2.0),
              "planner": (_bool, True), "max_hold_ticks": (_int(1, 100_000), 50),
-             "rt_priority": (_int(0, 99), 0)},
+             "rt_priority": (_int(0, 99), 0), "max_error": (_POS, 1.0e-4)},
     "bringup": {"sensors_only": (_POS, 1.0),
                 "calibration_amplitudes": (_reals(), (20e-6, 40e-6, 60e-6, 80e-6)),
                 "calibration_speed": (_POS, 0.5e-3), "calibration_cycles": (_int(1, 100), 3),
                 "calibration_band": (_pair("a pair [low, high] of Hz with 0 < low < high"), (0.3, 15.0)),
                 "symmetric": (_bool, True), "delay_steps": (_int(1, 100), 3),
-                "delay_step": (_POS, 20e-6)},
+                "delay_step": (_POS, 20e-6), "phase_frequency": (_POS, 20.0), "phase_amplitude": (_POS, 10e-6),
+                "phase_duration": (_POS, 1.0)},
     "safety": {"watchdog": (_POS, 0.015), "max_position_age": (_POS, None), "comm_timeout": (_POS, 0.1),
                "late_block": (_POS, 0.01), "late_blocks": (_int(1), 3), "position_margin": (_NONNEG, 0.5e-3)},
     "simulation": {"plant": (_choice("realtime", "fem", "brush"), "realtime"), "seed": (_int(0), 0),
@@ -354,6 +355,10 @@ def parse_config(raw: dict, source: str = "") -> RigConfig:
                                                f"[{lo:g}, {hi:g}] m, got [{tlo:g}, {thi:g}]", source)
     if not tlo <= sim["x0"] <= thi:
         raise ConfigError("simulation.x0", f"expected a position within simulation.travel, got {sim['x0']!r}", source)
+    block_rate = acq["fs"] / acq["block_size"]
+    if s["bringup"]["phase_frequency"] > block_rate / 4:
+        raise ConfigError("bringup.phase_frequency", f"expected at most a quarter of the block rate ({block_rate / 4:g} "
+                                                     f"Hz), got {s['bringup']['phase_frequency']!r}", source)
     if sim["lead"] is not None and sim["lead"] > acq["block_size"] / acq["fs"]:
         raise ConfigError("simulation.lead", f"expected at most one block ({acq['block_size'] / acq['fs']:g} s), "
                                              f"got {sim['lead']!r}", source)
