@@ -114,6 +114,17 @@ def test_rig_goals(run, tmp_path):
     assert missed == 0, {k: report.get(k) for k in ("runs", "faults")}
 
 
+def test_rig_stalls(run, tmp_path):
+    # the designed law's gross slips (plus runs stopped by a fault) on the analog path with the
+    # loop stalled 6 ms every second; a run is tried once more after a miss (a loaded machine)
+    for attempt in range(2):
+        missed = run("rig_stalls", "--out", tmp_path / str(attempt))
+        if missed == 0:
+            break
+    report = json.loads((tmp_path / str(attempt) / "rig_stalls.json").read_text())
+    assert missed == 0 and report["runs"][0]["stalls"] >= 2, report["runs"]
+
+
 def test_loop_sweat_sensing(run):
     # the shear signal's phantom over a friction drop to 0.45, finger and pad still, um
     assert 20.0 < run("loop_sweat_sensing") < 300.0

@@ -134,7 +134,7 @@ def test_serial_keys_reach_the_driver_and_are_checked():
         "dialect": "zaber_ascii", "port": "/dev/null", "counts_per_m": 1e7, "reply_overdue": 0.003}})
     assert c.serial["reply_overdue"] == 0.003 and c.serial["target_age"] == 0.008
     # the position's age bound where the file gives none: per path (a serial line reads it every few ms)
-    assert c.safety["max_position_age"] == 0.025 and _config().safety["max_position_age"] == 0.012
+    assert c.safety["max_position_age"] == 0.04 and _config().safety["max_position_age"] == 0.012
     with pytest.raises(ConfigError, match=r"stage\.serial\.reply_overdue: expected a positive number"):
         _config(stage={"kind": "serial"}, **{"stage.serial": {"dialect": "pi_gcs2", "port": "/dev/null",
                                                               "units_per_m": 1000.0, "reply_overdue": 0.0}})

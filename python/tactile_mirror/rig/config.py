@@ -40,8 +40,10 @@ DIALECT_NAMES = ("pi_gcs2", "zaber_ascii", "generic")
 #: ``safety.max_position_age`` where the file gives none, s, per ``stage.kind``: the analog
 #: path's encoder is read every block (a reading some ms old at most; 12 ms stops a frozen
 #: counter within 20 ms), a serial line's position every few ms behind the moves (up to about
-#: 10 ms old at 115200 baud; a silent controller is found by its overdue answer instead).
-MAX_POSITION_AGE = {"analog": 0.012, "serial": 0.025}
+#: 13 ms old at 115200 baud on Zaber's line, which queries every other command; a silent
+#: controller is found by its overdue answer instead, and 40 ms lets a 10-15 ms stall of the
+#: machine pass: 25 ms stopped a Zaber run at a 9.4 ms stall).
+MAX_POSITION_AGE = {"analog": 0.012, "serial": 0.04}
 
 _REQUIRED = object()
 
