@@ -93,7 +93,8 @@ def _toml(table_: dict, prefix: str = "") -> str:
 
 
 def rig_config(path: Path, stage: str, command_rate: float | None = None, quick: bool = False,
-               loose: bool = False, lead: float | None = None, simulation: dict | None = None) -> Path:
+               loose: bool = False, lead: float | None = None, simulation: dict | None = None,
+               sensor: str | None = None) -> Path:
     """The example configuration on ``stage`` (``"analog"`` or a dialect's name), written to ``path``;
     ``simulation`` replaces keys of its ``[simulation]``."""
     if sys.version_info >= (3, 11):
@@ -118,6 +119,8 @@ def rig_config(path: Path, stage: str, command_rate: float | None = None, quick:
     if lead is not None:
         raw["simulation"]["lead"] = float(lead)
     raw["simulation"].update(simulation or {})
+    if sensor is not None:
+        raw["loop"]["sensor"] = sensor
     path.write_text(_toml(raw))
     return path
 
@@ -240,12 +243,12 @@ def stall_summary(stalls: list, sim: Path | None) -> dict:
 
 # ---------------------------------------------------------------- 2. the goal runs
 def goal_run(stage: str, out: Path, duration: float, command_rate: float | None, quick: bool, loose: bool,
-             lead: float | None = None) -> dict:
+             lead: float | None = None, sensor: str | None = None) -> dict:
     """``tactile-mirror rig run --simulate`` on ``stage``; its run.json, the command's output in run.log."""
     from tactile_mirror.cli import main as cli
 
     out.mkdir(parents=True, exist_ok=True)
-    cfg = rig_config(out / "rig.toml", stage, command_rate, quick, loose, lead)
+    cfg = rig_config(out / "rig.toml", stage, command_rate, quick, loose, lead, sensor=sensor)
     text = io.StringIO()
     t = time.monotonic()
     with StallProbe() as probe, contextlib.redirect_stdout(text), contextlib.redirect_stderr(text):
@@ -371,7 +374,7 @@ def print_tables(env: dict, rates: dict, runs: dict, faults: list) -> None:
                          f"{_f(cmd.get('min_interval_ms'))}, {cmd.get('outside_soft_limits', '-')}",
                          _f(s["bringup"]["stage_delay_ms"]) if s.get("bringup") else "-", stopped or "no"])
         table("Goal runs: rig run --simulate, 6-ridge FEM pad (real time), 1 kHz in blocks of 5, the law from "
-              "bring-up on the force sensor, 10 mm/s finger path",
+              f"bring-up on the {'strips' if env.get('sensor') == 'strips' else 'force sensor'}, 10 mm/s finger path",
               ["stage path", "overruns / lost samples", "simulator missed deadlines (of blocks)",
                "machine stalls > 2.5 ms (largest), simulator misses during one", "gross slips (tracking rms)", "block to command p50 / p99 / max, ms", "largest position age, ms",
                "command interval, ms", "commands received: shortest interval ms, outside soft limits",
@@ -419,6 +422,8 @@ def main(argv=None) -> int:
     ap.add_argument("--lead", type=float, default=None,
                     help="s the simulator computes its ticks ahead of their time (simulation.lead: its slack "
                          "against the machine's stalls, and the simulated stage's dead time; default 2 ticks)")
+    ap.add_argument("--sensor", choices=("force", "strips"), default=None,
+                    help="the law's shear signal (loop.sensor; default the example's, the force sensor)")
     ap.add_argument("--loose", action="store_true", help="the supervisor's bounds widened for a loaded machine")
     ap.add_argument("--quick", action="store_true",
                     help="a smoke run: short top-rate streams, one 2.5 s goal run (PI GCS 2.0) with a short "
@@ -433,7 +438,8 @@ def main(argv=None) -> int:
     out.mkdir(parents=True, exist_ok=True)
     from tactile_mirror.lab.measure import cpu_model
 
-    env = {"cpu": cpu_model(), "load": " ".join(f"{v:.2f}" for v in os.getloadavg()), "cpus": os.cpu_count()}
+    env = {"cpu": cpu_model(), "load": " ".join(f"{v:.2f}" for v in os.getloadavg()), "cpus": os.cpu_count(),
+           "sensor": args.sensor or "force"}
     header("the rig's goals on the simulated rig")
     print(f"# load average at the start: {env['load']} ({env['cpus']} CPUs)", flush=True)
 
@@ -444,7 +450,7 @@ def main(argv=None) -> int:
     if not args.skip_runs:
         for stage in stages:
             rate = None if stage == "analog" else 1e3 / rates[stage]["interval_ms"]
-            runs[NAMES[stage]] = goal_run(stage, out / stage, duration, rate, quick, loose, args.lead)
+            runs[NAMES[stage]] = goal_run(stage, out / stage, duration, rate, quick, loose, args.lead, args.sensor)
             print(f"goal run {NAMES[stage]}: done in {runs[NAMES[stage]]['wall_s']:.0f} s", flush=True)
     faults = []
     if not args.skip_faults:
