@@ -101,27 +101,28 @@ def test_loop_envelope(run, tmp_path):
     assert (tmp_path / "loop_envelope.json").is_file() and (tmp_path / "loop_envelope.png").is_file()
 
 
-def test_rig_goals(run, tmp_path):
-    # checks missed on the simulated rig: the short goal run stopped by a fault, the silent
-    # controller not ending its run as a communication timeout with the axis stopped. A
-    # real-time run: a stall of the loaded test machine (the suite's compilers beside it)
-    # can stop one run, so a miss is run once more; two in a row fail with what was missed.
+def _real_time(run, script, tmp_path):
+    """``run(script)`` once more after a miss: a real-time run on the loaded test machine (the
+    suite's compilers beside it), where one stall can spoil one run. ``(missed, its report)``."""
     for attempt in range(2):
-        missed = run("rig_goals", "--out", tmp_path / str(attempt))
+        missed = run(script, "--out", tmp_path / str(attempt))
         if missed == 0:
             break
-    report = json.loads((tmp_path / str(attempt) / "rig_goals.json").read_text())
+    return missed, json.loads((tmp_path / str(attempt) / f"{script}.json").read_text())
+
+
+def test_rig_goals(run, tmp_path):
+    # checks missed on the simulated rig: the short goal run stopped by a fault, the silent
+    # controller not ending its run as a communication timeout with the axis stopped; two
+    # misses in a row fail with what was missed
+    missed, report = _real_time(run, "rig_goals", tmp_path)
     assert missed == 0, {k: report.get(k) for k in ("runs", "faults")}
 
 
 def test_rig_stalls(run, tmp_path):
     # the designed law's gross slips (plus runs stopped by a fault) on the analog path with the
-    # loop stalled 6 ms every second; a run is tried once more after a miss (a loaded machine)
-    for attempt in range(2):
-        missed = run("rig_stalls", "--out", tmp_path / str(attempt))
-        if missed == 0:
-            break
-    report = json.loads((tmp_path / str(attempt) / "rig_stalls.json").read_text())
+    # loop stalled 6 ms every second
+    missed, report = _real_time(run, "rig_stalls", tmp_path)
     assert missed == 0 and report["runs"][0]["stalls"] >= 2, report["runs"]
 
 
