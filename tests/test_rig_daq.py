@@ -365,6 +365,31 @@ def test_simulated_rig_end_to_end():
     assert rig.stop() is log                     # again: the same log
 
 
+def test_simulated_rig_resets_its_charge_amplifiers_in_place():
+    """The amplifiers' reset, asked for while the finger presses in: from the tick it is taken
+    on, the PVDF circuits restart from rest at the present load (their outputs near 0, where
+    the press had driven them away) and the force channels are tared; the reset is logged."""
+    cfg = SimRigConfig(duration=2.0, seed=1, n_ridges=6, plant="realtime", block_size=10, noise=None,
+                       force_noise=0.0)
+    rig = SimulatedRig(cfg).start()
+    try:
+        src = rig.daq.analog_input
+        src.start()
+        before = np.concatenate([src.read_block(timeout=5.0).samples for _ in range(25)])   # pressing in
+        rig.reset_amplifiers()
+        after = np.concatenate([src.read_block(timeout=5.0).samples for _ in range(4)])
+    finally:
+        log = rig.stop()
+    assert len(log.resets) == 1
+    level = np.abs(before[-10:, :12]).max()
+    assert before[-1, 25] > 1.0 and level > 1e-3                # F_z and v_out away from 0
+    tared = np.flatnonzero(np.abs(after[:, 25]) < 0.02 * before[-1, 25])
+    assert tared.size, after[:, 25]                             # (taken within a block or two)
+    r = tared[0]
+    assert np.abs(after[r, :12]).max() < 0.1 * level and abs(after[r, 24]) < 0.02 * abs(before[-1, 24]) + 1e-3
+    assert np.all(np.abs(after[:r, 25]) > 0.5 * before[-1, 25])  # (before it: the old offset)
+
+
 def test_simulated_rig_reports_a_failed_start():
     cfg = SimRigConfig(plant="brush", duration=1.0, axis_factory=int)   # int(config, ring) raises
     rig = SimulatedRig(cfg)
