@@ -529,6 +529,40 @@ def _same(a, b) -> bool:
             == json.dumps({k: v for k, v in b.config.items() if not isinstance(v, np.ndarray)}, sort_keys=True))
 
 
+@pytest.mark.parametrize("where", ["directory", "local header"])
+def test_a_damaged_member_name_is_the_format_error(tmp_path, small_files, where):
+    """A flipped letter in an optional member's name (``cfg_w1``, the net of a recording's
+    pipeline) hid the member, and the file loaded with that part of its configuration gone
+    (a case the fuzzing below found): the zip directory's name and the entry's own header
+    must agree."""
+    buf = bytearray(small_files["recording"])
+    name = b"cfg_w1.npy"
+    i = buf.rfind(name) if where == "directory" else buf.find(name)
+    assert 0 < i and buf.find(name) != buf.rfind(name)
+    buf[i] ^= 1                                    # cfg_w1 -> bfg_w1
+    path = tmp_path / "renamed.npz"
+    path.write_bytes(bytes(buf))
+    with pytest.raises(RecordingError, match="differ"):
+        Recording.load(path)
+
+
+def test_a_damaged_directory_length_that_hides_entries_is_the_format_error(tmp_path, small_files):
+    """A directory entry's comment length damaged (here the last but one's, 0 -> the last
+    entry's length) makes the zip reader take the entry after it for its comment: it, an
+    optional member of the format, vanishes from the listing (a case the fuzzing below found).
+    The end record's count of entries tells."""
+    buf = bytearray(small_files["recording"])
+    starts = [i for i in range(len(buf) - 3) if buf[i:i + 4] == b"PK\x01\x02"]   # the directory's entries
+    end = buf.rfind(b"PK\x05\x06")
+    cd, last = starts[-2], starts[-1]
+    assert buf[cd + 32:cd + 34] == b"\x00\x00"
+    buf[cd + 32:cd + 34] = (end - last).to_bytes(2, "little")
+    path = tmp_path / "hidden.npz"
+    path.write_bytes(bytes(buf))
+    with pytest.raises(RecordingError, match="end record counts"):
+        Recording.load(path)
+
+
 _fuzz = settings(max_examples=150, deadline=None,
                  suppress_health_check=[HealthCheck.function_scoped_fixture, HealthCheck.too_slow])
 

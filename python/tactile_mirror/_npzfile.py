@@ -117,13 +117,27 @@ def _read_member(zf: zipfile.ZipFile, info: zipfile.ZipInfo, spec: Member, name:
     return out
 
 
+def _end_record_entries(fh, file_size: int) -> int | None:
+    """The number of entries the zip's end-of-central-directory record counts (the last one in
+    the file, as zipfile finds it); None where there is none or it defers to zip64's."""
+    tail = min(file_size, 22 + 65535)
+    fh.seek(file_size - tail)
+    buf = fh.read(tail)
+    i = buf.rfind(b"PK\x05\x06")
+    if i < 0 or len(buf) - i < 22:
+        return None
+    (total,) = struct.unpack("<H", buf[i + 10:i + 12])
+    return None if total == 0xFFFF else total
+
+
 def read_versioned(path, fmt: str, version: int | tuple[int, ...], error: type[Exception], what: str,
                    members: dict[str, Member]) -> dict:
     """The ``members`` of an npz archive whose ``format`` is ``fmt`` and ``format_version`` is ``version``
     (or one of the versions, if a tuple).
 
     Only ``format``, ``format_version`` and the names in ``members`` are read (other
-    members are ignored, unread); each is checked against its :class:`Member` bound
+    members are ignored, unread, but every entry's local header must match the zip
+    directory: a damaged name raises); each is checked against its :class:`Member` bound
     from its npy header first. Anything wrong with the file's content (not a zip,
     another format, another version, a missing required member, a dtype or shape out
     of bounds, a damaged member) raises ``error`` naming ``path`` and ``what`` the
@@ -136,8 +150,19 @@ def read_versioned(path, fmt: str, version: int | tuple[int, ...], error: type[E
         file_size = os.fstat(fh.fileno()).st_size
         try:
             with zipfile.ZipFile(fh) as zf:
+                # the directory must hold the entries its end record counts: a damaged length
+                # field in it hides the entries after it, and the format's optional members
+                # with them
+                count = _end_record_entries(fh, file_size)
+                if count is not None and count != len(zf.infolist()):
+                    raise error(f"{path!r} is not a readable {what}: its zip directory lists "
+                                f"{len(zf.infolist())} entries where its end record counts {count}")
                 infos = {}
                 for info in zf.infolist():
+                    # every entry's name in the directory must be its local header's (zipfile
+                    # compares them on open, which reads only the header): a damaged name would
+                    # otherwise hide a member the format reads, leaving its default in its place
+                    zf.open(info).close()
                     if info.filename.endswith(".npy"):
                         infos.setdefault(info.filename[:-4], info)
                 data = {}
