@@ -201,7 +201,7 @@ class StallProbe:
         self.priority = int(priority)
         self.stalls: list = []
 
-    def __enter__(self) -> StallProbe:
+    def __enter__(self):
         import subprocess
 
         self._proc = subprocess.Popen([sys.executable, "-c", _PROBE, str(self.priority)], stdout=subprocess.PIPE,
@@ -366,8 +366,8 @@ def print_tables(env: dict, rates: dict, runs: dict, faults: list) -> None:
             ms = s.get("machine_stalls") or {}
             rows.append([name, f"{run.get('overruns', '-')} / {run.get('lost_samples', '-')}",
                          f"{sim.get('missed_deadlines', '-')} of {sim.get('blocks', '-')}",
-                         f"{ms.get('stalls', '-')} ({_f(ms.get('largest_ms'), '.1f')} ms), "
-                         f"{ms.get('misses_in_a_machine_stall', '-')}",
+                         (f"{ms.get('stalls', '-')} ({_f(ms.get('largest_ms'), '.1f')} ms), "
+                          f"{ms.get('misses_in_a_machine_stall', '-')}"),
                          f"{sim.get('gross_slips', '-')} ({_f(sim.get('tracking_rms_mm'), '.3f')} mm)",
                          f"{_f(lat.get('p50'))} / {_f(lat.get('p99'))} / {_f(lat.get('max'))}",
                          _f(run.get("largest_position_age_ms"), ".1f"), _f(run.get("command_interval_ms")),

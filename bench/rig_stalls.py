@@ -64,7 +64,6 @@ def stall_run(stage: str, law: str, out: Path, duration: float, stall: float, ev
               command_rate: float | None, simulation: dict | None = None, quick: bool = False) -> dict:
     """One run of ``law`` on ``stage`` with the loop stalled ``stall`` s every ``every`` s."""
     import numpy as np
-
     from tactile_mirror.cli.arguments import load_detector
     from tactile_mirror.rig.bringup import bring_up, build_pipeline
     from tactile_mirror.rig.config import load_config

@@ -470,6 +470,32 @@ def test_sine_phase_finds_the_dead_time_behind_a_servo_lag(delay, lag):
     assert sine_phase(t, np.sin(w * t), t, np.sin(w * t), f0, 0.002)["loop_delay_ms"] == 0.0
 
 
+def test_the_loop_delay_sine_stops_on_an_acquisition_that_goes_silent():
+    """Bring-up's sine waits for blocks; an acquisition that stops sending them is the
+    supervisor's communication timeout (the stage stopped), not a wait without end."""
+    from tactile_mirror.rig import bringup
+
+    class Stage:
+        stops = 0
+
+        def position(self):
+            return 0.0
+
+        def move_to(self, x):
+            pass
+
+        def stop(self):
+            Stage.stops += 1
+
+    config = load_config(EXAMPLE)
+    sup = Supervisor(Stage(), config.limits, comm_timeout=0.05, signals=False)
+    t = time.monotonic()
+    with pytest.raises(RigError) as info:
+        bringup._measure_phase(lambda wait=0.0: None, Stage(), sup, config, log=lambda *a: None)
+    assert info.value.cause == "communication timeout" and Stage.stops == 1
+    assert time.monotonic() - t < 1.0
+
+
 # ---------------------------------------------------------------------- the commands
 def _config_file(tmp_path, **replace) -> str:
     text = open(EXAMPLE).read()

@@ -290,10 +290,14 @@ def _measure_phase(drain, stage, sup, config, log) -> dict:
     x0 = stage.position()
     t_first = None
     rows = []   # (command time, command, reading time, reading)
+    waited_since = time.monotonic()
     while True:
         block = drain(wait=0.05)
-        if block is None:
+        if block is None:   # (an acquisition that stopped sending is the supervisor's timeout)
+            if sup.check_timeout(time.monotonic() - waited_since):
+                raise RigError(sup.tripped)
             continue
+        waited_since = time.monotonic()
         t = block.t_ns / 1e9
         if t_first is None:
             t_first = t
